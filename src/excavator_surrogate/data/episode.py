@@ -1,0 +1,373 @@
+"""The episode data contract: one Parquet file per episode.
+
+Columns (``<j>`` is each joint name from the :class:`~excavator_surrogate.spec.MachineSpec`):
+
+=====================  ===============  ==========================================================
+column                 unit             meaning
+=====================  ===============  ==========================================================
+``time``               s                sample time, strictly increasing at ``rate_hz``
+``u_<j>``              command units    joint command applied from this sample on
+``theta_<j>``          rad              measured joint angle (periodic joints may be unwrapped)
+``omega_<j>``          rad/s            measured angular velocity
+``theta_<j>_true``     rad              optional: ground-truth angle (simulated data)
+``omega_<j>_true``     rad/s            optional: ground-truth mean velocity over the last sample
+``trusted_<j>``        bool             optional: measurement trusted by the cleaning stage
+=====================  ===============  ==========================================================
+
+The Arrow schema metadata key ``exsur`` holds JSON: ``schema_version``, ``rate_hz``,
+``spec`` (the joint spec), ``source`` (e.g. ``mujoco-ideal``), ``condition``, ``seed``,
+``generator`` (the config that produced it), ``units`` and free ``extra``.
+
+:func:`read_episode` validates every file against the contract and raises
+:class:`~excavator_surrogate.errors.DataError` with a one-line message naming the file,
+the column or row, and what to do.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from ..errors import DataError
+from ..io_utils import atomic_path
+from ..spec import MachineSpec
+
+SCHEMA_VERSION = 1
+"""Version of the episode contract written by this package."""
+META_KEY = b"exsur"
+RATE_RTOL = 0.05
+"""Tolerated relative deviation of each time step from ``1 / rate_hz``."""
+
+UNITS = {
+    "time": "s",
+    "u": "command units (see spec.joints[].u_unit)",
+    "theta": "rad",
+    "omega": "rad/s",
+    "trusted": "bool",
+}
+
+
+def columns_for(spec: MachineSpec) -> dict[str, list[str]]:
+    """Column names per role for ``spec``: keys ``u``, ``theta``, ``omega``, ``theta_true``,
+    ``omega_true``, ``trusted``."""
+    n = spec.names
+    return {
+        "u": [f"u_{j}" for j in n],
+        "theta": [f"theta_{j}" for j in n],
+        "omega": [f"omega_{j}" for j in n],
+        "theta_true": [f"theta_{j}_true" for j in n],
+        "omega_true": [f"omega_{j}_true" for j in n],
+        "trusted": [f"trusted_{j}" for j in n],
+    }
+
+
+@dataclass
+class Episode:
+    """One recorded (or simulated) run of a machine.
+
+    Arrays are ``(n_step,)`` or ``(n_step, n_joint)`` with joints ordered as ``spec.joints``.
+
+    - ``time``: (n_step,) [s]
+    - ``u``: (n_step, n_joint) commands, within each joint's ``[u_min, u_max]``
+    - ``theta``: (n_step, n_joint) measured angles [rad]
+    - ``omega``: (n_step, n_joint) measured angular velocities [rad/s]
+    - ``theta_true`` / ``omega_true``: optional ground truth, same shape
+    - ``trusted``: optional (n_step, n_joint) bool flags from the cleaning stage
+    """
+
+    spec: MachineSpec
+    time: np.ndarray
+    u: np.ndarray
+    theta: np.ndarray
+    omega: np.ndarray
+    theta_true: np.ndarray | None = None
+    omega_true: np.ndarray | None = None
+    trusted: np.ndarray | None = None
+    source: str = "unknown"
+    """Where the data came from: ``mujoco-ideal``, ``mujoco-hydraulic``, ``import`` ..."""
+    condition: str = "default"
+    """Operating condition: ``noload``, ``compound`` ..."""
+    seed: int | None = None
+    """Seed that generated the episode (simulated data)."""
+    generator: dict[str, Any] = field(default_factory=dict)
+    """Config that produced the episode."""
+    extra: dict[str, Any] = field(default_factory=dict)
+    """Free-form metadata (e.g. cleaning statistics, import provenance)."""
+    name: str = "episode"
+    """Episode name (file stem)."""
+
+    @property
+    def n_step(self) -> int:
+        """Number of samples."""
+        return int(self.time.shape[0])
+
+    @property
+    def dt(self) -> float:
+        """Sample period [s]."""
+        return self.spec.dt
+
+    def replace(self, **changes: Any) -> Episode:
+        """Copy with fields replaced."""
+        return replace(self, **changes)
+
+    def slice(self, start: int, stop: int) -> Episode:
+        """Samples ``[start, stop)`` as a new episode."""
+        sl = slice(start, stop)
+
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[sl]
+
+        return replace(
+            self,
+            time=self.time[sl],
+            u=self.u[sl],
+            theta=self.theta[sl],
+            omega=self.omega[sl],
+            theta_true=cut(self.theta_true),
+            omega_true=cut(self.omega_true),
+            trusted=cut(self.trusted),
+        )
+
+    def metadata(self) -> dict[str, Any]:
+        """The JSON metadata stored under the ``exsur`` key."""
+        return {
+            "schema_version": SCHEMA_VERSION,
+            "rate_hz": self.spec.rate_hz,
+            "spec": self.spec.to_dict(),
+            "source": self.source,
+            "condition": self.condition,
+            "seed": self.seed,
+            "generator": self.generator,
+            "units": UNITS,
+            "extra": self.extra,
+            "name": self.name,
+        }
+
+    def to_table(self) -> pa.Table:
+        """Arrow table with the contract's columns and metadata."""
+        cols = columns_for(self.spec)
+        data: dict[str, Any] = {"time": np.asarray(self.time, dtype=np.float64)}
+        for role in ("u", "theta", "omega", "theta_true", "omega_true"):
+            arr = getattr(self, role)
+            if arr is None:
+                continue
+            arr = np.asarray(arr, dtype=np.float64)
+            for k, c in enumerate(cols[role]):
+                data[c] = arr[:, k]
+        if self.trusted is not None:
+            tr = np.asarray(self.trusted, dtype=bool)
+            for k, c in enumerate(cols["trusted"]):
+                data[c] = tr[:, k]
+        table = pa.table(data)
+        meta = json.dumps(self.metadata(), default=_json_default).encode()
+        return table.replace_schema_metadata({META_KEY: meta})
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_episode(path: str | Path, episode: Episode, *, validate: bool = True) -> Path:
+    """Write ``episode`` to ``path`` (Parquet, zstd), atomically.  Returns the path."""
+    path = Path(path)
+    if validate:
+        validate_episode(episode, where=path)
+    table = episode.to_table()
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    return path
+
+
+def read_metadata(path: str | Path) -> dict[str, Any]:
+    """Read only the ``exsur`` metadata of an episode file (no data)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(path, "file not found", fix="check the path or the dataset manifest")
+    try:
+        schema = pq.read_schema(path)
+    except Exception as e:  # pyarrow raises several types for corrupt files
+        raise DataError(path, f"not a readable Parquet file ({type(e).__name__})",
+                        fix="re-export the episode as Parquet, or use 'exsur import' for CSV logs") from e
+    raw = (schema.metadata or {}).get(META_KEY)
+    if raw is None:
+        raise DataError(path, "no 'exsur' metadata in the Parquet schema",
+                        fix="this is not an exsur episode; convert logs with 'exsur import'")
+    try:
+        meta = json.loads(raw)
+    except json.JSONDecodeError as e:
+        raise DataError(path, "the 'exsur' metadata is not valid JSON",
+                        fix="re-write the episode with exsur") from e
+    return meta
+
+
+def read_episode(
+    path: str | Path,
+    *,
+    min_steps: int = 1,
+    spec: MachineSpec | None = None,
+    validate: bool = True,
+) -> Episode:
+    """Read and validate one episode file.
+
+    Args:
+        path: the Parquet file.
+        min_steps: reject episodes shorter than this (use the model window + 1).
+        spec: if given, the file's joint spec must have the same joint names.
+        validate: run :func:`validate_episode` (always on for user data).
+
+    Raises:
+        DataError: one line naming the file, column/row, and the fix.
+    """
+    path = Path(path)
+    meta = read_metadata(path)
+    version = meta.get("schema_version")
+    if version != SCHEMA_VERSION:
+        raise DataError(path, f"schema_version {version!r} is not supported (this exsur reads {SCHEMA_VERSION})",
+                        fix="re-create the dataset with this version of exsur")
+    try:
+        file_spec = MachineSpec.from_dict(meta["spec"])
+    except Exception as e:
+        raise DataError(path, f"metadata 'spec' is malformed ({e})", fix="re-write the episode with exsur") from e
+    rate = meta.get("rate_hz")
+    if not isinstance(rate, int | float) or abs(float(rate) - file_spec.rate_hz) > 1e-9:
+        raise DataError(path, f"metadata rate_hz {rate!r} disagrees with the spec's {file_spec.rate_hz}",
+                        fix="re-write the episode with exsur")
+    if spec is not None and spec.names != file_spec.names:
+        raise DataError(path, f"joints {list(file_spec.names)} do not match the expected {list(spec.names)}",
+                        fix="use a dataset recorded for the same machine")
+    try:
+        table = pq.read_table(path)
+    except Exception as e:
+        raise DataError(path, f"cannot read Parquet data ({type(e).__name__}: {e})",
+                        fix="the file is corrupt; regenerate or re-import it") from e
+    names = table.column_names
+    dup = sorted({c for c in names if names.count(c) > 1})
+    if dup:
+        raise DataError(path, "duplicated column", column=dup[0], fix="each column may appear once")
+    cols = columns_for(file_spec)
+    required = ["time", *cols["u"], *cols["theta"], *cols["omega"]]
+    for c in required:
+        if c not in names:
+            raise DataError(path, "required column is missing", column=c,
+                            fix=f"an episode for joints {list(file_spec.names)} needs time, u_*, theta_*, omega_*")
+
+    def num(c: str) -> np.ndarray:
+        col = table.column(c)
+        if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type)):
+            raise DataError(path, f"values are of type {col.type}, not numeric", column=c,
+                            fix="store numbers only")
+        if col.null_count:
+            arr = col.to_numpy(zero_copy_only=False)
+            row = int(np.flatnonzero(np.isnan(arr.astype(float)))[0]) if arr.dtype.kind == "f" else 0
+            raise DataError(path, "contains a null value", column=c, row=row, fix="fill or drop the gap")
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+
+    def stack(role: str) -> np.ndarray | None:
+        cs = cols[role]
+        present = [c in names for c in cs]
+        if not any(present):
+            return None
+        if not all(present):
+            missing = cs[present.index(False)]
+            raise DataError(path, f"optional '{role}' columns must be given for every joint", column=missing)
+        return np.stack([num(c) for c in cs], axis=1)
+
+    trusted = None
+    if any(c in names for c in cols["trusted"]):
+        if not all(c in names for c in cols["trusted"]):
+            missing = next(c for c in cols["trusted"] if c not in names)
+            raise DataError(path, "trusted flags must be given for every joint", column=missing)
+        trusted = np.stack([np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=bool)
+                            for c in cols["trusted"]], axis=1)
+
+    ep = Episode(
+        spec=file_spec,
+        time=num("time"),
+        u=np.stack([num(c) for c in cols["u"]], axis=1),
+        theta=np.stack([num(c) for c in cols["theta"]], axis=1),
+        omega=np.stack([num(c) for c in cols["omega"]], axis=1),
+        theta_true=stack("theta_true"),
+        omega_true=stack("omega_true"),
+        trusted=trusted,
+        source=str(meta.get("source", "unknown")),
+        condition=str(meta.get("condition", "default")),
+        seed=meta.get("seed"),
+        generator=dict(meta.get("generator") or {}),
+        extra=dict(meta.get("extra") or {}),
+        name=str(meta.get("name", path.stem)),
+    )
+    if validate:
+        validate_episode(ep, where=path, min_steps=min_steps)
+    return ep
+
+
+def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps: int = 1) -> None:
+    """Check an in-memory episode against the contract.
+
+    Checks: shapes, finite values, strictly increasing time at ``spec.rate_hz`` (within
+    :data:`RATE_RTOL`), commands within each joint's range, and ``n_step >= min_steps``.
+
+    Raises:
+        DataError: naming ``where``, the column and the first offending row.
+    """
+    spec = ep.spec
+    n = ep.time.shape[0] if ep.time.ndim == 1 else -1
+    if ep.time.ndim != 1:
+        raise DataError(where, f"time must be 1-D, got shape {ep.time.shape}", column="time")
+    cols = columns_for(spec)
+    for role in ("u", "theta", "omega", "theta_true", "omega_true", "trusted"):
+        arr = getattr(ep, role)
+        if arr is None:
+            continue
+        if arr.shape != (n, spec.n_joint):
+            raise DataError(where, f"'{role}' has shape {arr.shape}, expected ({n}, {spec.n_joint})",
+                            column=cols[role][0])
+    if n < min_steps:
+        raise DataError(where, f"episode has {n} samples, fewer than the {min_steps} required by the model window",
+                        fix="drop it, join it with its neighbours, or use a smaller window")
+    for role in ("u", "theta", "omega", "theta_true", "omega_true"):
+        arr = getattr(ep, role)
+        if arr is None:
+            continue
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            row, k = (int(x) for x in np.argwhere(bad)[0])
+            raise DataError(where, f"non-finite value {arr[row, k]!r}", column=cols[role][k], row=row,
+                            fix="fill or drop the gap ('exsur import --nan fill' can fill short gaps)")
+    bad_t = ~np.isfinite(ep.time)
+    if bad_t.any():
+        raise DataError(where, "non-finite time", column="time", row=int(np.flatnonzero(bad_t)[0]),
+                        fix="drop rows with missing timestamps")
+    if n >= 2:
+        dts = np.diff(ep.time)
+        nonmono = dts <= 0
+        if nonmono.any():
+            row = int(np.flatnonzero(nonmono)[0]) + 1
+            raise DataError(where, f"time is not strictly increasing ({ep.time[row - 1]!r} -> {ep.time[row]!r})",
+                            column="time", row=row, fix="sort by time and drop duplicate timestamps")
+        off = np.abs(dts - spec.dt) > RATE_RTOL * spec.dt
+        if off.any():
+            row = int(np.flatnonzero(off)[0]) + 1
+            raise DataError(where, f"time step {dts[row - 1]:.6g} s differs from 1/rate_hz = {spec.dt:.6g} s",
+                            column="time", row=row,
+                            fix="resample to the declared rate with 'exsur import --rate'")
+    for k, j in enumerate(spec.joints):
+        col = ep.u[:, k]
+        out = (col < j.u_min - 1e-9) | (col > j.u_max + 1e-9)
+        if out.any():
+            row = int(np.flatnonzero(out)[0])
+            raise DataError(where, f"command {col[row]:.6g} outside [{j.u_min:g}, {j.u_max:g}]",
+                            column=cols["u"][k], row=row,
+                            fix="clip commands to the range or fix the command scale in the import mapping")

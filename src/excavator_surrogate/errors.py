@@ -1,0 +1,54 @@
+"""User-facing errors.
+
+Every error a user can cause (bad log, bad checkpoint, bad option) is raised as an
+:class:`ExsurError`.  Its message is ONE line that names the file, the column or row,
+and what to do.  The CLI prints it as ``exsur: error: <message>`` and exits non-zero;
+the Python API lets it propagate.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class ExsurError(Exception):
+    """Base class for every error a user can cause.  ``str(err)`` is one line."""
+
+    exit_code: int = 2
+
+    def __init__(self, message: str) -> None:
+        super().__init__(" ".join(str(message).split()))
+
+
+class DataError(ExsurError):
+    """An episode, dataset or log that breaks the data contract."""
+
+    def __init__(
+        self,
+        path: str | Path | None,
+        problem: str,
+        *,
+        column: str | None = None,
+        row: int | None = None,
+        fix: str | None = None,
+    ) -> None:
+        where = [str(path) if path is not None else "<memory>"]
+        if column is not None:
+            where.append(f"column '{column}'")
+        if row is not None:
+            where.append(f"row {row}")
+        msg = ": ".join([", ".join(where), problem])
+        if fix:
+            msg += f" ({fix})"
+        self.path = path
+        self.column = column
+        self.row = row
+        super().__init__(msg)
+
+
+class ConfigError(ExsurError):
+    """A preset, config file or option that cannot be used."""
+
+
+class CheckpointError(ExsurError):
+    """A checkpoint that is missing, corrupt, or from an incompatible version."""

@@ -1,0 +1,110 @@
+"""Small I/O helpers: atomic files and folders, JSON, progress bars.
+
+No output is ever left half-written: files are written to a temporary sibling and
+renamed into place; output folders are built in a temporary sibling folder and renamed
+when complete.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
+
+    On any exception the temporary file is removed and ``path`` is left untouched.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
+    """Yield a temporary folder next to ``path``; move it onto ``path`` when the block succeeds.
+
+    An existing ``path`` is replaced only after the new content is complete
+    (``overwrite=True``).  On failure the temporary folder is deleted.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        if path.exists():
+            if not overwrite:
+                raise FileExistsError(f"{path} exists")
+            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            os.replace(path, old)
+            os.replace(tmp, path)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Atomically write a text file."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def write_json(path: str | Path, obj: Any) -> None:
+    """Atomically write pretty JSON (NaN is written as null-safe strings are not needed: use finite values)."""
+    write_text(path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
+
+
+def _json_default(o: Any) -> Any:
+    try:
+        import numpy as np
+
+        if isinstance(o, np.generic):
+            return o.item()
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+    except ImportError:  # pragma: no cover
+        pass
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def progress(
+    it: Iterable[T], *, total: int | None = None, desc: str = "", disable: bool | None = None
+) -> Iterable[T]:
+    """A tqdm progress bar on stderr; silent when stderr is not a terminal unless forced.
+
+    ``disable=None`` shows the bar when stderr is a TTY or ``EXSUR_PROGRESS=1``.
+    """
+    if disable is None:
+        disable = not (sys.stderr.isatty() or os.environ.get("EXSUR_PROGRESS") == "1")
+    from tqdm.auto import tqdm
+
+    return tqdm(it, total=total, desc=desc, disable=disable, leave=False, dynamic_ncols=True)
+
+
+def log(msg: str) -> None:
+    """One progress line on stderr (always shown: long jobs must show progress)."""
+    print(f"[exsur] {msg}", file=sys.stderr, flush=True)
