@@ -1,0 +1,55 @@
+"""Configs: typed from_dict with one-line errors, TOML record round trip, machine spec."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+
+import pytest
+
+from excavator_surrogate.config import dumps_toml, from_dict, to_dict
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.spec import EXCAVATOR, JointSpec, MachineSpec
+
+
+@dataclass(frozen=True)
+class Inner:
+    a: int = 1
+    """An int."""
+
+
+@dataclass(frozen=True)
+class Cfg:
+    x: float = 1.0
+    """A float."""
+    names: tuple[str, ...] = ("a",)
+    """Names."""
+    opt: int | None = None
+    """Optional."""
+    inner: Inner = Inner()
+    """Nested."""
+
+
+def test_from_dict_types_and_errors() -> None:
+    c = from_dict(Cfg, {"x": 2, "names": ["p", "q"], "inner": {"a": 3}})
+    assert c == Cfg(x=2.0, names=("p", "q"), inner=Inner(a=3))
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) \['y'\]"):
+        from_dict(Cfg, {"y": 1})
+    with pytest.raises(ConfigError, match="cfg.x: expected a number"):
+        from_dict(Cfg, {"x": "fast"}, where="cfg")
+
+
+def test_toml_record_roundtrip() -> None:
+    c = Cfg(x=0.5, names=("a", "b"), inner=Inner(a=4))
+    text = dumps_toml({"name": "t", "stage": to_dict(c)})
+    back = tomllib.loads(text)
+    assert from_dict(Cfg, back["stage"]) == c
+
+
+def test_spec_roundtrip_and_errors() -> None:
+    assert MachineSpec.from_dict(EXCAVATOR.to_dict()) == EXCAVATOR
+    assert EXCAVATOR.n_feature == 9 and EXCAVATOR.names[0] == "swing"
+    with pytest.raises(ConfigError, match="unique"):
+        MachineSpec(joints=(JointSpec("a"), JointSpec("a")))
+    with pytest.raises(ConfigError, match="invalid"):
+        JointSpec("Bad Name")
