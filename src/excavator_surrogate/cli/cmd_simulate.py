@@ -1,0 +1,71 @@
+"""``exsur simulate``: generate a simulated dataset with the Stage I MuJoCo excavator."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from typing import Any
+
+from ..config import from_dict, load_preset
+from ..errors import ConfigError
+
+DEFAULT_PRESET = "paper-stage1"
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``simulate`` subcommand."""
+    p = subparsers.add_parser(
+        "simulate",
+        help="generate a dataset with the MuJoCo excavator (Stage I)",
+        description=(
+            "Simulate excitation episodes on the ideal MuJoCo excavator (50 ms delay, 20 Hz) "
+            "and write a dataset folder (manifest.json, config.toml, episodes/*.parquet)."
+        ),
+    )
+    p.add_argument(
+        "--preset",
+        default=DEFAULT_PRESET,
+        metavar="NAME|FILE.toml",
+        help=f"shipped preset name (tiny, quick, paper-stage1) or a TOML file with a [simulate] "
+        f"table (default: {DEFAULT_PRESET})",
+    )
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="output dataset folder (replaced when complete)"
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="parallel processes (default: preset)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=None, metavar="N", help="root seed (default: preset)"
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler of ``exsur simulate``."""
+    from ..simulate.generate import SimulateConfig, simulate_dataset
+
+    preset = load_preset(args.preset)
+    table = preset.get("simulate")
+    if not isinstance(table, dict):
+        raise ConfigError(
+            f"preset '{args.preset}' has no [simulate] table; add one or choose another preset"
+        )
+    cfg = from_dict(SimulateConfig, table, where=f"preset '{args.preset}' [simulate]")
+    changes: dict[str, Any] = {}
+    if args.seed is not None:
+        changes["seed"] = args.seed
+    if args.workers is not None:
+        if args.workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+        changes["workers"] = args.workers
+    cfg = dataclasses.replace(cfg, **changes)
+    path = simulate_dataset(
+        cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}
+    )
+    print(path)
+    return 0
