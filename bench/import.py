@@ -1,0 +1,100 @@
+"""Benchmark ``exsur import`` on a large CSV log.
+
+Writes a synthetic 3-joint log (time in ms with jitter, angles in degrees, two valve duties
+per joint in %; 10 columns) with ``--rows`` rows at 100 Hz, imports it to 20 Hz and
+reports rows/s.  The target is 1 million rows in <= 10 s.  The last line printed is one
+JSON object::
+
+    python bench/import.py                 # 1,000,000 rows
+    python bench/import.py --rows 200000
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pcsv
+
+from excavator_surrogate.ingest import ImportOptions, import_logs, parse_mapping
+
+JOINTS = ("boom", "arm", "bucket")
+MAPPING = {
+    "machine": {"name": "bench-arm3", "rate_hz": 20.0},
+    "time": {"column": "t_ms", "unit": "ms"},
+    "joints": [
+        {
+            "name": j,
+            "angle": {"column": f"{j}_deg", "unit": "deg"},
+            "command": {"up": f"{j}_up_pct", "down": f"{j}_down_pct", "unit": "%"},
+        }
+        for j in JOINTS
+    ],
+}
+
+
+def make_log(path: Path, *, rows: int, rate_hz: float = 100.0, seed: int = 0) -> None:
+    """Write the synthetic CSV log (vectorised, a few seconds for 1 M rows)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(rows) / rate_hz + rng.uniform(-0.001, 0.001, rows)
+    t[0] = 0.0
+    cols: dict[str, np.ndarray] = {"t_ms": np.round(t * 1e3, 3)}
+    for i, j in enumerate(JOINTS):
+        f = 0.05 * (i + 1)
+        cmd = np.sin(2 * np.pi * f * t + i) * np.sign(np.sin(2 * np.pi * 0.013 * t + i))
+        cols[f"{j}_deg"] = np.round(40.0 * np.sin(2 * np.pi * f * t) + rng.normal(0, 0.03, rows), 4)
+        cols[f"{j}_up_pct"] = np.round(np.maximum(cmd, 0.0) * 100.0, 2)
+        cols[f"{j}_down_pct"] = np.round(np.maximum(-cmd, 0.0) * 100.0, 2)
+    pcsv.write_csv(pa.table(cols), path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark; print a summary and one JSON line."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, default=1_000_000)
+    ap.add_argument("--target-s", type=float, default=10.0, help="time budget for 1 M rows [s]")
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="exsur-bench-import-") as tmp:
+        root = Path(tmp)
+        log_path = root / "big.csv"
+        t0 = time.perf_counter()
+        make_log(log_path, rows=args.rows)
+        t_make = time.perf_counter() - t0
+        size_mb = log_path.stat().st_size / 1e6
+        mapping = parse_mapping(MAPPING)
+        opts = ImportOptions(min_steps=40)
+        t0 = time.perf_counter()
+        report = import_logs([log_path], mapping, out=root / "ds", options=opts, quiet=True)
+        t_import = time.perf_counter() - t0
+    rows_per_s = args.rows / t_import
+    budget = args.target_s * args.rows / 1_000_000
+    samples = sum(report["totals"]["samples_per_split"].values())
+    print(f"wrote {args.rows} rows ({size_mb:.1f} MB CSV) in {t_make:.2f} s", file=sys.stderr)
+    print(
+        f"imported {args.rows} rows -> {samples} samples at 20 Hz in {t_import:.2f} s "
+        f"= {rows_per_s:,.0f} rows/s (budget {budget:.2f} s: {'ok' if t_import <= budget else 'SLOW'})"
+    )
+    print(
+        json.dumps(
+            {
+                "bench": "import",
+                "rows": args.rows,
+                "csv_mb": round(size_mb, 2),
+                "seconds": round(t_import, 3),
+                "rows_per_s": round(rows_per_s),
+                "samples_out": samples,
+                "ok": t_import <= budget,
+            }
+        )
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,656 @@
+"""Reading raw logs: CSV (plain or .gz), Parquet tables, ROS 2 / ROS 1 bags and MCAP files.
+
+Every reader returns a :class:`RawLog`: one or more :class:`Series` (a time base plus the
+raw values of the channels that live on it).  A CSV/Parquet file has one series
+(``"table"``); a bag has one series per topic.  Values are raw (no unit conversion);
+missing cells are NaN.  Rows are counted from 0, header not counted.
+"""
+
+from __future__ import annotations
+
+import csv as _csv
+import glob
+import gzip
+import re
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..errors import ConfigError, DataError
+from .mapping import TABLE, Channel, CsvOptions, Mapping, TimeMap
+
+CSV_SUFFIXES = (".csv", ".csv.gz")
+PARQUET_SUFFIXES = (".parquet", ".pq")
+ROS_SUFFIXES = (".mcap", ".bag", ".db3")
+SUPPORTED = "CSV (.csv, .csv.gz), Parquet (.parquet), ROS bags (rosbag2 folder, .mcap, .bag)"
+
+_UNIT_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+
+
+@dataclass
+class Series:
+    """One time base of a log and the raw channels sampled on it."""
+
+    name: str
+    """``"table"`` or the ROS topic."""
+    time: np.ndarray
+    """(n,) sample times [s] since the log's origin (unchecked: may be unsorted)."""
+    values: dict[str, np.ndarray]
+    """Channel key -> (n,) raw float64 values (NaN where missing)."""
+    time_label: str
+    """Name of the time source in messages (the column, or ``/topic header.stamp``)."""
+
+
+@dataclass
+class RawLog:
+    """A log file as read: its series and where its time starts."""
+
+    path: Path
+    kind: str
+    """``csv``, ``parquet``, ``rosbag2``, ``rosbag1`` or ``mcap``."""
+    series: dict[str, Series]
+    origin: str
+    """The absolute time of t = 0 as found in the log (number in its unit, or ISO string)."""
+    columns: list[str] = field(default_factory=list)
+    """All column names (tables) or topics (bags) of the file."""
+
+    @property
+    def n_rows(self) -> int:
+        """Total samples over all series."""
+        return sum(int(s.time.shape[0]) for s in self.series.values())
+
+
+def log_kind(path: Path) -> str | None:
+    """``csv``, ``parquet``, ``rosbag2``, ``mcap``, ``rosbag1``, or None if unsupported."""
+    name = path.name.lower()
+    if path.is_dir():
+        return "rosbag2" if (path / "metadata.yaml").exists() else None
+    if name.endswith(CSV_SUFFIXES):
+        return "csv"
+    if name.endswith(PARQUET_SUFFIXES):
+        return "parquet"
+    if name.endswith(".mcap"):
+        return "rosbag2" if (path.parent / "metadata.yaml").exists() else "mcap"
+    if name.endswith(".db3"):
+        return "rosbag2" if (path.parent / "metadata.yaml").exists() else None
+    if name.endswith(".bag"):
+        return "rosbag1"
+    return None
+
+
+def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
+    """Turn SOURCE arguments (files, folders, glob patterns) into a sorted-per-argument file list.
+
+    A folder contributes its supported files and rosbag2 sub-folders (not recursive); a
+    rosbag2 folder (with ``metadata.yaml``) is one log.  Duplicates are removed.
+
+    Raises:
+        DataError: a source that does not exist, is unsupported, or matches nothing.
+    """
+    out: list[Path] = []
+
+    def add(p: Path) -> None:
+        kind = log_kind(p)
+        if kind is None:
+            raise DataError(p, "unsupported log type", fix=f"give {SUPPORTED}")
+        if kind == "rosbag2" and not p.is_dir():
+            p = p.parent  # a storage file inside a bag folder: read the whole bag
+        if p not in out:
+            out.append(p)
+
+    for s in sources:
+        p = Path(s)
+        if p.exists():
+            if p.is_dir() and log_kind(p) is None:
+                found = [
+                    c for c in sorted(p.iterdir()) if not c.name.startswith(".") and log_kind(c)
+                ]
+                if not found:
+                    raise DataError(p, "folder holds no log files", fix=f"put {SUPPORTED} in it")
+                for c in found:
+                    add(c)
+            else:
+                add(p)
+        elif any(ch in str(s) for ch in "*?["):
+            hits = [Path(h) for h in sorted(glob.glob(str(s), recursive=True))]
+            hits = [h for h in hits if log_kind(h)]
+            if not hits:
+                raise DataError(
+                    s,
+                    "glob pattern matches no log files",
+                    fix=f"check the pattern; supported: {SUPPORTED}",
+                )
+            for h in hits:
+                add(h)
+        else:
+            raise DataError(p, "file not found", fix="check the path")
+    return out
+
+
+def read_log(path: Path, mapping: Mapping) -> RawLog:
+    """Read the channels ``mapping`` needs from the log at ``path``.
+
+    Raises:
+        DataError: unreadable file, missing/duplicated columns, non-numeric values, bad time.
+    """
+    kind = log_kind(path)
+    if kind in ("csv", "parquet"):
+        if mapping.is_ros:
+            raise DataError(
+                path,
+                "this is a table but the mapping maps ROS topics",
+                fix="map columns (column = ...) for CSV/Parquet logs",
+            )
+        return _read_table(path, kind, mapping)
+    if kind in ("rosbag2", "rosbag1", "mcap"):
+        if not mapping.is_ros:
+            raise DataError(
+                path,
+                "this is a ROS bag but the mapping maps table columns",
+                fix="map topic = ... and field = ... for bags",
+            )
+        return _read_ros(path, kind, mapping)
+    raise DataError(path, "unsupported log type", fix=f"give {SUPPORTED}")
+
+
+# --------------------------------------------------------------------------------------
+# tables
+
+
+def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
+            for _ in range(opts.skip_rows):
+                f.readline()
+            line = f.readline()
+    except (OSError, UnicodeDecodeError, EOFError) as e:
+        raise DataError(
+            path,
+            f"cannot read the header ({type(e).__name__}: {e})",
+            fix="check that it is a UTF-8 CSV file (gzip if .gz)",
+        ) from e
+    if not line.strip():
+        raise DataError(
+            path,
+            "empty file or no header line",
+            fix="the first line (after [csv] skip_rows) must hold the column names",
+        )
+    return [c.strip() for c in next(_csv.reader([line], delimiter=opts.delimiter))]
+
+
+def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Mapping) -> None:
+    dup = [c for c in needed if names.count(c) > 1]
+    if dup:
+        raise DataError(
+            path,
+            "mapped column appears more than once in the header",
+            column=dup[0],
+            fix="rename one of the duplicates in the log, so the mapping is unambiguous",
+        )
+    for c in needed:
+        if c not in names:
+            shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
+            raise DataError(
+                path,
+                "mapped column is missing",
+                column=c,
+                fix=f"fix the column name in {mapping.where}; the log has: {shown}",
+            )
+
+
+def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
+    tm = mapping.time
+    tcol = str(tm.column)
+    value_cols = [c.key for c in mapping.channels()]
+    needed = [tcol, *[c for c in value_cols if c != tcol]]
+    if kind == "csv":
+        names = _csv_header(path, mapping.csv)
+        _check_columns(path, names, needed, mapping)
+        table = _read_csv(path, mapping, needed, value_cols)
+    else:
+        table, names = _read_parquet(path, needed, mapping)
+    n = table.num_rows
+    if n == 0:
+        raise DataError(path, "the log has no data rows", fix="remove the file or record data")
+    time_s, origin = _parse_time(path, table.column(tcol), tm)
+    values: dict[str, np.ndarray] = {}
+    for c in value_cols:
+        values[c] = _numeric(path, table.column(c), c)
+    return RawLog(
+        path=path,
+        kind=kind,
+        series={TABLE: Series(TABLE, time_s, values, tcol)},
+        origin=origin,
+        columns=list(names),
+    )
+
+
+def _read_csv(path: Path, mapping: Mapping, needed: list[str], value_cols: list[str]) -> pa.Table:
+    import pyarrow.csv as pcsv
+
+    read = pcsv.ReadOptions(skip_rows=mapping.csv.skip_rows, block_size=1 << 22)
+    parse = pcsv.ParseOptions(delimiter=mapping.csv.delimiter)
+    types: dict[str, pa.DataType] = {c: pa.float64() for c in value_cols}
+    tcol = str(mapping.time.column)
+    if mapping.time.unit == "datetime":
+        types[tcol] = pa.string()
+
+    def go(column_types: dict[str, pa.DataType]) -> pa.Table:
+        conv = pcsv.ConvertOptions(
+            include_columns=needed, column_types=column_types, strings_can_be_null=True
+        )
+        return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=conv)
+
+    try:
+        return go(types)
+    except pa.ArrowInvalid as e:
+        msg = str(e)
+        if "conversion error" not in msg and "CSV conversion" not in msg:
+            raise DataError(
+                path,
+                f"cannot parse the CSV ({msg.splitlines()[0]})",
+                fix="check the delimiter ([csv] delimiter) and that rows have as many fields as the header",
+            ) from e
+    except (OSError, EOFError) as e:
+        raise DataError(
+            path,
+            f"cannot read the file ({type(e).__name__}: {e})",
+            fix="the file may be truncated; re-export it",
+        ) from e
+    # slow path: a value is not a number, or the inferred time type changed mid-file (int ->
+    # float); read the mapped columns as text, locate a bad cell, else convert the text
+    text = go({c: pa.string() for c in needed})
+    for c in needed:
+        if c == tcol and mapping.time.unit == "datetime":
+            continue
+        _numeric(path, text.column(c), c)
+    return text
+
+
+def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.Table, list[str]]:
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(path)
+        schema = pf.schema_arrow
+    except Exception as e:  # pyarrow raises several types for corrupt files
+        raise DataError(
+            path,
+            f"not a readable Parquet file ({type(e).__name__})",
+            fix="re-export the log as Parquet or CSV",
+        ) from e
+    if schema.metadata and b"exsur" in schema.metadata:
+        raise DataError(
+            path,
+            "this is already an exsur episode, not a raw log",
+            fix="put episodes in a dataset folder (exsur validate) instead of importing them",
+        )
+    names = list(schema.names)
+    _check_columns(path, names, needed, mapping)
+    try:
+        return pf.read(columns=needed), names
+    except Exception as e:
+        raise DataError(
+            path,
+            f"cannot read Parquet data ({type(e).__name__}: {e})",
+            fix="the file is corrupt; re-export it",
+        ) from e
+
+
+def _numeric(path: Path, col: pa.ChunkedArray | pa.Array, name: str) -> np.ndarray:
+    """Column as float64 (nulls -> NaN); DataError at the first non-numeric cell."""
+    t = col.type
+    if (
+        pa.types.is_floating(t)
+        or pa.types.is_integer(t)
+        or pa.types.is_boolean(t)
+        or pa.types.is_null(t)
+    ):
+        return np.asarray(
+            pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
+        )
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        try:
+            return np.asarray(
+                pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
+            )
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            pass
+        arr = col.to_numpy(zero_copy_only=False)
+        for i, v in enumerate(arr):
+            if v is None:
+                continue
+            try:
+                float(v)
+            except ValueError:
+                raise DataError(
+                    path,
+                    f"non-numeric value {v!r}",
+                    column=name,
+                    row=i,
+                    fix="replace it with a number or leave the cell empty (see --nan)",
+                ) from None
+    raise DataError(
+        path, f"values are of type {t}, not numbers", column=name, fix="map a numeric column"
+    )
+
+
+def _parse_time(path: Path, col: pa.ChunkedArray, tm: TimeMap) -> tuple[np.ndarray, str]:
+    """Time column -> (seconds since the first row, origin string)."""
+    name = str(tm.column)
+    t = col.type
+    if col.null_count:
+        valid = col.is_valid().to_numpy(zero_copy_only=False)
+        row = int(np.flatnonzero(~valid)[0])
+        raise DataError(
+            path,
+            "missing timestamp",
+            column=name,
+            row=row,
+            fix="drop rows without a time stamp (time gaps are handled, missing stamps are not)",
+        )
+    if tm.unit == "datetime":
+        ns = _datetime_ns(path, col, name)
+        origin = str(pc.cast(col, pa.string())[0]) if col.num_chunks else ""
+        return (ns - ns[0]).astype(np.float64) * 1e-9, origin
+    if pa.types.is_timestamp(t):
+        raise DataError(
+            path,
+            "time column holds timestamps, but unit is numeric",
+            column=name,
+            fix='set [time] unit = "datetime"',
+        )
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        first = col[0].as_py()
+        try:
+            float(first)
+        except (TypeError, ValueError):
+            raise DataError(
+                path,
+                f"time value {first!r} is text, not a number",
+                column=name,
+                row=0,
+                fix='set [time] unit = "datetime" for ISO-8601 time stamps',
+            ) from None
+        vals = _numeric(path, col, name)
+    elif pa.types.is_integer(t):
+        ints = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
+        rel = (ints - ints[0]).astype(np.float64) * (_UNIT_NS[tm.unit] * 1e-9)
+        return rel, f"{int(ints[0])} {tm.unit}"
+    else:
+        vals = _numeric(path, col, name)
+    bad = ~np.isfinite(vals)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            path,
+            f"non-finite timestamp {vals[row]!r}",
+            column=name,
+            row=row,
+            fix="drop rows without a valid time stamp",
+        )
+    rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
+    return rel, f"{float(vals[0])!r} {tm.unit}"
+
+
+def _datetime_ns(path: Path, col: pa.ChunkedArray, name: str) -> np.ndarray:
+    t = col.type
+    if pa.types.is_timestamp(t) or pa.types.is_date(t):
+        ts = pc.cast(col, pa.timestamp("ns", tz=getattr(t, "tz", None)))
+        return np.asarray(pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64)
+    if not (pa.types.is_string(t) or pa.types.is_large_string(t)):
+        raise DataError(
+            path,
+            f"time values are of type {t}, not ISO-8601 text",
+            column=name,
+            fix="use a numeric unit (s, ms, us, ns) for numeric time stamps",
+        )
+    for target in (pa.timestamp("ns"), pa.timestamp("ns", tz="UTC")):
+        try:
+            ts = pc.cast(col, target)
+            return np.asarray(
+                pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64
+            )
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            continue
+    # mixed or unusual forms: parse in Python and locate the first bad row
+    out = np.empty(len(col), dtype=np.int64)
+    epoch = datetime(1970, 1, 1)
+    for i, v in enumerate(col.to_pylist()):
+        try:
+            d = datetime.fromisoformat(str(v).strip())
+        except ValueError:
+            raise DataError(
+                path,
+                f"time value {v!r} is not an ISO-8601 date-time",
+                column=name,
+                row=i,
+                fix="write times like 2024-05-01T12:00:00.125 (or use a numeric unit)",
+            ) from None
+        if d.tzinfo is not None:
+            d = (d - (d.utcoffset() or timedelta(0))).replace(tzinfo=None)
+        out[i] = int((d - epoch).total_seconds() * 1e6) * 1000
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# ROS bags
+
+_TOKEN = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)|\[([^\]]+)\]|\.")
+
+
+def parse_field_path(path: str) -> list[tuple[str, Any]]:
+    """``"position[1]"`` -> ``[("attr", "position"), ("index", 1)]``; ``[boom]`` is a name lookup."""
+    out: list[tuple[str, Any]] = []
+    pos = 0
+    for m in _TOKEN.finditer(path):
+        if m.start() != pos:
+            break
+        pos = m.end()
+        if m.group(1):
+            out.append(("attr", m.group(1)))
+        elif m.group(2) is not None:
+            idx = m.group(2).strip().strip("'\"")
+            out.append(("index", int(idx)) if re.fullmatch(r"-?\d+", idx) else ("name", idx))
+    if pos != len(path) or not out or out[0][0] != "attr":
+        raise ValueError(
+            f"cannot parse field path {path!r}; write e.g. position[1] or pose.position.x"
+        )
+    return out
+
+
+def _extract(msg: Any, tokens: list[tuple[str, Any]]) -> float:
+    obj = msg
+    parent = msg
+    for kind, arg in tokens:
+        if kind == "attr":
+            parent = obj
+            if not hasattr(obj, arg):
+                fields = [
+                    f for f in getattr(obj, "__dataclass_fields__", {}) if not f.startswith("__")
+                ]
+                raise ValueError(f"no field '{arg}' (fields: {', '.join(fields)})")
+            obj = getattr(obj, arg)
+        elif kind == "index":
+            if arg >= len(obj) or arg < -len(obj):
+                raise ValueError(f"index {arg} out of range (the array has {len(obj)} values)")
+            obj = obj[arg]
+        else:
+            names = list(getattr(parent, "name", []) or [])
+            if arg not in names:
+                raise ValueError(f"no joint named '{arg}' in the message's name list {names}")
+            obj = obj[names.index(arg)]
+    if isinstance(obj, bool | int | float | np.number):
+        return float(obj)
+    raise ValueError(f"value of type {type(obj).__name__} is not a number")
+
+
+def _header_ns(msg: Any) -> int | None:
+    h = getattr(msg, "header", None)
+    st = getattr(h, "stamp", None)
+    if st is None:
+        return None
+    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
+
+
+def _need_ros(path: Path) -> None:
+    import importlib.util
+
+    for mod in ("rosbags", "mcap"):
+        if importlib.util.find_spec(mod) is None:
+            raise ConfigError(
+                f"{path}: reading ROS bags needs the '{mod}' package; "
+                "install the extra: pip install 'excavator-surrogate[ros]'"
+            )
+
+
+def _iter_ros(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
+    """Yield ``(topic, log_time_ns, msg)``; raises DataError for missing topics."""
+    if kind == "mcap":
+        yield from _iter_mcap(path, topics)
+        return
+    _need_ros(path)
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    try:
+        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+        reader.open()
+    except Exception as e:  # rosbags raises several types for broken bags
+        raise DataError(
+            path,
+            f"cannot open the bag ({type(e).__name__}: {e})",
+            fix="check that it is a complete ROS bag (rosbag2 folder with metadata.yaml)",
+        ) from e
+    try:
+        present = sorted(reader.topics)
+        for t in sorted(topics):
+            if t not in present:
+                raise DataError(
+                    path,
+                    f"topic '{t}' is not in the bag",
+                    fix=f"topics present: {', '.join(present)}",
+                )
+        conns = [c for c in reader.connections if c.topic in topics]
+        for con, ts, raw in reader.messages(connections=conns):
+            yield con.topic, int(ts), reader.deserialize(raw, con.msgtype)
+    finally:
+        reader.close()
+
+
+def _iter_mcap(path: Path, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
+    _need_ros(path)
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.EMPTY)
+    registered: set[str] = set()
+    try:
+        with open(path, "rb") as fh:
+            reader = make_reader(fh)
+            summary = reader.get_summary()
+            present = sorted({c.topic for c in summary.channels.values()}) if summary else []
+            if summary:
+                for t in sorted(topics):
+                    if t not in present:
+                        raise DataError(
+                            path,
+                            f"topic '{t}' is not in the file",
+                            fix=f"topics present: {', '.join(present)}",
+                        )
+            for schema, channel, message in reader.iter_messages(topics=sorted(topics)):
+                if schema is None or schema.encoding != "ros2msg":
+                    raise DataError(
+                        path,
+                        f"topic '{channel.topic}' is not ROS 2 CDR (schema {getattr(schema, 'encoding', None)})",
+                        fix="only ROS 2 messages can be imported from MCAP",
+                    )
+                if schema.name not in registered:
+                    store.register(get_types_from_msg(schema.data.decode(), schema.name))
+                    registered.add(schema.name)
+                yield (
+                    channel.topic,
+                    int(message.log_time),
+                    store.deserialize_cdr(message.data, schema.name),
+                )
+    except DataError:
+        raise
+    except Exception as e:
+        raise DataError(
+            path,
+            f"cannot read the MCAP file ({type(e).__name__}: {e})",
+            fix="check that the file is complete",
+        ) from e
+
+
+def _read_ros(path: Path, kind: str, mapping: Mapping) -> RawLog:
+    chans: list[Channel] = mapping.channels()
+    by_topic: dict[str, list[str]] = {}
+    for c in chans:
+        by_topic.setdefault(c.series, []).append(c.key)
+    tokens: dict[tuple[str, str], list[tuple[str, Any]]] = {}
+    for c in chans:
+        try:
+            tokens[(c.series, c.key)] = parse_field_path(c.key)
+        except ValueError as e:
+            raise DataError(
+                mapping.where, str(e), column=c.label, fix="fix the field path in the mapping"
+            ) from None
+    stamp = mapping.time.stamp
+    times: dict[str, list[int]] = {t: [] for t in by_topic}
+    vals: dict[str, list[list[float]]] = {t: [] for t in by_topic}
+    used_header: dict[str, bool] = {}
+    for topic, log_ns, msg in _iter_ros(path, kind, set(by_topic)):
+        row = len(times[topic])
+        hdr = _header_ns(msg) if stamp != "log" else None
+        if stamp == "header" and hdr is None:
+            raise DataError(
+                path,
+                "message has no header.stamp",
+                column=topic,
+                row=row,
+                fix='set [time] stamp = "log" to use the bag time',
+            )
+        from_header = hdr is not None and (stamp == "header" or hdr > 0)
+        use = hdr if from_header and hdr is not None else log_ns
+        used_header[topic] = used_header.get(topic, False) or from_header
+        times[topic].append(use)
+        rowvals = []
+        for key in by_topic[topic]:
+            try:
+                rowvals.append(_extract(msg, tokens[(topic, key)]))
+            except ValueError as e:
+                raise DataError(
+                    path,
+                    f"field path '{key}': {e}",
+                    column=f"{topic}:{key}",
+                    row=row,
+                    fix=f"fix the field in {mapping.where}",
+                ) from None
+        vals[topic].append(rowvals)
+    empty = [t for t, v in times.items() if not v]
+    if empty:
+        raise DataError(
+            path, f"topic '{empty[0]}' has no messages", fix="record the topic or map another one"
+        )
+    origin_ns = min(v[0] for v in times.values())
+    series: dict[str, Series] = {}
+    for topic, keys in by_topic.items():
+        t_ns = np.asarray(times[topic], dtype=np.int64)
+        arr = np.asarray(vals[topic], dtype=np.float64).reshape(len(t_ns), len(keys))
+        label = f"{topic} ({'header.stamp' if used_header.get(topic) else 'log time'})"
+        series[topic] = Series(
+            topic,
+            (t_ns - origin_ns).astype(np.float64) * 1e-9,
+            {k: arr[:, i] for i, k in enumerate(keys)},
+            label,
+        )
+    origin = datetime.fromtimestamp(origin_ns / 1e9, tz=UTC).isoformat() if origin_ns > 0 else "0"
+    return RawLog(path=path, kind=kind, series=series, origin=origin, columns=sorted(by_topic))

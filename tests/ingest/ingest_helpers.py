@@ -1,0 +1,30 @@
+"""Helpers shared by the import tests."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import arm3_plant
+import numpy as np
+
+
+def assert_nothing_written(out: Path) -> None:
+    """``out`` does not exist and no temporary sibling was left behind."""
+    assert not out.exists(), f"{out} was written"
+    leftovers = [p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
+    assert not leftovers, f"temporary files left behind: {leftovers}"
+
+
+def write_lines(
+    path: Path,
+    cols: dict[str, np.ndarray],
+    edit: Callable[[list[str]], list[str]] | None = None,
+    columns: tuple[str, ...] = arm3_plant.LOG_COLUMNS,
+) -> Path:
+    """Write a CSV log, optionally editing its text lines (line 0 is the header)."""
+    arm3_plant.write_csv(path, cols, columns=columns)
+    if edit is not None:
+        lines = path.read_text().splitlines()
+        path.write_text("\n".join(edit(lines)) + "\n")
+    return path
