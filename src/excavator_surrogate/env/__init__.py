@@ -1,1 +1,99 @@
-"""env stage."""
+"""Gymnasium drop-in: ``ExcavatorMujoco-v0`` (the MuJoCo plant) and ``ExcavatorSurrogate-v0``
+(a trained checkpoint) with one interface, the batched :class:`SurrogateVectorEnv`, and
+ONNX export of the single-step model.  See docs/env.md.
+
+Importing this package registers both environments with gymnasium::
+
+    import gymnasium as gym
+    import excavator_surrogate.env  # noqa: F401  (registers the ids)
+
+    env = gym.make("ExcavatorSurrogate-v0", ckpt="runs/quick/model/checkpoint.pt")
+    envs = gym.make_vec("ExcavatorSurrogate-v0", num_envs=1024,
+                        vectorization_mode="vector_entry_point", ckpt="...")
+
+Classes are imported lazily (``from excavator_surrogate.env import SurrogateVectorEnv``), so
+registering does not import torch or MuJoCo.  The equivalence check lives in
+:mod:`excavator_surrogate.env.compare` (``compare.compare``).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+MUJOCO_ID = "ExcavatorMujoco-v0"
+SURROGATE_ID = "ExcavatorSurrogate-v0"
+MAX_EPISODE_STEPS = 1000
+"""Registered time limit: 1000 control steps (50 s at 20 Hz)."""
+
+_LAZY = {
+    "ExcavatorEnv": ".base",
+    "ExcavatorMujocoEnv": ".mujoco_env",
+    "ExcavatorSurrogateEnv": ".surrogate_env",
+    "SurrogateVectorEnv": ".vector",
+    "SurrogateEngine": ".engine",
+    "FusedStep": ".engine",
+    "Task": ".tasks",
+    "ReachTask": ".tasks",
+    "ActionError": ".safety",
+    "GuardConfig": ".safety",
+    "export_onnx": ".export",
+    "OnnxStepper": ".export",
+}
+
+
+def _make_vector(ckpt: Any, num_envs: int = 1, **kwargs: Any) -> Any:
+    """``vector_entry_point`` of ``ExcavatorSurrogate-v0``: a :class:`SurrogateVectorEnv`."""
+    from .vector import SurrogateVectorEnv
+
+    kwargs.pop("render_mode", None)
+    kwargs.setdefault("max_episode_steps", MAX_EPISODE_STEPS)
+    return SurrogateVectorEnv(ckpt, num_envs, **kwargs)
+
+
+def register_envs() -> None:
+    """Register ``ExcavatorMujoco-v0`` and ``ExcavatorSurrogate-v0`` (idempotent)."""
+    import gymnasium
+
+    registry = gymnasium.envs.registration.registry
+    if MUJOCO_ID not in registry:
+        gymnasium.register(
+            id=MUJOCO_ID,
+            entry_point="excavator_surrogate.env.mujoco_env:ExcavatorMujocoEnv",
+            max_episode_steps=MAX_EPISODE_STEPS,
+        )
+    if SURROGATE_ID not in registry:
+        gymnasium.register(
+            id=SURROGATE_ID,
+            entry_point="excavator_surrogate.env.surrogate_env:ExcavatorSurrogateEnv",
+            vector_entry_point="excavator_surrogate.env:_make_vector",
+            max_episode_steps=MAX_EPISODE_STEPS,
+        )
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+register_envs()
+
+__all__ = [
+    "MAX_EPISODE_STEPS",
+    "MUJOCO_ID",
+    "SURROGATE_ID",
+    "ActionError",
+    "ExcavatorEnv",
+    "ExcavatorMujocoEnv",
+    "ExcavatorSurrogateEnv",
+    "FusedStep",
+    "GuardConfig",
+    "OnnxStepper",
+    "ReachTask",
+    "SurrogateEngine",
+    "SurrogateVectorEnv",
+    "Task",
+    "export_onnx",
+    "register_envs",
+]

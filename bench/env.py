@@ -1,0 +1,182 @@
+"""Throughput of the surrogate environments vs the MuJoCo plant, at the 20 Hz control rate.
+
+Measures env-steps per second (one env-step = one 50 ms control step of one machine) for
+
+- ``surrogate_vec_n{1,64,1024}``: :class:`SurrogateVectorEnv` on the stateful path (one torch
+  batch, carried ``(h, c)``), full ``step()`` incl. action checks, guard and observations;
+- ``surrogate_windowed_n{1,1024}``: the windowed fallback (re-runs the W = 30 window);
+- ``surrogate_single``: ``ExcavatorSurrogate-v0`` (one env, Python loop);
+- ``mujoco_env``: ``ExcavatorMujoco-v0`` (one env, Python loop, 25 physics steps per step);
+- ``mujoco_rollout_2t``: :meth:`MujocoExcavator.rollout` (``mujoco.rollout``) on 2 threads.
+
+The benchmark model is an UNTRAINED LSTM of the paper's size (2 x 128, head 128, W = 30):
+throughput does not depend on training.  Goals on the 2-core dev machine: >= 100k steps/s at
+n_envs = 1024 and >= 1000 steps/s at n_envs = 1.  The vector env is measured with 1 and 2
+torch threads: on a machine shared with other jobs, 2 OpenMP threads can be several times
+SLOWER than 1 (threads wait for descheduled peers); the goals use the best.  Ends with ONE
+JSON line.  Usage::
+
+    python bench/env.py [--threads 1,2] [--seconds 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from excavator_surrogate.env import ExcavatorMujocoEnv, ExcavatorSurrogateEnv, SurrogateVectorEnv
+from excavator_surrogate.simulate.plant import MujocoExcavator, PlantConfig
+from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from excavator_surrogate.surrogate.features import Normalization
+from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+
+GOAL_N1024 = 100_000.0
+GOAL_N1 = 1_000.0
+
+
+def paper_size_checkpoint(path: Path, *, mode: str) -> Path:
+    """An untrained 2 x 128 LSTM checkpoint (W = 30) for the default excavator."""
+    torch.manual_seed(0)
+    spec = EXCAVATOR
+    cfg = ModelConfig(
+        n_feature=spec.n_feature, n_joint=spec.n_joint, window=30, hidden=128, n_layer=2
+    )
+    norm = Normalization.from_arrays(
+        x_mean=np.zeros(spec.n_feature),
+        x_std=np.ones(spec.n_feature),
+        y_mean=np.zeros(spec.n_joint),
+        y_std=np.full(spec.n_joint, 0.05),
+        spec=spec,
+    )
+    sur = Surrogate(net=build_net(cfg).eval(), spec=spec, norm=norm, model_cfg=cfg, mode=mode)
+    return save_checkpoint(path, sur)
+
+
+def rate(step: Callable[[int], None], n_per_call: int, seconds: float, *, warmup: int = 5) -> float:
+    """Calls of ``step(i)`` for about ``seconds``; returns env-steps per second."""
+    for i in range(warmup):
+        step(i)
+    n, t0 = 0, time.perf_counter()
+    while True:
+        step(n)
+        n += 1
+        dt = time.perf_counter() - t0
+        if dt >= seconds and n >= 3:
+            return n * n_per_call / dt
+
+
+def bench_vector(ckpt: Path, n_envs: int, seconds: float, *, mode: str | None = None) -> float:
+    env = SurrogateVectorEnv(ckpt, n_envs, mode=mode, max_episode_steps=None)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1000, 1000, (16, n_envs, EXCAVATOR.n_joint)).astype(np.float32)
+    return rate(lambda i: env.step(actions[i % 16]), n_envs, seconds)
+
+
+def bench_single(env: object, seconds: float) -> float:
+    env.reset(seed=0)  # type: ignore[attr-defined]
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1000, 1000, (64, EXCAVATOR.n_joint)).astype(np.float32)
+    return rate(lambda i: env.step(actions[i % 64]), 1, seconds)  # type: ignore[attr-defined]
+
+
+def bench_rollout(n_threads: int, n_batch: int, n_step: int) -> float:
+    plant = MujocoExcavator(PlantConfig(n_threads=n_threads))
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-300, 300, (n_batch, n_step, EXCAVATOR.n_joint))
+    theta0 = np.tile(plant.default_pose(), (n_batch, 1))
+    plant.rollout(u[:, :3], theta0=theta0)  # thread pool start-up
+    t0 = time.perf_counter()
+    plant.rollout(u, theta0=theta0)
+    dt = time.perf_counter() - t0
+    plant.close()
+    return n_batch * (n_step - 1) / dt
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--threads",
+        default="1,2",
+        help="torch thread counts to measure the vector env with, comma-separated (default 1,2)",
+    )
+    ap.add_argument("--rollout-threads", type=int, default=2, help="mujoco.rollout threads")
+    ap.add_argument("--seconds", type=float, default=1.0, help="time per measurement [s]")
+    args = ap.parse_args()
+    threads = [int(t) for t in str(args.threads).split(",")]
+    res: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        stateful = paper_size_checkpoint(Path(tmp) / "stateful.pt", mode="stateful")
+        windowed = paper_size_checkpoint(Path(tmp) / "windowed.pt", mode="windowed")
+        for t in threads:
+            torch.set_num_threads(t)
+            for n in (1, 64, 1024):
+                key = f"surrogate_vec_n{n}_t{t}"
+                res[key] = bench_vector(stateful, n, args.seconds)
+                print(
+                    f"surrogate vector env, stateful, n_envs={n:5d}, {t} thread(s): {res[key]:12,.0f} steps/s",
+                    flush=True,
+                )
+        for n in (1, 64, 1024):  # best over thread counts (the machine is shared)
+            res[f"surrogate_vec_n{n}"] = max(res[f"surrogate_vec_n{n}_t{t}"] for t in threads)
+        torch.set_num_threads(min(threads))
+        for n in (1, 1024):
+            key = f"surrogate_windowed_n{n}"
+            res[key] = bench_vector(windowed, n, args.seconds, mode="windowed")
+            print(
+                f"surrogate vector env, windowed, n_envs={n:5d}, {min(threads)} thread(s): {res[key]:12,.0f} steps/s",
+                flush=True,
+            )
+        res["surrogate_single"] = bench_single(ExcavatorSurrogateEnv(stateful), args.seconds)
+        print(
+            f"ExcavatorSurrogate-v0, single env loop:               {res['surrogate_single']:12,.0f} steps/s",
+            flush=True,
+        )
+    res["mujoco_env"] = bench_single(ExcavatorMujocoEnv(), args.seconds)
+    print(
+        f"ExcavatorMujoco-v0, single env loop:                  {res['mujoco_env']:12,.0f} steps/s",
+        flush=True,
+    )
+    rt = args.rollout_threads
+    res[f"mujoco_rollout_{rt}t"] = bench_rollout(rt, 256, 101)
+    print(
+        f"mujoco.rollout, {rt} threads, 256 envs:                 {res[f'mujoco_rollout_{rt}t']:12,.0f} steps/s",
+        flush=True,
+    )
+    ratios = {
+        "vec1024_over_mujoco_rollout": res["surrogate_vec_n1024"] / res[f"mujoco_rollout_{rt}t"],
+        "vec1024_over_mujoco_env": res["surrogate_vec_n1024"] / res["mujoco_env"],
+        "vec1_over_mujoco_env": res["surrogate_vec_n1"] / res["mujoco_env"],
+        "stateful_over_windowed_n1024": res["surrogate_vec_n1024"]
+        / res["surrogate_windowed_n1024"],
+    }
+    for k, v in ratios.items():
+        print(f"ratio {k}: {v:.2f}x")
+    goals = {
+        "n1024_ge_100k": res["surrogate_vec_n1024"] >= GOAL_N1024,
+        "n1_ge_1000": res["surrogate_vec_n1"] >= GOAL_N1,
+    }
+    out = {
+        "bench": "env",
+        "unit": "env-steps/s at 20 Hz",
+        "torch_threads": threads,
+        "load_avg_1min": round(os.getloadavg()[0], 2),
+        "model": "lstm 2x128 untrained, W=30",
+        **{k: round(v, 1) for k, v in res.items()},
+        "ratios": {k: round(v, 3) for k, v in ratios.items()},
+        "goals": goals,
+    }
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

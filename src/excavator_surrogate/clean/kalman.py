@@ -1,0 +1,670 @@
+"""Consistency-aware adaptive Kalman filtering (paper Sec. IV, Algorithm 1) and better variants.
+
+Every filter runs independently per joint ("lane") and is vectorised over lanes: arrays are
+time-major ``(n_step, n_lane)`` with ``n_lane = n_batch * n_joint``, the loop runs over time
+only, and the 2x2 / 3x3 matrix algebra is written out in closed form per element (the
+equation is the comment above each block, filterpy style).
+
+Methods (``CleanConfig.method``):
+
+``paper``
+    Algorithm 1 as published: state ``s = [theta, omega]``, constant-velocity model
+    ``A = [[1, Ts], [0, 1]]``, ``Q = diag(Q_theta, Q_omega)``, angle-only measurement
+    ``H = [1, 0]``; R switches between ``R_trust`` and ``R_untrust`` by the jump and
+    consistency tests.  The gyro is used only by the consistency test.
+``gyro``
+    The gyro as a control input with its bias as a state: ``s = [theta, b]``,
+    ``theta_t = theta_{t-1} + Ts (omega_meas_t - b_{t-1})``, ``b_t = b_{t-1}``, i.e.
+    ``A = [[1, -Ts], [0, 1]]``, ``B u = [Ts omega_meas_t, 0]``, ``H = [1, 0]``, same
+    adaptive R.  Gyro white noise enters as angle process noise ``Ts^2 r_gyro``.
+``gyro3``
+    The gyro as a second measurement with a bias state: ``s = [theta, omega, b]``,
+    ``z = [theta_meas, omega_meas]``, ``H = [[1, 0, 0], [0, 1, 1]]``,
+    ``R = diag(R_t, r_gyro)``; the model follows the data convention
+    ``theta_t = theta_{t-1} + Ts omega_t`` (``Q`` has the matching off-diagonal term).
+    The two rows are applied as sequential scalar updates (exact for diagonal R), the gyro
+    first, so the angle tests see a prior that already contains this sample's gyro reading.
+``rts``
+    Offline: the ``gyro`` forward filter followed by a Rauch-Tung-Striebel smoother (means
+    only; trusted flags come from the forward pass).
+
+Detection (our reading of Algorithm 1, see docs/cleaning.md).  With
+``G_t = Ts * sum_{j=1..t} omega_meas_j`` (integrated gyro, ``G_0 = 0``):
+
+- jump test: ``delta_t = |theta_t - theta_{t-1}|`` (``jump_ref="raw"``, the paper) or
+  ``|theta_t - theta_prior_t|`` (``jump_ref="prior"``, the innovation); jump if
+  ``delta_t > tau_jump``.
+- consistency test: the angle reconstructed by integrating the gyro from the fused estimate
+  ``i`` steps back is ``theta_intg_t(i) = theta_hat_{t-i} + G_t - G_{t-i}``.
+  ``cons_mode="anchors"``: ``eps_t = RMS_{i=1..w}(theta_t - theta_intg_t(i))`` (the current
+  sample against ``w`` gyro reconstructions); ``cons_mode="samples"`` (literal RMS over the
+  last ``w`` raw samples): ``eps_t = RMS_{k=t-w+1..t}(theta_k - theta_hat_{t-w} - G_k + G_{t-w})``.
+  Consistent if ``eps_t < tau_cons``.  Near the start the window shrinks to what exists.
+- ``c_t = (not jump) and consistent``.  Lock-out guard: a sample that would make the run
+  of untrusted samples longer than ``max_untrusted_s`` is filtered as untrusted, then the
+  angle is re-anchored at it (``theta_hat = z_t``, ``P_theta = R_trust``, angle
+  cross-covariances 0) and ``c_t = 1`` (else a filter that drifted during a long fault
+  could reject correct data forever).
+
+Output angular velocity is the backward difference of the fused angle,
+``omega_hat_t = (theta_hat_t - theta_hat_{t-1}) / Ts`` (paper eq.), row 0 copies row 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..errors import ConfigError, DataError
+
+Method = Literal["paper", "gyro", "gyro3", "rts"]
+METHODS: tuple[str, ...] = ("paper", "gyro", "gyro3", "rts")
+"""Available cleaning methods (see module docstring)."""
+
+_RTS_CHUNK = 4096
+"""Time steps per block when computing smoother gains (bounds memory)."""
+
+LOOP_MAX_LANES = 8
+"""``engine="auto"`` uses the plain per-sample loop up to this many lanes (batch x joints):
+below ~15 lanes numpy's per-call overhead makes the vectorised loop slower than plain Python.
+Both give bit-identical results."""
+
+
+@dataclass(frozen=True)
+class CleanConfig:
+    """Parameters of the cleaning filters (all joints share them).  Units: rad, s."""
+
+    method: Method = "rts"
+    """Filter: ``paper`` (Algorithm 1), ``gyro`` (gyro input + bias), ``gyro3`` (gyro measurement + bias), ``rts`` (gyro + RTS smoother)."""
+    tau_jump: float = 0.15
+    """Jump threshold tau_jump [rad] on delta_t (raw: must exceed the largest motion per sample)."""
+    jump_ref: Literal["raw", "prior"] = "prior"
+    """delta_t against the previous raw sample (``raw``, paper) or the filter prior (``prior``)."""
+    tau_cons: float = 0.03
+    """Consistency threshold tau_cons [rad] on the RMS deviation from the integrated gyro."""
+    cons_window: int = 5
+    """Consistency window w [samples]."""
+    cons_mode: Literal["anchors", "samples"] = "anchors"
+    """RMS over w gyro reconstructions of the current sample (``anchors``) or over the last w raw samples (``samples``)."""
+    r_trust: float = 2.5e-5
+    """Angle measurement variance R_trust when trusted [rad^2]."""
+    r_untrust: float = 1.0
+    """Angle measurement variance R_untrust when untrusted [rad^2] (>> r_trust)."""
+    q_theta: float = 1e-6
+    """Angle process-noise intensity [rad^2/s]; discrete Q_theta = q_theta * Ts."""
+    q_omega: float = 0.2
+    """Velocity process-noise intensity (paper, gyro3) [rad^2/s^3]; discrete Q_omega = q_omega * Ts."""
+    q_bias: float = 1e-7
+    """Gyro-bias process-noise intensity (gyro, gyro3, rts) [rad^2/s^3]; discrete q_bias * Ts."""
+    r_gyro: float = 2.5e-5
+    """Gyro white-noise variance per sample [(rad/s)^2]."""
+    p0_omega: float = 1.0
+    """Initial velocity variance [(rad/s)^2] (paper, gyro3)."""
+    p0_bias: float = 1e-4
+    """Initial gyro-bias variance [(rad/s)^2] (gyro, gyro3, rts)."""
+    max_untrusted_s: float = 3.0
+    """Lock-out guard: re-anchor the angle at the measurement after this long untrusted [s]; 0 disables."""
+    unwrap_periodic: bool = True
+    """Unwrap periodic joints' angles before filtering (episodes only)."""
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ConfigError(f"clean.method: must be one of {list(METHODS)}, got {self.method!r}")
+        if self.jump_ref not in ("raw", "prior"):
+            raise ConfigError(f"clean.jump_ref: must be 'raw' or 'prior', got {self.jump_ref!r}")
+        if self.cons_mode not in ("anchors", "samples"):
+            raise ConfigError(
+                f"clean.cons_mode: must be 'anchors' or 'samples', got {self.cons_mode!r}"
+            )
+        for name in ("tau_jump", "tau_cons", "r_trust"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"clean.{name}: must be positive, got {getattr(self, name)}")
+        if not (math.isfinite(self.r_untrust) and self.r_untrust >= self.r_trust):
+            raise ConfigError(
+                f"clean.r_untrust: must be finite and >= r_trust ({self.r_trust}), got {self.r_untrust}"
+            )
+        for name in ("q_theta", "q_omega", "q_bias", "r_gyro", "max_untrusted_s"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"clean.{name}: must be >= 0, got {getattr(self, name)}")
+        for name in ("p0_omega", "p0_bias"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"clean.{name}: must be positive, got {getattr(self, name)}")
+        if self.cons_window < 1:
+            raise ConfigError(f"clean.cons_window: must be >= 1, got {self.cons_window}")
+
+
+@dataclass
+class FusionResult:
+    """Output of :func:`fuse`; arrays have the input's shape ((n_batch,) n_step, n_joint)."""
+
+    theta: np.ndarray
+    """Fused angle theta_hat [rad]."""
+    omega: np.ndarray
+    """Backward difference of theta_hat [rad/s] (row 0 copies row 1)."""
+    trusted: np.ndarray
+    """Consistency flag c_t (bool); row 0 is always True."""
+    bias: np.ndarray | None = None
+    """Estimated gyro bias [rad/s] (gyro, gyro3, rts), else None."""
+
+
+def max_untrusted_steps(config: CleanConfig, dt: float, n_step: int) -> int:
+    """Lock-out guard length in samples (``n_step + 1`` = never)."""
+    if config.max_untrusted_s <= 0:
+        return n_step + 1
+    return max(1, round(config.max_untrusted_s / dt))
+
+
+def integrate_gyro(omega: np.ndarray, dt: float) -> np.ndarray:
+    """``G_t = dt * sum_{j=1..t} omega_j`` along axis 0 (``G_0 = 0``); same shape as ``omega``."""
+    G = np.zeros_like(omega, dtype=np.float64)
+    if omega.shape[0] > 1:
+        np.cumsum(dt * omega[1:], axis=0, out=G[1:])
+    return G
+
+
+def backward_difference(theta: np.ndarray, dt: float, *, axis: int = 0) -> np.ndarray:
+    """``(theta_t - theta_{t-1}) / dt`` along ``axis``; the first sample copies the second (0 if only one)."""
+    theta = np.moveaxis(np.asarray(theta, dtype=np.float64), axis, 0)
+    om = np.zeros_like(theta)
+    if theta.shape[0] > 1:
+        om[1:] = (theta[1:] - theta[:-1]) / dt
+        om[0] = om[1]
+    return np.moveaxis(om, 0, axis)
+
+
+def fuse(
+    theta: np.ndarray,
+    omega: np.ndarray,
+    *,
+    dt: float,
+    config: CleanConfig | None = None,
+    n_valid: np.ndarray | None = None,
+    engine: Literal["auto", "vector", "loop"] = "auto",
+) -> FusionResult:
+    """Fuse measured angles and gyro velocities with the configured filter.
+
+    Args:
+        theta: (n_batch, n_step, n_joint) or (n_step, n_joint) measured angles [rad]
+            (periodic joints must already be unwrapped).
+        omega: same shape, measured (gyro) angular velocities [rad/s].
+        dt: sample period Ts [s].
+        config: filter parameters (default :class:`CleanConfig`).
+        n_valid: optional (n_batch,) number of valid leading samples per batch row (rows
+            padded to a common length); padded samples are ignored and their outputs are
+            meaningless.
+        engine: ``vector`` (numpy over lanes, loop over time), ``loop`` (plain Python per
+            sample and joint, :mod:`.reference`) or ``auto`` (``loop`` for at most
+            :data:`LOOP_MAX_LANES` lanes).  Results are bit-identical.
+
+    Returns:
+        :class:`FusionResult` with the input's shape.
+    """
+    cfg = config or CleanConfig()
+    theta = np.asarray(theta, dtype=np.float64)
+    omega = np.asarray(omega, dtype=np.float64)
+    squeeze = theta.ndim == 2
+    if squeeze:
+        theta, omega = theta[None], omega[None]
+    if theta.ndim != 3 or theta.shape != omega.shape:
+        raise DataError(
+            None,
+            f"theta {theta.shape} and omega {omega.shape} must both be (n_batch, n_step, n_joint)",
+        )
+    if not dt > 0:
+        raise ConfigError(f"clean: dt must be positive, got {dt}")
+    n_batch, n_step, n_joint = theta.shape
+    if n_step == 0:
+        raise DataError(None, "cannot filter an empty sequence (n_step = 0)")
+    nv = (
+        np.full(n_batch, n_step, dtype=np.int64)
+        if n_valid is None
+        else np.asarray(n_valid, np.int64)
+    )
+    if nv.shape != (n_batch,) or (nv < 1).any() or (nv > n_step).any():
+        raise DataError(
+            None, f"n_valid must be (n_batch,) = ({n_batch},) with values in [1, {n_step}]"
+        )
+    # time-major lanes: (n_step, n_batch * n_joint)
+    z = np.ascontiguousarray(theta.transpose(1, 0, 2).reshape(n_step, n_batch * n_joint))
+    g = np.ascontiguousarray(omega.transpose(1, 0, 2).reshape(n_step, n_batch * n_joint))
+    lane_nv = np.repeat(nv, n_joint)
+    if (lane_nv < n_step).any():  # padded tails: finite, inert values
+        pad = np.arange(n_step)[:, None] >= lane_nv[None, :]
+        z = np.where(pad, z[lane_nv - 1, np.arange(z.shape[1])][None, :], z)
+        g = np.where(pad, 0.0, g)
+    bad = ~(np.isfinite(z) & np.isfinite(g))
+    if bad.any():
+        k, lane = (int(x) for x in np.argwhere(bad)[0])
+        raise DataError(
+            None,
+            f"non-finite angle or velocity at batch {lane // n_joint}, joint {lane % n_joint}",
+            row=k,
+            fix="fill or drop gaps before cleaning",
+        )
+
+    n_lane = n_batch * n_joint
+    if engine not in ("auto", "vector", "loop"):
+        raise ConfigError(f"clean: engine must be 'auto', 'vector' or 'loop', got {engine!r}")
+    if engine == "loop" or (engine == "auto" and n_lane <= LOOP_MAX_LANES):
+        return _fuse_loop(z, g, nv, n_joint=n_joint, dt=dt, config=cfg, squeeze=squeeze)
+
+    bias = None
+    if cfg.method == "paper":
+        out = forward2(z, g, dt=dt, config=cfg, model="cv")
+        th = out["theta"]
+    elif cfg.method == "gyro":
+        out = forward2(z, g, dt=dt, config=cfg, model="gyro")
+        th, bias = out["theta"], out["x1"]
+    elif cfg.method == "gyro3":
+        out = forward3(z, g, dt=dt, config=cfg)
+        th, bias = out["theta"], out["bias"]
+    else:  # rts
+        out = forward2(z, g, dt=dt, config=cfg, model="gyro", store=True)
+        th, bias = rts2(out, g, dt=dt, config=cfg, model="gyro", n_valid=lane_nv)
+
+    def back(a: np.ndarray) -> np.ndarray:
+        r = a.reshape(n_step, n_batch, n_joint).transpose(1, 0, 2)
+        return r[0] if squeeze else r
+
+    theta_hat = np.ascontiguousarray(back(th))
+    return FusionResult(
+        theta=theta_hat,
+        omega=backward_difference(theta_hat, dt, axis=-2),
+        trusted=np.ascontiguousarray(back(out["trusted"])),
+        bias=None if bias is None else np.ascontiguousarray(back(bias)),
+    )
+
+
+def _fuse_loop(
+    z: np.ndarray,
+    g: np.ndarray,
+    nv: np.ndarray,
+    *,
+    n_joint: int,
+    dt: float,
+    config: CleanConfig,
+    squeeze: bool,
+) -> FusionResult:
+    """:func:`fuse` with the plain-loop engine on time-major lanes (padding repeats the last row)."""
+    from .reference import reference_fuse
+
+    n_step = z.shape[0]
+    n_batch = nv.shape[0]
+    theta = np.empty((n_batch, n_step, n_joint))
+    trusted = np.ones((n_batch, n_step, n_joint), dtype=bool)
+    bias = None if config.method == "paper" else np.empty((n_batch, n_step, n_joint))
+    for b in range(n_batch):
+        n = int(nv[b])
+        lanes = slice(b * n_joint, (b + 1) * n_joint)
+        r = reference_fuse(z[:n, lanes], g[:n, lanes], dt=dt, config=config)
+        theta[b, :n], theta[b, n:] = r["theta"], r["theta"][-1]
+        trusted[b, :n] = r["trusted"]
+        if bias is not None:
+            bias[b, :n], bias[b, n:] = r["bias"], r["bias"][-1]
+    if squeeze:
+        theta, trusted = theta[0], trusted[0]
+        bias = None if bias is None else bias[0]
+    return FusionResult(
+        theta=theta,
+        omega=backward_difference(theta, dt, axis=-2),
+        trusted=trusted,
+        bias=bias,
+    )
+
+
+def _model_params(config: CleanConfig, dt: float, model: str) -> tuple[float, float, float, float]:
+    """``(a, q0, q1, p0_1)`` of a two-state model: A = [[1, a], [0, 1]], Q = diag(q0, q1)."""
+    if model == "cv":
+        return dt, config.q_theta * dt, config.q_omega * dt, config.p0_omega
+    if model == "gyro":
+        return (
+            -dt,
+            config.q_theta * dt + dt * dt * config.r_gyro,
+            config.q_bias * dt,
+            config.p0_bias,
+        )
+    raise ValueError(f"unknown two-state model {model!r}")
+
+
+class _Detector:
+    """Per-step jump and consistency tests and the lock-out guard, shared by the filters.
+
+    Holds the time-major work arrays: ``D_t = z_t - G_t`` (raw angle minus integrated gyro),
+    ``E_t = theta_hat_t - G_t`` (fused angle minus integrated gyro, written by the filter),
+    the flags ``C`` and, for ``jump_ref="raw"``, the precomputed jump test.
+    """
+
+    def __init__(self, z: np.ndarray, g: np.ndarray, *, dt: float, config: CleanConfig) -> None:
+        n_step, n_lane = z.shape
+        self.G = integrate_gyro(g, dt)
+        self.D = z - self.G
+        self.E = np.empty((n_step, n_lane))
+        self.C = np.empty((n_step, n_lane), dtype=bool)
+        self.C[0] = True
+        self.raw_jump = config.jump_ref == "raw"
+        if self.raw_jump:
+            # delta_t = |theta_t - theta_{t-1}| > tau_jump  (needs no filter state: precomputed)
+            self.J = np.zeros((n_step, n_lane), dtype=bool)
+            self.J[1:] = np.abs(z[1:] - z[:-1]) > config.tau_jump
+        self.tau_jump = config.tau_jump
+        self.tau2 = config.tau_cons * config.tau_cons
+        self.w = config.cons_window
+        self.anchors = config.cons_mode == "anchors"
+        self.max_run = max_untrusted_steps(config, dt, n_step)
+        self.next_check = self.max_run + 1
+        self.r_tab = np.array([config.r_untrust, config.r_trust])
+
+    def flags(self, t: int, y: np.ndarray) -> np.ndarray:
+        """c_t before the guard (a view of ``C[t]``); ``y`` is the innovation ``z_t - theta_prior``."""
+        # jump: delta = |z_t - z_{t-1}| (raw) or |z_t - theta_prior| (prior)
+        jump = self.J[t] if self.raw_jump else np.abs(y) > self.tau_jump
+        # consistency: eps^2 = mean over the window of (theta - theta_intg)^2
+        lo = t - self.w if t > self.w else 0
+        if self.anchors:
+            dev = self.D[t] - self.E[lo:t]
+        else:
+            dev = self.D[lo + 1 : t + 1] - self.E[lo]
+        ok = np.add.reduce(dev * dev, axis=0) < (t - lo) * self.tau2
+        # c = consistent and not jump
+        return np.greater(ok, jump, out=self.C[t])
+
+    def stale(self, t: int) -> np.ndarray | None:
+        """Lanes whose run of untrusted samples would exceed ``max_run`` at ``t`` (then ``C[t]``
+        is set True for them), or None.  Amortised: checks only when a lane can be stale."""
+        if t < self.next_check:
+            return None
+        m = self.max_run
+        # rows t, t-1, ..., t-m: a lane is stale if none is trusted
+        recent = self.C[t - m : t + 1][::-1]
+        bad = ~recent.any(axis=0)
+        back = np.where(bad, 0, recent.argmax(axis=0))  # samples since the last trusted one
+        # the earliest step at which some lane may become stale
+        self.next_check = t + m + 1 - int(back.max())
+        if not bad.any():
+            return None
+        self.C[t][bad] = True
+        return bad
+
+
+def forward2(
+    z: np.ndarray,
+    g: np.ndarray,
+    *,
+    dt: float,
+    config: CleanConfig,
+    model: Literal["cv", "gyro"],
+    store: bool = False,
+) -> dict[str, np.ndarray]:
+    """Adaptive two-state Kalman filter over time-major lanes.
+
+    Args:
+        z: (n_step, n_lane) measured angles [rad].
+        g: (n_step, n_lane) measured gyro velocities [rad/s].
+        dt: Ts [s].
+        config: parameters.
+        model: ``cv`` (paper: s = [theta, omega]) or ``gyro`` (s = [theta, b], gyro input).
+        store: also return the posterior covariance per step (for smoothing).
+
+    Returns:
+        dict with ``theta`` (n_step, n_lane) posterior angle, ``x1`` second state
+        (omega or bias), ``trusted`` bool flags, and with ``store`` ``p00``, ``p01``, ``p11``.
+    """
+    cfg = config
+    n_step, n_lane = z.shape
+    a, q0, q1, p0_1 = _model_params(cfg, dt, model)
+    U = dt * g if model == "gyro" else None
+    det = _Detector(z, g, dt=dt, config=cfg)
+    G, E, r_tab = det.G, det.E, det.r_tab
+    TH = np.empty((n_step, n_lane))
+    X1 = np.empty((n_step, n_lane))
+    if store:
+        P00, P01, P11 = (np.empty((n_step, n_lane)) for _ in range(3))
+    else:  # scratch rows, overwritten every step
+        P00, P01, P11 = (np.empty((2, n_lane)) for _ in range(3))
+
+    # s_0 = [z_0, omega_meas_0] (cv) or [z_0, 0] (gyro);  P_0 = diag(R_trust, p0)
+    x0 = TH[0]
+    x0[:] = z[0]
+    x1 = X1[0]
+    x1[:] = g[0] if model == "cv" else 0.0
+    p00, p01, p11 = P00[0], P01[0], P11[0]
+    p00[:], p01[:], p11[:] = cfg.r_trust, 0.0, p0_1
+    np.subtract(x0, G[0], out=E[0])
+
+    for t in range(1, n_step):
+        r = t if store else t & 1
+        # x = A x + B u
+        x0 = x0 + a * x1
+        if U is not None:
+            x0 += U[t]
+        # P = A P A' + Q
+        p01n = p01 + a * p11
+        p00 = p00 + a * (p01 + p01n) + q0
+        p01 = p01n
+        p11 = p11 + q1
+
+        zt = z[t]
+        # y = z - H x
+        y = zt - x0
+        c = det.flags(t, y)
+        # R = R_trust if c else R_untrust
+        R = r_tab.take(c.view(np.uint8))
+        # S = H P H' + R
+        s = p00 + R
+        # K = P H' / S
+        k0 = p00 / s
+        k1 = p01 / s
+        # x = x + K y
+        x0 = np.add(x0, k0 * y, out=TH[t])
+        x1 = np.add(x1, k1 * y, out=X1[t])
+        # P = (I - K H) P
+        p11 = np.subtract(p11, k1 * p01, out=P11[r])
+        m = 1.0 - k0
+        p00 = np.multiply(m, p00, out=P00[r])
+        p01 = np.multiply(m, p01, out=P01[r])
+
+        # lock-out guard: untrusted for max_run samples -> re-anchor the angle at z_t
+        stale = det.stale(t)
+        if stale is not None:
+            x0[stale] = zt[stale]
+            p00[stale] = cfg.r_trust
+            p01[stale] = 0.0
+        np.subtract(x0, G[t], out=E[t])
+
+    out = {"theta": TH, "x1": X1, "trusted": det.C}
+    if store:
+        out.update(p00=P00, p01=P01, p11=P11)
+    return out
+
+
+def rts2(
+    fwd: dict[str, np.ndarray],
+    g: np.ndarray,
+    *,
+    dt: float,
+    config: CleanConfig,
+    model: Literal["cv", "gyro"],
+    n_valid: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rauch-Tung-Striebel smoother (means) over a stored :func:`forward2` pass.
+
+    Args:
+        fwd: output of ``forward2(..., store=True)``.
+        g: (n_step, n_lane) gyro velocities [rad/s] (the control input of the ``gyro`` model).
+        dt: Ts [s].
+        config: the parameters used in the forward pass.
+        model: the forward pass's model.
+        n_valid: (n_lane,) valid samples per lane; smoothing starts at each lane's last
+            valid sample (padded samples keep their filtered values).
+
+    Returns:
+        ``(theta_s, x1_s)``, each (n_step, n_lane).
+    """
+    a, q0, q1, _ = _model_params(config, dt, model)
+    X0, X1 = fwd["theta"], fwd["x1"]
+    P00, P01, P11 = fwd["p00"], fwd["p01"], fwd["p11"]
+    n_step, n_lane = X0.shape
+    nv = np.full(n_lane, n_step) if n_valid is None else np.asarray(n_valid)
+    XS0 = np.empty_like(X0)
+    XS1 = np.empty_like(X1)
+    XS0[-1], XS1[-1] = X0[-1], X1[-1]
+    xs = np.stack([X0[-1], X1[-1]])
+    hi = n_step - 1
+    while hi > 0:
+        lo = max(0, hi - _RTS_CHUNK)
+        sl = slice(lo, hi)
+        p00, p01, p11 = P00[sl], P01[sl], P11[sl]
+        # P- = A P A' + Q   (prediction of step k+1 from k)
+        pp01 = p01 + a * p11
+        pp00 = p00 + a * (p01 + pp01) + q0
+        pp11 = p11 + q1
+        # C = P A' inv(P-),   P A' = [[p00 + a p01, p01], [p01 + a p11, p11]]
+        det = pp00 * pp11 - pp01 * pp01
+        b00 = p00 + a * p01
+        b10 = pp01  # p01 + a p11
+        c00 = (b00 * pp11 - p01 * pp01) / det
+        c01 = (p01 * pp00 - b00 * pp01) / det
+        c10 = (b10 * pp11 - p11 * pp01) / det
+        c11 = (p11 * pp00 - b10 * pp01) / det
+        # x-_{k+1} = A x_k + B u_{k+1}
+        xp0 = X0[sl] + a * X1[sl]
+        if model == "gyro":
+            xp0 = xp0 + dt * g[lo + 1 : hi + 1]
+        # lanes past their last valid sample: no smoothing (C = 0)
+        inert = np.arange(lo, hi)[:, None] >= (nv[None, :] - 1)
+        if inert.any():
+            for cc in (c00, c01, c10, c11):
+                cc[inert] = 0.0
+        # stacked per step: X[i] = [x0, x1], XP[i] = x-, CA[i] = C[:, 0], CB[i] = C[:, 1]
+        X = np.stack([X0[sl], X1[sl]], axis=1)
+        XP = np.stack([xp0, X1[sl]], axis=1)
+        CA = np.stack([c00, c10], axis=1)
+        CB = np.stack([c01, c11], axis=1)
+        XS = np.empty_like(X)
+        for i in range(hi - lo - 1, -1, -1):
+            # x_s[k] = x[k] + C (x_s[k+1] - x-[k+1])
+            d = xs - XP[i]
+            xs = np.add(X[i] + CA[i] * d[0], CB[i] * d[1], out=XS[i])
+        XS0[sl] = XS[:, 0]
+        XS1[sl] = XS[:, 1]
+        hi = lo
+    return XS0, XS1
+
+
+def forward3(
+    z: np.ndarray,
+    g: np.ndarray,
+    *,
+    dt: float,
+    config: CleanConfig,
+) -> dict[str, np.ndarray]:
+    """Adaptive three-state filter ``s = [theta, omega, b]`` with the gyro as a measurement.
+
+    Args:
+        z: (n_step, n_lane) measured angles [rad].
+        g: (n_step, n_lane) measured gyro velocities [rad/s].
+        dt: Ts [s].
+        config: parameters.
+
+    Returns:
+        dict with ``theta``, ``omega`` (state), ``bias`` and ``trusted``, each (n_step, n_lane).
+    """
+    cfg = config
+    n_step, n_lane = z.shape
+    a = dt
+    qw = cfg.q_omega * dt
+    # Q for theta_t = theta_{t-1} + Ts omega_t, omega_t = omega_{t-1} + w
+    q00 = a * a * qw + cfg.q_theta * dt
+    q01 = a * qw
+    q11 = qw
+    q22 = cfg.q_bias * dt
+    rg = cfg.r_gyro
+    det = _Detector(z, g, dt=dt, config=cfg)
+    G, E, r_tab = det.G, det.E, det.r_tab
+    TH = np.empty((n_step, n_lane))
+    OM = np.empty((n_step, n_lane))
+    B = np.empty((n_step, n_lane))
+
+    # s_0 = [z_0, omega_meas_0, 0];  P_0 = diag(R_trust, p0_omega, p0_bias)
+    x0 = TH[0]
+    x0[:] = z[0]
+    x1 = OM[0]
+    x1[:] = g[0]
+    x2 = B[0]
+    x2[:] = 0.0
+    p00 = np.full(n_lane, cfg.r_trust)
+    p01 = np.zeros(n_lane)
+    p02 = np.zeros(n_lane)
+    p11 = np.full(n_lane, cfg.p0_omega)
+    p12 = np.zeros(n_lane)
+    p22 = np.full(n_lane, cfg.p0_bias)
+    np.subtract(x0, G[0], out=E[0])
+
+    for t in range(1, n_step):
+        # x = A x,   A = [[1, Ts, 0], [0, 1, 0], [0, 0, 1]]
+        x0 = x0 + a * x1
+        # P = A P A' + Q
+        p01n = p01 + a * p11
+        p00 = p00 + a * (p01 + p01n) + q00
+        p01 = p01n + q01
+        p02 = p02 + a * p12
+        p11 = p11 + q11
+        p22 = p22 + q22
+
+        # gyro row, h = [0, 1, 1]:  m = h P,  S = h P h' + r_gyro
+        m0 = p01 + p02
+        m1 = p11 + p12
+        m2 = p12 + p22
+        s = m1 + m2 + rg
+        # K = P h' / S
+        k0 = m0 / s
+        k1 = m1 / s
+        k2 = m2 / s
+        # x = x + K (omega_meas - h x)
+        y = g[t] - (x1 + x2)
+        x0 = x0 + k0 * y
+        x1 = x1 + k1 * y
+        x2 = x2 + k2 * y
+        # P = P - K (h P)
+        p00 = p00 - k0 * m0
+        p01 = p01 - k0 * m1
+        p02 = p02 - k0 * m2
+        p11 = p11 - k1 * m1
+        p12 = p12 - k1 * m2
+        p22 = p22 - k2 * m2
+
+        zt = z[t]
+        # angle row, h = [1, 0, 0]:  y = z - x0 (prior already holds this sample's gyro)
+        y = zt - x0
+        c = det.flags(t, y)
+        R = r_tab.take(c.view(np.uint8))
+        # S = p00 + R,  K = P[:, 0] / S
+        s = p00 + R
+        k0 = p00 / s
+        k1 = p01 / s
+        k2 = p02 / s
+        # x = x + K y
+        x0 = np.add(x0, k0 * y, out=TH[t])
+        x1 = np.add(x1, k1 * y, out=OM[t])
+        x2 = np.add(x2, k2 * y, out=B[t])
+        # P = (I - K h) P
+        p11 = p11 - k1 * p01
+        p12 = p12 - k1 * p02
+        p22 = p22 - k2 * p02
+        m = 1.0 - k0
+        p00 = m * p00
+        p01 = m * p01
+        p02 = m * p02
+
+        stale = det.stale(t)
+        if stale is not None:
+            x0[stale] = zt[stale]
+            p00[stale] = cfg.r_trust
+            p01[stale] = 0.0
+            p02[stale] = 0.0
+        np.subtract(x0, G[t], out=E[t])
+
+    return {"theta": TH, "omega": OM, "bias": B, "trusted": det.C}

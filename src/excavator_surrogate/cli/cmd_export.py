@@ -1,0 +1,70 @@
+"""``exsur export CKPT --out model.onnx``: ONNX single-step model with explicit (h, c)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``export`` subcommand."""
+    p = sub.add_parser(
+        "export",
+        help="export a surrogate checkpoint to ONNX (single step, state as inputs/outputs)",
+        description="Export the single-step surrogate to ONNX: inputs theta, u, h, c; outputs "
+        "omega, theta_next, h_out, c_out (feature normalisation folded into the weights). "
+        "Windowed checkpoints export their W-sample window model unless --mode stateful. "
+        "The export is verified against torch with onnxruntime. See docs/env.md.",
+    )
+    p.add_argument("ckpt", type=Path, help="checkpoint .pt written by 'exsur train'")
+    p.add_argument("--out", type=Path, required=True, help="target .onnx file")
+    p.add_argument(
+        "--mode",
+        choices=["stateful", "windowed"],
+        default=None,
+        help="graph to export (default: the checkpoint's training mode)",
+    )
+    p.add_argument("--opset", type=int, default=18, help="ONNX opset (default 18)")
+    p.add_argument(
+        "--exporter",
+        choices=["auto", "dynamo", "torchscript"],
+        default="auto",
+        help="torch exporter: dynamo (torch.export), torchscript (legacy, fast) or auto "
+        "(dynamo, falling back to torchscript)",
+    )
+    p.add_argument("--no-verify", action="store_true", help="skip the onnxruntime check")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Export, then step torch and onnxruntime side by side for 50 steps and print the error."""
+    import numpy as np
+
+    from ..env.engine import SurrogateEngine
+    from ..env.export import OnnxStepper, export_onnx
+    from ..env.surrogate_env import load_surrogate
+    from ..env.tasks import sample_pose
+
+    sur = load_surrogate(args.ckpt)
+    mode = args.mode or sur.mode
+    out = export_onnx(sur, args.out, mode=mode, opset=args.opset, exporter=args.exporter)
+    msg = f"{out}: exported {sur.name} ({mode}, {sur.spec.n_joint} joints, W={sur.window})"
+    if not args.no_verify:
+        rng = np.random.default_rng(0)
+        theta0 = np.stack([sample_pose(sur.spec, rng) for _ in range(4)])
+        lo = np.array([j.u_min for j in sur.spec.joints])
+        hi = np.array([j.u_max for j in sur.spec.joints])
+        stepper = OnnxStepper(out)
+        engine = SurrogateEngine(sur, n_envs=4, mode=mode)
+        stepper.reset(theta0)
+        engine.reset(theta0)
+        err = 0.0
+        for _ in range(50):
+            u = rng.uniform(lo, hi, (4, sur.spec.n_joint))
+            th, om = stepper.step(u)
+            th_t, om_t = engine.step(u)
+            err = max(err, float(np.abs(om - om_t.cpu().numpy()).max()))
+            err = max(err, float(np.abs(th - th_t.cpu().numpy()).max()))
+        msg += f"; max |torch - onnxruntime| over 50 steps = {err:.2e}"
+    print(msg)
+    return 0

@@ -1,0 +1,307 @@
+"""ONNX export of the single-step surrogate and an onnxruntime stepper.
+
+Stateful export (LSTM/GRU checkpoints, the default): the graph is :class:`~.engine.FusedStep`,
+i.e. the feature encoding and the normalisation are folded into the weights, and the
+recurrent state is explicit:
+
+=========  =============================  ==========================================
+name       shape                          meaning
+=========  =============================  ==========================================
+inputs
+``theta``  (n_batch, n_joint) float32     angles θ[k] [rad]
+``u``      (n_batch, n_joint) float32     commands u[k] [command units]
+``h``      (n_layer, n_batch, hidden)     recurrent state h
+``c``      (n_layer, n_batch, hidden)     LSTM cell state c (passed through for GRU)
+outputs
+``omega``  (n_batch, n_joint) float32     ω̂[k+1] [rad/s]
+``theta_next``  (n_batch, n_joint)        θ[k] + T_s·ω̂[k+1] [rad]
+``h_out``, ``c_out``                      new state
+=========  =============================  ==========================================
+
+Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
+of shape (n_batch, W, n_joint) hold the last ``W`` samples; outputs ``omega`` and
+``theta_next`` as above (the encoding and normalisation are in the graph).
+
+The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON machine
+spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``.
+:class:`OnnxStepper` runs the exported file with the same warm-up convention as the
+environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import CheckpointError, ConfigError
+from ..io_utils import atomic_path
+from ..spec import MachineSpec
+from ..surrogate.model import Surrogate
+from .engine import FusedStep, Mode, rest_command
+from .surrogate_env import load_surrogate
+
+OPSET = 18
+Exporter = Literal["auto", "dynamo", "torchscript"]
+
+
+class WindowStep(nn.Module):
+    """Windowed step with encoding and normalisation in the graph:
+    ``(theta (n, W, J), u (n, W, J)) -> (omega (n, J), theta_next (n, J))``."""
+
+    def __init__(self, sur: Surrogate) -> None:
+        super().__init__()
+        self.net = sur.net
+        norm = sur.norm.to("cpu", torch.float32)
+        self.periodic = tuple(norm.periodic)
+        for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale"):
+            self.register_buffer(k, getattr(norm, k).clone())
+        self.dt = float(sur.spec.dt)
+
+    def forward(self, theta: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """See the class docstring."""
+        parts = []
+        for j, p in enumerate(self.periodic):
+            th = theta[..., j : j + 1]
+            parts += [torch.sin(th), torch.cos(th)] if p else [th]
+        x = torch.cat([*parts, (u - self.u_center) / self.u_scale], dim=-1)
+        y = self.net((x - self.x_mean) / self.x_std)
+        omega = y * self.y_std + self.y_mean
+        return omega, theta[:, -1] + self.dt * omega
+
+
+def export_onnx(
+    ckpt: str | Path | Surrogate,
+    out: str | Path,
+    *,
+    mode: Mode | None = None,
+    opset: int = OPSET,
+    exporter: Exporter = "auto",
+) -> Path:
+    """Export a checkpoint to ONNX (atomically).
+
+    Args:
+        ckpt: checkpoint path or loaded surrogate.
+        out: target ``.onnx`` file.
+        mode: ``stateful`` (single step with explicit ``h``/``c``; LSTM/GRU only) or
+            ``windowed``; default: the checkpoint's training mode.
+        opset: ONNX opset version.
+        exporter: ``dynamo`` (``torch.export``-based, the supported exporter, ~3 s),
+            ``torchscript`` (legacy, deprecated by torch but ~0.1 s) or ``auto`` (dynamo,
+            falling back to torchscript if it fails).
+
+    Returns:
+        The written path.
+    """
+    sur = load_surrogate(ckpt, device="cpu")
+    sur.to("cpu", torch.float32).eval()
+    mode = mode or sur.mode
+    spec = sur.spec
+    n_joint = spec.n_joint
+    n_b = 2
+    if mode == "stateful":
+        module: nn.Module = FusedStep(sur).eval()
+        cfg = sur.model_cfg
+        args: tuple[torch.Tensor, ...] = (
+            torch.zeros(n_b, n_joint),
+            torch.zeros(n_b, n_joint),
+            torch.zeros(cfg.n_layer, n_b, cfg.hidden),
+            torch.zeros(cfg.n_layer, n_b, cfg.hidden),
+        )
+        inputs = ["theta", "u", "h", "c"]
+        outputs = ["omega", "theta_next", "h_out", "c_out"]
+        axes = {"theta": {0: "batch"}, "u": {0: "batch"}, "h": {1: "batch"}, "c": {1: "batch"}}
+        axes.update({"omega": {0: "batch"}, "theta_next": {0: "batch"}})
+        axes.update({"h_out": {1: "batch"}, "c_out": {1: "batch"}})
+    elif mode == "windowed":
+        module = WindowStep(sur).eval()
+        w = sur.window
+        args = (torch.zeros(n_b, w, n_joint), torch.zeros(n_b, w, n_joint))
+        inputs = ["theta", "u"]
+        outputs = ["omega", "theta_next"]
+        axes = {"theta": {0: "batch"}, "u": {0: "batch"}}
+        axes.update({"omega": {0: "batch"}, "theta_next": {0: "batch"}})
+    else:
+        raise ConfigError(f"export mode must be 'stateful' or 'windowed', got {mode!r}")
+    if exporter not in ("auto", "dynamo", "torchscript"):
+        raise ConfigError(f"exporter must be 'auto', 'dynamo' or 'torchscript', got {exporter!r}")
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        if exporter in ("auto", "dynamo"):
+            try:
+                _export_dynamo(module, args, tmp, inputs, outputs, axes, opset)
+            except Exception as e:
+                if exporter == "dynamo":
+                    raise ConfigError(
+                        f"dynamo ONNX export failed ({type(e).__name__}: "
+                        f"{str(e).splitlines()[0][:160]}); try exporter='torchscript'"
+                    ) from e
+                _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
+        else:
+            _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
+        _add_metadata(tmp, sur, mode)
+    return out
+
+
+def _export_dynamo(
+    module: nn.Module,
+    args: tuple[torch.Tensor, ...],
+    path: Path,
+    inputs: list[str],
+    outputs: list[str],
+    axes: dict[str, dict[int, str]],
+    opset: int,
+) -> None:
+    """``torch.onnx.export(dynamo=True)`` with a dynamic batch dimension (quiet)."""
+    import logging
+
+    from torch.export import Dim
+
+    batch = Dim("batch", min=1)
+    shapes = {name: {ax: batch for ax in axes[name]} for name in inputs}
+    loggers = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "torch._dynamo")]
+    levels = [lg.level for lg in loggers]
+    try:
+        for lg in loggers:
+            lg.setLevel(logging.ERROR)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(
+                module,
+                args,
+                str(path),
+                input_names=inputs,
+                output_names=outputs,
+                dynamic_shapes=shapes,
+                opset_version=opset,
+                dynamo=True,
+                verbose=False,
+                external_data=False,
+            )
+    finally:
+        for lg, lv in zip(loggers, levels):
+            lg.setLevel(lv)
+
+
+def _export_torchscript(
+    module: nn.Module,
+    args: tuple[torch.Tensor, ...],
+    path: Path,
+    inputs: list[str],
+    outputs: list[str],
+    axes: dict[str, dict[int, str]],
+    opset: int,
+) -> None:
+    """Legacy ``torch.onnx.export(dynamo=False)`` (deprecated in torch >= 2.9, still fast)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            module,
+            args,
+            str(path),
+            input_names=inputs,
+            output_names=outputs,
+            dynamic_axes=axes,
+            opset_version=opset,
+            dynamo=False,
+        )
+
+
+def _add_metadata(path: Path, sur: Surrogate, mode: str) -> None:
+    import onnx
+
+    model = onnx.load(str(path))
+    meta = {
+        "exsur_spec": json.dumps(sur.spec.to_dict()),
+        "exsur_mode": mode,
+        "exsur_window": str(sur.window),
+        "exsur_dt": repr(float(sur.spec.dt)),
+        "exsur_n_layer": str(sur.model_cfg.n_layer),
+        "exsur_hidden": str(sur.model_cfg.hidden),
+        "exsur_name": sur.name,
+    }
+    for k, v in meta.items():
+        p = model.metadata_props.add()
+        p.key, p.value = k, v
+    model.producer_name = "exsur"
+    onnx.save(model, str(path))
+
+
+class OnnxStepper:
+    """Closed-loop stepper over an exported ONNX surrogate (onnxruntime, CPU).
+
+    Same convention as :class:`~.engine.SurrogateEngine`: :meth:`reset` puts every batch row at
+    rest at ``theta0`` with a warm-up of ``W - 1`` at-rest samples; :meth:`step` returns
+    ``(theta[k+1], omega[k+1])``.
+
+    Args:
+        path: the ``.onnx`` file written by :func:`export_onnx`.
+        n_threads: onnxruntime intra-op threads.
+    """
+
+    def __init__(self, path: str | Path, *, n_threads: int = 1) -> None:
+        import onnxruntime as ort
+
+        path = Path(path)
+        if not path.is_file():
+            raise CheckpointError(
+                f"{path}: ONNX file not found (create it with 'exsur export CKPT --out FILE')"
+            )
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = int(n_threads)
+        opts.inter_op_num_threads = 1
+        try:
+            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        except Exception as e:
+            raise CheckpointError(f"{path}: onnxruntime cannot load it ({type(e).__name__})") from e
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if "exsur_spec" not in meta:
+            raise CheckpointError(f"{path}: not an exsur export (no exsur_spec metadata)")
+        self.spec = MachineSpec.from_dict(json.loads(meta["exsur_spec"]))
+        self.mode = meta["exsur_mode"]
+        self.window = int(meta["exsur_window"])
+        self.n_layer = int(meta["exsur_n_layer"])
+        self.hidden = int(meta["exsur_hidden"])
+        self.u_rest = rest_command(self.spec).astype(np.float32)
+        self.theta = np.zeros((0, self.spec.n_joint), dtype=np.float32)
+        self.h = self.c = np.zeros((self.n_layer, 0, self.hidden), dtype=np.float32)
+        self._theta_win = self._u_win = np.zeros((0, self.window, self.spec.n_joint), np.float32)
+
+    def reset(self, theta0: np.ndarray) -> np.ndarray:
+        """Start every row at rest at ``theta0`` (n_batch, n_joint) [rad]; returns θ (float32)."""
+        theta0 = np.atleast_2d(np.asarray(theta0, dtype=np.float32))
+        n = theta0.shape[0]
+        self.theta = theta0.copy()
+        u0 = np.broadcast_to(self.u_rest, theta0.shape).astype(np.float32)
+        if self.mode == "stateful":
+            self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
+            self.c = np.zeros_like(self.h)
+            for _ in range(self.window - 1):
+                _, _, self.h, self.c = self.session.run(
+                    None, {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
+                )
+        else:
+            self._theta_win = np.repeat(theta0[:, None], self.window, axis=1)
+            self._u_win = np.repeat(u0[:, None], self.window, axis=1)
+        return self.theta
+
+    def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Apply commands ``u`` (n_batch, n_joint); returns ``(theta[k+1], omega[k+1])`` float32."""
+        u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape)
+        if self.mode == "stateful":
+            omega, theta, self.h, self.c = self.session.run(
+                None, {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
+            )
+        else:
+            self._theta_win[:, -1] = self.theta
+            self._u_win[:, -1] = u
+            omega, theta = self.session.run(None, {"theta": self._theta_win, "u": self._u_win})
+            self._theta_win = np.roll(self._theta_win, -1, axis=1)
+            self._u_win = np.roll(self._u_win, -1, axis=1)
+        self.theta = theta
+        return theta, omega

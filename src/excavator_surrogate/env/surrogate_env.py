@@ -1,0 +1,133 @@
+"""``ExcavatorSurrogate-v0``: a trained LSTM/GRU surrogate behind the Gymnasium API."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..surrogate.checkpoint import load_checkpoint
+from ..surrogate.model import Surrogate
+from .base import ExcavatorEnv
+from .engine import Impl, Mode, SurrogateEngine
+from .safety import ActionMode, GuardConfig
+from .tasks import Task
+
+
+def load_surrogate(
+    ckpt: str | Path | Surrogate, *, device: str | torch.device = "cpu"
+) -> Surrogate:
+    """A :class:`Surrogate` from a checkpoint path (or the object itself), in eval mode."""
+    if isinstance(ckpt, Surrogate):
+        return ckpt.to(device).eval()
+    return load_checkpoint(ckpt, device=device)
+
+
+class ExcavatorSurrogateEnv(ExcavatorEnv):
+    r"""A trained surrogate of the excavator, stepped in closed loop at the control rate.
+
+    ## Description
+    The learned operator of the paper (2-layer LSTM, ``W = 30``) replaces the machine: each
+    step feeds the current angles and the command to the network, which predicts the mean
+    angular velocity over the next control period; the angle integrates as
+    ``θ[k+1] = θ[k] + T_s·ω̂[k+1]``.  Interface, units and timing are identical to
+    ``ExcavatorMujoco-v0``, so a controller developed here runs unchanged on the plant.
+    Joints, command ranges and rate come from the checkpoint's ``MachineSpec``; the tables
+    show the default 4-joint excavator (``n`` joints in general).
+
+    ## Action Space
+    ``Box(u_min, u_max, (n_joint,), float32)``: one command per joint, held for ``T_s``.
+
+    | Num | Action                        | Control Min | Control Max | Joint  | Type (Unit)           |
+    |-----|-------------------------------|-------------|-------------|--------|-----------------------|
+    | 0   | swing valve command           | -1000       | 1000        | swing  | command (normalised)  |
+    | 1   | boom valve command            | -1000       | 1000        | boom   | command (normalised)  |
+    | 2   | arm valve command             | -1000       | 1000        | arm    | command (normalised)  |
+    | 3   | bucket valve command          | -1000       | 1000        | bucket | command (normalised)  |
+
+    NaN/inf actions raise :class:`~.safety.ActionError`; out-of-range actions are clipped
+    (``action_mode="clip"``) or raise (``action_mode="reject"``).
+
+    ## Observation Space
+    ``Box((2·n_joint,), float32)``: angles then angular velocities.
+
+    | Num | Observation                          | Min  | Max | Joint  | Type (Unit)              |
+    |-----|--------------------------------------|------|-----|--------|--------------------------|
+    | 0   | swing angle θ₀ (wrapped to [-π, π))  | -π   | π   | swing  | angle (rad)              |
+    | 1   | boom angle θ₁                        | -Inf | Inf | boom   | angle (rad)              |
+    | 2   | arm angle θ₂                         | -Inf | Inf | arm    | angle (rad)              |
+    | 3   | bucket angle θ₃                      | -Inf | Inf | bucket | angle (rad)              |
+    | 4   | swing angular velocity ω₀            | -Inf | Inf | swing  | angular velocity (rad/s) |
+    | 5   | boom angular velocity ω₁             | -Inf | Inf | boom   | angular velocity (rad/s) |
+    | 6   | arm angular velocity ω₂              | -Inf | Inf | arm    | angular velocity (rad/s) |
+    | 7   | bucket angular velocity ω₃           | -Inf | Inf | bucket | angular velocity (rad/s) |
+
+    Periodic joints (swing) are wrapped to ``[-π, π)`` in the observation (``wrap_theta=False``
+    keeps them unwrapped, observation bounds then ±Inf); ``env.unwrapped.theta`` always holds
+    the unwrapped angles.  ω is the mean velocity over the last control period.
+
+    ## Rewards
+    0 unless a ``task`` is given (e.g. :class:`~.tasks.ReachTask`).
+
+    ## Starting State
+    At rest (ω = 0) at ``options["theta0"]`` or at a random pose from ``np_random``.  The
+    network is warmed up on ``W - 1`` at-rest samples (θ constant, u = 0).
+
+    ## Episode End
+    Termination only through the task.  Truncation: the divergence guard (NaN/inf state, a
+    joint beyond its limit by more than ``guard.limit_margin``, ``|ω| > guard.omega_max``;
+    ``info["guard"]`` names the reason) and the registered time limit (1000 steps = 50 s).
+
+    ## Info
+    ``guard`` (str, "" when fine), ``limit_violation`` (bool per joint, outside the limits),
+    ``u`` (applied command), ``theta`` on reset, and the task's entries.
+
+    ## Arguments
+    | Parameter      | Type                    | Default   | Description                                             |
+    |----------------|-------------------------|-----------|---------------------------------------------------------|
+    | `ckpt`         | **str / Surrogate**     | required  | checkpoint path (``exsur train``) or a loaded surrogate |
+    | `device`       | **str**                 | `"cpu"`   | torch device                                            |
+    | `mode`         | **str / None**          | `None`    | ``stateful`` / ``windowed``; default: checkpoint's mode |
+    | `impl`         | **str**                 | `"cell"`  | stateful kernel: ``cell``, ``module`` or ``auto``       |
+    | `task`         | **Task / None**         | `None`    | reward/termination hook                                 |
+    | `action_mode`  | **str**                 | `"clip"`  | ``clip`` or ``reject`` out-of-range commands            |
+    | `guard`        | **GuardConfig / None**  | defaults  | divergence-guard thresholds                             |
+    | `wrap_theta`   | **bool**                | `True`    | wrap periodic θ in the observation                      |
+    | `reset_margin` | **float**               | `0.1`     | fraction of joint ranges avoided by random starts       |
+    """
+
+    env_id = "ExcavatorSurrogate-v0"
+
+    def __init__(
+        self,
+        ckpt: str | Path | Surrogate,
+        *,
+        device: str | torch.device = "cpu",
+        mode: Mode | None = None,
+        impl: Impl = "cell",
+        task: Task | None = None,
+        action_mode: ActionMode = "clip",
+        guard: GuardConfig | None = None,
+        wrap_theta: bool = True,
+        reset_margin: float = 0.1,
+    ) -> None:
+        sur = load_surrogate(ckpt, device=device)
+        self.ckpt = str(ckpt) if not isinstance(ckpt, Surrogate) else None
+        super().__init__(
+            spec=sur.spec,
+            task=task,
+            action_mode=action_mode,
+            guard=guard,
+            wrap_theta=wrap_theta,
+            reset_margin=reset_margin,
+        )
+        self.engine = SurrogateEngine(sur, n_envs=1, device=device, mode=mode, impl=impl)
+        self.surrogate = sur
+
+    def _dyn_reset(self, theta0: np.ndarray) -> None:
+        self.engine.reset(theta0[None])
+
+    def _dyn_step(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        theta, omega = self.engine.step(u[None])
+        return theta[0].cpu().numpy().copy(), omega[0].cpu().numpy()

@@ -1,0 +1,298 @@
+"""``SurrogateVectorEnv``: ``n_envs`` surrogate excavators in ONE torch batch.
+
+Equivalent to ``gymnasium.vector.SyncVectorEnv`` over ``n_envs`` copies of
+``ExcavatorSurrogate-v0`` (each wrapped in a ``TimeLimit``), with sub-environment ``i``
+seeded ``seed + i`` -- the tests check exactly that -- but stepped as one batch:
+
+- stateful checkpoints carry ``(h, c)`` of shape (n_layer, n_envs, hidden), one sample per
+  step; windowed checkpoints re-run their ``W``-sample window from a ring buffer;
+- per-env resets are *masked*: only the finished envs get a new pose and a fresh at-rest
+  warm-up state, the others continue untouched;
+- autoreset mode (``metadata["autoreset_mode"]``): ``NEXT_STEP`` (gymnasium's default: the
+  step after an episode ends returns the reset observation, reward 0, and ignores that
+  env's action), ``SAME_STEP`` (reset within the step; ``info["final_obs"]`` /
+  ``info["final_info"]`` hold the last observation/info) or ``DISABLED`` (reset yourself with
+  ``reset(options={"reset_mask": mask})``).
+
+Observations (n_envs, 2·n_joint) float32 and actions (n_envs, n_joint) follow the tables of
+:class:`~excavator_surrogate.env.surrogate_env.ExcavatorSurrogateEnv`.  ``info`` holds
+``guard`` (n_envs,) int8 (``safety.GUARD_*``: 0 fine, 1 joint limit, 2 speed, 3 NaN/inf),
+``limit_violation`` (n_envs, n_joint) bool, ``theta`` (n_envs, n_joint) unwrapped angles
+[rad] and the task's entries, each with gymnasium's ``_key`` mask.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..errors import ConfigError
+from ..surrogate.model import Surrogate
+from .base import action_space, check_theta0, observation_space
+from .engine import Impl, Mode, SurrogateEngine
+from .safety import GUARD_NAN, GUARD_OK, ActionChecker, ActionMode, DivergenceGuard, GuardConfig
+from .surrogate_env import load_surrogate
+from .tasks import Task, sample_pose
+
+
+class SurrogateVectorEnv(VectorEnv):
+    """A batched :class:`gymnasium.vector.VectorEnv` over one surrogate checkpoint.
+
+    Args:
+        ckpt: checkpoint path or loaded :class:`~excavator_surrogate.surrogate.model.Surrogate`.
+        n_envs: number of sub-environments (one torch batch).
+        device: torch device.
+        mode: ``stateful`` / ``windowed``; default: the checkpoint's training mode.
+        impl: stateful kernel, ``auto`` (cell ops below 256 envs, folded ``nn.LSTM`` above),
+            ``cell`` or ``module``.
+        task: batched reward/termination hook; None -> reward 0, no termination.
+        action_mode: ``clip`` or ``reject`` out-of-range commands.
+        guard: divergence-guard thresholds (truncate on NaN, limits, speed).
+        wrap_theta: wrap periodic joints' θ to ``[-π, π)`` in observations.
+        reset_margin: fraction of joint ranges avoided by random start poses.
+        max_episode_steps: truncate episodes after this many steps (None: never).
+        autoreset_mode: ``AutoresetMode`` (or its string value).
+    """
+
+    env_id = "ExcavatorSurrogate-v0 (vector)"
+
+    def __init__(
+        self,
+        ckpt: str | Path | Surrogate,
+        n_envs: int,
+        device: str | torch.device = "cpu",
+        *,
+        mode: Mode | None = None,
+        impl: Impl = "auto",
+        task: Task | None = None,
+        action_mode: ActionMode = "clip",
+        guard: GuardConfig | None = None,
+        wrap_theta: bool = True,
+        reset_margin: float = 0.1,
+        max_episode_steps: int | None = 1000,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+    ) -> None:
+        sur = load_surrogate(ckpt, device=device)
+        self.engine = SurrogateEngine(sur, n_envs=n_envs, device=device, mode=mode, impl=impl)
+        self.surrogate = sur
+        self.machine = sur.spec
+        """The machine (joints, command ranges, rate)."""
+        spec = sur.spec
+        self.num_envs = int(n_envs)
+        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        self.metadata = {
+            "autoreset_mode": self.autoreset_mode,
+            "render_modes": [],
+            "render_fps": spec.rate_hz,
+        }
+        self.single_action_space = action_space(spec)
+        self.single_observation_space = observation_space(spec, wrap=wrap_theta)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.task = task
+        self.reset_margin = float(reset_margin)
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self._check_action = ActionChecker(spec, env_name=self.env_id, action_mode=action_mode)
+        self._guard = DivergenceGuard(spec, guard)
+        n, j = self.num_envs, spec.n_joint
+        self._periodic = np.asarray(spec.periodic, dtype=bool)
+        self._wrap = bool(wrap_theta) and bool(self._periodic.any())
+        self._rngs: list[np.random.Generator] = []
+        self._elapsed = np.zeros(n, dtype=np.int64)
+        self._autoreset = np.zeros(n, dtype=bool)
+        self._obs = np.zeros((n, 2 * j), dtype=np.float32)
+        self._ones = np.ones(n, dtype=bool)
+
+    # ---- helpers ------------------------------------------------------------------------------
+
+    def _seed(self, seed: int | list[int | None] | None) -> None:
+        n = self.num_envs
+        if seed is None:
+            if not self._rngs:
+                self._rngs = [seeding.np_random()[0] for _ in range(n)]
+            return
+        seeds = [seed + i for i in range(n)] if isinstance(seed, int) else list(seed)
+        if len(seeds) != n:
+            raise ConfigError(f"{self.env_id}: {len(seeds)} seeds given for {n} envs")
+        if isinstance(seed, int):
+            self._np_random, self._np_random_seed = seeding.np_random(seed)
+        rngs = self._rngs or [None] * n
+        self._rngs = [
+            seeding.np_random(s)[0] if s is not None else (r or seeding.np_random()[0])
+            for s, r in zip(seeds, rngs)
+        ]
+
+    def _theta0(self, mask: np.ndarray, options: dict[str, Any]) -> np.ndarray:
+        spec = self.machine
+        theta0 = np.zeros((self.num_envs, spec.n_joint))
+        given = options.get("theta0")
+        if given is not None:
+            g = np.asarray(given, dtype=np.float64)
+            g = np.broadcast_to(g, (self.num_envs, spec.n_joint)) if g.ndim == 1 else g
+            if g.shape != (self.num_envs, spec.n_joint):
+                raise ConfigError(
+                    f"{self.env_id}: options['theta0'] must be ({spec.n_joint},) or "
+                    f"({self.num_envs}, {spec.n_joint}) angles in rad, got shape {g.shape}"
+                )
+        for i in np.flatnonzero(mask):
+            if given is not None:
+                theta0[i] = check_theta0(spec, g[i], where=f"{self.env_id}.reset env {i}")
+            else:
+                theta0[i] = sample_pose(spec, self._rngs[i], margin=self.reset_margin)
+        return theta0
+
+    def _write_obs(self, theta: np.ndarray, omega: np.ndarray, rows: np.ndarray | None) -> None:
+        """Write θ (wrapped) and ω into ``self._obs`` for ``rows`` (None: all)."""
+        j = self.machine.n_joint
+        if rows is None:
+            self._obs[:, :j] = theta
+            self._obs[:, j:] = omega
+            if self._wrap:
+                p = self._periodic
+                self._obs[:, :j][:, p] = (theta[:, p] + math.pi) % (2.0 * math.pi) - math.pi
+        else:
+            th = theta[rows]
+            if self._wrap:
+                p = self._periodic
+                th = th.copy()
+                th[:, p] = (th[:, p] + math.pi) % (2.0 * math.pi) - math.pi
+            self._obs[rows, :j] = th
+            self._obs[rows, j:] = omega[rows]
+
+    def _reset_envs(self, mask: np.ndarray, options: dict[str, Any]) -> dict[str, Any]:
+        """Reset the envs in ``mask`` (engine, observation rows, counters, task)."""
+        theta0 = self._theta0(mask, options)
+        theta = self.engine.reset(theta0, mask).cpu().numpy()
+        self._elapsed[mask] = 0
+        self._autoreset[mask] = False
+        self._write_obs(theta, np.zeros_like(theta), mask)
+        info: dict[str, Any] = {}
+        if self.task is not None:
+            # one call per env with that env's generator: identical draws to single envs
+            for i in np.flatnonzero(mask):
+                one = np.zeros(self.num_envs, dtype=bool)
+                one[i] = True
+                info.update(self.task.reset(theta, mask=one, rng=self._rngs[i], options=options))
+        return info
+
+    # ---- gymnasium API ------------------------------------------------------------------------
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset all envs, or those in ``options["reset_mask"]`` (n_envs,) bool.
+
+        Args:
+            seed: int (env ``i`` gets ``seed + i``), a list of per-env seeds, or None.
+            options: ``theta0`` ((n_joint,) or (n_envs, n_joint) [rad], at rest), ``reset_mask``,
+                and task options (e.g. ``target``).
+
+        Returns:
+            Observations (n_envs, 2·n_joint) float32 and ``info`` (``theta``: (n_envs, n_joint)).
+        """
+        self._seed(seed)
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = self._ones
+        else:
+            mask = np.asarray(mask)
+            if mask.shape != (self.num_envs,) or mask.dtype != np.bool_ or not mask.any():
+                raise ConfigError(
+                    f"{self.env_id}: options['reset_mask'] must be a bool array of shape "
+                    f"({self.num_envs},) with at least one True"
+                )
+        info = self._reset_envs(mask, options)
+        info["theta"] = self.engine.theta.cpu().numpy().copy()
+        return self._obs.copy(), self._with_masks(info, mask)
+
+    def _with_masks(self, info: dict[str, Any], mask: np.ndarray) -> dict[str, Any]:
+        for k in list(info):
+            if not k.startswith("_"):
+                info[f"_{k}"] = mask
+        return info
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Apply ``actions`` (n_envs, n_joint) for one control period.
+
+        Returns:
+            ``obs`` (n_envs, 2·n_joint) float32, ``reward`` (n_envs,) float64, ``terminated``
+            and ``truncated`` (n_envs,) bool, ``info`` (see the module docstring).
+
+        Raises:
+            ActionError: non-finite actions, wrong shape, or out of range with ``action_mode="reject"``.
+        """
+        if not self._rngs:
+            raise RuntimeError(f"{self.env_id}: call reset() before step()")
+        u = self._check_action(actions, n_envs=self.num_envs)
+        theta_t, omega_t = self.engine.step(u)
+        theta = theta_t.cpu().numpy()
+        omega = omega_t.cpu().numpy()
+        self._elapsed += 1
+        code, violation = self._guard.check(theta, omega)
+        nan = code == GUARD_NAN
+        truncated = code != GUARD_OK
+        if self.max_episode_steps is not None:
+            truncated |= self._elapsed >= self.max_episode_steps
+        if nan.any():
+            ok = ~nan
+            self._write_obs(theta, omega, ok)
+        else:
+            self._write_obs(theta, omega, None)
+        reward = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        info: dict[str, Any] = {"guard": code, "limit_violation": violation}
+        if self.task is not None:
+            r, done, extra = self.task.evaluate(theta, omega, u)
+            reward = np.where(nan, 0.0, r)
+            terminated = done & ~nan
+            info.update(extra)
+        info["theta"] = theta.copy()
+        info = self._with_masks(info, self._ones)
+
+        mode = self.autoreset_mode
+        if mode == AutoresetMode.NEXT_STEP:
+            was_done = self._autoreset.copy()
+            if was_done.any():
+                extra = self._reset_envs(was_done, {})
+                reward[was_done] = 0.0
+                terminated[was_done] = False
+                truncated[was_done] = False
+                code[was_done] = GUARD_OK
+                violation[was_done] = False
+                info["theta"][was_done] = self.engine.theta.cpu().numpy()[was_done]
+                for k, v in extra.items():
+                    info[k], info[f"_{k}"] = v, self._ones
+            self._autoreset = terminated | truncated
+        elif mode == AutoresetMode.SAME_STEP:
+            done = terminated | truncated
+            if done.any():
+                final_obs = np.full(self.num_envs, None, dtype=object)
+                for i in np.flatnonzero(done):
+                    final_obs[i] = self._obs[i].copy()
+                final_info = {
+                    k: (v.copy() if isinstance(v, np.ndarray) else v)
+                    for k, v in info.items()
+                    if not k.startswith("_")
+                }
+                info["final_info"] = self._with_masks(final_info, done)
+                info["_final_info"] = done
+                info["final_obs"] = final_obs
+                info["_final_obs"] = done
+                extra = self._reset_envs(done.copy(), {})
+                info["theta"][done] = self.engine.theta.cpu().numpy()[done]
+                for k, v in extra.items():
+                    info[k], info[f"_{k}"] = v, self._ones
+        return self._obs.copy(), reward, terminated, truncated, info

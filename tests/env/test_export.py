@@ -1,0 +1,80 @@
+"""ONNX export of the single-step model and the onnxruntime stepper."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+
+from excavator_surrogate.cli import main
+from excavator_surrogate.env import OnnxStepper, export_onnx
+from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.errors import CheckpointError
+
+
+@pytest.mark.parametrize(
+    ("mode", "cell", "exporter"),
+    [
+        ("stateful", "lstm", "dynamo"),
+        ("stateful", "gru", "torchscript"),
+        ("windowed", "lstm", "dynamo"),
+        ("windowed", "arx", "torchscript"),
+    ],
+)
+def test_onnx_stepper_matches_torch(
+    mode: str, cell: str, exporter: str, make_surrogate, tmp_path: Path
+) -> None:
+    sur = make_surrogate(mode=mode, cell=cell)
+    path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
+    model = onnx.load(str(path))
+    onnx.checker.check_model(model)
+    names = [i.name for i in model.graph.input]
+    assert names == (["theta", "u", "h", "c"] if mode == "stateful" else ["theta", "u"])
+    stepper = OnnxStepper(path)
+    assert stepper.spec == sur.spec and stepper.mode == mode
+    engine = SurrogateEngine(sur, n_envs=5)
+    rng = np.random.default_rng(0)
+    theta0 = rng.uniform(-0.3, 0.3, (5, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    stepper.reset(theta0)
+    engine.reset(theta0)
+    for _ in range(40):
+        u = rng.uniform(-1000, 1000, (5, 4))
+        th, om = stepper.step(u)
+        th_t, om_t = engine.step(u)
+        np.testing.assert_allclose(om, om_t.numpy(), atol=1e-5, rtol=0)
+        np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+
+
+def test_state_is_exposed_and_batch_is_dynamic(make_surrogate, tmp_path: Path) -> None:
+    import onnxruntime as ort
+
+    sur = make_surrogate()
+    path = export_onnx(sur, tmp_path / "m.onnx", exporter="torchscript")
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    assert [o.name for o in sess.get_outputs()] == ["omega", "theta_next", "h_out", "c_out"]
+    for n in (1, 7):
+        h = np.zeros((2, n, 16), np.float32)
+        out = sess.run(
+            None,
+            {
+                "theta": np.zeros((n, 4), np.float32),
+                "u": np.zeros((n, 4), np.float32),
+                "h": h,
+                "c": h,
+            },
+        )
+        assert out[0].shape == (n, 4) and out[2].shape == (2, n, 16)
+
+
+def test_cli_export(
+    stateful_ckpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "sub" / "model.onnx"
+    assert main(["export", str(stateful_ckpt), "--out", str(out)]) == 0
+    assert out.is_file() and "max |torch - onnxruntime|" in capsys.readouterr().out
+    assert main(["export", str(tmp_path / "missing.pt"), "--out", str(out)]) == 2
+    assert "checkpoint not found" in capsys.readouterr().err
+    with pytest.raises(CheckpointError):
+        OnnxStepper(tmp_path / "nope.onnx")

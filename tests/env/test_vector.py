@@ -1,0 +1,171 @@
+"""SurrogateVectorEnv against plain loops: single envs in a SyncVectorEnv and ClosedLoop."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+import excavator_surrogate.env as E
+from excavator_surrogate.env import (
+    ActionError,
+    ExcavatorSurrogateEnv,
+    ReachTask,
+    SurrogateVectorEnv,
+)
+from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.surrogate.rollout import ClosedLoop
+
+N_ENVS = 3
+LIMIT = 7  # short episodes so autoresets happen within the test
+
+
+def _sync(ckpt: Path, mode: AutoresetMode) -> SyncVectorEnv:
+    def make() -> gym.Env:
+        env = ExcavatorSurrogateEnv(ckpt, task=ReachTask(EXCAVATOR, tol=0.0))
+        return gym.wrappers.TimeLimit(env, LIMIT)
+
+    return SyncVectorEnv([make for _ in range(N_ENVS)], autoreset_mode=mode)
+
+
+@pytest.mark.parametrize("ckpt_name", ["stateful_ckpt", "windowed_ckpt"])
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_matches_sync_vector_env_of_single_envs(
+    ckpt_name: str, mode: AutoresetMode, request: pytest.FixtureRequest
+) -> None:
+    ckpt = request.getfixturevalue(ckpt_name)
+    vec = SurrogateVectorEnv(
+        ckpt,
+        N_ENVS,
+        task=ReachTask(EXCAVATOR, tol=0.0),
+        max_episode_steps=LIMIT,
+        autoreset_mode=mode,
+    )
+    assert vec.metadata["autoreset_mode"] == mode
+    assert vec.engine.mode == ("stateful" if ckpt_name == "stateful_ckpt" else "windowed")
+    ref = _sync(ckpt, mode)
+    o1, i1 = vec.reset(seed=5)
+    o2, i2 = ref.reset(seed=5)
+    np.testing.assert_allclose(o1, o2, atol=1e-6)
+    np.testing.assert_array_equal(i1["target"], i2["target"])
+    rng = np.random.default_rng(0)
+    n_done = 0
+    for _ in range(2 * LIMIT + 3):
+        a = rng.uniform(-1000, 1000, (N_ENVS, 4)).astype(np.float32)
+        obs, rew, term, trunc, info = vec.step(a)
+        obs2, rew2, term2, trunc2, info2 = ref.step(a)
+        np.testing.assert_allclose(obs, obs2, atol=1e-5)
+        np.testing.assert_allclose(rew, rew2, atol=1e-5)
+        np.testing.assert_array_equal(term, term2)
+        np.testing.assert_array_equal(trunc, trunc2)
+        n_done += int(trunc.sum())
+        if mode == AutoresetMode.SAME_STEP and "final_obs" in info2:
+            np.testing.assert_array_equal(info["_final_obs"], info2["_final_obs"])
+            for x, y in zip(
+                info["final_obs"][info["_final_obs"]], info2["final_obs"][info2["_final_obs"]]
+            ):
+                np.testing.assert_allclose(x, y, atol=1e-5)
+    assert n_done >= 2 * N_ENVS  # autoresets were exercised
+
+
+def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
+    rng = np.random.default_rng(1)
+    envs = [SurrogateVectorEnv(stateful_ckpt, 4, impl=impl) for impl in ("cell", "module")]
+    assert envs[1].engine.impl == "module"
+    obs = [e.reset(seed=3)[0] for e in envs]
+    for _ in range(30):
+        a = rng.uniform(-1000, 1000, (4, 4))
+        obs = [e.step(a)[0] for e in envs]
+        np.testing.assert_allclose(obs[0], obs[1], atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("mode", "cell"),
+    [("stateful", "lstm"), ("stateful", "gru"), ("windowed", "lstm"), ("windowed", "arx")],
+)
+def test_engine_matches_closed_loop_reference(mode: str, cell: str, make_surrogate) -> None:
+    """The batched engine equals the surrogate package's ClosedLoop with an at-rest history."""
+    sur = make_surrogate(mode=mode, cell=cell)
+    rng = np.random.default_rng(2)
+    n, w = 3, sur.window
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    eng = SurrogateEngine(sur, n_envs=n)
+    eng.reset(theta0)
+    ref = ClosedLoop(sur)
+    ref.reset(np.repeat(theta0[:, None], w, axis=1), np.zeros((n, w - 1, 4)))
+    for _ in range(25):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        th, om = eng.step(u)
+        th_r, om_r = ref.step(u)
+        np.testing.assert_allclose(th.numpy(), th_r.double().numpy(), atol=1e-5)
+        np.testing.assert_allclose(om.numpy(), om_r.double().numpy(), atol=1e-5)
+
+
+@pytest.mark.parametrize("ckpt_name", ["stateful_ckpt", "windowed_ckpt"])
+def test_masked_reset_leaves_other_envs_untouched(
+    ckpt_name: str, request: pytest.FixtureRequest
+) -> None:
+    ckpt = request.getfixturevalue(ckpt_name)
+    a_env = SurrogateVectorEnv(ckpt, N_ENVS, max_episode_steps=None)
+    b_env = SurrogateVectorEnv(ckpt, N_ENVS, max_episode_steps=None)
+    theta0 = np.array([[0.5, 0.1, 1.2, 0.3], [-1.0, 0.0, 1.6, 0.8], [2.0, -0.2, 2.0, 1.0]])
+    a_env.reset(options={"theta0": theta0})
+    b_env.reset(options={"theta0": theta0})
+    rng = np.random.default_rng(3)
+    new_pose = np.array([1.0, 0.3, 1.0, 0.0])
+    single = ExcavatorSurrogateEnv(ckpt)
+    for k in range(12):
+        if k == 5:
+            mask = np.array([False, True, False])
+            obs_b, _ = b_env.reset(
+                options={"theta0": np.tile(new_pose, (N_ENVS, 1)), "reset_mask": mask}
+            )
+            np.testing.assert_allclose(obs_b[1, :4], new_pose, atol=1e-6)
+            single.reset(options={"theta0": new_pose})
+        a = rng.uniform(-1000, 1000, (N_ENVS, 4))
+        oa = a_env.step(a)[0]
+        ob = b_env.step(a)[0]
+        np.testing.assert_array_equal(oa[[0, 2]], ob[[0, 2]])
+        if k >= 5:
+            np.testing.assert_allclose(ob[1], single.step(a[1])[0], atol=1e-5)
+
+
+def test_vector_safety_and_guard(stateful_ckpt: Path, make_surrogate) -> None:
+    vec = SurrogateVectorEnv(stateful_ckpt, N_ENVS)
+    vec.reset(seed=0)
+    bad = np.zeros((N_ENVS, 4))
+    bad[2, 1] = np.nan
+    with pytest.raises(ActionError, match=r"env 2 action\[1\] \(boom\) is nan"):
+        vec.step(bad)
+    strict = SurrogateVectorEnv(stateful_ckpt, N_ENVS, action_mode="reject")
+    strict.reset(seed=0)
+    with pytest.raises(ActionError, match="outside"):
+        strict.step(np.full((N_ENVS, 4), 2000.0))
+    sur = make_surrogate()
+    with torch.no_grad():
+        sur.net.head[2].bias.fill_(float("nan"))
+    nan_env = SurrogateVectorEnv(sur, N_ENVS)
+    obs0, _ = nan_env.reset(seed=0)
+    obs, _, term, trunc, info = nan_env.step(np.zeros((N_ENVS, 4)))
+    assert trunc.all() and not term.any() and (info["guard"] == E.safety.GUARD_NAN).all()
+    np.testing.assert_array_equal(obs, obs0)  # last finite state
+    obs, rew, _, trunc, _ = nan_env.step(np.zeros((N_ENVS, 4)))  # autoreset, no crash
+    assert np.isfinite(obs).all() and not trunc.any() and (rew == 0).all()
+
+
+def test_make_vec_entry_point(stateful_ckpt: Path) -> None:
+    envs = gym.make_vec(
+        E.SURROGATE_ID, num_envs=5, vectorization_mode="vector_entry_point", ckpt=str(stateful_ckpt)
+    )
+    assert isinstance(envs.unwrapped, SurrogateVectorEnv)
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape == (5, 8) and obs.dtype == np.float32
+    assert envs.observation_space.shape == (5, 8) and envs.action_space.shape == (5, 4)
+    obs, rew, term, trunc, _ = envs.step(envs.action_space.sample())
+    assert obs.shape == (5, 8) and rew.shape == term.shape == trunc.shape == (5,)
+    assert envs.observation_space.contains(obs)
