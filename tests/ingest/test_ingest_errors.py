@@ -7,10 +7,7 @@ from pathlib import Path
 
 import arm3_plant
 import numpy as np
-import pytest
 from ingest_helpers import assert_nothing_written, write_lines
-
-from excavator_surrogate import clean as clean_mod
 
 
 def _fail(cli, work: Path, log: Path, *extra: str, mapping: str = "arm3.toml") -> str:
@@ -257,15 +254,6 @@ def test_missing_source_and_unsupported(cli, work):
     assert "unsupported log type" in err
 
 
-@pytest.mark.skipif(hasattr(clean_mod, "clean_episode"), reason="the cleaning stage is available")
-def test_kalman_unavailable(cli, work, short_cols):
-    err = _fail(cli, work, write_lines(work / "a.csv", short_cols), "--velocity", "kalman")
-    assert "needs excavator_surrogate.clean.clean_episode" in err and "--velocity diff" in err
-
-
-@pytest.mark.skipif(
-    not hasattr(clean_mod, "clean_episode"), reason="the cleaning stage is not available yet"
-)
 def test_kalman_velocity(cli, work, short_cols):
     log = write_lines(work / "a.csv", short_cols)
     rc, _, err = cli(
@@ -282,6 +270,11 @@ def test_kalman_velocity(cli, work, short_cols):
     assert rc == 0, err
     rep = json.loads((work / "ds" / "import_report.json").read_text())
     assert set(rep["files"][0]["velocity"].values()) == {"kalman"}
+    # The derived velocity is the backward difference of the (fused) angle: consistent pair.
+    from excavator_surrogate.data import load_dataset
+
+    ep = load_dataset(work / "ds").train[0]
+    np.testing.assert_allclose(ep.omega[1:], np.diff(ep.theta, axis=0) / ep.dt, atol=1e-9)
 
 
 def test_nan_values_fail_in_every_mapped_column(cli, work, short_cols):

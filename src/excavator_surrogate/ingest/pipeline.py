@@ -301,14 +301,25 @@ def _intersect(
     return out
 
 
-def kalman_velocity(ep: Episode) -> np.ndarray:
-    """(n_step, n_joint) velocities [rad/s] from ``excavator_surrogate.clean.clean_episode``.
+def kalman_fuse(ep: Episode) -> Episode:
+    """Angle-only Kalman filtering of ``ep`` for logs without a velocity channel.
+
+    Uses the paper's constant-velocity filter with the jump test and no integration
+    consistency test (there is no gyro to integrate): ``method="paper"``, ``tau_cons=inf``.
+    Returns the cleaned episode (fused ``theta``, ``omega`` = backward difference of it).
 
     Raises:
         ConfigError: the cleaning stage is not available.
     """
     fn = _clean_episode()
-    return np.asarray(fn(ep).omega, dtype=np.float64)
+    from ..clean import CleanConfig
+
+    return fn(ep, config=CleanConfig(method="paper", tau_cons=float("inf")))
+
+
+def kalman_velocity(ep: Episode) -> np.ndarray:
+    """(n_step, n_joint) velocities [rad/s] from angle-only Kalman filtering (:func:`kalman_fuse`)."""
+    return np.asarray(kalman_fuse(ep).omega, dtype=np.float64)
 
 
 def _clean_episode() -> Callable[[Episode], Episode]:
@@ -512,9 +523,13 @@ def convert_log(
     if options.velocity == "kalman" and episodes and any(o is None for o in omega_in):
         derived = [i for i, o in enumerate(omega_in) if o is None]
         for i, ep in enumerate(episodes):
-            om = ep.omega.copy()
-            om[:, derived] = kalman_velocity(ep)[:, derived]
-            episodes[i] = ep.replace(omega=om)
+            # Angle-only filtering: fused theta and omega = backward difference of it, so
+            # the pair stays kinematically consistent (theta[k+1] = theta[k] + T_s*omega[k+1]).
+            fused = kalman_fuse(ep)
+            th, om = ep.theta.copy(), ep.omega.copy()
+            th[:, derived] = fused.theta[:, derived]
+            om[:, derived] = fused.omega[:, derived]
+            episodes[i] = ep.replace(theta=th, omega=om)
     if not episodes:
         entry["status"] = "dropped"
     return FileResult(path, episodes, entry)
