@@ -1,31 +1,50 @@
-"""Simulate stage: the Stage I MuJoCo excavator, excitation signals, dataset generation.
+"""Simulate stage: MuJoCo excavator (Stage I ideal, Stage II hydraulic stand-in), excitation
+signals, soil contact, sensor faults, dataset generation.
 
-See docs/plant.md.  Main entry points:
+See docs/plant.md and docs/hydraulics.md.  Main entry points:
 
 - :class:`~.plant.MujocoExcavator` / :class:`~.plant.PlantConfig`: the plant
   (``reset``/``step`` Python loop, batched ``rollout``).
+- :class:`~.hydraulics.HydraulicTransform` / :class:`~.hydraulics.HydraulicConfig`: the
+  hydraulic command transform (dead zones, valve curve, lag, delay, pump sharing, relief ...);
+  :class:`~.hydraulics.ReliefAntiWindup`: force hook against servo wind-up at relief.
+- :class:`~.soil.SoilHook` / :class:`~.soil.SoilConfig`: soil resistance and payload
+  (compound operation); :class:`~.soil.ChainHook` combines force hooks.
 - :mod:`.excitation`: command signals (``multisine``, ``steps``, ``chirp``, ``prbs``,
-  ``work_cycle``).
+  ``work_cycle``) and the closed-loop digging operator (``dig_cycle``,
+  :class:`~.excitation.DigOperator`).
 - :func:`~.generate.simulate_dataset` / :class:`~.generate.SimulateConfig`: datasets.
-- :mod:`.hooks`: command-transform and force hooks for hydraulics and soil.
+- :mod:`.hooks`: command-transform and force hooks.
 """
 
 from __future__ import annotations
 
-from .excitation import SIGNALS, ExcitationConfig, generate
-from .generate import SimulateConfig, simulate_dataset
+from .excitation import CLOSED_LOOP, SIGNALS, DigOperator, ExcitationConfig, NominalModel, generate
+from .generate import SimulateConfig, build_plant, simulate_dataset
 from .hooks import CommandTransform, ForceHook, ZeroOrderHold
+from .hydraulics import HydraulicConfig, HydraulicTransform, ReliefAntiWindup
 from .plant import MujocoExcavator, PlantConfig
+from .soil import ChainHook, SoilConfig, SoilHook
 
 __all__ = [
+    "CLOSED_LOOP",
     "SIGNALS",
+    "ChainHook",
     "CommandTransform",
+    "DigOperator",
     "ExcitationConfig",
     "ForceHook",
+    "HydraulicConfig",
+    "HydraulicTransform",
     "MujocoExcavator",
+    "NominalModel",
     "PlantConfig",
+    "ReliefAntiWindup",
     "SimulateConfig",
+    "SoilConfig",
+    "SoilHook",
     "ZeroOrderHold",
+    "build_plant",
     "generate",
     "simulate_dataset",
 ]

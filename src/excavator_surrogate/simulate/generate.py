@@ -1,4 +1,4 @@
-"""Generate simulated datasets: excitation -> MuJoCo plant -> episode files.
+"""Generate simulated datasets: excitation -> MuJoCo plant -> (sensors) -> episode files.
 
 :func:`simulate_dataset` writes a dataset folder (see :mod:`excavator_surrogate.data`) with
 ``train``, ``val`` and ``test`` episodes.  Episodes are simulated in parallel processes;
@@ -6,10 +6,21 @@ the output is identical for a given seed whatever the number of workers, because
 episode draws from its own seed: ``SeedSequence(seed)`` spawns one child per split (train,
 val, test) and each split's child spawns one seed per episode, so e.g. the test episodes do
 not change when ``n_train`` changes.
+
+Plants (``SimulateConfig.plant``): ``ideal`` (Stage I, source ``mujoco-ideal``) or
+``hydraulic`` (Stage II stand-in, :mod:`.hydraulics`, source ``mujoco-hydraulic``).  With
+``soil.enabled`` (compound operation, :mod:`.soil`) or a closed-loop signal (``dig_cycle``)
+an episode runs in the Python loop (force hooks, operator feedback); otherwise in the
+batched ``mujoco.rollout``.  With ``sensors = true`` the sensor model
+(:mod:`.sensors`) turns the true angles/velocities into measured ones; the truth is kept in
+``theta_<j>_true`` / ``omega_<j>_true``.  Per-episode random streams: ``default_rng(seed)``
+(pose, commands, operator), ``default_rng([seed, 1])`` (sensor faults),
+``default_rng([seed, 2])`` (plant variation: initial oil temperature).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -17,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from .. import config as config_mod
@@ -24,11 +36,23 @@ from ..data import Episode, write_dataset
 from ..errors import ConfigError
 from ..io_utils import log, progress
 from ..spec import EXCAVATOR, MachineSpec
-from .excitation import SIGNALS, ExcitationConfig, generate
+from .excitation import (
+    CLOSED_LOOP,
+    SIGNALS,
+    DigOperator,
+    ExcitationConfig,
+    NominalModel,
+    generate,
+)
+from .hydraulics import HydraulicConfig, HydraulicTransform, ReliefAntiWindup
 from .plant import MujocoExcavator, PlantConfig
+from .sensors import SensorConfig, apply_sensors_episode
+from .soil import ChainHook, SoilConfig, SoilHook
 
 SOURCE = "mujoco-ideal"
 """``source`` metadata of episodes from the ideal Stage I plant."""
+SOURCES: dict[str, str] = {"ideal": "mujoco-ideal", "hydraulic": "mujoco-hydraulic"}
+"""``source`` metadata per plant kind."""
 
 
 @dataclass(frozen=True)
@@ -73,6 +97,16 @@ class SimulateConfig:
     """Also write theta_<j>_true / omega_<j>_true (equal to the measured columns here)."""
     excitation: ExcitationConfig = field(default_factory=ExcitationConfig)
     """Parameters of the signal kinds (``[simulate.excitation.<kind>]``)."""
+    plant: str = "ideal"
+    """``ideal`` (Stage I servo plant) or ``hydraulic`` (Stage II stand-in, docs/hydraulics.md)."""
+    hydraulics: HydraulicConfig = field(default_factory=HydraulicConfig)
+    """Hydraulic effects of the ``hydraulic`` plant (``[simulate.hydraulics]``)."""
+    soil: SoilConfig = field(default_factory=SoilConfig)
+    """Soil contact and payload (compound operation, ``[simulate.soil]``, off by default)."""
+    sensors: bool = False
+    """Apply the sensor-fault model: theta/omega become measurements, truth in *_true columns."""
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    """Sensor noise and fault magnitudes (``[simulate.sensor]``)."""
 
     def __post_init__(self) -> None:
         for name in ("n_train", "n_val", "n_test"):
@@ -85,10 +119,11 @@ class SimulateConfig:
             kinds = getattr(self, name)
             if not kinds:
                 raise ConfigError(f"simulate.{name} must list at least one signal kind")
-            bad = [k for k in kinds if k not in SIGNALS]
+            bad = [k for k in kinds if k not in SIGNALS and k not in CLOSED_LOOP]
             if bad:
                 raise ConfigError(
-                    f"simulate.{name}: unknown signal kind(s) {bad}; choose from {', '.join(SIGNALS)}"
+                    f"simulate.{name}: unknown signal kind(s) {bad}; choose from "
+                    f"{', '.join([*SIGNALS, *CLOSED_LOOP])}"
                 )
         if self.n_train + self.n_val + self.n_test == 0:
             raise ConfigError("simulate: n_train + n_val + n_test is 0, nothing to generate")
@@ -96,6 +131,15 @@ class SimulateConfig:
             raise ConfigError(f"simulate.workers must be >= 1, got {self.workers}")
         if not 0 <= self.pose_margin < 0.5:
             raise ConfigError(f"simulate.pose_margin must be in [0, 0.5), got {self.pose_margin}")
+        if self.plant not in SOURCES:
+            raise ConfigError(
+                f"simulate.plant must be one of {', '.join(SOURCES)}, got {self.plant!r}"
+            )
+
+    @property
+    def source(self) -> str:
+        """``source`` metadata of the generated episodes."""
+        return SOURCES[self.plant]
 
     def plant_config(self) -> PlantConfig:
         """The plant options implied by this config (single-threaded: parallelism is per process)."""
@@ -156,25 +200,136 @@ def random_pose(rng: np.random.Generator, spec: MachineSpec, *, margin: float = 
 _PLANTS: dict[tuple[Any, ...], MujocoExcavator] = {}
 
 
-def _plant(cfg: SimulateConfig, spec: MachineSpec) -> MujocoExcavator:
+def build_plant(cfg: SimulateConfig, spec: MachineSpec, *, loop: bool = False) -> MujocoExcavator:
+    """The plant of ``cfg``: ideal or hydraulic; with ``loop`` the Python-loop variant with
+    force hooks (relief anti-windup if force-limited, soil if ``cfg.soil.enabled``)."""
+    transform = HydraulicTransform(cfg.hydraulics, spec=spec) if cfg.plant == "hydraulic" else None
+    plant = MujocoExcavator(cfg.plant_config(), spec=spec, command_transform=transform)
+    if loop:
+        hooks: list[Any] = []
+        if bool(np.any(plant.model.actuator_forcelimited)):
+            hooks.append(ReliefAntiWindup(spec=plant.spec))
+        if cfg.soil.enabled:
+            hooks.append(SoilHook(cfg.soil))
+        if hooks:
+            plant.force_hook = ChainHook(*hooks)
+    return plant
+
+
+def _plant(cfg: SimulateConfig, spec: MachineSpec, *, loop: bool = False) -> MujocoExcavator:
     """One cached plant per process and configuration."""
-    key = (cfg.xml, cfg.rate_hz, cfg.delay_s, spec)
+    key = (cfg.xml, cfg.rate_hz, cfg.delay_s, cfg.plant, cfg.hydraulics, cfg.soil, loop, spec)
     if key not in _PLANTS:
-        _PLANTS[key] = MujocoExcavator(cfg.plant_config(), spec=spec)
+        _PLANTS[key] = build_plant(cfg, spec, loop=loop)
     return _PLANTS[key]
+
+
+def _soil_hook(plant: MujocoExcavator) -> SoilHook | None:
+    hook = plant.force_hook
+    if isinstance(hook, ChainHook):
+        return next((h for h in hook.hooks if isinstance(h, SoilHook)), None)
+    return hook if isinstance(hook, SoilHook) else None
+
+
+def _run_loop(
+    plant: MujocoExcavator,
+    theta0: np.ndarray,
+    n_step: int,
+    *,
+    u: np.ndarray | None = None,
+    operator: DigOperator | None = None,
+    tip_site: str = "tip",
+) -> dict[str, Any]:
+    """Python-loop episode with open-loop commands ``u: (n_step, n_joint)`` or a closed-loop
+    ``operator``.  Returns ``u``, ``theta``, ``omega`` (n_step, n_joint) and ``info``."""
+    n = plant.n_joint
+    theta = np.empty((n_step, n))
+    omega = np.empty((n_step, n))
+    cmds = np.empty((n_step, n))
+    theta[0], omega[0] = plant.reset(theta0=theta0)
+    soil = _soil_hook(plant)
+    tip = mujoco.mj_name2id(plant.model, mujoco.mjtObj.mjOBJ_SITE, tip_site)
+    if operator is not None:
+        if tip < 0:
+            raise ConfigError(
+                f"closed-loop operator needs an MJCF site '{tip_site}' at the bucket tip"
+            )
+        operator.reset(theta0)
+    cap = soil.config.capacity_m3 if soil is not None else 1.0
+    payload = np.zeros(n_step)
+    for k in range(n_step):
+        if operator is not None:
+            fill = soil.volume / cap if soil is not None and cap > 0 else 0.0
+            cmds[k] = operator(
+                theta[k], omega[k], tip=plant.data.site_xpos[tip], payload_fraction=fill
+            )
+        else:
+            assert u is not None
+            cmds[k] = u[k]
+        if soil is not None:
+            payload[k] = soil.payload_kg
+        if k < n_step - 1:
+            theta[k + 1], omega[k + 1] = plant.step(cmds[k])
+    info: dict[str, Any] = {}
+    if soil is not None:
+        st = dict(soil.stats)
+        info["compound"] = {
+            **{k: round(float(v), 4) for k, v in st.items()},
+            "mean_payload_kg": round(float(payload.mean()), 2),
+            "below_ground_fraction": round(st["below_ground_s"] / max(n_step * plant.dt, 1e-9), 4),
+        }
+    if operator is not None:
+        info["operator"] = {
+            "cycles": operator.cycles,
+            "phases": [[k, ph] for k, ph in operator.phase_log],
+        }
+    return {"u": cmds, "theta": theta, "omega": omega, "info": info}
 
 
 def simulate_episode(
     job: EpisodeJob, cfg: SimulateConfig, *, spec: MachineSpec = EXCAVATOR
-) -> dict[str, np.ndarray]:
-    """Simulate one planned episode.
+) -> dict[str, Any]:
+    """Simulate one planned episode (true states; sensors are applied by the caller).
 
     Returns:
-        ``theta0`` (n_joint,), ``u``, ``theta``, ``omega`` (n_step, n_joint).
+        ``theta0`` (n_joint,), ``u``, ``theta``, ``omega`` (n_step, n_joint) and ``info``
+        (JSON-able plant facts: drift amplitude, compound statistics, operator phases).
     """
-    plant = _plant(cfg, spec)
+    closed = job.kind in CLOSED_LOOP
+    loop = closed or cfg.soil.enabled
+    plant = _plant(cfg, spec, loop=loop)
     rng = np.random.default_rng(job.seed)
     theta0 = random_pose(rng, plant.spec, margin=cfg.pose_margin)
+    if cfg.soil.enabled:  # start with the bucket above ground
+        for _ in range(200):
+            if plant.site_position(theta0, cfg.soil.tip_site)[2] > cfg.soil.ground_z + 0.5:
+                break
+            theta0 = random_pose(rng, plant.spec, margin=cfg.pose_margin)
+    info: dict[str, Any] = {}
+    velocity_map: NominalModel | None = None
+    if isinstance(plant.transform, HydraulicTransform):
+        hcfg = cfg.hydraulics
+        if hcfg.drift:  # initial oil temperature varies between episodes
+            prng = np.random.default_rng([job.seed, 2])
+            amp = float(prng.uniform(0.0, hcfg.drift_amplitude))
+            hcfg = dataclasses.replace(hcfg, drift_amplitude=amp)
+            plant.transform = HydraulicTransform(hcfg, spec=plant.spec)
+            info["drift_amplitude"] = round(amp, 6)
+        velocity_map = plant.transform.nominal_model(omega_max=plant.omega_max)
+
+    if closed:
+        operator = DigOperator(
+            plant.spec, rng=rng, params=cfg.excitation.dig_cycle, ground_z=cfg.soil.ground_z
+        )
+        res = _run_loop(plant, theta0, job.n_step, operator=operator, tip_site=cfg.soil.tip_site)
+        info.update(res["info"])
+        return {
+            "theta0": theta0,
+            "u": res["u"],
+            "theta": res["theta"],
+            "omega": res["omega"],
+            "info": info,
+        }
     u = generate(
         job.kind,
         rng,
@@ -184,12 +339,29 @@ def simulate_episode(
         omega_max=plant.omega_max,
         limit_margin=cfg.limit_margin,
         config=cfg.excitation,
+        velocity_map=velocity_map,
     )
+    if loop:
+        res = _run_loop(plant, theta0, job.n_step, u=u, tip_site=cfg.soil.tip_site)
+        info.update(res["info"])
+        return {
+            "theta0": theta0,
+            "u": u,
+            "theta": res["theta"],
+            "omega": res["omega"],
+            "info": info,
+        }
     out = plant.rollout(u[None], theta0=theta0[None])
-    return {"theta0": theta0, "u": u, "theta": out["theta"][0], "omega": out["omega"][0]}
+    return {
+        "theta0": theta0,
+        "u": u,
+        "theta": out["theta"][0],
+        "omega": out["omega"][0],
+        "info": info,
+    }
 
 
-def _worker(args: tuple[EpisodeJob, SimulateConfig, MachineSpec]) -> dict[str, np.ndarray]:
+def _worker(args: tuple[EpisodeJob, SimulateConfig, MachineSpec]) -> dict[str, Any]:
     job, cfg, spec = args
     return simulate_episode(job, cfg, spec=spec)
 
@@ -224,7 +396,7 @@ def simulate_dataset(
         f"simulate: {len(jobs)} episodes, {n_samples} samples at {cfg.rate_hz:g} Hz, {workers} worker(s)"
     )
     t0 = time.perf_counter()
-    _plant(cfg, spec)  # fail early (bad MJCF / rate) in the parent, with a one-line error
+    _plant(cfg, spec)  # fail early (bad MJCF / rate / hydraulics) in the parent, one-line error
     args = [(j, cfg, spec) for j in jobs]
     n_workers = min(workers, len(jobs))
     if n_workers <= 1:
@@ -245,7 +417,7 @@ def simulate_dataset(
             omega=res["omega"],
             theta_true=res["theta"].copy() if cfg.record_truth else None,
             omega_true=res["omega"].copy() if cfg.record_truth else None,
-            source=SOURCE,
+            source=cfg.source,
             condition=cfg.condition,
             seed=job.seed,
             generator={
@@ -255,9 +427,14 @@ def simulate_dataset(
                 "index": job.index,
                 "theta0": res["theta0"].tolist(),
                 "config": cfg_dict,
+                **({"plant": res["info"]} if res.get("info") else {}),
             },
             name=job.name,
         )
+        if cfg.sensors:
+            ep = apply_sensors_episode(
+                ep, config=cfg.sensor, rng=np.random.default_rng([job.seed, 1])
+            )
         items.append((ep, job.split))
     path = write_dataset(out, items, config={"simulate": cfg_dict}, extra=extra)
     log(f"simulate: wrote {path} in {time.perf_counter() - t0:.1f} s")

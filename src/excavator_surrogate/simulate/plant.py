@@ -56,6 +56,11 @@ class PlantConfig:
     """Threads used by the batched :meth:`MujocoExcavator.rollout` (1 = calling thread)."""
     chunk_mb: float = 64.0
     """Memory budget [MB] of one batched rollout chunk (state buffer), bounds peak memory."""
+    force_min: tuple[float, ...] = ()
+    """Per-joint lower actuator torque limits [N m] (e.g. relief valves); empty = none, or
+    the command transform's ``force_limits()`` if it has one."""
+    force_max: tuple[float, ...] = ()
+    """Per-joint upper actuator torque limits [N m]; empty = none (see ``force_min``)."""
 
 
 def _state_offsets(model: mujoco.MjModel) -> dict[str, int]:
@@ -77,7 +82,8 @@ class MujocoExcavator:
         spec: joints (names must match MJCF joints and actuators), command ranges, rate.
         command_transform: control-rate commands -> physics-rate actuator demands
             (default :class:`~.hooks.ZeroOrderHold`, the ideal Stage I plant).
-        force_hook: called before every physics step in the Python loop (default none).
+        force_hook: called before every physics step in the Python loop (default none);
+            its optional ``reset(model, data)`` runs at :meth:`reset` before the pose is set.
 
     Attributes:
         model, data: the MuJoCo model and the Python-loop data.
@@ -133,6 +139,7 @@ class MujocoExcavator:
         self.n_state = mujoco.mj_stateSize(m, _FULL)
         self.transform: CommandTransform = command_transform or ZeroOrderHold()
         self.force_hook = force_hook
+        self._set_force_limits(xml)
         self._pool: mj_rollout.Rollout | None = None
         self._pool_data: list[mujoco.MjData] = []
         self._theta = np.zeros(spec.n_joint)
@@ -162,6 +169,42 @@ class MujocoExcavator:
             # Read the history just after (t - delay): robust to floating-point time rounding
             # with zero-order hold, so the delay is exactly delay_s rounded up to the timestep.
             m.actuator_delay[a] = max(0.0, delay_s - 0.05 * m.opt.timestep) if delay_s > 0 else 0.0
+
+    def _set_force_limits(self, xml: Path) -> None:
+        """Actuator torque limits from the config, else from the command transform (relief)."""
+        cfg, n = self.config, self.spec.n_joint
+        limits: tuple[Any, Any] | None = None
+        if cfg.force_min or cfg.force_max:
+            lo = (
+                np.asarray(cfg.force_min, dtype=np.float64)
+                if cfg.force_min
+                else np.full(n, -np.inf)
+            )
+            hi = (
+                np.asarray(cfg.force_max, dtype=np.float64) if cfg.force_max else np.full(n, np.inf)
+            )
+            limits = (lo, hi)
+        elif callable(getattr(self.transform, "force_limits", None)):
+            limits = self.transform.force_limits()  # type: ignore[attr-defined]
+        if limits is None:
+            return
+        lo, hi = (np.asarray(x, dtype=np.float64).reshape(-1) for x in limits)
+        if (
+            lo.shape != (n,)
+            or hi.shape != (n,)
+            or np.any(lo >= hi)
+            or np.any(lo > 0)
+            or np.any(hi < 0)
+        ):
+            raise ConfigError(
+                f"{xml}: force limits need {n} values each with force_min <= 0 <= force_max, "
+                f"got {lo.tolist()} / {hi.tolist()}"
+            )
+        m = self.model
+        big = 1e30  # one-sided limits: MuJoCo needs finite ranges
+        m.actuator_forcelimited[self._act] = 1
+        m.actuator_forcerange[self._act, 0] = np.maximum(lo, -big) / self.gear
+        m.actuator_forcerange[self._act, 1] = np.minimum(hi, big) / self.gear
 
     # ------------------------------------------------------------------ state
     @property
@@ -200,6 +243,17 @@ class MujocoExcavator:
         data.act[self._aadr] = self.gear * theta0 + tau / (self.gear * kp)
         mujoco.mj_forward(m, data)
 
+    def site_position(self, theta: np.ndarray, site: str = "tip") -> np.ndarray:
+        """(3,) world position [m] of the MJCF site ``site`` at joint angles ``theta: (n_joint,)``
+        (kinematics only; the simulation state is not touched)."""
+        i = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, site)
+        if i < 0:
+            raise ConfigError(f"the MJCF has no site named '{site}'")
+        d = self._scratch
+        d.qpos[self._qadr] = np.asarray(theta, dtype=np.float64)
+        mujoco.mj_kinematics(self.model, d)
+        return d.site_xpos[i].copy()
+
     def initial_state(self, theta0: np.ndarray) -> np.ndarray:
         """Full physics state ``(n_batch, n_state)`` at rest at ``theta0: (n_batch, n_joint)`` [rad]."""
         theta0 = np.atleast_2d(np.asarray(theta0, dtype=np.float64))
@@ -221,10 +275,12 @@ class MujocoExcavator:
         if theta0.shape != (self.n_joint,):
             raise ConfigError(f"theta0 must have shape ({self.n_joint},), got {theta0.shape}")
         self._check_theta0(theta0)
-        self._settle(self.data, theta0)
-        self.transform.reset(n_batch=1, substeps=self.substeps, timestep=self.model.opt.timestep)
+        # The hook's reset runs first, so that it can restore model parameters (e.g. remove a
+        # payload) before the servos are pre-loaded for static equilibrium at theta0.
         if self.force_hook is not None and hasattr(self.force_hook, "reset"):
             self.force_hook.reset(self.model, self.data)  # type: ignore[attr-defined]
+        self._settle(self.data, theta0)
+        self.transform.reset(n_batch=1, substeps=self.substeps, timestep=self.model.opt.timestep)
         self._theta = self.data.qpos[self._qadr].copy()
         return self._theta.copy(), self.data.qvel[self._vadr].copy()
 
