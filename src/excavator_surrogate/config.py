@@ -61,6 +61,7 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: invalid TOML ({e})") from e
     base = data.pop("extends", None)
+    own_name = data.get("name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path))
     if base is not None:
         merged = load_preset(base)
         for k, v in data.items():
@@ -69,7 +70,7 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
             else:
                 merged[k] = v
         data = merged
-    data.setdefault("name", str(name_or_path))
+    data["name"] = own_name
     return data
 
 
