@@ -1,1 +1,22 @@
-"""evaluate stage."""
+"""evaluate stage: closed-loop behavioural equivalence (CBE) metrics, tables and figures.
+
+Public API: :func:`evaluate_checkpoint`, :func:`evaluate_models`, :class:`EvaluateConfig`,
+:func:`cbe_metrics`, :func:`regression_metrics`, :func:`markdown_table`, :data:`PAPER_TABLE_II`.
+"""
+
+from .cbe import EvaluateConfig, evaluate_checkpoint, evaluate_models
+from .metrics import cbe_metrics, min_r2, regression_metrics
+from .report import PAPER_TABLE_II, comparison_table, markdown_table, report_markdown
+
+__all__ = [
+    "PAPER_TABLE_II",
+    "EvaluateConfig",
+    "cbe_metrics",
+    "comparison_table",
+    "evaluate_checkpoint",
+    "evaluate_models",
+    "markdown_table",
+    "min_r2",
+    "regression_metrics",
+    "report_markdown",
+]

@@ -1,0 +1,88 @@
+"""``exsur evaluate CKPT DATASET --out DIR``: closed-loop (CBE) metrics, table and figure."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def _compare(text: str) -> tuple[str, Path]:
+    label, sep, path = text.partition("=")
+    if not sep:
+        return Path(text).parent.name or "other", Path(text)
+    return label, Path(path)
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``evaluate`` subcommand."""
+    p = subparsers.add_parser(
+        "evaluate",
+        help="free-run a checkpoint on test episodes; write metrics.json, table.md, cbe.png",
+        description="Roll the surrogate out in closed loop on a dataset split (warm-up of W recorded "
+        "samples, then recorded commands only) and score omega and theta per joint (RMSE, MAE, R²).",
+    )
+    p.add_argument("checkpoint", type=Path, help="surrogate checkpoint (best.pt)")
+    p.add_argument("dataset", type=Path, help="dataset folder")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--preset", default=None, help="preset name or .toml path ([evaluate] table)")
+    p.add_argument("--split", default=None, help="split to evaluate (default test)")
+    p.add_argument(
+        "--reference",
+        choices=("measured", "true"),
+        default=None,
+        help="compare with measured theta or ground-truth theta_true",
+    )
+    p.add_argument(
+        "--compare",
+        type=_compare,
+        action="append",
+        default=[],
+        metavar="LABEL=CKPT",
+        help="another checkpoint to put in the table (repeatable), e.g. GRU=runs/gru/best.pt",
+    )
+    p.add_argument("--no-arx", action="store_true", help="do not fit the ARX baseline")
+    p.add_argument(
+        "--no-paper", action="store_true", help="do not show the paper's Table II values"
+    )
+    p.add_argument("--max-steps", type=int, default=None, help="truncate test episodes")
+    p.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:N, auto)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler: returns 0 and prints the table."""
+    from ..config import load_preset
+    from ..data.dataset import load_dataset
+    from ..evaluate.cbe import EvaluateConfig, evaluate_checkpoint
+    from ..io_utils import log
+
+    preset = load_preset(args.preset) if args.preset else {}
+    cfg = EvaluateConfig.from_preset(
+        preset,
+        split=args.split,
+        reference=args.reference,
+        arx=False if args.no_arx else None,
+        paper=False if args.no_paper else None,
+        max_steps=args.max_steps,
+    )
+    splits = (cfg.split, "train", "val") if cfg.arx else (cfg.split,)
+    dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))
+    evaluate_checkpoint(
+        args.checkpoint,
+        dataset,
+        out=args.out,
+        split=cfg.split,
+        reference=cfg.reference,
+        compare=dict(args.compare),
+        arx=cfg.arx,
+        paper=cfg.paper,
+        max_steps=cfg.max_steps,
+        figure=cfg.figure,
+        max_figures=cfg.max_figures,
+        num_threads=cfg.num_threads,
+        device=args.device,
+    )
+    print((Path(args.out) / "table.md").read_text())
+    log(f"wrote {args.out}/metrics.json, table.md, cbe.png")
+    return 0

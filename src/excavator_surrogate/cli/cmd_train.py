@@ -1,0 +1,62 @@
+"""``exsur train DATASET --out DIR``: train an LSTM/GRU surrogate, keep the best free-run checkpoint."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``train`` subcommand."""
+    p = subparsers.add_parser(
+        "train",
+        help="train a surrogate on a dataset (best checkpoint by validation free-run)",
+        description="Train a surrogate on DATASET's train split, select it by closed-loop error on the "
+        "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml and OUT/tb/.",
+    )
+    p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--preset", default=None, help="preset name or .toml path ([train] table)")
+    p.add_argument("--mode", choices=("windowed", "stateful"), default=None, help="training mode")
+    p.add_argument("--cell", choices=("lstm", "gru"), default=None, help="recurrent cell")
+    p.add_argument("--epochs", type=int, default=None, help="maximum epochs")
+    p.add_argument(
+        "--max-seconds",
+        type=float,
+        default=None,
+        dest="max_train_seconds",
+        help="wall-time budget for training [s]",
+    )
+    p.add_argument("--seed", type=int, default=None, help="random seed")
+    p.add_argument("--resume", type=Path, default=None, help="continue from a checkpoint (last.pt)")
+    p.add_argument("--device", default=None, help="torch device (cpu, cuda)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler: returns 0 and prints the best checkpoint path."""
+    from ..config import load_preset
+    from ..data.dataset import load_dataset
+    from ..io_utils import log
+    from ..surrogate.checkpoint import read_checkpoint
+    from ..surrogate.train import TrainConfig, train
+
+    preset = load_preset(args.preset) if args.preset else {}
+    cfg = TrainConfig.from_preset(
+        preset,
+        mode=args.mode,
+        cell=args.cell,
+        epochs=args.epochs,
+        max_train_seconds=args.max_train_seconds,
+        seed=args.seed,
+        device=args.device,
+    )
+    dataset = load_dataset(args.dataset, splits=("train", "val"))
+    best = train(cfg, dataset, out=args.out, resume=args.resume)
+    m = read_checkpoint(best).get("metrics", {})
+    log(
+        f"best checkpoint: {best} (epoch {m.get('epoch')}, val_error {m.get('val_error', float('nan')):.4g})"
+    )
+    print(best)
+    return 0

@@ -1,0 +1,234 @@
+"""CBE evaluation API: free-run models on test episodes, score, write metrics/table/figure.
+
+- :func:`evaluate_models`: several surrogates (LSTM, GRU, ARX ...) on the same episodes ->
+  metrics per model (and the rollouts, for plotting).
+- :func:`evaluate_checkpoint`: one checkpoint (+ optional comparison checkpoints and the ARX
+  baseline fitted on the training split) on a dataset split; writes ``metrics.json``,
+  ``table.md`` and ``cbe.png`` (``cbe_<episode>.png`` for further episodes) into ``out``.
+
+``metrics.json``::
+
+    {"omega": {"<joint>": {"rmse", "mae", "r2"}}, "theta": {...},
+     "run": {checkpoint, dataset, split, reference, mode, model, n_episode, n_step_scored, warmup, episodes, ...},
+     "compare": {"<model>": {"omega": ..., "theta": ...}}}     # only with baselines
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import torch
+
+from ..config import from_dict
+from ..data.dataset import Dataset, load_dataset
+from ..data.episode import Episode
+from ..errors import ConfigError, DataError
+from ..io_utils import log, write_json, write_text
+from ..surrogate.baselines import fit_arx
+from ..surrogate.checkpoint import load_checkpoint
+from ..surrogate.features import unwrap_periodic
+from ..surrogate.model import Surrogate
+from ..surrogate.rollout import EpisodeRollout, rollout_episodes
+from .metrics import cbe_metrics
+from .report import report_markdown
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """CBE evaluation options (``[evaluate]`` table of a preset)."""
+
+    split: str = "test"
+    """Dataset split to evaluate on."""
+    reference: Literal["measured", "true"] = "measured"
+    """Compare against (and warm up from) measured ``theta`` or ground-truth ``theta_true``."""
+    arx: bool = True
+    """Fit the linear ARX baseline on the training split and add it to the table."""
+    paper: bool = True
+    """Show the paper's Table II values alongside (only for swing/boom/arm/bucket joints)."""
+    max_steps: int = 0
+    """Truncate test episodes to this many samples (0 = full length)."""
+    figure: bool = True
+    """Write the Figure-2-style PNG(s)."""
+    max_figures: int = 4
+    """At most this many episode figures."""
+    num_threads: int = 1
+    """Torch intra-op threads (0 keeps torch's default)."""
+
+    @classmethod
+    def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> EvaluateConfig:
+        """Build from a preset's ``[evaluate]`` table, then apply non-None overrides."""
+        from dataclasses import replace
+
+        cfg = from_dict(cls, dict(preset.get("evaluate", {})), where="[evaluate]")
+        over = {k: v for k, v in overrides.items() if v is not None}
+        return replace(cfg, **over) if over else cfg
+
+
+def evaluate_models(
+    models: Mapping[str, Surrogate],
+    episodes: Sequence[Episode],
+    *,
+    reference: Literal["measured", "true"] = "measured",
+    max_steps: int | None = None,
+) -> tuple[dict[str, dict[str, Any]], dict[str, list[EpisodeRollout]]]:
+    """Free-run every model on ``episodes`` and compute CBE metrics.
+
+    Args:
+        models: label -> surrogate (each rolled out in its own mode and window).
+        episodes: test episodes (same machine as the models).
+        reference: ``measured`` or ``true`` angles as warm-up and reference.
+        max_steps: truncate episodes.
+
+    Returns:
+        ``(metrics, runs)``: label -> ``{"omega": ..., "theta": ...}``, label -> rollouts.
+    """
+    if not episodes:
+        raise DataError(
+            None, "no episodes to evaluate", fix="check the split name and the dataset manifest"
+        )
+    metrics: dict[str, dict[str, Any]] = {}
+    runs: dict[str, list[EpisodeRollout]] = {}
+    for label, sur in models.items():
+        if sur.spec.names != episodes[0].spec.names:
+            raise DataError(
+                episodes[0].name,
+                f"joints {list(episodes[0].spec.names)} differ from model '{label}' joints {list(sur.spec.names)}",
+                fix="evaluate on data of the machine the model was trained for",
+            )
+        sur.eval()
+        runs[label] = rollout_episodes(sur, episodes, reference=reference, max_steps=max_steps)
+        metrics[label] = cbe_metrics(runs[label], sur.spec)
+    return metrics, runs
+
+
+def evaluate_checkpoint(
+    ckpt: str | Path,
+    dataset: Dataset | str | Path,
+    *,
+    out: str | Path,
+    split: str = "test",
+    reference: Literal["measured", "true"] = "measured",
+    compare: Mapping[str, str | Path] | None = None,
+    arx: bool = True,
+    paper: bool = True,
+    max_steps: int = 0,
+    figure: bool = True,
+    max_figures: int = 4,
+    num_threads: int = 1,
+    device: str | torch.device = "cpu",
+) -> dict[str, Any]:
+    """Evaluate a checkpoint on one split and write ``metrics.json``, ``table.md``, ``cbe.png``.
+
+    Args:
+        ckpt: surrogate checkpoint (``best.pt``).
+        dataset: a loaded :class:`Dataset` or its folder.
+        out: output folder (files written atomically; other files in it are left alone).
+        split: split to evaluate.
+        reference: ``measured`` or ``true``.
+        compare: extra checkpoints, label -> path (e.g. ``{"gru": ".../best.pt"}``).
+        arx: also fit and evaluate the ARX baseline on the training split (ridge chosen on ``val``).
+        paper: show the paper's Table II values alongside.
+        max_steps: truncate episodes (0 = full).
+        figure: write the figure(s).
+        max_figures: at most this many episode figures.
+        num_threads: torch intra-op threads (0 keeps torch's default).
+        device: where the models are rolled out (``cpu``, ``cuda[:N]``, ``auto``).
+
+    Returns:
+        The ``metrics.json`` content.
+    """
+    if reference not in ("measured", "true"):
+        raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
+    t0 = time.monotonic()
+    if num_threads > 0:
+        torch.set_num_threads(num_threads)
+    from ..scale.devices import resolve_device
+
+    dev = resolve_device(device)
+    sur = load_checkpoint(ckpt, device=dev)
+    if not isinstance(dataset, Dataset):
+        dataset = load_dataset(dataset)
+    episodes = dataset.split(split)
+    if not episodes:
+        raise DataError(
+            dataset.root,
+            f"split '{split}' has no episodes",
+            fix=f"choose a split with episodes: {[s for s, e in dataset.episodes.items() if e]}",
+        )
+    primary = sur.name.upper()
+    models: dict[str, Surrogate] = {primary: sur}
+    for label, path in (compare or {}).items():
+        models[label] = load_checkpoint(path, device=dev)
+    if arx:
+        if dataset.train:
+            models["ARX"] = fit_arx(
+                dataset.train,
+                window=sur.window,
+                spec=dataset.spec,
+                norm=sur.norm.to("cpu"),  # fitted in NumPy
+                val=dataset.val,
+            ).to(dev)
+        else:
+            log("no training split loaded: skipping the ARX baseline")
+    metrics, runs = evaluate_models(
+        models, episodes, reference=reference, max_steps=max_steps or None
+    )
+    main_runs = runs[primary]
+    run_info = {
+        "checkpoint": str(ckpt),
+        "dataset": str(dataset.root) if dataset.root else None,
+        "split": split,
+        "reference": reference,
+        "model": sur.model_cfg.to_dict(),
+        "mode": sur.mode,
+        "n_episode": len(main_runs),
+        "n_step_scored": int(sum(len(r.time) - r.warmup for r in main_runs)),
+        "warmup": sur.window,
+        "dt": sur.spec.dt,
+        "episodes": [{"name": r.name, "n_step": len(r.time)} for r in main_runs],
+        "seconds": round(time.monotonic() - t0, 3),
+    }
+    result: dict[str, Any] = {**metrics[primary], "run": run_info}
+    if len(models) > 1:
+        result["compare"] = {k: v for k, v in metrics.items() if k != primary}
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "metrics.json", _json_safe(result))
+    write_text(
+        out / "table.md", report_markdown(metrics, primary=primary, run=run_info, paper=paper)
+    )
+    if figure:
+        from ..plotting.cbe import plot_cbe
+
+        for i, r in enumerate(main_runs[:max_figures]):
+            name = "cbe.png" if i == 0 else f"cbe_{r.name}.png"
+            preds = {
+                label: (runs[label][i].omega_hat, runs[label][i].theta_hat) for label in models
+            }
+            plot_cbe(
+                out / name,
+                time=r.time,
+                omega_ref=r.omega_ref,
+                theta_ref=unwrap_periodic(r.theta_ref, sur.spec),
+                predictions=preds,
+                names=sur.spec.names,
+                warmup=r.warmup,
+                title=f"{r.name}: closed-loop free run vs {reference} ({split})",
+                ref_label=reference,
+            )
+    return result
+
+
+def _json_safe(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o

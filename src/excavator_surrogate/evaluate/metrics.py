@@ -1,0 +1,94 @@
+"""Closed-loop behavioural-equivalence (CBE) metrics: RMSE, MAE, R^2 per joint for omega and theta.
+
+Samples of every episode's warm-up (the first ``W`` recorded samples that start the rollout)
+are excluded; the remaining samples of all episodes are pooled.  Angles of periodic joints are
+compared unwrapped (the rollout integrates continuously).  ``R^2 = 1 - SS_res / SS_tot`` about
+the reference's mean; it is ``None`` in JSON when the reference is constant.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..spec import MachineSpec
+from ..surrogate.features import unwrap_periodic
+
+
+class RunLike(Protocol):
+    """What :func:`cbe_metrics` needs from a rollout (see :class:`~..surrogate.rollout.EpisodeRollout`)."""
+
+    theta_hat: np.ndarray
+    omega_hat: np.ndarray
+    theta_ref: np.ndarray
+    omega_ref: np.ndarray
+    warmup: int
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def regression_metrics(pred: np.ndarray, ref: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-column RMSE, MAE and R^2.
+
+    Args:
+        pred: (n_sample, n_joint) predictions.
+        ref: (n_sample, n_joint) reference.
+
+    Returns:
+        ``{"rmse", "mae", "r2"}``, each (n_joint,); ``r2`` is NaN where ``ref`` is constant and
+        every metric is NaN/inf if ``pred`` is not finite.
+    """
+    pred = np.asarray(pred, dtype=np.float64)
+    ref = np.asarray(ref, dtype=np.float64)
+    if pred.shape != ref.shape or pred.ndim != 2:
+        raise ValueError(f"pred {pred.shape} and ref {ref.shape} must be equal (n_sample, n_joint)")
+    err = pred - ref
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        ss_res = np.sum(err**2, axis=0)
+        ss_tot = np.sum((ref - ref.mean(axis=0)) ** 2, axis=0)
+        r2 = np.where(ss_tot > 0, 1.0 - ss_res / np.where(ss_tot > 0, ss_tot, 1.0), np.nan)
+        return {
+            "rmse": np.sqrt(np.mean(err**2, axis=0)),
+            "mae": np.mean(np.abs(err), axis=0),
+            "r2": r2,
+        }
+
+
+def cbe_metrics(runs: Sequence[RunLike], spec: MachineSpec) -> dict[str, Any]:
+    """CBE metrics pooled over episodes, warm-up excluded.
+
+    Returns:
+        ``{"omega": {joint: {"rmse", "mae", "r2"}}, "theta": {...}}`` with plain floats
+        (``None`` for undefined values), joints in ``spec`` order.
+    """
+    if not runs:
+        raise ValueError("no rollouts to score")
+    om_hat, om_ref, th_hat, th_ref = [], [], [], []
+    for r in runs:
+        w = r.warmup
+        om_hat.append(r.omega_hat[w:])
+        om_ref.append(r.omega_ref[w:])
+        th_hat.append(r.theta_hat[w:])
+        th_ref.append(unwrap_periodic(r.theta_ref, spec)[w:])
+    out: dict[str, Any] = {}
+    for key, pred, ref in (
+        ("omega", np.concatenate(om_hat), np.concatenate(om_ref)),
+        ("theta", np.concatenate(th_hat), np.concatenate(th_ref)),
+    ):
+        m = regression_metrics(pred, ref)
+        out[key] = {
+            name: {k: _finite(m[k][j]) for k in ("rmse", "mae", "r2")}
+            for j, name in enumerate(spec.names)
+        }
+    return out
+
+
+def min_r2(metrics: dict[str, Any], key: str = "theta") -> float:
+    """Smallest R^2 over joints of ``metrics[key]`` (``-inf`` if any is undefined)."""
+    vals = [v["r2"] for v in metrics[key].values()]
+    return min((v if v is not None else -math.inf) for v in vals)

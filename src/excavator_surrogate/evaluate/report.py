@@ -1,0 +1,109 @@
+"""Markdown tables in the paper's layout (Table II: Type | Joint | RMSE | MAE | R^2)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+PAPER_TABLE_II: dict[str, dict[str, tuple[float, float, float]]] = {
+    "omega": {
+        "swing": (0.0074, 0.0052, 0.9940),
+        "boom": (0.0219, 0.0083, 0.7726),
+        "arm": (0.0087, 0.0051, 0.8965),
+        "bucket": (0.0122, 0.0059, 0.9424),
+    },
+    "theta": {
+        "swing": (0.0380, 0.0303, 0.9967),
+        "boom": (0.0179, 0.0138, 0.9927),
+        "arm": (0.0280, 0.0249, 0.9809),
+        "bucket": (0.0585, 0.0436, 0.9854),
+    },
+}
+"""Paper Table II (Stage I, MuJoCo, 1800-step step test): (RMSE, MAE, R^2) per joint."""
+
+_TYPE = {"omega": "Angular velocity ω [rad/s]", "theta": "Angle trajectory θ [rad]"}
+
+
+def _fmt(v: float | None) -> str:
+    return "—" if v is None else f"{v:.4f}"
+
+
+def paper_applies(names: tuple[str, ...] | list[str]) -> bool:
+    """True when the joints are the paper's four (swing, boom, arm, bucket)."""
+    return set(names) <= set(PAPER_TABLE_II["omega"])
+
+
+def markdown_table(metrics: Mapping[str, Any], *, paper: bool = False) -> str:
+    """One model's metrics as the paper's table; with ``paper`` adds Table II columns.
+
+    Args:
+        metrics: ``{"omega": {joint: {rmse, mae, r2}}, "theta": {...}}``.
+        paper: add the paper's values for joints it reports (swing, boom, arm, bucket).
+    """
+    head = "| Type | Joint | RMSE | MAE | R² |"
+    rule = "|---|---|---:|---:|---:|"
+    if paper:
+        head += " Paper RMSE | Paper MAE | Paper R² |"
+        rule += "---:|---:|---:|"
+    lines = [head, rule]
+    for key in ("omega", "theta"):
+        for i, (joint, m) in enumerate(metrics[key].items()):
+            typ = _TYPE[key] if i == 0 else ""
+            row = f"| {typ} | {joint.capitalize()} | {_fmt(m['rmse'])} | {_fmt(m['mae'])} | {_fmt(m['r2'])} |"
+            if paper:
+                p = PAPER_TABLE_II[key].get(joint)
+                row += (" " + " | ".join(_fmt(x) for x in p) + " |") if p else " — | — | — |"
+            lines.append(row)
+    return "\n".join(lines) + "\n"
+
+
+def comparison_table(by_model: Mapping[str, Mapping[str, Any]]) -> str:
+    """Several models side by side: Type | Joint | then RMSE / R² per model."""
+    models = list(by_model)
+    head = "| Type | Joint | " + " | ".join(f"{m} RMSE | {m} MAE | {m} R²" for m in models) + " |"
+    rule = "|---|---|" + "---:|---:|---:|" * len(models)
+    lines = [head, rule]
+    first = by_model[models[0]]
+    for key in ("omega", "theta"):
+        for i, joint in enumerate(first[key]):
+            cells = []
+            for m in models:
+                v = by_model[m][key].get(joint, {"rmse": None, "mae": None, "r2": None})
+                cells += [_fmt(v["rmse"]), _fmt(v["mae"]), _fmt(v["r2"])]
+            typ = _TYPE[key] if i == 0 else ""
+            lines.append(f"| {typ} | {joint.capitalize()} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def report_markdown(
+    by_model: Mapping[str, Mapping[str, Any]],
+    *,
+    primary: str,
+    run: Mapping[str, Any] | None = None,
+    paper: bool = True,
+) -> str:
+    """The ``table.md`` text: run summary, the primary model in the paper's layout, then a comparison."""
+    names = list(by_model[primary]["omega"])
+    show_paper = paper and paper_applies(names)
+    parts = ["# Closed-loop behavioural equivalence (CBE)", ""]
+    if run:
+        keys = (
+            "checkpoint",
+            "dataset",
+            "split",
+            "reference",
+            "mode",
+            "n_episode",
+            "n_step_scored",
+            "warmup",
+        )
+        parts += [f"- {k}: {run[k]}" for k in keys if k in run]
+        parts.append("")
+    parts += [
+        f"## {primary}" + (" (paper Table II alongside)" if show_paper else ""),
+        "",
+        markdown_table(by_model[primary], paper=show_paper),
+    ]
+    if len(by_model) > 1:
+        parts += ["## Comparison", "", comparison_table(by_model)]
+    return "\n".join(parts)

@@ -1,0 +1,93 @@
+"""Figure-2-style closed-loop comparison: upper row omega, lower row theta, one column per joint."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..io_utils import atomic_path
+
+
+def plot_cbe(
+    path: str | Path,
+    *,
+    time: np.ndarray,
+    omega_ref: np.ndarray,
+    theta_ref: np.ndarray,
+    predictions: Mapping[str, tuple[np.ndarray, np.ndarray]],
+    names: Sequence[str],
+    warmup: int = 0,
+    title: str = "",
+    ref_label: str = "reference",
+) -> Path:
+    """Write a PNG comparing surrogate free-runs with the reference.
+
+    Args:
+        path: output PNG (written atomically).
+        time: (n_step,) [s].
+        omega_ref: (n_step, n_joint) reference velocity [rad/s].
+        theta_ref: (n_step, n_joint) reference angle [rad] (periodic joints unwrapped).
+        predictions: model label -> ``(omega_hat, theta_hat)``, each (n_step, n_joint).
+        names: joint names (column titles).
+        warmup: samples shaded as warm-up (recorded data fed to the model).
+        title: figure title.
+        ref_label: legend label of the reference.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    n_joint = len(names)
+    fig, axes = plt.subplots(2, n_joint, figsize=(3.2 * n_joint, 5.0), sharex=True, squeeze=False)
+    styles = ["-", "--", ":", "-."]
+    for j, name in enumerate(names):
+        for row, (ref, unit, sym) in enumerate(
+            ((omega_ref, "rad/s", "ω"), (theta_ref, "rad", "θ"))
+        ):
+            ax = axes[row, j]
+            ax.plot(time, ref[:, j], color="k", lw=1.2, label=ref_label, zorder=3)
+            for i, (label, (om, th)) in enumerate(predictions.items()):
+                y = om if row == 0 else th
+                # the first (primary) model on top of the baselines, under the reference
+                ax.plot(
+                    time,
+                    y[:, j],
+                    lw=1.0,
+                    ls=styles[i % len(styles)],
+                    label=label,
+                    zorder=2.5 - i / (len(predictions) + 1),
+                    alpha=1.0 if i == 0 else 0.7,
+                )
+            # y-range from the reference and the first (primary) model: a diverging baseline
+            # must not squash the comparison
+            first = next(iter(predictions.values()), None)
+            vals = [ref[:, j]] + (
+                [(first[0] if row == 0 else first[1])[:, j]] if first is not None else []
+            )
+            v = np.concatenate(vals)
+            v = v[np.isfinite(v)]
+            if v.size:
+                lo, hi = float(v.min()), float(v.max())
+                pad = 0.1 * (hi - lo) if hi > lo else 0.1 * max(abs(hi), 1e-3)
+                ax.set_ylim(lo - pad, hi + pad)
+            if warmup > 0:
+                ax.axvspan(time[0], time[min(warmup, len(time) - 1)], color="0.9", lw=0)
+            if row == 0:
+                ax.set_title(name)
+            else:
+                ax.set_xlabel("time [s]")
+            if j == 0:
+                ax.set_ylabel(f"{sym} [{unit}]")
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+    plt.close(fig)
+    return path

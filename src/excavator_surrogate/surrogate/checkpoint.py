@@ -1,0 +1,159 @@
+"""Self-describing checkpoints (nanoGPT style), loadable with ``torch.load(weights_only=True)``.
+
+A checkpoint is one ``.pt`` file holding only tensors and plain Python types::
+
+    {
+      "format": "exsur-surrogate", "format_version": 1, "exsur_version": "0.1.0",
+      "name": "lstm",                       # model label (lstm, gru, arx ...)
+      "mode": "windowed" | "stateful",      # how to roll the model out
+      "model": {...ModelConfig...},         # architecture
+      "spec": {...MachineSpec.to_dict()...},
+      "norm": {"x_mean", "x_std", "y_mean", "y_std"},   # float32 tensors
+      "state_dict": {...},                  # network weights
+      "train_config": {...TrainConfig...},  # plain dict (None values dropped)
+      "metrics": {...},                     # e.g. best validation error, epoch
+      "history": [{epoch, time_s, lr, train_loss, val_error, ...}, ...],
+      "train_state": {epoch, optimizer, scheduler, best_val, bad_epochs, elapsed_s} | None,
+    }
+
+It is written atomically; a missing, corrupt or incompatible file raises
+:class:`~excavator_surrogate.errors.CheckpointError` with a one-line message.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .. import __version__
+from ..errors import CheckpointError, ConfigError
+from ..io_utils import atomic_path
+from ..spec import MachineSpec
+from .features import Normalization
+from .model import ModelConfig, Surrogate, build_net
+
+FORMAT = "exsur-surrogate"
+FORMAT_VERSION = 1
+
+
+def checkpoint_dict(
+    sur: Surrogate,
+    *,
+    history: list[dict[str, Any]] | None = None,
+    train_state: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """The plain-data checkpoint of ``sur`` (tensors moved to CPU)."""
+    return {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "exsur_version": __version__,
+        "name": sur.name,
+        "mode": sur.mode,
+        "model": sur.model_cfg.to_dict(),
+        "spec": sur.spec.to_dict(),
+        "norm": sur.norm.state_dict(),
+        "state_dict": {k: v.detach().cpu() for k, v in sur.net.state_dict().items()},
+        "train_config": dict(sur.train_config or {}),
+        "metrics": dict(sur.metrics or {}),
+        "history": list(history or []),
+        "train_state": train_state,
+    }
+
+
+def save_checkpoint(
+    path: str | Path,
+    sur: Surrogate,
+    *,
+    history: list[dict[str, Any]] | None = None,
+    train_state: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``sur`` (and optional training state for resuming) to ``path`` atomically."""
+    path = Path(path)
+    ckpt = checkpoint_dict(sur, history=history, train_state=train_state)
+    with atomic_path(path) as tmp:
+        torch.save(ckpt, tmp)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """Load the raw checkpoint dict with ``weights_only=True`` and check its format.
+
+    Raises:
+        CheckpointError: missing file, unreadable/corrupt file, or another format/version.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(
+            f"{path}: checkpoint not found (train one with 'exsur train DATASET --out DIR')"
+        )
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # zip/pickle/unpickler errors come in many types
+        first = str(e).strip().splitlines()[0][:120] if str(e).strip() else ""
+        raise CheckpointError(
+            f"{path}: not a readable exsur checkpoint ({type(e).__name__}{': ' + first if first else ''}); "
+            "re-train or copy the file again"
+        ) from e
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not an exsur surrogate checkpoint (no format '{FORMAT}')")
+    version = ckpt.get("format_version")
+    if version != FORMAT_VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint format_version {version!r} is not supported (this exsur reads "
+            f"{FORMAT_VERSION}); re-train with this version"
+        )
+    missing = [k for k in ("model", "spec", "norm", "state_dict", "mode") if k not in ckpt]
+    if missing:
+        raise CheckpointError(f"{path}: checkpoint lacks entries {missing}; re-train")
+    return ckpt
+
+
+def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> Surrogate:
+    """Build a :class:`Surrogate` from a checkpoint dict (see :func:`read_checkpoint`)."""
+    try:
+        spec = MachineSpec.from_dict(ckpt["spec"])
+    except ConfigError as e:
+        raise CheckpointError(f"{where}: malformed joint spec ({e})") from e
+    try:
+        mcfg = ModelConfig.from_dict(ckpt["model"])
+        norm = Normalization.from_state_dict(ckpt["norm"], spec)
+    except CheckpointError as e:
+        raise CheckpointError(f"{where}: {e}") from e
+    if mcfg.n_feature != spec.n_feature or mcfg.n_joint != spec.n_joint:
+        raise CheckpointError(
+            f"{where}: model sizes ({mcfg.n_feature} features, {mcfg.n_joint} joints) do not match its "
+            f"spec ({spec.n_feature}, {spec.n_joint})"
+        )
+    mode = ckpt["mode"]
+    if mode not in ("windowed", "stateful"):
+        raise CheckpointError(f"{where}: unknown mode {mode!r} (windowed or stateful)")
+    net = build_net(mcfg)
+    try:
+        net.load_state_dict(ckpt["state_dict"])
+    except (RuntimeError, TypeError, AttributeError) as e:
+        msg = str(e).strip().splitlines()[0][:160]
+        raise CheckpointError(f"{where}: weights do not fit the stored architecture ({msg})") from e
+    net.eval()
+    return Surrogate(
+        net=net,
+        spec=spec,
+        norm=norm,
+        model_cfg=mcfg,
+        mode=mode,
+        train_config=dict(ckpt.get("train_config") or {}),
+        metrics=dict(ckpt.get("metrics") or {}),
+        name=str(ckpt.get("name", mcfg.cell)),
+    )
+
+
+def load_checkpoint(path: str | Path, *, device: str | torch.device = "cpu") -> Surrogate:
+    """Load a surrogate from a checkpoint file (``weights_only=True``), in eval mode on ``device``.
+
+    Raises:
+        CheckpointError: one line naming the file and what to do.
+    """
+    ckpt = read_checkpoint(path)
+    sur = surrogate_from_dict(ckpt, where=str(path))
+    return sur.to(device)

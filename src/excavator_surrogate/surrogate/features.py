@@ -1,0 +1,217 @@
+"""Input features, training targets and their normalisation.
+
+Feature layout for a :class:`~excavator_surrogate.spec.MachineSpec` (paper III-B, generalised
+to any number of joints): for each joint in order, ``sin θ, cos θ`` if it is periodic, else
+``θ``; then every joint's command scaled by its range, ``(u - u_center) / u_scale``.  The
+width is ``spec.n_feature``.  Features and targets are then standardised with statistics of
+the training split (:class:`Normalization`), which travel with the checkpoint.
+
+Data convention: sample ``k`` holds ``theta[k]`` (angle at ``t_k``), ``u[k]`` (command applied
+during ``[t_k, t_{k+1})``) and ``omega[k]`` (mean velocity over ``[t_{k-1}, t_k]``).  The
+training target is the backward difference of the angle,
+``omega_tgt[k] = wrap(theta[k] - theta[k-1]) / T_s`` (``wrap`` only for periodic joints), so
+integrating it, ``theta[k+1] = theta[k] + T_s * omega_tgt[k+1]``, reproduces the angles exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..errors import CheckpointError
+from ..spec import MachineSpec
+
+STD_FLOOR = 1e-3
+"""Smallest standard deviation used to scale a feature or target (avoids blowing up constants)."""
+
+
+def wrap_angle(d: np.ndarray) -> np.ndarray:
+    """Wrap angle differences to ``[-pi, pi)`` [rad]."""
+    return (np.asarray(d) + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def omega_target(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
+    """Training target: backward difference of the angle.
+
+    Args:
+        theta: (n_step, n_joint) angles [rad]; periodic joints may be wrapped or unwrapped.
+        spec: the machine (``periodic`` flags, ``dt``).
+
+    Returns:
+        (n_step, n_joint) ``omega_tgt`` [rad/s]; row ``k >= 1`` is
+        ``wrap(theta[k] - theta[k-1]) / T_s``; row 0 is NaN (no previous sample; never a target).
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    d = np.diff(theta, axis=0)
+    per = np.asarray(spec.periodic, dtype=bool)
+    if per.any():
+        d[:, per] = wrap_angle(d[:, per])
+    out = np.full_like(theta, np.nan)
+    out[1:] = d / spec.dt
+    return out
+
+
+def unwrap_periodic(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
+    """Unwrap periodic joints along the time axis (-2): ``(..., n_step, n_joint)`` [rad]."""
+    theta = np.array(theta, dtype=np.float64, copy=True)
+    for j, p in enumerate(spec.periodic):
+        if p:
+            theta[..., j] = np.unwrap(theta[..., j], axis=-1)
+    return theta
+
+
+def encode_np(theta: np.ndarray, u: np.ndarray, spec: MachineSpec) -> np.ndarray:
+    """Raw (un-normalised) features, NumPy version.
+
+    Args:
+        theta: (..., n_joint) angles [rad].
+        u: (..., n_joint) commands [command units].
+
+    Returns:
+        (..., spec.n_feature) features: angle part (sin/cos for periodic joints), then scaled commands.
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    parts = []
+    for j, js in enumerate(spec.joints):
+        if js.periodic:
+            parts += [np.sin(theta[..., j]), np.cos(theta[..., j])]
+        else:
+            parts.append(theta[..., j])
+    center = np.array([js.u_center for js in spec.joints])
+    scale = np.array([js.u_scale for js in spec.joints])
+    us = (u - center) / scale
+    return np.concatenate([np.stack(parts, axis=-1), us], axis=-1)
+
+
+@dataclass
+class Normalization:
+    """Feature and target standardisation computed on the training split.
+
+    ``x_norm = (x - x_mean) / x_std`` for the ``n_feature`` raw features and
+    ``y_norm = (omega - y_mean) / y_std`` for the ``n_joint`` velocity targets [rad/s].
+    Also carries what :meth:`encode` needs to build features from angles in torch
+    (periodic mask, command centre/scale), so it is the single source of truth.
+    """
+
+    x_mean: torch.Tensor
+    x_std: torch.Tensor
+    y_mean: torch.Tensor
+    y_std: torch.Tensor
+    periodic: tuple[bool, ...]
+    u_center: torch.Tensor
+    u_scale: torch.Tensor
+
+    @classmethod
+    def fit(
+        cls, thetas: Sequence[np.ndarray], us: Sequence[np.ndarray], spec: MachineSpec
+    ) -> Normalization:
+        """Statistics from lists of per-episode ``(n_step, n_joint)`` angle and command arrays."""
+        x = np.concatenate([encode_np(t, u, spec) for t, u in zip(thetas, us)], axis=0)
+        y = np.concatenate([omega_target(t, spec)[1:] for t in thetas], axis=0)
+        x_std = np.maximum(x.std(axis=0), STD_FLOOR)
+        y_std = np.maximum(y.std(axis=0), STD_FLOOR)
+        return cls.from_arrays(
+            x_mean=x.mean(axis=0), x_std=x_std, y_mean=y.mean(axis=0), y_std=y_std, spec=spec
+        )
+
+    @classmethod
+    def from_arrays(
+        cls,
+        *,
+        x_mean: Any,
+        x_std: Any,
+        y_mean: Any,
+        y_std: Any,
+        spec: MachineSpec,
+    ) -> Normalization:
+        """Build from array-likes (checkpoint tensors or NumPy)."""
+
+        def t(a: Any) -> torch.Tensor:
+            return torch.as_tensor(np.asarray(a, dtype=np.float32)).clone()
+
+        return cls(
+            x_mean=t(x_mean),
+            x_std=t(x_std),
+            y_mean=t(y_mean),
+            y_std=t(y_std),
+            periodic=tuple(spec.periodic),
+            u_center=t([j.u_center for j in spec.joints]),
+            u_scale=t([j.u_scale for j in spec.joints]),
+        )
+
+    def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> Normalization:
+        """Copy with every tensor on ``device`` / ``dtype``."""
+        kw = {
+            k: getattr(self, k).to(device=device, dtype=dtype)
+            for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale")
+        }
+        return Normalization(periodic=self.periodic, **kw)
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Plain tensors for the checkpoint."""
+        return {
+            k: getattr(self, k).detach().cpu().float()
+            for k in ("x_mean", "x_std", "y_mean", "y_std")
+        }
+
+    @classmethod
+    def from_state_dict(cls, d: dict[str, Any], spec: MachineSpec) -> Normalization:
+        """Inverse of :meth:`state_dict`; checks sizes against ``spec``."""
+        try:
+            norm = cls.from_arrays(
+                x_mean=d["x_mean"],
+                x_std=d["x_std"],
+                y_mean=d["y_mean"],
+                y_std=d["y_std"],
+                spec=spec,
+            )
+        except (KeyError, TypeError) as e:
+            raise CheckpointError(f"normalisation entry is malformed ({e})") from e
+        if norm.x_mean.shape != (spec.n_feature,) or norm.y_mean.shape != (spec.n_joint,):
+            raise CheckpointError(
+                f"normalisation sizes {tuple(norm.x_mean.shape)}/{tuple(norm.y_mean.shape)} do not match "
+                f"the spec ({spec.n_feature} features, {spec.n_joint} joints)"
+            )
+        return norm
+
+    # ---- torch encoding (differentiable in theta) -------------------------------------------
+
+    def encode(self, theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Normalised features from angles and commands.
+
+        Args:
+            theta: (..., n_joint) angles [rad].
+            u: (..., n_joint) commands [command units].
+
+        Returns:
+            (..., n_feature) normalised features (same layout as :func:`encode_np`).
+        """
+        parts = []
+        for j, p in enumerate(self.periodic):
+            th = theta[..., j]
+            if p:
+                parts += [torch.sin(th), torch.cos(th)]
+            else:
+                parts.append(th)
+        us = (u - self.u_center) / self.u_scale
+        x = torch.cat([torch.stack(parts, dim=-1), us], dim=-1)
+        return (x - self.x_mean) / self.x_std
+
+    def encode_np(self, theta: np.ndarray, u: np.ndarray, spec: MachineSpec) -> np.ndarray:
+        """NumPy twin of :meth:`encode` (float64), used by reference implementations."""
+        x = encode_np(theta, u, spec)
+        return (x - self.x_mean.cpu().double().numpy()) / self.x_std.cpu().double().numpy()
+
+    def omega(self, y: torch.Tensor) -> torch.Tensor:
+        """Physical velocity [rad/s] from normalised model output ``(..., n_joint)``."""
+        return y * self.y_std + self.y_mean
+
+    def target(self, omega: torch.Tensor) -> torch.Tensor:
+        """Normalised target from velocity [rad/s] ``(..., n_joint)``."""
+        return (omega - self.y_mean) / self.y_std

@@ -1,0 +1,191 @@
+"""Surrogate networks and the :class:`Surrogate` bundle (network + spec + normalisation).
+
+- :class:`SurrogateNet`: ``n_layer`` stacked LSTM (or GRU) of width ``hidden`` -> FC -> ReLU ->
+  linear -> one normalised angular velocity per joint (paper III-B: 2 x LSTM(128), W = 30).
+  Two ways to run it:
+
+  * windowed: ``net(x)`` with ``x: (n_batch, W, n_feature)`` -> ``(n_batch, n_joint)``, starting
+    each window from a zero state (the paper's sliding-window operator);
+  * stateful: ``net.step(x_t, (h, c))`` with ``x_t: (n_batch, n_feature)`` -> ``(y, (h, c))``,
+    carrying the recurrent state sample by sample (``h``, ``c``: ``(n_layer, n_batch, hidden)``;
+    for the GRU ``c`` is an unused zero tensor so every cell has the same interface).
+
+- :class:`ARXNet`: the linear ARX baseline on the same normalised window (windowed only).
+
+Inputs and outputs are *normalised* (see :class:`~.features.Normalization`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import torch
+from torch import nn
+
+from ..errors import CheckpointError
+from ..spec import MachineSpec
+from .features import Normalization
+
+State = tuple[torch.Tensor, torch.Tensor]
+"""Recurrent state ``(h, c)``, each ``(n_layer, n_batch, hidden)``."""
+
+Cell = Literal["lstm", "gru", "arx"]
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Architecture of a surrogate network (stored in the checkpoint)."""
+
+    n_feature: int
+    """Input width (``spec.n_feature``)."""
+    n_joint: int
+    """Output width (one angular velocity per joint)."""
+    window: int = 30
+    """Window length W [samples] (windowed mode; also the warm-up length)."""
+    hidden: int = 128
+    """Recurrent state width."""
+    n_layer: int = 2
+    """Stacked recurrent layers."""
+    cell: Cell = "lstm"
+    """``lstm``, ``gru`` or ``arx`` (linear baseline)."""
+    head_hidden: int = 128
+    """Width of the FC layer between the recurrent output and the linear output layer."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+        """Inverse of :meth:`to_dict`; raises :class:`CheckpointError` on bad entries."""
+        try:
+            cfg = cls(**d)
+        except TypeError as e:
+            raise CheckpointError(f"model entry is malformed ({e})") from e
+        if cfg.cell not in ("lstm", "gru", "arx"):
+            raise CheckpointError(f"unknown cell '{cfg.cell}' (this exsur knows lstm, gru, arx)")
+        return cfg
+
+
+class SurrogateNet(nn.Module):
+    """Stacked LSTM/GRU with an FC-ReLU-linear head; outputs normalised omega per joint."""
+
+    stateful_capable = True
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        if cfg.cell not in ("lstm", "gru"):
+            raise ValueError(f"SurrogateNet cell must be lstm or gru, got {cfg.cell}")
+        self.cfg = cfg
+        rnn = nn.LSTM if cfg.cell == "lstm" else nn.GRU
+        self.rnn = rnn(cfg.n_feature, cfg.hidden, num_layers=cfg.n_layer, batch_first=True)
+        self.head = nn.Sequential(
+            nn.Linear(cfg.hidden, cfg.head_hidden),
+            nn.ReLU(),
+            nn.Linear(cfg.head_hidden, cfg.n_joint),
+        )
+
+    def init_state(self, n_batch: int) -> State:
+        """Zero state ``(h, c)``, each ``(n_layer, n_batch, hidden)`` on the net's device/dtype."""
+        p = next(self.parameters())
+        z = torch.zeros(self.cfg.n_layer, n_batch, self.cfg.hidden, device=p.device, dtype=p.dtype)
+        return z, z.clone()
+
+    def forward_seq(
+        self, x: torch.Tensor, state: State | None = None
+    ) -> tuple[torch.Tensor, State]:
+        """Run a sequence.
+
+        Args:
+            x: (n_batch, n_step, n_feature) normalised features.
+            state: ``(h, c)`` to start from; zeros if None.
+
+        Returns:
+            ``y``: (n_batch, n_step, n_joint) normalised omega (output at step k predicts
+            omega[k+1]); and the final ``(h, c)``.
+        """
+        if state is None:
+            state = self.init_state(x.shape[0])
+        if self.cfg.cell == "lstm":
+            out, (h, c) = self.rnn(x, state)
+        else:
+            out, h = self.rnn(x, state[0])
+            c = state[1]
+        return self.head(out), (h, c)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Windowed forward: ``x: (n_batch, W, n_feature)`` -> ``(n_batch, n_joint)`` from the last step."""
+        out, _ = self.rnn(x)
+        return self.head(out[:, -1])
+
+    def step(self, x_t: torch.Tensor, state: State) -> tuple[torch.Tensor, State]:
+        """One sample: ``x_t: (n_batch, n_feature)`` -> (``(n_batch, n_joint)``, new ``(h, c)``)."""
+        y, state = self.forward_seq(x_t.unsqueeze(1), state)
+        return y[:, 0], state
+
+
+class ARXNet(nn.Module):
+    """Linear ARX baseline: ``y = A vec(x_window) + b`` on the normalised window."""
+
+    stateful_capable = False
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.linear = nn.Linear(cfg.window * cfg.n_feature, cfg.n_joint)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``x: (n_batch, W, n_feature)`` -> ``(n_batch, n_joint)`` normalised omega."""
+        return self.linear(x.reshape(x.shape[0], -1))
+
+
+def build_net(cfg: ModelConfig) -> nn.Module:
+    """The network for ``cfg.cell``."""
+    return ARXNet(cfg) if cfg.cell == "arx" else SurrogateNet(cfg)
+
+
+@dataclass
+class Surrogate:
+    """A trained surrogate: network, machine spec, normalisation and how to run it.
+
+    ``mode`` is how the model was trained and must be rolled out: ``windowed`` (zero state per
+    window of ``window`` samples) or ``stateful`` (state carried sample by sample).
+    """
+
+    net: nn.Module
+    spec: MachineSpec
+    norm: Normalization
+    model_cfg: ModelConfig
+    mode: Literal["windowed", "stateful"] = "windowed"
+    train_config: dict[str, Any] | None = None
+    metrics: dict[str, Any] | None = None
+    name: str = "lstm"
+
+    @property
+    def window(self) -> int:
+        """Window / warm-up length W [samples]."""
+        return self.model_cfg.window
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the network's parameters."""
+        return next(self.net.parameters()).device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """Dtype of the network's parameters."""
+        return next(self.net.parameters()).dtype
+
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> Surrogate:
+        """Move network and normalisation (in place); returns self."""
+        self.net.to(device=device, dtype=dtype)
+        self.norm = self.norm.to(self.device, self.dtype)
+        return self
+
+    def eval(self) -> Surrogate:
+        """Put the network in eval mode; returns self."""
+        self.net.eval()
+        return self

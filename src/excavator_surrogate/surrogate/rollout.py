@@ -1,0 +1,326 @@
+"""Closed-loop (free-run) rollout of a surrogate driven by recorded commands.
+
+Convention (see :mod:`.features`): the model consumes the features of sample ``k``
+(``theta[k]``, ``u[k]``) and predicts ``omega[k+1]``; the angle integrates as
+``theta[k+1] = theta[k] + T_s * omega_hat[k+1]``.  A rollout starts from a warm-up of ``W``
+recorded samples (``theta[0..W-1]``, ``u[0..W-2]``); from then on only the recorded commands
+are used.  Outputs for ``k < W`` are the recorded angles and NaN velocities.
+
+- :class:`ClosedLoop`: batched runner with ``reset`` / ``step`` (what an environment wraps);
+  windowed (zero state per window) or stateful (carried ``(h, c)``).
+- :func:`rollout`: batched rollout of equal-length arrays; :func:`rollout_episodes` pads
+  episodes of different lengths (causal, so padding never changes earlier samples).
+- :func:`rollout_reference`: plain loop, one episode, one step at a time, Python-list window,
+  NumPy features -- the reference the batched rollout is tested against.
+- :func:`window_rollout`: the differentiable H-step windowed rollout used by the training loss.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+
+from ..data.episode import Episode
+from ..errors import ConfigError, DataError
+from .features import Normalization, omega_target
+from .model import State, Surrogate
+
+Mode = Literal["windowed", "stateful"]
+
+
+def window_rollout(
+    net: torch.nn.Module,
+    norm: Normalization,
+    x_win: torch.Tensor,
+    theta: torch.Tensor,
+    u_next: torch.Tensor,
+    *,
+    n_horizon: int,
+    dt: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Differentiable H-step windowed rollout (training loss, and the windowed closed loop).
+
+    Args:
+        net: windowed network ``(n_batch, W, n_feature) -> (n_batch, n_joint)``.
+        norm: normalisation (encodes fed-back angles).
+        x_win: (n_batch, W, n_feature) normalised features of samples ``t-W+1..t``.
+        theta: (n_batch, n_joint) angle ``theta[t]`` [rad] that the first prediction integrates from.
+        u_next: (n_batch, n_horizon - 1, n_joint) commands ``u[t+1..t+H-1]`` [command units].
+        n_horizon: H, number of predicted steps.
+        dt: sample period T_s [s].
+
+    Returns:
+        ``y``: (n_batch, H, n_joint) normalised predictions of ``omega[t+1..t+H]``;
+        ``theta_hat``: (n_batch, H, n_joint) integrated angles ``theta[t+1..t+H]`` [rad].
+    """
+    ys, thetas = [], []
+    for h in range(n_horizon):
+        y = net(x_win)
+        theta = theta + dt * norm.omega(y)
+        ys.append(y)
+        thetas.append(theta)
+        if h < n_horizon - 1:
+            row = norm.encode(theta, u_next[:, h])
+            x_win = torch.cat([x_win[:, 1:], row.unsqueeze(1)], dim=1)
+    return torch.stack(ys, dim=1), torch.stack(thetas, dim=1)
+
+
+class ClosedLoop:
+    """Batched closed-loop runner: ``reset`` with a recorded history, then ``step`` with commands.
+
+    Runs without gradients.  Tensors are on the surrogate's device/dtype; inputs may be NumPy.
+    """
+
+    def __init__(self, sur: Surrogate, *, mode: Mode | None = None) -> None:
+        self.sur = sur
+        self.mode: Mode = mode or sur.mode
+        if self.mode not in ("windowed", "stateful"):
+            raise ConfigError(f"rollout mode must be windowed or stateful, got {self.mode!r}")
+        if self.mode == "stateful" and not getattr(sur.net, "stateful_capable", False):
+            raise ConfigError(
+                f"model '{sur.name}' ({sur.model_cfg.cell}) cannot be stepped statefully"
+            )
+        self.norm = sur.norm.to(sur.device, sur.dtype)
+        self.dt = sur.spec.dt
+        self.theta: torch.Tensor | None = None
+        """Current angle ``(n_batch, n_joint)`` [rad]."""
+        self._rows: torch.Tensor | None = None
+        self._state: State | None = None
+
+    def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
+        return torch.as_tensor(a, device=self.sur.device, dtype=self.sur.dtype)
+
+    @torch.no_grad()
+    def reset(
+        self, theta_hist: np.ndarray | torch.Tensor, u_hist: np.ndarray | torch.Tensor
+    ) -> torch.Tensor:
+        """Warm up on recorded samples.
+
+        Args:
+            theta_hist: (n_batch, n_hist, n_joint) angles ``theta[0..n_hist-1]`` [rad], n_hist >= 1.
+            u_hist: (n_batch, n_hist - 1, n_joint) commands ``u[0..n_hist-2]``.
+
+        In windowed mode only the last ``W`` samples matter; a shorter history is padded by
+        repeating its first sample.  Returns the current angle ``theta[n_hist-1]``.
+        """
+        theta_hist = self._t(theta_hist)
+        u_hist = self._t(u_hist)
+        n_batch, n_hist, n_joint = theta_hist.shape
+        if n_hist < 1 or u_hist.shape != (n_batch, n_hist - 1, n_joint):
+            raise ValueError(
+                f"reset needs theta_hist (n_batch, n_hist>=1, n_joint) and u_hist (n_batch, n_hist-1, n_joint); "
+                f"got {tuple(theta_hist.shape)} and {tuple(u_hist.shape)}"
+            )
+        rows = self.norm.encode(theta_hist[:, :-1], u_hist)  # (n_batch, n_hist-1, n_feature)
+        self.theta = theta_hist[:, -1].clone()
+        if self.mode == "windowed":
+            w1 = self.sur.window - 1
+            self._rows = rows[:, max(rows.shape[1] - w1, 0) :]
+        else:
+            state = self.sur.net.init_state(n_batch)
+            if rows.shape[1] > 0:
+                _, state = self.sur.net.forward_seq(rows, state)
+            self._state = state
+        return self.theta
+
+    @torch.no_grad()
+    def step(self, u: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Apply commands ``u: (n_batch, n_joint)`` at the current sample ``k``.
+
+        Returns ``(theta[k+1], omega[k+1])``, each ``(n_batch, n_joint)`` [rad], [rad/s].
+        """
+        if self.theta is None:
+            raise RuntimeError("call reset() before step()")
+        row = self.norm.encode(self.theta, self._t(u))
+        if self.mode == "windowed":
+            x = torch.cat([self._rows, row.unsqueeze(1)], dim=1)
+            if x.shape[1] < self.sur.window:  # short history: repeat its first sample
+                pad = x[:, :1].expand(x.shape[0], self.sur.window - x.shape[1], x.shape[2])
+                x = torch.cat([pad, x], dim=1)
+            y = self.sur.net(x)
+            self._rows = x[:, 1:]
+        else:
+            y, self._state = self.sur.net.step(row, self._state)
+        omega = self.norm.omega(y)
+        self.theta = self.theta + self.dt * omega
+        return self.theta, omega
+
+
+@torch.no_grad()
+def rollout(
+    sur: Surrogate,
+    theta: np.ndarray,
+    u: np.ndarray,
+    *,
+    warmup: int | None = None,
+    mode: Mode | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Batched free-run over equal-length sequences.
+
+    Args:
+        sur: the surrogate (eval mode is set by the caller; :func:`load_checkpoint` does it).
+        theta: (n_batch, >= warmup, n_joint) recorded angles; only ``theta[:, :warmup]`` is used.
+        u: (n_batch, n_step, n_joint) recorded commands [command units].
+        warmup: recorded samples used to start (default ``sur.window``).
+        mode: ``windowed`` / ``stateful`` (default: the mode the model was trained in).
+
+    Returns:
+        ``theta_hat``: (n_batch, n_step, n_joint) [rad], recorded for ``k < warmup``;
+        ``omega_hat``: (n_batch, n_step, n_joint) [rad/s], NaN for ``k < warmup``.
+    """
+    warmup = sur.window if warmup is None else int(warmup)
+    theta = np.asarray(theta, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    n_batch, n_step, n_joint = u.shape
+    if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
+        raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
+    loop = ClosedLoop(sur, mode=mode)
+    loop.reset(theta[:, :warmup], u[:, : warmup - 1])
+    u_t = loop._t(u)
+    th_out = torch.empty(n_batch, n_step, n_joint, dtype=sur.dtype, device=sur.device)
+    om_out = torch.full_like(th_out, float("nan"))
+    th_out[:, :warmup] = loop._t(theta[:, :warmup])
+    for k in range(warmup - 1, n_step - 1):
+        th_out[:, k + 1], om_out[:, k + 1] = loop.step(u_t[:, k])
+    return th_out.double().cpu().numpy(), om_out.double().cpu().numpy()
+
+
+@dataclass
+class EpisodeRollout:
+    """Free-run result for one episode, with its reference signals."""
+
+    name: str
+    time: np.ndarray
+    """(n_step,) [s]."""
+    theta_hat: np.ndarray
+    """(n_step, n_joint) predicted angle [rad] (recorded during warm-up)."""
+    omega_hat: np.ndarray
+    """(n_step, n_joint) predicted velocity [rad/s] (NaN during warm-up)."""
+    theta_ref: np.ndarray
+    """(n_step, n_joint) reference angle [rad] (measured or true)."""
+    omega_ref: np.ndarray
+    """(n_step, n_joint) reference velocity = backward difference of ``theta_ref`` [rad/s]."""
+    warmup: int
+    """Samples excluded from metrics."""
+
+
+def reference_theta(ep: Episode, reference: Literal["measured", "true"]) -> np.ndarray:
+    """``(n_step, n_joint)`` angle of ``ep`` to start from and compare against."""
+    if reference == "measured":
+        return ep.theta
+    if reference == "true":
+        if ep.theta_true is None:
+            raise DataError(
+                ep.name,
+                "has no theta_<joint>_true columns",
+                fix="evaluate with reference='measured'",
+            )
+        return ep.theta_true
+    raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
+
+
+def rollout_episodes(
+    sur: Surrogate,
+    episodes: Sequence[Episode],
+    *,
+    reference: Literal["measured", "true"] = "measured",
+    warmup: int | None = None,
+    mode: Mode | None = None,
+    max_steps: int | None = None,
+) -> list[EpisodeRollout]:
+    """Free-run every episode in one batch (shorter ones padded at the end with their last command).
+
+    The warm-up uses the reference angle (``theta`` or ``theta_true``), so the surrogate and the
+    reference start from the same state.  ``max_steps`` truncates long episodes.
+    """
+    if not episodes:
+        return []
+    warmup = sur.window if warmup is None else int(warmup)
+    thetas = [reference_theta(ep, reference) for ep in episodes]
+    us = [ep.u for ep in episodes]
+    if max_steps is not None:
+        thetas = [t[:max_steps] for t in thetas]
+        us = [u[:max_steps] for u in us]
+    lengths = [u.shape[0] for u in us]
+    for ep, n in zip(episodes, lengths):
+        if n <= warmup:
+            raise DataError(
+                ep.name,
+                f"has {n} samples, not more than the warm-up of {warmup}",
+                fix="use longer test episodes or a shorter window",
+            )
+    n_max = max(lengths)
+    pad_u = np.stack([np.pad(u, ((0, n_max - len(u)), (0, 0)), mode="edge") for u in us])
+    th0 = np.stack([t[:warmup] for t in thetas])
+    th_hat, om_hat = rollout(sur, th0, pad_u, warmup=warmup, mode=mode)
+    out = []
+    for i, ep in enumerate(episodes):
+        n = lengths[i]
+        out.append(
+            EpisodeRollout(
+                name=ep.name,
+                time=ep.time[:n],
+                theta_hat=th_hat[i, :n],
+                omega_hat=om_hat[i, :n],
+                theta_ref=thetas[i],
+                omega_ref=omega_target(thetas[i], sur.spec),
+                warmup=warmup,
+            )
+        )
+    return out
+
+
+@torch.no_grad()
+def rollout_reference(
+    sur: Surrogate,
+    theta: np.ndarray,
+    u: np.ndarray,
+    *,
+    warmup: int | None = None,
+    mode: Mode | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Plain-loop reference rollout of ONE sequence, one step at a time.
+
+    Args:
+        theta: (>= warmup, n_joint) recorded angles [rad].
+        u: (n_step, n_joint) recorded commands.
+
+    Returns:
+        ``theta_hat``, ``omega_hat``: (n_step, n_joint), as :func:`rollout`.
+    """
+    warmup = sur.window if warmup is None else int(warmup)
+    mode = mode or sur.mode
+    spec = sur.spec
+    dtype, device = sur.dtype, sur.device
+    n_step, n_joint = u.shape
+    y_std = sur.norm.y_std.double().cpu().numpy()
+    y_mean = sur.norm.y_mean.double().cpu().numpy()
+    theta_hat = [np.asarray(theta[k], dtype=np.float64) for k in range(warmup)]
+    omega_hat = [np.full(n_joint, np.nan) for _ in range(warmup)]
+    window: list[np.ndarray] = []
+    state = sur.net.init_state(1) if mode == "stateful" else None
+    for k in range(n_step - 1):
+        x = sur.norm.encode_np(theta_hat[k], u[k], spec)
+        xt = torch.tensor(x, dtype=dtype, device=device)
+        if mode == "windowed":
+            window.append(x)
+            if len(window) > sur.window:
+                window.pop(0)
+            if k + 1 < warmup:
+                continue
+            while len(window) < sur.window:  # only if warmup < window
+                window.insert(0, window[0])
+            y = sur.net(torch.tensor(np.array(window)[None], dtype=dtype, device=device))[0]
+        else:
+            y, state = sur.net.step(xt[None], state)
+            y = y[0]
+            if k + 1 < warmup:
+                continue
+        omega = y.double().cpu().numpy() * y_std + y_mean
+        omega_hat.append(omega)
+        theta_hat.append(theta_hat[k] + spec.dt * omega)
+    return np.array(theta_hat), np.array(omega_hat)

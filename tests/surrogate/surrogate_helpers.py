@@ -1,0 +1,56 @@
+"""Test helpers: untrained tiny surrogates and in-memory synthetic datasets."""
+
+from __future__ import annotations
+
+import torch
+
+from excavator_surrogate.data import Dataset, Episode
+from excavator_surrogate.spec import MachineSpec
+from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate
+from excavator_surrogate.surrogate.model import build_net
+from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+
+
+def make_surrogate(
+    spec: MachineSpec,
+    episodes: list[Episode],
+    *,
+    cell: str = "lstm",
+    mode: str = "windowed",
+    window: int = 8,
+    hidden: int = 12,
+    seed: int = 0,
+) -> Surrogate:
+    """An untrained tiny surrogate with normalisation fitted on ``episodes``."""
+    torch.manual_seed(seed)
+    cfg = ModelConfig(
+        n_feature=spec.n_feature,
+        n_joint=spec.n_joint,
+        window=window,
+        hidden=hidden,
+        n_layer=2,
+        cell=cell,
+        head_hidden=hidden,
+    )
+    net = build_net(cfg).eval()
+    norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec)
+    return Surrogate(net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell)
+
+
+def tiny_dataset(
+    n_joint: int = 3, *, n_train: int = 3, n_step: int = 300, seed: int = 0
+) -> Dataset:
+    """In-memory synthetic dataset (train sine, val sine, test step)."""
+    spec = synthetic_spec(n_joint)
+    ds = Dataset(spec=spec)
+    for i in range(n_train):
+        ds.episodes["train"].append(
+            synthetic_episode(spec, kind="sine", n_step=n_step, seed=seed * 100 + i)
+        )
+    ds.episodes["val"].append(
+        synthetic_episode(spec, kind="sine", n_step=n_step, seed=seed * 100 + 50)
+    )
+    ds.episodes["test"].append(
+        synthetic_episode(spec, kind="step", n_step=n_step, seed=seed * 100 + 60)
+    )
+    return ds

@@ -1,0 +1,151 @@
+"""Training: H-step loss, free-run model selection, stateful mode, resume, budget, config."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import numpy as np
+import pytest
+import torch
+from surrogate_helpers import make_surrogate, tiny_dataset
+
+from excavator_surrogate.errors import CheckpointError, ConfigError
+from excavator_surrogate.surrogate import (
+    TrainConfig,
+    free_run_error,
+    horizon_loss,
+    load_checkpoint,
+    read_checkpoint,
+    train,
+)
+from excavator_surrogate.surrogate.features import omega_target
+from excavator_surrogate.surrogate.rollout import window_rollout
+
+
+def _smooth_l1(a: float, b: float) -> float:
+    d = abs(a - b)
+    return 0.5 * d * d if d < 1 else d - 0.5
+
+
+@pytest.mark.parametrize("lambda_bias", [0.0, 0.3])
+def test_h_step_loss_equals_hand_computed_loop(spec, episodes, lambda_bias):
+    torch.manual_seed(1)
+    sur = make_surrogate(spec, episodes, window=5, hidden=8)
+    ep = episodes[0]
+    W, H, dt = 5, 4, spec.dt
+    ends = [6, 20, 33]
+    x_all = sur.norm.encode_np(ep.theta, ep.u, spec)
+    y_all = (
+        omega_target(ep.theta, spec) - sur.norm.y_mean.double().numpy()
+    ) / sur.norm.y_std.double().numpy()
+    f32 = lambda a: torch.tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    x_win = f32(np.stack([x_all[t - W + 1 : t + 1] for t in ends]))
+    u_next = f32(np.stack([ep.u[t + 1 : t + H] for t in ends]))
+    y = f32(np.stack([y_all[t + 1 : t + H + 1] for t in ends]))
+    with torch.no_grad():
+        y_hat, _ = window_rollout(
+            sur.net, sur.norm, x_win, f32(ep.theta[ends]), u_next, n_horizon=H, dt=dt
+        )
+        loss = float(horizon_loss(y_hat, y, lambda_bias=lambda_bias))
+
+    # hand-computed: python lists, one sample and one step at a time, float64 bookkeeping
+    y_std, y_mean = sur.norm.y_std.double().numpy(), sur.norm.y_mean.double().numpy()
+    total_vel, total_bias = 0.0, 0.0
+    for t in ends:
+        window = [x_all[k] for k in range(t - W + 1, t + 1)]
+        theta = ep.theta[t].copy()
+        preds = []
+        for h in range(1, H + 1):
+            with torch.no_grad():
+                out = sur.net(f32(np.array(window))[None])[0].double().numpy()
+            preds.append(out)
+            theta = theta + dt * (out * y_std + y_mean)
+            window = (
+                [*window[1:], sur.norm.encode_np(theta, ep.u[t + h], spec)] if h < H else window
+            )
+        tgt = [y_all[t + h] for h in range(1, H + 1)]
+        total_vel += sum(
+            _smooth_l1(p[j], g[j]) for p, g in zip(preds, tgt) for j in range(spec.n_joint)
+        )
+        total_bias += float(np.sum((np.mean(preds, axis=0) - np.mean(tgt, axis=0)) ** 2))
+    expected = total_vel / (len(ends) * H * spec.n_joint) + lambda_bias * total_bias / len(ends)
+    assert loss == pytest.approx(expected, rel=1e-4, abs=1e-6)
+
+
+@pytest.mark.parametrize(("mode", "factor"), [("windowed", 0.6), ("stateful", 0.75)])
+def test_training_reduces_free_run_error(tmp_path, mode, factor):
+    torch.manual_seed(0)
+    ds = tiny_dataset(2, n_train=4, n_step=400)
+    cfg = TrainConfig(
+        window=8,
+        hidden=16,
+        head_hidden=16,
+        epochs=10,
+        mode=mode,
+        batch_size=32,
+        seq_len=60,
+        burn_in=8,
+        tbptt=6,
+        seq_batch=2,
+        feedback="teacher",
+        tensorboard=False,
+        patience=10,
+        seed=3,
+    )
+    untrained = make_surrogate(ds.spec, ds.train, mode=mode, window=8, hidden=16, seed=3)
+    before = free_run_error(untrained, ds.val)["val_error"]
+    best = train(cfg, ds, out=tmp_path / mode, show_progress=False)
+    sur = load_checkpoint(best)
+    assert sur.mode == mode
+    after = free_run_error(sur, ds.val)["val_error"]
+    assert after == pytest.approx(sur.metrics["val_error"], rel=1e-5)
+    assert after < factor * before, (before, after)
+    rows = list(csv.DictReader((tmp_path / mode / "log.csv").open()))
+    assert len(rows) >= 1 and {"epoch", "time_s", "train_loss", "val_error", "lr"} <= set(rows[0])
+    assert (tmp_path / mode / "last.pt").exists() and (tmp_path / mode / "config.toml").exists()
+
+
+def test_resume_continues_epochs_and_budget_stops(tmp_path):
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    kw = dict(
+        window=5,
+        hidden=8,
+        head_hidden=8,
+        mode="stateful",
+        seq_len=40,
+        burn_in=5,
+        tbptt=10,
+        feedback="free",
+        teacher_epochs=1,
+    )
+    train(
+        TrainConfig(epochs=2, tensorboard=True, **kw), ds, out=tmp_path / "a", show_progress=False
+    )
+    assert (tmp_path / "a" / "tb").is_dir()
+    hist = read_checkpoint(tmp_path / "a" / "last.pt")["history"]
+    assert all(math.isfinite(h["train_loss"]) for h in hist)
+    cfg3 = TrainConfig(epochs=3, tensorboard=False, **kw)
+    train(cfg3, ds, out=tmp_path / "a", resume=tmp_path / "a" / "last.pt", show_progress=False)
+    hist = read_checkpoint(tmp_path / "a" / "last.pt")["history"]
+    assert [h["epoch"] for h in hist] == [0, 1, 2]
+    with pytest.raises(CheckpointError, match="architecture"):
+        bad = TrainConfig(**{**kw, "hidden": 9}, epochs=3, tensorboard=False)
+        train(bad, ds, out=tmp_path / "b", resume=tmp_path / "a" / "last.pt", show_progress=False)
+    quick = TrainConfig(
+        window=5, hidden=8, head_hidden=8, epochs=50, max_train_seconds=1e-3, tensorboard=False
+    )
+    train(quick, ds, out=tmp_path / "c", show_progress=False)
+    assert len(read_checkpoint(tmp_path / "c" / "last.pt")["history"]) == 1
+
+
+def test_train_config_from_preset_and_validation():
+    cfg = TrainConfig.from_preset(
+        {"train": {"hidden": 32, "mode": "stateful"}}, epochs=7, seed=None
+    )
+    assert (cfg.hidden, cfg.mode, cfg.epochs, cfg.seed) == (32, "stateful", 7, 0)
+    with pytest.raises(ConfigError, match="unknown key"):
+        TrainConfig.from_preset({"train": {"hiden": 32}})
+    with pytest.raises(ConfigError, match="seq_len"):
+        TrainConfig(seq_len=10, burn_in=10)
+    assert math.isfinite(TrainConfig().lr)
