@@ -43,7 +43,7 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     another preset; tables are merged key by key.
     """
     p = Path(str(name_or_path))
-    if p.suffix == ".toml" or p.exists():
+    if p.suffix == ".toml" or p.is_file():
         if not p.exists():
             raise ConfigError(f"{p}: preset file not found (give a shipped name: {', '.join(preset_names())})")
         text = p.read_text()

@@ -1,0 +1,101 @@
+"""``exsur run``: the report folder of Stage I and Stage II runs, and no half-written output."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from excavator_surrogate.cli import main
+
+TINY_TRAIN = """
+[train]
+mode = "stateful"
+hidden = 16
+layers = 1
+head_hidden = 16
+seq_len = 60
+burn_in = 30
+tbptt = 10
+epochs = 2
+tensorboard = false
+max_train_seconds = 0.0
+[evaluate]
+max_figures = 1
+"""
+
+
+def _preset(tmp_path: Path, base: str, extra: str = "") -> Path:
+    p = tmp_path / f"{base}-test.toml"
+    p.write_text(f'extends = "{base}"\n' + extra + TINY_TRAIN)
+    return p
+
+
+def test_run_stage1_report(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    assert main(["run", "--preset", str(_preset(tmp_path, "tiny")), "--out", str(out)]) == 0
+    for f in (
+        "report.md",
+        "metrics.json",
+        "table.md",
+        "cbe.png",
+        "config.toml",
+        "model/best.pt",
+        "model_gru/best.pt",
+        "data/manifest.json",
+    ):
+        assert (out / f).exists(), f
+    m = json.loads((out / "metrics.json").read_text())
+    joints = ["swing", "boom", "arm", "bucket"]
+    assert list(m["omega"]) == joints and list(m["theta"]) == joints
+    assert set(m["theta"]["boom"]) >= {"rmse", "mae", "r2"}
+    assert set(m["compare"]) == {"GRU", "ARX"}
+    assert m["run"]["preset"] == "tiny-test" and "total" in m["run"]["timings_s"]
+    # Paths point at the final folder, never at the temporary build folder.
+    assert ".tmp" not in json.dumps(m) and ".tmp" not in (out / "report.md").read_text()
+    cfg = tomllib.loads((out / "config.toml").read_text())
+    assert cfg["train"]["hidden"] == 16 and cfg["simulate"]["n_train"] == 2
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_run_stage2_cleaning_section(tmp_path: Path) -> None:
+    sim = """
+[simulate]
+n_train = 2
+n_val = 1
+n_test = 1
+steps_train = 300
+steps_val = 300
+steps_test = 300
+"""
+    out = tmp_path / "run2"
+    assert (
+        main(["run", "--preset", str(_preset(tmp_path, "quick-noload", sim)), "--out", str(out)])
+        == 0
+    )
+    m = json.loads((out / "metrics.json").read_text())
+    clean = m["cleaning"]
+    assert set(clean) >= {"swing", "boom", "arm", "bucket"}
+    for j in ("swing", "boom", "arm", "bucket"):
+        assert clean[j]["rmse_fused"] <= 0.5 * clean[j]["rmse_raw"]
+        assert {"jump_precision", "jump_recall"} <= set(clean[j])
+    assert set(m["against_cleaned"]) == {"omega", "theta"}
+    assert set(m["cleaning_effect"]) == {"trained on cleaned", "trained on raw"}
+    assert m["run"]["reference"] == "true"
+    report = (out / "report.md").read_text()
+    assert "Table III (noload)" in report and "Effect of cleaning" in report
+    assert (out / "fusion_bucket.png").exists() and (out / "model_raw" / "best.pt").exists()
+
+
+def test_run_failure_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text('extends = "tiny"\n[train]\nwindoww = 3\n')
+    out = tmp_path / "never"
+    assert main(["run", "--preset", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "windoww" in err[0]
+    assert not out.exists()
+    assert main(["run", "--preset", "no-such-preset", "--out", str(out)]) == 2
+    assert "unknown preset 'no-such-preset'" in capsys.readouterr().err
