@@ -41,13 +41,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--out", type=Path, default=Path("arm3_demo"), help="folder to write (default arm3_demo)"
     )
-    ap.add_argument("--n-logs", type=int, default=6, help="number of 60 s logs")
+    ap.add_argument("--n-logs", type=int, default=16, help="number of logs")
+    ap.add_argument("--duration", type=float, default=120.0, help="length of each log [s]")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     plant = load_plant()
     logs = args.out / "logs"
     for i in range(args.n_logs):
-        cols = plant.simulate(duration_s=60.0, seed=args.seed + i)
+        cols = plant.simulate(duration_s=args.duration, seed=args.seed + i)
         if i == 1:  # the logger paused for 3 s: rows between 20 s and 23 s are missing
             t = cols["t_ms"] * 1e-3
             keep = (t < 20.0) | (t >= 23.0)

@@ -30,7 +30,7 @@ def _fmt(v: float | None) -> str:
 
 def paper_applies(names: tuple[str, ...] | list[str]) -> bool:
     """True when the joints are the paper's four (swing, boom, arm, bucket)."""
-    return set(names) <= set(PAPER_TABLE_II["omega"])
+    return list(names) == list(PAPER_TABLE_II["omega"])
 
 
 def markdown_table(metrics: Mapping[str, Any], *, paper: bool = False) -> str:
