@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="start pose, comma-separated angles in rad (default: the file's first theta, else mid-range)",
     )
     p.add_argument("--plant", choices=["ideal", "hydraulic"], default="ideal", help="MuJoCo plant")
-    p.add_argument("--device", default="cpu", help="torch device of the surrogate")
+    p.add_argument("--device", default="cpu", help="surrogate device (cpu, cuda, auto)")
     p.set_defaults(func=run)
 
 

@@ -1,4 +1,9 @@
-"""``exsur train DATASET --out DIR``: train an LSTM/GRU surrogate, keep the best free-run checkpoint."""
+"""``exsur train DATASET --out DIR``: train an LSTM/GRU surrogate, keep the best free-run checkpoint.
+
+Data-parallel (DDP) when launched by torchrun (``WORLD_SIZE`` > 1) or with ``--ddp``::
+
+    torchrun --standalone --nproc_per_node=2 -m excavator_surrogate.cli train DATA --out DIR
+"""
 
 from __future__ import annotations
 
@@ -30,7 +35,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--seed", type=int, default=None, help="random seed")
     p.add_argument("--resume", type=Path, default=None, help="continue from a checkpoint (last.pt)")
-    p.add_argument("--device", default=None, help="torch device (cpu, cuda)")
+    p.add_argument("--device", default=None, help="torch device (cpu, cuda, cuda:N, auto)")
+    p.add_argument(
+        "--ddp",
+        action="store_true",
+        help="data-parallel training; requires a torchrun launch (automatic when torchrun "
+        "sets WORLD_SIZE > 1); batch sizes are per process",
+    )
     p.set_defaults(func=run)
 
 
@@ -39,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_preset
     from ..data.dataset import load_dataset
     from ..io_utils import log
+    from ..scale.ddp import distributed_env, init_distributed, shutdown
     from ..surrogate.checkpoint import read_checkpoint
     from ..surrogate.train import TrainConfig, train
 
@@ -53,7 +65,15 @@ def run(args: argparse.Namespace) -> int:
         device=args.device,
     )
     dataset = load_dataset(args.dataset, splits=("train", "val"))
-    best = train(cfg, dataset, out=args.out, resume=args.resume)
+    dist = None
+    if args.ddp or distributed_env():
+        dist = init_distributed(device=cfg.device, require=args.ddp)
+    try:
+        best = train(cfg, dataset, out=args.out, resume=args.resume, dist=dist)
+    finally:
+        shutdown(dist)
+    if dist is not None and not dist.is_main:
+        return 0
     m = read_checkpoint(best).get("metrics", {})
     log(
         f"best checkpoint: {best} (epoch {m.get('epoch')}, val_error {m.get('val_error', float('nan')):.4g})"

@@ -29,6 +29,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
+from ..scale.devices import resolve_device
 from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
 
@@ -220,7 +221,7 @@ class SurrogateEngine:
     Args:
         sur: the loaded surrogate (:func:`~excavator_surrogate.surrogate.checkpoint.load_checkpoint`).
         n_envs: batch size.
-        device: torch device for the state and the network.
+        device: torch device for the state and the network (``cpu``, ``cuda[:N]``, ``auto``).
         mode: ``"stateful"`` or ``"windowed"``; default: the checkpoint's training mode.
         impl: stateful implementation: ``"cell"`` (per-layer cell ops), ``"module"`` (folded
             ``nn.LSTM``) or ``"auto"`` (module from :data:`MODULE_MIN_BATCH` envs on).
@@ -245,7 +246,7 @@ class SurrogateEngine:
             raise ConfigError(f"mode must be 'windowed' or 'stateful', got {self.mode!r}")
         if impl not in ("auto", "cell", "module"):
             raise ConfigError(f"impl must be 'auto', 'cell' or 'module', got {impl!r}")
-        self.device = torch.device(device)
+        self.device = resolve_device(device)
         self.sur = sur.to(self.device, torch.float32).eval()
         self.spec = sur.spec
         self.n_envs = int(n_envs)

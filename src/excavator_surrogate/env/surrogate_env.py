@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..scale.devices import resolve_device
 from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv
@@ -18,7 +19,11 @@ from .tasks import Task
 def load_surrogate(
     ckpt: str | Path | Surrogate, *, device: str | torch.device = "cpu"
 ) -> Surrogate:
-    """A :class:`Surrogate` from a checkpoint path (or the object itself), in eval mode."""
+    """A :class:`Surrogate` from a checkpoint path (or the object itself), in eval mode.
+
+    ``device``: ``cpu``, ``cuda[:N]`` or ``auto`` (see :func:`~excavator_surrogate.scale.devices.resolve_device`).
+    """
+    device = resolve_device(device)
     if isinstance(ckpt, Surrogate):
         return ckpt.to(device).eval()
     return load_checkpoint(ckpt, device=device)
@@ -87,7 +92,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | Parameter      | Type                    | Default   | Description                                             |
     |----------------|-------------------------|-----------|---------------------------------------------------------|
     | `ckpt`         | **str / Surrogate**     | required  | checkpoint path (``exsur train``) or a loaded surrogate |
-    | `device`       | **str**                 | `"cpu"`   | torch device                                            |
+    | `device`       | **str**                 | `"cpu"`   | torch device: cpu, cuda[:N] or auto                     |
     | `mode`         | **str / None**          | `None`    | ``stateful`` / ``windowed``; default: checkpoint's mode |
     | `impl`         | **str**                 | `"cell"`  | stateful kernel: ``cell``, ``module`` or ``auto``       |
     | `task`         | **Task / None**         | `None`    | reward/termination hook                                 |

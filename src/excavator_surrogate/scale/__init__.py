@@ -1,1 +1,11 @@
-"""scale stage."""
+"""scale stage: data-parallel training (torchrun + DDP), device selection, Optuna sweeps.
+
+Modules (imported on demand, so ``import excavator_surrogate.env`` stays light):
+
+- :mod:`.devices`: :func:`~.devices.resolve_device` (``cpu`` / ``cuda[:N]`` / ``auto``).
+- :mod:`.ddp`: :func:`~.ddp.init_distributed`, :class:`~.ddp.DistContext`,
+  :func:`~.ddp.shutdown`, :func:`~.ddp.spawn_local` (``train(..., dist=ctx)`` uses them).
+- :mod:`.sweep`: :class:`~.sweep.SweepConfig`, :func:`~.sweep.run_sweep` (``exsur sweep``).
+
+See ``docs/scale.md``.
+"""

@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -47,6 +47,12 @@ from .checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
 from .features import Normalization, encode_np, omega_target, unwrap_periodic
 from .model import ModelConfig, Surrogate, SurrogateNet
 from .rollout import rollout_episodes, window_rollout
+
+if TYPE_CHECKING:
+    from ..scale.ddp import DistContext
+
+EpochCallback = Callable[[int, dict[str, Any]], bool]
+"""``on_epoch(epoch, row) -> stop``: called after every epoch (rank 0) with the ``log.csv`` row."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +78,7 @@ class TrainConfig:
     lr: float = 1e-3
     """Adam learning rate."""
     batch_size: int = 256
-    """Windows per batch (windowed mode)."""
+    """Windows per batch (windowed mode); per process with DDP (global batch = batch_size x world size)."""
     epochs: int = 50
     """Maximum number of epochs."""
     patience: int = 25
@@ -99,7 +105,7 @@ class TrainConfig:
     tbptt: int = 10
     """Stateful: steps per truncated-BPTT chunk (one optimiser step per chunk)."""
     seq_batch: int = 16
-    """Stateful: sub-sequences per batch."""
+    """Stateful: sub-sequences per batch (per process with DDP)."""
     feedback: Literal["free", "teacher"] = "teacher"
     """Stateful: after the burn-in, feed recorded angles (teacher, fast) or integrated ones (free)."""
     teacher_epochs: int = 1
@@ -111,7 +117,7 @@ class TrainConfig:
     max_train_seconds: float = 0.0
     """Wall-time budget for training incl. validation [s] (0 = unlimited)."""
     device: str = "cpu"
-    """Torch device (``cpu`` or ``cuda``)."""
+    """Torch device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA if available, else CPU)."""
     num_threads: int = 1
     """Torch intra-op threads (0 keeps torch's default; 1 is fastest for these small nets on shared CPUs)."""
     tensorboard: bool = True
@@ -313,8 +319,13 @@ def _epoch_windowed(
     deadline: float,
     show: Callable[..., Any],
     lr_at: Callable[[], float | None],
+    *,
+    dist: _Par | None = None,
 ) -> tuple[float, int]:
     net, norm = sur.net, sur.norm
+    world = 1
+    if dist is not None:  # DDP: global batch of batch_size * world, strided shard per rank
+        net, world = dist.net, dist.ctx.world_size
     idx = _windowed_indices(data, cfg.window, cfg.horizon)
     rng.shuffle(idx)
     if cfg.epoch_samples > 0:
@@ -323,10 +334,14 @@ def _epoch_windowed(
     ar_w = torch.arange(-cfg.window + 1, 1, device=dev)
     ar_u = torch.arange(1, cfg.horizon, device=dev)
     ar_y = torch.arange(1, cfg.horizon + 1, device=dev)
-    n_batch = math.ceil(len(idx) / cfg.batch_size)
+    gbs = cfg.batch_size * world
+    n_batch = math.ceil(len(idx) / gbs)
     total, count = 0.0, 0
     for b in show(range(n_batch), total=n_batch, desc="train"):
-        t = torch.as_tensor(idx[b * cfg.batch_size : (b + 1) * cfg.batch_size], device=dev)
+        sel = idx[b * gbs : (b + 1) * gbs]
+        if dist is not None:
+            sel, weight, n_real = dist.ctx.shard_batch(sel)
+        t = torch.as_tensor(sel, device=dev)
         x_win = data.x[t[:, None] + ar_w]
         y = data.y[t[:, None] + ar_y]
         y_hat, _ = window_rollout(
@@ -339,6 +354,13 @@ def _epoch_windowed(
             dt=sur.spec.dt,
         )
         loss = horizon_loss(y_hat, y, lambda_bias=cfg.lambda_bias)
+        if dist is not None:
+            if dist.step(loss, weight, opt, cfg, lr_at) and n_real:
+                total += float(loss.detach()) * n_real
+                count += n_real
+            if dist.past(deadline):
+                break
+            continue
         if torch.isfinite(loss):
             loss.backward()
             _clip_step(net, opt, cfg.grad_clip, lr_at)
@@ -362,8 +384,12 @@ def _epoch_stateful(
     lr_at: Callable[[], float | None],
     *,
     teacher: bool,
+    dist: _Par | None = None,
 ) -> tuple[float, int]:
     net, norm, dt = sur.net, sur.norm, sur.spec.dt
+    world = 1
+    if dist is not None:  # DDP: global batch of seq_batch * world sub-sequences, strided shard
+        net, world = dist.net, dist.ctx.world_size
     starts = _sequence_starts(data, cfg.seq_len, cfg.burn_in, rng)
     rng.shuffle(starts)
     per_seq = cfg.seq_len - cfg.burn_in + 1
@@ -371,11 +397,15 @@ def _epoch_stateful(
         starts = starts[: max(1, cfg.epoch_samples // per_seq)]
     dev = data.x.device
     ar = torch.arange(cfg.seq_len, device=dev)
-    n_batch = math.ceil(len(starts) / cfg.seq_batch)
+    gbs = cfg.seq_batch * world
+    n_batch = math.ceil(len(starts) / gbs)
     total, count = 0.0, 0
     b0 = cfg.burn_in - 1  # first step whose output is in the loss
     for b in show(range(n_batch), total=n_batch, desc="train"):
-        s = torch.as_tensor(starts[b * cfg.seq_batch : (b + 1) * cfg.seq_batch], device=dev)
+        sel = starts[b * gbs : (b + 1) * gbs]
+        if dist is not None:
+            sel, weight, n_real = dist.ctx.shard_batch(sel)
+        s = torch.as_tensor(sel, device=dev)
         g = s[:, None] + ar
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
         state = net.init_state(len(s))
@@ -395,7 +425,11 @@ def _epoch_stateful(
                     ys.append(y)
                 y_hat = torch.stack(ys, dim=1)
             loss = horizon_loss(y_hat, y_seq[:, j0:j1], lambda_bias=cfg.lambda_bias)
-            if torch.isfinite(loss):
+            if dist is not None:
+                if dist.step(loss, weight, opt, cfg, lr_at) and n_real:
+                    total += float(loss.detach()) * n_real * y_hat.shape[1]
+                    count += n_real * y_hat.shape[1]
+            elif torch.isfinite(loss):
                 loss.backward()
                 _clip_step(net, opt, cfg.grad_clip, lr_at)
                 total += float(loss.detach()) * y_hat.shape[0] * y_hat.shape[1]
@@ -404,7 +438,10 @@ def _epoch_stateful(
                 opt.zero_grad(set_to_none=True)
             state = (state[0].detach(), state[1].detach())
             theta = theta.detach()
-        if time.monotonic() > deadline:
+        if dist is not None:
+            if dist.past(deadline):
+                break
+        elif time.monotonic() > deadline:
             break
     return (total / count if count else math.nan), count
 
@@ -428,6 +465,38 @@ def _lr_fn(
         return cfg.min_lr + 0.5 * (cfg.lr - cfg.min_lr) * (1.0 + math.cos(math.pi * progress))
 
     return lr
+
+
+@dataclass
+class _Par:
+    """Data-parallel state of one rank: the DDP view of the net and the process context."""
+
+    ctx: DistContext
+    net: Any  # scale.ddp.DDPNet
+    timed: bool
+    """A finite wall-time budget: stop flags (and the cosine lr) come from rank 0 every step."""
+
+    def step(
+        self,
+        loss: torch.Tensor,
+        weight: float,
+        opt: torch.optim.Optimizer,
+        cfg: TrainConfig,
+        lr_at: Callable[[], float | None],
+    ) -> bool:
+        return self.ctx.backward_step(
+            loss, weight=weight, net=self.net, opt=opt, grad_clip=cfg.grad_clip, lr_at=lr_at
+        )
+
+    def rank0_lr(self, lr_at: Callable[[], float | None]) -> Callable[[], float | None]:
+        """``lr_at`` evaluated on rank 0 and broadcast (one collective per optimiser step)."""
+        return lambda: self.ctx.broadcast_float(lr_at())
+
+    def past(self, deadline: float) -> bool:
+        """The deadline decision of rank 0 (no communication without a budget)."""
+        if not self.timed:
+            return False
+        return bool(self.ctx.broadcast_float(float(time.monotonic() > deadline)))
 
 
 _LOG_FIELDS = (
@@ -480,6 +549,8 @@ def train(
     out: str | Path,
     resume: str | Path | None = None,
     show_progress: bool | None = None,
+    on_epoch: EpochCallback | None = None,
+    dist: DistContext | None = None,
 ) -> Path:
     """Train a surrogate on ``dataset.train``, select it by free-run error on ``dataset.val``.
 
@@ -492,6 +563,11 @@ def train(
         out: output folder (created).
         resume: checkpoint (``last.pt`` or ``best.pt``) to continue from; architecture must match.
         show_progress: progress bar (None: only on a terminal or with ``EXSUR_PROGRESS=1``).
+        on_epoch: called after every epoch (once the checkpoints are written) with the epoch and
+            its ``log.csv`` row (``val_error``, ``train_loss``, ...); returning True stops training
+            (sweeps prune trials this way).  With DDP it runs on rank 0 only.
+        dist: data-parallel context from :func:`excavator_surrogate.scale.ddp.init_distributed`
+            (every rank calls ``train`` with the same arguments); None trains in this process.
 
     Returns:
         Path of ``best.pt``.
@@ -499,16 +575,16 @@ def train(
     Raises:
         DataError: no usable training episodes.  CheckpointError: bad ``resume`` file.
     """
+    from ..scale.devices import resolve_device
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    if cfg.device.startswith("cuda") and not torch.cuda.is_available():
-        raise ConfigError(f"[train] device '{cfg.device}' is not available; use device = 'cpu'")
+    main = dist is None or dist.is_main
+    say = log if main else (lambda msg: None)
     try:
-        device = torch.device(cfg.device)
-    except RuntimeError as e:
-        raise ConfigError(
-            f"[train] device '{cfg.device}' is not a torch device (cpu, cuda, cuda:0)"
-        ) from e
+        device = dist.device if dist is not None else resolve_device(cfg.device)
+    except ConfigError as e:
+        raise ConfigError(f"[train] {e}") from e
     if cfg.num_threads > 0:
         torch.set_num_threads(cfg.num_threads)
     spec = dataset.spec
@@ -587,16 +663,20 @@ def train(
         best_val = float(ts["best_val"])
         bad = int(ts["bad_epochs"])
         elapsed0 = float(ts.get("elapsed_s", 0.0))
-        log(f"resuming from {resume} at epoch {start_epoch} (best val_error {best_val:.4g})")
+        say(f"resuming from {resume} at epoch {start_epoch} (best val_error {best_val:.4g})")
 
-    write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg)}))
-    tb = _tb_writer(out, cfg.tensorboard)
+    if main:
+        write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg)}))
+    tb = _tb_writer(out, cfg.tensorboard) if main else None
     t_start = time.monotonic() - elapsed0
     budget = cfg.max_train_seconds if cfg.max_train_seconds > 0 else math.inf
     deadline = t_start + budget
+    par: _Par | None = None
+    if dist is not None:
+        par = _Par(ctx=dist, net=dist.wrap(net), timed=math.isfinite(budget))
     show = (
         (lambda it, **kw: it)
-        if show_progress is False
+        if show_progress is False or not main
         else (
             lambda it, **kw: progress(
                 it, disable=None if show_progress is None else not show_progress, **kw
@@ -605,25 +685,38 @@ def train(
     )
     best_path, last_path = out / "best.pt", out / "last.pt"
     n_param = sum(p.numel() for p in net.parameters())
-    log(
+    say(
         f"training {cfg.cell} ({n_param} parameters, {cfg.mode}) on {len(train_eps)} episode(s) "
         f"/ {data.x.shape[0]} samples; validating on {len(val_eps)} episode(s)"
     )
+    if dist is not None:
+        per = cfg.batch_size if cfg.mode == "windowed" else cfg.seq_batch
+        say(
+            f"data parallel: {dist.world_size} ranks x batch {per} = global {per * dist.world_size}"
+        )
     try:
         for epoch in range(start_epoch, cfg.epochs):
             rng = np.random.default_rng([cfg.seed, epoch])
             net.train()
             t0 = time.monotonic()
             lr_at = _lr_fn(cfg, epoch, t_start, budget)
+            if par is not None and par.timed and cfg.lr_schedule == "cosine":
+                lr_at = par.rank0_lr(lr_at)  # the wall-time lr must be the same on every rank
             if cfg.mode == "windowed":
-                loss, n = _epoch_windowed(sur, data, opt, cfg, rng, deadline, show, lr_at)
+                loss, n = _epoch_windowed(sur, data, opt, cfg, rng, deadline, show, lr_at, dist=par)
             else:
                 teacher = cfg.feedback == "teacher" or epoch < cfg.teacher_epochs
                 loss, n = _epoch_stateful(
-                    sur, data, opt, cfg, rng, deadline, show, lr_at, teacher=teacher
+                    sur, data, opt, cfg, rng, deadline, show, lr_at, teacher=teacher, dist=par
                 )
             t1 = time.monotonic()
-            val = free_run_error(sur, val_eps, max_steps=val_steps)
+            if dist is not None:
+                loss, n = dist.global_loss(loss, n)
+                val = dist.broadcast(
+                    free_run_error(sur, val_eps, max_steps=val_steps) if main else None
+                )
+            else:
+                val = free_run_error(sur, val_eps, max_steps=val_steps)
             t2 = time.monotonic()
             net.train()
             lr = opt.param_groups[0]["lr"]
@@ -662,10 +755,11 @@ def train(
                 "best_val_error": best_val,
                 "train_loss": loss,
             }
-            if improved:
+            if improved and main:
                 save_checkpoint(best_path, sur, history=history, train_state=state)
-            save_checkpoint(last_path, sur, history=history, train_state=state)
-            _write_log(out / "log.csv", history)
+            if main:
+                save_checkpoint(last_path, sur, history=history, train_state=state)
+                _write_log(out / "log.csv", history)
             if tb is not None:
                 tb.add_scalar("loss/train", loss, epoch)
                 tb.add_scalar("val/error", min(val["val_error"], 1e6), epoch)
@@ -673,20 +767,29 @@ def train(
                 for name, r2 in zip(spec.names, val["theta_r2"]):
                     tb.add_scalar(f"val_theta_r2/{name}", max(r2, -10.0), epoch)
                 tb.flush()
-            log(
+            say(
                 f"epoch {epoch}: loss {loss:.4g}, val_error {val['val_error']:.4g}, "
                 f"min theta R2 {min(val['theta_r2']):.3f}, lr {lr:.2g}, "
                 f"{t1 - t0:.1f}+{t2 - t1:.1f} s{' *' if improved else ''}"
             )
-            if bad >= cfg.patience:
-                log(f"early stop: no improvement for {bad} epochs")
+            stop_req = bool(on_epoch(epoch, dict(row))) if on_epoch is not None and main else False
+            over = time.monotonic() > deadline
+            if dist is not None:  # rank 0 decides for everyone
+                stop_req, over = dist.broadcast((stop_req, over))
+            if stop_req:
+                say(f"stopping: requested after epoch {epoch}")
                 break
-            if time.monotonic() > deadline:
-                log(f"stopping: training budget of {budget:g} s used")
+            if bad >= cfg.patience:
+                say(f"early stop: no improvement for {bad} epochs")
+                break
+            if over:
+                say(f"stopping: training budget of {budget:g} s used")
                 break
     finally:
         if tb is not None:
             tb.close()
-    if not best_path.exists():  # every epoch diverged: keep the last one so there is a model
+    if main and not best_path.exists():  # every epoch diverged: keep the last one
         save_checkpoint(best_path, sur, history=history, train_state=None)
+    if dist is not None:
+        dist.barrier()  # best.pt is complete before any rank returns its path
     return best_path

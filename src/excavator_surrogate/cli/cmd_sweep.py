@@ -1,0 +1,74 @@
+"""``exsur sweep DATASET --out DIR --trials N``: Optuna hyper-parameter sweep with pruning."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``sweep`` subcommand."""
+    p = subparsers.add_parser(
+        "sweep",
+        help="Optuna sweep over window, hidden size, layers, H, lambda_bias, lr and mode",
+        description="Train N trials sampled from the [sweep] search space, prune bad ones on the "
+        "per-epoch validation free-run error, and write DIR/sweep.md, DIR/sweep.png, "
+        "DIR/sweep.json and DIR/best.pt (the best trial's checkpoint).  Workers on other "
+        "machines join the same study with the same --storage URL and --study name.",
+    )
+    p.add_argument("dataset", type=Path, help="dataset folder (train and val splits)")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--trials", type=int, required=True, help="trials this worker runs")
+    p.add_argument(
+        "--storage",
+        default=None,
+        help="Optuna storage URL (default sqlite:///OUT/study.db; postgresql://user:pw@host/db "
+        "lets many machines share the study)",
+    )
+    p.add_argument("--study", default="exsur", help="study name to create or join (default exsur)")
+    p.add_argument(
+        "--timeout", type=float, default=None, help="stop starting new trials after S seconds"
+    )
+    p.add_argument(
+        "--preset", default=None, help="preset name or .toml path ([train] base, [sweep] space)"
+    )
+    p.add_argument("--epochs", type=int, default=None, help="maximum epochs per trial")
+    p.add_argument(
+        "--trial-seconds",
+        type=float,
+        default=None,
+        dest="max_train_seconds",
+        help="wall-time budget per trial [s]",
+    )
+    p.add_argument("--device", default=None, help="torch device of the trials (cpu, cuda, auto)")
+    p.add_argument("--seed", type=int, default=None, help="sampler seed (single-worker sweeps)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Handler: returns 0 and prints the table of the best trials."""
+    from ..config import load_preset
+    from ..scale.sweep import SweepConfig, run_sweep
+    from ..surrogate.train import TrainConfig
+
+    preset = load_preset(args.preset) if args.preset else {}
+    base = TrainConfig.from_preset(preset, device=args.device)
+    scfg = SweepConfig.from_preset(
+        preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed
+    )
+    res = run_sweep(
+        args.dataset,
+        out=args.out,
+        trials=args.trials,
+        storage=args.storage,
+        study_name=args.study,
+        timeout=args.timeout,
+        sweep=scfg,
+        base=base,
+    )
+    if res.table is not None:
+        print(res.table.read_text())
+    if res.best_checkpoint is not None:
+        print(res.best_checkpoint)
+    return 0

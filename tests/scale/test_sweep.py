@@ -1,0 +1,122 @@
+"""Optuna sweep: tiny trials on a tiny synthetic dataset, SQLite storage, a second worker joining."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import pytest
+
+from excavator_surrogate.cli import main
+from excavator_surrogate.config import load_preset
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.scale.sweep import SweepConfig, run_sweep, safe_url
+from excavator_surrogate.surrogate import TrainConfig, load_checkpoint, train
+from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
+
+optuna = pytest.importorskip("optuna")
+
+PRESET = """
+[train]
+batch_size = 64
+seq_len = 40
+burn_in = 6
+tbptt = 10
+seq_batch = 4
+val_steps = 100
+tensorboard = false
+
+[sweep]
+window = [4, 8]
+hidden = [6, 16]
+layers = [1, 2]
+horizon = [1, 3]
+lambda_bias = [0.0, 0.5]
+lr = [1e-3, 1e-2]
+mode = ["windowed", "stateful"]
+epochs = 3
+pruner_startup = 2
+pruner_warmup = 1
+sampler_startup = 4
+seed = 7
+top = 4
+"""
+
+
+def test_sweep_eight_trials_report_and_join(tmp_path: Path) -> None:
+    t0 = time.monotonic()
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=2, n_val=1, n_test=0, n_step=160
+    )
+    (tmp_path / "sweep.toml").write_text(PRESET)
+    preset = load_preset(tmp_path / "sweep.toml")
+    out = tmp_path / "sweep"
+    res = run_sweep(
+        data,
+        out=out,
+        trials=7,
+        sweep=SweepConfig.from_preset(preset),
+        base=TrainConfig.from_preset(preset),
+    )
+    assert (out / "study.db").is_file()
+    assert res.n_complete + res.n_pruned + res.n_fail == 7 and res.n_fail == 0
+    # a second worker joins the same study through the CLI
+    rc = main(
+        [
+            "sweep",
+            str(data),
+            "--out",
+            str(out),
+            "--trials",
+            "1",
+            "--preset",
+            str(tmp_path / "sweep.toml"),
+            "--storage",
+            res.storage,
+        ]
+    )
+    assert rc == 0
+    summary = json.loads((out / "sweep.json").read_text())
+    assert summary["complete"] + summary["pruned"] == 8
+    best = summary["best"]
+    assert math.isfinite(best["value"]) and best["params"]
+    table = (out / "sweep.md").read_text()
+    assert "| rank | trial | val_error |" in table and f"| 1 | {best['trial']} |" in table
+    assert (out / "sweep.png").stat().st_size > 10_000
+    sur = load_checkpoint(out / "best.pt")
+    assert sur.metrics["best_val_error"] == pytest.approx(best["value"])
+    for row in summary["trials"]:  # every trial reported its per-epoch validation error
+        assert 1 <= len(row["curve"]) <= 3
+        assert row["train"]["epochs"] == 3 and row["train"]["tensorboard"] is False
+    assert time.monotonic() - t0 < 120
+
+
+def test_on_epoch_hook_stops_training(tmp_path: Path) -> None:
+    data = write_synthetic_dataset(
+        tmp_path / "d", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    from excavator_surrogate.data import load_dataset
+
+    seen: list[tuple[int, float]] = []
+
+    def hook(epoch: int, row: dict) -> bool:
+        seen.append((epoch, row["val_error"]))
+        return epoch == 1
+
+    cfg = TrainConfig(window=5, hidden=6, head_hidden=6, layers=1, epochs=10, tensorboard=False)
+    train(cfg, load_dataset(data), out=tmp_path / "m", show_progress=False, on_epoch=hook)
+    assert [e for e, _ in seen] == [0, 1]
+    assert (tmp_path / "m" / "best.pt").is_file()
+
+
+def test_sweep_config_validation_and_url_masking() -> None:
+    with pytest.raises(ConfigError, match="window"):
+        SweepConfig(window=(10, 5))
+    with pytest.raises(ConfigError, match="mode"):
+        SweepConfig(mode=("recurrent",))
+    with pytest.raises(ConfigError, match="unknown key"):
+        SweepConfig.from_preset({"sweep": {"widow": [1, 2]}})
+    assert SweepConfig.from_preset({"sweep": {"lr": [1e-3, 1e-3]}}, epochs=4).epochs == 4
+    assert safe_url("postgresql://me:secret@db:5432/x") == "postgresql://me:***@db:5432/x"
