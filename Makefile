@@ -10,7 +10,7 @@ install:
 	$(PY) -m pip install -q -e ".[dev]"
 
 demo: install
-	exsur run --out $(OUT)
+	$(PY) -m excavator_surrogate run --out $(OUT)
 
 test: install
 	$(PY) -m ruff check src tests bench examples
