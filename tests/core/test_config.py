@@ -53,3 +53,19 @@ def test_spec_roundtrip_and_errors() -> None:
         MachineSpec(joints=(JointSpec("a"), JointSpec("a")))
     with pytest.raises(ConfigError, match="invalid"):
         JointSpec("Bad Name")
+
+
+def test_atomic_outputs_respect_umask(tmp_path) -> None:
+    import os
+
+    from excavator_surrogate.io_utils import atomic_dir, write_text
+
+    old = os.umask(0o022)
+    try:
+        write_text(tmp_path / "a.txt", "x")
+        with atomic_dir(tmp_path / "d") as d:
+            (d / "f").write_text("y")
+        assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o644
+        assert (tmp_path / "d").stat().st_mode & 0o777 == 0o755
+    finally:
+        os.umask(old)
