@@ -24,8 +24,8 @@ import numpy as np
 
 from excavator_surrogate.clean.kalman import METHODS, CleanConfig, FusionResult, fuse
 from excavator_surrogate.clean.reference import reference_fuse
-from excavator_surrogate.clean.synthetic import smooth_random_motion
-from excavator_surrogate.simulate.sensors import SensorConfig, apply_sensors
+from excavator_surrogate.clean.synthetic import noisy_batch
+from excavator_surrogate.simulate.sensors import SensorConfig
 
 VARIANTS: dict[str, dict[str, str]] = {
     "paper-literal": {"method": "paper", "jump_ref": "raw", "cons_mode": "samples"},
@@ -50,34 +50,6 @@ SENSORS: dict[str, SensorConfig] = {
 
 def say(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
-
-
-def synthesize(
-    n_batch: int,
-    n_step: int,
-    n_joint: int,
-    dt: float,
-    seed: int,
-    sensor: SensorConfig | None = None,
-) -> dict[str, np.ndarray]:
-    """Truth, measurements and jump mask, each (n_batch, n_step, n_joint)."""
-    rng = np.random.default_rng(seed)
-    cols: dict[str, list[np.ndarray]] = {
-        "theta_true": [],
-        "omega_true": [],
-        "theta": [],
-        "omega": [],
-        "mask": [],
-    }
-    for _ in range(n_batch):
-        th, om = smooth_random_motion(n_step, n_joint, dt=dt, rng=rng)
-        tm, omm, info = apply_sensors(th, om, dt=dt, config=sensor or SensorConfig(), rng=rng)
-        cols["theta_true"].append(th)
-        cols["omega_true"].append(om)
-        cols["theta"].append(tm)
-        cols["omega"].append(omm)
-        cols["mask"].append(info["jump_mask"])
-    return {k: np.stack(v) for k, v in cols.items()}
 
 
 def accuracy(data: dict[str, np.ndarray], res: FusionResult) -> dict[str, list[float]]:
@@ -138,7 +110,9 @@ def main(argv: list[str] | None = None) -> int:
     dt = 1.0 / args.rate
 
     t0 = time.perf_counter()
-    data = synthesize(args.episodes, args.steps, args.joints, dt, args.seed, SENSORS[args.sensor])
+    data = noisy_batch(
+        args.episodes, args.steps, args.joints, dt=dt, seed=args.seed, sensor=SENSORS[args.sensor]
+    )
     n_samples = args.episodes * args.steps
     say(
         f"synthesised {args.episodes} x {args.steps} samples x {args.joints} joints at {args.rate:g} Hz "
@@ -200,7 +174,9 @@ def main(argv: list[str] | None = None) -> int:
 
     # one long recording (4 lanes): the plain loop engine is chosen automatically
     n_long = min(n_samples, args.long_steps)
-    long_data = synthesize(1, n_long, args.joints, dt, args.seed + 1, SENSORS[args.sensor])
+    long_data = noisy_batch(
+        1, n_long, args.joints, dt=dt, seed=args.seed + 1, sensor=SENSORS[args.sensor]
+    )
     single: dict[str, dict] = {}
     for name in ("paper", "rts"):
         t = time.perf_counter()

@@ -7,48 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from excavator_surrogate.clean.synthetic import smooth_random_motion, synthetic_episode
+from excavator_surrogate.clean.synthetic import noisy_batch, synthetic_episode
 from excavator_surrogate.data import Episode, write_dataset
-from excavator_surrogate.simulate.sensors import SensorConfig, apply_sensors
+from excavator_surrogate.simulate.sensors import SensorConfig
 from excavator_surrogate.spec import excavator_spec
-
-
-def _noisy_batch(
-    n_batch: int,
-    n_step: int,
-    n_joint: int,
-    *,
-    dt: float,
-    seed: int,
-    sensor: SensorConfig | None = None,
-) -> dict[str, np.ndarray]:
-    """Truth, measurements and jump mask, each (n_batch, n_step, n_joint)."""
-    rng = np.random.default_rng(seed)
-    out: dict[str, list[np.ndarray]] = {
-        "theta_true": [],
-        "omega_true": [],
-        "theta": [],
-        "omega": [],
-        "mask": [],
-    }
-    for _ in range(n_batch):
-        th, om = smooth_random_motion(n_step, n_joint, dt=dt, rng=rng)
-        tm, omm, info = apply_sensors(th, om, dt=dt, config=sensor or SensorConfig(), rng=rng)
-        for k, v in (
-            ("theta_true", th),
-            ("omega_true", om),
-            ("theta", tm),
-            ("omega", omm),
-            ("mask", info["jump_mask"]),
-        ):
-            out[k].append(v)
-    return {k: np.stack(v) for k, v in out.items()}
 
 
 @pytest.fixture(scope="session")
 def make_batch():
     """``make_batch(n_batch, n_step, n_joint, dt=, seed=, sensor=None)`` -> dict of (n_batch, n_step, n_joint) arrays."""
-    return _noisy_batch
+    return noisy_batch
 
 
 @pytest.fixture

@@ -94,3 +94,41 @@ def synthetic_episode(
     if sensor is not None:
         ep = apply_sensors_episode(ep, config=sensor, rng=rng)
     return ep
+
+
+def noisy_batch(
+    n_batch: int,
+    n_step: int,
+    n_joint: int,
+    *,
+    dt: float,
+    seed: int,
+    sensor: SensorConfig | None = None,
+) -> dict[str, np.ndarray]:
+    """Smooth random motion seen through the sensor model, for tests and benchmarks.
+
+    Args:
+        sensor: the sensor model (default config if None).
+
+    Returns:
+        ``theta_true``, ``omega_true``, ``theta``, ``omega`` and ``mask`` (the jump mask),
+        each (n_batch, n_step, n_joint); angles [rad], velocities [rad/s].
+    """
+    from ..simulate.sensors import apply_sensors
+
+    rng = np.random.default_rng(seed)
+    out: dict[str, list[np.ndarray]] = {
+        k: [] for k in ("theta_true", "omega_true", "theta", "omega", "mask")
+    }
+    for _ in range(n_batch):
+        th, om = smooth_random_motion(n_step, n_joint, dt=dt, rng=rng)
+        tm, omm, info = apply_sensors(th, om, dt=dt, config=sensor or SensorConfig(), rng=rng)
+        for k, v in (
+            ("theta_true", th),
+            ("omega_true", om),
+            ("theta", tm),
+            ("omega", omm),
+            ("mask", info["jump_mask"]),
+        ):
+            out[k].append(v)
+    return {k: np.stack(v) for k, v in out.items()}
