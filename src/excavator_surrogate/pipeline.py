@@ -250,12 +250,8 @@ def run_pipeline(
             if md.exists():
                 write_text(md, md.read_text().replace(str(tmp), str(out)))
         write_json(tmp / "metrics.json", metrics)
-        record = {
-            "name": name,
-            **{k: to_dict(v) for k, v in cfgs.items()},
-            "simulate": to_dict(sim_cfg),
-            "train": to_dict(train_cfg),
-        }
+        used = {**cfgs, "simulate": sim_cfg, "train": train_cfg}  # with the CLI overrides applied
+        record = {"name": name, **{k: to_dict(v) for k, v in used.items()}}
         if data is not None:
             record["data"] = str(data)
         write_text(tmp / "config.toml", dumps_toml(record))
