@@ -23,8 +23,13 @@ def tiny_surrogate(
     window: int = 6,
     hidden: int = 16,
     seed: int = 0,
+    end_stops: bool = False,
+    drive: float = 0.0,
 ) -> Surrogate:
-    """An untrained small surrogate with a non-trivial normalisation (slow, bounded output)."""
+    """An untrained small surrogate with a non-trivial normalisation (slow, bounded output).
+
+    ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias so
+    that free runs reach the joint limits (end-stop tests)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     cfg = ModelConfig(
@@ -44,7 +49,13 @@ def tiny_surrogate(
         spec=spec,
     )
     net = build_net(cfg).eval()
-    return Surrogate(net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell)
+    if drive:
+        last = net.linear if cell == "arx" else net.head[-1]
+        with torch.no_grad():
+            last.bias += drive * torch.tensor([(-1.0) ** j for j in range(spec.n_joint)])
+    return Surrogate(
+        net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
+    )
 
 
 @pytest.fixture(scope="session")

@@ -12,6 +12,7 @@ from excavator_surrogate.cli import main
 from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import CheckpointError
+from excavator_surrogate.surrogate.features import joint_limits
 
 
 @pytest.mark.parametrize(
@@ -23,10 +24,13 @@ from excavator_surrogate.errors import CheckpointError
         ("windowed", "arx", "torchscript"),
     ],
 )
+@pytest.mark.parametrize("end_stops", [False, True], ids=["free", "stops"])
 def test_onnx_stepper_matches_torch(
-    mode: str, cell: str, exporter: str, make_surrogate, tmp_path: Path
+    mode: str, cell: str, exporter: str, end_stops: bool, make_surrogate, tmp_path: Path
 ) -> None:
-    sur = make_surrogate(mode=mode, cell=cell)
+    sur = make_surrogate(
+        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0
+    )
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)
@@ -43,8 +47,12 @@ def test_onnx_stepper_matches_torch(
         u = rng.uniform(-1000, 1000, (5, 4))
         th, om = stepper.step(u)
         th_t, om_t = engine.step(u)
-        np.testing.assert_allclose(om, om_t.numpy(), atol=1e-5, rtol=0)
+        np.testing.assert_allclose(om, om_t.numpy(), atol=2e-4, rtol=0)
         np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+    if end_stops:  # driven into the stops: both runtimes rest on them
+        assert (
+            np.isclose(th, joint_limits(sur.spec)[0]) | np.isclose(th, joint_limits(sur.spec)[1])
+        ).any()
 
 
 def test_state_is_exposed_and_batch_is_dynamic(make_surrogate, tmp_path: Path) -> None:

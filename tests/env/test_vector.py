@@ -19,6 +19,7 @@ from excavator_surrogate.env import (
 )
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.surrogate.features import joint_limits
 from excavator_surrogate.surrogate.rollout import ClosedLoop
 
 N_ENVS = 3
@@ -84,13 +85,19 @@ def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
         np.testing.assert_allclose(obs[0], obs[1], atol=1e-5)
 
 
+@pytest.mark.parametrize("end_stops", [False, True], ids=["free", "stops"])
 @pytest.mark.parametrize(
     ("mode", "cell"),
     [("stateful", "lstm"), ("stateful", "gru"), ("windowed", "lstm"), ("windowed", "arx")],
 )
-def test_engine_matches_closed_loop_reference(mode: str, cell: str, make_surrogate) -> None:
-    """The batched engine equals the surrogate package's ClosedLoop with an at-rest history."""
-    sur = make_surrogate(mode=mode, cell=cell)
+def test_engine_matches_closed_loop_reference(
+    mode: str, cell: str, end_stops: bool, make_surrogate
+) -> None:
+    """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
+    (with end stops: driven into them, and both stop at the same place)."""
+    sur = make_surrogate(
+        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0
+    )
     rng = np.random.default_rng(2)
     n, w = 3, sur.window
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
@@ -103,7 +110,12 @@ def test_engine_matches_closed_loop_reference(mode: str, cell: str, make_surroga
         th, om = eng.step(u)
         th_r, om_r = ref.step(u)
         np.testing.assert_allclose(th.numpy(), th_r.double().numpy(), atol=1e-5)
-        np.testing.assert_allclose(om.numpy(), om_r.double().numpy(), atol=1e-5)
+        np.testing.assert_allclose(om.numpy(), om_r.double().numpy(), atol=1e-4)
+    if end_stops:
+        lo, hi = joint_limits(sur.spec)
+        th = th.numpy()
+        assert (th >= lo - 1e-6).all() and (th <= hi + 1e-6).all()
+        assert (np.isclose(th, lo) | np.isclose(th, hi)).any()
 
 
 @pytest.mark.parametrize("ckpt_name", ["stateful_ckpt", "windowed_ckpt"])

@@ -20,8 +20,13 @@ def make_surrogate(
     window: int = 8,
     hidden: int = 12,
     seed: int = 0,
+    end_stops: bool = False,
+    drive: float = 0.0,
 ) -> Surrogate:
-    """An untrained tiny surrogate with normalisation fitted on ``episodes``."""
+    """An untrained tiny surrogate with normalisation fitted on ``episodes``.
+
+    ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias,
+    so that the free run runs into the joint limits (for end-stop tests)."""
     torch.manual_seed(seed)
     cfg = ModelConfig(
         n_feature=spec.n_feature,
@@ -33,8 +38,14 @@ def make_surrogate(
         head_hidden=hidden,
     )
     net = build_net(cfg).eval()
+    if drive:
+        with torch.no_grad():
+            sign = torch.tensor([(-1.0) ** j for j in range(spec.n_joint)])
+            net.head[-1].bias += drive * sign
     norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec)
-    return Surrogate(net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell)
+    return Surrogate(
+        net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
+    )
 
 
 def tiny_dataset(

@@ -149,3 +149,37 @@ def test_train_config_from_preset_and_validation():
     with pytest.raises(ConfigError, match="seq_len"):
         TrainConfig(seq_len=10, burn_in=10)
     assert math.isfinite(TrainConfig().lr)
+
+
+def test_weight_average_competes_for_the_best_checkpoint(tmp_path):
+    ds = tiny_dataset(2, n_train=2, n_step=160)
+    cfg = TrainConfig(
+        window=5,
+        hidden=8,
+        head_hidden=8,
+        mode="stateful",
+        seq_len=40,
+        burn_in=5,
+        tbptt=10,
+        seq_batch=2,
+        epochs=4,
+        patience=4,
+        ema_decay=0.9,
+        tensorboard=False,
+    )
+    best = train(cfg, ds, out=tmp_path, show_progress=False)
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    assert {r["weights"] for r in rows} <= {"raw", "ema"} and len(rows) == 4
+    for r in rows:  # the epoch's score is the better of the two candidates
+        assert float(r["val_error"]) == pytest.approx(
+            min(float(r["val_error_raw"]), float(r["val_error_ema"]))
+        )
+    k = max(i for i, r in enumerate(rows) if r["best"] == "1")
+    sur = load_checkpoint(best)
+    # best.pt holds exactly the weights that earned its score
+    assert free_run_error(sur, ds.val)["val_error"] == pytest.approx(
+        float(rows[k]["val_error"]), rel=1e-5
+    )
+    # the average is a different set of weights from the raw ones it follows
+    ema_row = rows[-1]
+    assert float(ema_row["val_error_raw"]) != float(ema_row["val_error_ema"])

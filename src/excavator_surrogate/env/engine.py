@@ -31,6 +31,7 @@ from torch import nn
 from ..errors import ConfigError
 from ..scale.devices import resolve_device
 from ..spec import MachineSpec
+from ..surrogate.features import integrate
 from ..surrogate.model import Surrogate
 
 Mode = Literal["windowed", "stateful"]
@@ -107,6 +108,24 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
     return mat, off
 
 
+def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
+    """Register the surrogate's end stops on ``module`` as float32 buffers ``theta_lo`` /
+    ``theta_hi`` (n_joint,) [rad], or None when it has none (they then stay out of the graph)."""
+    lim = sur.limits()
+    module.register_buffer(
+        "theta_lo", None if lim is None else lim[0].detach().float().cpu().clone()
+    )
+    module.register_buffer(
+        "theta_hi", None if lim is None else lim[1].detach().float().cpu().clone()
+    )
+
+
+def end_stops(module: nn.Module) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """The ``(theta_lo, theta_hi)`` buffers registered by :func:`add_end_stops`, or None."""
+    lo, hi = module.theta_lo, module.theta_hi
+    return None if lo is None else (lo, hi)  # type: ignore[return-value]
+
+
 class FusedStep(nn.Module):
     """One closed-loop step with encoding and normalisation folded into the weights.
 
@@ -118,7 +137,7 @@ class FusedStep(nn.Module):
       through for GRU cells).
 
     Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
-    [rad], and the new ``h``, ``c``.  Only LSTM/GRU surrogates can be fused.
+    [rad] (clipped to the end stops if the surrogate has them), and the new ``h``, ``c``.  Only LSTM/GRU surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:
@@ -130,6 +149,7 @@ class FusedStep(nn.Module):
         spec = sur.spec
         self.cell = cell
         self.n_layer = sur.model_cfg.n_layer
+        add_end_stops(self, sur)
         self.hidden = sur.model_cfg.hidden
         self.n_joint = spec.n_joint
         self.dt = float(spec.dt)
@@ -211,8 +231,8 @@ class FusedStep(nn.Module):
             hs.append(h_l)
             cs.append(c_l)
             inp = h_l
-        omega = self.head(inp)
-        return omega, theta + self.dt * omega, torch.stack(hs), torch.stack(cs)
+        theta_next, omega = integrate(theta, self.head(inp), dt=self.dt, limits=end_stops(self))
+        return omega, theta_next, torch.stack(hs), torch.stack(cs)
 
 
 class SurrogateEngine:
@@ -256,6 +276,8 @@ class SurrogateEngine:
         self._threads = _OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else _NoOp()
         n_joint = self.spec.n_joint
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
+        lim = sur.limits()
+        self._limits = None if lim is None else (lim[0].double(), lim[1].double())
         if self.mode == "stateful":
             if sur.model_cfg.cell not in ("lstm", "gru"):
                 raise ConfigError(
@@ -405,7 +427,11 @@ class SurrogateEngine:
                 y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
                 self._pos = (p + 1) % w
                 omega = self.norm.omega(y).double()
-            theta.add_(omega, alpha=self.dt)
+            if self._limits is None:
+                theta.add_(omega, alpha=self.dt)
+            else:
+                theta_next, omega = integrate(theta, omega, dt=self.dt, limits=self._limits)
+                theta.copy_(theta_next)
         return theta, omega
 
 

@@ -42,8 +42,9 @@ from torch import nn
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
+from ..surrogate.features import integrate
 from ..surrogate.model import Surrogate
-from .engine import FusedStep, Mode, rest_command
+from .engine import FusedStep, Mode, add_end_stops, end_stops, rest_command
 from .surrogate_env import load_surrogate
 
 OPSET = 18
@@ -62,6 +63,7 @@ class WindowStep(nn.Module):
         for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale"):
             self.register_buffer(k, getattr(norm, k).clone())
         self.dt = float(sur.spec.dt)
+        add_end_stops(self, sur)
 
     def forward(self, theta: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """See the class docstring."""
@@ -71,8 +73,10 @@ class WindowStep(nn.Module):
             parts += [torch.sin(th), torch.cos(th)] if p else [th]
         x = torch.cat([*parts, (u - self.u_center) / self.u_scale], dim=-1)
         y = self.net((x - self.x_mean) / self.x_std)
-        omega = y * self.y_std + self.y_mean
-        return omega, theta[:, -1] + self.dt * omega
+        theta_next, omega = integrate(
+            theta[:, -1], y * self.y_std + self.y_mean, dt=self.dt, limits=end_stops(self)
+        )
+        return omega, theta_next
 
 
 def export_onnx(

@@ -172,6 +172,7 @@ def evaluate_checkpoint(
                 spec=dataset.spec,
                 norm=sur.norm.to("cpu"),  # fitted in NumPy
                 val=dataset.val,
+                end_stops=sur.end_stops,
             ).to(dev)
         else:
             log("no training split loaded: skipping the ARX baseline")

@@ -36,6 +36,7 @@ def fit_arx(
     ridge: float | None = None,
     val: Sequence[Episode] = (),
     ridges: Sequence[float] = RIDGES,
+    end_stops: bool = False,
 ) -> Surrogate:
     """Fit the linear ARX baseline on ``episodes`` (training split).
 
@@ -51,6 +52,8 @@ def fit_arx(
             unregularised ARX models often oscillate in free run, so the choice matters.
         val: validation episodes for choosing ``ridge``.
         ridges: candidate ridge weights.
+        end_stops: clip free-run angles to the spec's joint limits (as the LSTM it is compared
+            with does).
 
     Returns:
         A windowed :class:`Surrogate` named ``arx`` (``metrics["ridge"]`` is the weight used).
@@ -99,6 +102,7 @@ def fit_arx(
             train_config={"baseline": "arx", "ridge": r, "window": window},
             metrics={"n_rows": n_rows, "ridge": r},
             name="arx",
+            end_stops=end_stops,
         )
 
     if ridge is not None:

@@ -6,6 +6,7 @@ A checkpoint is one ``.pt`` file holding only tensors and plain Python types::
       "format": "exsur-surrogate", "format_version": 1, "exsur_version": "0.1.0",
       "name": "lstm",                       # model label (lstm, gru, arx ...)
       "mode": "windowed" | "stateful",      # how to roll the model out
+      "end_stops": bool,                    # clip free-run angles to the spec's joint limits
       "model": {...ModelConfig...},         # architecture
       "spec": {...MachineSpec.to_dict()...},
       "norm": {"x_mean", "x_std", "y_mean", "y_std"},   # float32 tensors
@@ -51,6 +52,7 @@ def checkpoint_dict(
         "exsur_version": __version__,
         "name": sur.name,
         "mode": sur.mode,
+        "end_stops": bool(sur.end_stops),
         "model": sur.model_cfg.to_dict(),
         "spec": sur.spec.to_dict(),
         "norm": sur.norm.state_dict(),
@@ -145,6 +147,7 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
         train_config=dict(ckpt.get("train_config") or {}),
         metrics=dict(ckpt.get("metrics") or {}),
         name=str(ckpt.get("name", mcfg.cell)),
+        end_stops=bool(ckpt.get("end_stops", False)),
     )
 
 

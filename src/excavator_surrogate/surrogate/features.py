@@ -56,6 +56,66 @@ def omega_target(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
     return out
 
 
+def joint_limits(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Mechanical end stops ``(lo, hi)``, each ``(n_joint,)`` [rad]; ``-inf`` / ``+inf`` for
+    periodic joints and for limits the spec leaves open (``None``)."""
+    lo = [
+        -math.inf if j.periodic or j.theta_min is None else float(j.theta_min) for j in spec.joints
+    ]
+    hi = [
+        math.inf if j.periodic or j.theta_max is None else float(j.theta_max) for j in spec.joints
+    ]
+    return np.array(lo), np.array(hi)
+
+
+def integrate(
+    theta: torch.Tensor,
+    omega: torch.Tensor,
+    *,
+    dt: float,
+    limits: tuple[torch.Tensor, torch.Tensor] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """One integration step of the closed loop, with optional end stops.
+
+    Args:
+        theta: (..., n_joint) angle ``theta[k]`` [rad].
+        omega: (..., n_joint) predicted ``omega[k+1]`` [rad/s].
+        dt: sample period T_s [s].
+        limits: ``(lo, hi)``, each (n_joint,) [rad] (see :func:`joint_limits`), or None.
+
+    Returns:
+        ``theta[k+1]`` [rad] and the velocity the sensors would report, ``omega[k+1]`` [rad/s]:
+        the prediction itself, except at an end stop, where it is what was actually travelled.
+    """
+    # theta[k+1] = theta[k] + T_s * omega[k+1]
+    nxt = theta + dt * omega
+    if limits is None:
+        return nxt, omega
+    lo, hi = limits
+    # theta[k+1] <- min(max(theta[k+1], theta_min), theta_max)        (end stops)
+    stopped = torch.minimum(torch.maximum(nxt, lo), hi)
+    hit = stopped != nxt
+    # omega[k+1] = (theta[k+1] - theta[k]) / T_s                     (only where a stop was hit)
+    omega = torch.where(hit, (stopped - theta) / dt, omega)
+    return stopped, omega
+
+
+def integrate_np(
+    theta: np.ndarray,
+    omega: np.ndarray,
+    *,
+    dt: float,
+    limits: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """NumPy twin of :func:`integrate` (the plain-loop reference uses it)."""
+    nxt = theta + dt * omega
+    if limits is None:
+        return nxt, omega
+    stopped = np.minimum(np.maximum(nxt, limits[0]), limits[1])
+    hit = stopped != nxt
+    return stopped, np.where(hit, (stopped - theta) / dt, omega)
+
+
 def unwrap_periodic(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
     """Unwrap periodic joints along the time axis (-2): ``(..., n_step, n_joint)`` [rad]."""
     theta = np.array(theta, dtype=np.float64, copy=True)

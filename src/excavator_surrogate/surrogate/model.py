@@ -20,12 +20,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
+import numpy as np
 import torch
 from torch import nn
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
-from .features import Normalization
+from .features import Normalization, joint_limits
 
 State = tuple[torch.Tensor, torch.Tensor]
 """Recurrent state ``(h, c)``, each ``(n_layer, n_batch, hidden)``."""
@@ -161,6 +162,23 @@ class Surrogate:
     train_config: dict[str, Any] | None = None
     metrics: dict[str, Any] | None = None
     name: str = "lstm"
+    end_stops: bool = False
+    """Clip integrated angles to the spec's joint limits (the machine's mechanical end stops)."""
+
+    def limits(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(lo, hi)`` end stops, each (n_joint,) [rad], on the net's device/dtype; None when
+        ``end_stops`` is off or no joint is limited."""
+        if not self.end_stops:
+            return None
+        lo, hi = joint_limits(self.spec)
+        if not (np.isfinite(lo).any() or np.isfinite(hi).any()):
+            return None
+        t = {"device": self.device, "dtype": self.dtype}
+        return torch.as_tensor(lo, **t), torch.as_tensor(hi, **t)
+
+    def limits_np(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """NumPy float64 version of :meth:`limits`."""
+        return None if self.limits() is None else joint_limits(self.spec)
 
     @property
     def window(self) -> int:

@@ -26,7 +26,7 @@ import torch
 
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
-from .features import Normalization, omega_target
+from .features import Normalization, integrate, integrate_np, omega_target
 from .model import State, Surrogate
 
 Mode = Literal["windowed", "stateful"]
@@ -41,6 +41,7 @@ def window_rollout(
     *,
     n_horizon: int,
     dt: float,
+    limits: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Differentiable H-step windowed rollout (training loss, and the windowed closed loop).
 
@@ -52,6 +53,7 @@ def window_rollout(
         u_next: (n_batch, n_horizon - 1, n_joint) commands ``u[t+1..t+H-1]`` [command units].
         n_horizon: H, number of predicted steps.
         dt: sample period T_s [s].
+        limits: end stops ``(lo, hi)`` [rad] applied to the integrated angle, or None.
 
     Returns:
         ``y``: (n_batch, H, n_joint) normalised predictions of ``omega[t+1..t+H]``;
@@ -60,7 +62,7 @@ def window_rollout(
     ys, thetas = [], []
     for h in range(n_horizon):
         y = net(x_win)
-        theta = theta + dt * norm.omega(y)
+        theta, _ = integrate(theta, norm.omega(y), dt=dt, limits=limits)
         ys.append(y)
         thetas.append(theta)
         if h < n_horizon - 1:
@@ -90,6 +92,7 @@ class ClosedLoop:
         """Current angle ``(n_batch, n_joint)`` [rad]."""
         self._rows: torch.Tensor | None = None
         self._state: State | None = None
+        self._limits = sur.limits()
 
     def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
         return torch.as_tensor(a, device=self.sur.device, dtype=self.sur.dtype)
@@ -145,8 +148,9 @@ class ClosedLoop:
             self._rows = x[:, 1:]
         else:
             y, self._state = self.sur.net.step(row, self._state)
-        omega = self.norm.omega(y)
-        self.theta = self.theta + self.dt * omega
+        self.theta, omega = integrate(
+            self.theta, self.norm.omega(y), dt=self.dt, limits=self._limits
+        )
         return self.theta, omega
 
 
@@ -301,6 +305,7 @@ def rollout_reference(
     y_mean = sur.norm.y_mean.double().cpu().numpy()
     theta_hat = [np.asarray(theta[k], dtype=np.float64) for k in range(warmup)]
     omega_hat = [np.full(n_joint, np.nan) for _ in range(warmup)]
+    limits = sur.limits_np()
     window: list[np.ndarray] = []
     state = sur.net.init_state(1) if mode == "stateful" else None
     for k in range(n_step - 1):
@@ -321,6 +326,7 @@ def rollout_reference(
             if k + 1 < warmup:
                 continue
         omega = y.double().cpu().numpy() * y_std + y_mean
+        theta_next, omega = integrate_np(theta_hat[k], omega, dt=spec.dt, limits=limits)
         omega_hat.append(omega)
-        theta_hat.append(theta_hat[k] + spec.dt * omega)
+        theta_hat.append(theta_next)
     return np.array(theta_hat), np.array(omega_hat)

@@ -44,7 +44,7 @@ from ..data.episode import Episode
 from ..errors import CheckpointError, ConfigError, DataError
 from ..io_utils import log, progress, write_text
 from .checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
-from .features import Normalization, encode_np, omega_target, unwrap_periodic
+from .features import Normalization, encode_np, integrate, omega_target, unwrap_periodic
 from .model import ModelConfig, Surrogate, SurrogateNet
 from .rollout import rollout_episodes, window_rollout
 
@@ -120,6 +120,13 @@ class TrainConfig:
     """Torch device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA if available, else CPU)."""
     num_threads: int = 1
     """Torch intra-op threads (0 keeps torch's default; 1 is fastest for these small nets on shared CPUs)."""
+    ema_decay: float = 0.0
+    """Keep an exponential moving average of the weights (decay per optimiser step, e.g. 0.999);
+    each epoch both the raw and the averaged weights are validated and the better one competes
+    for ``best.pt`` (0 = off)."""
+    end_stops: bool = True
+    """Clip free-run angles to the spec's joint limits (mechanical end stops), in training
+    rollouts and in every rollout of the trained model (stored in the checkpoint)."""
     tensorboard: bool = True
     """Write TensorBoard scalars to ``OUT/tb`` (skipped if tensorboard is not installed)."""
 
@@ -294,6 +301,11 @@ def free_run_error(
 # epochs
 
 
+def _finite(x: float) -> float:
+    """``x``, or +inf if it is NaN (a diverged candidate never wins)."""
+    return x if math.isfinite(x) else math.inf
+
+
 def _clip_step(
     net: torch.nn.Module,
     opt: torch.optim.Optimizer,
@@ -323,6 +335,7 @@ def _epoch_windowed(
     dist: _Par | None = None,
 ) -> tuple[float, int]:
     net, norm = sur.net, sur.norm
+    limits = sur.limits()
     world = 1
     if dist is not None:  # DDP: global batch of batch_size * world, strided shard per rank
         net, world = dist.net, dist.ctx.world_size
@@ -352,6 +365,7 @@ def _epoch_windowed(
             data.u[t[:, None] + ar_u],
             n_horizon=cfg.horizon,
             dt=sur.spec.dt,
+            limits=limits,
         )
         loss = horizon_loss(y_hat, y, lambda_bias=cfg.lambda_bias)
         if dist is not None:
@@ -387,6 +401,7 @@ def _epoch_stateful(
     dist: _Par | None = None,
 ) -> tuple[float, int]:
     net, norm, dt = sur.net, sur.norm, sur.spec.dt
+    limits = sur.limits()
     world = 1
     if dist is not None:  # DDP: global batch of seq_batch * world sub-sequences, strided shard
         net, world = dist.net, dist.ctx.world_size
@@ -421,7 +436,7 @@ def _epoch_stateful(
                 ys = []
                 for j in range(j0, j1):
                     y, state = net.step(norm.encode(theta, u_seq[:, j]), state)
-                    theta = theta + dt * norm.omega(y)
+                    theta, _ = integrate(theta, norm.omega(y), dt=dt, limits=limits)
                     ys.append(y)
                 y_hat = torch.stack(ys, dim=1)
             loss = horizon_loss(y_hat, y_seq[:, j0:j1], lambda_bias=cfg.lambda_bias)
@@ -510,6 +525,9 @@ _LOG_FIELDS = (
     "val_error",
     "val_theta_r2_min",
     "best",
+    "val_error_raw",
+    "val_error_ema",
+    "weights",
 )
 
 
@@ -643,10 +661,18 @@ def train(
         train_config=to_dict(cfg),
         metrics={},
         name=cfg.cell,
+        end_stops=cfg.end_stops,
     )
     data = _make_data(train_eps, norm, device)
 
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    ema_sur: Surrogate | None = None
+    if cfg.ema_decay > 0:
+        ema = torch.optim.swa_utils.AveragedModel(
+            net, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(cfg.ema_decay)
+        )
+        opt.register_step_post_hook(lambda *_: ema.update_parameters(net))
+        ema_sur = replace(sur, net=ema.module)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
         opt, mode="min", factor=cfg.plateau_factor, patience=cfg.plateau_patience, min_lr=cfg.min_lr
     )
@@ -712,11 +738,17 @@ def train(
             t1 = time.monotonic()
             if dist is not None:
                 loss, n = dist.global_loss(loss, n)
-                val = dist.broadcast(
-                    free_run_error(sur, val_eps, max_steps=val_steps) if main else None
-                )
-            else:
-                val = free_run_error(sur, val_eps, max_steps=val_steps)
+            cands = [("raw", sur)] + ([("ema", ema_sur)] if ema_sur is not None else [])
+            vals = {}
+            for label, cand in cands:
+                if dist is not None:
+                    vals[label] = dist.broadcast(
+                        free_run_error(cand, val_eps, max_steps=val_steps) if main else None
+                    )
+                else:
+                    vals[label] = free_run_error(cand, val_eps, max_steps=val_steps)
+            pick = min(vals, key=lambda k: _finite(vals[k]["val_error"]))
+            val, chosen = vals[pick], dict(cands)[pick]
             t2 = time.monotonic()
             net.train()
             lr = opt.param_groups[0]["lr"]
@@ -735,6 +767,12 @@ def train(
                 "val_theta_r2_min": min(val["theta_r2"]),
                 "best": int(improved),
             }
+            if ema_sur is not None:
+                row.update(
+                    val_error_raw=vals["raw"]["val_error"],
+                    val_error_ema=vals["ema"]["val_error"],
+                    weights=pick,
+                )
             history.append(row)
             if improved:
                 best_val, bad = val["val_error"], 0
@@ -756,7 +794,8 @@ def train(
                 "train_loss": loss,
             }
             if improved and main:
-                save_checkpoint(best_path, sur, history=history, train_state=state)
+                chosen.metrics = sur.metrics
+                save_checkpoint(best_path, chosen, history=history, train_state=state)
             if main:
                 save_checkpoint(last_path, sur, history=history, train_state=state)
                 _write_log(out / "log.csv", history)
@@ -770,6 +809,7 @@ def train(
             say(
                 f"epoch {epoch}: loss {loss:.4g}, val_error {val['val_error']:.4g}, "
                 f"min theta R2 {min(val['theta_r2']):.3f}, lr {lr:.2g}, "
+                f"{'(' + pick + ' weights) ' if ema_sur is not None else ''}"
                 f"{t1 - t0:.1f}+{t2 - t1:.1f} s{' *' if improved else ''}"
             )
             stop_req = bool(on_epoch(epoch, dict(row))) if on_epoch is not None and main else False
