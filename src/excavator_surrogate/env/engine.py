@@ -111,13 +111,11 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
     """Register the surrogate's end stops on ``module`` as float32 buffers ``theta_lo`` /
     ``theta_hi`` (n_joint,) [rad], or None when it has none (they then stay out of the graph)."""
-    lim = sur.limits()
-    module.register_buffer(
-        "theta_lo", None if lim is None else lim[0].detach().float().cpu().clone()
-    )
-    module.register_buffer(
-        "theta_hi", None if lim is None else lim[1].detach().float().cpu().clone()
-    )
+    lim = sur.limits_np()
+    for name, k in (("theta_lo", 0), ("theta_hi", 1)):
+        module.register_buffer(
+            name, None if lim is None else torch.tensor(lim[k], dtype=torch.float32)
+        )
 
 
 def end_stops(module: nn.Module) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -137,7 +135,8 @@ class FusedStep(nn.Module):
       through for GRU cells).
 
     Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
-    [rad] (clipped to the end stops if the surrogate has them), and the new ``h``, ``c``.  Only LSTM/GRU surrogates can be fused.
+    [rad] (clipped to the end stops if the surrogate has them), and the new ``h``, ``c``.
+    Only LSTM/GRU surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:

@@ -165,20 +165,23 @@ class Surrogate:
     end_stops: bool = False
     """Clip integrated angles to the spec's joint limits (the machine's mechanical end stops)."""
 
-    def limits(self) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """``(lo, hi)`` end stops, each (n_joint,) [rad], on the net's device/dtype; None when
-        ``end_stops`` is off or no joint is limited."""
+    def limits_np(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(lo, hi)`` end stops, each (n_joint,) float64 [rad]; None when ``end_stops`` is off
+        or no joint is limited."""
         if not self.end_stops:
             return None
         lo, hi = joint_limits(self.spec)
         if not (np.isfinite(lo).any() or np.isfinite(hi).any()):
             return None
-        t = {"device": self.device, "dtype": self.dtype}
-        return torch.as_tensor(lo, **t), torch.as_tensor(hi, **t)
+        return lo, hi
 
-    def limits_np(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """NumPy float64 version of :meth:`limits`."""
-        return None if self.limits() is None else joint_limits(self.spec)
+    def limits(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """:meth:`limits_np` as tensors on the net's device/dtype."""
+        lim = self.limits_np()
+        if lim is None:
+            return None
+        t = {"device": self.device, "dtype": self.dtype}
+        return torch.as_tensor(lim[0], **t), torch.as_tensor(lim[1], **t)
 
     @property
     def window(self) -> int:
