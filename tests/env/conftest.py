@@ -25,15 +25,19 @@ def tiny_surrogate(
     seed: int = 0,
     end_stops: bool = False,
     drive: float = 0.0,
+    play: tuple[float, ...] = (),
 ) -> Surrogate:
     """An untrained small surrogate with a non-trivial normalisation (slow, bounded output).
+
+    ``play``: half-widths of command play features (inputs widen by ``len(play) * n_joint``).
 
     ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias so
     that free runs reach the joint limits (end-stop tests)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
+    n_feature = spec.n_feature + len(play) * spec.n_joint
     cfg = ModelConfig(
-        n_feature=spec.n_feature,
+        n_feature=n_feature,
         n_joint=spec.n_joint,
         window=window,
         hidden=hidden,
@@ -42,11 +46,12 @@ def tiny_surrogate(
         head_hidden=hidden,
     )
     norm = Normalization.from_arrays(
-        x_mean=rng.normal(size=spec.n_feature) * 0.1,
-        x_std=1.0 + rng.random(spec.n_feature),
+        x_mean=rng.normal(size=n_feature) * 0.1,
+        x_std=1.0 + rng.random(n_feature),
         y_mean=np.zeros(spec.n_joint),
         y_std=np.full(spec.n_joint, 0.05),
         spec=spec,
+        play=play,
     )
     net = build_net(cfg).eval()
     if drive:

@@ -24,18 +24,29 @@ from excavator_surrogate.surrogate.features import joint_limits
         ("windowed", "arx", "torchscript"),
     ],
 )
-@pytest.mark.parametrize("end_stops", [False, True], ids=["free", "stops"])
+@pytest.mark.parametrize(
+    ("end_stops", "play"),
+    [(False, ()), (True, ()), (False, (0.05, 0.2))],
+    ids=["free", "stops", "play"],
+)
 def test_onnx_stepper_matches_torch(
-    mode: str, cell: str, exporter: str, end_stops: bool, make_surrogate, tmp_path: Path
+    mode: str,
+    cell: str,
+    exporter: str,
+    end_stops: bool,
+    play: tuple[float, ...],
+    make_surrogate,
+    tmp_path: Path,
 ) -> None:
     sur = make_surrogate(
-        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0
+        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0, play=play
     )
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)
     names = [i.name for i in model.graph.input]
-    assert names == (["theta", "u", "h", "c"] if mode == "stateful" else ["theta", "u"])
+    expect = ["theta", "u", "h", "c"] if mode == "stateful" else ["theta", "u"]
+    assert names == expect + (["z"] if play else [])
     stepper = OnnxStepper(path)
     assert stepper.spec == sur.spec and stepper.mode == mode
     engine = SurrogateEngine(sur, n_envs=5)

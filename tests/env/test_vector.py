@@ -85,18 +85,23 @@ def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
         np.testing.assert_allclose(obs[0], obs[1], atol=1e-5)
 
 
-@pytest.mark.parametrize("end_stops", [False, True], ids=["free", "stops"])
+@pytest.mark.parametrize(
+    ("end_stops", "play"),
+    [(False, ()), (True, ()), (False, (0.05, 0.2))],
+    ids=["free", "stops", "play"],
+)
 @pytest.mark.parametrize(
     ("mode", "cell"),
     [("stateful", "lstm"), ("stateful", "gru"), ("windowed", "lstm"), ("windowed", "arx")],
 )
 def test_engine_matches_closed_loop_reference(
-    mode: str, cell: str, end_stops: bool, make_surrogate
+    mode: str, cell: str, end_stops: bool, play: tuple[float, ...], make_surrogate
 ) -> None:
     """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
-    (with end stops: driven into them, and both stop at the same place)."""
+    (with end stops: driven into them, and both stop at the same place; with command play
+    features: the engine carries the same play states)."""
     sur = make_surrogate(
-        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0
+        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0, play=play
     )
     rng = np.random.default_rng(2)
     n, w = 3, sur.window

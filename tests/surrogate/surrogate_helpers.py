@@ -22,14 +22,15 @@ def make_surrogate(
     seed: int = 0,
     end_stops: bool = False,
     drive: float = 0.0,
+    play: tuple[float, ...] = (),
 ) -> Surrogate:
     """An untrained tiny surrogate with normalisation fitted on ``episodes``.
 
-    ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias,
+    ``play``: half-widths of command play features.  ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias,
     so that the free run runs into the joint limits (for end-stop tests)."""
     torch.manual_seed(seed)
     cfg = ModelConfig(
-        n_feature=spec.n_feature,
+        n_feature=spec.n_feature + len(play) * spec.n_joint,
         n_joint=spec.n_joint,
         window=window,
         hidden=hidden,
@@ -42,7 +43,7 @@ def make_surrogate(
         with torch.no_grad():
             sign = torch.tensor([(-1.0) ** j for j in range(spec.n_joint)])
             net.head[-1].bias += drive * sign
-    norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec)
+    norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec, play=play)
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
     )

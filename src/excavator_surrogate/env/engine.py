@@ -81,15 +81,17 @@ def rest_command(spec: MachineSpec) -> np.ndarray:
 
 def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
     """Matrix ``M`` (n_feature, n_raw) and offset ``e`` (n_feature,) with
-    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p (P), cos θ_p (P), u (J)]``."""
+    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (J), f]``
+    (``f``: the Q * J play features ``(z - us) / b``, if any)."""
     spec, norm = sur.spec, sur.norm
     n_joint = spec.n_joint
     per = [k for k, p in enumerate(spec.periodic) if p]
     n_per = len(per)
-    n_raw = 2 * n_joint + 2 * n_per
+    n_play = norm.n_play * n_joint
+    n_raw = 2 * n_joint + 2 * n_per + n_play
     m = norm.x_mean.double().cpu().numpy()
     s = norm.x_std.double().cpu().numpy()
-    mat = np.zeros((spec.n_feature, n_raw))
+    mat = np.zeros((norm.n_feature, n_raw))
     off = -m / s
     col = 0
     for k, js in enumerate(spec.joints):
@@ -105,7 +107,39 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
         mat[col, n_joint + 2 * n_per + k] = 1.0 / (js.u_scale * s[col])
         off[col] += -js.u_center / js.u_scale / s[col]
         col += 1
+    for k in range(n_play):
+        mat[col, 2 * n_joint + 2 * n_per + k] = 1.0 / s[col]
+        col += 1
     return mat, off
+
+
+def add_play(module: nn.Module, sur: Surrogate) -> None:
+    """Register the surrogate's play operators on ``module``: float32 buffers ``play_b`` (Q, 1)
+    half-widths, ``u_center`` / ``u_scale`` (n_joint,); ``module.n_play`` = Q (0: none)."""
+    norm = sur.norm.to("cpu", torch.float32)
+    module.n_play = norm.n_play
+    module.register_buffer("play_b", norm.play.clone().reshape(-1, 1))
+    module.register_buffer("u_center", norm.u_center.clone())
+    module.register_buffer("u_scale", norm.u_scale.clone())
+
+
+def play_and_features(
+    module: nn.Module, z: torch.Tensor, u: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Play states after ``u`` and their features, with the buffers of :func:`add_play`.
+
+    Args:
+        z: (..., Q, n_joint) play states before ``u``.
+        u: (..., n_joint) commands [command units].
+
+    Returns:
+        ``z_new`` (..., Q, n_joint) and features ``(z_new - us) / b`` (..., Q * n_joint).
+    """
+    us = ((u - module.u_center) / module.u_scale).unsqueeze(-2)
+    b = module.play_b
+    # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
+    z = torch.minimum(torch.maximum(z, us - b), us + b)
+    return z, ((z - us) / b).flatten(-2)
 
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
@@ -127,16 +161,18 @@ def end_stops(module: nn.Module) -> tuple[torch.Tensor, torch.Tensor] | None:
 class FusedStep(nn.Module):
     """One closed-loop step with encoding and normalisation folded into the weights.
 
-    ``forward(theta, u, h, c)``:
+    ``forward(theta, u, h, c[, z])``:
 
     - ``theta``: (n_batch, n_joint) angles θ[k] [rad] (periodic joints wrapped or not);
     - ``u``: (n_batch, n_joint) commands u[k] [command units];
     - ``h``, ``c``: (n_layer, n_batch, hidden) recurrent state (``c`` unused and passed
-      through for GRU cells).
+      through for GRU cells);
+    - ``z``: (n_batch, Q, n_joint) play states before ``u`` (only if the surrogate has
+      ``Q = n_play > 0`` play features).
 
     Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
-    [rad] (clipped to the end stops if the surrogate has them), and the new ``h``, ``c``.
-    Only LSTM/GRU surrogates can be fused.
+    [rad] (clipped to the end stops if the surrogate has them), the new ``h``, ``c`` and,
+    with play features, the new ``z``.  Only LSTM/GRU surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:
@@ -149,6 +185,7 @@ class FusedStep(nn.Module):
         self.cell = cell
         self.n_layer = sur.model_cfg.n_layer
         add_end_stops(self, sur)
+        add_play(self, sur)
         self.hidden = sur.model_cfg.hidden
         self.n_joint = spec.n_joint
         self.dt = float(spec.dt)
@@ -194,12 +231,16 @@ class FusedStep(nn.Module):
         """Width of the raw feature vector ``[theta, sin θ_p, cos θ_p, u]``."""
         return int(self.w_ih[0].shape[1])
 
-    def features(self, theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Raw features ``[theta, sin θ_p, cos θ_p, u]`` (n_batch, n_raw), float32."""
+    def features(
+        self, theta: torch.Tensor, u: torch.Tensor, f: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Raw features ``[theta, sin θ_p, cos θ_p, u, f]`` (n_batch, n_raw), float32, with
+        ``f`` the play features of :func:`play_and_features` (None without play)."""
+        tail = [u] if f is None else [u, f]
         if self.has_periodic:
             tp = theta.index_select(-1, self.periodic_idx)
-            return torch.cat([theta, torch.sin(tp), torch.cos(tp), u], dim=-1)
-        return torch.cat([theta, u], dim=-1)
+            return torch.cat([theta, torch.sin(tp), torch.cos(tp), *tail], dim=-1)
+        return torch.cat([theta, *tail], dim=-1)
 
     def head(self, out: torch.Tensor) -> torch.Tensor:
         """Angular velocity [rad/s] from the last layer's output (n_batch, hidden)."""
@@ -207,10 +248,20 @@ class FusedStep(nn.Module):
         return torch.nn.functional.linear(z, self.w2, self.b2)
 
     def forward(
-        self, theta: torch.Tensor, u: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        h: torch.Tensor,
+        c: torch.Tensor,
+        z: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, ...]:
         """See the class docstring."""
-        inp = self.features(theta, u)
+        f = None
+        if self.n_play:
+            if z is None:
+                raise ValueError("this surrogate has play features: pass the play state z")
+            z, f = play_and_features(self, z, u)
+        inp = self.features(theta, u, f)
         hs, cs = [], []
         for layer in range(self.n_layer):
             h_l, c_l = h[layer], c[layer]
@@ -224,13 +275,15 @@ class FusedStep(nn.Module):
                 ir, iz, in_ = gi.chunk(3, dim=-1)
                 hr, hz, hn = gh.chunk(3, dim=-1)
                 r = torch.sigmoid(ir + hr)
-                z = torch.sigmoid(iz + hz)
+                upd = torch.sigmoid(iz + hz)
                 n = torch.tanh(in_ + r * hn)
-                h_l = (1.0 - z) * n + z * h_l
+                h_l = (1.0 - upd) * n + upd * h_l
             hs.append(h_l)
             cs.append(c_l)
             inp = h_l
         theta_next, omega = integrate(theta, self.head(inp), dt=self.dt, limits=end_stops(self))
+        if self.n_play:
+            return omega, theta_next, torch.stack(hs), torch.stack(cs), z
         return omega, theta_next, torch.stack(hs), torch.stack(cs)
 
 
@@ -246,7 +299,8 @@ class SurrogateEngine:
             ``nn.LSTM``) or ``"auto"`` (module from :data:`MODULE_MIN_BATCH` envs on).
 
     State: ``theta`` (n_envs, n_joint) float64 [rad]; ``h``, ``c`` (n_layer, n_envs, hidden)
-    (stateful) or a ring buffer of normalised features (windowed).
+    (stateful) or a ring buffer of normalised features (windowed); ``z`` (n_envs, Q, n_joint)
+    play states of the commands (Q = 0 unless the surrogate has play features).
     """
 
     def __init__(
@@ -275,6 +329,10 @@ class SurrogateEngine:
         self._threads = _OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else _NoOp()
         n_joint = self.spec.n_joint
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
+        self._play = nn.Module()
+        add_play(self._play, sur)
+        self._play.to(self.device)
+        self.z = torch.zeros(self.n_envs, sur.norm.n_play, n_joint, device=self.device)
         lim = sur.limits()
         self._limits = None if lim is None else (lim[0].double(), lim[1].double())
         if self.mode == "stateful":
@@ -303,8 +361,17 @@ class SurrogateEngine:
             self.impl = "window"
             self.norm = sur.norm.to(self.device, torch.float32)
             w = self.window
-            self._ring = torch.zeros(self.n_envs, 2 * w, self.spec.n_feature, device=self.device)
+            n_in = self.sur.norm.n_feature
+            self._ring = torch.zeros(self.n_envs, 2 * w, n_in, device=self.device)
             self._pos = 0
+
+    def _play_step(
+        self, z: torch.Tensor, u: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Play states after ``u`` and their raw features (None without play features)."""
+        if not self._play.n_play:
+            return z, None
+        return play_and_features(self._play, z, u)
 
     # ---- stateful internals -------------------------------------------------------------------
 
@@ -365,19 +432,21 @@ class SurrogateEngine:
         th = theta0.index_select(0, idx)
         self.theta.index_copy_(0, idx, th)
         m = idx.numel()
-        u0 = torch.as_tensor(self.u_rest, device=self.device).expand(m, -1)
+        u0 = torch.as_tensor(self.u_rest, device=self.device).expand(m, -1).float()
         n_warm = self.window - 1
+        z0, p0 = self._play_step(self.z.new_zeros(m, *self.z.shape[1:]), u0)
+        self.z.index_copy_(0, idx, z0)  # at rest: one step reaches the play operators' fixed point
         if self.mode == "stateful":
             f = self.fused
             h = torch.zeros(f.n_layer, m, f.hidden, device=self.device)
             c = torch.zeros_like(h)
             if n_warm > 0:
-                r = f.features(th.float(), u0.float())
+                r = f.features(th.float(), u0, p0)
                 _, h, c = self._rnn_seq(r.unsqueeze(1).expand(m, n_warm, -1), h, c)
             self.h.index_copy_(1, idx, h)
             self.c.index_copy_(1, idx, c)
         else:
-            row = self.norm.encode(th.float(), u0.float())  # (m, n_feature)
+            row = self.norm.encode(th.float(), u0, z0)  # (m, n_feature)
             self._ring.index_copy_(
                 0, idx, row.unsqueeze(1).expand(m, self._ring.shape[1], -1).contiguous()
             )
@@ -409,9 +478,10 @@ class SurrogateEngine:
         with self._threads:
             u_t = torch.as_tensor(u, device=self.device).float()
             theta = self.theta
+            self.z, p_t = self._play_step(self.z, u_t)
             if self.mode == "stateful":
                 f = self.fused
-                r = f.features(theta.float(), u_t)
+                r = f.features(theta.float(), u_t, p_t)
                 if self.impl == "module":
                     out, self.h, self.c = self._rnn_seq(r.unsqueeze(1), self.h, self.c)
                 else:
@@ -420,7 +490,7 @@ class SurrogateEngine:
                 omega = torch.addmm(b2, torch.relu(torch.addmm(b1, out, w1.t())), w2.t()).double()
             else:
                 w, p = self.window, self._pos
-                row = self.norm.encode(theta.float(), u_t)
+                row = self.norm.encode(theta.float(), u_t, self.z)
                 self._ring[:, p] = row
                 self._ring[:, p + w] = row
                 y = self.sur.net(self._ring[:, p + 1 : p + w + 1])

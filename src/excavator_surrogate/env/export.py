@@ -18,12 +18,18 @@ outputs
 ``h_out``, ``c_out``                      new state
 =========  =============================  ==========================================
 
+A surrogate with Q > 0 command play features (``TrainConfig.play``) has one more input
+``z`` (n_batch, Q, n_joint), the play states before ``u`` (zeros at rest), and output
+``z_out``, the states after it; the play operators are in the graph.
+
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
-of shape (n_batch, W, n_joint) hold the last ``W`` samples; outputs ``omega`` and
+of shape (n_batch, W, n_joint) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
+n_joint), the play states after each of them, with play features); outputs ``omega`` and
 ``theta_next`` as above (the encoding and normalisation are in the graph).
 
 The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON machine
-spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``.
+spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``,
+``exsur_play`` (JSON list of play half-widths, empty without play features).
 :class:`OnnxStepper` runs the exported file with the same warm-up convention as the
 environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 """
@@ -53,25 +59,34 @@ Exporter = Literal["auto", "dynamo", "torchscript"]
 
 class WindowStep(nn.Module):
     """Windowed step with encoding and normalisation in the graph:
-    ``(theta (n, W, J), u (n, W, J)) -> (omega (n, J), theta_next (n, J))``."""
+    ``(theta (n, W, J), u (n, W, J)[, z (n, W, Q, J)]) -> (omega (n, J), theta_next (n, J))``."""
 
     def __init__(self, sur: Surrogate) -> None:
         super().__init__()
         self.net = sur.net
         norm = sur.norm.to("cpu", torch.float32)
         self.periodic = tuple(norm.periodic)
-        for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale"):
+        for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play"):
             self.register_buffer(k, getattr(norm, k).clone())
+        self.n_play = norm.n_play
         self.dt = float(sur.spec.dt)
         add_end_stops(self, sur)
 
-    def forward(self, theta: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def forward(
+        self, theta: torch.Tensor, u: torch.Tensor, z: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """See the class docstring."""
         parts = []
         for j, p in enumerate(self.periodic):
             th = theta[..., j : j + 1]
             parts += [torch.sin(th), torch.cos(th)] if p else [th]
-        x = torch.cat([*parts, (u - self.u_center) / self.u_scale], dim=-1)
+        us = (u - self.u_center) / self.u_scale
+        parts.append(us)
+        if self.n_play:
+            if z is None:
+                raise ValueError("this surrogate has play features: pass the play states z")
+            parts.append(((z - us.unsqueeze(-2)) / self.play.unsqueeze(-1)).flatten(-2))
+        x = torch.cat(parts, dim=-1)
         y = self.net((x - self.x_mean) / self.x_std)
         theta_next, omega = integrate(
             theta[:, -1], y * self.y_std + self.y_mean, dt=self.dt, limits=end_stops(self)
@@ -107,6 +122,7 @@ def export_onnx(
     mode = mode or sur.mode
     spec = sur.spec
     n_joint = spec.n_joint
+    n_play = sur.norm.n_play
     n_b = 2
     if mode == "stateful":
         module: nn.Module = FusedStep(sur).eval()
@@ -122,6 +138,11 @@ def export_onnx(
         axes = {"theta": {0: "batch"}, "u": {0: "batch"}, "h": {1: "batch"}, "c": {1: "batch"}}
         axes.update({"omega": {0: "batch"}, "theta_next": {0: "batch"}})
         axes.update({"h_out": {1: "batch"}, "c_out": {1: "batch"}})
+        if n_play:
+            args = (*args, torch.zeros(n_b, n_play, n_joint))
+            inputs.append("z")
+            outputs.append("z_out")
+            axes.update({"z": {0: "batch"}, "z_out": {0: "batch"}})
     elif mode == "windowed":
         module = WindowStep(sur).eval()
         w = sur.window
@@ -129,6 +150,10 @@ def export_onnx(
         inputs = ["theta", "u"]
         outputs = ["omega", "theta_next"]
         axes = {"theta": {0: "batch"}, "u": {0: "batch"}}
+        if n_play:
+            args = (*args, torch.zeros(n_b, w, n_play, n_joint))
+            inputs.append("z")
+            axes["z"] = {0: "batch"}
         axes.update({"omega": {0: "batch"}, "theta_next": {0: "batch"}})
     else:
         raise ConfigError(f"export mode must be 'stateful' or 'windowed', got {mode!r}")
@@ -228,6 +253,7 @@ def _add_metadata(path: Path, sur: Surrogate, mode: str) -> None:
         "exsur_n_layer": str(sur.model_cfg.n_layer),
         "exsur_hidden": str(sur.model_cfg.hidden),
         "exsur_name": sur.name,
+        "exsur_play": json.dumps(list(sur.norm.play_widths)),
     }
     for k, v in meta.items():
         p = model.metadata_props.add()
@@ -272,6 +298,14 @@ class OnnxStepper:
         self.n_layer = int(meta["exsur_n_layer"])
         self.hidden = int(meta["exsur_hidden"])
         self.u_rest = rest_command(self.spec).astype(np.float32)
+        self.play = np.asarray(json.loads(meta.get("exsur_play", "[]")), dtype=np.float32)
+        """(Q,) play half-widths (empty: no play features)."""
+        n_joint = self.spec.n_joint
+        self._u_center = np.array([j.u_center for j in self.spec.joints], dtype=np.float32)
+        self._u_scale = np.array([j.u_scale for j in self.spec.joints], dtype=np.float32)
+        self.z = np.zeros((0, len(self.play), n_joint), dtype=np.float32)
+        """Play states (n_batch, Q, n_joint) after the last command."""
+        self._z_win = np.zeros((0, self.window, len(self.play), n_joint), np.float32)
         self.theta = np.zeros((0, self.spec.n_joint), dtype=np.float32)
         self.h = self.c = np.zeros((self.n_layer, 0, self.hidden), dtype=np.float32)
         self._theta_win = self._u_win = np.zeros((0, self.window, self.spec.n_joint), np.float32)
@@ -282,30 +316,52 @@ class OnnxStepper:
         n = theta0.shape[0]
         self.theta = theta0.copy()
         u0 = np.broadcast_to(self.u_rest, theta0.shape).astype(np.float32)
+        z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
+        self.z = z_rest
         if self.mode == "stateful":
             self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
             self.c = np.zeros_like(self.h)
             for _ in range(self.window - 1):
-                _, _, self.h, self.c = self.session.run(
-                    None, {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
-                )
+                feed = {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
+                if len(self.play):
+                    feed["z"] = z_rest
+                _, _, self.h, self.c, *_ = self.session.run(None, feed)
         else:
             self._theta_win = np.repeat(theta0[:, None], self.window, axis=1)
             self._u_win = np.repeat(u0[:, None], self.window, axis=1)
+            self._z_win = np.repeat(z_rest[:, None], self.window, axis=1)
         return self.theta
+
+    def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Play states after commands ``u`` (n, n_joint) from ``z`` (n, Q, n_joint), float32."""
+        if not len(self.play):
+            return z
+        us = ((u - self._u_center) / self._u_scale)[:, None, :]
+        b = self.play[:, None]
+        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
+        return np.minimum(np.maximum(z, us - b), us + b).astype(np.float32)
 
     def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
         """Apply commands ``u`` (n_batch, n_joint); returns ``(theta[k+1], omega[k+1])`` float32."""
         u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape)
         if self.mode == "stateful":
-            omega, theta, self.h, self.c = self.session.run(
-                None, {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
-            )
+            feed = {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
+            if len(self.play):
+                feed["z"] = self.z
+                omega, theta, self.h, self.c, self.z = self.session.run(None, feed)
+            else:
+                omega, theta, self.h, self.c = self.session.run(None, feed)
         else:
+            self.z = self._play_update(self.z, u)
             self._theta_win[:, -1] = self.theta
             self._u_win[:, -1] = u
-            omega, theta = self.session.run(None, {"theta": self._theta_win, "u": self._u_win})
+            feed = {"theta": self._theta_win, "u": self._u_win}
+            if len(self.play):
+                self._z_win[:, -1] = self.z
+                feed["z"] = self._z_win
+            omega, theta = self.session.run(None, feed)
             self._theta_win = np.roll(self._theta_win, -1, axis=1)
             self._u_win = np.roll(self._u_win, -1, axis=1)
+            self._z_win = np.roll(self._z_win, -1, axis=1)
         self.theta = theta
         return theta, omega

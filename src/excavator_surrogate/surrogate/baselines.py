@@ -63,7 +63,7 @@ def fit_arx(
     spec = spec or episodes[0].spec
     if norm is None:
         norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec)
-    n_in = window * spec.n_feature + 1
+    n_in = window * norm.n_feature + 1
     gram = np.zeros((n_in, n_in))
     rhs = np.zeros((n_in, spec.n_joint))
     y_mean = norm.y_mean.double().numpy()
@@ -72,7 +72,7 @@ def fit_arx(
     for ep in episodes:
         if ep.n_step <= window:
             continue
-        x = norm.encode_np(ep.theta, ep.u, spec)  # (n_step, n_feature)
+        x = norm.encode_np(ep.theta, ep.u, spec, norm.play_from_rest_np(ep.u, spec))
         y = (omega_target(ep.theta, spec) - y_mean) / y_std
         win = sliding_window_view(x, window, axis=0)  # (n_step-W+1, n_feature, W)
         phi = win.transpose(0, 2, 1).reshape(win.shape[0], -1)[:-1]  # windows ending at t=W-1..N-2
@@ -83,7 +83,7 @@ def fit_arx(
         n_rows += phi.shape[0]
     if n_rows == 0:
         raise DataError(None, f"no training episode is longer than the window ({window})")
-    cfg = ModelConfig(n_feature=spec.n_feature, n_joint=spec.n_joint, window=window, cell="arx")
+    cfg = ModelConfig(n_feature=norm.n_feature, n_joint=spec.n_joint, window=window, cell="arx")
     scale = float(np.trace(gram)) / n_in
 
     def solve(r: float) -> Surrogate:

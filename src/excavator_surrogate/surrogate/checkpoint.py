@@ -123,10 +123,10 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
         norm = Normalization.from_state_dict(ckpt["norm"], spec)
     except CheckpointError as e:
         raise CheckpointError(f"{where}: {e}") from e
-    if mcfg.n_feature != spec.n_feature or mcfg.n_joint != spec.n_joint:
+    if mcfg.n_feature != norm.n_feature or mcfg.n_joint != spec.n_joint:
         raise CheckpointError(
             f"{where}: model sizes ({mcfg.n_feature} features, {mcfg.n_joint} joints) do not match its "
-            f"spec ({spec.n_feature}, {spec.n_joint})"
+            f"spec and features ({norm.n_feature}, {spec.n_joint})"
         )
     mode = ckpt["mode"]
     if mode not in ("windowed", "stateful"):

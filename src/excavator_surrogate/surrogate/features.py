@@ -2,9 +2,15 @@
 
 Feature layout for a :class:`~excavator_surrogate.spec.MachineSpec` (paper III-B, generalised
 to any number of joints): for each joint in order, ``sin θ, cos θ`` if it is periodic, else
-``θ``; then every joint's command scaled by its range, ``(u - u_center) / u_scale``.  The
-width is ``spec.n_feature``.  Features and targets are then standardised with statistics of
-the training split (:class:`Normalization`), which travel with the checkpoint.
+``θ``; then every joint's command scaled by its range, ``us = (u - u_center) / u_scale``.  The
+width is ``spec.n_feature``.  Optionally (``play`` widths ``b_1..b_P``, ours, not the paper's)
+the scaled commands also pass through play (backlash) operators, a Prandtl-Ishlinskii
+hysteresis basis: ``z_p[k] = clip(z_p[k-1], us[k] - b_p, us[k] + b_p)`` from ``z_p = 0`` at
+rest, and ``(z_p - us) / b_p`` in ``[-1, 1]`` is appended per width and joint (width-major).
+It says from which side the command last arrived -- the state of a valve's hysteresis, which a
+recurrent net cannot learn to remember across a long hold from truncated-BPTT training.
+Features and targets are then standardised with statistics of the training split
+(:class:`Normalization`), which travel with the checkpoint.
 
 Data convention: sample ``k`` holds ``theta[k]`` (angle at ``t_k``), ``u[k]`` (command applied
 during ``[t_k, t_{k+1})``) and ``omega[k]`` (mean velocity over ``[t_{k-1}, t_k]``).  The
@@ -17,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -125,15 +131,78 @@ def unwrap_periodic(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
     return theta
 
 
-def encode_np(theta: np.ndarray, u: np.ndarray, spec: MachineSpec) -> np.ndarray:
+def scale_commands_np(u: np.ndarray, spec: MachineSpec) -> np.ndarray:
+    """Commands ``u: (..., n_joint)`` [command units] scaled to ``(u - u_center) / u_scale``."""
+    center = np.array([js.u_center for js in spec.joints])
+    scale = np.array([js.u_scale for js in spec.joints])
+    return (np.asarray(u, dtype=np.float64) - center) / scale
+
+
+def play_np(us: np.ndarray, widths: Sequence[float], z0: np.ndarray | None = None) -> np.ndarray:
+    """Play operators over time, plain loop (the reference of :func:`play_step`).
+
+    Args:
+        us: (..., n_step, n_joint) scaled commands (:func:`scale_commands_np`).
+        widths: P half-widths ``b_p`` > 0 [scaled command units].
+        z0: (..., P, n_joint) state before the first sample; None: at rest (0).
+
+    Returns:
+        ``z``: (..., n_step, P, n_joint) operator outputs after each sample.
+    """
+    us = np.asarray(us, dtype=np.float64)
+    b = np.asarray(widths, dtype=np.float64)[:, None]  # (P, 1)
+    lead = us.shape[:-2]
+    n_step, n_joint = us.shape[-2:]
+    z = np.zeros((*lead, len(b), n_joint)) if z0 is None else np.array(z0, dtype=np.float64)
+    out = np.empty((*lead, n_step, len(b), n_joint))
+    for k in range(n_step):
+        x = us[..., k, None, :]
+        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
+        z = np.minimum(np.maximum(z, x - b), x + b)
+        out[..., k, :, :] = z
+    return out
+
+
+def play_step(z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+    """One sample of the play operators: ``z: (..., P, n_joint)``, scaled commands
+    ``us: (..., n_joint)``, half-widths ``widths: (P,)`` -> new ``z``."""
+    x = us.unsqueeze(-2)
+    b = widths.unsqueeze(-1)
+    # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
+    return torch.minimum(torch.maximum(z, x - b), x + b)
+
+
+def play_features_np(z: np.ndarray, us: np.ndarray, widths: Sequence[float]) -> np.ndarray:
+    """``(z - us) / b`` in [-1, 1], ``z: (..., P, n_joint)``, ``us: (..., n_joint)`` ->
+    ``(..., P * n_joint)`` (width-major)."""
+    b = np.asarray(widths, dtype=np.float64)[:, None]
+    f = (z - np.asarray(us, dtype=np.float64)[..., None, :]) / b
+    return f.reshape(*f.shape[:-2], -1)
+
+
+def _play_from_rest(u: np.ndarray, spec: MachineSpec, play: Sequence[float]) -> np.ndarray | None:
+    return play_np(scale_commands_np(u, spec), play) if len(play) else None
+
+
+def encode_np(
+    theta: np.ndarray,
+    u: np.ndarray,
+    spec: MachineSpec,
+    *,
+    play: Sequence[float] = (),
+    z: np.ndarray | None = None,
+) -> np.ndarray:
     """Raw (un-normalised) features, NumPy version.
 
     Args:
         theta: (..., n_joint) angles [rad].
         u: (..., n_joint) commands [command units].
+        play: half-widths of the play operators (empty: the paper's features).
+        z: (..., P, n_joint) play states after this sample (:func:`play_np`); required with ``play``.
 
     Returns:
-        (..., spec.n_feature) features: angle part (sin/cos for periodic joints), then scaled commands.
+        (..., n_feature) features: angle part (sin/cos for periodic joints), scaled commands,
+        then the play features; ``n_feature = spec.n_feature + P * n_joint``.
     """
     theta = np.asarray(theta, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
@@ -143,10 +212,13 @@ def encode_np(theta: np.ndarray, u: np.ndarray, spec: MachineSpec) -> np.ndarray
             parts += [np.sin(theta[..., j]), np.cos(theta[..., j])]
         else:
             parts.append(theta[..., j])
-    center = np.array([js.u_center for js in spec.joints])
-    scale = np.array([js.u_scale for js in spec.joints])
-    us = (u - center) / scale
-    return np.concatenate([np.stack(parts, axis=-1), us], axis=-1)
+    us = scale_commands_np(u, spec)
+    out = [np.stack(parts, axis=-1), us]
+    if len(play):
+        if z is None:
+            raise ValueError("encode_np: play features need the play states z")
+        out.append(play_features_np(z, us, play))
+    return np.concatenate(out, axis=-1)
 
 
 @dataclass
@@ -156,7 +228,7 @@ class Normalization:
     ``x_norm = (x - x_mean) / x_std`` for the ``n_feature`` raw features and
     ``y_norm = (omega - y_mean) / y_std`` for the ``n_joint`` velocity targets [rad/s].
     Also carries what :meth:`encode` needs to build features from angles in torch
-    (periodic mask, command centre/scale), so it is the single source of truth.
+    (periodic mask, command centre/scale, play widths), so it is the single source of truth.
     """
 
     x_mean: torch.Tensor
@@ -166,18 +238,47 @@ class Normalization:
     periodic: tuple[bool, ...]
     u_center: torch.Tensor
     u_scale: torch.Tensor
+    play: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
+    """(P,) half-widths of the command play operators [scaled command units]; empty: none."""
+
+    @property
+    def n_play(self) -> int:
+        """Number P of play operators per joint (0: the paper's features)."""
+        return int(self.play.numel())
+
+    @property
+    def n_feature(self) -> int:
+        """Input width: ``spec.n_feature + P * n_joint``."""
+        return int(self.x_mean.shape[0])
 
     @classmethod
     def fit(
-        cls, thetas: Sequence[np.ndarray], us: Sequence[np.ndarray], spec: MachineSpec
+        cls,
+        thetas: Sequence[np.ndarray],
+        us: Sequence[np.ndarray],
+        spec: MachineSpec,
+        *,
+        play: Sequence[float] = (),
     ) -> Normalization:
-        """Statistics from lists of per-episode ``(n_step, n_joint)`` angle and command arrays."""
-        x = np.concatenate([encode_np(t, u, spec) for t, u in zip(thetas, us)], axis=0)
+        """Statistics from lists of per-episode ``(n_step, n_joint)`` angle and command arrays
+        (each episode starting at rest, for the play states)."""
+        x = np.concatenate(
+            [
+                encode_np(t, u, spec, play=play, z=_play_from_rest(u, spec, play))
+                for t, u in zip(thetas, us)
+            ],
+            axis=0,
+        )
         y = np.concatenate([omega_target(t, spec)[1:] for t in thetas], axis=0)
         x_std = np.maximum(x.std(axis=0), STD_FLOOR)
         y_std = np.maximum(y.std(axis=0), STD_FLOOR)
         return cls.from_arrays(
-            x_mean=x.mean(axis=0), x_std=x_std, y_mean=y.mean(axis=0), y_std=y_std, spec=spec
+            x_mean=x.mean(axis=0),
+            x_std=x_std,
+            y_mean=y.mean(axis=0),
+            y_std=y_std,
+            spec=spec,
+            play=play,
         )
 
     @classmethod
@@ -189,12 +290,16 @@ class Normalization:
         y_mean: Any,
         y_std: Any,
         spec: MachineSpec,
+        play: Sequence[float] | torch.Tensor = (),
     ) -> Normalization:
         """Build from array-likes (checkpoint tensors or NumPy)."""
 
         def t(a: Any) -> torch.Tensor:
             return torch.as_tensor(np.asarray(a, dtype=np.float32)).clone()
 
+        widths = t(play).reshape(-1)
+        if widths.numel() and not bool(torch.all(widths > 0)):
+            raise ValueError(f"play widths must be > 0, got {widths.tolist()}")
         return cls(
             x_mean=t(x_mean),
             x_std=t(x_std),
@@ -203,13 +308,14 @@ class Normalization:
             periodic=tuple(spec.periodic),
             u_center=t([j.u_center for j in spec.joints]),
             u_scale=t([j.u_scale for j in spec.joints]),
+            play=widths,
         )
 
     def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> Normalization:
         """Copy with every tensor on ``device`` / ``dtype``."""
         kw = {
             k: getattr(self, k).to(device=device, dtype=dtype)
-            for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale")
+            for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play")
         }
         return Normalization(periodic=self.periodic, **kw)
 
@@ -217,12 +323,13 @@ class Normalization:
         """Plain tensors for the checkpoint."""
         return {
             k: getattr(self, k).detach().cpu().float()
-            for k in ("x_mean", "x_std", "y_mean", "y_std")
+            for k in ("x_mean", "x_std", "y_mean", "y_std", "play")
         }
 
     @classmethod
     def from_state_dict(cls, d: dict[str, Any], spec: MachineSpec) -> Normalization:
-        """Inverse of :meth:`state_dict`; checks sizes against ``spec``."""
+        """Inverse of :meth:`state_dict`; checks sizes against ``spec`` (no ``play`` entry:
+        a checkpoint from before play features, none)."""
         try:
             norm = cls.from_arrays(
                 x_mean=d["x_mean"],
@@ -230,24 +337,53 @@ class Normalization:
                 y_mean=d["y_mean"],
                 y_std=d["y_std"],
                 spec=spec,
+                play=d.get("play", ()),
             )
-        except (KeyError, TypeError) as e:
+        except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(f"normalisation entry is malformed ({e})") from e
-        if norm.x_mean.shape != (spec.n_feature,) or norm.y_mean.shape != (spec.n_joint,):
+        n_feature = spec.n_feature + norm.n_play * spec.n_joint
+        if norm.x_mean.shape != (n_feature,) or norm.y_mean.shape != (spec.n_joint,):
             raise CheckpointError(
                 f"normalisation sizes {tuple(norm.x_mean.shape)}/{tuple(norm.y_mean.shape)} do not match "
-                f"the spec ({spec.n_feature} features, {spec.n_joint} joints)"
+                f"the spec ({n_feature} features, {spec.n_joint} joints)"
             )
         return norm
 
+    # ---- play operators ---------------------------------------------------------------------
+
+    def play_rest(self, n_batch: int) -> torch.Tensor:
+        """Play states at rest: zeros ``(n_batch, P, n_joint)`` (P may be 0)."""
+        return self.u_scale.new_zeros(n_batch, self.n_play, self.u_scale.shape[0])
+
+    def play_update(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Play states after commands ``u: (..., n_joint)``; ``z: (..., P, n_joint)``."""
+        if not self.n_play:
+            return z
+        return play_step(z, (u - self.u_center) / self.u_scale, self.play)
+
+    def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Play states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch, P,
+        n_joint)``; returns ``(n_batch, n_step, P, n_joint)``."""
+        zs = []
+        for k in range(u.shape[1]):
+            z = self.play_update(z, u[:, k])
+            zs.append(z)
+        if not zs:
+            return z.new_zeros(z.shape[0], 0, *z.shape[1:])
+        return torch.stack(zs, dim=1)
+
     # ---- torch encoding (differentiable in theta) -------------------------------------------
 
-    def encode(self, theta: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    def encode(
+        self, theta: torch.Tensor, u: torch.Tensor, z: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Normalised features from angles and commands.
 
         Args:
             theta: (..., n_joint) angles [rad].
             u: (..., n_joint) commands [command units].
+            z: (..., P, n_joint) play states after ``u`` (:meth:`play_update`); needed when
+                ``n_play > 0``, ignored otherwise.
 
         Returns:
             (..., n_feature) normalised features (same layout as :func:`encode_np`).
@@ -260,13 +396,31 @@ class Normalization:
             else:
                 parts.append(th)
         us = (u - self.u_center) / self.u_scale
-        x = torch.cat([torch.stack(parts, dim=-1), us], dim=-1)
+        out = [torch.stack(parts, dim=-1), us]
+        if self.n_play:
+            if z is None:
+                raise ValueError("encode: this normalisation has play features; pass z")
+            f = (z - us.unsqueeze(-2)) / self.play.unsqueeze(-1)
+            out.append(f.flatten(-2))
+        x = torch.cat(out, dim=-1)
         return (x - self.x_mean) / self.x_std
 
-    def encode_np(self, theta: np.ndarray, u: np.ndarray, spec: MachineSpec) -> np.ndarray:
+    def encode_np(
+        self, theta: np.ndarray, u: np.ndarray, spec: MachineSpec, z: np.ndarray | None = None
+    ) -> np.ndarray:
         """NumPy twin of :meth:`encode` (float64), used by reference implementations."""
-        x = encode_np(theta, u, spec)
+        x = encode_np(theta, u, spec, play=self.play_widths, z=z)
         return (x - self.x_mean.cpu().double().numpy()) / self.x_std.cpu().double().numpy()
+
+    @property
+    def play_widths(self) -> tuple[float, ...]:
+        """The play half-widths as Python floats."""
+        return tuple(float(b) for b in self.play.cpu().double())
+
+    def play_from_rest_np(self, u: np.ndarray, spec: MachineSpec) -> np.ndarray | None:
+        """Play states ``(..., n_step, P, n_joint)`` of commands ``u: (..., n_step, n_joint)``
+        from rest (plain loop), or None without play features."""
+        return _play_from_rest(u, spec, self.play_widths)
 
     def omega(self, y: torch.Tensor) -> torch.Tensor:
         """Physical velocity [rad/s] from normalised model output ``(..., n_joint)``."""

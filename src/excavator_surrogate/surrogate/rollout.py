@@ -42,6 +42,7 @@ def window_rollout(
     n_horizon: int,
     dt: float,
     limits: tuple[torch.Tensor, torch.Tensor] | None = None,
+    z_next: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Differentiable H-step windowed rollout (training loss, and the windowed closed loop).
 
@@ -54,6 +55,8 @@ def window_rollout(
         n_horizon: H, number of predicted steps.
         dt: sample period T_s [s].
         limits: end stops ``(lo, hi)`` [rad] applied to the integrated angle, or None.
+        z_next: (n_batch, n_horizon - 1, P, n_joint) play states after ``u_next`` (with play
+            features only).
 
     Returns:
         ``y``: (n_batch, H, n_joint) normalised predictions of ``omega[t+1..t+H]``;
@@ -66,7 +69,7 @@ def window_rollout(
         ys.append(y)
         thetas.append(theta)
         if h < n_horizon - 1:
-            row = norm.encode(theta, u_next[:, h])
+            row = norm.encode(theta, u_next[:, h], None if z_next is None else z_next[:, h])
             x_win = torch.cat([x_win[:, 1:], row.unsqueeze(1)], dim=1)
     return torch.stack(ys, dim=1), torch.stack(thetas, dim=1)
 
@@ -92,6 +95,8 @@ class ClosedLoop:
         """Current angle ``(n_batch, n_joint)`` [rad]."""
         self._rows: torch.Tensor | None = None
         self._state: State | None = None
+        self.z: torch.Tensor | None = None
+        """Play states ``(n_batch, P, n_joint)`` after the last command (P = 0: no play features)."""
         self._limits = sur.limits()
 
     def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -108,7 +113,8 @@ class ClosedLoop:
             u_hist: (n_batch, n_hist - 1, n_joint) commands ``u[0..n_hist-2]``.
 
         In windowed mode only the last ``W`` samples matter; a shorter history is padded by
-        repeating its first sample.  Returns the current angle ``theta[n_hist-1]``.
+        repeating its first sample.  Play states (if the features have them) start at rest
+        before ``u[0]``.  Returns the current angle ``theta[n_hist-1]``.
         """
         theta_hist = self._t(theta_hist)
         u_hist = self._t(u_hist)
@@ -118,7 +124,10 @@ class ClosedLoop:
                 f"reset needs theta_hist (n_batch, n_hist>=1, n_joint) and u_hist (n_batch, n_hist-1, n_joint); "
                 f"got {tuple(theta_hist.shape)} and {tuple(u_hist.shape)}"
             )
-        rows = self.norm.encode(theta_hist[:, :-1], u_hist)  # (n_batch, n_hist-1, n_feature)
+        z_hist = self.norm.play_seq(self.norm.play_rest(n_batch), u_hist)
+        self.z = z_hist[:, -1] if n_hist > 1 else self.norm.play_rest(n_batch)
+        # (n_batch, n_hist-1, n_feature)
+        rows = self.norm.encode(theta_hist[:, :-1], u_hist, z_hist)
         self.theta = theta_hist[:, -1].clone()
         if self.mode == "windowed":
             w1 = self.sur.window - 1
@@ -138,7 +147,9 @@ class ClosedLoop:
         """
         if self.theta is None:
             raise RuntimeError("call reset() before step()")
-        row = self.norm.encode(self.theta, self._t(u))
+        u = self._t(u)
+        self.z = self.norm.play_update(self.z, u)
+        row = self.norm.encode(self.theta, u, self.z)
         if self.mode == "windowed":
             x = torch.cat([self._rows, row.unsqueeze(1)], dim=1)
             if x.shape[1] < self.sur.window:  # short history: repeat its first sample
@@ -308,8 +319,13 @@ def rollout_reference(
     limits = sur.limits_np()
     window: list[np.ndarray] = []
     state = sur.net.init_state(1) if mode == "stateful" else None
+    widths = np.asarray(sur.norm.play_widths)[:, None]  # (P, 1)
+    us = (u - sur.norm.u_center.double().cpu().numpy()) / sur.norm.u_scale.double().cpu().numpy()
+    z = np.zeros((len(widths), n_joint))
     for k in range(n_step - 1):
-        x = sur.norm.encode_np(theta_hat[k], u[k], spec)
+        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
+        z = np.minimum(np.maximum(z, us[k] - widths), us[k] + widths)
+        x = sur.norm.encode_np(theta_hat[k], u[k], spec, z)
         xt = torch.tensor(x, dtype=dtype, device=device)
         if mode == "windowed":
             window.append(x)

@@ -44,7 +44,7 @@ from ..data.episode import Episode
 from ..errors import CheckpointError, ConfigError, DataError
 from ..io_utils import log, progress, write_text
 from .checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
-from .features import Normalization, encode_np, integrate, omega_target, unwrap_periodic
+from .features import Normalization, integrate, omega_target, unwrap_periodic
 from .model import ModelConfig, Surrogate, SurrogateNet
 from .rollout import rollout_episodes, window_rollout
 
@@ -124,6 +124,9 @@ class TrainConfig:
     """Keep an exponential moving average of the weights (decay per optimiser step, e.g. 0.999);
     each epoch both the raw and the averaged weights are validated and the better one competes
     for ``best.pt`` (0 = off)."""
+    play: tuple[float, ...] = ()
+    """Half-widths of play (backlash) operators on the scaled commands whose states are extra
+    input features (valve hysteresis memory; ours, not the paper's); empty = paper's 9-D input."""
     end_stops: bool = True
     """Clip free-run angles to the spec's joint limits (mechanical end stops), in training
     rollouts and in every rollout of the trained model (stored in the checkpoint)."""
@@ -138,6 +141,7 @@ class TrainConfig:
                 "hidden/layers/head_hidden must be >= 1",
             ),
             (self.horizon >= 1, "horizon must be >= 1"),
+            (all(0 < b <= 1 for b in self.play), "play widths must be in (0, 1]"),
             (self.lambda_bias >= 0, "lambda_bias must be >= 0"),
             (self.lr > 0, "lr must be > 0"),
             (self.batch_size >= 1 and self.seq_batch >= 1, "batch sizes must be >= 1"),
@@ -208,6 +212,7 @@ class _Data:
     x: torch.Tensor  # (T, n_feature) normalised recorded features
     theta: torch.Tensor  # (T, n_joint) recorded angles [rad]
     u: torch.Tensor  # (T, n_joint) commands
+    z: torch.Tensor  # (T, P, n_joint) play states after u (P = 0: no play features)
     y: torch.Tensor  # (T, n_joint) normalised targets (row 0 of each episode NaN)
     starts: np.ndarray  # (n_episode,) global start
     lengths: np.ndarray  # (n_episode,)
@@ -215,13 +220,14 @@ class _Data:
 
 def _make_data(episodes: list[Episode], norm: Normalization, device: torch.device) -> _Data:
     spec = episodes[0].spec
-    xs, ths, us, ys = [], [], [], []
-    x_mean, x_std = norm.x_mean.double().numpy(), norm.x_std.double().numpy()
+    xs, ths, us, zs, ys = [], [], [], [], []
     y_mean, y_std = norm.y_mean.double().numpy(), norm.y_std.double().numpy()
     for ep in episodes:
-        xs.append((encode_np(ep.theta, ep.u, spec) - x_mean) / x_std)
+        z = norm.play_from_rest_np(ep.u, spec)
+        xs.append(norm.encode_np(ep.theta, ep.u, spec, z))
         ths.append(ep.theta)
         us.append(ep.u)
+        zs.append(np.zeros((ep.n_step, 0, spec.n_joint)) if z is None else z)
         ys.append((omega_target(ep.theta, spec) - y_mean) / y_std)
     lengths = np.array([ep.n_step for ep in episodes])
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -229,7 +235,7 @@ def _make_data(episodes: list[Episode], norm: Normalization, device: torch.devic
     def t(parts: list[np.ndarray]) -> torch.Tensor:
         return torch.as_tensor(np.concatenate(parts), dtype=torch.float32, device=device)
 
-    return _Data(x=t(xs), theta=t(ths), u=t(us), y=t(ys), starts=starts, lengths=lengths)
+    return _Data(x=t(xs), theta=t(ths), u=t(us), z=t(zs), y=t(ys), starts=starts, lengths=lengths)
 
 
 def _windowed_indices(data: _Data, window: int, horizon: int) -> np.ndarray:
@@ -363,6 +369,7 @@ def _epoch_windowed(
             x_win,
             data.theta[t],
             data.u[t[:, None] + ar_u],
+            z_next=data.z[t[:, None] + ar_u],
             n_horizon=cfg.horizon,
             dt=sur.spec.dt,
             limits=limits,
@@ -423,6 +430,7 @@ def _epoch_stateful(
         s = torch.as_tensor(sel, device=dev)
         g = s[:, None] + ar
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
+        z_seq = data.z[g]
         state = net.init_state(len(s))
         if b0 > 0:
             with torch.no_grad():
@@ -435,7 +443,7 @@ def _epoch_stateful(
             else:
                 ys = []
                 for j in range(j0, j1):
-                    y, state = net.step(norm.encode(theta, u_seq[:, j]), state)
+                    y, state = net.step(norm.encode(theta, u_seq[:, j], z_seq[:, j]), state)
                     theta, _ = integrate(theta, norm.omega(y), dt=dt, limits=limits)
                     ys.append(y)
                 y_hat = torch.stack(ys, dim=1)
@@ -630,7 +638,7 @@ def train(
     val_steps = cfg.val_steps or None
 
     torch.manual_seed(cfg.seed)
-    mcfg = cfg.model_config(spec.n_feature, spec.n_joint)
+    mcfg = cfg.model_config(spec.n_feature + len(cfg.play) * spec.n_joint, spec.n_joint)
     ts: dict[str, Any] | None = None
     history: list[dict[str, Any]] = []
     if resume is not None:
@@ -649,7 +657,9 @@ def train(
         ts = ck.get("train_state")
         history = list(ck.get("history") or [])
     else:
-        norm = Normalization.fit([e.theta for e in train_eps], [e.u for e in train_eps], spec)
+        norm = Normalization.fit(
+            [e.theta for e in train_eps], [e.u for e in train_eps], spec, play=cfg.play
+        )
         net = SurrogateNet(mcfg)
     net.to(device).train()
     sur = Surrogate(
