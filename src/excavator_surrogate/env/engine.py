@@ -31,7 +31,7 @@ from torch import nn
 from ..errors import ConfigError
 from ..scale.devices import resolve_device
 from ..spec import MachineSpec
-from ..surrogate.features import integrate
+from ..surrogate.features import Normalization, integrate, play_features, play_step
 from ..surrogate.model import Surrogate
 
 Mode = Literal["windowed", "stateful"]
@@ -114,19 +114,19 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
 
 
 def add_play(module: nn.Module, sur: Surrogate) -> None:
-    """Register the surrogate's play operators on ``module``: float32 buffers ``play_b`` (Q, 1)
+    """Register the surrogate's play operators on ``module``: float32 buffers ``play`` (Q,)
     half-widths, ``u_center`` / ``u_scale`` (n_joint,); ``module.n_play`` = Q (0: none)."""
     norm = sur.norm.to("cpu", torch.float32)
     module.n_play = norm.n_play
-    module.register_buffer("play_b", norm.play.clone().reshape(-1, 1))
-    module.register_buffer("u_center", norm.u_center.clone())
-    module.register_buffer("u_scale", norm.u_scale.clone())
+    for k in ("play", "u_center", "u_scale"):
+        module.register_buffer(k, getattr(norm, k).clone())
 
 
 def play_and_features(
-    module: nn.Module, z: torch.Tensor, u: torch.Tensor
+    module: nn.Module | Normalization, z: torch.Tensor, u: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Play states after ``u`` and their features, with the buffers of :func:`add_play`.
+    """Play states after ``u`` and their features, with the buffers of :func:`add_play` (or
+    the same-named tensors of a :class:`Normalization`).
 
     Args:
         z: (..., Q, n_joint) play states before ``u``.
@@ -135,11 +135,9 @@ def play_and_features(
     Returns:
         ``z_new`` (..., Q, n_joint) and features ``(z_new - us) / b`` (..., Q * n_joint).
     """
-    us = ((u - module.u_center) / module.u_scale).unsqueeze(-2)
-    b = module.play_b
-    # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
-    z = torch.minimum(torch.maximum(z, us - b), us + b)
-    return z, ((z - us) / b).flatten(-2)
+    us = (u - module.u_center) / module.u_scale
+    z = play_step(z, us, module.play)
+    return z, play_features(z, us, module.play)
 
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
@@ -329,10 +327,8 @@ class SurrogateEngine:
         self._threads = _OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else _NoOp()
         n_joint = self.spec.n_joint
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
-        self._play = nn.Module()
-        add_play(self._play, sur)
-        self._play.to(self.device)
-        self.z = torch.zeros(self.n_envs, sur.norm.n_play, n_joint, device=self.device)
+        self.norm = sur.norm.to(self.device, torch.float32)
+        self.z = torch.zeros(self.n_envs, self.norm.n_play, n_joint, device=self.device)
         lim = sur.limits()
         self._limits = None if lim is None else (lim[0].double(), lim[1].double())
         if self.mode == "stateful":
@@ -359,19 +355,17 @@ class SurrogateEngine:
             self._module = self._folded_module() if self.impl == "module" else None
         else:
             self.impl = "window"
-            self.norm = sur.norm.to(self.device, torch.float32)
             w = self.window
-            n_in = self.sur.norm.n_feature
-            self._ring = torch.zeros(self.n_envs, 2 * w, n_in, device=self.device)
+            self._ring = torch.zeros(self.n_envs, 2 * w, self.norm.n_feature, device=self.device)
             self._pos = 0
 
     def _play_step(
         self, z: torch.Tensor, u: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Play states after ``u`` and their raw features (None without play features)."""
-        if not self._play.n_play:
+        if not self.norm.n_play:
             return z, None
-        return play_and_features(self._play, z, u)
+        return play_and_features(self.norm, z, u)
 
     # ---- stateful internals -------------------------------------------------------------------
 

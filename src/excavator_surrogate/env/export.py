@@ -48,7 +48,7 @@ from torch import nn
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
-from ..surrogate.features import integrate
+from ..surrogate.features import integrate, play_features, play_np, scale_commands_np
 from ..surrogate.model import Surrogate
 from .engine import FusedStep, Mode, add_end_stops, end_stops, rest_command
 from .surrogate_env import load_surrogate
@@ -85,7 +85,7 @@ class WindowStep(nn.Module):
         if self.n_play:
             if z is None:
                 raise ValueError("this surrogate has play features: pass the play states z")
-            parts.append(((z - us.unsqueeze(-2)) / self.play.unsqueeze(-1)).flatten(-2))
+            parts.append(play_features(z, us, self.play))
         x = torch.cat(parts, dim=-1)
         y = self.net((x - self.x_mean) / self.x_std)
         theta_next, omega = integrate(
@@ -301,8 +301,6 @@ class OnnxStepper:
         self.play = np.asarray(json.loads(meta.get("exsur_play", "[]")), dtype=np.float32)
         """(Q,) play half-widths (empty: no play features)."""
         n_joint = self.spec.n_joint
-        self._u_center = np.array([j.u_center for j in self.spec.joints], dtype=np.float32)
-        self._u_scale = np.array([j.u_scale for j in self.spec.joints], dtype=np.float32)
         self.z = np.zeros((0, len(self.play), n_joint), dtype=np.float32)
         """Play states (n_batch, Q, n_joint) after the last command."""
         self._z_win = np.zeros((0, self.window, len(self.play), n_joint), np.float32)
@@ -336,10 +334,8 @@ class OnnxStepper:
         """Play states after commands ``u`` (n, n_joint) from ``z`` (n, Q, n_joint), float32."""
         if not len(self.play):
             return z
-        us = ((u - self._u_center) / self._u_scale)[:, None, :]
-        b = self.play[:, None]
-        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
-        return np.minimum(np.maximum(z, us - b), us + b).astype(np.float32)
+        us = scale_commands_np(u, self.spec)[:, None, :]  # one sample per row
+        return play_np(us, self.play, z0=z)[:, 0].astype(np.float32)
 
     def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
         """Apply commands ``u`` (n_batch, n_joint); returns ``(theta[k+1], omega[k+1])`` float32."""

@@ -172,6 +172,12 @@ def play_step(z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor) -> torch.
     return torch.minimum(torch.maximum(z, x - b), x + b)
 
 
+def play_features(z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+    """``(z - us) / b`` in [-1, 1], ``z: (..., P, n_joint)``, ``us: (..., n_joint)``, ``widths:
+    (P,)`` -> ``(..., P * n_joint)`` (width-major; torch twin of :func:`play_features_np`)."""
+    return ((z - us.unsqueeze(-2)) / widths.unsqueeze(-1)).flatten(-2)
+
+
 def play_features_np(z: np.ndarray, us: np.ndarray, widths: Sequence[float]) -> np.ndarray:
     """``(z - us) / b`` in [-1, 1], ``z: (..., P, n_joint)``, ``us: (..., n_joint)`` ->
     ``(..., P * n_joint)`` (width-major)."""
@@ -400,8 +406,7 @@ class Normalization:
         if self.n_play:
             if z is None:
                 raise ValueError("encode: this normalisation has play features; pass z")
-            f = (z - us.unsqueeze(-2)) / self.play.unsqueeze(-1)
-            out.append(f.flatten(-2))
+            out.append(play_features(z, us, self.play))
         x = torch.cat(out, dim=-1)
         return (x - self.x_mean) / self.x_std
 

@@ -319,13 +319,9 @@ def rollout_reference(
     limits = sur.limits_np()
     window: list[np.ndarray] = []
     state = sur.net.init_state(1) if mode == "stateful" else None
-    widths = np.asarray(sur.norm.play_widths)[:, None]  # (P, 1)
-    us = (u - sur.norm.u_center.double().cpu().numpy()) / sur.norm.u_scale.double().cpu().numpy()
-    z = np.zeros((len(widths), n_joint))
+    zs = sur.norm.play_from_rest_np(u, spec)  # commands only: independent of the loop
     for k in range(n_step - 1):
-        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
-        z = np.minimum(np.maximum(z, us[k] - widths), us[k] + widths)
-        x = sur.norm.encode_np(theta_hat[k], u[k], spec, z)
+        x = sur.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k])
         xt = torch.tensor(x, dtype=dtype, device=device)
         if mode == "windowed":
             window.append(x)
