@@ -6,7 +6,7 @@ import torch
 
 from excavator_surrogate.data import Dataset, Episode
 from excavator_surrogate.spec import MachineSpec
-from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate
+from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate, TrainConfig
 from excavator_surrogate.surrogate.model import build_net
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 
@@ -47,6 +47,22 @@ def make_surrogate(
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
     )
+
+
+def tiny_stateful_config(**overrides) -> TrainConfig:
+    """A tiny stateful training config (window 5, 8 units, 40-sample sequences, no
+    TensorBoard) for fast tests; keyword arguments override its fields."""
+    kw = dict(
+        window=5,
+        hidden=8,
+        head_hidden=8,
+        mode="stateful",
+        seq_len=40,
+        burn_in=5,
+        tbptt=10,
+        tensorboard=False,
+    )
+    return TrainConfig(**{**kw, **overrides})
 
 
 def tiny_dataset(

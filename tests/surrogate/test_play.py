@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset
+from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
 from excavator_surrogate.surrogate import TrainConfig, rollout, rollout_reference, train
 from excavator_surrogate.surrogate.checkpoint import (
@@ -129,22 +129,16 @@ def test_checkpoint_keeps_play_widths_and_old_checkpoints_have_none(spec, episod
 @pytest.mark.parametrize("mode", ["windowed", "stateful"])
 def test_training_with_play_features(tmp_path, mode):
     ds = tiny_dataset(2, n_train=2, n_step=120)
-    cfg = TrainConfig(
-        window=5,
-        hidden=8,
-        head_hidden=8,
+    cfg = tiny_stateful_config(
         mode=mode,
         horizon=3,
-        seq_len=40,
         burn_in=10,
-        tbptt=10,
         seq_batch=2,
         batch_size=16,
         epochs=2,
         feedback="free",
         teacher_epochs=1,
         play=PLAY,
-        tensorboard=False,
     )
     sur = load_checkpoint(train(cfg, ds, out=tmp_path, show_progress=False))
     assert sur.norm.play_widths == pytest.approx(PLAY)

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset
+from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import (
@@ -153,20 +153,7 @@ def test_train_config_from_preset_and_validation():
 
 def test_weight_average_competes_for_the_best_checkpoint(tmp_path):
     ds = tiny_dataset(2, n_train=2, n_step=160)
-    cfg = TrainConfig(
-        window=5,
-        hidden=8,
-        head_hidden=8,
-        mode="stateful",
-        seq_len=40,
-        burn_in=5,
-        tbptt=10,
-        seq_batch=2,
-        epochs=4,
-        patience=4,
-        ema_decay=0.9,
-        tensorboard=False,
-    )
+    cfg = tiny_stateful_config(seq_batch=2, epochs=4, patience=4, ema_decay=0.9)
     best = train(cfg, ds, out=tmp_path, show_progress=False)
     rows = list(csv.DictReader((tmp_path / "log.csv").open()))
     assert {r["weights"] for r in rows} <= {"raw", "ema"} and len(rows) == 4
