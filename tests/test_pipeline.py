@@ -72,7 +72,17 @@ steps_test = 300
 """
     out = tmp_path / "run2"
     assert (
-        main(["run", "--preset", str(_preset(tmp_path, "quick-noload", sim)), "--out", str(out)])
+        main(
+            [
+                "run",
+                "--preset",
+                str(_preset(tmp_path, "quick-noload", sim)),
+                "--out",
+                str(out),
+                "--members",
+                "2",
+            ]
+        )
         == 0
     )
     m = json.loads((out / "metrics.json").read_text())
@@ -87,6 +97,12 @@ steps_test = 300
     report = (out / "report.md").read_text()
     assert "Table III (noload)" in report and "Effect of cleaning" in report
     assert (out / "fusion_bucket.png").exists() and (out / "model_raw" / "best.pt").exists()
+    # --members 2: every trained model is a two-seed ensemble, scored next to its members
+    assert set(m["ensemble_members"]) == {"ensemble", "member 0", "member 1"}
+    assert "Seed ensemble: the merged network vs its members" in report
+    for model in ("model", "model_raw"):
+        assert (out / model / "member_1" / "best.pt").exists()
+    assert tomllib.loads((out / "config.toml").read_text())["train"]["members"] == 2
 
 
 def test_run_failure_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

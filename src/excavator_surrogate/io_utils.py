@@ -114,6 +114,15 @@ def progress(
     return tqdm(it, total=total, desc=desc, disable=disable, leave=False, dynamic_ncols=True)
 
 
+_LOG_TAG = "exsur"
+
+
+def set_log_tag(tag: str) -> None:
+    """Tag of every later :func:`log` line (``[exsur]``; worker processes add who they are)."""
+    global _LOG_TAG
+    _LOG_TAG = tag
+
+
 def log(msg: str) -> None:
     """One progress line on stderr (always shown: long jobs must show progress)."""
-    print(f"[exsur] {msg}", file=sys.stderr, flush=True)
+    print(f"[{_LOG_TAG}] {msg}", file=sys.stderr, flush=True)

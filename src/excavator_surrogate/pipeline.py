@@ -116,6 +116,7 @@ def run_pipeline(
     seed: int | None = None,
     max_train_seconds: float | None = None,
     epochs: int | None = None,
+    members: int | None = None,
 ) -> dict[str, Any]:
     """Run the whole pipeline for a preset and write the report folder ``out``.
 
@@ -128,6 +129,7 @@ def run_pipeline(
         seed: overrides the simulation and training seeds.
         max_train_seconds: overrides the training wall-time budget (per model).
         epochs: overrides the maximum number of epochs.
+        members: overrides the seed-ensemble size of every trained model (1: single networks).
 
     Returns:
         The content of ``metrics.json``.
@@ -155,6 +157,8 @@ def run_pipeline(
         train_over["max_train_seconds"] = float(max_train_seconds)
     if epochs is not None:
         train_over["epochs"] = int(epochs)
+    if members is not None:
+        train_over["members"] = int(members)
     train_cfg = dataclasses.replace(cfgs["train"], **train_over)
     eval_cfg = cfgs["evaluate"]
     timings: dict[str, float] = {}
@@ -234,7 +238,17 @@ def run_pipeline(
             )
             result_extra["against_cleaned"] = {k: against[k] for k in ("omega", "theta")}
         if raw_best is not None:
-            result_extra["cleaning_effect"] = _cleaning_effect(best, raw_best, train_ds, eval_cfg)
+            result_extra["cleaning_effect"] = _score_against_truth(
+                {"trained on cleaned": best, "trained on raw": raw_best}, train_ds, eval_cfg
+            )
+        if train_cfg.members > 1 and run_cfg.reference == "true":
+            member_paths = {
+                f"member {i}": best.parent / f"member_{i}" / "best.pt"
+                for i in range(train_cfg.members)
+            }
+            result_extra["ensemble_members"] = _score_against_truth(
+                {"ensemble": best, **member_paths}, train_ds, eval_cfg
+            )
         timings["evaluate"] = time.monotonic() - t0
         timings["total"] = time.monotonic() - t_start
         metrics.update(result_extra)
@@ -269,18 +283,14 @@ def run_pipeline(
     return metrics
 
 
-def _cleaning_effect(best: Path, raw_best: Path, clean_ds: Any, eval_cfg: Any) -> dict[str, Any]:
-    """CBE against the truth of the same LSTM trained on cleaned vs raw data."""
+def _score_against_truth(models: Mapping[str, Path], ds: Any, eval_cfg: Any) -> dict[str, Any]:
+    """CBE against the truth of several checkpoints on the same test episodes (label -> metrics)."""
     from .evaluate.cbe import evaluate_models
     from .surrogate.checkpoint import load_checkpoint
 
-    models = {
-        "trained on cleaned": load_checkpoint(best),
-        "trained on raw": load_checkpoint(raw_best),
-    }
     metrics, _ = evaluate_models(
-        models,
-        clean_ds.split(eval_cfg.split),
+        {label: load_checkpoint(path) for label, path in models.items()},
+        ds.split(eval_cfg.split),
         reference="true",
         max_steps=eval_cfg.max_steps or None,
     )
@@ -376,6 +386,31 @@ def render_report(
             lines.append(
                 f"| {j} | {_fmt(c['theta'][j]['r2'])} | {_fmt(r['theta'][j]['r2'])} | {_fmt(c['theta'][j]['rmse'])} "
                 f"| {_fmt(r['theta'][j]['rmse'])} | {_fmt(c['omega'][j]['r2'])} | {_fmt(r['omega'][j]['r2'])} |"
+            )
+        lines.append("")
+    if "ensemble_members" in metrics:
+        em = metrics["ensemble_members"]
+        lines += [
+            "## Seed ensemble: the merged network vs its members (scored against the truth)",
+            "",
+            "| Model | "
+            + " | ".join(f"θ R² {j}" for j in spec_names)
+            + " | worst θ R² | worst ω R² |",
+            "|---|" + "---|" * (len(spec_names) + 2),
+        ]
+        for label, m in em.items():
+            worst_t = min(
+                (m["theta"][j]["r2"] for j in spec_names),
+                key=lambda v: v if v is not None else -1e9,
+            )
+            worst_o = min(
+                (m["omega"][j]["r2"] for j in spec_names),
+                key=lambda v: v if v is not None else -1e9,
+            )
+            lines.append(
+                f"| {label} | "
+                + " | ".join(_fmt(m["theta"][j]["r2"]) for j in spec_names)
+                + f" | {_fmt(worst_t)} | {_fmt(worst_o)} |"
             )
         lines.append("")
     lines += [

@@ -49,6 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="wall-time budget per trained model",
     )
     p.add_argument("--epochs", type=int, default=None, metavar="N", help="maximum epochs per model")
+    p.add_argument(
+        "--members",
+        type=int,
+        default=None,
+        metavar="K",
+        help="seed-ensemble members per trained model (1: a single network; default: the preset's)",
+    )
     p.set_defaults(func=run)
 
 
@@ -65,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         max_train_seconds=args.max_train_seconds,
         epochs=args.epochs,
+        members=args.members,
     )
     print(
         f"{args.out}: worst-joint angle R² {min_r2(metrics, 'theta'):.4f}, "

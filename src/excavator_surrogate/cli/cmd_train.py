@@ -34,6 +34,13 @@ def register(subparsers: Any) -> None:
         help="wall-time budget for training [s]",
     )
     p.add_argument("--seed", type=int, default=None, help="random seed")
+    p.add_argument(
+        "--members",
+        type=int,
+        default=None,
+        help="seed ensemble: train this many members (seeds SEED, SEED+1, ...) in parallel "
+        "processes and merge them into OUT/best.pt (members in OUT/member_<i>/)",
+    )
     p.add_argument("--resume", type=Path, default=None, help="continue from a checkpoint (last.pt)")
     p.add_argument("--device", default=None, help="torch device (cpu, cuda, cuda:N, auto)")
     p.add_argument(
@@ -63,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
         max_train_seconds=args.max_train_seconds,
         seed=args.seed,
         device=args.device,
+        members=args.members,
     )
     dataset = load_dataset(args.dataset, splits=("train", "val"))
     dist = None
@@ -75,8 +83,8 @@ def run(args: argparse.Namespace) -> int:
     if dist is not None and not dist.is_main:
         return 0
     m = read_checkpoint(best).get("metrics", {})
-    log(
-        f"best checkpoint: {best} (epoch {m.get('epoch')}, val_error {m.get('val_error', float('nan')):.4g})"
-    )
+    ens = m.get("ensemble")
+    which = f"{ens['n_member']}-member ensemble" if ens else f"epoch {m.get('epoch')}"
+    log(f"best checkpoint: {best} ({which}, val_error {m.get('val_error', float('nan')):.4g})")
     print(best)
     return 0

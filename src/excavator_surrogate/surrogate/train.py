@@ -127,6 +127,13 @@ class TrainConfig:
     play: tuple[float, ...] = ()
     """Half-widths of play (backlash) operators on the scaled commands whose states are extra
     input features (valve hysteresis memory; ours, not the paper's); empty = paper's 9-D input."""
+    members: int = 1
+    """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
+    each selected by its own validation free run, and merge them into one network whose omega is
+    the members' mean (``OUT/member_<i>/``; ours, not the paper's).  1 = a single network."""
+    member_workers: int = 0
+    """Members trained in parallel processes, each with ``num_threads`` threads (0 = one
+    process per member, up to the CPU count; 1 = one after the other in this process)."""
     end_stops: bool = True
     """Clip free-run angles to the spec's joint limits (mechanical end stops), in training
     rollouts and in every rollout of the trained model (stored in the checkpoint)."""
@@ -149,6 +156,8 @@ class TrainConfig:
             (self.burn_in >= 1, "burn_in must be >= 1"),
             (self.seq_len > self.burn_in, "seq_len must exceed burn_in"),
             (self.tbptt >= 1, "tbptt must be >= 1"),
+            (self.members >= 1, "members must be >= 1"),
+            (self.member_workers >= 0, "member_workers must be >= 0"),
             (0 < self.plateau_factor < 1, "plateau_factor must be in (0, 1)"),
             (self.cell in ("lstm", "gru"), "cell must be lstm or gru"),
             (self.mode in ("windowed", "stateful"), "mode must be windowed or stateful"),
@@ -539,9 +548,11 @@ _LOG_FIELDS = (
 )
 
 
-def _write_log(path: Path, history: list[dict[str, Any]]) -> None:
+def _write_log(
+    path: Path, history: list[dict[str, Any]], fields: list[str] | tuple[str, ...] = _LOG_FIELDS
+) -> None:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=_LOG_FIELDS, extrasaction="ignore")
+    w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     w.writeheader()
     for row in history:
         w.writerow(row)
@@ -603,6 +614,18 @@ def train(
     """
     from ..scale.devices import resolve_device
 
+    if cfg.members > 1:
+        for given, what in (
+            (resume, "resume"),
+            (dist, "data-parallel training"),
+            (on_epoch, "on_epoch"),
+        ):
+            if given is not None:
+                raise ConfigError(
+                    f"[train] members = {cfg.members}: {what} works per member; train each member "
+                    "as a single network (members = 1) and merge them with 'exsur merge'"
+                )
+        return train_ensemble(cfg, dataset, out=out, show_progress=show_progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     main = dist is None or dist.is_main
@@ -843,3 +866,120 @@ def train(
     if dist is not None:
         dist.barrier()  # best.pt is complete before any rank returns its path
     return best_path
+
+
+# ---------------------------------------------------------------------------------------------
+# seed ensembles
+
+
+def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
+    """The single-network configs of ``cfg``'s ensemble members (seeds ``seed + i``)."""
+    return [
+        replace(cfg, members=1, member_workers=0, seed=cfg.seed + i) for i in range(cfg.members)
+    ]
+
+
+def _member_job(
+    index: int, cfg: TrainConfig, dataset: Dataset, out: Path
+) -> tuple[str, str | None]:
+    """Train one member in a worker process; returns ``(best_path, error message or None)``."""
+    from ..errors import ExsurError
+    from ..io_utils import set_log_tag
+
+    set_log_tag(f"exsur member {index}")
+    try:
+        return str(train(cfg, dataset, out=out, show_progress=False)), None
+    except ExsurError as e:  # user errors cross the process boundary as their one-line message
+        return "", str(e)
+
+
+def train_ensemble(
+    cfg: TrainConfig, dataset: Dataset, *, out: str | Path, show_progress: bool | None = None
+) -> Path:
+    """Train ``cfg.members`` networks with seeds ``seed, seed + 1, ...`` and merge them.
+
+    Each member is trained exactly as :func:`train` trains one network, into
+    ``OUT/member_<i>/`` (its own ``best.pt``, ``log.csv``, selection by its own validation free
+    run), in up to ``cfg.member_workers`` parallel processes.  The members' best checkpoints
+    are merged by :func:`~.ensemble.merge` into ``OUT/best.pt`` (omega = the members' mean),
+    whose validation free run is scored and stored in its metrics; ``OUT/log.csv`` has one row
+    per member and one for the ensemble.
+
+    Returns:
+        Path of ``OUT/best.pt``.
+    """
+    import multiprocessing
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    from ..errors import ExsurError
+    from .checkpoint import load_checkpoint
+    from .ensemble import merge
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfgs = member_configs(cfg)
+    dirs = [out / f"member_{i}" for i in range(cfg.members)]
+    workers = min(cfg.member_workers or (os.cpu_count() or 1), cfg.members)
+    write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg)}))
+    log(
+        f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
+        f"{workers} in parallel, into {out}/member_*"
+    )
+    t0 = time.monotonic()
+    if workers <= 1:
+        bests = [train(c, dataset, out=d, show_progress=show_progress) for c, d in zip(cfgs, dirs)]
+    else:
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch threads
+        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            jobs = [
+                pool.submit(_member_job, i, c, dataset, d)
+                for i, (c, d) in enumerate(zip(cfgs, dirs))
+            ]
+            results = [j.result() for j in jobs]
+        for i, (_, err) in enumerate(results):
+            if err is not None:
+                raise ExsurError(f"ensemble member {i}: {err}")
+        bests = [Path(p) for p, _ in results]
+    members = [load_checkpoint(b) for b in bests]
+    sur = merge(members)
+    sur.train_config = to_dict(cfg)
+    n_min = cfg.window + cfg.horizon + 1 if cfg.mode == "windowed" else cfg.seq_len + 1
+    val_eps = _usable(dataset.val, cfg.window + 2, "val") or _usable(dataset.train, n_min, "train")
+    val = free_run_error(sur, val_eps, max_steps=cfg.val_steps or None)
+    rows: list[dict[str, Any]] = []
+    for i, m in enumerate(members):
+        mm = m.metrics or {}
+        rows.append(
+            {
+                "member": i,
+                "seed": cfgs[i].seed,
+                "epoch": mm.get("epoch"),
+                "val_error": mm.get("val_error"),
+                "val_theta_r2_min": min((mm.get("val") or {}).get("theta_r2") or [math.nan]),
+            }
+        )
+    rows.append(
+        {
+            "member": "ensemble",
+            "seed": "",
+            "epoch": "",
+            "val_error": val["val_error"],
+            "val_theta_r2_min": min(val["theta_r2"]),
+        }
+    )
+    sur.metrics = {
+        **(sur.metrics or {}),
+        "val_error": val["val_error"],
+        "val": val,
+        "best_val_error": val["val_error"],
+        "train_s": round(time.monotonic() - t0, 1),
+    }
+    best = save_checkpoint(out / "best.pt", sur, history=rows)
+    _write_log(out / "log.csv", rows, fields=list(rows[0]))
+    member_vals = ", ".join(f"{r['val_error']:.4g}" for r in rows[:-1])
+    log(
+        f"seed ensemble: members' val_error {member_vals}; merged {val['val_error']:.4g} "
+        f"(min theta R2 {min(val['theta_r2']):.3f}) -> {best}"
+    )
+    return best

@@ -1,0 +1,46 @@
+"""``exsur merge A.pt B.pt ... --out ens.pt``: merge surrogates into one seed ensemble."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``merge`` subcommand."""
+    p = sub.add_parser(
+        "merge",
+        help="merge trained surrogates into one ensemble checkpoint (omega = the members' mean)",
+        description="Merge K checkpoints of the same machine and architecture (LSTM/GRU, same "
+        "depth, window, mode, end stops and play features) into ONE checkpoint whose network "
+        "averages the members' angular velocities every step. The merged network is a plain, "
+        "wider LSTM/GRU with block-diagonal weights, so it runs everywhere a single checkpoint "
+        "does (evaluate, env, export). 'exsur train --members K' trains and merges in one go.",
+    )
+    p.add_argument("ckpts", type=Path, nargs="+", help="member checkpoints (best.pt)")
+    p.add_argument("--out", type=Path, required=True, help="merged checkpoint .pt")
+    p.add_argument("--name", default=None, help="model label (default <cell>-ensemble-K)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Load every member (``weights_only``), merge, write atomically, print a summary."""
+    from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
+    from ..surrogate.ensemble import merge
+
+    members = [load_checkpoint(p) for p in args.ckpts]
+    sur = merge(members, name=args.name)
+    sur.metrics = {
+        **(sur.metrics or {}),
+        "ensemble": {
+            **sur.metrics["ensemble"],
+            "sources": [str(p) for p in args.ckpts],
+        },
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    out = save_checkpoint(args.out, sur)
+    print(
+        f"{out}: {sur.name}, {len(members)} members, {sur.model_cfg.cell} "
+        f"{sur.model_cfg.n_layer} x {sur.model_cfg.hidden} ({sur.mode})"
+    )
+    return 0

@@ -1,0 +1,253 @@
+"""Seed ensembles: K independently trained surrogates merged into ONE wider network.
+
+A free-running ensemble averages its members' angular velocities every step and integrates
+the mean, so all members see the same fed-back angle::
+
+    omega_hat[k+1] = (1/K) sum_m omega_m(theta_hat[0..k], u[0..k]);
+    theta_hat[k+1] = clip(theta_hat[k] + T_s * omega_hat[k+1])
+
+Members with the same cell and depth are exactly one recurrent network whose hidden state is
+the members' states side by side: every weight matrix is block-diagonal (per gate), the
+input layer stacks the members' rows, and the output layer averages the members' heads.
+:func:`merge` builds that network, so a merged checkpoint runs everywhere a single one does
+(``ClosedLoop``, the vector env, the fused engine, ONNX export) with no ensemble code path to
+keep equal.  Members may differ in normalisation (each member's input and output affine maps
+are folded into its block) and in width; they must share the machine spec, cell, depth,
+window, rollout mode, end stops and play features.
+
+:func:`rollout_reference_ensemble` is the plain loop (members stepped one by one, omega
+averaged in NumPy) that the merged network is tested against.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError
+from .features import integrate_np
+from .model import ModelConfig, Surrogate, SurrogateNet
+
+_GATES = {"lstm": 4, "gru": 3}
+
+
+def _check_members(surs: Sequence[Surrogate]) -> None:
+    """Raise :class:`ConfigError` naming the first member that cannot join the first one."""
+    if len(surs) < 1:
+        raise ConfigError("an ensemble needs at least one member")
+    ref = surs[0]
+    if ref.model_cfg.cell not in _GATES:
+        raise ConfigError(f"only LSTM/GRU surrogates can be ensembled, not '{ref.model_cfg.cell}'")
+    for i, s in enumerate(surs[1:], start=1):
+        checks = [
+            (s.spec.to_dict() == ref.spec.to_dict(), "machine spec (joints, rate, limits)"),
+            (s.model_cfg.cell == ref.model_cfg.cell, "cell"),
+            (s.model_cfg.n_layer == ref.model_cfg.n_layer, "number of layers"),
+            (s.model_cfg.window == ref.model_cfg.window, "window W"),
+            (s.mode == ref.mode, "rollout mode"),
+            (bool(s.end_stops) == bool(ref.end_stops), "end stops"),
+            (torch.equal(s.norm.play.cpu(), ref.norm.play.cpu()), "play widths"),
+            (s.model_cfg.n_feature == ref.model_cfg.n_feature, "input features"),
+        ]
+        for ok, what in checks:
+            if not ok:
+                raise ConfigError(
+                    f"ensemble member {i} ({s.name}) differs from member 0 in its {what}; "
+                    "merge surrogates trained on the same machine with the same architecture"
+                )
+
+
+def _np(t: torch.Tensor) -> np.ndarray:
+    return t.detach().double().cpu().numpy()
+
+
+def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
+    """Merge K surrogates into one whose omega is the mean of theirs (see the module docstring).
+
+    Args:
+        surs: K >= 1 members (LSTM or GRU, same spec/cell/depth/window/mode/end stops/play).
+        name: label of the merged model (default ``"<cell>-ensemble-K"``).
+
+    Returns:
+        A :class:`Surrogate` with hidden width ``sum_m hidden_m`` and head width
+        ``sum_m head_hidden_m``, on the CPU in float32, in eval mode, with member 0's
+        normalisation; ``metrics["ensemble"]`` lists the members.
+
+    Raises:
+        ConfigError: members that cannot be merged (one line naming the member and what differs).
+    """
+    _check_members(surs)
+    ref = surs[0]
+    n_member = len(surs)
+    cell = ref.model_cfg.cell
+    n_gate = _GATES[cell]
+    n_layer = ref.model_cfg.n_layer
+    n_joint = ref.spec.n_joint
+    hid = [s.model_cfg.hidden for s in surs]
+    head = [s.model_cfg.head_hidden for s in surs]
+    h_off = np.concatenate([[0], np.cumsum(hid)])
+    f_off = np.concatenate([[0], np.cumsum(head)])
+    h_tot, f_tot = int(h_off[-1]), int(f_off[-1])
+    norm0 = ref.norm.to("cpu", torch.float32)
+    xm0, xs0 = _np(norm0.x_mean), _np(norm0.x_std)
+    ym0, ys0 = _np(norm0.y_mean), _np(norm0.y_std)
+    n_in = [ref.model_cfg.n_feature] + [h_tot] * (n_layer - 1)
+    w_ih = [np.zeros((n_gate * h_tot, n_in[k])) for k in range(n_layer)]
+    w_hh = [np.zeros((n_gate * h_tot, h_tot)) for _ in range(n_layer)]
+    b_ih = [np.zeros(n_gate * h_tot) for _ in range(n_layer)]
+    b_hh = [np.zeros(n_gate * h_tot) for _ in range(n_layer)]
+    w1 = np.zeros((f_tot, h_tot))
+    b1 = np.zeros(f_tot)
+    w2 = np.zeros((n_joint, f_tot))
+    b2 = np.zeros(n_joint)
+    for m, s in enumerate(surs):
+        rnn, lin1, lin2 = s.net.rnn, s.net.head[0], s.net.head[2]
+        norm = s.norm.to("cpu", torch.float32)
+        xm, xs = _np(norm.x_mean), _np(norm.x_std)
+        ym, ys = _np(norm.y_mean), _np(norm.y_std)
+        hm, lo, hi = hid[m], int(h_off[m]), int(h_off[m + 1])
+        for k in range(n_layer):
+            wi, wh = _np(getattr(rnn, f"weight_ih_l{k}")), _np(getattr(rnn, f"weight_hh_l{k}"))
+            bi, bh = _np(getattr(rnn, f"bias_ih_l{k}")), _np(getattr(rnn, f"bias_hh_l{k}"))
+            if k == 0:
+                # member input x_m = x * (xs0 / xs_m) + (xm0 - xm_m) / xs_m for the shared x
+                bi = bi + wi @ ((xm0 - xm) / xs)
+                wi = wi * (xs0 / xs)[None, :]
+            for g in range(n_gate):
+                rows = slice(g * h_tot + lo, g * h_tot + hi)
+                src = slice(g * hm, (g + 1) * hm)
+                # W_ih: layer 0 reads every shared feature, deeper layers only member m's block
+                if k == 0:
+                    w_ih[k][rows] = wi[src]
+                else:
+                    w_ih[k][rows, lo:hi] = wi[src]
+                # W_hh: block-diagonal, member m's state feeds only member m's gates
+                w_hh[k][rows, lo:hi] = wh[src]
+                b_ih[k][rows] = bi[src]
+                b_hh[k][rows] = bh[src]
+        f_lo, f_hi = int(f_off[m]), int(f_off[m + 1])
+        # a_m = relu(W1_m h_m + b1_m): block-diagonal first head layer
+        w1[f_lo:f_hi, lo:hi] = _np(lin1.weight)
+        b1[f_lo:f_hi] = _np(lin1.bias)
+        # y = (mean_m (ys_m (W2_m a_m + b2_m) + ym_m) - ym0) / ys0   (member 0's output scale)
+        w2[:, f_lo:f_hi] = _np(lin2.weight) * (ys / (n_member * ys0))[:, None]
+        b2 += (ys * _np(lin2.bias) + ym) / (n_member * ys0)
+    b2 -= ym0 / ys0
+
+    mcfg = ModelConfig(
+        n_feature=ref.model_cfg.n_feature,
+        n_joint=n_joint,
+        window=ref.model_cfg.window,
+        hidden=h_tot,
+        n_layer=n_layer,
+        cell=cell,
+        head_hidden=f_tot,
+    )
+    net = SurrogateNet(mcfg)
+    f32 = torch.float32
+    with torch.no_grad():
+        for k in range(n_layer):
+            for attr, a in (
+                (f"weight_ih_l{k}", w_ih[k]),
+                (f"weight_hh_l{k}", w_hh[k]),
+                (f"bias_ih_l{k}", b_ih[k]),
+                (f"bias_hh_l{k}", b_hh[k]),
+            ):
+                getattr(net.rnn, attr).copy_(torch.tensor(a, dtype=f32))
+        net.head[0].weight.copy_(torch.tensor(w1, dtype=f32))
+        net.head[0].bias.copy_(torch.tensor(b1, dtype=f32))
+        net.head[2].weight.copy_(torch.tensor(w2, dtype=f32))
+        net.head[2].bias.copy_(torch.tensor(b2, dtype=f32))
+    net.eval()
+    info: dict[str, Any] = {
+        "n_member": n_member,
+        "hidden": hid,
+        "head_hidden": head,
+        "members": [
+            {
+                "name": s.name,
+                "seed": (s.train_config or {}).get("seed"),
+                "val_error": (s.metrics or {}).get("val_error"),
+                "epoch": (s.metrics or {}).get("epoch"),
+            }
+            for s in surs
+        ],
+    }
+    return Surrogate(
+        net=net,
+        spec=ref.spec,
+        norm=norm0,
+        model_cfg=mcfg,
+        mode=ref.mode,
+        train_config=dict(ref.train_config or {}),
+        metrics={"ensemble": info},
+        name=name or (f"{cell}-ensemble-{n_member}" if n_member > 1 else ref.name),
+        end_stops=ref.end_stops,
+    )
+
+
+def n_member(sur: Surrogate) -> int:
+    """Number of members a surrogate was merged from (1 for a single network)."""
+    ens = (sur.metrics or {}).get("ensemble")
+    return int(ens["n_member"]) if isinstance(ens, dict) and "n_member" in ens else 1
+
+
+@torch.no_grad()
+def rollout_reference_ensemble(
+    surs: Sequence[Surrogate], theta: np.ndarray, u: np.ndarray, *, warmup: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Plain-loop ensemble rollout of ONE sequence: every member stepped on its own, in its own
+    normalisation, and the members' omega averaged in NumPy before integrating.
+
+    Args:
+        surs: the members (stateful or windowed, as trained).
+        theta: (>= warmup, n_joint) recorded angles [rad].
+        u: (n_step, n_joint) recorded commands [command units].
+        warmup: recorded samples used to start (default: the members' window W).
+
+    Returns:
+        ``theta_hat``, ``omega_hat``: (n_step, n_joint) [rad], [rad/s] (recorded angles and NaN
+        velocities for ``k < warmup``).
+    """
+    _check_members(surs)
+    ref = surs[0]
+    spec = ref.spec
+    w = ref.window
+    warmup = w if warmup is None else int(warmup)
+    n_step, n_joint = u.shape
+    theta_hat = [np.asarray(theta[k], dtype=np.float64) for k in range(warmup)]
+    omega_hat = [np.full(n_joint, np.nan) for _ in range(warmup)]
+    limits = ref.limits_np()
+    zs = ref.norm.play_from_rest_np(u, spec)
+    windows: list[list[np.ndarray]] = [[] for _ in surs]
+    states: list[Any] = [s.net.init_state(1) if s.mode == "stateful" else None for s in surs]
+    for k in range(n_step - 1):
+        omegas = []
+        for m, s in enumerate(surs):
+            x = s.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k])
+            t = {"dtype": s.dtype, "device": s.device}
+            if s.mode == "windowed":
+                windows[m].append(x)
+                if len(windows[m]) > w:
+                    windows[m].pop(0)
+                if k + 1 < warmup:
+                    continue
+                while len(windows[m]) < w:
+                    windows[m].insert(0, windows[m][0])
+                y = s.net(torch.tensor(np.array(windows[m])[None], **t))[0]
+            else:
+                y, states[m] = s.net.step(torch.tensor(x[None], **t), states[m])
+                y = y[0]
+                if k + 1 < warmup:
+                    continue
+            omegas.append(_np(y) * _np(s.norm.y_std) + _np(s.norm.y_mean))
+        if k + 1 < warmup:
+            continue
+        omega = np.mean(omegas, axis=0)
+        theta_next, omega = integrate_np(theta_hat[k], omega, dt=spec.dt, limits=limits)
+        omega_hat.append(omega)
+        theta_hat.append(theta_next)
+    return np.array(theta_hat), np.array(omega_hat)
