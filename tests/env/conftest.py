@@ -13,6 +13,7 @@ from excavator_surrogate.spec import EXCAVATOR, MachineSpec
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+from shared_helpers import drive_into_stops
 
 
 def tiny_surrogate(
@@ -54,10 +55,7 @@ def tiny_surrogate(
         play=play,
     )
     net = build_net(cfg).eval()
-    if drive:
-        last = net.linear if cell == "arx" else net.head[-1]
-        with torch.no_grad():
-            last.bias += drive * torch.tensor([(-1.0) ** j for j in range(spec.n_joint)])
+    drive_into_stops(net, drive, spec.n_joint)
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
     )

@@ -9,6 +9,7 @@ from excavator_surrogate.spec import MachineSpec
 from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate, TrainConfig
 from excavator_surrogate.surrogate.model import build_net
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from shared_helpers import drive_into_stops
 
 
 def make_surrogate(
@@ -39,10 +40,7 @@ def make_surrogate(
         head_hidden=hidden,
     )
     net = build_net(cfg).eval()
-    if drive:
-        with torch.no_grad():
-            sign = torch.tensor([(-1.0) ** j for j in range(spec.n_joint)])
-            net.head[-1].bias += drive * sign
+    drive_into_stops(net, drive, spec.n_joint)
     norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec, play=play)
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
