@@ -920,7 +920,8 @@ def train_ensemble(
     out.mkdir(parents=True, exist_ok=True)
     cfgs = member_configs(cfg)
     dirs = [out / f"member_{i}" for i in range(cfg.members)]
-    workers = min(cfg.member_workers or (os.cpu_count() or 1), cfg.members)
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    workers = min(cfg.member_workers or cpus or 1, cfg.members)
     write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg)}))
     log(
         f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
