@@ -192,7 +192,8 @@ def test_make_vec_entry_point(stateful_ckpt: Path) -> None:
 def test_engine_runs_a_merged_ensemble_like_its_members_averaged(mode: str, make_surrogate) -> None:
     """A seed ensemble merged into one network (exsur merge / train --members) steps in the
     engine exactly as its members stepped one by one with their omega averaged (plain loop)."""
-    from excavator_surrogate.surrogate.ensemble import merge, rollout_reference_ensemble
+    from excavator_surrogate.surrogate.ensemble import merge
+    from excavator_surrogate.surrogate.rollout import rollout_reference
 
     kw = dict(mode=mode, end_stops=True, drive=20.0, play=(0.05, 0.2))
     members = [make_surrogate(seed=0, hidden=16, **kw), make_surrogate(seed=1, hidden=8, **kw)]
@@ -205,7 +206,7 @@ def test_engine_runs_a_merged_ensemble_like_its_members_averaged(mode: str, make
     th = np.stack([eng.step(u[:, k])[0].numpy().copy() for k in range(n_cmd)], axis=1)
     for i in range(n):
         u_ref = np.concatenate([np.zeros((w - 1, 4)), u[i], np.zeros((1, 4))])
-        th_ref, _ = rollout_reference_ensemble(members, np.repeat(theta0[i][None], w, 0), u_ref)
+        th_ref, _ = rollout_reference(members, np.repeat(theta0[i][None], w, 0), u_ref)
         np.testing.assert_allclose(th[i], th_ref[w:], atol=1e-5)
     lo, hi = joint_limits(EXCAVATOR)
     assert (np.isclose(th, lo) | np.isclose(th, hi)).any()

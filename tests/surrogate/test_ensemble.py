@@ -13,9 +13,9 @@ from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
 from excavator_surrogate.cli import main
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.surrogate import rollout, train
+from excavator_surrogate.surrogate import rollout, rollout_reference, train
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
-from excavator_surrogate.surrogate.ensemble import merge, n_member, rollout_reference_ensemble
+from excavator_surrogate.surrogate.ensemble import merge, n_member
 from excavator_surrogate.surrogate.features import joint_limits
 from excavator_surrogate.surrogate.train import free_run_error, member_configs
 
@@ -47,7 +47,7 @@ def test_merged_rollout_equals_the_members_averaged_in_a_plain_loop(spec, episod
     u = np.stack([e.u[:n] for e in episodes])
     th_b, om_b = rollout(ens, theta, u)
     for i in range(len(episodes)):
-        th_r, om_r = rollout_reference_ensemble(members, theta[i], u[i])
+        th_r, om_r = rollout_reference(members, theta[i], u[i])
         np.testing.assert_allclose(th_b[i], th_r, atol=1e-5)
         np.testing.assert_allclose(om_b[i], om_r, atol=1e-4)
     # driven into the stops: the merged loop rests on them like the members' average does

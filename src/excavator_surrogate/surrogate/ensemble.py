@@ -15,8 +15,8 @@ keep equal.  Members may differ in normalisation (each member's input and output
 are folded into its block) and in width; they must share the machine spec, cell, depth,
 window, rollout mode, end stops and play features.
 
-:func:`rollout_reference_ensemble` is the plain loop (members stepped one by one, omega
-averaged in NumPy) that the merged network is tested against.
+:func:`~.rollout.rollout_reference` with a list of members is the plain loop (members
+stepped one by one, omega averaged in NumPy) that the merged network is tested against.
 """
 
 from __future__ import annotations
@@ -28,13 +28,12 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError
-from .features import integrate_np
 from .model import ModelConfig, Surrogate, SurrogateNet
 
 _GATES = {"lstm": 4, "gru": 3}
 
 
-def _check_members(surs: Sequence[Surrogate]) -> None:
+def check_members(surs: Sequence[Surrogate]) -> None:
     """Raise :class:`ConfigError` naming the first member that cannot join the first one."""
     if len(surs) < 1:
         raise ConfigError("an ensemble needs at least one member")
@@ -79,7 +78,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
     Raises:
         ConfigError: members that cannot be merged (one line naming the member and what differs).
     """
-    _check_members(surs)
+    check_members(surs)
     ref = surs[0]
     n_member = len(surs)
     cell = ref.model_cfg.cell
@@ -193,61 +192,3 @@ def n_member(sur: Surrogate) -> int:
     """Number of members a surrogate was merged from (1 for a single network)."""
     ens = (sur.metrics or {}).get("ensemble")
     return int(ens["n_member"]) if isinstance(ens, dict) and "n_member" in ens else 1
-
-
-@torch.no_grad()
-def rollout_reference_ensemble(
-    surs: Sequence[Surrogate], theta: np.ndarray, u: np.ndarray, *, warmup: int | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Plain-loop ensemble rollout of ONE sequence: every member stepped on its own, in its own
-    normalisation, and the members' omega averaged in NumPy before integrating.
-
-    Args:
-        surs: the members (stateful or windowed, as trained).
-        theta: (>= warmup, n_joint) recorded angles [rad].
-        u: (n_step, n_joint) recorded commands [command units].
-        warmup: recorded samples used to start (default: the members' window W).
-
-    Returns:
-        ``theta_hat``, ``omega_hat``: (n_step, n_joint) [rad], [rad/s] (recorded angles and NaN
-        velocities for ``k < warmup``).
-    """
-    _check_members(surs)
-    ref = surs[0]
-    spec = ref.spec
-    w = ref.window
-    warmup = w if warmup is None else int(warmup)
-    n_step, n_joint = u.shape
-    theta_hat = [np.asarray(theta[k], dtype=np.float64) for k in range(warmup)]
-    omega_hat = [np.full(n_joint, np.nan) for _ in range(warmup)]
-    limits = ref.limits_np()
-    zs = ref.norm.play_from_rest_np(u, spec)
-    windows: list[list[np.ndarray]] = [[] for _ in surs]
-    states: list[Any] = [s.net.init_state(1) if s.mode == "stateful" else None for s in surs]
-    for k in range(n_step - 1):
-        omegas = []
-        for m, s in enumerate(surs):
-            x = s.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k])
-            t = {"dtype": s.dtype, "device": s.device}
-            if s.mode == "windowed":
-                windows[m].append(x)
-                if len(windows[m]) > w:
-                    windows[m].pop(0)
-                if k + 1 < warmup:
-                    continue
-                while len(windows[m]) < w:
-                    windows[m].insert(0, windows[m][0])
-                y = s.net(torch.tensor(np.array(windows[m])[None], **t))[0]
-            else:
-                y, states[m] = s.net.step(torch.tensor(x[None], **t), states[m])
-                y = y[0]
-                if k + 1 < warmup:
-                    continue
-            omegas.append(_np(y) * _np(s.norm.y_std) + _np(s.norm.y_mean))
-        if k + 1 < warmup:
-            continue
-        omega = np.mean(omegas, axis=0)
-        theta_next, omega = integrate_np(theta_hat[k], omega, dt=spec.dt, limits=limits)
-        omega_hat.append(omega)
-        theta_hat.append(theta_next)
-    return np.array(theta_hat), np.array(omega_hat)

@@ -11,7 +11,8 @@ are used.  Outputs for ``k < W`` are the recorded angles and NaN velocities.
 - :func:`rollout`: batched rollout of equal-length arrays; :func:`rollout_episodes` pads
   episodes of different lengths (causal, so padding never changes earlier samples).
 - :func:`rollout_reference`: plain loop, one episode, one step at a time, Python-list window,
-  NumPy features -- the reference the batched rollout is tested against.
+  NumPy features -- the reference the batched rollout is tested against (given a list of
+  seed-ensemble members, it averages their omega: the reference of a merged ensemble).
 - :func:`window_rollout`: the differentiable H-step windowed rollout used by the training loss.
 """
 
@@ -26,6 +27,7 @@ import torch
 
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
+from .ensemble import check_members
 from .features import Normalization, integrate, integrate_np, omega_target
 from .model import State, Surrogate
 
@@ -291,7 +293,7 @@ def rollout_episodes(
 
 @torch.no_grad()
 def rollout_reference(
-    sur: Surrogate,
+    sur: Surrogate | Sequence[Surrogate],
     theta: np.ndarray,
     u: np.ndarray,
     *,
@@ -301,43 +303,56 @@ def rollout_reference(
     """Plain-loop reference rollout of ONE sequence, one step at a time.
 
     Args:
+        sur: the surrogate, or the members of a seed ensemble: each member is stepped on its
+            own, in its own normalisation, and the members' omega is averaged in NumPy before
+            the angle is integrated (the oracle of :func:`.ensemble.merge`).
         theta: (>= warmup, n_joint) recorded angles [rad].
         u: (n_step, n_joint) recorded commands.
 
     Returns:
         ``theta_hat``, ``omega_hat``: (n_step, n_joint), as :func:`rollout`.
     """
-    warmup = sur.window if warmup is None else int(warmup)
-    mode = mode or sur.mode
-    spec = sur.spec
-    dtype, device = sur.dtype, sur.device
+    surs = [sur] if isinstance(sur, Surrogate) else list(sur)
+    if len(surs) > 1:
+        check_members(surs)
+    ref = surs[0]
+    w = ref.window
+    warmup = w if warmup is None else int(warmup)
+    mode = mode or ref.mode
+    spec = ref.spec
     n_step, n_joint = u.shape
-    y_std = sur.norm.y_std.double().cpu().numpy()
-    y_mean = sur.norm.y_mean.double().cpu().numpy()
     theta_hat = [np.asarray(theta[k], dtype=np.float64) for k in range(warmup)]
     omega_hat = [np.full(n_joint, np.nan) for _ in range(warmup)]
-    limits = sur.limits_np()
-    window: list[np.ndarray] = []
-    state = sur.net.init_state(1) if mode == "stateful" else None
-    zs = sur.norm.play_from_rest_np(u, spec)  # commands only: independent of the loop
+    limits = ref.limits_np()
+    windows: list[list[np.ndarray]] = [[] for _ in surs]
+    states = [s.net.init_state(1) if mode == "stateful" else None for s in surs]
+    zs = ref.norm.play_from_rest_np(u, spec)  # commands only: independent of the loop
     for k in range(n_step - 1):
-        x = sur.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k])
-        xt = torch.tensor(x, dtype=dtype, device=device)
-        if mode == "windowed":
-            window.append(x)
-            if len(window) > sur.window:
-                window.pop(0)
-            if k + 1 < warmup:
-                continue
-            while len(window) < sur.window:  # only if warmup < window
-                window.insert(0, window[0])
-            y = sur.net(torch.tensor(np.array(window)[None], dtype=dtype, device=device))[0]
-        else:
-            y, state = sur.net.step(xt[None], state)
-            y = y[0]
-            if k + 1 < warmup:
-                continue
-        omega = y.double().cpu().numpy() * y_std + y_mean
+        omegas = []
+        for m, s in enumerate(surs):
+            x = s.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k])
+            t = {"dtype": s.dtype, "device": s.device}
+            if mode == "windowed":
+                window = windows[m]
+                window.append(x)
+                if len(window) > w:
+                    window.pop(0)
+                if k + 1 < warmup:
+                    continue
+                while len(window) < w:  # only if warmup < window
+                    window.insert(0, window[0])
+                y = s.net(torch.tensor(np.array(window)[None], **t))[0]
+            else:
+                y, states[m] = s.net.step(torch.tensor(x[None], **t), states[m])
+                y = y[0]
+                if k + 1 < warmup:
+                    continue
+            y_std = s.norm.y_std.double().cpu().numpy()
+            y_mean = s.norm.y_mean.double().cpu().numpy()
+            omegas.append(y.double().cpu().numpy() * y_std + y_mean)
+        if k + 1 < warmup:
+            continue
+        omega = np.mean(omegas, axis=0)
         theta_next, omega = integrate_np(theta_hat[k], omega, dt=spec.dt, limits=limits)
         omega_hat.append(omega)
         theta_hat.append(theta_next)
