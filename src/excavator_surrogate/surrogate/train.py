@@ -579,6 +579,37 @@ def _usable(episodes: list[Episode], n_min: int, split: str) -> list[Episode]:
     return keep
 
 
+def _episodes(cfg: TrainConfig, dataset: Dataset) -> tuple[list[Episode], list[Episode]]:
+    """The training and validation episodes long enough for ``cfg`` (validation falls back to
+    the training episodes, with a warning).
+
+    Raises:
+        DataError: no training episode is long enough.
+    """
+    n_min = cfg.window + cfg.horizon + 1 if cfg.mode == "windowed" else cfg.seq_len + 1
+    train_eps = _usable(dataset.train, n_min, "train")
+    if cfg.mode == "stateful" and not train_eps and dataset.train:
+        longest = max(e.n_step for e in dataset.train)
+        raise DataError(
+            dataset.root,
+            f"every training episode is shorter than seq_len + 1 = {n_min} (longest {longest})",
+            fix="lower [train] seq_len",
+        )
+    if not train_eps:
+        raise DataError(
+            dataset.root,
+            f"no training episode with at least {n_min} samples",
+            fix="add training episodes or lower window/horizon",
+        )
+    val_eps = _usable(dataset.val, cfg.window + 2, "val")
+    if not val_eps:
+        log(
+            "no usable validation episodes: validating on the training episodes (model selection is optimistic)"
+        )
+        val_eps = train_eps
+    return train_eps, val_eps
+
+
 def train(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -637,27 +668,7 @@ def train(
     if cfg.num_threads > 0:
         torch.set_num_threads(cfg.num_threads)
     spec = dataset.spec
-    n_min = cfg.window + cfg.horizon + 1 if cfg.mode == "windowed" else cfg.seq_len + 1
-    train_eps = _usable(dataset.train, n_min, "train")
-    if cfg.mode == "stateful" and not train_eps and dataset.train:
-        longest = max(e.n_step for e in dataset.train)
-        raise DataError(
-            dataset.root,
-            f"every training episode is shorter than seq_len + 1 = {n_min} (longest {longest})",
-            fix="lower [train] seq_len",
-        )
-    if not train_eps:
-        raise DataError(
-            dataset.root,
-            f"no training episode with at least {n_min} samples",
-            fix="add training episodes or lower window/horizon",
-        )
-    val_eps = _usable(dataset.val, cfg.window + 2, "val")
-    if not val_eps:
-        log(
-            "no usable validation episodes: validating on the training episodes (model selection is optimistic)"
-        )
-        val_eps = train_eps
+    train_eps, val_eps = _episodes(cfg, dataset)
     val_steps = cfg.val_steps or None
 
     torch.manual_seed(cfg.seed)
@@ -916,6 +927,7 @@ def train_ensemble(
     from .checkpoint import load_checkpoint
     from .ensemble import merge
 
+    _, val_eps = _episodes(cfg, dataset)  # bad data fails here, before any member starts
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     cfgs = member_configs(cfg)
@@ -945,8 +957,6 @@ def train_ensemble(
     members = [load_checkpoint(b) for b in bests]
     sur = merge(members)
     sur.train_config = to_dict(cfg)
-    n_min = cfg.window + cfg.horizon + 1 if cfg.mode == "windowed" else cfg.seq_len + 1
-    val_eps = _usable(dataset.val, cfg.window + 2, "val") or _usable(dataset.train, n_min, "train")
     val = free_run_error(sur, val_eps, max_steps=cfg.val_steps or None)
     rows: list[dict[str, Any]] = []
     for i, m in enumerate(members):
