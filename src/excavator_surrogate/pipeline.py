@@ -310,6 +310,8 @@ def render_report(
     table_md: str,
 ) -> str:
     """The human-readable ``report.md`` of a run."""
+    from .evaluate.metrics import min_r2
+
     run = metrics.get("run", {})
     lines = [f"# exsur run: preset `{name}`", ""]
     th = metrics["theta"]
@@ -399,18 +401,10 @@ def render_report(
             "|---|" + "---|" * (len(spec_names) + 2),
         ]
         for label, m in em.items():
-            worst_t = min(
-                (m["theta"][j]["r2"] for j in spec_names),
-                key=lambda v: v if v is not None else -1e9,
-            )
-            worst_o = min(
-                (m["omega"][j]["r2"] for j in spec_names),
-                key=lambda v: v if v is not None else -1e9,
-            )
             lines.append(
                 f"| {label} | "
                 + " | ".join(_fmt(m["theta"][j]["r2"]) for j in spec_names)
-                + f" | {_fmt(worst_t)} | {_fmt(worst_o)} |"
+                + f" | {_fmt(min_r2(m, 'theta'))} | {_fmt(min_r2(m, 'omega'))} |"
             )
         lines.append("")
     lines += [

@@ -30,13 +30,7 @@ def run(args: argparse.Namespace) -> int:
 
     members = [load_checkpoint(p) for p in args.ckpts]
     sur = merge(members, name=args.name)
-    sur.metrics = {
-        **(sur.metrics or {}),
-        "ensemble": {
-            **sur.metrics["ensemble"],
-            "sources": [str(p) for p in args.ckpts],
-        },
-    }
+    sur.metrics["ensemble"]["sources"] = [str(p) for p in args.ckpts]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     out = save_checkpoint(args.out, sur)
     print(
