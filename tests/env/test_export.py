@@ -15,6 +15,25 @@ from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.surrogate.features import joint_limits
 
 
+def _step_side_by_side(
+    stepper: OnnxStepper, engine: SurrogateEngine, *, n_step: int, seed: int
+) -> np.ndarray:
+    """Reset both runtimes at the same random poses, step them with the same random commands
+    and assert they agree every step; returns the last angles (n_envs, 4)."""
+    n = engine.n_envs
+    rng = np.random.default_rng(seed)
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    stepper.reset(theta0)
+    engine.reset(theta0)
+    for _ in range(n_step):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        th, om = stepper.step(u)
+        th_t, om_t = engine.step(u)
+        np.testing.assert_allclose(om, om_t.numpy(), atol=2e-4, rtol=0)
+        np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+    return th
+
+
 @pytest.mark.parametrize(
     ("mode", "cell", "exporter"),
     [
@@ -49,17 +68,7 @@ def test_onnx_stepper_matches_torch(
     assert names == expect + (["z"] if play else [])
     stepper = OnnxStepper(path)
     assert stepper.spec == sur.spec and stepper.mode == mode
-    engine = SurrogateEngine(sur, n_envs=5)
-    rng = np.random.default_rng(0)
-    theta0 = rng.uniform(-0.3, 0.3, (5, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
-    stepper.reset(theta0)
-    engine.reset(theta0)
-    for _ in range(40):
-        u = rng.uniform(-1000, 1000, (5, 4))
-        th, om = stepper.step(u)
-        th_t, om_t = engine.step(u)
-        np.testing.assert_allclose(om, om_t.numpy(), atol=2e-4, rtol=0)
-        np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+    th = _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=5), n_step=40, seed=0)
     if end_stops:  # driven into the stops: both runtimes rest on them
         assert (
             np.isclose(th, joint_limits(sur.spec)[0]) | np.isclose(th, joint_limits(sur.spec)[1])
@@ -106,14 +115,4 @@ def test_onnx_runs_a_merged_ensemble(make_surrogate, tmp_path: Path) -> None:
     kw = dict(mode="stateful", play=(0.05, 0.2))
     sur = merge([make_surrogate(seed=0, **kw), make_surrogate(seed=1, hidden=8, **kw)])
     stepper = OnnxStepper(export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript"))
-    engine = SurrogateEngine(sur, n_envs=2)
-    rng = np.random.default_rng(1)
-    theta0 = rng.uniform(-0.3, 0.3, (2, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
-    stepper.reset(theta0)
-    engine.reset(theta0)
-    for _ in range(30):
-        u = rng.uniform(-1000, 1000, (2, 4))
-        th, om = stepper.step(u)
-        th_t, om_t = engine.step(u)
-        np.testing.assert_allclose(om, om_t.numpy(), atol=2e-4, rtol=0)
-        np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+    _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=2), n_step=30, seed=1)

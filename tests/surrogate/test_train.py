@@ -108,29 +108,22 @@ def test_training_reduces_free_run_error(tmp_path, mode, factor):
 
 def test_resume_continues_epochs_and_budget_stops(tmp_path):
     ds = tiny_dataset(2, n_train=2, n_step=120)
-    kw = dict(
-        window=5,
-        hidden=8,
-        head_hidden=8,
-        mode="stateful",
-        seq_len=40,
-        burn_in=5,
-        tbptt=10,
-        feedback="free",
-        teacher_epochs=1,
-    )
+    kw = dict(feedback="free", teacher_epochs=1)
     train(
-        TrainConfig(epochs=2, tensorboard=True, **kw), ds, out=tmp_path / "a", show_progress=False
+        tiny_stateful_config(epochs=2, tensorboard=True, **kw),
+        ds,
+        out=tmp_path / "a",
+        show_progress=False,
     )
     assert (tmp_path / "a" / "tb").is_dir()
     hist = read_checkpoint(tmp_path / "a" / "last.pt")["history"]
     assert all(math.isfinite(h["train_loss"]) for h in hist)
-    cfg3 = TrainConfig(epochs=3, tensorboard=False, **kw)
+    cfg3 = tiny_stateful_config(epochs=3, **kw)
     train(cfg3, ds, out=tmp_path / "a", resume=tmp_path / "a" / "last.pt", show_progress=False)
     hist = read_checkpoint(tmp_path / "a" / "last.pt")["history"]
     assert [h["epoch"] for h in hist] == [0, 1, 2]
     with pytest.raises(CheckpointError, match="architecture"):
-        bad = TrainConfig(**{**kw, "hidden": 9}, epochs=3, tensorboard=False)
+        bad = tiny_stateful_config(hidden=9, epochs=3, **kw)
         train(bad, ds, out=tmp_path / "b", resume=tmp_path / "a" / "last.pt", show_progress=False)
     quick = TrainConfig(
         window=5, hidden=8, head_hidden=8, epochs=50, max_train_seconds=1e-3, tensorboard=False
