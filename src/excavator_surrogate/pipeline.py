@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -83,6 +83,9 @@ class RunConfig:
     """Which of the paper's tables to show alongside."""
     fusion_figures: bool = True
     """With ``clean``: draw the Figure-3-style fusion plot per joint of the first test episode."""
+    auto_train: bool = False
+    """Choose the training config from the data (the recipe of ``exsur train DATASET`` without
+    a preset); keys of the preset's ``[train]`` table override its choices."""
 
 
 def _stage_configs(preset: Mapping[str, Any], where: str) -> dict[str, Any]:
@@ -117,6 +120,8 @@ def run_pipeline(
     max_train_seconds: float | None = None,
     epochs: int | None = None,
     members: int | None = None,
+    logs: Sequence[str | Path] | None = None,
+    mapping: str | Path | None = None,
 ) -> dict[str, Any]:
     """Run the whole pipeline for a preset and write the report folder ``out``.
 
@@ -130,6 +135,8 @@ def run_pipeline(
         max_train_seconds: overrides the training wall-time budget (per model).
         epochs: overrides the maximum number of epochs.
         members: overrides the seed-ensemble size of every trained model (1: single networks).
+        logs: import these logs (files, folders, globs) with ``mapping`` instead of simulating.
+        mapping: the mapping TOML of ``logs`` (see ``docs/import.md``).
 
     Returns:
         The content of ``metrics.json``.
@@ -140,6 +147,10 @@ def run_pipeline(
     from .surrogate.train import train
 
     t_start = time.monotonic()
+    if (logs is None) != (mapping is None):
+        raise ConfigError("--logs and --mapping go together: give both, or neither")
+    if logs is not None and data is not None:
+        raise ConfigError("give either --logs (with --mapping) or --data, not both")
     raw_preset = load_preset(preset)
     name = str(raw_preset.get("name", preset))
     cfgs = _stage_configs(raw_preset, f"preset '{name}'")
@@ -160,6 +171,7 @@ def run_pipeline(
     if members is not None:
         train_over["members"] = int(members)
     train_cfg = dataclasses.replace(cfgs["train"], **train_over)
+    recipe: list[str] = []
     eval_cfg = cfgs["evaluate"]
     timings: dict[str, float] = {}
     out = Path(out)
@@ -167,7 +179,14 @@ def run_pipeline(
     with atomic_dir(out) as tmp:
         # ---- simulate (or take the user's dataset) --------------------------------------
         t0 = time.monotonic()
-        if data is None:
+        if logs is not None:
+            from .ingest.mapping import load_mapping
+            from .ingest.pipeline import import_logs
+
+            log(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
+            import_logs(list(logs), load_mapping(mapping), out=tmp / "data", quiet=True)
+            data_dir = tmp / "data"
+        elif data is None:
             log(f"run[{name}]: simulate -> {out / 'data'}")
             data_dir = simulate_dataset(sim_cfg, out=tmp / "data", extra={"preset": name})
         else:
@@ -176,6 +195,20 @@ def run_pipeline(
         timings["simulate"] = time.monotonic() - t0
         raw_ds = load_dataset(data_dir)
         train_ds = raw_ds
+        if run_cfg.auto_train:
+            from .surrogate.auto import auto_config
+
+            train_cfg, recipe = auto_config(
+                raw_ds, overrides={**raw_preset.get("train", {}), **train_over}
+            )
+            for line in recipe:
+                log(f"run[{name}]: recipe: {line}")
+        if not raw_ds.split(eval_cfg.split) and raw_ds.val:
+            log(
+                f"run[{name}]: the dataset has no '{eval_cfg.split}' split: evaluating on 'val', "
+                "which also selected the checkpoint (optimistic)"
+            )
+            eval_cfg = dataclasses.replace(eval_cfg, split="val")
         result_extra: dict[str, Any] = {}
 
         # ---- clean ----------------------------------------------------------------------
@@ -255,6 +288,7 @@ def run_pipeline(
         metrics["run"] = {
             **metrics.get("run", {}),
             "preset": name,
+            "split": eval_cfg.split,
             "timings_s": {k: round(v, 1) for k, v in timings.items()},
             "out": str(out),
         }
@@ -264,10 +298,17 @@ def run_pipeline(
             if md.exists():
                 write_text(md, md.read_text().replace(str(tmp), str(out)))
         write_json(tmp / "metrics.json", metrics)
-        used = {**cfgs, "simulate": sim_cfg, "train": train_cfg}  # with the CLI overrides applied
+        # with the CLI overrides (and the data-driven recipe) applied
+        used = {**cfgs, "simulate": sim_cfg, "train": train_cfg, "evaluate": eval_cfg}
+        if logs is not None or data is not None:
+            used.pop("simulate")
         record = {"name": name, **{k: to_dict(v) for k, v in used.items()}}
         if data is not None:
             record["data"] = str(data)
+        if logs is not None:
+            record["logs"] = {"sources": [str(p) for p in logs], "mapping": str(mapping)}
+        if recipe:
+            record["recipe"] = {"name": "auto", "why": recipe}
         write_text(tmp / "config.toml", dumps_toml(record))
         write_text(
             tmp / "report.md",
@@ -319,7 +360,8 @@ def render_report(
     worst_theta = min(v["r2"] for v in th.values() if v.get("r2") is not None)
     worst_omega = min(v["r2"] for v in om.values() if v.get("r2") is not None)
     lines += [
-        f"Closed-loop free run on the test split ({run.get('n_step_scored', '?')} scored steps, "
+        f"Closed-loop free run on the {run.get('split', 'test')} split "
+        f"({run.get('n_step_scored', '?')} scored steps, "
         f"reference: {run.get('reference', '?')}): **worst-joint angle R² {worst_theta:.4f}, "
         f"worst-joint ω R² {worst_omega:.4f}**.",
         "",

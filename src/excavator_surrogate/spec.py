@@ -34,11 +34,18 @@ class JointSpec:
     """Upper joint limit [rad], or None if unlimited."""
     u_unit: str = "command"
     """Physical meaning of the command (``command``, ``%``, ``Nm`` ...)."""
+    omega_max: float | None = None
+    """Largest angular speed the joint reaches [rad/s], or None if unknown; free runs clip the
+    predicted velocity to ``[-omega_max, omega_max]``."""
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name):
             raise ConfigError(
                 f"joint name '{self.name}' is invalid: use lower-case letters, digits and '_'"
+            )
+        if self.omega_max is not None and not self.omega_max > 0:
+            raise ConfigError(
+                f"joint '{self.name}': omega_max ({self.omega_max}) must be positive or None"
             )
         if not self.u_max > self.u_min:
             raise ConfigError(
@@ -128,7 +135,9 @@ class MachineSpec:
                 meta=dict(d.get("meta", {})),
             )
         except (KeyError, TypeError) as e:
-            raise ConfigError(f"malformed machine spec ({e}): expected keys name, rate_hz, joints") from e
+            raise ConfigError(
+                f"malformed machine spec ({e}): expected keys name, rate_hz, joints"
+            ) from e
 
 
 def excavator_spec(rate_hz: float = 20.0) -> MachineSpec:

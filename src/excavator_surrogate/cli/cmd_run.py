@@ -26,9 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--preset",
-        default=DEFAULT_PRESET,
+        default=None,
         metavar="NAME|FILE.toml",
-        help=f"preset (default: {DEFAULT_PRESET}; e.g. paper-stage1, quick-noload, paper-compound)",
+        help=f"preset (default: {DEFAULT_PRESET}, or 'real' with --logs; e.g. paper-stage1, "
+        "quick-noload, paper-compound)",
     )
     p.add_argument(
         "--data",
@@ -36,6 +37,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="DATASET",
         help="train and evaluate on this dataset instead of simulating",
+    )
+    p.add_argument(
+        "--logs",
+        nargs="+",
+        default=None,
+        metavar="PATH",
+        help="your machine's logs (files, folders or quoted globs): import them with --mapping "
+        "and train the data-driven recipe (preset 'real' unless --preset is given)",
+    )
+    p.add_argument(
+        "--mapping",
+        type=Path,
+        default=None,
+        metavar="MAP.toml",
+        help="the mapping file of --logs (see docs/import.md)",
     )
     p.add_argument("--workers", type=int, default=None, metavar="N", help="simulation processes")
     p.add_argument(
@@ -62,11 +78,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
     from ..evaluate.metrics import min_r2
-    from ..pipeline import run_pipeline
+    from ..pipeline import DEFAULT_PRESET, run_pipeline
 
+    preset = args.preset or ("real" if args.logs else DEFAULT_PRESET)
     metrics = run_pipeline(
         out=args.out,
-        preset=args.preset,
+        preset=preset,
+        logs=args.logs,
+        mapping=args.mapping,
         data=args.data,
         workers=args.workers,
         seed=args.seed,

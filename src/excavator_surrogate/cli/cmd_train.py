@@ -22,7 +22,12 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--preset", default=None, help="preset name or .toml path ([train] table)")
+    p.add_argument(
+        "--preset",
+        default=None,
+        help="preset name or .toml path ([train] table); default: a recipe chosen from the "
+        "dataset's sizes, rate and episode lengths (docs/real.md)",
+    )
     p.add_argument("--mode", choices=("windowed", "stateful"), default=None, help="training mode")
     p.add_argument("--cell", choices=("lstm", "gru"), default=None, help="recurrent cell")
     p.add_argument("--epochs", type=int, default=None, help="maximum epochs")
@@ -54,25 +59,31 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the best checkpoint path."""
-    from ..config import load_preset
+    from ..config import dumps_toml, load_preset
     from ..data.dataset import load_dataset
-    from ..io_utils import log
+    from ..io_utils import log, write_text
     from ..scale.ddp import distributed_env, init_distributed, shutdown
+    from ..surrogate.auto import auto_config, recipe_record
     from ..surrogate.checkpoint import read_checkpoint
     from ..surrogate.train import TrainConfig, train
 
-    preset = load_preset(args.preset) if args.preset else {}
-    cfg = TrainConfig.from_preset(
-        preset,
-        mode=args.mode,
-        cell=args.cell,
-        epochs=args.epochs,
-        max_train_seconds=args.max_train_seconds,
-        seed=args.seed,
-        device=args.device,
-        members=args.members,
-    )
+    over = {
+        "mode": args.mode,
+        "cell": args.cell,
+        "epochs": args.epochs,
+        "max_train_seconds": args.max_train_seconds,
+        "seed": args.seed,
+        "device": args.device,
+        "members": args.members,
+    }
     dataset = load_dataset(args.dataset, splits=("train", "val"))
+    why: list[str] = []
+    if args.preset:
+        cfg = TrainConfig.from_preset(load_preset(args.preset), **over)
+    else:
+        cfg, why = auto_config(dataset, overrides={k: v for k, v in over.items() if v is not None})
+        for line in why:
+            log(f"recipe: {line}")
     dist = None
     if args.ddp or distributed_env():
         dist = init_distributed(device=cfg.device, require=args.ddp)
@@ -82,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
         shutdown(dist)
     if dist is not None and not dist.is_main:
         return 0
+    if not args.preset:  # record why the recipe chose what it did next to the config
+        write_text(Path(args.out) / "config.toml", dumps_toml(recipe_record(cfg, why)))
     m = read_checkpoint(best).get("metrics", {})
     ens = m.get("ensemble")
     which = f"{ens['n_member']}-member ensemble" if ens else f"epoch {m.get('epoch')}"

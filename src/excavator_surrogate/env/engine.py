@@ -141,19 +141,21 @@ def play_and_features(
 
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
-    """Register the surrogate's end stops on ``module`` as float32 buffers ``theta_lo`` /
-    ``theta_hi`` (n_joint,) [rad], or None when it has none (they then stay out of the graph)."""
+    """Register the surrogate's envelope on ``module`` as float32 buffers ``theta_lo`` /
+    ``theta_hi`` (n_joint,) [rad] and ``omega_max`` (n_joint,) [rad/s], each None when the
+    surrogate has none (they then stay out of the graph)."""
     lim = sur.limits_np()
-    for name, k in (("theta_lo", 0), ("theta_hi", 1)):
-        module.register_buffer(
-            name, None if lim is None else torch.tensor(lim[k], dtype=torch.float32)
-        )
+    for name, k in (("theta_lo", 0), ("theta_hi", 1), ("omega_max", 2)):
+        has = lim is not None and k < len(lim)
+        module.register_buffer(name, torch.tensor(lim[k], dtype=torch.float32) if has else None)
 
 
-def end_stops(module: nn.Module) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """The ``(theta_lo, theta_hi)`` buffers registered by :func:`add_end_stops`, or None."""
-    lo, hi = module.theta_lo, module.theta_hi
-    return None if lo is None else (lo, hi)  # type: ignore[return-value]
+def end_stops(module: nn.Module) -> tuple[torch.Tensor, ...] | None:
+    """The ``(theta_lo, theta_hi[, omega_max])`` buffers of :func:`add_end_stops`, or None."""
+    lo, hi, w = module.theta_lo, module.theta_hi, module.omega_max
+    if lo is None:
+        return None
+    return (lo, hi) if w is None else (lo, hi, w)  # type: ignore[return-value]
 
 
 class FusedStep(nn.Module):
@@ -330,7 +332,7 @@ class SurrogateEngine:
         self.norm = sur.norm.to(self.device, torch.float32)
         self.z = torch.zeros(self.n_envs, self.norm.n_play, n_joint, device=self.device)
         lim = sur.limits()
-        self._limits = None if lim is None else (lim[0].double(), lim[1].double())
+        self._limits = None if lim is None else tuple(a.double() for a in lim)
         if self.mode == "stateful":
             if sur.model_cfg.cell not in ("lstm", "gru"):
                 raise ConfigError(

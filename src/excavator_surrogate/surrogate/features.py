@@ -74,30 +74,52 @@ def joint_limits(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray]:
     return np.array(lo), np.array(hi)
 
 
+def speed_limits(spec: MachineSpec) -> np.ndarray:
+    """Largest angular speed per joint ``(n_joint,)`` [rad/s]; ``+inf`` where the spec has none."""
+    return np.array([math.inf if j.omega_max is None else float(j.omega_max) for j in spec.joints])
+
+
+def envelope(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The machine's physical envelope ``(lo, hi, omega_max)``, each ``(n_joint,)``: end stops
+    [rad] (:func:`joint_limits`) and speed bounds [rad/s] (:func:`speed_limits`)."""
+    lo, hi = joint_limits(spec)
+    return lo, hi, speed_limits(spec)
+
+
+Limits = tuple[torch.Tensor, torch.Tensor] | tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+"""``(lo, hi)`` end stops [rad], optionally with ``omega_max`` [rad/s], each (n_joint,)."""
+
+
 def integrate(
     theta: torch.Tensor,
     omega: torch.Tensor,
     *,
     dt: float,
-    limits: tuple[torch.Tensor, torch.Tensor] | None = None,
+    limits: Limits | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """One integration step of the closed loop, with optional end stops.
+    """One integration step of the closed loop, with optional end stops and speed bounds.
 
     Args:
         theta: (..., n_joint) angle ``theta[k]`` [rad].
         omega: (..., n_joint) predicted ``omega[k+1]`` [rad/s].
         dt: sample period T_s [s].
-        limits: ``(lo, hi)``, each (n_joint,) [rad] (see :func:`joint_limits`), or None.
+        limits: ``(lo, hi)`` or ``(lo, hi, omega_max)``, each (n_joint,) (see :func:`envelope`),
+            or None.
 
     Returns:
         ``theta[k+1]`` [rad] and the velocity the sensors would report, ``omega[k+1]`` [rad/s]:
-        the prediction itself, except at an end stop, where it is what was actually travelled.
+        the prediction clipped to ``[-omega_max, omega_max]``, except at an end stop, where it
+        is what was actually travelled.
     """
+    if limits is None:
+        # theta[k+1] = theta[k] + T_s * omega[k+1]
+        return theta + dt * omega, omega
+    lo, hi = limits[0], limits[1]
+    if len(limits) == 3:
+        # omega[k+1] <- min(max(omega[k+1], -omega_max), omega_max)       (speed bound)
+        omega = torch.minimum(torch.maximum(omega, -limits[2]), limits[2])
     # theta[k+1] = theta[k] + T_s * omega[k+1]
     nxt = theta + dt * omega
-    if limits is None:
-        return nxt, omega
-    lo, hi = limits
     # theta[k+1] <- min(max(theta[k+1], theta_min), theta_max)        (end stops)
     stopped = torch.minimum(torch.maximum(nxt, lo), hi)
     hit = stopped != nxt
@@ -111,12 +133,14 @@ def integrate_np(
     omega: np.ndarray,
     *,
     dt: float,
-    limits: tuple[np.ndarray, np.ndarray] | None = None,
+    limits: tuple[np.ndarray, ...] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """NumPy twin of :func:`integrate` (the plain-loop reference uses it)."""
-    nxt = theta + dt * omega
     if limits is None:
-        return nxt, omega
+        return theta + dt * omega, omega
+    if len(limits) == 3:
+        omega = np.minimum(np.maximum(omega, -limits[2]), limits[2])
+    nxt = theta + dt * omega
     stopped = np.minimum(np.maximum(nxt, limits[0]), limits[1])
     hit = stopped != nxt
     return stopped, np.where(hit, (stopped - theta) / dt, omega)

@@ -26,7 +26,7 @@ from torch import nn
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
-from .features import Normalization, joint_limits
+from .features import Normalization, envelope
 
 State = tuple[torch.Tensor, torch.Tensor]
 """Recurrent state ``(h, c)``, each ``(n_layer, n_batch, hidden)``."""
@@ -163,25 +163,29 @@ class Surrogate:
     metrics: dict[str, Any] | None = None
     name: str = "lstm"
     end_stops: bool = False
-    """Clip integrated angles to the spec's joint limits (the machine's mechanical end stops)."""
+    """Keep free runs inside the machine's envelope: clip integrated angles to the spec's joint
+    limits (mechanical end stops) and predicted velocities to its speed bounds."""
 
-    def limits_np(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(lo, hi)`` end stops, each (n_joint,) float64 [rad]; None when ``end_stops`` is off
-        or no joint is limited."""
+    def limits_np(self) -> tuple[np.ndarray, ...] | None:
+        """``(lo, hi)`` end stops, each (n_joint,) float64 [rad], followed by ``omega_max``
+        [rad/s] when the spec bounds any joint's speed; None when ``end_stops`` is off or the
+        spec bounds nothing."""
         if not self.end_stops:
             return None
-        lo, hi = joint_limits(self.spec)
+        lo, hi, w = envelope(self.spec)
+        if np.isfinite(w).any():
+            return lo, hi, w
         if not (np.isfinite(lo).any() or np.isfinite(hi).any()):
             return None
         return lo, hi
 
-    def limits(self) -> tuple[torch.Tensor, torch.Tensor] | None:
+    def limits(self) -> tuple[torch.Tensor, ...] | None:
         """:meth:`limits_np` as tensors on the net's device/dtype."""
         lim = self.limits_np()
         if lim is None:
             return None
         t = {"device": self.device, "dtype": self.dtype}
-        return torch.as_tensor(lim[0], **t), torch.as_tensor(lim[1], **t)
+        return tuple(torch.as_tensor(a, **t) for a in lim)
 
     @property
     def window(self) -> int:

@@ -43,7 +43,7 @@ def window_rollout(
     *,
     n_horizon: int,
     dt: float,
-    limits: tuple[torch.Tensor, torch.Tensor] | None = None,
+    limits: tuple[torch.Tensor, ...] | None = None,
     z_next: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Differentiable H-step windowed rollout (training loss, and the windowed closed loop).
@@ -56,7 +56,7 @@ def window_rollout(
         u_next: (n_batch, n_horizon - 1, n_joint) commands ``u[t+1..t+H-1]`` [command units].
         n_horizon: H, number of predicted steps.
         dt: sample period T_s [s].
-        limits: end stops ``(lo, hi)`` [rad] applied to the integrated angle, or None.
+        limits: the envelope ``(lo, hi[, omega_max])`` applied in the integration, or None.
         z_next: (n_batch, n_horizon - 1, P, n_joint) play states after ``u_next`` (with play
             features only).
 

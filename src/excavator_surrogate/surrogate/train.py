@@ -44,6 +44,7 @@ from ..data.episode import Episode
 from ..errors import CheckpointError, ConfigError, DataError
 from ..io_utils import log, progress, write_text
 from .checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
+from .envelope import fill_envelope
 from .features import Normalization, integrate, omega_target, unwrap_periodic
 from .model import ModelConfig, Surrogate, SurrogateNet
 from .rollout import rollout_episodes, window_rollout
@@ -135,8 +136,15 @@ class TrainConfig:
     """Members trained in parallel processes, each with ``num_threads`` threads (0 = one
     process per member, up to the CPU count; 1 = one after the other in this process)."""
     end_stops: bool = True
-    """Clip free-run angles to the spec's joint limits (mechanical end stops), in training
-    rollouts and in every rollout of the trained model (stored in the checkpoint)."""
+    """Keep free runs inside the machine's envelope: clip angles to the joint limits (end stops)
+    and velocities to the speed bounds, in training rollouts and in every rollout of the trained
+    model (stored in the checkpoint's spec)."""
+    limit_margin: float = 0.02
+    """End stops the spec lacks come from the angle range seen in training, widened by this
+    fraction of the range on each side (negative: none from data)."""
+    speed_margin: float = 0.25
+    """Speed bounds the spec lacks are the largest |omega| seen in training times
+    ``1 + speed_margin`` (negative: none from data)."""
     tensorboard: bool = True
     """Write TensorBoard scalars to ``OUT/tb`` (skipped if tensorboard is not installed)."""
 
@@ -157,6 +165,8 @@ class TrainConfig:
             (self.seq_len > self.burn_in, "seq_len must exceed burn_in"),
             (self.tbptt >= 1, "tbptt must be >= 1"),
             (self.members >= 1, "members must be >= 1"),
+            (math.isfinite(self.limit_margin), "limit_margin must be finite"),
+            (math.isfinite(self.speed_margin), "speed_margin must be finite"),
             (self.member_workers >= 0, "member_workers must be >= 0"),
             (0 < self.plateau_factor < 1, "plateau_factor must be in (0, 1)"),
             (self.cell in ("lstm", "gru"), "cell must be lstm or gru"),
@@ -687,10 +697,22 @@ def train(
             raise CheckpointError(
                 f"{resume}: joints {list(old.spec.names)} differ from the dataset's {list(spec.names)}"
             )
-        net, norm = old.net, old.norm
+        net, norm, spec = old.net, old.norm, old.spec
         ts = ck.get("train_state")
         history = list(ck.get("history") or [])
     else:
+        if cfg.end_stops:
+            spec, bounds = fill_envelope(
+                spec, train_eps, limit_margin=cfg.limit_margin, speed_margin=cfg.speed_margin
+            )
+            for name, b in bounds.items():
+                got = [
+                    k for k in ("theta_min", "theta_max", "omega_max") if b[f"{k}_source"] == "data"
+                ]
+                if got:
+                    say(
+                        f"{name}: {', '.join(f'{k} {b[k]:.4g}' for k in got)} from the training data"
+                    )
         norm = Normalization.fit(
             [e.theta for e in train_eps], [e.u for e in train_eps], spec, play=cfg.play
         )

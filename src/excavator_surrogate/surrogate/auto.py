@@ -1,0 +1,140 @@
+"""``exsur train DATASET`` without a preset: a training recipe chosen from the data.
+
+Real logs are not the simulator's long multisine episodes.  They are many short runs (a step
+from rest that ends against an end stop after 100-2000 samples), on a machine whose limits
+nobody wrote down, at whatever rate the user resampled to.  :func:`auto_config` reads the
+dataset's sizes, rate and episode lengths and returns a complete :class:`TrainConfig` plus a
+list of one-line reasons (logged and recorded in ``config.toml``).
+
+The recipe, and the measurement behind each choice, is documented in ``docs/real.md``:
+
+- the paper's network (2 x 128 LSTM, FC-ReLU-linear head, window W = 30 samples; W shrinks
+  for data whose episodes are too short for it);
+- ``stateful`` training with free-run feedback: every sub-sequence is rolled out closed loop
+  after a burn-in of W recorded samples, so the loss is the free-run error the user sees;
+  the sub-sequence length follows the episode lengths so that no short run is dropped;
+- a wall-time budget (the cosine learning-rate schedule ends with it) and an exponential
+  moving average of the weights, so the selected checkpoint does not depend on one lucky
+  epoch; selection by the whole-episode validation free run;
+- a seed ensemble of ``members`` networks trained side by side, one per core;
+- the envelope (end stops and speed bounds) from the spec, else from the training data.
+
+Every field can still be overridden: ``auto_config(ds, overrides={"members": 1})``, or on
+the command line ``exsur train DATA --members 1``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ..config import from_dict, to_dict
+from ..data.dataset import Dataset
+from ..errors import DataError
+from .train import TrainConfig
+
+TRAIN_BUDGET_S = 540.0
+"""Wall time of the whole training (every member) on the reference 2-core machine [s]."""
+WINDOW = 30
+"""The paper's window W [samples] (also the warm-up of every free run)."""
+MIN_WINDOW = 8
+"""Smallest window the recipe shrinks to for very short episodes [samples]."""
+SHORT_QUANTILE = 0.02
+"""Episodes below this quantile of the training lengths may be too short for the sub-sequence
+length; longer ones never are."""
+MAX_SEQ_LEN = 150
+"""Longest training sub-sequence including the burn-in [samples]."""
+
+
+def cpu_count() -> int:
+    """CPUs this process may use."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def auto_config(
+    dataset: Dataset,
+    *,
+    overrides: Mapping[str, Any] | None = None,
+    cpus: int | None = None,
+    budget_s: float = TRAIN_BUDGET_S,
+) -> tuple[TrainConfig, list[str]]:
+    """The training recipe for ``dataset`` (see the module docstring).
+
+    Args:
+        dataset: the training data (``train`` split required; ``val`` used for selection).
+        overrides: ``[train]`` fields that replace the recipe's choices (strictly checked).
+        cpus: CPUs to plan for (default: those this process may use).
+        budget_s: wall time of the whole training, all members [s].
+
+    Returns:
+        The config and one reason per choice, e.g. ``"window 30: the paper's W"``.
+
+    Raises:
+        DataError: no training episode.
+    """
+    lengths = np.array([e.n_step for e in dataset.train])
+    if lengths.size == 0:
+        raise DataError(dataset.root, "has no training episodes", fix="import or simulate some")
+    cpus = cpus or cpu_count()
+    why: list[str] = []
+    short = int(np.quantile(lengths, SHORT_QUANTILE, method="lower"))
+    window = WINDOW
+    if short < 3 * WINDOW:
+        window = max(MIN_WINDOW, short // 3)
+        why.append(f"window {window}: the shortest runs hold {short} samples (paper: 30)")
+    else:
+        why.append(f"window {window}: the paper's W")
+    seq_len = int(min(MAX_SEQ_LEN, short - 1))
+    seq_len = max(seq_len, window + 10)
+    n_drop = int((lengths < seq_len + 1).sum())
+    why.append(
+        f"stateful, free-run feedback, sub-sequences of {seq_len} samples incl. a {window}-sample "
+        f"burn-in: the episodes hold {lengths.min()}-{lengths.max()} samples"
+        + (f" ({n_drop} shorter ones are left out)" if n_drop else " (none is left out)")
+    )
+    members = 2 if cpus >= 2 else 1
+    workers = min(members, cpus)
+    per_member = budget_s * workers / members
+    why.append(
+        f"seed ensemble of {members} member(s), {workers} in parallel, {per_member:.0f} s each "
+        f"({budget_s:.0f} s of training in all on {cpus} CPU(s))"
+    )
+    why.append("envelope: end stops and speed bounds from the spec, else from the training data")
+    cfg = TrainConfig(
+        window=window,
+        hidden=128,
+        layers=2,
+        head_hidden=128,
+        mode="stateful",
+        feedback="free",
+        teacher_epochs=1,
+        seq_len=seq_len,
+        burn_in=window,
+        tbptt=10,
+        seq_batch=16,
+        lr=1e-3,
+        lr_schedule="cosine",
+        min_lr=1e-5,
+        epochs=1000,
+        patience=1000,
+        ema_decay=0.999,
+        members=members,
+        member_workers=workers,
+        max_train_seconds=per_member,
+        end_stops=True,
+    )
+    if overrides:
+        merged = {**to_dict(cfg), **dict(overrides)}
+        cfg = from_dict(TrainConfig, merged, where="[train]")
+        why.append("overridden: " + ", ".join(f"{k} = {v!r}" for k, v in overrides.items()))
+    return cfg, why
+
+
+def recipe_record(cfg: TrainConfig, why: list[str]) -> dict[str, Any]:
+    """``{"train": ..., "recipe": {"name": "auto", "why": [...]}}`` for ``config.toml``."""
+    return {"train": to_dict(cfg), "recipe": {"name": "auto", "why": list(why)}}

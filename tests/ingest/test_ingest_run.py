@@ -1,0 +1,83 @@
+"""Users' logs end to end: ``exsur run --logs`` and ``exsur train`` without a preset."""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint
+from excavator_surrogate.surrogate.features import envelope
+
+# The data-driven recipe with a tiny network and one short epoch (the recipe itself is
+# tested in tests/surrogate/test_auto.py).
+TINY = """extends = "real"
+[train]
+hidden = 8
+head_hidden = 8
+layers = 1
+epochs = 1
+members = 1
+max_train_seconds = 0.0
+tensorboard = false
+[evaluate]
+max_figures = 1
+"""
+
+
+def _open_mapping(arm3_dir: Path, tmp_path: Path) -> Path:
+    """arm3.toml without the declared limits (as most users' mappings are)."""
+    text = re.sub(r"^limits = .*$", "", (arm3_dir / "arm3.toml").read_text(), flags=re.M)
+    out = tmp_path / "open.toml"
+    out.write_text(text)
+    return out
+
+
+def test_run_logs_writes_the_report_folder(arm3_dir: Path, tmp_path: Path, cli) -> None:
+    preset = tmp_path / "tiny-real.toml"
+    preset.write_text(TINY)
+    out = tmp_path / "report"
+    mapping = _open_mapping(arm3_dir, tmp_path)
+    rc, _, err = cli(
+        "run", "--logs", arm3_dir / "logs", "--mapping", mapping, "--preset", preset, "--out", out
+    )
+    assert rc == 0, err
+    for f in ("report.md", "metrics.json", "table.md", "cbe.png", "config.toml", "model/best.pt"):
+        assert (out / f).is_file(), f
+    assert (out / "data" / "manifest.json").is_file()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert set(metrics["theta"]) == {"boom", "arm", "bucket"}
+    assert "ARX" in json.dumps(metrics)
+    cfg = tomllib.loads((out / "config.toml").read_text())
+    assert cfg["logs"]["mapping"] == str(mapping)
+    assert cfg["train"]["hidden"] == 8 and cfg["train"]["mode"] == "stateful"
+    assert any("sub-sequences" in w for w in cfg["recipe"]["why"])
+    assert "simulate" not in cfg
+    # the mapping declares no limits: the model's envelope comes from the training data
+    sur = load_checkpoint(out / "model" / "best.pt")
+    lo, hi, w = envelope(sur.spec)
+    assert np.isfinite(lo).all() and np.isfinite(hi).all() and np.isfinite(w).all()
+    assert "recipe" in err
+
+
+def test_run_logs_needs_the_mapping(arm3_dir: Path, tmp_path: Path, cli) -> None:
+    rc, _, err = cli("run", "--logs", arm3_dir / "logs", "--out", tmp_path / "r")
+    assert rc == 2 and "--mapping" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "r").exists()
+
+
+def test_train_without_a_preset_uses_the_recipe(arm3_dir: Path, tmp_path: Path, cli) -> None:
+    ds = tmp_path / "ds"
+    assert (
+        cli("import", arm3_dir / "logs", "--mapping", arm3_dir / "arm3.toml", "--out", ds)[0] == 0
+    )
+    out = tmp_path / "m"
+    rc, stdout, err = cli("train", ds, "--out", out, "--epochs", "1", "--members", "1")
+    assert rc == 0, err
+    assert stdout.strip().endswith("best.pt")
+    cfg = tomllib.loads((out / "config.toml").read_text())
+    assert cfg["recipe"]["name"] == "auto" and cfg["train"]["feedback"] == "free"
+    assert "recipe: window" in err
