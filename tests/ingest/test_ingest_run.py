@@ -79,5 +79,5 @@ def test_train_without_a_preset_uses_the_recipe(arm3_dir: Path, tmp_path: Path, 
     assert rc == 0, err
     assert stdout.strip().endswith("best.pt")
     cfg = tomllib.loads((out / "config.toml").read_text())
-    assert cfg["recipe"]["name"] == "auto" and cfg["train"]["feedback"] == "free"
+    assert cfg["recipe"]["name"] == "auto" and cfg["train"]["mode"] == "stateful"
     assert "recipe: window" in err
