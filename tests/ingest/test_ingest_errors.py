@@ -242,7 +242,7 @@ def test_out_must_be_a_dataset(cli, work, short_cols):
     other.mkdir()
     (other / "keep.txt").write_text("mine")
     rc, _, err = cli("import", log, "--mapping", work / "arm3.toml", "--out", other)
-    assert rc == 2 and "is not an exsur dataset" in err
+    assert rc == 2 and "which exsur did not write" in err
     assert (other / "keep.txt").read_text() == "mine"
 
 

@@ -23,7 +23,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "KIND[:seed=N,seconds=S|n_step=N] (steps, multisine, chirp, prbs, work_cycle), e.g. steps:seed=1",
     )
     p.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: CKPT's folder/compare)"
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: CKPT's folder/compare; new, empty, or an exsur output)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into --out even if it holds files exsur did not write (docs/design.md)",
     )
     p.add_argument(
         "--theta0",
@@ -41,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..env.compare import compare
     from ..errors import ConfigError
+    from ..outdir import check_out_dir
 
     theta0 = None
     if args.theta0:
@@ -50,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--theta0 must be comma-separated numbers in rad, got '{args.theta0}'"
             ) from e
-    out = args.out or args.ckpt.parent / "compare"
+    out = check_out_dir(args.out or args.ckpt.parent / "compare", overwrite=args.overwrite)
     res = compare(
         args.ckpt, args.commands, theta0=theta0, out=out, plant=args.plant, device=args.device
     )

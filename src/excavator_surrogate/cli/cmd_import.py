@@ -35,7 +35,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="mapping file (docs/import.md)",
     )
     p.add_argument(
-        "--out", type=Path, metavar="DIR", help="dataset folder to write (replaced atomically)"
+        "--out",
+        type=Path,
+        metavar="DIR",
+        help="dataset folder to write (new, empty, or an exsur dataset; replaced atomically)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even if it holds files exsur did not write (docs/design.md)",
     )
     p.add_argument(
         "--rate",
@@ -185,6 +193,8 @@ def run(args: argparse.Namespace) -> int:
         options=options,
         split=split,
         quiet=args.quiet,
+        overwrite=args.overwrite,
+        inputs=[args.mapping, *([args.split_file] if args.split_file is not None else [])],
     )
     print(render_markdown(report), end="")
     return 0

@@ -22,7 +22,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         required=True,
         type=Path,
         metavar="DIR",
-        help="report folder (replaced when complete)",
+        help="report folder (new, empty, or an exsur output; replaced when complete)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even if it holds files exsur did not write (docs/design.md)",
     )
     p.add_argument(
         "--preset",
@@ -62,18 +67,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
     from ..evaluate.metrics import min_r2
+    from ..outdir import out_dir, preset_files
     from ..pipeline import run_pipeline
 
-    metrics = run_pipeline(
-        out=args.out,
-        preset=args.preset,
-        data=args.data,
-        workers=args.workers,
-        seed=args.seed,
-        max_train_seconds=args.max_train_seconds,
-        epochs=args.epochs,
-        members=args.members,
-    )
+    inputs = [*preset_files(args.preset), *([args.data] if args.data is not None else [])]
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+        metrics = run_pipeline(
+            out=args.out,
+            preset=args.preset,
+            data=args.data,
+            workers=args.workers,
+            seed=args.seed,
+            max_train_seconds=args.max_train_seconds,
+            epochs=args.epochs,
+            members=args.members,
+        )
     print(
         f"{args.out}: worst-joint angle R² {min_r2(metrics, 'theta'):.4f}, "
         f"worst-joint ω R² {min_r2(metrics, 'omega'):.4f} (report: {args.out / 'report.md'})"

@@ -8,6 +8,7 @@ from typing import Any
 
 from ..config import from_dict, load_preset
 from ..errors import ConfigError
+from ..outdir import out_dir, preset_files
 
 DEFAULT_PRESET = "paper-stage1"
 
@@ -30,7 +31,15 @@ def register(subparsers: Any) -> None:
         f"table (default: {DEFAULT_PRESET})",
     )
     p.add_argument(
-        "--out", required=True, metavar="DIR", help="output dataset folder (replaced when complete)"
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="output dataset folder (new, empty, or an exsur output; replaced when complete)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even if it holds files exsur did not write (docs/design.md)",
     )
     p.add_argument(
         "--workers",
@@ -64,8 +73,9 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--workers must be >= 1, got {args.workers}")
         changes["workers"] = args.workers
     cfg = dataclasses.replace(cfg, **changes)
-    path = simulate_dataset(
-        cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}
-    )
+    with out_dir(args.out, overwrite=args.overwrite, inputs=preset_files(args.preset)):
+        path = simulate_dataset(
+            cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}
+        )
     print(path)
     return 0

@@ -18,7 +18,17 @@ def register(subparsers: Any) -> None:
         "machines join the same study with the same --storage URL and --study name.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (train and val splits)")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="output folder (new, empty, or an exsur output: written into)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into --out even if it holds files exsur did not write (docs/design.md)",
+    )
     p.add_argument("--trials", type=int, required=True, help="trials this worker runs")
     p.add_argument(
         "--storage",
@@ -49,10 +59,12 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
     from ..config import load_preset
+    from ..outdir import check_out_dir
     from ..scale.sweep import SweepConfig, run_sweep
     from ..surrogate.train import TrainConfig
 
     preset = load_preset(args.preset) if args.preset else {}
+    check_out_dir(args.out, overwrite=args.overwrite)
     base = TrainConfig.from_preset(preset, device=args.device)
     scfg = SweepConfig.from_preset(
         preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed

@@ -21,7 +21,17 @@ def register(subparsers: Any) -> None:
         "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml and OUT/tb/.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="output folder (new, empty, or an exsur output: written into)",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="write into --out even if it holds files exsur did not write (docs/design.md)",
+    )
     p.add_argument("--preset", default=None, help="preset name or .toml path ([train] table)")
     p.add_argument("--mode", choices=("windowed", "stateful"), default=None, help="training mode")
     p.add_argument("--cell", choices=("lstm", "gru"), default=None, help="recurrent cell")
@@ -57,8 +67,9 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_preset
     from ..data.dataset import load_dataset
     from ..io_utils import log
+    from ..outdir import check_out_dir
     from ..scale.ddp import distributed_env, init_distributed, shutdown
-    from ..surrogate.checkpoint import read_checkpoint
+    from ..surrogate.checkpoint import check_compatible, load_checkpoint, read_checkpoint
     from ..surrogate.train import TrainConfig, train
 
     preset = load_preset(args.preset) if args.preset else {}
@@ -72,7 +83,11 @@ def run(args: argparse.Namespace) -> int:
         device=args.device,
         members=args.members,
     )
+    check_out_dir(args.out, overwrite=args.overwrite)
+    resumed = load_checkpoint(args.resume) if args.resume is not None else None
     dataset = load_dataset(args.dataset, splits=("train", "val"))
+    if resumed is not None:  # checked before anything is written to --out
+        check_compatible(resumed.spec, dataset.spec, ckpt=args.resume, data_name=args.dataset)
     dist = None
     if args.ddp or distributed_env():
         dist = init_distributed(device=cfg.device, require=args.ddp)

@@ -29,7 +29,8 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..io_utils import write_json, write_text
-from ..spec import MachineSpec
+from ..spec import EXCAVATOR, MachineSpec
+from ..surrogate.checkpoint import check_compatible
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv, check_theta0
 from .safety import GuardConfig
@@ -288,6 +289,16 @@ def compare(
     )
     spec = sur_env.machine
     mj_env = ExcavatorMujocoEnv(plant=plant, spec=spec, guard=no_guard, action_mode="reject")  # type: ignore[arg-type]
+    try:
+        check_compatible(
+            spec,
+            EXCAVATOR.with_rate(mj_env.plant.spec.rate_hz),
+            ckpt=ckpt if not isinstance(ckpt, Surrogate) else sur_env.surrogate.name,
+            data_name="the built-in MuJoCo excavator",
+        )
+    except BaseException:
+        mj_env.close()
+        raise
     if not isinstance(commands, Commands):
         commands = load_commands(commands, spec, theta0=theta0, omega_max=mj_env.plant.omega_max)
     start = theta0 if theta0 is not None else commands.theta0
