@@ -26,6 +26,7 @@ from ..io_utils import atomic_dir, log, progress, write_json, write_text
 from ..outdir import check_out_dir, replace_allowed
 from ..spec import MachineSpec
 from .mapping import DEG, Channel, CommandMap, ImportOptions, JointMap, Mapping, SplitOptions
+from .outliers import screen_angles
 from .report import render_markdown
 from .resample import (
     antialias_sos,
@@ -376,6 +377,7 @@ def convert_log(
         "series": {},
         "filled": {},
         "clipped": {},
+        "outliers": {},
         "velocity": {},
         "notes": [],
         "segments": [],
@@ -407,6 +409,11 @@ def convert_log(
         if n_fill:
             entry["filled"][ch.label] = {"values": n_fill, "runs": n_runs}
         vals[ch] = x
+
+    # spikes and joint limits, on the input samples (before the anti-alias filter)
+    screen_angles(
+        path, raw, vals, mapping, spec.joints, dt_in, policy=options.outliers, entry=entry
+    )
 
     # units
     theta_in: list[np.ndarray] = []
@@ -516,6 +523,7 @@ def convert_log(
                     "velocity": dict(entry["velocity"]),
                     "filled": dict(entry["filled"]),
                     "clipped": dict(entry["clipped"]),
+                    "outliers": dict(entry["outliers"]),
                 }
             },
         )
