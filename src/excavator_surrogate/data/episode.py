@@ -344,7 +344,7 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
         bad = ~np.isfinite(arr)
         if bad.any():
             row, k = (int(x) for x in np.argwhere(bad)[0])
-            raise DataError(where, f"non-finite value {arr[row, k]!r}", column=cols[role][k], row=row,
+            raise DataError(where, f"non-finite value {float(arr[row, k])!r}", column=cols[role][k], row=row,
                             fix="fill or drop the gap ('exsur import --nan fill' can fill short gaps)")
     bad_t = ~np.isfinite(ep.time)
     if bad_t.any():
@@ -355,7 +355,7 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
         nonmono = dts <= 0
         if nonmono.any():
             row = int(np.flatnonzero(nonmono)[0]) + 1
-            raise DataError(where, f"time is not strictly increasing ({ep.time[row - 1]!r} -> {ep.time[row]!r})",
+            raise DataError(where, f"time is not strictly increasing ({float(ep.time[row - 1])!r} -> {float(ep.time[row])!r})",
                             column="time", row=row, fix="sort by time and drop duplicate timestamps")
         off = np.abs(dts - spec.dt) > RATE_RTOL * spec.dt
         if off.any():

@@ -13,6 +13,7 @@ Counts go to the import report (``outliers`` per joint).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +77,7 @@ def screen_angles(
     *,
     policy: str,
     entry: dict[str, Any],
+    check_unit: Callable[[np.ndarray, np.ndarray, JointMap, str], None] | None = None,
 ) -> None:
     """Find spikes and out-of-limit angles and apply ``policy`` in place (``raw``, ``vals``).
 
@@ -88,6 +90,8 @@ def screen_angles(
         dt_in: series name -> typical input step [s].
         policy: ``fail``, ``drop`` or ``clip``.
         entry: the file's report entry; ``entry["outliers"][joint]`` gets the counts.
+        check_unit: ``(t, angle_in_unit, joint, label)`` called on the samples without spikes
+            before the limits are checked (a degree value in a rad column is a unit error).
 
     Raises:
         DataError: ``policy = "fail"`` and a spike or an out-of-limit angle was found.
@@ -111,6 +115,10 @@ def screen_angles(
                 row=row,
                 fix=fix,
             )
+        if check_unit is not None:
+            keep = ~spikes
+            th_unit = vals[ch][keep] * j.angle.scale + j.angle.offset
+            check_unit(raw.series[ch.series].time[keep], th_unit, j, ch.label)
         out = np.zeros_like(spikes)
         lo, hi = js.theta_min, js.theta_max
         if not j.periodic and lo is not None and hi is not None:

@@ -412,7 +412,15 @@ def convert_log(
 
     # spikes and joint limits, on the input samples (before the anti-alias filter)
     screen_angles(
-        path, raw, vals, mapping, spec.joints, dt_in, policy=options.outliers, entry=entry
+        path,
+        raw,
+        vals,
+        mapping,
+        spec.joints,
+        dt_in,
+        policy=options.outliers,
+        entry=entry,
+        check_unit=lambda t, th, j, label: _check_angle_unit(path, t, th, j, label, where),
     )
 
     # units
