@@ -48,6 +48,7 @@ FILES = (
     "sweep.md",
     "sweep.png",
     "study.db",
+    "study.db-*",
     "*.pt",
     "*.onnx",
 )
