@@ -224,3 +224,20 @@ def test_cosmetic_checkpoint_error_is_not_cut_mid_word(tmp_path: Path) -> None:
     inner = str(e.value).split("(", 1)[1].rsplit(")", 1)[0]
     assert inner.endswith(("...", ".")) or len(inner) < 120, inner
     assert not inner.endswith(tuple("abcdefghijklmnopqrstuvwxyz")), inner
+
+
+@pytest.mark.parametrize(
+    ("argv", "msg"),
+    [
+        (["simulate", "--preset", "tiny", "--seed", "-1"], "--seed -1: a seed must be >= 0"),
+        (["train", "DS", "--seed", "-1"], "--seed -1: a seed must be >= 0"),
+        (["evaluate", "CKPT", "DS", "--max-steps", "-5"], "max_steps must be >= 0, got -5"),
+    ],
+)
+def test_b6_other_bad_numbers_are_one_line(
+    argv: list[str], msg: str, tmp_path: Path, data_dir: Path, model3: Path, capsys
+) -> None:
+    out = tmp_path / "O"
+    subst = {"DS": data_dir / "ds3", "CKPT": model3 / "best.pt"}
+    err = fails(capsys, *[subst.get(a, a) for a in argv], "--out", out)
+    assert msg in err and not out.exists()

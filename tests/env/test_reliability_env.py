@@ -43,3 +43,23 @@ def test_w7_non_real_actions_raise(action: np.ndarray, stateful_ckpt: Path) -> N
     obs, *_ = env.step(np.array([1, 0, 0, 0], dtype=np.int64))  # integers are real numbers
     assert np.isfinite(obs).all()
     env.close()
+
+
+@pytest.mark.parametrize(
+    ("commands", "msg"),
+    [
+        ("steps:seconds=inf", "seconds must be a finite number"),
+        ("steps:seed=-3", "seed must be >= 0"),
+    ],
+)
+def test_compare_bad_numbers_are_one_line(
+    commands: str, msg: str, stateful_ckpt: Path, tmp_path: Path, capsys
+) -> None:
+    from excavator_surrogate.cli import main
+
+    assert (
+        main(["compare", str(stateful_ckpt), "--commands", commands, "--out", str(tmp_path / "C")])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and msg in err and not (tmp_path / "C").exists()

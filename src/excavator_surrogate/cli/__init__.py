@@ -54,8 +54,24 @@ def _finite_float(option: str) -> Callable[[str], float]:
     return parse
 
 
+def _seed(option: str) -> Callable[[str], int]:
+    """argparse ``type`` of a seed: a non-negative integer (numpy's seeds cannot be negative)."""
+
+    def parse(text: str) -> int:
+        try:
+            x = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid integer: {text!r}") from None
+        if x < 0:
+            raise ConfigError(f"{option} {text}: a seed must be >= 0")
+        return x
+
+    return parse
+
+
 def _finite_options(parser: argparse.ArgumentParser) -> None:
-    """Every ``type=float`` option of ``parser`` and its subcommands rejects NaN and inf."""
+    """Every ``type=float`` option of ``parser`` and its subcommands rejects NaN and inf, and
+    every ``--seed`` negative numbers."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
@@ -64,6 +80,8 @@ def _finite_options(parser: argparse.ArgumentParser) -> None:
             action.type = _finite_float(
                 action.option_strings[0] if action.option_strings else action.dest
             )
+        elif action.type is int and action.dest == "seed":
+            action.type = _seed(action.option_strings[0])
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -19,6 +19,7 @@ Command sources (:func:`load_commands`):
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,9 +104,14 @@ def _named_excitation(
         if "n_step" in kv:
             n_step = int(kv["n_step"])
         else:
-            n_step = round(float(kv.get("seconds", DEFAULT_SECONDS)) * spec.rate_hz) + 1
+            seconds = float(kv.get("seconds", DEFAULT_SECONDS))
+            if not math.isfinite(seconds):
+                raise ValueError(f"seconds must be a finite number, got {seconds}")
+            n_step = round(seconds * spec.rate_hz) + 1
     except ValueError as e:
         raise ConfigError(f"commands '{text}': {e}") from e
+    if seed < 0:
+        raise ConfigError(f"commands '{text}': seed must be >= 0, got {seed}")
     if n_step < 2:
         raise ConfigError(f"commands '{text}': need at least 2 samples, got n_step={n_step}")
     u = generate(kind, seed, n_step, spec, theta0=theta0, omega_max=omega_max)

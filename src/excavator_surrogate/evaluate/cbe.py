@@ -59,6 +59,11 @@ class EvaluateConfig:
     num_threads: int = 1
     """Torch intra-op threads (0 keeps torch's default)."""
 
+    def __post_init__(self) -> None:
+        for name in ("max_steps", "max_figures", "num_threads"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"[evaluate] {name} must be >= 0, got {getattr(self, name)}")
+
     @classmethod
     def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> EvaluateConfig:
         """Build from a preset's ``[evaluate]`` table, then apply non-None overrides."""

@@ -224,6 +224,8 @@ class SplitOptions:
     test: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ConfigError(f"split seed must be >= 0, got {self.seed}")
         f = self.fractions
         if any(x < 0 for x in f) or not math.isclose(sum(f), 1.0, abs_tol=1e-6):
             raise ConfigError(f"split fractions {list(f)} must be >= 0 and sum to 1")
