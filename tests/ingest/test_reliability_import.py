@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ingest_helpers import assert_nothing_written, write_lines
+from ingest_helpers import assert_nothing_written, set_cell, write_lines
 
 from excavator_surrogate.data import load_dataset, read_episode, write_episode
 from excavator_surrogate.ingest.outliers import SPIKE_HALF_WINDOW, SPIKE_MAD, find_spikes
@@ -22,15 +22,6 @@ def _fail(cli, *argv: object) -> str:
     assert rc == 2, err
     assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
     return err
-
-
-def _set(lines: list[str], row: int, col: str, value: str) -> list[str]:
-    """Replace the cell of data row ``row`` (0-based) in column ``col``."""
-    header = lines[0].split(",")
-    cells = lines[row + 1].split(",")
-    cells[header.index(col)] = value
-    lines[row + 1] = ",".join(cells)
-    return lines
 
 
 def _mapping(
@@ -47,7 +38,7 @@ def _mapping(
 
 @pytest.mark.parametrize("value", ["1e308", "36000"])
 def test_b1_spike_is_an_error_naming_file_row_joint(cli, work, short_cols, value) -> None:
-    log = write_lines(work / "a.csv", short_cols, lambda ls: _set(ls, 298, "boom_deg", value))
+    log = write_lines(work / "a.csv", short_cols, lambda ls: set_cell(ls, 298, "boom_deg", value))
     out = work / "X"
     err = _fail(cli, "import", log, "--mapping", work / "arm3.toml", "--out", out, "--quiet")
     assert f"{log}, column 'boom_deg', row 298: joint 'boom': angle {float(value):g} deg" in err
@@ -59,7 +50,7 @@ def test_b1_sustained_out_of_limits_is_an_error(cli, work, short_cols) -> None:
     def offset(lines: list[str]) -> list[str]:
         for r in range(400, 460):  # 0.6 s at 100 Hz: no spike, a bad calibration
             v = float(lines[r + 1].split(",")[4])  # arm_deg
-            lines = _set(lines, r, "arm_deg", f"{v + 200.0:.4f}")
+            lines = set_cell(lines, r, "arm_deg", f"{v + 200.0:.4f}")
         return lines
 
     log = write_lines(work / "a.csv", short_cols, offset)
@@ -70,9 +61,9 @@ def test_b1_sustained_out_of_limits_is_an_error(cli, work, short_cols) -> None:
 
 def test_b1_drop_and_clip_policies_are_reported(cli, work, short_cols) -> None:
     def poison(lines: list[str]) -> list[str]:
-        lines = _set(lines, 300, "boom_deg", "36000")
+        lines = set_cell(lines, 300, "boom_deg", "36000")
         for r in range(500, 510):
-            lines = _set(lines, r, "bucket_deg", "170")  # above 140 + 5 % of 170
+            lines = set_cell(lines, r, "bucket_deg", "170")  # above 140 + 5 % of 170
         return lines
 
     log = write_lines(work / "a.csv", short_cols, poison)

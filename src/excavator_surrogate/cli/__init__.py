@@ -18,6 +18,7 @@ import math
 import pkgutil
 import sys
 from collections.abc import Callable, Sequence
+from typing import Any
 
 from .. import __version__
 from ..errors import ConfigError, ExsurError
@@ -39,49 +40,37 @@ _OS_ERRORS = (
 """OS errors a user causes with a path (permissions, full disk ...): one line, exit 2."""
 
 
-def _finite_float(option: str) -> Callable[[str], float]:
-    """argparse ``type`` of a numeric option: a float that is neither NaN nor ±inf."""
+def _checked(
+    option: str, convert: type, ok: Callable[[Any], bool], need: str
+) -> Callable[[str], Any]:
+    """argparse ``type``: ``convert(text)``, then a one-line ``ConfigError`` unless ``ok``."""
 
-    def parse(text: str) -> float:
+    def parse(text: str) -> Any:
         try:
-            x = float(text)
+            x = convert(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
-        if not math.isfinite(x):
-            raise ConfigError(f"{option} {text}: give a finite number")
+            raise argparse.ArgumentTypeError(f"invalid {convert.__name__}: {text!r}") from None
+        if not ok(x):
+            raise ConfigError(f"{option} {text}: {need}")
         return x
 
     return parse
 
 
-def _seed(option: str) -> Callable[[str], int]:
-    """argparse ``type`` of a seed: a non-negative integer (numpy's seeds cannot be negative)."""
-
-    def parse(text: str) -> int:
-        try:
-            x = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid integer: {text!r}") from None
-        if x < 0:
-            raise ConfigError(f"{option} {text}: a seed must be >= 0")
-        return x
-
-    return parse
-
-
-def _finite_options(parser: argparse.ArgumentParser) -> None:
+def _check_numbers(parser: argparse.ArgumentParser) -> None:
     """Every ``type=float`` option of ``parser`` and its subcommands rejects NaN and inf, and
-    every ``--seed`` negative numbers."""
+    every ``--seed`` negative numbers (numpy seeds cannot be negative)."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
-                _finite_options(sub)
+                _check_numbers(sub)
         elif action.type is float:
-            action.type = _finite_float(
-                action.option_strings[0] if action.option_strings else action.dest
-            )
+            name = action.option_strings[0] if action.option_strings else action.dest
+            action.type = _checked(name, float, math.isfinite, "give a finite number")
         elif action.type is int and action.dest == "seed":
-            action.type = _seed(action.option_strings[0])
+            action.type = _checked(
+                action.option_strings[0], int, lambda x: x >= 0, "a seed must be >= 0"
+            )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -97,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
         if info.name.startswith("cmd_"):
             mod = importlib.import_module(f"{__name__}.{info.name}")
             mod.register(sub)
-    _finite_options(parser)
+    _check_numbers(parser)
     return parser
 
 

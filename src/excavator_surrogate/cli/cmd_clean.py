@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError
 from ..outdir import out_dir, preset_files
+from .common import add_out
 
 if TYPE_CHECKING:
     from ..clean.kalman import CleanConfig
@@ -28,12 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("dataset", metavar="DATASET", help="input dataset folder (with manifest.json)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output dataset folder")
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "output dataset folder", replaced=True)
     p.add_argument(
         "--method",
         choices=METHODS,

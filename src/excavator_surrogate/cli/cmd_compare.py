@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .common import add_out
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``compare`` subcommand."""
@@ -22,17 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a CSV with u_<joint> columns, an episode .parquet, or a named excitation "
         "KIND[:seed=N,seconds=S|n_step=N] (steps, multisine, chirp, prbs, work_cycle), e.g. steps:seed=1",
     )
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="output folder (default: CKPT's folder/compare; new, empty, or an exsur output)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "output folder (default: CKPT's folder/compare)", replaced=False, required=False)
     p.add_argument(
         "--theta0",
         default=None,

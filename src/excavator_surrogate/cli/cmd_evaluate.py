@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .common import add_out
+
 
 def _compare(text: str) -> tuple[str, Path]:
     label, sep, path = text.partition("=")
@@ -24,17 +26,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("checkpoint", type=Path, help="surrogate checkpoint (best.pt)")
     p.add_argument("dataset", type=Path, help="dataset folder")
-    p.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="output folder (new, empty, or an exsur output: written into)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "output folder", replaced=False)
     p.add_argument("--preset", default=None, help="preset name or .toml path ([evaluate] table)")
     p.add_argument("--split", default=None, help="split to evaluate (default test)")
     p.add_argument(

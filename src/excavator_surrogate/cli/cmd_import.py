@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..ingest import SplitOptions, import_logs, load_mapping, options_with, render_markdown
+from .common import add_out
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,17 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="MAP.toml",
         help="mapping file (docs/import.md)",
     )
-    p.add_argument(
-        "--out",
-        type=Path,
-        metavar="DIR",
-        help="dataset folder to write (new, empty, or an exsur dataset; replaced atomically)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "dataset folder to write", replaced=True, required=False)
     p.add_argument(
         "--rate",
         type=float,

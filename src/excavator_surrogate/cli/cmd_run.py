@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .common import add_out
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``run`` subcommand."""
@@ -17,18 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "report.md, metrics.json, the CBE table, figures, config.toml and the model. "
         "Without --preset this is the README's 5-minute demo.",
     )
-    p.add_argument(
-        "--out",
-        required=True,
-        type=Path,
-        metavar="DIR",
-        help="report folder (new, empty, or an exsur output; replaced when complete)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "report folder", replaced=True)
     p.add_argument(
         "--preset",
         default=DEFAULT_PRESET,

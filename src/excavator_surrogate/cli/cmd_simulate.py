@@ -9,6 +9,7 @@ from typing import Any
 from ..config import from_dict, load_preset
 from ..errors import ConfigError
 from ..outdir import out_dir, preset_files
+from .common import add_out
 
 DEFAULT_PRESET = "paper-stage1"
 
@@ -30,17 +31,7 @@ def register(subparsers: Any) -> None:
         help=f"shipped preset name (tiny, quick, paper-stage1) or a TOML file with a [simulate] "
         f"table (default: {DEFAULT_PRESET})",
     )
-    p.add_argument(
-        "--out",
-        required=True,
-        metavar="DIR",
-        help="output dataset folder (new, empty, or an exsur output; replaced when complete)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "output dataset folder", replaced=True)
     p.add_argument(
         "--workers",
         type=int,

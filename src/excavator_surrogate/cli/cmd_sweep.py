@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .common import add_out
+
 
 def register(subparsers: Any) -> None:
     """Add the ``sweep`` subcommand."""
@@ -18,17 +20,7 @@ def register(subparsers: Any) -> None:
         "machines join the same study with the same --storage URL and --study name.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (train and val splits)")
-    p.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="output folder (new, empty, or an exsur output: written into)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "output folder", replaced=False)
     p.add_argument("--trials", type=int, required=True, help="trials this worker runs")
     p.add_argument(
         "--storage",

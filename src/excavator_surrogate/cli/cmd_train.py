@@ -11,6 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .common import add_out
+
 
 def register(subparsers: Any) -> None:
     """Add the ``train`` subcommand."""
@@ -21,17 +23,7 @@ def register(subparsers: Any) -> None:
         "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml and OUT/tb/.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
-    p.add_argument(
-        "--out",
-        type=Path,
-        required=True,
-        help="output folder (new, empty, or an exsur output: written into)",
-    )
-    p.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="write into --out even if it holds files exsur did not write (docs/design.md)",
-    )
+    add_out(p, "output folder", replaced=False)
     p.add_argument("--preset", default=None, help="preset name or .toml path ([train] table)")
     p.add_argument("--mode", choices=("windowed", "stateful"), default=None, help="training mode")
     p.add_argument("--cell", choices=("lstm", "gru"), default=None, help="recurrent cell")

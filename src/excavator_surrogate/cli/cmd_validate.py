@@ -22,7 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Prints one line per path; exits non-zero at the first violation.",
     )
     p.add_argument("paths", nargs="+", type=Path, help="episode .parquet files or dataset folders")
-    p.add_argument("--min-steps", type=int, default=1, help="minimum samples per episode (model window + 1)")
+    p.add_argument(
+        "--min-steps", type=int, default=1, help="minimum samples per episode (model window + 1)"
+    )
     p.set_defaults(func=run)
 
 
@@ -35,13 +37,17 @@ def run(args: argparse.Namespace) -> int:
                 for ep in ds.split(s):
                     _check_limits(ep, path / "episodes" / f"{ep.name}.parquet")
             counts = {s: len(ds.split(s)) for s in ("train", "val", "test")}
-            print(f"{path}: ok, joints {list(ds.spec.names)} at {ds.spec.rate_hz:g} Hz, "
-                  f"episodes {counts}, samples {ds.n_samples()}")
+            print(
+                f"{path}: ok, joints {list(ds.spec.names)} at {ds.spec.rate_hz:g} Hz, "
+                f"episodes {counts}, samples {ds.n_samples()}"
+            )
         else:
             ep = read_episode(path, min_steps=args.min_steps)
             _check_limits(ep, path)
-            print(f"{path}: ok, joints {list(ep.spec.names)} at {ep.spec.rate_hz:g} Hz, "
-                  f"{ep.n_step} samples, source {ep.source}")
+            print(
+                f"{path}: ok, joints {list(ep.spec.names)} at {ep.spec.rate_hz:g} Hz, "
+                f"{ep.n_step} samples, source {ep.source}"
+            )
     return 0
 
 
@@ -60,5 +66,5 @@ def _check_limits(ep: Episode, where: Path) -> None:
         f"(+{LIMIT_MARGIN:.0%} of the range) in {n_bad} sample(s)",
         column=f"theta_{name}",
         row=row,
-        fix="re-import the log with [import] outliers = \"fail\" to find the bad rows (docs/import.md)",
+        fix='re-import the log with [import] outliers = "fail" to find the bad rows (docs/import.md)',
     )
