@@ -105,7 +105,7 @@ def test_b1_validate_rejects_a_poisoned_dataset(cli, work, short_cols) -> None:
 def _spikes_loop(x: np.ndarray, dt: float) -> np.ndarray:
     """Plain-loop Hampel filter (the reference of :func:`find_spikes`)."""
     k = SPIKE_HALF_WINDOW
-    xp = np.concatenate([np.full(k, x[0]), x, np.full(k, x[-1])])
+    xp = np.concatenate([x[k:0:-1], x, x[-2 : -k - 2 : -1]])  # mirrored ends
     out = np.zeros(x.shape[0], dtype=bool)
     for i in range(x.shape[0]):
         w = xp[i : i + 2 * k + 1]
@@ -120,10 +120,10 @@ def test_find_spikes_matches_a_plain_loop_and_ignores_steps() -> None:
     t = np.arange(600) * 0.01
     x = 0.5 * np.sin(t) + 1e-3 * rng.standard_normal(600)
     x[300:] += 0.8  # a step: the joint moved and stays (not a spike)
-    x[[100, 101, 450]] += [5.0, 5.0, -3.0]
+    x[[0, 100, 101, 450, 599]] += [2.0, 5.0, 5.0, -3.0, 1.0]
     got = find_spikes(x, 0.01)
     assert (got == _spikes_loop(x, 0.01)).all()
-    assert np.flatnonzero(got).tolist() == [100, 101, 450]
+    assert np.flatnonzero(got).tolist() == [0, 100, 101, 450, 599]
 
 
 # --- B2, W1, W2: mapping and CSV errors ------------------------------------------------------

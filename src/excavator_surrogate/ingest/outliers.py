@@ -45,14 +45,25 @@ def find_spikes(x: np.ndarray, dt_in: float) -> np.ndarray:
     """
     k = SPIKE_HALF_WINDOW
     n = x.shape[0]
+    spikes = np.zeros(n, dtype=bool)
     if n < 2 * k + 1:
-        return np.zeros(n, dtype=bool)
-    w = sliding_window_view(np.pad(x, k, mode="edge"), 2 * k + 1)
+        return spikes
+    floor = SPIKE_SPEED * k * dt_in
+    xp = np.pad(x, k, mode="reflect")  # a spike in the first sample is still one
+    # Only a sample further than `floor` from some neighbour can be a spike: find those
+    # cheaply (window max/min), then take medians of their windows only.
+    hi, lo = xp[:n].copy(), xp[:n].copy()
+    for s in range(1, 2 * k + 1):
+        np.maximum(hi, xp[s : s + n], out=hi)
+        np.minimum(lo, xp[s : s + n], out=lo)
+    idx = np.flatnonzero((hi - x > floor) | (x - lo > floor))
+    if idx.size == 0:
+        return spikes
+    w = sliding_window_view(xp, 2 * k + 1)[idx]
     med = np.median(w, axis=1)
     mad = np.median(np.abs(w - med[:, None]), axis=1)
-    dev = np.abs(x - med)
-    thresh = np.maximum(SPIKE_MAD * 1.4826 * mad, SPIKE_SPEED * k * dt_in)
-    return dev > thresh
+    spikes[idx] = np.abs(x[idx] - med) > np.maximum(SPIKE_MAD * 1.4826 * mad, floor)
+    return spikes
 
 
 def _angle(vals: np.ndarray, j: JointMap) -> np.ndarray:
