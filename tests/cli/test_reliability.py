@@ -241,3 +241,16 @@ def test_b6_other_bad_numbers_are_one_line(
     subst = {"DS": data_dir / "ds3", "CKPT": model3 / "best.pt"}
     err = fails(capsys, *[subst.get(a, a) for a in argv], "--out", out)
     assert msg in err and not out.exists()
+
+
+@pytest.mark.parametrize("cmd", ["sweep", "train", "clean", "evaluate"])
+def test_w6_missing_dataset_creates_no_out(cmd: str, tmp_path: Path, model3: Path, capsys) -> None:
+    out, missing = tmp_path / "O", tmp_path / "nope"
+    argv = {
+        "sweep": ["sweep", missing, "--trials", "1"],
+        "train": ["train", missing],
+        "clean": ["clean", missing],
+        "evaluate": ["evaluate", model3 / "best.pt", missing],
+    }[cmd]
+    assert "dataset folder not found" in fails(capsys, *argv, "--out", out)
+    assert not out.exists()

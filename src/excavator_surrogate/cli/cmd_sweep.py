@@ -51,12 +51,14 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
     from ..config import load_preset
+    from ..data.dataset import read_manifest
     from ..outdir import check_out_dir
     from ..scale.sweep import SweepConfig, run_sweep
     from ..surrogate.train import TrainConfig
 
     preset = load_preset(args.preset) if args.preset else {}
     check_out_dir(args.out, overwrite=args.overwrite)
+    read_manifest(args.dataset)  # a missing dataset is an error before --out is created
     base = TrainConfig.from_preset(preset, device=args.device)
     scfg = SweepConfig.from_preset(
         preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed
