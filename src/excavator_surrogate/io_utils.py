@@ -47,11 +47,12 @@ def sweep_stale(path: str | Path) -> list[Path]:
     """Remove temporary siblings of ``path`` left by killed exsur processes; returns them.
 
     They are ``.<name>.<pid>-XXXX.tmp`` (files or folders of :func:`atomic_path` and
-    :func:`atomic_dir`) and ``.<name>.old-<pid>`` (a replaced folder not yet deleted) whose
-    process is gone, and ``.<name>.XXXX.tmp`` of older exsur versions (no pid).
+    :func:`atomic_dir`, also nested: ``..<name>.<pid>-XXXX.tmp.<pid>-YYYY.tmp``) and
+    ``.<name>.old-<pid>`` (a replaced folder not yet deleted) whose process is gone, and
+    ``.<name>.XXXX.tmp`` of older exsur versions (no pid).
     """
     path = Path(path)
-    head = f".{path.name}."
+    head = f"{path.name.lstrip('.')}."
     removed: list[Path] = []
     try:
         entries = list(path.parent.iterdir()) if path.name else []
@@ -59,9 +60,10 @@ def sweep_stale(path: str | Path) -> list[Path]:
         return removed
     for e in entries:
         n = e.name
-        if not n.startswith(head):
+        # ``..NAME.<pid>-X.tmp.<pid>-Y.tmp``: the temp folder of a temp folder (nested writers)
+        if not (n.startswith(".") and n.lstrip(".").startswith(head)):
             continue
-        rest = n[len(head) :]
+        rest = n.lstrip(".")[len(head) :]
         if rest.startswith("old-"):
             pid_s = rest[4:]
         elif rest.endswith(".tmp"):

@@ -121,12 +121,13 @@ def test_stale_temp_folders_of_killed_runs_are_removed(tmp_path: Path) -> None:
     legacy = tmp_path / ".ds.k2j4h5g6.tmp"  # exsur < 0.2 named them without a pid
     alive = tmp_path / f".ds.{os.getpid()}-xyz.tmp"
     old = tmp_path / f".ds.old-{_dead_pid()}"
+    nested = tmp_path / f".{dead.name}.{_dead_pid()}-q1.tmp"  # write_dataset inside import's temp
     other = tmp_path / ".other.123-abc.tmp"
-    for p in (dead, legacy, alive, old, other):
+    for p in (dead, legacy, alive, old, nested, other):
         p.mkdir()
     (dead / "episodes").mkdir()
     removed = sweep_stale(out)
-    assert sorted(removed) == sorted([dead, legacy, old])
+    assert sorted(removed) == sorted([dead, legacy, old, nested])
     assert alive.exists() and other.exists()
     with atomic_dir(out) as tmp:  # a new run sweeps too, and leaves only its result
         (tmp / "manifest.json").write_text("{}")

@@ -202,7 +202,11 @@ def test_w4_killed_import_leftovers_are_removed_next_time(cli, work, short_cols)
             [sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True
         ).stdout
     )
-    stale = [work / f".ds.{pid}-k2j4h5g6.tmp", work / ".ds.legacy12.tmp"]
+    stale = [
+        work / f".ds.{pid}-k2j4h5g6.tmp",
+        work / f"..ds.{pid}-k2j4h5g6.tmp.{pid}-a1b2.tmp",  # what kill -9 left: nested temps
+        work / ".ds.legacy12.tmp",
+    ]
     live = work / f".ds.{os.getpid()}-running.tmp"
     for p in (*stale, live):
         (p / "episodes").mkdir(parents=True)
