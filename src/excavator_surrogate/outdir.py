@@ -54,8 +54,9 @@ FILES = (
 )
 """Names exsur writes at any level of its output folders (shell patterns)."""
 
-DIRS = {"episodes": ("*.parquet",), "figures": ("*.png",), "tb": ("events.out.tfevents.*",)}
-"""Sub-folders with a fixed content pattern; other sub-folders must follow the rule themselves."""
+DIRS = {"episodes": ("*.parquet", "*.png"), "figures": ("*.png",), "tb": ("events.out.tfevents.*",)}
+"""Sub-folders with a fixed content pattern (`exsur plot` puts PNGs next to episodes); other
+sub-folders must follow the rule themselves."""
 
 TEMP = (".*.tmp", ".*.old-*", ".*.tmp.npz")
 """Temporary names of exsur's atomic writes (left behind only by a killed process)."""
