@@ -41,14 +41,18 @@ class JointSpec:
             raise ConfigError(
                 f"joint name '{self.name}' is invalid: use lower-case letters, digits and '_'"
             )
-        for key in ("u_min", "u_max", "theta_min", "theta_max"):
-            v = getattr(self, key)
-            if v is not None and not math.isfinite(v):
-                raise ConfigError(f"joint '{self.name}': {key} must be a finite number, got {v}")
         if not self.u_max > self.u_min:
             raise ConfigError(
                 f"joint '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
             )
+        self._check_finite()
+
+    def _check_finite(self) -> None:
+        """Command ranges and limits are finite numbers (NaN or inf poison every rollout)."""
+        for key in ("u_min", "u_max", "theta_min", "theta_max"):
+            v = getattr(self, key)
+            if v is not None and not math.isfinite(v):
+                raise ConfigError(f"joint '{self.name}': {key} must be a finite number, got {v}")
 
     @property
     def u_scale(self) -> float:
