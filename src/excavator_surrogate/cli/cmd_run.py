@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_out
+from .common import add_overwrite
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +19,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "report.md, metrics.json, the CBE table, figures, config.toml and the model. "
         "Without --preset this is the README's 5-minute demo.",
     )
-    add_out(p, "report folder", replaced=True)
+    p.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        metavar="DIR",
+        help="report folder (replaced when complete)",
+    )
     p.add_argument(
         "--preset",
         default=DEFAULT_PRESET,
@@ -52,27 +58,37 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="K",
         help="seed-ensemble members per trained model (1: a single network; default: the preset's)",
     )
-    p.set_defaults(func=run)
+    add_overwrite(p, replaced=True)
+    p.set_defaults(func=checked_run)
+
+
+def checked_run(args: argparse.Namespace) -> int:
+    """:func:`run` under the output-folder rule: no input inside ``--out``; ``--overwrite``."""
+    from ..outdir import out_dir, preset_files
+
+    inputs = [*preset_files(args.preset)]
+    for key in ("data", "mapping", "logs"):  # the dataset, or the logs and their mapping
+        value = getattr(args, key, None)
+        inputs += [] if value is None else value if isinstance(value, list) else [value]
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+        return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
     from ..evaluate.metrics import min_r2
-    from ..outdir import out_dir, preset_files
     from ..pipeline import run_pipeline
 
-    inputs = [*preset_files(args.preset), *([args.data] if args.data is not None else [])]
-    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
-        metrics = run_pipeline(
-            out=args.out,
-            preset=args.preset,
-            data=args.data,
-            workers=args.workers,
-            seed=args.seed,
-            max_train_seconds=args.max_train_seconds,
-            epochs=args.epochs,
-            members=args.members,
-        )
+    metrics = run_pipeline(
+        out=args.out,
+        preset=args.preset,
+        data=args.data,
+        workers=args.workers,
+        seed=args.seed,
+        max_train_seconds=args.max_train_seconds,
+        epochs=args.epochs,
+        members=args.members,
+    )
     print(
         f"{args.out}: worst-joint angle R² {min_r2(metrics, 'theta'):.4f}, "
         f"worst-joint ω R² {min_r2(metrics, 'omega'):.4f} (report: {args.out / 'report.md'})"

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import add_out
+from .common import add_overwrite
 
 
 def register(subparsers: Any) -> None:
@@ -23,7 +23,7 @@ def register(subparsers: Any) -> None:
         "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml and OUT/tb/.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
-    add_out(p, "output folder", replaced=False)
+    p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--preset", default=None, help="preset name or .toml path ([train] table)")
     p.add_argument("--mode", choices=("windowed", "stateful"), default=None, help="training mode")
     p.add_argument("--cell", choices=("lstm", "gru"), default=None, help="recurrent cell")
@@ -51,7 +51,22 @@ def register(subparsers: Any) -> None:
         help="data-parallel training; requires a torchrun launch (automatic when torchrun "
         "sets WORLD_SIZE > 1); batch sizes are per process",
     )
-    p.set_defaults(func=run)
+    add_overwrite(p, replaced=False)
+    p.set_defaults(func=checked_run)
+
+
+def checked_run(args: argparse.Namespace) -> int:
+    """Check ``--out`` and ``--resume`` against the dataset before :func:`run` writes anything."""
+    from ..data.dataset import load_dataset
+    from ..outdir import check_out_dir
+    from ..surrogate.checkpoint import check_compatible, load_checkpoint
+
+    check_out_dir(args.out, overwrite=args.overwrite)
+    if args.resume is not None:
+        resumed = load_checkpoint(args.resume)
+        spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
+        check_compatible(resumed.spec, spec, ckpt=args.resume, data_name=args.dataset)
+    return run(args)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -59,9 +74,8 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_preset
     from ..data.dataset import load_dataset
     from ..io_utils import log
-    from ..outdir import check_out_dir
     from ..scale.ddp import distributed_env, init_distributed, shutdown
-    from ..surrogate.checkpoint import check_compatible, load_checkpoint, read_checkpoint
+    from ..surrogate.checkpoint import read_checkpoint
     from ..surrogate.train import TrainConfig, train
 
     preset = load_preset(args.preset) if args.preset else {}
@@ -75,11 +89,7 @@ def run(args: argparse.Namespace) -> int:
         device=args.device,
         members=args.members,
     )
-    check_out_dir(args.out, overwrite=args.overwrite)
-    resumed = load_checkpoint(args.resume) if args.resume is not None else None
     dataset = load_dataset(args.dataset, splits=("train", "val"))
-    if resumed is not None:  # checked before anything is written to --out
-        check_compatible(resumed.spec, dataset.spec, ckpt=args.resume, data_name=args.dataset)
     dist = None
     if args.ddp or distributed_env():
         dist = init_distributed(device=cfg.device, require=args.ddp)

@@ -26,6 +26,11 @@ def add_out(
         metavar="DIR",
         help=f"{what} (new, empty, or an exsur output; {how})",
     )
+    add_overwrite(p, replaced=replaced)
+
+
+def add_overwrite(p: argparse.ArgumentParser, *, replaced: bool) -> None:
+    """``--overwrite``: consent to replace (or write into) a folder exsur did not write."""
     p.add_argument(
         "--overwrite",
         action="store_true",
