@@ -215,3 +215,16 @@ def test_w4_killed_import_leftovers_are_removed_next_time(cli, work, short_cols)
     )
     assert rc == 0, err
     assert not any(p.exists() for p in stale) and live.exists()
+
+
+def test_b1_drop_everything_is_an_error(cli, work, short_cols) -> None:
+    m = _mapping(
+        work,
+        "off.toml",
+        'outliers = "drop"',
+        edit=("limits = [30.0, 150.0]", "limits = [200.0, 300.0]"),
+    )
+    log = write_lines(work / "a.csv", short_cols)
+    err = _fail(cli, "import", log, "--mapping", m, "--out", work / "X")
+    assert 'rows are outliers (outliers = "drop"): nothing is left' in err
+    assert_nothing_written(work / "X")

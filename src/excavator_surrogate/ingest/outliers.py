@@ -165,6 +165,14 @@ def screen_angles(
     for name, bad in drop.items():
         keep = ~bad
         s = raw.series[name]
+        if int(keep.sum()) < 2:
+            raise DataError(
+                path,
+                f'{int(bad.sum())} of {bad.shape[0]} rows are outliers (outliers = "{policy}"): '
+                "nothing is left",
+                column=s.time_label,
+                fix=f"check the angles' unit/scale/offset and the joint limits in {mapping.where}",
+            )
         raw.series[name] = Series(
             name, s.time[keep], {k: v[keep] for k, v in s.values.items()}, s.time_label
         )
