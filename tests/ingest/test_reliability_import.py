@@ -67,10 +67,13 @@ def test_b1_drop_and_clip_policies_are_reported(cli, work, short_cols) -> None:
         return lines
 
     log = write_lines(work / "a.csv", short_cols, poison)
-    for policy in ("drop", "clip"):
-        m = _mapping(work, f"{policy}.toml", f'outliers = "{policy}"')
+    for policy in ("drop", "clip"):  # drop from the mapping's [import] table, clip by flag
+        if policy == "drop":
+            m, flag = _mapping(work, "drop.toml", 'outliers = "drop"'), []
+        else:
+            m, flag = work / "arm3.toml", ["--outliers", "clip"]
         out = work / policy
-        rc, stdout, err = cli("import", log, "--mapping", m, "--out", out, "--quiet")
+        rc, stdout, err = cli("import", log, "--mapping", m, "--out", out, "--quiet", *flag)
         assert rc == 0, err
         report = json.loads((out / "import_report.json").read_text())
         counts = report["files"][0]["outliers"]

@@ -81,6 +81,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="clip commands outside their range instead of failing",
     )
     p.add_argument(
+        "--outliers",
+        choices=("fail", "drop", "clip"),
+        help="angle spikes and angles beyond the joint limits: fail, drop the rows, or clip "
+        "to the limits (docs/import.md)",
+    )
+    p.add_argument(
         "--on-error",
         choices=("fail", "skip"),
         help="a bad file stops the import, or is skipped and reported",
@@ -175,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         lowpass=args.lowpass,
         clip_commands=args.clip_commands,
         on_error=args.on_error,
+        outliers=args.outliers,
     )
     split = _split_options(args, mapping.split)
     report = import_logs(
