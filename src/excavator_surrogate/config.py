@@ -18,6 +18,7 @@ every output folder can record the config that produced it (``config.toml``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import tomllib
 import types
 import typing
@@ -78,7 +79,11 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     return data
 
 
-def _coerce(tp: Any, value: Any, where: str) -> Any:
+INF_OK = frozenset({"tau_jump", "tau_cons", "max_untrusted_s"})
+"""Config fields where ``inf`` means "off" (a threshold never reached); NaN is never accepted."""
+
+
+def _coerce(tp: Any, value: Any, where: str, allow_inf: bool = False) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if tp is Any:
@@ -91,7 +96,7 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
             if a is type(None):
                 continue
             try:
-                return _coerce(a, value, where)
+                return _coerce(a, value, where, allow_inf)
             except ConfigError as e:
                 errs.append(str(e))
         raise ConfigError(errs[0] if errs else f"{where}: bad value {value!r}")
@@ -99,10 +104,10 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
         if not isinstance(value, list | tuple):
             raise ConfigError(f"{where}: expected a list, got {value!r}")
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(args[0], v, where) for v in value)
+            return tuple(_coerce(args[0], v, where, allow_inf) for v in value)
         if len(args) != len(value):
             raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
-        return tuple(_coerce(a, v, where) for a, v in zip(args, value))
+        return tuple(_coerce(a, v, where, allow_inf) for a, v in zip(args, value))
     if origin is dict:
         if not isinstance(value, dict):
             raise ConfigError(f"{where}: expected a table, got {value!r}")
@@ -120,6 +125,8 @@ def _coerce(tp: Any, value: Any, where: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if math.isnan(value) or (math.isinf(value) and not allow_inf):
+            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
         return float(value)
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -148,7 +155,7 @@ def from_dict(cls: type[C], data: dict[str, Any] | None, *, where: str = "config
         raise ConfigError(
             f"{where}: unknown key(s) {unknown} for {cls.__name__}; valid keys: {sorted(fields)}"
         )
-    kwargs = {k: _coerce(hints[k], v, f"{where}.{k}") for k, v in data.items()}
+    kwargs = {k: _coerce(hints[k], v, f"{where}.{k}", k in INF_OK) for k, v in data.items()}
     return cls(**kwargs)
 
 

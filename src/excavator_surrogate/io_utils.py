@@ -26,6 +26,65 @@ def _umask() -> int:
     return mask
 
 
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # exists, owned by someone else
+    return True
+
+
+def _temp_prefix(name: str) -> str:
+    """``.<name>.<pid>-``: the owner's pid lets a later run remove what a killed run left."""
+    return f".{name}.{os.getpid()}-"
+
+
+def sweep_stale(path: str | Path) -> list[Path]:
+    """Remove temporary siblings of ``path`` left by killed exsur processes; returns them.
+
+    They are ``.<name>.<pid>-XXXX.tmp`` (files or folders of :func:`atomic_path` and
+    :func:`atomic_dir`, also nested: ``..<name>.<pid>-XXXX.tmp.<pid>-YYYY.tmp``) and
+    ``.<name>.old-<pid>`` (a replaced folder not yet deleted) whose process is gone, and
+    ``.<name>.XXXX.tmp`` of older exsur versions (no pid).
+    """
+    path = Path(path)
+    head = f"{path.name.lstrip('.')}."
+    removed: list[Path] = []
+    try:
+        entries = list(path.parent.iterdir()) if path.name else []
+    except OSError:
+        return removed
+    for e in entries:
+        n = e.name
+        # ``..NAME.<pid>-X.tmp.<pid>-Y.tmp``: the temp folder of a temp folder (nested writers)
+        if not (n.startswith(".") and n.lstrip(".").startswith(head)):
+            continue
+        rest = n.lstrip(".")[len(head) :]
+        if rest.startswith("old-"):
+            pid_s = rest[4:]
+        elif rest.endswith(".tmp"):
+            pid_s = rest.split("-", 1)[0] if "-" in rest else ""
+        else:
+            continue
+        if pid_s.isdigit() and _pid_alive(int(pid_s)):
+            continue
+        if not pid_s.isdigit() and rest.startswith("old-"):
+            continue
+        try:
+            if e.is_dir() and not e.is_symlink():
+                shutil.rmtree(e)
+            else:
+                e.unlink()
+            removed.append(e)
+        except OSError:
+            pass
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
@@ -34,7 +93,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    sweep_stale(path)
+    fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -52,17 +112,26 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
     """Yield a temporary folder next to ``path``; move it onto ``path`` when the block succeeds.
 
     An existing ``path`` is replaced only after the new content is complete
-    (``overwrite=True``).  On failure the temporary folder is deleted.
+    (``overwrite=True``), and only if the output-folder rule allows it
+    (:func:`~excavator_surrogate.outdir.may_replace`: empty, written by exsur, or
+    ``--overwrite``).  On failure the temporary folder is deleted.  Temporary folders that
+    killed runs left next to ``path`` are removed first.
+
+    Raises:
+        ConfigError: ``path`` is the current folder, a file, or a folder exsur did not write.
     """
     path = Path(path)
+    _check_replaceable(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    sweep_stale(path)
+    tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp creates 0700 folders
         if path.exists():
             if not overwrite:
                 raise FileExistsError(f"{path} exists")
+            _check_replaceable(path)
             old = path.with_name(f".{path.name}.old-{os.getpid()}")
             os.replace(path, old)
             os.replace(tmp, path)
@@ -72,6 +141,20 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def _check_replaceable(path: Path) -> None:
+    from .errors import ConfigError
+    from .outdir import check_not_cwd, foreign_entry, may_replace
+
+    check_not_cwd(path, "output folder")
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{path}: output folder exists and is a file; give a folder")
+    if not may_replace(path):
+        raise ConfigError(
+            f"{path}: holds '{foreign_entry(path)}', which exsur did not write; choose a new or "
+            "empty folder, or pass --overwrite to replace it"
+        )
 
 
 def write_text(path: str | Path, text: str) -> None:

@@ -7,6 +7,7 @@ hard-codes four joints.  The default :data:`EXCAVATOR` is the paper's machine: s
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
@@ -51,6 +52,14 @@ class JointSpec:
             raise ConfigError(
                 f"joint '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
             )
+        self._check_finite()
+
+    def _check_finite(self) -> None:
+        """Command ranges and limits are finite numbers (NaN or inf poison every rollout)."""
+        for key in ("u_min", "u_max", "theta_min", "theta_max", "omega_max"):
+            v = getattr(self, key)
+            if v is not None and not math.isfinite(v):
+                raise ConfigError(f"joint '{self.name}': {key} must be a finite number, got {v}")
 
     @property
     def u_scale(self) -> float:
@@ -82,8 +91,8 @@ class MachineSpec:
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ConfigError(f"joint names must be unique, got {names}")
-        if not self.rate_hz > 0:
-            raise ConfigError(f"rate_hz must be positive, got {self.rate_hz}")
+        if not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
+            raise ConfigError(f"rate_hz must be a positive finite number, got {self.rate_hz}")
 
     @property
     def n_joint(self) -> int:
@@ -109,6 +118,23 @@ class MachineSpec:
     def n_feature(self) -> int:
         """Width of the surrogate input: 2 per periodic joint, 1 per other joint, plus commands."""
         return sum(2 if j.periodic else 1 for j in self.joints) + self.n_joint
+
+    def mismatch(self, other: MachineSpec) -> str | None:
+        """How ``other`` differs from this machine (joints, periodic flags, command ranges, rate),
+        as a short phrase such as ``"joints ['boom', 'arm'] vs ['swing', ...]"``; None if it fits."""
+        if self.names != other.names:
+            return f"joints {list(self.names)} vs {list(other.names)}"
+        if not math.isclose(self.rate_hz, other.rate_hz, rel_tol=1e-9):
+            return f"rate {self.rate_hz:g} Hz vs {other.rate_hz:g} Hz"
+        for a, b in zip(self.joints, other.joints):
+            if a.periodic != b.periodic:
+                return f"joint '{a.name}' periodic {a.periodic} vs {b.periodic}"
+            if not (math.isclose(a.u_min, b.u_min) and math.isclose(a.u_max, b.u_max)):
+                return (
+                    f"joint '{a.name}' command range [{a.u_min:g}, {a.u_max:g}] vs "
+                    f"[{b.u_min:g}, {b.u_max:g}]"
+                )
+        return None
 
     def with_rate(self, rate_hz: float) -> MachineSpec:
         """Same joints at another sample rate."""

@@ -28,3 +28,12 @@ def write_lines(
         lines = path.read_text().splitlines()
         path.write_text("\n".join(edit(lines)) + "\n")
     return path
+
+
+def set_cell(lines: list[str], row: int, col: str, value: str) -> list[str]:
+    """Replace the cell of data row ``row`` (0-based) in column ``col`` of CSV text lines."""
+    header = lines[0].split(",")
+    cells = lines[row + 1].split(",")
+    cells[header.index(col)] = value
+    lines[row + 1] = ",".join(cells)
+    return lines

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import arm3_plant
 import numpy as np
-from ingest_helpers import assert_nothing_written, write_lines
+from ingest_helpers import assert_nothing_written, set_cell, write_lines
 
 
 def _fail(cli, work: Path, log: Path, *extra: str, mapping: str = "arm3.toml") -> str:
@@ -19,13 +19,7 @@ def _fail(cli, work: Path, log: Path, *extra: str, mapping: str = "arm3.toml") -
     return err
 
 
-def _set(lines: list[str], row: int, col: str, value: str) -> list[str]:
-    """Replace the cell of data row ``row`` (0-based) in column ``col``."""
-    header = lines[0].split(",")
-    cells = lines[row + 1].split(",")
-    cells[header.index(col)] = value
-    lines[row + 1] = ",".join(cells)
-    return lines
+_set = set_cell
 
 
 def test_missing_column(cli, work, short_cols):
@@ -242,7 +236,7 @@ def test_out_must_be_a_dataset(cli, work, short_cols):
     other.mkdir()
     (other / "keep.txt").write_text("mine")
     rc, _, err = cli("import", log, "--mapping", work / "arm3.toml", "--out", other)
-    assert rc == 2 and "is not an exsur dataset" in err
+    assert rc == 2 and "which exsur did not write" in err
     assert (other / "keep.txt").read_text() == "mine"
 
 

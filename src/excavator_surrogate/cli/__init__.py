@@ -12,13 +12,65 @@ User errors (:class:`~excavator_surrogate.errors.ExsurError`) are printed as one
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import math
 import pkgutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from .. import __version__
-from ..errors import ExsurError
+from ..errors import ConfigError, ExsurError
+
+_OS_ERRORS = (
+    errno.EACCES,
+    errno.EPERM,
+    errno.EROFS,
+    errno.ENOSPC,
+    errno.EDQUOT,
+    errno.ENOTDIR,
+    errno.EISDIR,
+    errno.ENAMETOOLONG,
+    errno.EEXIST,
+    errno.ENOTEMPTY,
+    errno.EBUSY,
+    errno.EXDEV,
+)
+"""OS errors a user causes with a path (permissions, full disk ...): one line, exit 2."""
+
+
+def _checked(
+    option: str, convert: type, ok: Callable[[Any], bool], need: str
+) -> Callable[[str], Any]:
+    """argparse ``type``: ``convert(text)``, then a one-line ``ConfigError`` unless ``ok``."""
+
+    def parse(text: str) -> Any:
+        try:
+            x = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {convert.__name__}: {text!r}") from None
+        if not ok(x):
+            raise ConfigError(f"{option} {text}: {need}")
+        return x
+
+    return parse
+
+
+def _check_numbers(parser: argparse.ArgumentParser) -> None:
+    """Every ``type=float`` option of ``parser`` and its subcommands rejects NaN and inf, and
+    every ``--seed`` negative numbers (numpy seeds cannot be negative)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _check_numbers(sub)
+        elif action.type is float:
+            name = action.option_strings[0] if action.option_strings else action.dest
+            action.type = _checked(name, float, math.isfinite, "give a finite number")
+        elif action.type is int and action.dest == "seed":
+            action.type = _checked(
+                action.option_strings[0], int, lambda x: x >= 0, "a seed must be >= 0"
+            )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,21 +86,31 @@ def build_parser() -> argparse.ArgumentParser:
         if info.name.startswith("cmd_"):
             mod = importlib.import_module(f"{__name__}.{info.name}")
             mod.register(sub)
+    _check_numbers(parser)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``exsur`` console script; returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
     try:
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
         return int(args.func(args) or 0)
     except ExsurError as e:
         print(f"exsur: error: {e}", file=sys.stderr)
         return e.exit_code
+    except OSError as e:
+        if e.errno not in _OS_ERRORS:
+            raise
+        where = f"{e.filename}: " if e.filename else ""
+        print(
+            f"exsur: error: {where}{e.strerror or e} (check the path and its permissions)",
+            file=sys.stderr,
+        )
+        return 2
     except KeyboardInterrupt:
         print("exsur: interrupted", file=sys.stderr)
         return 130

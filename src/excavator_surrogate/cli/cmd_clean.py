@@ -8,6 +8,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..errors import ConfigError
+from ..outdir import out_dir, preset_files
+from .common import add_out
 
 if TYPE_CHECKING:
     from ..clean.kalman import CleanConfig
@@ -27,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("dataset", metavar="DATASET", help="input dataset folder (with manifest.json)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output dataset folder")
+    add_out(p, "output dataset folder", replaced=True)
     p.add_argument(
         "--method",
         choices=METHODS,
@@ -75,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
     from ..data.dataset import read_manifest
 
     cfg = _config(args)
-    out = clean_dataset(args.dataset, args.out, config=cfg)
+    inputs = [args.dataset, *preset_files(args.preset)]
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+        out = clean_dataset(args.dataset, args.out, config=cfg)
     manifest = read_manifest(out)
     summary = manifest.get("cleaning", {})
     print(f"cleaned dataset: {out}  (method {cfg.method})")

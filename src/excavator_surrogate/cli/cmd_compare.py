@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .common import add_out
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``compare`` subcommand."""
@@ -22,9 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="a CSV with u_<joint> columns, an episode .parquet, or a named excitation "
         "KIND[:seed=N,seconds=S|n_step=N] (steps, multisine, chirp, prbs, work_cycle), e.g. steps:seed=1",
     )
-    p.add_argument(
-        "--out", type=Path, default=None, help="output folder (default: CKPT's folder/compare)"
-    )
+    add_out(p, "output folder (default: CKPT's folder/compare)", replaced=False, required=False)
     p.add_argument(
         "--theta0",
         default=None,
@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..env.compare import compare
     from ..errors import ConfigError
+    from ..outdir import check_out_dir
 
     theta0 = None
     if args.theta0:
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--theta0 must be comma-separated numbers in rad, got '{args.theta0}'"
             ) from e
-    out = args.out or args.ckpt.parent / "compare"
+    out = check_out_dir(args.out or args.ckpt.parent / "compare", overwrite=args.overwrite)
     res = compare(
         args.ckpt, args.commands, theta0=theta0, out=out, plant=args.plant, device=args.device
     )

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .common import add_out
+
 
 def _compare(text: str) -> tuple[str, Path]:
     label, sep, path = text.partition("=")
@@ -24,7 +26,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("checkpoint", type=Path, help="surrogate checkpoint (best.pt)")
     p.add_argument("dataset", type=Path, help="dataset folder")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    add_out(p, "output folder", replaced=False)
     p.add_argument("--preset", default=None, help="preset name or .toml path ([evaluate] table)")
     p.add_argument("--split", default=None, help="split to evaluate (default test)")
     p.add_argument(
@@ -56,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from ..data.dataset import load_dataset
     from ..evaluate.cbe import EvaluateConfig, evaluate_checkpoint
     from ..io_utils import log
+    from ..outdir import check_out_dir
 
     preset = load_preset(args.preset) if args.preset else {}
     cfg = EvaluateConfig.from_preset(
@@ -66,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         paper=False if args.no_paper else None,
         max_steps=args.max_steps,
     )
+    check_out_dir(args.out, overwrite=args.overwrite)
     splits = (cfg.split, "train", "val") if cfg.arx else (cfg.split,)
     dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))
     evaluate_checkpoint(

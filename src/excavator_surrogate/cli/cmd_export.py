@@ -44,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
     from ..env.export import OnnxStepper, export_onnx
     from ..env.surrogate_env import load_surrogate
     from ..env.tasks import sample_pose
+    from ..outdir import check_out_file
 
+    check_out_file(args.out, inputs=[args.ckpt], example="model.onnx")
     sur = load_surrogate(args.ckpt)
     mode = args.mode or sur.mode
     out = export_onnx(sur, args.out, mode=mode, opset=args.opset, exporter=args.exporter)

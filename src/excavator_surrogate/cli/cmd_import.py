@@ -9,6 +9,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..ingest import SplitOptions, import_logs, load_mapping, options_with, render_markdown
+from .common import add_out
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,9 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="MAP.toml",
         help="mapping file (docs/import.md)",
     )
-    p.add_argument(
-        "--out", type=Path, metavar="DIR", help="dataset folder to write (replaced atomically)"
-    )
+    add_out(p, "dataset folder to write", replaced=True, required=False)
     p.add_argument(
         "--rate",
         type=float,
@@ -80,6 +79,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         default=None,
         help="clip commands outside their range instead of failing",
+    )
+    p.add_argument(
+        "--outliers",
+        choices=("fail", "drop", "clip"),
+        help="angle spikes and angles beyond the joint limits: fail, drop the rows, or clip "
+        "to the limits (docs/import.md)",
     )
     p.add_argument(
         "--on-error",
@@ -176,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         lowpass=args.lowpass,
         clip_commands=args.clip_commands,
         on_error=args.on_error,
+        outliers=args.outliers,
     )
     split = _split_options(args, mapping.split)
     report = import_logs(
@@ -185,6 +191,8 @@ def run(args: argparse.Namespace) -> int:
         options=options,
         split=split,
         quiet=args.quiet,
+        overwrite=args.overwrite,
+        inputs=[args.mapping, *([args.split_file] if args.split_file is not None else [])],
     )
     print(render_markdown(report), end="")
     return 0

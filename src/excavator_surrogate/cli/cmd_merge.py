@@ -25,9 +25,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Load every member (``weights_only``), merge, write atomically, print a summary."""
+    from ..outdir import check_out_file
     from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
     from ..surrogate.ensemble import merge
 
+    check_out_file(args.out, inputs=args.ckpts, example="ensemble.pt")
     members = [load_checkpoint(p) for p in args.ckpts]
     sur = merge(members, name=args.name)
     sur.metrics["ensemble"]["sources"] = [str(p) for p in args.ckpts]

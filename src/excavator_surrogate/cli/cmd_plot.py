@@ -27,9 +27,11 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur plot``."""
     from ..data import read_episode
+    from ..outdir import check_out_file
     from ..plotting.episode import plot_episode
 
-    ep = read_episode(args.episode)
     out = Path(args.out) if args.out else Path(args.episode).with_suffix(".png")
+    check_out_file(out, inputs=[args.episode], example="episode.png")
+    ep = read_episode(args.episode)
     print(plot_episode(ep, out=out))
     return 0

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .common import add_overwrite
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``run`` subcommand."""
@@ -72,7 +74,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="K",
         help="seed-ensemble members per trained model (1: a single network; default: the preset's)",
     )
-    p.set_defaults(func=run)
+    add_overwrite(p, replaced=True)
+    p.set_defaults(func=checked_run)
+
+
+def checked_run(args: argparse.Namespace) -> int:
+    """:func:`run` under the output-folder rule: no input inside ``--out``; ``--overwrite``."""
+    from ..outdir import out_dir, preset_files
+
+    inputs = [*preset_files(args.preset)]
+    for key in ("data", "mapping", "logs"):  # the dataset, or the logs and their mapping
+        value = getattr(args, key, None)
+        inputs += [] if value is None else value if isinstance(value, list) else [value]
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+        return run(args)
 
 
 def run(args: argparse.Namespace) -> int:

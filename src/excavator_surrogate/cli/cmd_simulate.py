@@ -8,6 +8,8 @@ from typing import Any
 
 from ..config import from_dict, load_preset
 from ..errors import ConfigError
+from ..outdir import out_dir, preset_files
+from .common import add_out
 
 DEFAULT_PRESET = "paper-stage1"
 
@@ -29,9 +31,7 @@ def register(subparsers: Any) -> None:
         help=f"shipped preset name (tiny, quick, paper-stage1) or a TOML file with a [simulate] "
         f"table (default: {DEFAULT_PRESET})",
     )
-    p.add_argument(
-        "--out", required=True, metavar="DIR", help="output dataset folder (replaced when complete)"
-    )
+    add_out(p, "output dataset folder", replaced=True)
     p.add_argument(
         "--workers",
         type=int,
@@ -64,8 +64,9 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--workers must be >= 1, got {args.workers}")
         changes["workers"] = args.workers
     cfg = dataclasses.replace(cfg, **changes)
-    path = simulate_dataset(
-        cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}
-    )
+    with out_dir(args.out, overwrite=args.overwrite, inputs=preset_files(args.preset)):
+        path = simulate_dataset(
+            cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}
+        )
     print(path)
     return 0

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .common import add_out
+
 
 def register(subparsers: Any) -> None:
     """Add the ``sweep`` subcommand."""
@@ -18,7 +20,7 @@ def register(subparsers: Any) -> None:
         "machines join the same study with the same --storage URL and --study name.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (train and val splits)")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    add_out(p, "output folder", replaced=False)
     p.add_argument("--trials", type=int, required=True, help="trials this worker runs")
     p.add_argument(
         "--storage",
@@ -49,10 +51,14 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
     from ..config import load_preset
+    from ..data.dataset import read_manifest
+    from ..outdir import check_out_dir
     from ..scale.sweep import SweepConfig, run_sweep
     from ..surrogate.train import TrainConfig
 
     preset = load_preset(args.preset) if args.preset else {}
+    check_out_dir(args.out, overwrite=args.overwrite)
+    read_manifest(args.dataset)  # a missing dataset is an error before --out is created
     base = TrainConfig.from_preset(preset, device=args.device)
     scfg = SweepConfig.from_preset(
         preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed

@@ -11,6 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .common import add_overwrite
+
 
 def register(subparsers: Any) -> None:
     """Add the ``train`` subcommand."""
@@ -54,7 +56,22 @@ def register(subparsers: Any) -> None:
         help="data-parallel training; requires a torchrun launch (automatic when torchrun "
         "sets WORLD_SIZE > 1); batch sizes are per process",
     )
-    p.set_defaults(func=run)
+    add_overwrite(p, replaced=False)
+    p.set_defaults(func=checked_run)
+
+
+def checked_run(args: argparse.Namespace) -> int:
+    """Check ``--out`` and ``--resume`` against the dataset before :func:`run` writes anything."""
+    from ..data.dataset import load_dataset
+    from ..outdir import check_out_dir
+    from ..surrogate.checkpoint import check_compatible, load_checkpoint
+
+    check_out_dir(args.out, overwrite=args.overwrite)
+    if args.resume is not None:
+        resumed = load_checkpoint(args.resume)
+        spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
+        check_compatible(resumed.spec, spec, ckpt=args.resume, data_name=args.dataset)
+    return run(args)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..data import load_dataset, read_episode
+from ..data import Episode, load_dataset, read_episode
+from ..errors import DataError
+
+LIMIT_MARGIN = 0.5
+"""Angles may exceed the spec's joint limits by this fraction of the range (sensor noise and
+jumps of raw or simulated Stage II data); beyond it an episode is corrupt."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +33,9 @@ def run(args: argparse.Namespace) -> int:
     for path in args.paths:
         if path.is_dir():
             ds = load_dataset(path, min_steps=args.min_steps)
+            for s in ("train", "val", "test"):
+                for ep in ds.split(s):
+                    _check_limits(ep, path / "episodes" / f"{ep.name}.parquet")
             counts = {s: len(ds.split(s)) for s in ("train", "val", "test")}
             print(
                 f"{path}: ok, joints {list(ds.spec.names)} at {ds.spec.rate_hz:g} Hz, "
@@ -35,8 +43,28 @@ def run(args: argparse.Namespace) -> int:
             )
         else:
             ep = read_episode(path, min_steps=args.min_steps)
+            _check_limits(ep, path)
             print(
                 f"{path}: ok, joints {list(ep.spec.names)} at {ep.spec.rate_hz:g} Hz, "
                 f"{ep.n_step} samples, source {ep.source}"
             )
     return 0
+
+
+def _check_limits(ep: Episode, where: Path) -> None:
+    """Measured angles within the joint limits (+ :data:`LIMIT_MARGIN` of the range)."""
+    from ..ingest.outliers import limit_excursions
+
+    hit = limit_excursions(ep.theta, ep.spec.joints, LIMIT_MARGIN)
+    if hit is None:
+        return
+    row, k, value, lo, hi, n_bad = hit
+    name = ep.spec.names[k]
+    raise DataError(
+        where,
+        f"joint '{name}': angle {value:.6g} rad is outside the limits [{lo:.6g}, {hi:.6g}] rad "
+        f"(+{LIMIT_MARGIN:.0%} of the range) in {n_bad} sample(s)",
+        column=f"theta_{name}",
+        row=row,
+        fix='re-import the log with [import] outliers = "fail" to find the bad rows (docs/import.md)',
+    )

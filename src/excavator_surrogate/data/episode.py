@@ -392,7 +392,7 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
             row, k = (int(x) for x in np.argwhere(bad)[0])
             raise DataError(
                 where,
-                f"non-finite value {arr[row, k]!r}",
+                f"non-finite value {float(arr[row, k])!r}",
                 column=cols[role][k],
                 row=row,
                 fix="fill or drop the gap ('exsur import --nan fill' can fill short gaps)",
@@ -413,7 +413,7 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
             row = int(np.flatnonzero(nonmono)[0]) + 1
             raise DataError(
                 where,
-                f"time is not strictly increasing ({ep.time[row - 1]!r} -> {ep.time[row]!r})",
+                f"time is not strictly increasing ({float(ep.time[row - 1])!r} -> {float(ep.time[row])!r})",
                 column="time",
                 row=row,
                 fix="sort by time and drop duplicate timestamps",

@@ -19,6 +19,7 @@ Command sources (:func:`load_commands`):
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,8 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..io_utils import write_json, write_text
-from ..spec import MachineSpec
+from ..spec import EXCAVATOR, MachineSpec
+from ..surrogate.checkpoint import check_compatible
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv, check_theta0
 from .safety import GuardConfig
@@ -102,9 +104,14 @@ def _named_excitation(
         if "n_step" in kv:
             n_step = int(kv["n_step"])
         else:
-            n_step = round(float(kv.get("seconds", DEFAULT_SECONDS)) * spec.rate_hz) + 1
+            seconds = float(kv.get("seconds", DEFAULT_SECONDS))
+            if not math.isfinite(seconds):
+                raise ValueError(f"seconds must be a finite number, got {seconds}")
+            n_step = round(seconds * spec.rate_hz) + 1
     except ValueError as e:
         raise ConfigError(f"commands '{text}': {e}") from e
+    if seed < 0:
+        raise ConfigError(f"commands '{text}': seed must be >= 0, got {seed}")
     if n_step < 2:
         raise ConfigError(f"commands '{text}': need at least 2 samples, got n_step={n_step}")
     u = generate(kind, seed, n_step, spec, theta0=theta0, omega_max=omega_max)
@@ -288,6 +295,16 @@ def compare(
     )
     spec = sur_env.machine
     mj_env = ExcavatorMujocoEnv(plant=plant, spec=spec, guard=no_guard, action_mode="reject")  # type: ignore[arg-type]
+    try:
+        check_compatible(
+            spec,
+            EXCAVATOR.with_rate(mj_env.plant.spec.rate_hz),
+            ckpt=ckpt if not isinstance(ckpt, Surrogate) else sur_env.surrogate.name,
+            data_name="the built-in MuJoCo excavator",
+        )
+    except BaseException:
+        mj_env.close()
+        raise
     if not isinstance(commands, Commands):
         commands = load_commands(commands, spec, theta0=theta0, omega_max=mj_env.plant.omega_max)
     start = theta0 if theta0 is not None else commands.theta0

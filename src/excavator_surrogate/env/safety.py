@@ -77,6 +77,13 @@ class ActionChecker:
         """
         n_joint = self.spec.n_joint
         shape = (n_joint,) if n_envs is None else (n_envs, n_joint)
+        kind = np.asarray(action).dtype.kind
+        if kind not in "biufO":
+            what = "complex" if kind == "c" else f"of dtype {np.asarray(action).dtype}"
+            raise ActionError(
+                f"{self.env_name}: action is {what}; give real numbers (float32/float64), one per "
+                f"joint {list(self.spec.names)}"
+            )
         try:
             u = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as e:

@@ -8,7 +8,8 @@ import numpy as np
 import torch
 
 from ..scale.devices import resolve_device
-from ..surrogate.checkpoint import load_checkpoint
+from ..spec import MachineSpec
+from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv
 from .engine import Impl, Mode, SurrogateEngine
@@ -17,16 +18,27 @@ from .tasks import Task
 
 
 def load_surrogate(
-    ckpt: str | Path | Surrogate, *, device: str | torch.device = "cpu"
+    ckpt: str | Path | Surrogate,
+    *,
+    device: str | torch.device = "cpu",
+    spec: MachineSpec | None = None,
 ) -> Surrogate:
     """A :class:`Surrogate` from a checkpoint path (or the object itself), in eval mode.
 
     ``device``: ``cpu``, ``cuda[:N]`` or ``auto`` (see :func:`~excavator_surrogate.scale.devices.resolve_device`).
+    ``spec``: the machine the caller expects; a checkpoint of other joints, command ranges or
+    rate raises :class:`~excavator_surrogate.errors.CheckpointError`.
     """
     device = resolve_device(device)
-    if isinstance(ckpt, Surrogate):
-        return ckpt.to(device).eval()
-    return load_checkpoint(ckpt, device=device)
+    sur = (
+        ckpt.to(device).eval()
+        if isinstance(ckpt, Surrogate)
+        else load_checkpoint(ckpt, device=device)
+    )
+    if spec is not None:
+        label = ckpt if not isinstance(ckpt, Surrogate) else f"surrogate '{sur.name}'"
+        check_compatible(sur.spec, spec, ckpt=label, data_name=f"machine '{spec.name}'")
+    return sur
 
 
 class ExcavatorSurrogateEnv(ExcavatorEnv):
@@ -100,6 +112,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | `guard`        | **GuardConfig / None**  | defaults  | divergence-guard thresholds                             |
     | `wrap_theta`   | **bool**                | `True`    | wrap periodic θ in the observation                      |
     | `reset_margin` | **float**               | `0.1`     | fraction of joint ranges avoided by random starts       |
+    | `spec`         | **MachineSpec / None**  | `None`    | expected machine: a checkpoint of another one raises    |
     """
 
     env_id = "ExcavatorSurrogate-v0"
@@ -116,8 +129,9 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         guard: GuardConfig | None = None,
         wrap_theta: bool = True,
         reset_margin: float = 0.1,
+        spec: MachineSpec | None = None,
     ) -> None:
-        sur = load_surrogate(ckpt, device=device)
+        sur = load_surrogate(ckpt, device=device, spec=spec)
         self.ckpt = str(ckpt) if not isinstance(ckpt, Surrogate) else None
         super().__init__(
             spec=sur.spec,

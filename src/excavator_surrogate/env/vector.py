@@ -34,6 +34,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..errors import ConfigError
+from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
 from .base import action_space, check_theta0, observation_space
 from .engine import Impl, Mode, SurrogateEngine
@@ -59,6 +60,8 @@ class SurrogateVectorEnv(VectorEnv):
         reset_margin: fraction of joint ranges avoided by random start poses.
         max_episode_steps: truncate episodes after this many steps (None: never).
         autoreset_mode: ``AutoresetMode`` (or its string value).
+        spec: the machine the caller expects; a checkpoint of other joints, command ranges or
+            rate raises :class:`~excavator_surrogate.errors.CheckpointError`.
     """
 
     env_id = "ExcavatorSurrogate-v0 (vector)"
@@ -78,8 +81,9 @@ class SurrogateVectorEnv(VectorEnv):
         reset_margin: float = 0.1,
         max_episode_steps: int | None = 1000,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        spec: MachineSpec | None = None,
     ) -> None:
-        sur = load_surrogate(ckpt, device=device)
+        sur = load_surrogate(ckpt, device=device, spec=spec)
         self.engine = SurrogateEngine(sur, n_envs=n_envs, device=device, mode=mode, impl=impl)
         self.surrogate = sur
         self.machine = sur.spec

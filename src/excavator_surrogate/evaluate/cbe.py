@@ -30,7 +30,7 @@ from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from ..io_utils import log, write_json, write_text
 from ..surrogate.baselines import fit_arx
-from ..surrogate.checkpoint import load_checkpoint
+from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.features import unwrap_periodic
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
@@ -58,6 +58,11 @@ class EvaluateConfig:
     """At most this many episode figures."""
     num_threads: int = 1
     """Torch intra-op threads (0 keeps torch's default)."""
+
+    def __post_init__(self) -> None:
+        for name in ("max_steps", "max_figures", "num_threads"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"[evaluate] {name} must be >= 0, got {getattr(self, name)}")
 
     @classmethod
     def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> EvaluateConfig:
@@ -94,11 +99,12 @@ def evaluate_models(
     metrics: dict[str, dict[str, Any]] = {}
     runs: dict[str, list[EpisodeRollout]] = {}
     for label, sur in models.items():
-        if sur.spec.names != episodes[0].spec.names:
+        diff = sur.spec.mismatch(episodes[0].spec)
+        if diff is not None:
             raise DataError(
                 episodes[0].name,
-                f"joints {list(episodes[0].spec.names)} differ from model '{label}' joints {list(sur.spec.names)}",
-                fix="evaluate on data of the machine the model was trained for",
+                f"model '{label}' does not fit this episode ({diff}, model vs data)",
+                fix="evaluate on data of the machine and rate the model was trained for",
             )
         sur.eval()
         runs[label] = rollout_episodes(sur, episodes, reference=reference, max_steps=max_steps)
@@ -164,6 +170,10 @@ def evaluate_checkpoint(
     models: dict[str, Surrogate] = {primary: sur}
     for label, path in (compare or {}).items():
         models[label] = load_checkpoint(path, device=dev)
+    where = dataset.root if dataset.root is not None else "the dataset"
+    check_compatible(sur.spec, dataset.spec, ckpt=ckpt, data_name=where)
+    for label, path in (compare or {}).items():
+        check_compatible(models[label].spec, dataset.spec, ckpt=path, data_name=where)
     if arx:
         if dataset.train:
             models["ARX"] = fit_arx(

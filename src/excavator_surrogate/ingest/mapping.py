@@ -190,6 +190,9 @@ class ImportOptions:
     """Clip commands outside the range instead of failing (clipped samples are reported)."""
     on_error: Literal["fail", "skip"] = "fail"
     """A file that fails validation stops the import (``fail``) or is skipped and reported."""
+    outliers: Literal["fail", "drop", "clip"] = "fail"
+    """Angle spikes and angles beyond the joint limits: ``fail``, ``drop`` the rows, or ``clip``
+    to the limits (spikes are dropped); found before resampling (docs/import.md)."""
 
     def __post_init__(self) -> None:
         if self.rate_hz is not None and not self.rate_hz > 0:
@@ -221,6 +224,8 @@ class SplitOptions:
     test: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ConfigError(f"split seed must be >= 0, got {self.seed}")
         f = self.fractions
         if any(x < 0 for x in f) or not math.isclose(sum(f), 1.0, abs_tol=1e-6):
             raise ConfigError(f"split fractions {list(f)} must be >= 0 and sum to 1")
@@ -388,8 +393,29 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
         raise ConfigError(
             f'{where}: time.column is required for CSV/Parquet logs (add [time] column = "...")'
         )
+    _check_shared_channels(m, where)
     m.spec()  # checks names and ranges
     return m
+
+
+def _check_shared_channels(m: Mapping, where: str) -> None:
+    """One log channel feeds one role of one joint (two joints reading one column is a typo)."""
+    seen: dict[Channel, str] = {}
+    if m.time.column is not None:
+        seen[Channel(TABLE, m.time.column)] = "the time"
+    for j in m.joints:
+        roles = [("angle", m.angle_channel(j)), ("velocity", m.velocity_channel(j))]
+        roles += [("command", ch) for ch in m.command_channels(j)]
+        for role, ch in roles:
+            if ch is None:
+                continue
+            user = f"the {role} of joint '{j.name}'"
+            if ch in seen:
+                raise ConfigError(
+                    f"{where}: {ch.label} is mapped to both {seen[ch]} and {user}; "
+                    "map each log channel once"
+                )
+            seen[ch] = user
 
 
 def _parse_joint(raw: Any, i: int, where: str) -> JointMap:

@@ -7,6 +7,7 @@ together with ``import_report.json`` and ``import_report.md``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import math
@@ -22,8 +23,10 @@ from ..config import to_dict
 from ..data import Episode, write_dataset
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_dir, log, progress, write_json, write_text
+from ..outdir import check_out_dir, replace_allowed
 from ..spec import MachineSpec
 from .mapping import DEG, Channel, CommandMap, ImportOptions, JointMap, Mapping, SplitOptions
+from .outliers import screen_angles
 from .report import render_markdown
 from .resample import (
     antialias_sos,
@@ -374,6 +377,7 @@ def convert_log(
         "series": {},
         "filled": {},
         "clipped": {},
+        "outliers": {},
         "velocity": {},
         "notes": [],
         "segments": [],
@@ -405,6 +409,19 @@ def convert_log(
         if n_fill:
             entry["filled"][ch.label] = {"values": n_fill, "runs": n_runs}
         vals[ch] = x
+
+    # spikes and joint limits, on the input samples (before the anti-alias filter)
+    screen_angles(
+        path,
+        raw,
+        vals,
+        mapping,
+        spec.joints,
+        dt_in,
+        policy=options.outliers,
+        entry=entry,
+        check_unit=lambda t, th, j, label: _check_angle_unit(path, t, th, j, label, where),
+    )
 
     # units
     theta_in: list[np.ndarray] = []
@@ -514,6 +531,7 @@ def convert_log(
                     "velocity": dict(entry["velocity"]),
                     "filled": dict(entry["filled"]),
                     "clipped": dict(entry["clipped"]),
+                    "outliers": dict(entry["outliers"]),
                 }
             },
         )
@@ -629,20 +647,10 @@ def _stem(path: Path) -> str:
 # many logs -> dataset
 
 
-def _check_out(out: Path, sources: list[Path]) -> None:
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out}: --out exists and is a file; give a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "manifest.json").exists():
-        raise ConfigError(
-            f"{out}: --out exists and is not an exsur dataset; choose a new or empty folder"
-        )
-    ro = out.resolve()
-    for s in sources:
-        rs = s.resolve()
-        if rs == ro or ro in rs.parents:
-            raise ConfigError(
-                f"{s}: source lies inside --out {out}, which is replaced; write the dataset elsewhere"
-            )
+def _check_out(out: Path, inputs: list[Path], *, overwrite: bool) -> None:
+    """The output-folder rule (:mod:`excavator_surrogate.outdir`): no input (a log, the
+    mapping) inside ``out``; a folder exsur did not write only with ``overwrite``."""
+    check_out_dir(out, overwrite=overwrite, inputs=inputs)
 
 
 def import_logs(
@@ -653,6 +661,8 @@ def import_logs(
     options: ImportOptions | None = None,
     split: SplitOptions | None = None,
     quiet: bool = False,
+    overwrite: bool = False,
+    inputs: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Import logs into a dataset folder (atomically) and return the report.
 
@@ -663,6 +673,9 @@ def import_logs(
         options: import options (default: the mapping's ``[import]``).
         split: split options (default: the mapping's ``[split]``).
         quiet: no progress lines on stderr.
+        overwrite: ``out`` may be replaced even if exsur did not write it (``--overwrite``).
+        inputs: other files read (split file); like the logs and the mapping, none may lie
+            inside ``out``.
 
     Returns:
         The report (also written to ``out/import_report.json``).
@@ -676,7 +689,8 @@ def import_logs(
     paths = expand_sources(sources)
     outp = Path(out) if out is not None else None
     if outp is not None:
-        _check_out(outp, paths)
+        mapping_file = [mapping.path] if mapping.path is not None else []
+        _check_out(outp, [*paths, *mapping_file, *map(Path, inputs)], overwrite=overwrite)
     if options.velocity == "kalman":
         _clean_episode()
     spec = mapping.spec(options.rate_hz)
@@ -742,7 +756,10 @@ def import_logs(
             "source": "import",
             "import": {"mapping": report["mapping"], "totals": report["totals"]},
         }
-        with atomic_dir(outp) as tmp:
+        with (
+            replace_allowed(outp) if overwrite else contextlib.nullcontext(),
+            atomic_dir(outp) as tmp,
+        ):
             write_dataset(tmp, items, config=config, extra=extra)
             write_json(tmp / REPORT_JSON, report)
             write_text(tmp / REPORT_MD, md)

@@ -42,6 +42,11 @@ def render_markdown(report: dict[str, Any]) -> str:
             notes.append(f"{n_drop} segment(s) dropped")
         if f["clipped"]:
             notes.append("clipped: " + ", ".join(f"{k} {v}" for k, v in f["clipped"].items()))
+        for joint, counts in f.get("outliers", {}).items():
+            notes.append(
+                f"outliers {joint}: "
+                + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counts.items())
+            )
         notes.extend(n for n in f["notes"] if "upsampled" in n)
         lines.append(
             f"| {f['file']} | {f.get('split', '-')} | {f['rows']} | {rates} | {len(segs)} | "

@@ -196,6 +196,14 @@ def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Map
         )
     for c in needed:
         if c not in names:
+            delim = _other_delimiter(names, c, mapping.csv.delimiter)
+            if delim is not None:
+                raise DataError(
+                    path,
+                    f"column '{c}' is in the header, but separated by {delim!r}, "
+                    f"not by {mapping.csv.delimiter!r}",
+                    fix=f"set [csv] delimiter = {_toml_str(delim)} in {mapping.where}",
+                )
             shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
             raise DataError(
                 path,
@@ -203,6 +211,18 @@ def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Map
                 column=c,
                 fix=f"fix the column name in {mapping.where}; the log has: {shown}",
             )
+
+
+def _other_delimiter(names: list[str], column: str, current: str) -> str | None:
+    """The delimiter that makes ``column`` a field of the header ``names`` split by ``current``."""
+    for d in (";", "\t", ",", "|", " "):
+        if d != current and any(column in (x.strip() for x in n.split(d)) for n in names):
+            return d
+    return None
+
+
+def _toml_str(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace("\t", "\\t").replace('"', '\\"') + '"'
 
 
 def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:

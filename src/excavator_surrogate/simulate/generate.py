@@ -109,6 +109,8 @@ class SimulateConfig:
     """Sensor noise and fault magnitudes (``[simulate.sensor]``)."""
 
     def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ConfigError(f"simulate.seed must be >= 0, got {self.seed}")
         for name in ("n_train", "n_val", "n_test"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"simulate.{name} must be >= 0, got {getattr(self, name)}")

@@ -93,7 +93,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # zip/pickle/unpickler errors come in many types
-        first = str(e).strip().splitlines()[0][:120] if str(e).strip() else ""
+        first = _first_line(e, 120)
         raise CheckpointError(
             f"{path}: not a readable exsur checkpoint ({type(e).__name__}{': ' + first if first else ''}); "
             "re-train or copy the file again"
@@ -135,7 +135,7 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
     try:
         net.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, AttributeError) as e:
-        msg = str(e).strip().splitlines()[0][:160]
+        msg = _first_line(e, 160)
         raise CheckpointError(f"{where}: weights do not fit the stored architecture ({msg})") from e
     net.eval()
     return Surrogate(
@@ -149,6 +149,38 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
         name=str(ckpt.get("name", mcfg.cell)),
         end_stops=bool(ckpt.get("end_stops", False)),
     )
+
+
+def check_compatible(
+    model: MachineSpec, data: MachineSpec, *, ckpt: str | Path, data_name: str | Path
+) -> None:
+    """Refuse a checkpoint trained for another machine: other joints, rate or command ranges.
+
+    Args:
+        model: the checkpoint's spec.
+        data: the spec of the data, environment or dataset it is used with.
+        ckpt: the checkpoint (for the message).
+        data_name: what it is used with (for the message), e.g. the dataset folder.
+
+    Raises:
+        CheckpointError: one line naming both and the first difference.
+    """
+    diff = model.mismatch(data)
+    if diff is None:
+        return
+    raise CheckpointError(
+        f"{ckpt}: the checkpoint does not fit {data_name} ({diff}, checkpoint vs data); use a "
+        "checkpoint trained on this machine at this rate, or data of the checkpoint's machine"
+    )
+
+
+def _first_line(e: BaseException, n: int) -> str:
+    """First line of ``str(e)``, shortened to at most ``n`` characters at a word boundary."""
+    text = str(e).strip().splitlines()[0] if str(e).strip() else ""
+    if len(text) <= n:
+        return text
+    cut = text[:n].rsplit(" ", 1)[0].rstrip(",;:")
+    return cut + " ..."
 
 
 def load_checkpoint(path: str | Path, *, device: str | torch.device = "cpu") -> Surrogate:

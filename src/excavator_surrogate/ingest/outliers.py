@@ -1,0 +1,207 @@
+"""Angle outliers in raw logs: single-sample spikes and values beyond the declared joint limits.
+
+Both are found on the input samples, before resampling (the anti-alias filter would smear
+one corrupt sample over hundreds of output samples).  ``[import] outliers`` decides:
+
+- ``fail`` (default): the first one is an error naming the file, row, column and joint;
+- ``drop``: spike rows and out-of-limit rows are removed (short holes are bridged by the
+  resampler, holes longer than ``max_gap`` split the episode);
+- ``clip``: spike rows are removed, out-of-limit angles are clipped to the limits.
+
+Counts go to the import report (``outliers`` per joint).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from ..errors import DataError
+from ..spec import JointSpec
+from .mapping import DEG, Channel, JointMap, Mapping
+from .sources import RawLog, Series
+
+SPIKE_HALF_WINDOW = 3
+"""A spike is at most this many samples long (Hampel window of 2k+1 samples)."""
+SPIKE_MAD = 8.0
+"""A sample further than this many robust standard deviations from its window's median ..."""
+SPIKE_SPEED = 10.0
+"""... and further than this speed [rad/s] times k sample steps is a spike."""
+LIMIT_MARGIN = 0.05
+"""Input angles may exceed the declared limits by this fraction of the joint range."""
+
+
+def find_spikes(x: np.ndarray, dt_in: float) -> np.ndarray:
+    """(n,) bool: samples of ``x`` [rad] that jump away from their neighbours and back (Hampel).
+
+    A sample is a spike when it lies more than ``max(SPIKE_MAD * 1.4826 * MAD,
+    SPIKE_SPEED * k * dt_in)`` from the median of the ``2k + 1`` samples around it, with
+    ``k = SPIKE_HALF_WINDOW``: no joint moves that far in ``k`` steps.  Steps (a joint that
+    moves and stays) are never spikes.
+    """
+    k = SPIKE_HALF_WINDOW
+    n = x.shape[0]
+    spikes = np.zeros(n, dtype=bool)
+    if n < 2 * k + 1:
+        return spikes
+    floor = SPIKE_SPEED * k * dt_in
+    xp = np.pad(x, k, mode="reflect")  # a spike in the first sample is still one
+    # Only a sample further than `floor` from some neighbour can be a spike: find those
+    # cheaply (window max/min), then take medians of their windows only.
+    hi, lo = xp[:n].copy(), xp[:n].copy()
+    for s in range(1, 2 * k + 1):
+        np.maximum(hi, xp[s : s + n], out=hi)
+        np.minimum(lo, xp[s : s + n], out=lo)
+    idx = np.flatnonzero((hi - x > floor) | (x - lo > floor))
+    if idx.size == 0:
+        return spikes
+    w = sliding_window_view(xp, 2 * k + 1)[idx]
+    med = np.median(w, axis=1)
+    mad = np.median(np.abs(w - med[:, None]), axis=1)
+    spikes[idx] = np.abs(x[idx] - med) > np.maximum(SPIKE_MAD * 1.4826 * mad, floor)
+    return spikes
+
+
+def _angle(vals: np.ndarray, j: JointMap) -> np.ndarray:
+    """Raw channel -> angle [rad] (periodic joints unwrapped)."""
+    th = vals * j.angle.scale + j.angle.offset
+    th = th * DEG if j.angle.unit == "deg" else th
+    return np.unwrap(th) if j.periodic else th
+
+
+def _in_unit(x: float, j: JointMap) -> str:
+    unit = j.angle.unit or "rad"
+    return f"{x / DEG if unit == 'deg' else x:.6g} {unit}"
+
+
+def screen_angles(
+    path: Path,
+    raw: RawLog,
+    vals: dict[Channel, np.ndarray],
+    mapping: Mapping,
+    joints: tuple[JointSpec, ...],
+    dt_in: dict[str, float],
+    *,
+    policy: str,
+    entry: dict[str, Any],
+    check_unit: Callable[[np.ndarray, np.ndarray, JointMap, str], None] | None = None,
+) -> None:
+    """Find spikes and out-of-limit angles and apply ``policy`` in place (``raw``, ``vals``).
+
+    Args:
+        path: the log (for messages).
+        raw: the log as read; rows are removed from its series under ``drop``/``clip``.
+        vals: channel -> values after the NaN policy, aligned with the series' time.
+        mapping: the mapping (joints, channels).
+        joints: the spec's joints (limits in rad), in mapping order.
+        dt_in: series name -> typical input step [s].
+        policy: ``fail``, ``drop`` or ``clip``.
+        entry: the file's report entry; ``entry["outliers"][joint]`` gets the counts.
+        check_unit: ``(t, angle_in_unit, joint, label)`` called on the samples without spikes
+            before the limits are checked (a degree value in a rad column is a unit error).
+
+    Raises:
+        DataError: ``policy = "fail"`` and a spike or an out-of-limit angle was found.
+    """
+    drop: dict[str, np.ndarray] = {}
+    fix = (
+        f'fix the log, or set [import] outliers = "drop" or "clip" in {mapping.where} '
+        "(docs/import.md)"
+    )
+    for j, js in zip(mapping.joints, joints):
+        ch = mapping.angle_channel(j)
+        th = _angle(vals[ch], j)
+        spikes = find_spikes(th, dt_in[ch.series])
+        if spikes.any() and policy == "fail":
+            row = int(np.flatnonzero(spikes)[0])
+            raise DataError(
+                path,
+                f"joint '{j.name}': angle {_in_unit(th[row], j)} is a spike (its neighbours "
+                f"read about {_in_unit(float(np.median(th[max(row - 3, 0) : row + 4])), j)})",
+                column=ch.label,
+                row=row,
+                fix=fix,
+            )
+        if check_unit is not None:
+            keep = ~spikes
+            th_unit = vals[ch][keep] * j.angle.scale + j.angle.offset
+            check_unit(raw.series[ch.series].time[keep], th_unit, j, ch.label)
+        out = np.zeros_like(spikes)
+        lo, hi = js.theta_min, js.theta_max
+        if not j.periodic and lo is not None and hi is not None:
+            margin = LIMIT_MARGIN * (hi - lo)
+            out = ~spikes & ((th < lo - margin) | (th > hi + margin))
+            if out.any() and policy == "fail":
+                row = int(np.flatnonzero(out)[0])
+                raise DataError(
+                    path,
+                    f"joint '{j.name}': angle {_in_unit(th[row], j)} is outside the declared "
+                    f"limits [{_in_unit(lo, j)}, {_in_unit(hi, j)}] (+{LIMIT_MARGIN:.0%} of the "
+                    f"range); {int(out.sum())} sample(s) are",
+                    column=ch.label,
+                    row=row,
+                    fix=f"check the angle's unit/scale/offset and limits of joint '{j.name}', or {fix}",
+                )
+        counts: dict[str, int] = {}
+        if spikes.any():
+            counts["spikes_dropped"] = int(spikes.sum())
+        if out.any() and policy == "clip":
+            counts["clipped"] = int(out.sum())
+            clipped = np.clip(th, lo, hi) / (DEG if j.angle.unit == "deg" else 1.0)
+            vals[ch] = np.where(out, (clipped - j.angle.offset) / j.angle.scale, vals[ch])
+            out = np.zeros_like(out)
+        elif out.any():
+            counts["out_of_limits_dropped"] = int(out.sum())
+        if counts:
+            entry["outliers"][j.name] = counts
+        bad = spikes | out
+        if bad.any():
+            prev = drop.get(ch.series)
+            drop[ch.series] = bad if prev is None else prev | bad
+    for name, bad in drop.items():
+        keep = ~bad
+        s = raw.series[name]
+        if int(keep.sum()) < 2:
+            raise DataError(
+                path,
+                f'{int(bad.sum())} of {bad.shape[0]} rows are outliers (outliers = "{policy}"): '
+                "nothing is left",
+                column=s.time_label,
+                fix=f"check the angles' unit/scale/offset and the joint limits in {mapping.where}",
+            )
+        raw.series[name] = Series(
+            name, s.time[keep], {k: v[keep] for k, v in s.values.items()}, s.time_label
+        )
+        for ch in list(vals):
+            if ch.series == name:
+                vals[ch] = vals[ch][keep]
+        entry["notes"].append(
+            f'{name}: removed {int(bad.sum())} outlier row(s) (outliers = "{policy}")'
+        )
+
+
+def limit_excursions(theta: np.ndarray, joints: tuple[JointSpec, ...], margin: float) -> Any:
+    """First sample beyond a joint's limits by more than ``margin`` x its range.
+
+    Args:
+        theta: (n_step, n_joint) angles [rad].
+        joints: the spec's joints.
+        margin: allowed excursion as a fraction of each joint's range.
+
+    Returns:
+        ``(row, joint_index, value, lo, hi, n_bad)`` of the first violation, or None.
+    """
+    for k, js in enumerate(joints):
+        lo, hi = js.theta_min, js.theta_max
+        if js.periodic or lo is None or hi is None:
+            continue
+        m = margin * (hi - lo)
+        bad = (theta[:, k] < lo - m) | (theta[:, k] > hi + m)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            return row, k, float(theta[row, k]), lo, hi, int(bad.sum())
+    return None

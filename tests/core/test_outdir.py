@@ -1,0 +1,167 @@
+"""The output-folder rule (outdir.py) and the atomic writers that apply it (io_utils.py)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.io_utils import atomic_dir, sweep_stale
+from excavator_surrogate.outdir import (
+    check_out_dir,
+    check_out_file,
+    foreign_entry,
+    is_exsur_output,
+    replace_allowed,
+)
+
+
+def _dataset(root: Path) -> Path:
+    (root / "episodes").mkdir(parents=True)
+    (root / "episodes" / "a.parquet").write_bytes(b"x")
+    (root / "manifest.json").write_text("{}")
+    (root / "config.toml").write_text("")
+    return root
+
+
+def _run(root: Path) -> Path:
+    """A folder laid out like 'exsur run' output: report + nested dataset and model."""
+    root.mkdir()
+    for name in ("report.md", "metrics.json", "table.md", "cbe.png", "config.toml"):
+        (root / name).write_text("")
+    _dataset(root / "data")
+    (root / "model" / "tb").mkdir(parents=True)
+    (root / "model" / "tb" / "events.out.tfevents.1.host").write_text("")
+    (root / "model" / "best.pt").write_text("")
+    return root
+
+
+def test_recognises_exsur_outputs(tmp_path: Path) -> None:
+    assert is_exsur_output(_dataset(tmp_path / "ds"))
+    assert is_exsur_output(_run(tmp_path / "run"))
+    (tmp_path / "empty").mkdir()
+    assert is_exsur_output(tmp_path / "empty")
+    assert not is_exsur_output(tmp_path / "missing")
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        ("precious.txt", "precious.txt"),
+        ("episodes/notes.txt", "episodes/notes.txt"),
+        ("model/mine.csv", "model/mine.csv"),
+        ("data/logs/run.csv", "data/logs"),
+    ],
+)
+def test_a_foreign_file_anywhere_is_named(tmp_path: Path, extra: str, named: str) -> None:
+    root = _run(tmp_path / "run")
+    (root / extra).parent.mkdir(parents=True, exist_ok=True)
+    (root / extra).write_text("mine")
+    assert foreign_entry(root) is not None and foreign_entry(root).startswith(named)
+    assert not is_exsur_output(root)
+
+
+def test_exsur_names_without_a_marker_are_not_enough(tmp_path: Path) -> None:
+    d = tmp_path / "d"
+    d.mkdir()
+    (d / "table.md").write_text("mine")  # a name exsur writes, but no manifest/metrics/best.pt
+    assert not is_exsur_output(d)
+
+
+def test_symlink_is_foreign(tmp_path: Path) -> None:
+    root = _dataset(tmp_path / "ds")
+    (root / "link.pt").symlink_to(tmp_path)
+    assert foreign_entry(root) == "link.pt"
+
+
+def test_atomic_dir_refuses_a_foreign_folder_and_keeps_it(tmp_path: Path) -> None:
+    d = tmp_path / "d"
+    d.mkdir()
+    (d / "precious.txt").write_text("x")
+    with pytest.raises(ConfigError, match="precious.txt"), atomic_dir(d) as tmp:
+        (tmp / "manifest.json").write_text("{}")
+    assert (d / "precious.txt").read_text() == "x"
+    assert [p.name for p in tmp_path.iterdir()] == ["d"]
+
+
+def test_atomic_dir_replaces_its_own_output_or_with_consent(tmp_path: Path) -> None:
+    ds = _dataset(tmp_path / "ds")
+    with atomic_dir(ds) as tmp:
+        (tmp / "manifest.json").write_text('{"new": 1}')
+    assert sorted(p.name for p in ds.iterdir()) == ["manifest.json"]
+    d = tmp_path / "d"
+    d.mkdir()
+    (d / "precious.txt").write_text("x")
+    with replace_allowed(d), atomic_dir(d) as tmp:
+        (tmp / "manifest.json").write_text("{}")
+    assert sorted(p.name for p in d.iterdir()) == ["manifest.json"]
+
+
+def test_atomic_dir_refuses_the_current_folder(tmp_path: Path, monkeypatch) -> None:
+    sub = tmp_path / "sub"
+    sub.mkdir()
+    monkeypatch.chdir(sub)
+    for p in (".", "..", str(tmp_path)):
+        with pytest.raises(ConfigError, match="current folder"), atomic_dir(p):
+            pass
+
+
+def _dead_pid() -> int:
+    p = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    return int(p.stdout)
+
+
+def test_stale_temp_folders_of_killed_runs_are_removed(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    dead = tmp_path / f".ds.{_dead_pid()}-abc123.tmp"
+    legacy = tmp_path / ".ds.k2j4h5g6.tmp"  # exsur < 0.2 named them without a pid
+    alive = tmp_path / f".ds.{os.getpid()}-xyz.tmp"
+    old = tmp_path / f".ds.old-{_dead_pid()}"
+    nested = tmp_path / f".{dead.name}.{_dead_pid()}-q1.tmp"  # write_dataset inside import's temp
+    other = tmp_path / ".other.123-abc.tmp"
+    for p in (dead, legacy, alive, old, nested, other):
+        p.mkdir()
+    (dead / "episodes").mkdir()
+    removed = sweep_stale(out)
+    assert sorted(removed) == sorted([dead, legacy, old, nested])
+    assert alive.exists() and other.exists()
+    with atomic_dir(out) as tmp:  # a new run sweeps too, and leaves only its result
+        (tmp / "manifest.json").write_text("{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        [".other.123-abc.tmp", alive.name, "ds"]
+    )
+
+
+def test_check_out_dir_rules(tmp_path: Path, monkeypatch) -> None:
+    f = tmp_path / "file.txt"
+    f.write_text("x")
+    with pytest.raises(ConfigError, match="exists and is a file; give a folder"):
+        check_out_dir(f)
+    with pytest.raises(ConfigError, match=r"file.txt is a file, not a folder"):
+        check_out_dir(f / "sub")
+    ds = _dataset(tmp_path / "ds")
+    (ds / "map.toml").write_text("")
+    with pytest.raises(ConfigError, match="map.toml: this input lies inside --out"):
+        check_out_dir(ds, inputs=[ds / "map.toml"], overwrite=True)
+    with pytest.raises(ConfigError, match="which exsur did not write.*--overwrite"):
+        check_out_dir(ds)
+    assert check_out_dir(ds, overwrite=True) == ds
+    assert check_out_dir(tmp_path / "new" / "deeper") == tmp_path / "new" / "deeper"
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: Path(p) != tmp_path and real_access(p, m))
+    with pytest.raises(ConfigError, match="is not writable"):
+        check_out_dir(tmp_path / "new")
+
+
+def test_check_out_file_rules(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="is a folder; give a file name such as m.onnx"):
+        check_out_file(tmp_path, example="m.onnx")
+    a = tmp_path / "a.pt"
+    a.write_text("")
+    with pytest.raises(ConfigError, match="one of the inputs"):
+        check_out_file(a, inputs=[a], example="e.pt")
+    assert check_out_file(tmp_path / "b.pt", inputs=[a], example="e.pt") == tmp_path / "b.pt"
