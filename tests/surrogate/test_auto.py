@@ -44,8 +44,8 @@ def test_members_and_budget_follow_the_cpus():
     ds = _dataset([300, 300])
     two, _ = auto_config(ds, cpus=2, budget_s=600)
     one, _ = auto_config(ds, cpus=1, budget_s=600)
-    assert (two.members, two.member_workers, two.max_train_seconds) == (2, 2, 600)
-    assert (one.members, one.max_train_seconds) == (1, 600)
+    assert (two.members, two.member_workers, two.max_train_seconds) == (4, 2, 300)
+    assert (one.members, one.member_workers, one.max_train_seconds) == (2, 1, 300)
 
 
 def test_overrides_are_strict():

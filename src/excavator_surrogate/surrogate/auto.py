@@ -50,6 +50,8 @@ MAX_SEQ_LEN = 150
 """Longest training sub-sequence including the burn-in [samples]."""
 EPOCHS = 40
 """Epochs of the cosine schedule (the wall-time budget ends it earlier on a slow machine)."""
+MEMBERS = 4
+"""Seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
 
 
 def cpu_count() -> int:
@@ -100,7 +102,7 @@ def auto_config(
         f"burn-in: the episodes hold {lengths.min()}-{lengths.max()} samples"
         + (f" ({n_drop} shorter ones are left out)" if n_drop else " (none is left out)")
     )
-    members = 2 if cpus >= 2 else 1
+    members = MEMBERS if cpus >= 2 else MEMBERS // 2
     workers = min(members, cpus)
     per_member = budget_s * workers / members
     why.append(
