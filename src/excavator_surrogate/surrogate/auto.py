@@ -43,9 +43,6 @@ WINDOW = 30
 """The paper's window W [samples] (also the warm-up of every free run)."""
 MIN_WINDOW = 8
 """Smallest window the recipe shrinks to for very short episodes [samples]."""
-SHORT_QUANTILE = 0.02
-"""Episodes below this quantile of the training lengths may be too short for the sub-sequence
-length; longer ones never are."""
 MAX_SEQ_LEN = 150
 """Longest training sub-sequence including the burn-in [samples]."""
 EPOCHS = 40
@@ -87,7 +84,7 @@ def auto_config(
         raise DataError(dataset.root, "has no training episodes", fix="import or simulate some")
     cpus = cpus or cpu_count()
     why: list[str] = []
-    short = int(np.quantile(lengths, SHORT_QUANTILE, method="lower"))
+    short = int(lengths.min())
     window = WINDOW
     if short < 3 * WINDOW:
         window = max(MIN_WINDOW, short // 3)
