@@ -274,13 +274,16 @@ def run_pipeline(
             result_extra["cleaning_effect"] = _score_against_truth(
                 {"trained on cleaned": best, "trained on raw": raw_best}, train_ds, eval_cfg
             )
-        if train_cfg.members > 1 and run_cfg.reference == "true":
+        if train_cfg.members > 1:
             member_paths = {
                 f"member {i}": best.parent / f"member_{i}" / "best.pt"
                 for i in range(train_cfg.members)
             }
             result_extra["ensemble_members"] = _score_against_truth(
-                {"ensemble": best, **member_paths}, train_ds, eval_cfg
+                {"ensemble": best, **member_paths},
+                train_ds,
+                eval_cfg,
+                reference=run_cfg.reference,
             )
         timings["evaluate"] = time.monotonic() - t0
         timings["total"] = time.monotonic() - t_start
@@ -324,15 +327,22 @@ def run_pipeline(
     return metrics
 
 
-def _score_against_truth(models: Mapping[str, Path], ds: Any, eval_cfg: Any) -> dict[str, Any]:
-    """CBE against the truth of several checkpoints on the same test episodes (label -> metrics)."""
+def _score_against_truth(
+    models: Mapping[str, Path],
+    ds: Any,
+    eval_cfg: Any,
+    *,
+    reference: Literal["measured", "true"] = "true",
+) -> dict[str, Any]:
+    """CBE of several checkpoints on the same test episodes against ``reference`` (the truth
+    by default), label -> metrics."""
     from .evaluate.cbe import evaluate_models
     from .surrogate.checkpoint import load_checkpoint
 
     metrics, _ = evaluate_models(
         {label: load_checkpoint(path) for label, path in models.items()},
         ds.split(eval_cfg.split),
-        reference="true",
+        reference=reference,
         max_steps=eval_cfg.max_steps or None,
     )
     return metrics
@@ -435,7 +445,8 @@ def render_report(
     if "ensemble_members" in metrics:
         em = metrics["ensemble_members"]
         lines += [
-            "## Seed ensemble: the merged network vs its members (scored against the truth)",
+            "## Seed ensemble: the merged network vs its members "
+            f"(scored against the {'truth' if run_cfg.reference == 'true' else 'measured data'})",
             "",
             "| Model | "
             + " | ".join(f"θ R² {j}" for j in spec_names)
