@@ -1,4 +1,4 @@
-"""Import real machine logs (CSV, Parquet, ROS bags, MCAP) into exsur datasets.
+"""Import real machine logs (CSV, dSPACE CSV, Parquet, MDF4, ROS bags, MCAP) into exsur datasets.
 
 A TOML mapping file (:func:`load_mapping`) describes the machine (any number of joints,
 any subset periodic) and maps log columns or ROS topic fields to joint angles,

@@ -152,7 +152,7 @@ class TimeMap:
     """``[time]``: the time base."""
 
     column: str | None = None
-    """CSV/Parquet time column (required for tables)."""
+    """CSV/Parquet time column (required there); dSPACE: default the x-axis trace; MDF: unused."""
     unit: Literal["s", "ms", "us", "ns", "datetime"] = "s"
     """Numeric unit, or ``datetime`` for ISO-8601 strings / timestamp columns."""
     stamp: Literal["auto", "header", "log"] = "auto"
@@ -166,6 +166,9 @@ class CsvOptions:
     delimiter: str = ","
     skip_rows: int = 0
     """Lines before the header line to skip (logger preambles)."""
+    format: Literal["auto", "plain", "dspace"] = "auto"
+    """``dspace``: read .csv files as dSPACE ControlDesk exports; ``plain``: never; ``auto``:
+    by content (first cell ``descriptions`` or a ``trace_...`` row) or a ``.dspace.csv`` name."""
 
 
 @dataclass(frozen=True)
@@ -383,10 +386,6 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
     if len(kinds) > 1:
         raise ConfigError(
             f"{where}: mixes table columns and ROS topics; map either columns or topic+field"
-        )
-    if not m.is_ros and time.column is None:
-        raise ConfigError(
-            f'{where}: time.column is required for CSV/Parquet logs (add [time] column = "...")'
         )
     m.spec()  # checks names and ranges
     return m

@@ -32,7 +32,7 @@ from .resample import (
     interval_mean,
     resample_smooth,
 )
-from .sources import RawLog, Series, expand_sources, read_log
+from .sources import RawLog, Series, expand_sources, log_stem, read_log
 from .split import assign_splits
 
 REPORT_JSON = "import_report.json"
@@ -617,12 +617,7 @@ _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 
 
 def _stem(path: Path) -> str:
-    name = path.name
-    for suf in (".csv.gz", ".csv", ".parquet", ".pq", ".mcap", ".bag", ".db3"):
-        if name.lower().endswith(suf):
-            name = name[: -len(suf)]
-            break
-    return _SAFE.sub("_", name).strip("_.") or "log"
+    return _SAFE.sub("_", log_stem(path)).strip("_.") or "log"
 
 
 # --------------------------------------------------------------------------------------
