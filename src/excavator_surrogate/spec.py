@@ -57,6 +57,41 @@ class JointSpec:
 
 
 @dataclass(frozen=True)
+class InputSpec:
+    """One exogenous input: a command that is not a joint's (engine speed, throttle, gear,
+    pump pressure).  The model sees it as an extra command column after the joints'."""
+
+    name: str
+    """Lower-case identifier used in column names (``u_<name>``)."""
+    u_min: float = 0.0
+    """Lowest valid value [unit]."""
+    u_max: float = 1.0
+    """Highest valid value [unit]."""
+    unit: str = "physical"
+    """Physical meaning (``rpm``, ``%``, ``bar`` ...)."""
+
+    def __post_init__(self) -> None:
+        if not _NAME.match(self.name):
+            raise ConfigError(
+                f"input name '{self.name}' is invalid: use lower-case letters, digits and '_'"
+            )
+        if not self.u_max > self.u_min:
+            raise ConfigError(
+                f"input '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
+            )
+
+    @property
+    def u_scale(self) -> float:
+        """Half the span; ``(u - u_center) / u_scale`` lies in [-1, 1]."""
+        return 0.5 * (self.u_max - self.u_min)
+
+    @property
+    def u_center(self) -> float:
+        """Middle of the range."""
+        return 0.5 * (self.u_max + self.u_min)
+
+
+@dataclass(frozen=True)
 class MachineSpec:
     """An articulated machine: an ordered tuple of joints and a sample rate."""
 
@@ -68,6 +103,8 @@ class MachineSpec:
     """Human-readable machine name."""
     meta: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
     """Free-form extra description (model number, source)."""
+    inputs: tuple[InputSpec, ...] = ()
+    """Exogenous inputs, the command columns after the joints' (empty: none)."""
 
     def __post_init__(self) -> None:
         if len(self.joints) == 0:
@@ -75,6 +112,9 @@ class MachineSpec:
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ConfigError(f"joint names must be unique, got {names}")
+        both = [*names, *(i.name for i in self.inputs)]
+        if len(set(both)) != len(both):
+            raise ConfigError(f"joint and input names must be unique (u_<name>), got {both}")
         if not self.rate_hz > 0:
             raise ConfigError(f"rate_hz must be positive, got {self.rate_hz}")
 
@@ -99,9 +139,31 @@ class MachineSpec:
         return 1.0 / self.rate_hz
 
     @property
+    def n_input(self) -> int:
+        """Number of exogenous inputs."""
+        return len(self.inputs)
+
+    @property
+    def n_u(self) -> int:
+        """Command columns: the joints' then the inputs' (``n_joint + n_input``)."""
+        return self.n_joint + self.n_input
+
+    @property
+    def u_specs(self) -> tuple[JointSpec | InputSpec, ...]:
+        """The ``n_u`` command columns' specs (each has ``u_min``, ``u_max``, ``u_center``,
+        ``u_scale``): the joints, then the inputs."""
+        return (*self.joints, *self.inputs)
+
+    @property
+    def u_names(self) -> tuple[str, ...]:
+        """Names of the ``n_u`` command columns."""
+        return tuple(c.name for c in self.u_specs)
+
+    @property
     def n_feature(self) -> int:
-        """Width of the surrogate input: 2 per periodic joint, 1 per other joint, plus commands."""
-        return sum(2 if j.periodic else 1 for j in self.joints) + self.n_joint
+        """Width of the surrogate input: 2 per periodic joint, 1 per other joint, plus the
+        ``n_u`` commands (joints' and inputs')."""
+        return sum(2 if j.periodic else 1 for j in self.joints) + self.n_u
 
     def with_rate(self, rate_hz: float) -> MachineSpec:
         """Same joints at another sample rate."""
@@ -109,12 +171,15 @@ class MachineSpec:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable form (stored in Parquet metadata and checkpoints)."""
-        return {
+        d = {
             "name": self.name,
             "rate_hz": self.rate_hz,
             "joints": [asdict(j) for j in self.joints],
             "meta": dict(self.meta),
         }
+        if self.inputs:  # absent without inputs: specs written before inputs read the same
+            d["inputs"] = [asdict(i) for i in self.inputs]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MachineSpec:
@@ -126,9 +191,12 @@ class MachineSpec:
                 rate_hz=float(d["rate_hz"]),
                 name=str(d.get("name", "machine")),
                 meta=dict(d.get("meta", {})),
+                inputs=tuple(InputSpec(**i) for i in d.get("inputs", ())),
             )
         except (KeyError, TypeError) as e:
-            raise ConfigError(f"malformed machine spec ({e}): expected keys name, rate_hz, joints") from e
+            raise ConfigError(
+                f"malformed machine spec ({e}): expected keys name, rate_hz, joints"
+            ) from e
 
 
 def excavator_spec(rate_hz: float = 20.0) -> MachineSpec:

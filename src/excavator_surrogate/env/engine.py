@@ -79,6 +79,16 @@ def rest_command(spec: MachineSpec) -> np.ndarray:
     return np.array([min(max(0.0, j.u_min), j.u_max) for j in spec.joints], dtype=np.float64)
 
 
+def require_no_inputs(sur: Surrogate, what: str) -> None:
+    """ConfigError if ``sur`` was trained with exogenous inputs, which ``what`` cannot feed yet."""
+    if sur.spec.n_input:
+        names = ", ".join(i.name for i in sur.spec.inputs)
+        raise ConfigError(
+            f"model '{sur.name}' takes exogenous inputs ({names}), which {what} does not "
+            "support yet; use surrogate.rollout / ClosedLoop, which take them as columns of u"
+        )
+
+
 def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
     """Matrix ``M`` (n_feature, n_raw) and offset ``e`` (n_feature,) with
     ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (J), f]``
@@ -312,6 +322,7 @@ class SurrogateEngine:
     ) -> None:
         if n_envs < 1:
             raise ConfigError(f"n_envs must be >= 1, got {n_envs}")
+        require_no_inputs(sur, "the environment engine")
         self.mode: Mode = mode or sur.mode
         if self.mode not in ("windowed", "stateful"):
             raise ConfigError(f"mode must be 'windowed' or 'stateful', got {self.mode!r}")

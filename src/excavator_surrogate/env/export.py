@@ -50,7 +50,14 @@ from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.features import integrate, play_features, play_np, scale_commands_np
 from ..surrogate.model import Surrogate
-from .engine import FusedStep, Mode, add_end_stops, end_stops, rest_command
+from .engine import (
+    FusedStep,
+    Mode,
+    add_end_stops,
+    end_stops,
+    require_no_inputs,
+    rest_command,
+)
 from .surrogate_env import load_surrogate
 
 OPSET = 18
@@ -118,6 +125,7 @@ def export_onnx(
         The written path.
     """
     sur = load_surrogate(ckpt, device="cpu")
+    require_no_inputs(sur, "the ONNX export")
     sur.to("cpu", torch.float32).eval()
     mode = mode or sur.mode
     spec = sur.spec

@@ -23,7 +23,16 @@ from ..data import Episode, write_dataset
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_dir, log, progress, write_json, write_text
 from ..spec import MachineSpec
-from .mapping import DEG, Channel, CommandMap, ImportOptions, JointMap, Mapping, SplitOptions
+from .mapping import (
+    DEG,
+    Channel,
+    CommandMap,
+    ImportOptions,
+    InputMap,
+    JointMap,
+    Mapping,
+    SplitOptions,
+)
 from .report import render_markdown
 from .resample import (
     antialias_sos,
@@ -187,7 +196,7 @@ def _to_command(x: np.ndarray, c: CommandMap) -> np.ndarray:
 
 def _command(
     path: Path,
-    j: JointMap,
+    j: JointMap | InputMap,
     chans: tuple[Channel, ...],
     vals: dict[Channel, np.ndarray],
     *,
@@ -436,6 +445,18 @@ def convert_log(
                 entry=entry,
             )
         )
+    for inp in mapping.inputs:  # exogenous inputs: the command columns after the joints'
+        u_in.append(
+            _command(
+                path,
+                inp,
+                mapping.command_channels(inp),
+                vals,
+                options=options,
+                where=where,
+                entry=entry,
+            )
+        )
 
     # gap-free segments common to all series
     common: list[tuple[float, float]] | None = None
@@ -556,7 +577,7 @@ def _resample_segment(
     nj = spec.n_joint
     theta_grid = np.empty((n + 1, nj))
     phi_grid: dict[int, np.ndarray] = {}
-    u = np.empty((n, nj))
+    u = np.empty((n, spec.n_u))
     edges = a + dt * np.arange(1, n + 2)
     rows: dict[str, slice] = {}
     for name, s in raw.series.items():
@@ -593,11 +614,12 @@ def _resample_segment(
                 sos=sos[vch.series],
                 t_end=b,
             )
-        cname = mapping.command_channels(j)[0].series
+    for i, src in enumerate(mapping.u_sources()):
+        cname = mapping.command_channels(src)[0].series
         cs = rows[cname]
         u[:, i] = interval_mean(raw.series[cname].time[cs], u_in[i][cs], edges)
-    lo = np.array([jt.u_min for jt in spec.joints])
-    hi = np.array([jt.u_max for jt in spec.joints])
+    lo = np.array([c.u_min for c in spec.u_specs])
+    hi = np.array([c.u_max for c in spec.u_specs])
     u = np.clip(u, lo, hi)  # the means lie in range; this only removes rounding error
     theta = theta_grid[1:]
     omega = np.diff(theta_grid, axis=0) / dt
