@@ -16,8 +16,36 @@ from .errors import ConfigError
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
+class _CommandRange:
+    """What joints and exogenous inputs share: a name and a command range ``[u_min, u_max]``."""
+
+    name: str
+    u_min: float
+    u_max: float
+
+    def _check(self, kind: str) -> None:
+        if not _NAME.match(self.name):
+            raise ConfigError(
+                f"{kind} name '{self.name}' is invalid: use lower-case letters, digits and '_'"
+            )
+        if not self.u_max > self.u_min:
+            raise ConfigError(
+                f"{kind} '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
+            )
+
+    @property
+    def u_scale(self) -> float:
+        """Half the command span; ``(u - u_center) / u_scale`` lies in [-1, 1]."""
+        return 0.5 * (self.u_max - self.u_min)
+
+    @property
+    def u_center(self) -> float:
+        """Middle of the command range."""
+        return 0.5 * (self.u_max + self.u_min)
+
+
 @dataclass(frozen=True)
-class JointSpec:
+class JointSpec(_CommandRange):
     """One actuated joint."""
 
     name: str
@@ -36,28 +64,11 @@ class JointSpec:
     """Physical meaning of the command (``command``, ``%``, ``Nm`` ...)."""
 
     def __post_init__(self) -> None:
-        if not _NAME.match(self.name):
-            raise ConfigError(
-                f"joint name '{self.name}' is invalid: use lower-case letters, digits and '_'"
-            )
-        if not self.u_max > self.u_min:
-            raise ConfigError(
-                f"joint '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
-            )
-
-    @property
-    def u_scale(self) -> float:
-        """Half the command span; ``u / u_scale`` lies in [-1, 1] for symmetric ranges."""
-        return 0.5 * (self.u_max - self.u_min)
-
-    @property
-    def u_center(self) -> float:
-        """Middle of the command range."""
-        return 0.5 * (self.u_max + self.u_min)
+        self._check("joint")
 
 
 @dataclass(frozen=True)
-class InputSpec:
+class InputSpec(_CommandRange):
     """One exogenous input: a command that is not a joint's (engine speed, throttle, gear,
     pump pressure).  The model sees it as an extra command column after the joints'."""
 
@@ -71,24 +82,7 @@ class InputSpec:
     """Physical meaning (``rpm``, ``%``, ``bar`` ...)."""
 
     def __post_init__(self) -> None:
-        if not _NAME.match(self.name):
-            raise ConfigError(
-                f"input name '{self.name}' is invalid: use lower-case letters, digits and '_'"
-            )
-        if not self.u_max > self.u_min:
-            raise ConfigError(
-                f"input '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
-            )
-
-    @property
-    def u_scale(self) -> float:
-        """Half the span; ``(u - u_center) / u_scale`` lies in [-1, 1]."""
-        return 0.5 * (self.u_max - self.u_min)
-
-    @property
-    def u_center(self) -> float:
-        """Middle of the range."""
-        return 0.5 * (self.u_max + self.u_min)
+        self._check("input")
 
 
 @dataclass(frozen=True)
