@@ -162,11 +162,101 @@ def test_features_and_rollout_with_inputs(rpm_dataset, tmp_path, mode, play):
     back = load_checkpoint(save_checkpoint(tmp_path / "m.pt", sur, history=[]))
     assert back.spec == spec and back.spec.inputs == spec.inputs
     np.testing.assert_allclose(rollout(back, theta, u, warmup=10)[0], th_b, atol=1e-6)
-    # the env engine and the ONNX export refuse them in one line (not yet supported)
-    from excavator_surrogate.env.engine import SurrogateEngine
-    from excavator_surrogate.env.export import export_onnx
 
-    with pytest.raises(ConfigError, match="takes exogenous inputs \\(engine_rpm, throttle\\)"):
-        SurrogateEngine(sur, n_envs=2)
-    with pytest.raises(ConfigError, match="which the ONNX export does not support yet"):
-        export_onnx(sur, tmp_path / "m.onnx")
+
+def _u(rng: np.random.Generator, n: int) -> np.ndarray:
+    """(n, 4) random commands of the rpm2 machine: two joints, engine speed, throttle."""
+    return np.column_stack(
+        [rng.uniform(-1000, 1000, (n, 2)), rng.uniform(800, 2200, n), rng.uniform(0, 1, n)]
+    )
+
+
+@pytest.mark.parametrize(("mode", "play"), [("windowed", ()), ("stateful", (0.1, 0.3))])
+def test_engine_and_onnx_with_inputs(rpm_dataset, tmp_path, mode, play):
+    """The env engine and the ONNX export take the inputs as the last columns of u and agree
+    with ClosedLoop (at an at-rest history with the inputs at the centre of their ranges)."""
+    from excavator_surrogate.env import OnnxStepper, export_onnx
+    from excavator_surrogate.env.engine import SurrogateEngine
+    from excavator_surrogate.surrogate.rollout import ClosedLoop
+
+    spec = rpm_dataset.spec
+    sur = make_surrogate(spec, rpm_dataset.train + rpm_dataset.val, mode=mode, play=play)
+    rng = np.random.default_rng(0)
+    n, w = 3, sur.window
+    theta0 = np.radians(rng.uniform(20, 40, (n, 2)))
+    eng = SurrogateEngine(sur, n_envs=n)
+    eng.reset(theta0)
+    rest = np.array([0.0, 0.0, 1500.0, 0.5])
+    ref = ClosedLoop(sur)
+    ref.reset(np.repeat(theta0[:, None], w, axis=1), np.tile(rest, (n, w - 1, 1)))
+    stepper = OnnxStepper(export_onnx(sur, tmp_path / "m.onnx", exporter="torchscript"))
+    stepper.reset(theta0)
+    for _ in range(20):
+        u = _u(rng, n)
+        th, om = eng.step(u)
+        th_r, om_r = ref.step(u)
+        th_o, om_o = stepper.step(u)
+        np.testing.assert_allclose(th.numpy(), th_r.double().numpy(), atol=1e-5)
+        np.testing.assert_allclose(om.numpy(), om_r.double().numpy(), atol=1e-4)
+        np.testing.assert_allclose(om_o, om.numpy(), atol=2e-4)
+        np.testing.assert_allclose(th_o, th.numpy(), atol=1e-5)
+
+
+def test_env_action_with_inputs_or_fixed(rpm_dataset, tmp_path):
+    """Default: the action holds the commands and the inputs; ``inputs={...}`` fixes some,
+    shrinking the action, and the fixed value is what the engine gets."""
+    from excavator_surrogate.env import ExcavatorSurrogateEnv, SurrogateVectorEnv
+    from excavator_surrogate.env.safety import ActionError
+
+    spec = rpm_dataset.spec
+    sur = make_surrogate(spec, rpm_dataset.train, mode="stateful")
+    env = ExcavatorSurrogateEnv(sur)
+    assert env.action_space.shape == (4,)
+    np.testing.assert_allclose(env.action_space.low, [-1000, -1000, 800, 0])
+    env.reset(seed=0, options={"theta0": [0.5, 0.6]})
+    _, _, _, _, info = env.step(np.array([300.0, -200.0, 1900.0, 0.7], dtype=np.float32))
+    np.testing.assert_allclose(info["u"], [300.0, -200.0, 1900.0, 0.7], rtol=1e-6)
+    with pytest.raises(ActionError, match="expected \\(4,\\)"):
+        env.step(np.zeros(2))
+    fixed = ExcavatorSurrogateEnv(sur, inputs={"engine_rpm": 1800.0})
+    assert fixed.action_space.shape == (3,)
+    fixed.reset(seed=0, options={"theta0": [0.5, 0.6]})
+    _, _, _, _, info = fixed.step(np.array([300.0, -200.0, 0.7], dtype=np.float32))
+    np.testing.assert_allclose(info["u"], [300.0, -200.0, 1800.0, 0.7], rtol=1e-6)
+    # the same as giving the input in the action, from the same warm-up
+    both = ExcavatorSurrogateEnv(sur, inputs={"engine_rpm": 1800.0, "throttle": 0.7})
+    assert both.action_space.shape == (2,)
+    a = both.reset(seed=0, options={"theta0": [0.5, 0.6]})[0]
+    env.engine.u_rest = both.layout.rest()  # same warm-up inputs
+    b = env.reset(seed=0, options={"theta0": [0.5, 0.6]})[0]
+    np.testing.assert_allclose(a, b)
+    for _ in range(5):
+        oa = both.step(np.array([300.0, -200.0]))[0]
+        ob = env.step(np.array([300.0, -200.0, 1800.0, 0.7]))[0]
+        np.testing.assert_allclose(oa, ob, atol=1e-6)
+    vec = SurrogateVectorEnv(sur, 3, inputs={"throttle": 0.5})
+    assert vec.single_action_space.shape == (3,) and vec.action_space.shape == (3, 3)
+    vec.reset(seed=1)
+    obs, *_ = vec.step(np.tile([100.0, 100.0, 2000.0], (3, 1)))
+    assert obs.shape == (3, 4) and np.isfinite(obs).all()
+    with pytest.raises(ConfigError, match="inputs names 'rpm', which is not an exogenous input"):
+        ExcavatorSurrogateEnv(sur, inputs={"rpm": 1800.0})
+    with pytest.raises(ConfigError, match="inputs\\['engine_rpm'\\] = 5000.0 is outside"):
+        SurrogateVectorEnv(sur, 2, inputs={"engine_rpm": 5000.0})
+
+
+def test_train_with_inputs(rpm_dataset, tmp_path):
+    """``train`` on a dataset with inputs: the checkpoint's model reads them (feature width)."""
+    from surrogate_helpers import tiny_stateful_config
+
+    from excavator_surrogate.surrogate import train
+
+    best = train(
+        tiny_stateful_config(epochs=2, play=(0.1,)), rpm_dataset, out=tmp_path, show_progress=False
+    )
+    sur = load_checkpoint(best)
+    spec = rpm_dataset.spec
+    assert sur.spec == spec and sur.model_cfg.n_feature == spec.n_feature + spec.n_joint
+    ep = rpm_dataset.val[0]
+    theta_hat, _ = rollout(sur, ep.theta[None], ep.u[None])
+    assert theta_hat.shape == (1, ep.n_step, 2) and np.isfinite(theta_hat).all()
