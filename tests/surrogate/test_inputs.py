@@ -108,6 +108,8 @@ def test_import_with_inputs(rpm_dataset, tmp_path):
     back = read_episode(ds.root / "episodes" / f"{ep.name}.parquet")
     assert back.spec == spec and back.u.shape == ep.u.shape
     assert MachineSpec.from_dict(spec.to_dict()) == spec
+    report = (ds.root / "import_report.md").read_text()
+    assert "- exogenous inputs (2): engine_rpm [rpm], throttle [%]" in report
 
 
 def test_old_specs_and_input_errors(tmp_path):
@@ -124,7 +126,8 @@ def test_old_specs_and_input_errors(tmp_path):
     mapping = parse_mapping(tomllib.loads(MAPPING), path=tmp_path / "rpm2.toml")
     with pytest.raises(
         DataError,
-        match="fast.csv, column 'rpm', row \\d+: command 2[0-9.]+ .* outside \\[800, 2200\\]",
+        match="fast.csv, column 'rpm', row \\d+: command 2[0-9.]+ .* outside \\[800, 2200\\] "
+        "after scaling \\(check unit/scale/range of input 'engine_rpm' in rpm2.toml",
     ):
         import_logs([tmp_path / "fast.csv"], mapping, out=tmp_path / "ds", quiet=True)
     assert_nothing_written(tmp_path / "ds")

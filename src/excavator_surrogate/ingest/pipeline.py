@@ -205,6 +205,7 @@ def _command(
     entry: dict[str, Any],
 ) -> np.ndarray:
     c = j.command
+    what = f"joint '{j.name}' command" if isinstance(j, JointMap) else f"input '{j.name}'"
     span = c.range[1] - c.range[0]
     tol = 1e-9 * span
     raw = [vals[ch] * c.scale + c.offset for ch in chans]
@@ -220,7 +221,7 @@ def _command(
                     f"one-way command channel is negative ({x[row]:.6g})",
                     column=ch.label,
                     row=row,
-                    fix=f"up/down channels must be >= 0; check scale/offset of joint '{j.name}' command in {where}",
+                    fix=f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
                 )
         x = (
             np.maximum(raw[0], 0.0) - np.maximum(raw[1], 0.0)
@@ -242,7 +243,7 @@ def _command(
                 f"[{c.range[0]:g}, {c.range[1]:g}] after scaling",
                 column=label,
                 row=row,
-                fix=f"check unit/scale/range of joint '{j.name}' command in {where}, or use --clip-commands",
+                fix=f"check unit/scale/range of {what} in {where}, or use --clip-commands",
             )
         entry["clipped"][j.name] = int(out.sum())
         u = np.clip(u, c.range[0], c.range[1])
