@@ -144,3 +144,50 @@ def test_mdf_ambiguous_names_with_sources(cli, tmp_path, short_cols):
     fixed = _mapping(tmp_path, MAPPING.replace('column = "boom_deg"', 'column = "CAN1.boom_deg"'))
     ep = convert_log(tmp_path / "src.mf4", fixed).episodes[0]
     np.testing.assert_allclose(ep.theta, _csv_reference(tmp_path, short_cols).theta, atol=1e-5)
+
+
+def test_mdf_rasters_resampled_onto_the_longest_master(tmp_path, short_cols):
+    """A 10 Hz group on the 100 Hz master: floats linear, integers hold the previous sample."""
+    from excavator_surrogate.ingest.sources import read_log
+
+    t = short_cols["t_ms"] * 1e-3
+    t_slow = np.arange(0.5, 9.0, 0.1)
+    gear = (np.arange(t_slow.size) // 7 % 3 + 1).astype(np.int8)
+    rpm = 1000.0 + 10.0 * np.arange(t_slow.size)
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]))
+    mdf.append([asammdf.Signal(gear, t_slow, name="gear"), asammdf.Signal(rpm, t_slow, name="rpm")])
+    mdf.save(tmp_path / "rasters.mf4", overwrite=True)
+    mdf.close()
+    text = MAPPING + (
+        '[[inputs]]\nname = "gear"\ncolumn = "gear"\nunit = "physical"\nrange = [1.0, 3.0]\n'
+        '[[inputs]]\nname = "engine_rpm"\ncolumn = "rpm"\nunit = "physical"\nrange = [800.0, 2200.0]\n'
+    )
+    raw = read_log(tmp_path / "rasters.mf4", _mapping(tmp_path, text))
+    s = raw.series["table"]
+    keep = (t >= t_slow[0]) & (t <= t_slow[-1])
+    t_master = t[keep]
+    np.testing.assert_allclose(s.time, t_master - t_master[0])
+    np.testing.assert_array_equal(s.values["boom_deg"], short_cols["boom_deg"][keep])
+    held = gear[np.searchsorted(t_slow, t_master, side="right") - 1]
+    np.testing.assert_array_equal(s.values["gear"], held)
+    np.testing.assert_allclose(s.values["rpm"], np.interp(t_master, t_slow, rpm))
+    # and through the import: the inputs are u columns 3 and 4
+    ep = convert_log(tmp_path / "rasters.mf4", _mapping(tmp_path, text)).episodes[0]
+    assert ep.spec.u_names == (*arm3_plant.JOINTS, "gear", "engine_rpm")
+    assert ep.u.shape == (ep.n_step, 5) and ep.u[:, 3].min() >= 1.0 and ep.u[:, 3].max() <= 3.0
+
+
+def test_mdf_needs_asammdf(tmp_path, short_cols, monkeypatch):
+    from excavator_surrogate.errors import ConfigError
+    from excavator_surrogate.ingest import mdf as mdf_reader
+
+    log = write_mdf(tmp_path / "a.mf4", short_cols)
+    real = mdf_reader.importlib.util.find_spec
+    monkeypatch.setattr(
+        mdf_reader.importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "asammdf" else real(name, *a),
+    )
+    with pytest.raises(ConfigError, match="pip install 'excavator-surrogate\\[mdf\\]'"):
+        convert_log(log, _mapping(tmp_path))
