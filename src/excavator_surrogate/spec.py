@@ -16,36 +16,8 @@ from .errors import ConfigError
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
-class _CommandRange:
-    """What joints and exogenous inputs share: a name and a command range ``[u_min, u_max]``."""
-
-    name: str
-    u_min: float
-    u_max: float
-
-    def _check(self, kind: str) -> None:
-        if not _NAME.match(self.name):
-            raise ConfigError(
-                f"{kind} name '{self.name}' is invalid: use lower-case letters, digits and '_'"
-            )
-        if not self.u_max > self.u_min:
-            raise ConfigError(
-                f"{kind} '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
-            )
-
-    @property
-    def u_scale(self) -> float:
-        """Half the command span; ``(u - u_center) / u_scale`` lies in [-1, 1]."""
-        return 0.5 * (self.u_max - self.u_min)
-
-    @property
-    def u_center(self) -> float:
-        """Middle of the command range."""
-        return 0.5 * (self.u_max + self.u_min)
-
-
 @dataclass(frozen=True)
-class JointSpec(_CommandRange):
+class JointSpec:
     """One actuated joint."""
 
     name: str
@@ -64,13 +36,31 @@ class JointSpec(_CommandRange):
     """Physical meaning of the command (``command``, ``%``, ``Nm`` ...)."""
 
     def __post_init__(self) -> None:
-        self._check("joint")
+        if not _NAME.match(self.name):
+            raise ConfigError(
+                f"joint name '{self.name}' is invalid: use lower-case letters, digits and '_'"
+            )
+        if not self.u_max > self.u_min:
+            raise ConfigError(
+                f"joint '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
+            )
+
+    @property
+    def u_scale(self) -> float:
+        """Half the command span; ``u / u_scale`` lies in [-1, 1] for symmetric ranges."""
+        return 0.5 * (self.u_max - self.u_min)
+
+    @property
+    def u_center(self) -> float:
+        """Middle of the command range."""
+        return 0.5 * (self.u_max + self.u_min)
 
 
 @dataclass(frozen=True)
-class InputSpec(_CommandRange):
+class InputSpec:
     """One exogenous input: a command that is not a joint's (engine speed, throttle, gear,
-    pump pressure).  The model sees it as an extra command column after the joints'."""
+    pump pressure).  The model sees it as an extra command column after the joints'; its
+    name and range follow a joint command's rules, and it is scaled the same way."""
 
     name: str
     """Lower-case identifier used in column names (``u_<name>``)."""
@@ -82,7 +72,15 @@ class InputSpec(_CommandRange):
     """Physical meaning (``rpm``, ``%``, ``bar`` ...)."""
 
     def __post_init__(self) -> None:
-        self._check("input")
+        try:  # the rules of a joint's name and command range
+            JointSpec(self.name, u_min=self.u_min, u_max=self.u_max)
+        except ConfigError as e:
+            raise ConfigError(str(e).replace("joint", "input", 1)) from None
+
+    u_scale = JointSpec.u_scale
+    """Half the span; ``(u - u_center) / u_scale`` lies in [-1, 1]."""
+    u_center = JointSpec.u_center
+    """Middle of the range."""
 
 
 @dataclass(frozen=True)
@@ -103,12 +101,12 @@ class MachineSpec:
     def __post_init__(self) -> None:
         if len(self.joints) == 0:
             raise ConfigError("a machine needs at least one joint")
+        both = [*(j.name for j in self.joints), *(i.name for i in self.inputs)]
+        if self.inputs and len(set(both)) != len(both):
+            raise ConfigError(f"joint and input names must be unique (u_<name>), got {both}")
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ConfigError(f"joint names must be unique, got {names}")
-        both = [*names, *(i.name for i in self.inputs)]
-        if len(set(both)) != len(both):
-            raise ConfigError(f"joint and input names must be unique (u_<name>), got {both}")
         if not self.rate_hz > 0:
             raise ConfigError(f"rate_hz must be positive, got {self.rate_hz}")
 
