@@ -8,7 +8,7 @@ from __future__ import annotations
 __version__ = "0.1.0"
 
 from .errors import CheckpointError, ConfigError, DataError, ExsurError
-from .spec import EXCAVATOR, JointSpec, MachineSpec, excavator_spec
+from .spec import EXCAVATOR, InputSpec, JointSpec, MachineSpec, excavator_spec
 
 __all__ = [
     "EXCAVATOR",
@@ -16,6 +16,7 @@ __all__ = [
     "ConfigError",
     "DataError",
     "ExsurError",
+    "InputSpec",
     "JointSpec",
     "MachineSpec",
     "__version__",

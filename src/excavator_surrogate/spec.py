@@ -73,6 +73,33 @@ class JointSpec:
 
 
 @dataclass(frozen=True)
+class InputSpec:
+    """One exogenous input: a command that is not a joint's (engine speed, throttle, gear,
+    pump pressure).  The model sees it as an extra command column after the joints'; its
+    name and range follow a joint command's rules, and it is scaled the same way."""
+
+    name: str
+    """Lower-case identifier used in column names (``u_<name>``)."""
+    u_min: float = 0.0
+    """Lowest valid value [unit]."""
+    u_max: float = 1.0
+    """Highest valid value [unit]."""
+    unit: str = "physical"
+    """Physical meaning (``rpm``, ``%``, ``bar`` ...)."""
+
+    def __post_init__(self) -> None:
+        try:  # the rules of a joint's name and command range
+            JointSpec(self.name, u_min=self.u_min, u_max=self.u_max)
+        except ConfigError as e:
+            raise ConfigError(str(e).replace("joint", "input", 1)) from None
+
+    u_scale = JointSpec.u_scale
+    """Half the span; ``(u - u_center) / u_scale`` lies in [-1, 1]."""
+    u_center = JointSpec.u_center
+    """Middle of the range."""
+
+
+@dataclass(frozen=True)
 class MachineSpec:
     """An articulated machine: an ordered tuple of joints and a sample rate."""
 
@@ -84,10 +111,15 @@ class MachineSpec:
     """Human-readable machine name."""
     meta: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
     """Free-form extra description (model number, source)."""
+    inputs: tuple[InputSpec, ...] = ()
+    """Exogenous inputs, the command columns after the joints' (empty: none)."""
 
     def __post_init__(self) -> None:
         if len(self.joints) == 0:
             raise ConfigError("a machine needs at least one joint")
+        both = [*(j.name for j in self.joints), *(i.name for i in self.inputs)]
+        if self.inputs and len(set(both)) != len(both):
+            raise ConfigError(f"joint and input names must be unique (u_<name>), got {both}")
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ConfigError(f"joint names must be unique, got {names}")
@@ -115,12 +147,35 @@ class MachineSpec:
         return 1.0 / self.rate_hz
 
     @property
+    def n_input(self) -> int:
+        """Number of exogenous inputs."""
+        return len(self.inputs)
+
+    @property
+    def n_u(self) -> int:
+        """Command columns: the joints' then the inputs' (``n_joint + n_input``)."""
+        return self.n_joint + self.n_input
+
+    @property
+    def u_specs(self) -> tuple[JointSpec | InputSpec, ...]:
+        """The ``n_u`` command columns' specs (each has ``u_min``, ``u_max``, ``u_center``,
+        ``u_scale``): the joints, then the inputs."""
+        return (*self.joints, *self.inputs)
+
+    @property
+    def u_names(self) -> tuple[str, ...]:
+        """Names of the ``n_u`` command columns."""
+        return tuple(c.name for c in self.u_specs)
+
+    @property
     def n_feature(self) -> int:
-        """Width of the surrogate input: 2 per periodic joint, 1 per other joint, plus commands."""
-        return sum(2 if j.periodic else 1 for j in self.joints) + self.n_joint
+        """Width of the surrogate input: 2 per periodic joint, 1 per other joint, plus the
+        ``n_u`` commands (joints' and inputs')."""
+        return sum(2 if j.periodic else 1 for j in self.joints) + self.n_u
 
     def mismatch(self, other: MachineSpec) -> str | None:
-        """How ``other`` differs from this machine (joints, periodic flags, command ranges, rate),
+        """How ``other`` differs from this machine (joints, periodic flags, command ranges, rate,
+        exogenous inputs),
         as a short phrase such as ``"joints ['boom', 'arm'] vs ['swing', ...]"``; None if it fits."""
         if self.names != other.names:
             return f"joints {list(self.names)} vs {list(other.names)}"
@@ -134,6 +189,10 @@ class MachineSpec:
                     f"joint '{a.name}' command range [{a.u_min:g}, {a.u_max:g}] vs "
                     f"[{b.u_min:g}, {b.u_max:g}]"
                 )
+        a_in = [(i.name, i.u_min, i.u_max) for i in self.inputs]
+        b_in = [(i.name, i.u_min, i.u_max) for i in other.inputs]
+        if a_in != b_in:
+            return f"exogenous inputs {a_in} vs {b_in}"
         return None
 
     def with_rate(self, rate_hz: float) -> MachineSpec:
@@ -142,12 +201,15 @@ class MachineSpec:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable form (stored in Parquet metadata and checkpoints)."""
-        return {
+        d = {
             "name": self.name,
             "rate_hz": self.rate_hz,
             "joints": [asdict(j) for j in self.joints],
             "meta": dict(self.meta),
         }
+        if self.inputs:  # absent without inputs: specs written before inputs read the same
+            d["inputs"] = [asdict(i) for i in self.inputs]
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> MachineSpec:
@@ -159,6 +221,7 @@ class MachineSpec:
                 rate_hz=float(d["rate_hz"]),
                 name=str(d.get("name", "machine")),
                 meta=dict(d.get("meta", {})),
+                inputs=tuple(InputSpec(**i) for i in d.get("inputs", ())),
             )
         except (KeyError, TypeError) as e:
             raise ConfigError(

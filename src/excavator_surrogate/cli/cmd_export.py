@@ -54,15 +54,15 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_verify:
         rng = np.random.default_rng(0)
         theta0 = np.stack([sample_pose(sur.spec, rng) for _ in range(4)])
-        lo = np.array([j.u_min for j in sur.spec.joints])
-        hi = np.array([j.u_max for j in sur.spec.joints])
+        lo = np.array([c.u_min for c in sur.spec.u_specs])
+        hi = np.array([c.u_max for c in sur.spec.u_specs])
         stepper = OnnxStepper(out)
         engine = SurrogateEngine(sur, n_envs=4, mode=mode)
         stepper.reset(theta0)
         engine.reset(theta0)
         err = 0.0
         for _ in range(50):
-            u = rng.uniform(lo, hi, (4, sur.spec.n_joint))
+            u = rng.uniform(lo, hi, (4, sur.spec.n_u))
             th, om = stepper.step(u)
             th_t, om_t = engine.step(u)
             err = max(err, float(np.abs(om - om_t.cpu().numpy()).max()))

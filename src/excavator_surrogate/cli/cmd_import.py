@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``import`` subcommand."""
     p = sub.add_parser(
         "import",
-        help="import CSV/Parquet/ROS-bag logs of any machine into a dataset",
+        help="import CSV/Parquet/dSPACE/MDF4/ROS-bag logs of any machine into a dataset",
         description="Validate logs, convert units, split at time gaps, resample anti-aliased to the "
         "target rate, assign train/val/test by file and write a dataset folder (atomically) with "
         "import_report.json. Options default to the mapping's [import] and [split] tables. "
@@ -26,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "sources",
         nargs="+",
         metavar="SOURCE",
-        help="log files (.csv, .csv.gz, .parquet, .mcap, .bag), rosbag2 folders, folders of logs, or glob patterns",
+        help="log files (.csv, .csv.gz, dSPACE .csv exports, .parquet, .mf4, .mcap, .bag), rosbag2 folders, "
+        "folders of logs, or glob patterns",
     )
     p.add_argument(
         "--mapping",

@@ -6,7 +6,8 @@ Columns (``<j>`` is each joint name from the :class:`~excavator_surrogate.spec.M
 column                 unit             meaning
 =====================  ===============  ==========================================================
 ``time``               s                sample time, strictly increasing at ``rate_hz``
-``u_<j>``              command units    joint command applied from this sample on
+``u_<j>``              command units    joint command applied from this sample on; then
+``u_<input>``          input unit       each exogenous input (spec.inputs), same timing
 ``theta_<j>``          rad              measured joint angle (periodic joints may be unwrapped)
 ``omega_<j>``          rad/s            measured angular velocity
 ``theta_<j>_true``     rad              optional: ground-truth angle (simulated data)
@@ -58,7 +59,7 @@ def columns_for(spec: MachineSpec) -> dict[str, list[str]]:
     ``omega_true``, ``trusted``."""
     n = spec.names
     return {
-        "u": [f"u_{j}" for j in n],
+        "u": [f"u_{j}" for j in spec.u_names],
         "theta": [f"theta_{j}" for j in n],
         "omega": [f"omega_{j}" for j in n],
         "theta_true": [f"theta_{j}_true" for j in n],
@@ -74,7 +75,8 @@ class Episode:
     Arrays are ``(n_step,)`` or ``(n_step, n_joint)`` with joints ordered as ``spec.joints``.
 
     - ``time``: (n_step,) [s]
-    - ``u``: (n_step, n_joint) commands, within each joint's ``[u_min, u_max]``
+    - ``u``: (n_step, n_u) commands (the joints', then the exogenous inputs'; ``n_u =
+      spec.n_u``), each within its ``[u_min, u_max]``
     - ``theta``: (n_step, n_joint) measured angles [rad]
     - ``omega``: (n_step, n_joint) measured angular velocities [rad/s]
     - ``theta_true`` / ``omega_true``: optional ground truth, same shape
@@ -371,10 +373,11 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
         arr = getattr(ep, role)
         if arr is None:
             continue
-        if arr.shape != (n, spec.n_joint):
+        width = spec.n_u if role == "u" else spec.n_joint
+        if arr.shape != (n, width):
             raise DataError(
                 where,
-                f"'{role}' has shape {arr.shape}, expected ({n}, {spec.n_joint})",
+                f"'{role}' has shape {arr.shape}, expected ({n}, {width})",
                 column=cols[role][0],
             )
     if n < min_steps:
@@ -428,7 +431,7 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
                 row=row,
                 fix="resample to the declared rate with 'exsur import --rate'",
             )
-    for k, j in enumerate(spec.joints):
+    for k, j in enumerate(spec.u_specs):
         col = ep.u[:, k]
         out = (col < j.u_min - 1e-9) | (col > j.u_max + 1e-9)
         if out.any():

@@ -3,7 +3,8 @@
 Subclasses provide the dynamics through two methods acting on one machine:
 
 - ``_dyn_reset(theta0)``: put the machine at rest at ``theta0`` (n_joint,) [rad];
-- ``_dyn_step(u)``: apply ``u`` (n_joint,) for one control period ``T_s``; return
+- ``_dyn_step(u)``: apply ``u`` (n_u,) for one control period ``T_s`` (the joints' commands,
+  then the exogenous inputs', see :mod:`.inputs`); return
   ``(theta[k+1], omega[k+1])`` (n_joint,) float64 [rad], [rad/s] with ``theta`` unwrapped.
 """
 
@@ -18,6 +19,7 @@ from gymnasium import spaces
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
+from .inputs import ActionLayout
 from .safety import (
     GUARD_NAMES,
     GUARD_OK,
@@ -29,10 +31,12 @@ from .safety import (
 from .tasks import Task, sample_pose
 
 
-def action_space(spec: MachineSpec) -> spaces.Box:
-    """``Box(u_min, u_max, (n_joint,), float32)`` from the spec's command ranges."""
-    lo = np.array([j.u_min for j in spec.joints], dtype=np.float32)
-    hi = np.array([j.u_max for j in spec.joints], dtype=np.float32)
+def action_space(spec: MachineSpec, layout: ActionLayout | None = None) -> spaces.Box:
+    """``Box(u_min, u_max, (n_action,), float32)`` from the command ranges of the action's
+    columns (default: every command column, ``n_action = spec.n_u``)."""
+    cols = (layout or ActionLayout(spec)).columns
+    lo = np.array([c.u_min for c in cols], dtype=np.float32)
+    hi = np.array([c.u_max for c in cols], dtype=np.float32)
     return spaces.Box(lo, hi, dtype=np.float32)
 
 
@@ -83,6 +87,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         guard: divergence-guard thresholds.
         wrap_theta: wrap periodic joints' θ to ``[-π, π)`` in the observation.
         reset_margin: fraction of each joint range avoided when sampling random start poses.
+        inputs: exogenous inputs held fixed (``{"engine_rpm": 1800.0}``), left out of the
+            action; the others are part of it (:mod:`.inputs`).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 20}
@@ -97,6 +103,7 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         guard: GuardConfig | None = None,
         wrap_theta: bool = True,
         reset_margin: float = 0.1,
+        inputs: dict[str, float] | None = None,
     ) -> None:
         self.machine = spec
         """The machine (joints, command ranges, rate); ``self.spec`` is gymnasium's EnvSpec."""
@@ -105,9 +112,13 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         self.wrap_theta = bool(wrap_theta)
         self.reset_margin = float(reset_margin)
         self.metadata = {**type(self).metadata, "render_fps": spec.rate_hz}
-        self.action_space = action_space(spec)
+        self.layout = ActionLayout.make(spec, inputs, where=self.env_id)
+        """The action's columns and the fixed exogenous inputs."""
+        self.action_space = action_space(spec, self.layout)
         self.observation_space = observation_space(spec, wrap=self.wrap_theta)
-        self._check_action = ActionChecker(spec, env_name=self.env_id, action_mode=action_mode)
+        self._check_action = ActionChecker(
+            spec, env_name=self.env_id, action_mode=action_mode, layout=self.layout
+        )
         self._guard = DivergenceGuard(spec, guard)
         self._periodic = np.asarray(spec.periodic, dtype=bool)
         self._wrap = self.wrap_theta and bool(self._periodic.any())
@@ -170,7 +181,7 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         Raises:
             ActionError: non-finite action, wrong shape, or out of range with ``action_mode="reject"``.
         """
-        u = self._check_action(action)
+        u = self.layout.full(self._check_action(action))
         theta, omega = self._dyn_step(u)
         self._n_step += 1
         code, violation = self._guard.check(theta[None], omega[None])
@@ -189,7 +200,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         # else: the observation keeps the last finite state (and the episode is truncated)
         reward, terminated = 0.0, False
         if self.task is not None and finite:
-            r, done, extra = self.task.evaluate(self.theta[None], self.omega[None], u[None])
+            u_joint = u[None, : self.machine.n_joint]
+            r, done, extra = self.task.evaluate(self.theta[None], self.omega[None], u_joint)
             reward, terminated = float(r[0]), bool(done[0])
             info.update({k: v[0] for k, v in extra.items()})
         return self._last_obs.copy(), reward, terminated, truncated, info

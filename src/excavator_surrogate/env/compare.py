@@ -207,9 +207,9 @@ def _mid_pose(spec: MachineSpec) -> np.ndarray:
 
 
 def _validate(u: np.ndarray, spec: MachineSpec, *, where: Path | None) -> None:
-    cols = [f"u_{j}" for j in spec.names]
-    if u.ndim != 2 or u.shape[1] != spec.n_joint or u.shape[0] < 2:
-        raise DataError(where, f"commands have shape {u.shape}, need (n_step >= 2, {spec.n_joint})")
+    cols = [f"u_{j}" for j in spec.u_names]
+    if u.ndim != 2 or u.shape[1] != spec.n_u or u.shape[0] < 2:
+        raise DataError(where, f"commands have shape {u.shape}, need (n_step >= 2, {spec.n_u})")
     bad = ~np.isfinite(u)
     if bad.any():
         row, k = (int(x) for x in np.argwhere(bad)[0])
@@ -220,7 +220,7 @@ def _validate(u: np.ndarray, spec: MachineSpec, *, where: Path | None) -> None:
             row=row,
             fix="fill or drop the gap",
         )
-    for k, j in enumerate(spec.joints):
+    for k, j in enumerate(spec.u_specs):
         out = (u[:, k] < j.u_min - 1e-9) | (u[:, k] > j.u_max + 1e-9)
         if out.any():
             row = int(np.flatnonzero(out)[0])
@@ -243,7 +243,7 @@ def run_commands(
         the first sample index at which the env truncated on a NaN state (rows from there on
         are NaN), else None.
     """
-    n_step, n_joint = u.shape
+    n_step, n_joint = u.shape[0], env.machine.n_joint
     theta = np.full((n_step, n_joint), np.nan)
     omega = np.full((n_step, n_joint), np.nan)
     env.reset(options={"theta0": theta0})

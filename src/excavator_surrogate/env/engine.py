@@ -33,6 +33,7 @@ from ..scale.devices import resolve_device
 from ..spec import MachineSpec
 from ..surrogate.features import Normalization, integrate, play_features, play_step
 from ..surrogate.model import Surrogate
+from .inputs import ActionLayout
 
 Mode = Literal["windowed", "stateful"]
 Impl = Literal["auto", "cell", "module"]
@@ -75,20 +76,22 @@ class _NoOp:
 
 
 def rest_command(spec: MachineSpec) -> np.ndarray:
-    """The at-rest command (n_joint,): 0 clipped into each joint's ``[u_min, u_max]``."""
-    return np.array([min(max(0.0, j.u_min), j.u_max) for j in spec.joints], dtype=np.float64)
+    """The at-rest command (n_u,): 0 clipped into each joint's ``[u_min, u_max]``, then each
+    exogenous input at the centre of its range (an env with fixed inputs overrides them)."""
+    return ActionLayout(spec).rest()
 
 
 def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
     """Matrix ``M`` (n_feature, n_raw) and offset ``e`` (n_feature,) with
-    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (J), f]``
-    (``f``: the Q * J play features ``(z - us) / b``, if any)."""
+    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (n_u), f]``
+    (``u``: the joints' commands then the exogenous inputs; ``f``: the Q * J play features
+    ``(z - us) / b``, if any)."""
     spec, norm = sur.spec, sur.norm
-    n_joint = spec.n_joint
+    n_joint, n_u = spec.n_joint, spec.n_u
     per = [k for k, p in enumerate(spec.periodic) if p]
     n_per = len(per)
     n_play = norm.n_play * n_joint
-    n_raw = 2 * n_joint + 2 * n_per + n_play
+    n_raw = n_joint + 2 * n_per + n_u + n_play
     m = norm.x_mean.double().cpu().numpy()
     s = norm.x_std.double().cpu().numpy()
     mat = np.zeros((norm.n_feature, n_raw))
@@ -103,19 +106,19 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
         else:
             mat[col, k] = 1.0 / s[col]
             col += 1
-    for k, js in enumerate(spec.joints):
+    for k, js in enumerate(spec.u_specs):
         mat[col, n_joint + 2 * n_per + k] = 1.0 / (js.u_scale * s[col])
         off[col] += -js.u_center / js.u_scale / s[col]
         col += 1
     for k in range(n_play):
-        mat[col, 2 * n_joint + 2 * n_per + k] = 1.0 / s[col]
+        mat[col, n_joint + 2 * n_per + n_u + k] = 1.0 / s[col]
         col += 1
     return mat, off
 
 
 def add_play(module: nn.Module, sur: Surrogate) -> None:
     """Register the surrogate's play operators on ``module``: float32 buffers ``play`` (Q,)
-    half-widths, ``u_center`` / ``u_scale`` (n_joint,); ``module.n_play`` = Q (0: none)."""
+    half-widths, ``u_center`` / ``u_scale`` (n_u,); ``module.n_play`` = Q (0: none)."""
     norm = sur.norm.to("cpu", torch.float32)
     module.n_play = norm.n_play
     for k in ("play", "u_center", "u_scale"):
@@ -130,12 +133,14 @@ def play_and_features(
 
     Args:
         z: (..., Q, n_joint) play states before ``u``.
-        u: (..., n_joint) commands [command units].
+        u: (..., n_u) commands [command units]; the first ``n_joint`` (the joints') drive
+            the play operators, exogenous inputs do not.
 
     Returns:
         ``z_new`` (..., Q, n_joint) and features ``(z_new - us) / b`` (..., Q * n_joint).
     """
-    us = (u - module.u_center) / module.u_scale
+    nj = z.shape[-1]
+    us = (u[..., :nj] - module.u_center[:nj]) / module.u_scale[:nj]
     z = play_step(z, us, module.play)
     return z, play_features(z, us, module.play)
 
@@ -164,7 +169,7 @@ class FusedStep(nn.Module):
     ``forward(theta, u, h, c[, z])``:
 
     - ``theta``: (n_batch, n_joint) angles θ[k] [rad] (periodic joints wrapped or not);
-    - ``u``: (n_batch, n_joint) commands u[k] [command units];
+    - ``u``: (n_batch, n_u) commands u[k] [command units] (joints', then exogenous inputs');
     - ``h``, ``c``: (n_layer, n_batch, hidden) recurrent state (``c`` unused and passed
       through for GRU cells);
     - ``z``: (n_batch, Q, n_joint) play states before ``u`` (only if the surrogate has
@@ -466,7 +471,8 @@ class SurrogateEngine:
 
     @torch.inference_mode()
     def step(self, u: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Apply commands ``u`` (n_envs, n_joint) [command units] at the current sample k.
+        """Apply commands ``u`` (n_envs, n_u) [command units] at the current sample k (the
+        joints', then the exogenous inputs').
 
         Returns ``(theta[k+1], omega[k+1])`` as (n_envs, n_joint) float64 tensors [rad], [rad/s]
         (``theta`` is the engine's live state tensor: copy it to keep it).

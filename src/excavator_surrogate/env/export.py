@@ -9,7 +9,7 @@ name       shape                          meaning
 =========  =============================  ==========================================
 inputs
 ``theta``  (n_batch, n_joint) float32     angles θ[k] [rad]
-``u``      (n_batch, n_joint) float32     commands u[k] [command units]
+``u``      (n_batch, n_u) float32         commands u[k]: joints', then inputs'
 ``h``      (n_layer, n_batch, hidden)     recurrent state h
 ``c``      (n_layer, n_batch, hidden)     LSTM cell state c (passed through for GRU)
 outputs
@@ -23,7 +23,7 @@ A surrogate with Q > 0 command play features (``TrainConfig.play``) has one more
 ``z_out``, the states after it; the play operators are in the graph.
 
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
-of shape (n_batch, W, n_joint) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
+of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
 n_joint), the play states after each of them, with play features); outputs ``omega`` and
 ``theta_next`` as above (the encoding and normalisation are in the graph).
 
@@ -59,7 +59,8 @@ Exporter = Literal["auto", "dynamo", "torchscript"]
 
 class WindowStep(nn.Module):
     """Windowed step with encoding and normalisation in the graph:
-    ``(theta (n, W, J), u (n, W, J)[, z (n, W, Q, J)]) -> (omega (n, J), theta_next (n, J))``."""
+    ``(theta (n, W, J), u (n, W, n_u)[, z (n, W, Q, J)]) -> (omega (n, J), theta_next (n, J))``
+    (``u``: the joints' commands, then the exogenous inputs')."""
 
     def __init__(self, sur: Surrogate) -> None:
         super().__init__()
@@ -85,7 +86,7 @@ class WindowStep(nn.Module):
         if self.n_play:
             if z is None:
                 raise ValueError("this surrogate has play features: pass the play states z")
-            parts.append(play_features(z, us, self.play))
+            parts.append(play_features(z, us[..., : len(self.periodic)], self.play))
         x = torch.cat(parts, dim=-1)
         y = self.net((x - self.x_mean) / self.x_std)
         theta_next, omega = integrate(
@@ -121,7 +122,7 @@ def export_onnx(
     sur.to("cpu", torch.float32).eval()
     mode = mode or sur.mode
     spec = sur.spec
-    n_joint = spec.n_joint
+    n_joint, n_u = spec.n_joint, spec.n_u
     n_play = sur.norm.n_play
     n_b = 2
     if mode == "stateful":
@@ -129,7 +130,7 @@ def export_onnx(
         cfg = sur.model_cfg
         args: tuple[torch.Tensor, ...] = (
             torch.zeros(n_b, n_joint),
-            torch.zeros(n_b, n_joint),
+            torch.zeros(n_b, n_u),
             torch.zeros(cfg.n_layer, n_b, cfg.hidden),
             torch.zeros(cfg.n_layer, n_b, cfg.hidden),
         )
@@ -146,7 +147,7 @@ def export_onnx(
     elif mode == "windowed":
         module = WindowStep(sur).eval()
         w = sur.window
-        args = (torch.zeros(n_b, w, n_joint), torch.zeros(n_b, w, n_joint))
+        args = (torch.zeros(n_b, w, n_joint), torch.zeros(n_b, w, n_u))
         inputs = ["theta", "u"]
         outputs = ["omega", "theta_next"]
         axes = {"theta": {0: "batch"}, "u": {0: "batch"}}
@@ -306,14 +307,15 @@ class OnnxStepper:
         self._z_win = np.zeros((0, self.window, len(self.play), n_joint), np.float32)
         self.theta = np.zeros((0, self.spec.n_joint), dtype=np.float32)
         self.h = self.c = np.zeros((self.n_layer, 0, self.hidden), dtype=np.float32)
-        self._theta_win = self._u_win = np.zeros((0, self.window, self.spec.n_joint), np.float32)
+        self._theta_win = np.zeros((0, self.window, n_joint), np.float32)
+        self._u_win = np.zeros((0, self.window, self.spec.n_u), np.float32)
 
     def reset(self, theta0: np.ndarray) -> np.ndarray:
         """Start every row at rest at ``theta0`` (n_batch, n_joint) [rad]; returns θ (float32)."""
         theta0 = np.atleast_2d(np.asarray(theta0, dtype=np.float32))
         n = theta0.shape[0]
         self.theta = theta0.copy()
-        u0 = np.broadcast_to(self.u_rest, theta0.shape).astype(np.float32)
+        u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
         z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
         self.z = z_rest
         if self.mode == "stateful":
@@ -331,15 +333,16 @@ class OnnxStepper:
         return self.theta
 
     def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Play states after commands ``u`` (n, n_joint) from ``z`` (n, Q, n_joint), float32."""
+        """Play states after commands ``u`` (n, n_u) from ``z`` (n, Q, n_joint), float32."""
         if not len(self.play):
             return z
-        us = scale_commands_np(u, self.spec)[:, None, :]  # one sample per row
+        us = scale_commands_np(u, self.spec)[:, None, : self.spec.n_joint]  # one sample per row
         return play_np(us, self.play, z0=z)[:, 0].astype(np.float32)
 
     def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Apply commands ``u`` (n_batch, n_joint); returns ``(theta[k+1], omega[k+1])`` float32."""
-        u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape)
+        """Apply commands ``u`` (n_batch, n_u) (joints', then exogenous inputs'); returns
+        ``(theta[k+1], omega[k+1])`` float32."""
+        u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape[0], self.spec.n_u)
         if self.mode == "stateful":
             feed = {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
             if len(self.play):

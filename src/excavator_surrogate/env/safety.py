@@ -18,6 +18,7 @@ import numpy as np
 
 from ..errors import ExsurError
 from ..spec import MachineSpec
+from .inputs import ActionLayout
 
 ActionMode = Literal["clip", "reject"]
 ACTION_MODES: tuple[str, ...] = ("clip", "reject")
@@ -44,10 +45,12 @@ def check_action_mode(action_mode: str) -> None:
 
 
 class ActionChecker:
-    """Validates and conditions batches of actions ``(n_envs, n_joint)`` [command units].
+    """Validates and conditions batches of actions ``(n_envs, n_action)`` [command units].
 
     Args:
         spec: the machine (command ranges per joint).
+        layout: the action's columns (default: every command column of ``spec``: the
+            joints', then the exogenous inputs').
         env_name: used in error messages.
         action_mode: ``"clip"`` (clip to the range) or ``"reject"`` (raise on out-of-range).
         atol: tolerance for ``reject`` (values within ``atol`` of a bound are clipped silently).
@@ -60,29 +63,34 @@ class ActionChecker:
         env_name: str,
         action_mode: ActionMode = "clip",
         atol: float = 1e-6,
+        layout: ActionLayout | None = None,
     ) -> None:
         check_action_mode(action_mode)
         self.spec = spec
+        self.layout = layout or ActionLayout(spec)
+        cols = self.layout.columns
+        self.names = tuple(c.name for c in cols)
+        """Names of the action's columns."""
         self.env_name = env_name
         self.action_mode = action_mode
         self.atol = float(atol)
-        self.u_min = np.array([j.u_min for j in spec.joints], dtype=np.float64)
-        self.u_max = np.array([j.u_max for j in spec.joints], dtype=np.float64)
+        self.u_min = np.array([c.u_min for c in cols], dtype=np.float64)
+        self.u_max = np.array([c.u_max for c in cols], dtype=np.float64)
 
     def __call__(self, action: object, *, n_envs: int | None = None) -> np.ndarray:
-        """Return the action as float64 ``(n_envs, n_joint)`` (or ``(n_joint,)`` if ``n_envs`` is None).
+        """Return the action as float64 ``(n_envs, n_action)`` (or ``(n_action,)`` if ``n_envs`` is None).
 
         Raises:
             ActionError: wrong shape, NaN/inf, or out of range with ``action_mode="reject"``.
         """
-        n_joint = self.spec.n_joint
-        shape = (n_joint,) if n_envs is None else (n_envs, n_joint)
+        n_action = len(self.names)
+        shape = (n_action,) if n_envs is None else (n_envs, n_action)
         kind = np.asarray(action).dtype.kind
         if kind not in "biufO":
             what = "complex" if kind == "c" else f"of dtype {np.asarray(action).dtype}"
             raise ActionError(
                 f"{self.env_name}: action is {what}; give real numbers (float32/float64), one per "
-                f"joint {list(self.spec.names)}"
+                f"column {list(self.names)}"
             )
         try:
             u = np.asarray(action, dtype=np.float64)
@@ -94,7 +102,7 @@ class ActionChecker:
             else:
                 raise ActionError(
                     f"{self.env_name}: action has shape {u.shape}, expected {shape} "
-                    f"(one command per joint {list(self.spec.names)})"
+                    f"(one command per column {list(self.names)})"
                 )
         finite = np.isfinite(u)
         if not finite.all():
@@ -117,7 +125,7 @@ class ActionChecker:
     def _where(self, idx: np.ndarray) -> str:
         k = int(idx[-1])
         env = f"env {int(idx[0])} " if idx.size == 2 else ""
-        return f"{env}action[{k}] ({self.spec.names[k]})"
+        return f"{env}action[{k}] ({self.names[k]})"
 
 
 @dataclass(frozen=True)

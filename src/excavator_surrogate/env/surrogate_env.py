@@ -54,7 +54,11 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     show the default 4-joint excavator (``n`` joints in general).
 
     ## Action Space
-    ``Box(u_min, u_max, (n_joint,), float32)``: one command per joint, held for ``T_s``.
+    ``Box(u_min, u_max, (n_joint,), float32)``: one command per joint, held for ``T_s``.  A
+    surrogate trained with exogenous inputs (engine speed, gear ...: ``spec.inputs``) takes
+    them as further action entries after the joints' (``n_u`` in all), unless ``inputs``
+    fixes them, e.g. ``inputs={"engine_rpm": 1800.0}``: they are then held at that value and
+    the action is the joints' commands (and any input not fixed).
 
     | Num | Action                        | Control Min | Control Max | Joint  | Type (Unit)           |
     |-----|-------------------------------|-------------|-------------|--------|-----------------------|
@@ -113,6 +117,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | `wrap_theta`   | **bool**                | `True`    | wrap periodic θ in the observation                      |
     | `reset_margin` | **float**               | `0.1`     | fraction of joint ranges avoided by random starts       |
     | `spec`         | **MachineSpec / None**  | `None`    | expected machine: a checkpoint of another one raises    |
+    | `inputs`       | **dict / None**         | `None`    | exogenous inputs held fixed (left out of the action)    |
     """
 
     env_id = "ExcavatorSurrogate-v0"
@@ -130,6 +135,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         wrap_theta: bool = True,
         reset_margin: float = 0.1,
         spec: MachineSpec | None = None,
+        inputs: dict[str, float] | None = None,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         self.ckpt = str(ckpt) if not isinstance(ckpt, Surrogate) else None
@@ -140,8 +146,10 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
             guard=guard,
             wrap_theta=wrap_theta,
             reset_margin=reset_margin,
+            inputs=inputs,
         )
         self.engine = SurrogateEngine(sur, n_envs=1, device=device, mode=mode, impl=impl)
+        self.engine.u_rest = self.layout.rest()
         self.surrogate = sur
 
     def _dyn_reset(self, theta0: np.ndarray) -> None:

@@ -38,6 +38,7 @@ from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
 from .base import action_space, check_theta0, observation_space
 from .engine import Impl, Mode, SurrogateEngine
+from .inputs import ActionLayout
 from .safety import GUARD_NAN, GUARD_OK, ActionChecker, ActionMode, DivergenceGuard, GuardConfig
 from .surrogate_env import load_surrogate
 from .tasks import Task, sample_pose
@@ -62,6 +63,8 @@ class SurrogateVectorEnv(VectorEnv):
         autoreset_mode: ``AutoresetMode`` (or its string value).
         spec: the machine the caller expects; a checkpoint of other joints, command ranges or
             rate raises :class:`~excavator_surrogate.errors.CheckpointError`.
+        inputs: exogenous inputs held fixed (``{"engine_rpm": 1800.0}``), left out of the
+            action; the others are action entries after the joints' (:mod:`.inputs`).
     """
 
     env_id = "ExcavatorSurrogate-v0 (vector)"
@@ -82,6 +85,7 @@ class SurrogateVectorEnv(VectorEnv):
         max_episode_steps: int | None = 1000,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         spec: MachineSpec | None = None,
+        inputs: dict[str, float] | None = None,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         self.engine = SurrogateEngine(sur, n_envs=n_envs, device=device, mode=mode, impl=impl)
@@ -96,14 +100,19 @@ class SurrogateVectorEnv(VectorEnv):
             "render_modes": [],
             "render_fps": spec.rate_hz,
         }
-        self.single_action_space = action_space(spec)
+        self.layout = ActionLayout.make(spec, inputs, where=self.env_id)
+        """The action's columns and the fixed exogenous inputs."""
+        self.engine.u_rest = self.layout.rest()
+        self.single_action_space = action_space(spec, self.layout)
         self.single_observation_space = observation_space(spec, wrap=wrap_theta)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.task = task
         self.reset_margin = float(reset_margin)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
-        self._check_action = ActionChecker(spec, env_name=self.env_id, action_mode=action_mode)
+        self._check_action = ActionChecker(
+            spec, env_name=self.env_id, action_mode=action_mode, layout=self.layout
+        )
         self._guard = DivergenceGuard(spec, guard)
         n, j = self.num_envs, spec.n_joint
         self._periodic = np.asarray(spec.periodic, dtype=bool)
@@ -229,7 +238,8 @@ class SurrogateVectorEnv(VectorEnv):
     def step(
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Apply ``actions`` (n_envs, n_joint) for one control period.
+        """Apply ``actions`` (n_envs, n_action) for one control period (``n_action = n_u`` less
+        the fixed exogenous inputs).
 
         Returns:
             ``obs`` (n_envs, 2·n_joint) float32, ``reward`` (n_envs,) float64, ``terminated``
@@ -240,7 +250,7 @@ class SurrogateVectorEnv(VectorEnv):
         """
         if not self._rngs:
             raise RuntimeError(f"{self.env_id}: call reset() before step()")
-        u = self._check_action(actions, n_envs=self.num_envs)
+        u = self.layout.full(self._check_action(actions, n_envs=self.num_envs))
         theta_t, omega_t = self.engine.step(u)
         theta = theta_t.cpu().numpy()
         omega = omega_t.cpu().numpy()
@@ -259,7 +269,7 @@ class SurrogateVectorEnv(VectorEnv):
         terminated = np.zeros(self.num_envs, dtype=bool)
         info: dict[str, Any] = {"guard": code, "limit_violation": violation}
         if self.task is not None:
-            r, done, extra = self.task.evaluate(theta, omega, u)
+            r, done, extra = self.task.evaluate(theta, omega, u[:, : self.machine.n_joint])
             reward = np.where(nan, 0.0, r)
             terminated = done & ~nan
             info.update(extra)

@@ -1,4 +1,4 @@
-"""Import real machine logs (CSV, Parquet, ROS bags, MCAP) into exsur datasets.
+"""Import real machine logs (CSV, dSPACE CSV, Parquet, MDF4, ROS bags, MCAP) into exsur datasets.
 
 A TOML mapping file (:func:`load_mapping`) describes the machine (any number of joints,
 any subset periodic) and maps log columns or ROS topic fields to joint angles,
@@ -16,6 +16,7 @@ from .mapping import (
     CommandMap,
     CsvOptions,
     ImportOptions,
+    InputMap,
     JointMap,
     MachineTable,
     Mapping,
@@ -48,6 +49,7 @@ __all__ = [
     "CsvOptions",
     "FileResult",
     "ImportOptions",
+    "InputMap",
     "JointMap",
     "MachineTable",
     "Mapping",

@@ -10,6 +10,11 @@ Layout (see ``docs/import.md`` for the full reference)::
     angle    = { column = "boom_deg", unit = "deg", scale = 1.0, offset = 0.0 }
     velocity = { column = "boom_rate", unit = "deg/s" }                  # optional
     command  = { up = "boom_up", down = "boom_down", unit = "%", range = [-1000, 1000] }
+    [[inputs]]               # optional exogenous inputs (engine speed, gear ...), in order
+    name = "engine_rpm"
+    column = "rpm"
+    unit = "physical"        # physical | % (0..100 spans range) | raw (raw_range spans range)
+    range = [800, 2200]
     [import]                 # defaults of the import options (CLI flags override)
     [split]                  # train/val/test assignment
     [csv]                    # delimiter, skip_rows
@@ -33,7 +38,7 @@ from typing import Any, Literal
 
 from ..config import from_dict
 from ..errors import ConfigError
-from ..spec import JointSpec, MachineSpec
+from ..spec import InputSpec, JointSpec, MachineSpec
 
 TABLE = "table"
 """Series name of the single time base of a CSV/Parquet log."""
@@ -135,6 +140,20 @@ class JointMap:
 
 
 @dataclass(frozen=True)
+class InputMap:
+    """One exogenous input (``[[inputs]]``): a one-channel command that no joint owns.
+
+    ``command`` holds its channel and conversion; a ``%`` input is stored as ``raw`` with
+    ``raw_range = [0, 100]`` (0 % -> ``u_min``, 100 % -> ``u_max``, not signed as for joints).
+    """
+
+    name: str
+    command: CommandMap
+    unit: str = "physical"
+    """Unit name stored in the spec (``physical_unit``, ``%`` or ``raw``)."""
+
+
+@dataclass(frozen=True)
 class MachineTable:
     """``[machine]``: the machine and the target rate."""
 
@@ -152,7 +171,7 @@ class TimeMap:
     """``[time]``: the time base."""
 
     column: str | None = None
-    """CSV/Parquet time column (required for tables)."""
+    """CSV/Parquet time column (required there); dSPACE: default the x-axis trace; MDF: unused."""
     unit: Literal["s", "ms", "us", "ns", "datetime"] = "s"
     """Numeric unit, or ``datetime`` for ISO-8601 strings / timestamp columns."""
     stamp: Literal["auto", "header", "log"] = "auto"
@@ -166,6 +185,9 @@ class CsvOptions:
     delimiter: str = ","
     skip_rows: int = 0
     """Lines before the header line to skip (logger preambles)."""
+    format: Literal["auto", "plain", "dspace"] = "auto"
+    """``dspace``: read .csv files as dSPACE ControlDesk exports; ``plain``: never; ``auto``:
+    by content (first cell ``descriptions`` or a ``trace_...`` row) or a ``.dspace.csv`` name."""
 
 
 @dataclass(frozen=True)
@@ -241,6 +263,8 @@ class Mapping:
     options: ImportOptions = field(default_factory=ImportOptions)
     split: SplitOptions = field(default_factory=SplitOptions)
     csv: CsvOptions = field(default_factory=CsvOptions)
+    inputs: tuple[InputMap, ...] = ()
+    """Exogenous inputs, the command columns after the joints'."""
     path: Path | None = None
     """The file it was read from (for messages)."""
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
@@ -266,8 +290,8 @@ class Mapping:
             return None
         return _channel(j.velocity.topic, j.velocity.column, j.velocity.field)
 
-    def command_channels(self, j: JointMap) -> tuple[Channel, ...]:
-        """``(signed,)`` or ``(up, down)`` channels of joint ``j``."""
+    def command_channels(self, j: JointMap | InputMap) -> tuple[Channel, ...]:
+        """``(signed,)`` or ``(up, down)`` channels of joint (or input) ``j``."""
         c = j.command
         if c.two_channel:
             series = c.topic or TABLE
@@ -281,7 +305,13 @@ class Mapping:
             for ch in (self.angle_channel(j), self.velocity_channel(j), *self.command_channels(j)):
                 if ch is not None and ch not in out:
                     out.append(ch)
+        for i in self.inputs:
+            out.extend(ch for ch in self.command_channels(i) if ch not in out)
         return out
+
+    def u_sources(self) -> tuple[JointMap | InputMap, ...]:
+        """What each command column comes from: the joints, then the inputs."""
+        return (*self.joints, *self.inputs)
 
     def spec(self, rate_hz: float | None = None) -> MachineSpec:
         """The :class:`MachineSpec` described by the mapping, at ``rate_hz`` (default: mapping's)."""
@@ -311,8 +341,12 @@ class Mapping:
         if self.path is not None:
             meta["mapping"] = self.path.name
         try:
+            inputs = tuple(
+                InputSpec(i.name, float(i.command.range[0]), float(i.command.range[1]), i.unit)
+                for i in self.inputs
+            )
             return MachineSpec(
-                joints=tuple(joints), rate_hz=rate, name=self.machine.name, meta=meta
+                joints=tuple(joints), rate_hz=rate, name=self.machine.name, meta=meta, inputs=inputs
             )
         except ConfigError as e:
             raise ConfigError(f"{self.where}: {e}") from e
@@ -324,7 +358,7 @@ def _channel(topic: str | None, column: str | None, fld: str | None) -> Channel:
     return Channel(TABLE, str(column))
 
 
-_TOP = {"machine", "time", "joints", "import", "split", "csv"}
+_TOP = {"machine", "time", "joints", "inputs", "import", "split", "csv"}
 
 
 def load_mapping(path: str | Path) -> Mapping:
@@ -374,8 +408,13 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
         raise ConfigError(
             f"{where}: joint name '{dup[0]}' appears twice; joint names must be unique"
         )
+    raw_inputs = data.get("inputs", [])
+    if not isinstance(raw_inputs, list):
+        raise ConfigError(f"{where}: 'inputs' must be a list of tables ([[inputs]])")
+    inputs = tuple(_parse_input(i, k, where) for k, i in enumerate(raw_inputs))
     m = Mapping(
         machine=machine,
+        inputs=inputs,
         time=time,
         joints=joints,
         options=options,
@@ -388,10 +427,6 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
     if len(kinds) > 1:
         raise ConfigError(
             f"{where}: mixes table columns and ROS topics; map either columns or topic+field"
-        )
-    if not m.is_ros and time.column is None:
-        raise ConfigError(
-            f'{where}: time.column is required for CSV/Parquet logs (add [time] column = "...")'
         )
     _check_shared_channels(m, where)
     m.spec()  # checks names and ranges
@@ -453,6 +488,21 @@ def _parse_joint(raw: Any, i: int, where: str) -> JointMap:
     if base.limits is not None and not base.limits[1] > base.limits[0]:
         raise ConfigError(f"{jw}: limits {list(base.limits)} must be [low, high] with high > low")
     return dataclasses.replace(base, angle=angle, velocity=velocity, command=command)
+
+
+def _parse_input(raw: Any, k: int, where: str) -> InputMap:
+    if not isinstance(raw, dict) or not isinstance(raw.get("name"), str):
+        raise ConfigError(f"{where}: inputs[{k}] must be a table with a name")
+    iw = f"{where}: input '{raw['name']}'"
+    body = {key: v for key, v in raw.items() if key != "name"}
+    if "range" not in body:
+        raise ConfigError(f"{iw}: range = [lo, hi] is required (the input's valid values)")
+    c = from_dict(CommandMap, body, where=iw)
+    _check_command(c, iw)
+    unit = c.physical_unit if c.unit == "physical" else str(c.unit)
+    if c.unit == "%":  # 0..100 % spans the range (inputs are not signed)
+        c = dataclasses.replace(c, unit="raw", raw_range=(0.0, 100.0))
+    return InputMap(name=raw["name"], command=c, unit=unit)
 
 
 def _check_source(column: str | None, topic: str | None, fld: str | None, where: str) -> None:

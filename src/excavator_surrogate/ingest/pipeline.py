@@ -25,7 +25,16 @@ from ..errors import ConfigError, DataError
 from ..io_utils import atomic_dir, log, progress, write_json, write_text
 from ..outdir import check_out_dir, replace_allowed
 from ..spec import MachineSpec
-from .mapping import DEG, Channel, CommandMap, ImportOptions, JointMap, Mapping, SplitOptions
+from .mapping import (
+    DEG,
+    Channel,
+    CommandMap,
+    ImportOptions,
+    InputMap,
+    JointMap,
+    Mapping,
+    SplitOptions,
+)
 from .outliers import screen_angles
 from .report import render_markdown
 from .resample import (
@@ -35,7 +44,7 @@ from .resample import (
     interval_mean,
     resample_smooth,
 )
-from .sources import RawLog, Series, expand_sources, read_log
+from .sources import RawLog, Series, expand_sources, log_stem, read_log
 from .split import assign_splits
 
 REPORT_JSON = "import_report.json"
@@ -190,7 +199,7 @@ def _to_command(x: np.ndarray, c: CommandMap) -> np.ndarray:
 
 def _command(
     path: Path,
-    j: JointMap,
+    j: JointMap | InputMap,
     chans: tuple[Channel, ...],
     vals: dict[Channel, np.ndarray],
     *,
@@ -199,6 +208,7 @@ def _command(
     entry: dict[str, Any],
 ) -> np.ndarray:
     c = j.command
+    what = f"joint '{j.name}' command" if isinstance(j, JointMap) else f"input '{j.name}'"
     span = c.range[1] - c.range[0]
     tol = 1e-9 * span
     raw = [vals[ch] * c.scale + c.offset for ch in chans]
@@ -214,7 +224,7 @@ def _command(
                     f"one-way command channel is negative ({x[row]:.6g})",
                     column=ch.label,
                     row=row,
-                    fix=f"up/down channels must be >= 0; check scale/offset of joint '{j.name}' command in {where}",
+                    fix=f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
                 )
         x = (
             np.maximum(raw[0], 0.0) - np.maximum(raw[1], 0.0)
@@ -236,7 +246,7 @@ def _command(
                 f"[{c.range[0]:g}, {c.range[1]:g}] after scaling",
                 column=label,
                 row=row,
-                fix=f"check unit/scale/range of joint '{j.name}' command in {where}, or use --clip-commands",
+                fix=f"check unit/scale/range of {what} in {where}, or use --clip-commands",
             )
         entry["clipped"][j.name] = int(out.sum())
         u = np.clip(u, c.range[0], c.range[1])
@@ -453,6 +463,18 @@ def convert_log(
                 entry=entry,
             )
         )
+    for inp in mapping.inputs:  # exogenous inputs: the command columns after the joints'
+        u_in.append(
+            _command(
+                path,
+                inp,
+                mapping.command_channels(inp),
+                vals,
+                options=options,
+                where=where,
+                entry=entry,
+            )
+        )
 
     # gap-free segments common to all series
     common: list[tuple[float, float]] | None = None
@@ -574,7 +596,7 @@ def _resample_segment(
     nj = spec.n_joint
     theta_grid = np.empty((n + 1, nj))
     phi_grid: dict[int, np.ndarray] = {}
-    u = np.empty((n, nj))
+    u = np.empty((n, spec.n_u))
     edges = a + dt * np.arange(1, n + 2)
     rows: dict[str, slice] = {}
     for name, s in raw.series.items():
@@ -611,11 +633,12 @@ def _resample_segment(
                 sos=sos[vch.series],
                 t_end=b,
             )
-        cname = mapping.command_channels(j)[0].series
+    for i, src in enumerate(mapping.u_sources()):
+        cname = mapping.command_channels(src)[0].series
         cs = rows[cname]
         u[:, i] = interval_mean(raw.series[cname].time[cs], u_in[i][cs], edges)
-    lo = np.array([jt.u_min for jt in spec.joints])
-    hi = np.array([jt.u_max for jt in spec.joints])
+    lo = np.array([c.u_min for c in spec.u_specs])
+    hi = np.array([c.u_max for c in spec.u_specs])
     u = np.clip(u, lo, hi)  # the means lie in range; this only removes rounding error
     theta = theta_grid[1:]
     omega = np.diff(theta_grid, axis=0) / dt
@@ -635,12 +658,7 @@ _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")
 
 
 def _stem(path: Path) -> str:
-    name = path.name
-    for suf in (".csv.gz", ".csv", ".parquet", ".pq", ".mcap", ".bag", ".db3"):
-        if name.lower().endswith(suf):
-            name = name[: -len(suf)]
-            break
-    return _SAFE.sub("_", name).strip("_.") or "log"
+    return _SAFE.sub("_", log_stem(path)).strip("_.") or "log"
 
 
 # --------------------------------------------------------------------------------------

@@ -15,6 +15,14 @@ def render_markdown(report: dict[str, Any]) -> str:
         f"# exsur import: {spec['name']}",
         "",
         f"- joints ({len(joints)}): {names}",
+        *(
+            [
+                f"- exogenous inputs ({len(ins)}): "
+                + ", ".join(f"{i['name']} [{i['unit']}]" for i in ins)
+            ]
+            if (ins := spec.get("inputs"))
+            else []
+        ),
         f"- rate: {spec['rate_hz']:g} Hz; mapping: {report.get('mapping')}",
         f"- files: {tot['files']} ({tot['files_imported']} imported, {tot['files_dropped']} dropped, "
         f"{tot['files_failed']} failed); rows read: {tot['rows_in']}",

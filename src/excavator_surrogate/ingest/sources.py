@@ -1,22 +1,27 @@
-"""Reading raw logs: CSV (plain or .gz), Parquet tables, ROS 2 / ROS 1 bags and MCAP files.
+"""Reading raw logs: the reader registry, CSV (plain or .gz), Parquet, ROS 2 / ROS 1 bags, MCAP.
 
 Every reader returns a :class:`RawLog`: one or more :class:`Series` (a time base plus the
 raw values of the channels that live on it).  A CSV/Parquet file has one series
 (``"table"``); a bag has one series per topic.  Values are raw (no unit conversion);
 missing cells are NaN.  Rows are counted from 0, header not counted.
+
+:data:`READERS` lists every log format (this module's, plus dSPACE ControlDesk CSV in
+:mod:`.dspace` and ASAM MDF4 in :mod:`.mdf`); :func:`log_kind`, :func:`read_log` and
+:data:`SUPPORTED` derive from it, so a new format is one module plus one line here.
 """
 
 from __future__ import annotations
 
 import csv as _csv
+import difflib
 import glob
 import gzip
 import re
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -28,7 +33,6 @@ from .mapping import TABLE, Channel, CsvOptions, Mapping, TimeMap
 CSV_SUFFIXES = (".csv", ".csv.gz")
 PARQUET_SUFFIXES = (".parquet", ".pq")
 ROS_SUFFIXES = (".mcap", ".bag", ".db3")
-SUPPORTED = "CSV (.csv, .csv.gz), Parquet (.parquet), ROS bags (rosbag2 folder, .mcap, .bag)"
 
 _UNIT_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 
@@ -66,22 +70,61 @@ class RawLog:
         return sum(int(s.time.shape[0]) for s in self.series.values())
 
 
-def log_kind(path: Path) -> str | None:
-    """``csv``, ``parquet``, ``rosbag2``, ``mcap``, ``rosbag1``, or None if unsupported."""
-    name = path.name.lower()
+@dataclass(frozen=True)
+class Reader:
+    """One log format: how to recognise a file and how to read it."""
+
+    kind: str
+    """Name stored in the report (``csv``, ``dspace``, ``mdf`` ...)."""
+    label: str
+    """What it reads, for messages: ``"CSV (.csv, .csv.gz)"``."""
+    suffixes: tuple[str, ...]
+    """File name endings (lower case), longest first; stripped to name the episodes."""
+    match: Callable[[Path, str], bool]
+    """``match(path, csv_format)``: True if this reader reads ``path``; ``csv_format`` is
+    the mapping's ``[csv] format`` (``auto``, ``plain`` or ``dspace``)."""
+    read: Callable[[Path, Mapping], RawLog]
+    """Read the channels the mapping needs; raises DataError."""
+    maps: Literal["columns", "topics"] = "columns"
+    """What its mapping channels name: columns (channel names), or ROS topic fields."""
+    whole_folder: bool = False
+    """A storage file inside a folder log (rosbag2) stands for the whole folder."""
+
+
+def has_suffix(*suffixes: str) -> Callable[[Path, str], bool]:
+    """A ``Reader.match`` that accepts files whose name ends in one of ``suffixes``."""
+    return lambda path, _fmt: not path.is_dir() and path.name.lower().endswith(suffixes)
+
+
+def _bag_folder(path: Path, _fmt: str) -> bool:
     if path.is_dir():
-        return "rosbag2" if (path / "metadata.yaml").exists() else None
-    if name.endswith(CSV_SUFFIXES):
-        return "csv"
-    if name.endswith(PARQUET_SUFFIXES):
-        return "parquet"
-    if name.endswith(".mcap"):
-        return "rosbag2" if (path.parent / "metadata.yaml").exists() else "mcap"
-    if name.endswith(".db3"):
-        return "rosbag2" if (path.parent / "metadata.yaml").exists() else None
-    if name.endswith(".bag"):
-        return "rosbag1"
+        return (path / "metadata.yaml").exists()
+    name = path.name.lower()
+    return name.endswith((".mcap", ".db3")) and (path.parent / "metadata.yaml").exists()
+
+
+def reader_for(path: Path, *, csv_format: str = "auto") -> Reader | None:
+    """The first reader of :data:`READERS` that matches ``path``, or None."""
+    for r in READERS:
+        if r.match(path, csv_format):
+            return r
     return None
+
+
+def log_kind(path: Path, *, csv_format: str = "auto") -> str | None:
+    """Kind of the log at ``path`` (``csv``, ``dspace``, ``parquet``, ``rosbag2``, ``mdf`` ...), or None."""
+    r = reader_for(path, csv_format=csv_format)
+    return r.kind if r is not None else None
+
+
+def log_stem(path: Path) -> str:
+    """The file name without its log suffix (``run.dspace.csv.gz`` -> ``run``)."""
+    name = path.name
+    ends = sorted({s for r in READERS for s in r.suffixes}, key=len, reverse=True)
+    for suf in ends:
+        if name.lower().endswith(suf):
+            return name[: -len(suf)]
+    return name
 
 
 def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
@@ -96,10 +139,10 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
     out: list[Path] = []
 
     def add(p: Path) -> None:
-        kind = log_kind(p)
-        if kind is None:
+        r = reader_for(p)
+        if r is None:
             raise DataError(p, "unsupported log type", fix=f"give {SUPPORTED}")
-        if kind == "rosbag2" and not p.is_dir():
+        if r.whole_folder and not p.is_dir():
             p = p.parent  # a storage file inside a bag folder: read the whole bag
         if p not in out:
             out.append(p)
@@ -134,29 +177,27 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
 
 
 def read_log(path: Path, mapping: Mapping) -> RawLog:
-    """Read the channels ``mapping`` needs from the log at ``path``.
+    """Read the channels ``mapping`` needs from the log at ``path`` (see :data:`READERS`).
 
     Raises:
         DataError: unreadable file, missing/duplicated columns, non-numeric values, bad time.
     """
-    kind = log_kind(path)
-    if kind in ("csv", "parquet"):
-        if mapping.is_ros:
-            raise DataError(
-                path,
-                "this is a table but the mapping maps ROS topics",
-                fix="map columns (column = ...) for CSV/Parquet logs",
-            )
-        return _read_table(path, kind, mapping)
-    if kind in ("rosbag2", "rosbag1", "mcap"):
-        if not mapping.is_ros:
-            raise DataError(
-                path,
-                "this is a ROS bag but the mapping maps table columns",
-                fix="map topic = ... and field = ... for bags",
-            )
-        return _read_ros(path, kind, mapping)
-    raise DataError(path, "unsupported log type", fix=f"give {SUPPORTED}")
+    r = reader_for(path, csv_format=mapping.csv.format)
+    if r is None:
+        raise DataError(path, "unsupported log type", fix=f"give {SUPPORTED}")
+    if r.maps == "columns" and mapping.is_ros:
+        raise DataError(
+            path,
+            f"this is a {r.kind} log but the mapping maps ROS topics",
+            fix="map columns (column = ...) for CSV/Parquet/dSPACE/MDF logs",
+        )
+    if r.maps == "topics" and not mapping.is_ros:
+        raise DataError(
+            path,
+            "this is a ROS bag but the mapping maps table columns",
+            fix="map topic = ... and field = ... for bags",
+        )
+    return r.read(path, mapping)
 
 
 # --------------------------------------------------------------------------------------
@@ -225,8 +266,25 @@ def _toml_str(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace("\t", "\\t").replace('"', '\\"') + '"'
 
 
+def missing_channel(path: Path, name: str, names: Sequence[str], mapping: Mapping) -> DataError:
+    """The error for a mapped channel that the log lacks: the nearest name and the first 12."""
+    close = difflib.get_close_matches(name, list(names), n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ""
+    shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
+    return DataError(
+        path,
+        "mapped column is missing",
+        column=name,
+        fix=f"{hint}fix the channel name in {mapping.where}; the log has: {shown}",
+    )
+
+
 def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     tm = mapping.time
+    if tm.column is None:
+        raise ConfigError(
+            f'{mapping.where}: time.column is required for CSV/Parquet logs (add [time] column = "...")'
+        )
     tcol = str(tm.column)
     value_cols = [c.key for c in mapping.channels()]
     needed = [tcol, *[c for c in value_cols if c != tcol]]
@@ -674,3 +732,58 @@ def _read_ros(path: Path, kind: str, mapping: Mapping) -> RawLog:
         )
     origin = datetime.fromtimestamp(origin_ns / 1e9, tz=UTC).isoformat() if origin_ns > 0 else "0"
     return RawLog(path=path, kind=kind, series=series, origin=origin, columns=sorted(by_topic))
+
+
+# --------------------------------------------------------------------------------------
+# the registry (after the readers it names; .dspace and .mdf import helpers from here)
+
+from .dspace import READER as _DSPACE  # noqa: E402
+from .mdf import READER as _MDF  # noqa: E402
+
+READERS: tuple[Reader, ...] = (
+    _DSPACE,
+    Reader(
+        "csv",
+        "CSV (.csv, .csv.gz)",
+        CSV_SUFFIXES[::-1],
+        has_suffix(*CSV_SUFFIXES),
+        lambda path, mapping: _read_table(path, "csv", mapping),
+    ),
+    Reader(
+        "parquet",
+        "Parquet (.parquet)",
+        PARQUET_SUFFIXES,
+        has_suffix(*PARQUET_SUFFIXES),
+        lambda path, mapping: _read_table(path, "parquet", mapping),
+    ),
+    Reader(
+        "rosbag2",
+        "ROS 2 bags (rosbag2 folder)",
+        (".mcap", ".db3"),
+        _bag_folder,
+        lambda path, mapping: _read_ros(path, "rosbag2", mapping),
+        maps="topics",
+        whole_folder=True,
+    ),
+    Reader(
+        "mcap",
+        "MCAP (.mcap)",
+        (".mcap",),
+        has_suffix(".mcap"),
+        lambda path, mapping: _read_ros(path, "mcap", mapping),
+        maps="topics",
+    ),
+    Reader(
+        "rosbag1",
+        "ROS 1 bags (.bag)",
+        (".bag",),
+        has_suffix(".bag"),
+        lambda path, mapping: _read_ros(path, "rosbag1", mapping),
+        maps="topics",
+    ),
+    _MDF,
+)
+"""Every log format, in detection order (the first match wins)."""
+
+SUPPORTED = ", ".join(r.label for r in READERS)
+"""The supported formats, for messages."""

@@ -2,11 +2,13 @@
 
 Feature layout for a :class:`~excavator_surrogate.spec.MachineSpec` (paper III-B, generalised
 to any number of joints): for each joint in order, ``sin θ, cos θ`` if it is periodic, else
-``θ``; then every joint's command scaled by its range, ``us = (u - u_center) / u_scale``.  The
+``θ``; then every command column scaled by its range, ``us = (u - u_center) / u_scale``: the
+joints' commands, then the exogenous inputs' (``spec.inputs``: engine speed, gear ...).  The
 width is ``spec.n_feature``.  Optionally (``play`` widths ``b_1..b_P``, ours, not the paper's)
 the scaled commands also pass through play (backlash) operators, a Prandtl-Ishlinskii
 hysteresis basis: ``z_p[k] = clip(z_p[k-1], us[k] - b_p, us[k] + b_p)`` from ``z_p = 0`` at
-rest, and ``(z_p - us) / b_p`` in ``[-1, 1]`` is appended per width and joint (width-major).
+rest, and ``(z_p - us) / b_p`` in ``[-1, 1]`` is appended per width and joint (width-major);
+play acts on the joints' commands only, not on exogenous inputs.
 It says from which side the command last arrived -- the state of a valve's hysteresis, which a
 recurrent net cannot learn to remember across a long hold from truncated-BPTT training.
 Features and targets are then standardised with statistics of the training split
@@ -156,9 +158,9 @@ def unwrap_periodic(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
 
 
 def scale_commands_np(u: np.ndarray, spec: MachineSpec) -> np.ndarray:
-    """Commands ``u: (..., n_joint)`` [command units] scaled to ``(u - u_center) / u_scale``."""
-    center = np.array([js.u_center for js in spec.joints])
-    scale = np.array([js.u_scale for js in spec.joints])
+    """Commands ``u: (..., n_u)`` [command units] scaled to ``(u - u_center) / u_scale``."""
+    center = np.array([c.u_center for c in spec.u_specs])
+    scale = np.array([c.u_scale for c in spec.u_specs])
     return (np.asarray(u, dtype=np.float64) - center) / scale
 
 
@@ -211,7 +213,9 @@ def play_features_np(z: np.ndarray, us: np.ndarray, widths: Sequence[float]) -> 
 
 
 def _play_from_rest(u: np.ndarray, spec: MachineSpec, play: Sequence[float]) -> np.ndarray | None:
-    return play_np(scale_commands_np(u, spec), play) if len(play) else None
+    if not len(play):
+        return None
+    return play_np(scale_commands_np(u, spec)[..., : spec.n_joint], play)
 
 
 def encode_np(
@@ -226,7 +230,7 @@ def encode_np(
 
     Args:
         theta: (..., n_joint) angles [rad].
-        u: (..., n_joint) commands [command units].
+        u: (..., n_u) commands [command units]: the joints', then the exogenous inputs'.
         play: half-widths of the play operators (empty: the paper's features).
         z: (..., P, n_joint) play states after this sample (:func:`play_np`); required with ``play``.
 
@@ -247,7 +251,7 @@ def encode_np(
     if len(play):
         if z is None:
             raise ValueError("encode_np: play features need the play states z")
-        out.append(play_features_np(z, us, play))
+        out.append(play_features_np(z, us[..., : spec.n_joint], play))
     return np.concatenate(out, axis=-1)
 
 
@@ -336,8 +340,8 @@ class Normalization:
             y_mean=t(y_mean),
             y_std=t(y_std),
             periodic=tuple(spec.periodic),
-            u_center=t([j.u_center for j in spec.joints]),
-            u_scale=t([j.u_scale for j in spec.joints]),
+            u_center=t([c.u_center for c in spec.u_specs]),
+            u_scale=t([c.u_scale for c in spec.u_specs]),
             play=widths,
         )
 
@@ -383,13 +387,15 @@ class Normalization:
 
     def play_rest(self, n_batch: int) -> torch.Tensor:
         """Play states at rest: zeros ``(n_batch, P, n_joint)`` (P may be 0)."""
-        return self.u_scale.new_zeros(n_batch, self.n_play, self.u_scale.shape[0])
+        return self.u_scale.new_zeros(n_batch, self.n_play, len(self.periodic))
 
     def play_update(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Play states after commands ``u: (..., n_joint)``; ``z: (..., P, n_joint)``."""
+        """Play states after commands ``u: (..., n_u)`` (the joints' columns drive them);
+        ``z: (..., P, n_joint)``."""
         if not self.n_play:
             return z
-        return play_step(z, (u - self.u_center) / self.u_scale, self.play)
+        nj = len(self.periodic)
+        return play_step(z, (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj], self.play)
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Play states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch, P,
@@ -411,7 +417,7 @@ class Normalization:
 
         Args:
             theta: (..., n_joint) angles [rad].
-            u: (..., n_joint) commands [command units].
+            u: (..., n_u) commands [command units] (joints', then exogenous inputs').
             z: (..., P, n_joint) play states after ``u`` (:meth:`play_update`); needed when
                 ``n_play > 0``, ignored otherwise.
 
@@ -430,7 +436,7 @@ class Normalization:
         if self.n_play:
             if z is None:
                 raise ValueError("encode: this normalisation has play features; pass z")
-            out.append(play_features(z, us, self.play))
+            out.append(play_features(z, us[..., : len(self.periodic)], self.play))
         x = torch.cat(out, dim=-1)
         return (x - self.x_mean) / self.x_std
 

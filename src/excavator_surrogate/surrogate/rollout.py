@@ -112,7 +112,8 @@ class ClosedLoop:
 
         Args:
             theta_hist: (n_batch, n_hist, n_joint) angles ``theta[0..n_hist-1]`` [rad], n_hist >= 1.
-            u_hist: (n_batch, n_hist - 1, n_joint) commands ``u[0..n_hist-2]``.
+            u_hist: (n_batch, n_hist - 1, n_u) commands ``u[0..n_hist-2]`` (joints', then
+                exogenous inputs'; ``n_u = spec.n_u``).
 
         In windowed mode only the last ``W`` samples matter; a shorter history is padded by
         repeating its first sample.  Play states (if the features have them) start at rest
@@ -120,10 +121,10 @@ class ClosedLoop:
         """
         theta_hist = self._t(theta_hist)
         u_hist = self._t(u_hist)
-        n_batch, n_hist, n_joint = theta_hist.shape
-        if n_hist < 1 or u_hist.shape != (n_batch, n_hist - 1, n_joint):
+        n_batch, n_hist, _ = theta_hist.shape
+        if n_hist < 1 or u_hist.shape != (n_batch, n_hist - 1, self.sur.spec.n_u):
             raise ValueError(
-                f"reset needs theta_hist (n_batch, n_hist>=1, n_joint) and u_hist (n_batch, n_hist-1, n_joint); "
+                f"reset needs theta_hist (n_batch, n_hist>=1, n_joint) and u_hist (n_batch, n_hist-1, n_u); "
                 f"got {tuple(theta_hist.shape)} and {tuple(u_hist.shape)}"
             )
         z_hist = self.norm.play_seq(self.norm.play_rest(n_batch), u_hist)
@@ -143,7 +144,7 @@ class ClosedLoop:
 
     @torch.no_grad()
     def step(self, u: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Apply commands ``u: (n_batch, n_joint)`` at the current sample ``k``.
+        """Apply commands ``u: (n_batch, n_u)`` at the current sample ``k``.
 
         Returns ``(theta[k+1], omega[k+1])``, each ``(n_batch, n_joint)`` [rad], [rad/s].
         """
@@ -181,7 +182,7 @@ def rollout(
     Args:
         sur: the surrogate (eval mode is set by the caller; :func:`load_checkpoint` does it).
         theta: (n_batch, >= warmup, n_joint) recorded angles; only ``theta[:, :warmup]`` is used.
-        u: (n_batch, n_step, n_joint) recorded commands [command units].
+        u: (n_batch, n_step, n_u) recorded commands [command units] (with exogenous inputs).
         warmup: recorded samples used to start (default ``sur.window``).
         mode: ``windowed`` / ``stateful`` (default: the mode the model was trained in).
 
@@ -192,7 +193,8 @@ def rollout(
     warmup = sur.window if warmup is None else int(warmup)
     theta = np.asarray(theta, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
-    n_batch, n_step, n_joint = u.shape
+    n_batch, n_step, _ = u.shape
+    n_joint = sur.spec.n_joint
     if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
         raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
     loop = ClosedLoop(sur, mode=mode)
@@ -307,7 +309,7 @@ def rollout_reference(
             own, in its own normalisation, and the members' omega is averaged in NumPy before
             the angle is integrated (the oracle of :func:`.ensemble.merge`).
         theta: (>= warmup, n_joint) recorded angles [rad].
-        u: (n_step, n_joint) recorded commands.
+        u: (n_step, n_u) recorded commands (with exogenous inputs).
 
     Returns:
         ``theta_hat``, ``omega_hat``: (n_step, n_joint), as :func:`rollout`.
@@ -320,7 +322,7 @@ def rollout_reference(
     warmup = w if warmup is None else int(warmup)
     mode = mode or ref.mode
     spec = ref.spec
-    n_step, n_joint = u.shape
+    n_step, n_joint = u.shape[0], spec.n_joint
     theta_hat = [np.asarray(theta[k], dtype=np.float64) for k in range(warmup)]
     omega_hat = [np.full(n_joint, np.nan) for _ in range(warmup)]
     limits = ref.limits_np()

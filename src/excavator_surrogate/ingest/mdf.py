@@ -1,0 +1,175 @@
+"""ASAM MDF (``.mf4``; MDF 3 ``.mdf`` too) logs, read with asammdf (the ``mdf`` extra).
+
+Channel names are the names in the file's channel database: the channel name, or
+``<source path>.<name>`` for a channel with a source (asammdf's convention).  A name that
+several channel groups hold is refused with the names that tell them apart.  Values are
+physical (the file's conversions applied); samples flagged invalid become missing (NaN).
+
+Time: every channel group has its own master channel (time in s).  When the mapped
+channels all live in one group, its master is the time base and nothing is resampled.
+When they live in several groups (different rasters), they are resampled with asammdf
+(``Signal.interp``: linear for floats, previous sample for integers) onto the master of
+the group with the most samples, over the span that every group covers; the import then
+filters and resamples that one table to the target rate like a CSV log.  ``[time]`` is not
+used (the masters are in seconds).
+"""
+
+from __future__ import annotations
+
+import gc
+import importlib.util
+import logging
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, DataError
+from .mapping import TABLE, Mapping
+from .sources import RawLog, Reader, Series, has_suffix, missing_channel
+
+SUFFIXES = (".mf4", ".mdf")
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """asammdf logs its own errors (and a half-opened file complains when it is collected);
+    ours are the one-line DataErrors."""
+    lg = logging.getLogger("asammdf")
+    level, hook = lg.level, sys.unraisablehook
+    lg.setLevel(logging.CRITICAL)
+    sys.unraisablehook = lambda _: None
+    try:
+        yield
+    finally:
+        gc.collect()
+        lg.setLevel(level)
+        sys.unraisablehook = hook
+
+
+def _locate(path: Path, db: Any, name: str, mapping: Mapping) -> tuple[int, int]:
+    """``(group, index)`` of the channel called ``name``; DataError if missing or ambiguous."""
+    occ = sorted({tuple(o) for o in db.get(name, ())})
+    if not occ:
+        raise missing_channel(path, name, sorted(k for k in db if k != "time"), mapping)
+    if len(occ) > 1:
+        unique = {tuple(o[0]): k for k, o in db.items() if len({tuple(x) for x in o}) == 1}
+        cands = [f"'{unique[o]}'" if o in unique else f"group {o[0]}" for o in occ]
+        fix = (
+            f"map one of {', '.join(cands)} in {mapping.where}"
+            if all(o in unique for o in occ)
+            else f"the channel is in channel groups {', '.join(cands)}; rename it in the recording"
+        )
+        raise DataError(
+            path,
+            f"channel name is ambiguous: {len(occ)} channel groups hold it",
+            column=name,
+            fix=fix,
+        )
+    return int(occ[0][0]), int(occ[0][1])
+
+
+def _numeric(path: Path, sig: Any, name: str) -> np.ndarray:
+    x = np.asarray(sig.samples)
+    if x.dtype.kind not in "fiub" or x.ndim != 1:
+        raise DataError(
+            path,
+            f"values are of type {x.dtype} (shape {x.shape}), not numbers",
+            column=name,
+            fix="map a numeric channel",
+        )
+    out = x.astype(np.float64)
+    inv = getattr(sig, "invalidation_bits", None)
+    if inv is not None:
+        out[np.asarray(inv, dtype=bool)] = np.nan
+    return out
+
+
+def read_mdf(path: Path, mapping: Mapping) -> RawLog:
+    """Read the channels ``mapping`` needs from an MDF file (see the module doc).
+
+    Raises:
+        ConfigError: asammdf is not installed.
+        DataError: unreadable/truncated file, missing or ambiguous channel, non-numeric
+            values, channel groups that share no time span.
+    """
+    if importlib.util.find_spec("asammdf") is None:
+        raise ConfigError(
+            f"{path}: reading MDF logs needs the 'asammdf' package; "
+            "install the extra: pip install 'excavator-surrogate[mdf]'"
+        )
+    from asammdf import MDF
+
+    keys = [c.key for c in mapping.channels()]
+    with _quiet():
+        problem = ""
+        try:
+            mdf = MDF(path)
+        except Exception as e:  # asammdf raises many types for damaged files
+            problem = f"{type(e).__name__}: {e}"
+        if problem:  # raised outside the handler, so the half-opened file is freed here
+            raise DataError(
+                path,
+                f"not a readable MDF file ({problem})",
+                fix="the file may be truncated; record or export it again",
+            )
+        try:
+            where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
+            try:
+                sigs = {k: mdf.get(group=g, index=i) for k, (g, i) in where.items()}
+            except Exception as e:
+                raise DataError(
+                    path,
+                    f"cannot read the samples ({type(e).__name__}: {e})",
+                    fix="the file may be truncated; record or export it again",
+                ) from e
+            start = mdf.header.start_time
+            columns = sorted(k for k in mdf.channels_db if k != "time")
+        finally:
+            mdf.close()
+        return _one_table(path, sigs, where, start, columns)
+
+
+def _one_table(
+    path: Path,
+    sigs: dict[str, Any],
+    where: dict[str, tuple[int, int]],
+    start: Any,
+    columns: list[str],
+) -> RawLog:
+    """The mapped signals on one time base (the longest group's master; see the module doc)."""
+    for k, s in sigs.items():
+        if len(s.timestamps) == 0:
+            raise DataError(
+                path, "the channel has no samples", column=k, fix="map a recorded channel"
+            )
+    groups: dict[int, np.ndarray] = {}
+    for k, s in sigs.items():
+        groups.setdefault(where[k][0], np.asarray(s.timestamps, dtype=np.float64))
+    master = max(groups, key=lambda g: (groups[g].shape[0], -g))
+    t0 = max(float(t[0]) for t in groups.values())
+    t1 = min(float(t[-1]) for t in groups.values())
+    t = groups[master]
+    keep = (t >= t0) & (t <= t1)
+    t = t[keep]
+    values: dict[str, np.ndarray] = {}
+    for k, s in sigs.items():
+        if where[k][0] == master:
+            values[k] = _numeric(path, s, k)[keep]
+        else:
+            values[k] = _numeric(path, s.interp(t), k)
+    origin = start + timedelta(seconds=float(t[0]))
+    return RawLog(
+        path=path,
+        kind="mdf",
+        series={TABLE: Series(TABLE, t - t[0], values, f"master of channel group {master}")},
+        origin=origin.isoformat(),
+        columns=columns,
+    )
+
+
+READER = Reader("mdf", "ASAM MDF4 (.mf4, .mdf)", SUFFIXES, has_suffix(*SUFFIXES), read_mdf)

@@ -1,0 +1,193 @@
+"""ASAM MDF4 logs (asammdf): one or several channel groups, and every error."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import arm3_plant
+import numpy as np
+import pytest
+from ingest_helpers import assert_nothing_written
+
+from excavator_surrogate.ingest import convert_log, parse_mapping
+
+asammdf = pytest.importorskip("asammdf")
+
+MAPPING = arm3_plant.MAPPING_TOML.replace('[time]\ncolumn = "t_ms"\nunit = "ms"\n', "")
+"""The test arm's mapping without [time]: MDF channels carry their group's master time."""
+
+
+def _signals(cols: dict[str, np.ndarray], names: list[str], keep: np.ndarray | None = None):
+    t = cols["t_ms"] * 1e-3
+    sel = slice(None) if keep is None else keep
+    return [asammdf.Signal(cols[n][sel], t[sel], name=n) for n in names]
+
+
+def write_mdf(path: Path, cols: dict[str, np.ndarray], *, split_bucket: bool = False) -> Path:
+    """The test arm's log as MDF4; ``split_bucket``: bucket channels in a second channel group
+    that covers 2 s .. 25 s only."""
+    names = [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]
+    mdf = asammdf.MDF(version="4.10")
+    bucket = [n for n in names if n.startswith("bucket")] if split_bucket else []
+    mdf.append(_signals(cols, [n for n in names if n not in bucket]), comment="main raster")
+    if bucket:
+        t = cols["t_ms"] * 1e-3
+        mdf.append(_signals(cols, bucket, (t >= 2.0) & (t <= 25.0)), comment="slow raster")
+    mdf.save(path, overwrite=True)
+    mdf.close()
+    return path
+
+
+def _mapping(tmp_path: Path, text: str = MAPPING):
+    (tmp_path / "mdf.toml").write_text(text)
+    return parse_mapping(tomllib.loads(text), path=tmp_path / "mdf.toml")
+
+
+def _csv_reference(tmp_path: Path, cols: dict[str, np.ndarray], keep: np.ndarray | None = None):
+    sel = {k: v if keep is None else v[keep] for k, v in cols.items()}
+    log = arm3_plant.write_csv(tmp_path / "ref.csv", sel)
+    return convert_log(log, parse_mapping(tomllib.loads(arm3_plant.MAPPING_TOML))).episodes[0]
+
+
+def test_mdf_matches_csv(cli, tmp_path, short_cols):
+    """API and CLI: an MDF4 log gives the episode the CSV of the same data gives."""
+    log = write_mdf(tmp_path / "run01.mf4", short_cols)
+    mapping = _mapping(tmp_path)
+    res = convert_log(log, mapping)
+    assert res.entry["kind"] == "mdf" and res.entry["origin"].startswith("20")
+    ep, ref = res.episodes[0], _csv_reference(tmp_path, short_cols)
+    assert ep.name == "run01" and ep.n_step == ref.n_step
+    np.testing.assert_allclose(ep.theta, ref.theta, atol=1e-5)  # CSV: 6 digits
+    np.testing.assert_allclose(ep.u, ref.u, atol=1e-2)
+    rc, text, err = cli("import", log, "--mapping", tmp_path / "mdf.toml", "--dry-run", "--quiet")
+    assert rc == 0, err
+    assert "run01.mf4" in text
+
+
+def test_mdf_two_channel_groups(tmp_path, short_cols):
+    """Channels on two rasters: resampled onto the longer group's master over the common span."""
+    log = write_mdf(tmp_path / "two.mf4", short_cols, split_bucket=True)
+    res = convert_log(log, _mapping(tmp_path))
+    t = short_cols["t_ms"] * 1e-3
+    keep = (t >= 2.0) & (t <= 25.0)
+    ref = _csv_reference(tmp_path, short_cols, keep)
+    ep = res.episodes[0]
+    assert ep.n_step == ref.n_step
+    np.testing.assert_allclose(ep.theta, ref.theta, atol=1e-5)
+    np.testing.assert_allclose(ep.u, ref.u, atol=1e-2)
+    assert res.entry["series"]["table"]["duration_s"] == pytest.approx(
+        t[keep][-1] - t[keep][0], abs=1e-3
+    )
+
+
+def _fail(cli, tmp_path: Path, log: Path) -> str:
+    out = tmp_path / "ds"
+    rc, _, err = cli("import", log, "--mapping", tmp_path / "mdf.toml", "--out", out, "--quiet")
+    assert rc == 2, err
+    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
+    assert_nothing_written(out)
+    return err
+
+
+def test_mdf_errors(cli, tmp_path, short_cols):
+    _mapping(tmp_path)
+    # a mapped channel that the file lacks
+    mdf = asammdf.MDF(version="4.10")
+    names = [c for c in arm3_plant.LOG_COLUMNS if c not in ("t_ms", "arm_deg")]
+    mdf.append(_signals(short_cols, names))
+    mdf.save(tmp_path / "missing.mf4", overwrite=True)
+    mdf.close()
+    err = _fail(cli, tmp_path, tmp_path / "missing.mf4")
+    assert "column 'arm_deg': mapped column is missing" in err and "boom_deg" in err
+    # the same name in two groups, without sources that tell them apart
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]))
+    mdf.append(_signals(short_cols, ["boom_deg"]))
+    mdf.save(tmp_path / "twice.mf4", overwrite=True)
+    mdf.close()
+    err = _fail(cli, tmp_path, tmp_path / "twice.mf4")
+    assert "column 'boom_deg': channel name is ambiguous: 2 channel groups hold it" in err
+    assert "groups group 0, group 1; rename it" in err
+    # a truncated file
+    good = write_mdf(tmp_path / "good.mf4", short_cols).read_bytes()
+    (tmp_path / "cut.mf4").write_bytes(good[: len(good) // 2])
+    err = _fail(cli, tmp_path, tmp_path / "cut.mf4")
+    assert "cut.mf4: not a readable MDF file" in err and "truncated" in err
+
+
+def test_mdf_ambiguous_names_with_sources(cli, tmp_path, short_cols):
+    """Channels with a source are told apart by ``<source path>.<name>``, which the error lists."""
+    from asammdf.blocks.source_utils import Source
+
+    def src(bus: str) -> Source:
+        return Source(
+            name="ecu",
+            path=bus,
+            comment="",
+            source_type=Source.SOURCE_ECU,
+            bus_type=Source.BUS_TYPE_CAN,
+        )
+
+    t = short_cols["t_ms"] * 1e-3
+    names = [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append([asammdf.Signal(short_cols[n], t, name=n, source=src("CAN1")) for n in names])
+    mdf.append(
+        [asammdf.Signal(short_cols["boom_deg"] + 1.0, t, name="boom_deg", source=src("CAN2"))]
+    )
+    mdf.save(tmp_path / "src.mf4", overwrite=True)
+    mdf.close()
+    _mapping(tmp_path)
+    err = _fail(cli, tmp_path, tmp_path / "src.mf4")
+    assert "map one of 'CAN1.boom_deg', 'CAN2.boom_deg'" in err
+    fixed = _mapping(tmp_path, MAPPING.replace('column = "boom_deg"', 'column = "CAN1.boom_deg"'))
+    ep = convert_log(tmp_path / "src.mf4", fixed).episodes[0]
+    np.testing.assert_allclose(ep.theta, _csv_reference(tmp_path, short_cols).theta, atol=1e-5)
+
+
+def test_mdf_rasters_resampled_onto_the_longest_master(tmp_path, short_cols):
+    """A 10 Hz group on the 100 Hz master: floats linear, integers hold the previous sample."""
+    from excavator_surrogate.ingest.sources import read_log
+
+    t = short_cols["t_ms"] * 1e-3
+    t_slow = np.arange(0.5, 9.0, 0.1)
+    gear = (np.arange(t_slow.size) // 7 % 3 + 1).astype(np.int8)
+    rpm = 1000.0 + 10.0 * np.arange(t_slow.size)
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]))
+    mdf.append([asammdf.Signal(gear, t_slow, name="gear"), asammdf.Signal(rpm, t_slow, name="rpm")])
+    mdf.save(tmp_path / "rasters.mf4", overwrite=True)
+    mdf.close()
+    text = MAPPING + (
+        '[[inputs]]\nname = "gear"\ncolumn = "gear"\nunit = "physical"\nrange = [1.0, 3.0]\n'
+        '[[inputs]]\nname = "engine_rpm"\ncolumn = "rpm"\nunit = "physical"\nrange = [800.0, 2200.0]\n'
+    )
+    raw = read_log(tmp_path / "rasters.mf4", _mapping(tmp_path, text))
+    s = raw.series["table"]
+    keep = (t >= t_slow[0]) & (t <= t_slow[-1])
+    t_master = t[keep]
+    np.testing.assert_allclose(s.time, t_master - t_master[0])
+    np.testing.assert_array_equal(s.values["boom_deg"], short_cols["boom_deg"][keep])
+    held = gear[np.searchsorted(t_slow, t_master, side="right") - 1]
+    np.testing.assert_array_equal(s.values["gear"], held)
+    np.testing.assert_allclose(s.values["rpm"], np.interp(t_master, t_slow, rpm))
+    # and through the import: the inputs are u columns 3 and 4
+    ep = convert_log(tmp_path / "rasters.mf4", _mapping(tmp_path, text)).episodes[0]
+    assert ep.spec.u_names == (*arm3_plant.JOINTS, "gear", "engine_rpm")
+    assert ep.u.shape == (ep.n_step, 5) and ep.u[:, 3].min() >= 1.0 and ep.u[:, 3].max() <= 3.0
+
+
+def test_mdf_needs_asammdf(tmp_path, short_cols, monkeypatch):
+    from excavator_surrogate.errors import ConfigError
+    from excavator_surrogate.ingest import mdf as mdf_reader
+
+    log = write_mdf(tmp_path / "a.mf4", short_cols)
+    real = mdf_reader.importlib.util.find_spec
+    monkeypatch.setattr(
+        mdf_reader.importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "asammdf" else real(name, *a),
+    )
+    with pytest.raises(ConfigError, match="pip install 'excavator-surrogate\\[mdf\\]'"):
+        convert_log(log, _mapping(tmp_path))
