@@ -18,9 +18,11 @@ every output folder can record the config that produced it (``config.toml``).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import tomllib
 import types
 import typing
+from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -45,7 +47,9 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     p = Path(str(name_or_path))
     if p.suffix == ".toml" or p.is_file():
         if not p.exists():
-            raise ConfigError(f"{p}: preset file not found (give a shipped name: {', '.join(preset_names())})")
+            raise ConfigError(
+                f"{p}: preset file not found (give a shipped name: {', '.join(preset_names())})"
+            )
         text = p.read_text()
         where = str(p)
     else:
@@ -61,7 +65,9 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: invalid TOML ({e})") from e
     base = data.pop("extends", None)
-    own_name = data.get("name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path))
+    own_name = data.get(
+        "name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path)
+    )
     if base is not None:
         merged = load_preset(base)
         for k, v in data.items():
@@ -208,3 +214,98 @@ def dumps_toml(tables: dict[str, Any]) -> str:
         if isinstance(v, dict):
             table(k, v)
     return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def parse_sets(items: Sequence[str], *, sections: Sequence[str] | None = None) -> dict[str, Any]:
+    """``["train.lr=3e-4", "simulate.hydraulics.drift=false"]`` as nested tables.
+
+    Values are TOML (``3e-4``, ``true``, ``[0.02, 0.05]``, ``"cpu"``); a bare word that is not
+    TOML is taken as a string (``train.device=cuda``).  With ``sections``, a key outside them is
+    an error (``exsur train`` reads only ``[train]``).
+
+    Raises:
+        ConfigError: an item without ``SECTION.KEY=VALUE`` or outside ``sections``.
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        path = key.strip().split(".")
+        if not sep or len(path) < 2 or not all(path):
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE, e.g. train.lr=3e-4")
+        if sections is not None and path[0] not in sections:
+            raise ConfigError(f"--set {item!r}: this command reads only [{'], ['.join(sections)}]")
+        try:
+            value = tomllib.loads(f"v = {text.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()
+        node = out
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item!r}: {part} was set to a value above")
+        node[path[-1]] = value
+    return out
+
+
+def merge_tables(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over`` merged in key by key (nested tables merged, not replaced)."""
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping):
+            out[k] = merge_tables(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def stage_config(
+    cls: type[C],
+    preset: Mapping[str, Any],
+    section: str,
+    *,
+    overrides: Mapping[str, Any] | None = None,
+    where: str = "",
+) -> C:
+    """The one way a stage's config is built: ``preset[section]``, then ``overrides``.
+
+    ``overrides`` are the command's ``--set SECTION.KEY=VALUE`` table for this section and its
+    named flags (None values skipped; nested tables merged).  Every key goes through the strict
+    :func:`from_dict`.  A class may define ``adapt_table(table, *, changed)`` to drop knobs that
+    an override makes meaningless (``TrainConfig``: the other mode's knobs when ``mode`` changes).
+
+    Raises:
+        ConfigError: unknown key or bad value, naming ``where [section].key``.
+    """
+    over = {k: v for k, v in (overrides or {}).items() if v is not None}
+    table = merge_tables(dict(preset.get(section) or {}), over)
+    adapt = getattr(cls, "adapt_table", None)
+    if adapt is not None:
+        table = adapt(table, changed=set(over))
+    return from_dict(cls, table, where=f"{where} [{section}]".strip())
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The one-line docstrings under the fields of dataclass ``cls`` (first line of each)."""
+    import ast
+    import inspect
+    import textwrap
+
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for a, b in itertools.pairwise(body):
+            if (
+                isinstance(a, ast.AnnAssign)
+                and isinstance(a.target, ast.Name)
+                and isinstance(b, ast.Expr)
+                and isinstance(b.value, ast.Constant)
+                and isinstance(b.value.value, str)
+            ):
+                docs[a.target.id] = " ".join(b.value.value.split())
+    return docs

@@ -88,7 +88,7 @@ class RunConfig:
 def _stage_configs(preset: Mapping[str, Any], where: str) -> dict[str, Any]:
     from .evaluate.cbe import EvaluateConfig
     from .simulate.generate import SimulateConfig
-    from .surrogate.train import TrainConfig
+    from .training import TrainConfig
 
     cfgs: dict[str, Any] = {
         "run": from_dict(RunConfig, preset.get("run", {}), where=f"{where} [run]"),
@@ -137,7 +137,7 @@ def run_pipeline(
     from .data import load_dataset
     from .evaluate.cbe import evaluate_checkpoint
     from .simulate.generate import simulate_dataset
-    from .surrogate.train import train
+    from .training import train
 
     t_start = time.monotonic()
     raw_preset = load_preset(preset)

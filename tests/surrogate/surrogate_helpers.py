@@ -6,9 +6,11 @@ import torch
 
 from excavator_surrogate.data import Dataset, Episode
 from excavator_surrogate.spec import MachineSpec
-from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate, TrainConfig
+from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate
 from excavator_surrogate.surrogate.model import build_net
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.training import TrainConfig
+from excavator_surrogate.training.config import MODE_FIELDS
 from shared_helpers import drive_into_stops
 
 
@@ -47,9 +49,10 @@ def make_surrogate(
     )
 
 
-def tiny_stateful_config(**overrides) -> TrainConfig:
-    """A tiny stateful training config (window 5, 8 units, 40-sample sequences, no
-    TensorBoard) for fast tests; keyword arguments override its fields."""
+def tiny_train_config(**overrides) -> TrainConfig:
+    """A tiny training config (stateful unless ``mode`` is given; window 5, 8 units, 40-sample sequences, no
+    TensorBoard) for fast tests; keyword arguments override its fields, and knobs of the mode
+    not trained are dropped."""
     kw = dict(
         window=5,
         hidden=8,
@@ -60,7 +63,11 @@ def tiny_stateful_config(**overrides) -> TrainConfig:
         tbptt=10,
         tensorboard=False,
     )
-    return TrainConfig(**{**kw, **overrides})
+    kw = {**kw, **overrides}
+    # knobs of the other mode are dropped (setting them would be an error)
+    other = {n for m, names in MODE_FIELDS.items() if m != kw["mode"] for n in names}
+    kw = {k: v for k, v in kw.items() if k not in other}
+    return TrainConfig(**kw)
 
 
 def tiny_dataset(

@@ -50,10 +50,10 @@ def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
     from ..config import load_preset
     from ..scale.sweep import SweepConfig, run_sweep
-    from ..surrogate.train import TrainConfig
+    from ..training import TrainConfig
 
     preset = load_preset(args.preset) if args.preset else {}
-    base = TrainConfig.from_preset(preset, device=args.device)
+    base = TrainConfig.mode_bases(preset, device=args.device)
     scfg = SweepConfig.from_preset(
         preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed
     )

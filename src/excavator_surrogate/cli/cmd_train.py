@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io_utils import log
     from ..scale.ddp import distributed_env, init_distributed, shutdown
     from ..surrogate.checkpoint import read_checkpoint
-    from ..surrogate.train import TrainConfig, train
+    from ..training import TrainConfig, train
 
     preset = load_preset(args.preset) if args.preset else {}
     cfg = TrainConfig.from_preset(

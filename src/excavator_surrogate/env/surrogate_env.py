@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..scale.devices import resolve_device
+from ..devices import resolve_device
 from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv
@@ -21,7 +21,7 @@ def load_surrogate(
 ) -> Surrogate:
     """A :class:`Surrogate` from a checkpoint path (or the object itself), in eval mode.
 
-    ``device``: ``cpu``, ``cuda[:N]`` or ``auto`` (see :func:`~excavator_surrogate.scale.devices.resolve_device`).
+    ``device``: ``cpu``, ``cuda[:N]`` or ``auto`` (see :func:`~excavator_surrogate.devices.resolve_device`).
     """
     device = resolve_device(device)
     if isinstance(ckpt, Surrogate):

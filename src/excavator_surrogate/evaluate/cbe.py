@@ -147,7 +147,7 @@ def evaluate_checkpoint(
     t0 = time.monotonic()
     if num_threads > 0:
         torch.set_num_threads(num_threads)
-    from ..scale.devices import resolve_device
+    from ..devices import resolve_device
 
     dev = resolve_device(device)
     sur = load_checkpoint(ckpt, device=dev)
