@@ -175,21 +175,24 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return conv(cfg)
 
 
+def toml_value(v: Any) -> str:
+    """One TOML value (scalar, list or inline table)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
 def dumps_toml(tables: dict[str, Any]) -> str:
     """Minimal TOML writer for config records (scalars, lists, nested tables)."""
-
-    def scalar(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int | float):
-            return repr(v)
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        if isinstance(v, list):
-            return "[" + ", ".join(scalar(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {scalar(x)}" for k, x in v.items()) + " }"
-        raise TypeError(f"cannot write {type(v).__name__} to TOML")
+    scalar = toml_value
 
     lines: list[str] = []
     plain = {k: v for k, v in tables.items() if not isinstance(v, dict)}
@@ -309,3 +312,34 @@ def field_docs(cls: type) -> dict[str, str]:
             ):
                 docs[a.target.id] = " ".join(b.value.value.split())
     return docs
+
+
+def describe_config(section: str, cfg: Any) -> str:
+    """``cfg`` as a TOML table ``[section]`` with each field's docstring as a comment above it
+    (nested config dataclasses as sub-tables; ``None`` fields, and the fields named by the
+    config's optional ``unread_fields()``, as commented-out lines)."""
+    import textwrap
+
+    docs = field_docs(type(cfg))
+    unread = set(cfg.unread_fields()) if hasattr(cfg, "unread_fields") else set()
+    lines = [f"[{section}]"]
+    subs = []
+    for f in dataclasses.fields(cfg):
+        v = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            subs.append((f"{section}.{f.name}", v))
+            continue
+        doc = docs.get(f.name)
+        if doc:
+            lines += textwrap.wrap(doc, 98, initial_indent="# ", subsequent_indent="# ")
+        plain = to_dict({"v": v}).get("v")
+        if f.name in unread:
+            lines.append(f"# {f.name} = {toml_value(plain)}  (not read in this configuration)")
+        elif plain is None:
+            lines.append(f"# {f.name} = (unset)")
+        else:
+            lines.append(f"{f.name} = {toml_value(plain)}")
+    text = "\n".join(lines) + "\n"
+    for name, sub in subs:
+        text += "\n" + describe_config(name, sub)
+    return text

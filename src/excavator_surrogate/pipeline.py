@@ -21,13 +21,16 @@ import dataclasses
 import json
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
-from .config import dumps_toml, from_dict, load_preset, to_dict
+from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
 from .io_utils import atomic_dir, log, write_json, write_text
+from .stages import RunConfig, build_configs
+
+RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
+"""The preset tables ``exsur run`` reads."""
 
 DEFAULT_PRESET = "quick"
 """Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job."""
@@ -65,48 +68,6 @@ PAPER_TABLE_III: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {
 }
 
 
-@dataclass(frozen=True)
-class RunConfig:
-    """The ``[run]`` table of a preset: which stages and baselines ``exsur run`` includes."""
-
-    clean: bool = False
-    """Run the cleaning stage and train on the cleaned data (Stage II presets)."""
-    gru: bool = True
-    """Also train the same-size GRU baseline for the comparison table."""
-    arx: bool = True
-    """Also fit the linear ARX baseline for the comparison table."""
-    raw_baseline: bool = False
-    """With ``clean``: also train on the raw (uncleaned) data, for the effect-of-cleaning table."""
-    reference: Literal["measured", "true"] = "measured"
-    """Main evaluation reference: recorded angles, or the ground truth (Stage II)."""
-    paper_table: Literal["II", "III-noload", "III-compound", "none"] = "II"
-    """Which of the paper's tables to show alongside."""
-    fusion_figures: bool = True
-    """With ``clean``: draw the Figure-3-style fusion plot per joint of the first test episode."""
-
-
-def _stage_configs(preset: Mapping[str, Any], where: str) -> dict[str, Any]:
-    from .evaluate.cbe import EvaluateConfig
-    from .simulate.generate import SimulateConfig
-    from .training import TrainConfig
-
-    cfgs: dict[str, Any] = {
-        "run": from_dict(RunConfig, preset.get("run", {}), where=f"{where} [run]"),
-        "simulate": from_dict(
-            SimulateConfig, preset.get("simulate", {}), where=f"{where} [simulate]"
-        ),
-        "train": from_dict(TrainConfig, preset.get("train", {}), where=f"{where} [train]"),
-        "evaluate": from_dict(
-            EvaluateConfig, preset.get("evaluate", {}), where=f"{where} [evaluate]"
-        ),
-    }
-    if cfgs["run"].clean:
-        from .clean import CleanConfig
-
-        cfgs["clean"] = from_dict(CleanConfig, preset.get("clean", {}), where=f"{where} [clean]")
-    return cfgs
-
-
 def run_pipeline(
     *,
     out: str | Path,
@@ -117,6 +78,7 @@ def run_pipeline(
     max_train_seconds: float | None = None,
     epochs: int | None = None,
     members: int | None = None,
+    sets: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Run the whole pipeline for a preset and write the report folder ``out``.
 
@@ -130,6 +92,8 @@ def run_pipeline(
         max_train_seconds: overrides the training wall-time budget (per model).
         epochs: overrides the maximum number of epochs.
         members: overrides the seed-ensemble size of every trained model (1: single networks).
+        sets: further overrides by table, e.g. ``{"train": {"lr": 3e-4}}`` (``--set``; the named
+            arguments above win).
 
     Returns:
         The content of ``metrics.json``.
@@ -142,24 +106,26 @@ def run_pipeline(
     t_start = time.monotonic()
     raw_preset = load_preset(preset)
     name = str(raw_preset.get("name", preset))
-    cfgs = _stage_configs(raw_preset, f"preset '{name}'")
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    named = {
+        "simulate": {"workers": workers, "seed": seed},
+        "train": {
+            "seed": seed,
+            "max_train_seconds": None if max_train_seconds is None else float(max_train_seconds),
+            "epochs": epochs,
+            "members": members,
+        },
+    }
+    over = merge_tables(
+        sets or {}, {k: {n: v for n, v in t.items() if v is not None} for k, t in named.items()}
+    )
+    cfgs = build_configs(
+        raw_preset, sections=RUN_SECTIONS, overrides=over, where=f"preset '{name}'"
+    )
     run_cfg: RunConfig = cfgs["run"]
     sim_cfg = cfgs["simulate"]
-    if workers is not None:
-        if workers < 1:
-            raise ConfigError(f"--workers must be >= 1, got {workers}")
-        sim_cfg = dataclasses.replace(sim_cfg, workers=workers)
-    train_over: dict[str, Any] = {}
-    if seed is not None:
-        sim_cfg = dataclasses.replace(sim_cfg, seed=seed)
-        train_over["seed"] = seed
-    if max_train_seconds is not None:
-        train_over["max_train_seconds"] = float(max_train_seconds)
-    if epochs is not None:
-        train_over["epochs"] = int(epochs)
-    if members is not None:
-        train_over["members"] = int(members)
-    train_cfg = dataclasses.replace(cfgs["train"], **train_over)
+    train_cfg = cfgs["train"]
     eval_cfg = cfgs["evaluate"]
     timings: dict[str, float] = {}
     out = Path(out)
@@ -264,7 +230,7 @@ def run_pipeline(
             if md.exists():
                 write_text(md, md.read_text().replace(str(tmp), str(out)))
         write_json(tmp / "metrics.json", metrics)
-        used = {**cfgs, "simulate": sim_cfg, "train": train_cfg}  # with the CLI overrides applied
+        used = {k: v for k, v in cfgs.items() if k != "clean" or run_cfg.clean}  # with overrides
         record = {"name": name, **{k: to_dict(v) for k, v in used.items()}}
         if data is not None:
             record["data"] = str(data)

@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from .knobs import add_set_option, overrides
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``run`` subcommand."""
-    from ..pipeline import DEFAULT_PRESET
+    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS
 
     p = sub.add_parser(
         "run",
@@ -56,13 +58,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="K",
         help="seed-ensemble members per trained model (1: a single network; default: the preset's)",
     )
+    add_set_option(p, RUN_SECTIONS)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
     from ..evaluate.metrics import min_r2
-    from ..pipeline import run_pipeline
+    from ..pipeline import RUN_SECTIONS, run_pipeline
 
     metrics = run_pipeline(
         out=args.out,
@@ -73,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
         max_train_seconds=args.max_train_seconds,
         epochs=args.epochs,
         members=args.members,
+        sets=overrides(args, RUN_SECTIONS),
     )
     print(
         f"{args.out}: worst-joint angle R² {min_r2(metrics, 'theta'):.4f}, "

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .knobs import add_set_option, overrides
+
 
 def register(subparsers: Any) -> None:
     """Add the ``sweep`` subcommand."""
@@ -43,20 +45,28 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--device", default=None, help="torch device of the trials (cpu, cuda, auto)")
     p.add_argument("--seed", type=int, default=None, help="sampler seed (single-worker sweeps)")
+    add_set_option(p, ("train", "sweep"))
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
-    from ..config import load_preset
+    from ..config import load_preset, merge_tables
     from ..scale.sweep import SweepConfig, run_sweep
     from ..training import TrainConfig
 
-    preset = load_preset(args.preset) if args.preset else {}
-    base = TrainConfig.mode_bases(preset, device=args.device)
-    scfg = SweepConfig.from_preset(
-        preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed
-    )
+    named = {
+        "train": {"device": args.device},
+        "sweep": {
+            "epochs": args.epochs,
+            "max_train_seconds": args.max_train_seconds,
+            "seed": args.seed,
+        },
+    }
+    over = overrides(args, ("train", "sweep"), named)
+    preset = merge_tables(load_preset(args.preset) if args.preset else {}, over)
+    base = TrainConfig.mode_bases(preset)  # one base per mode: trials may switch mode
+    scfg = SweepConfig.from_preset(preset)
     res = run_sweep(
         args.dataset,
         out=args.out,

@@ -11,6 +11,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from .knobs import add_set_option, configs
+
 
 def register(subparsers: Any) -> None:
     """Add the ``train`` subcommand."""
@@ -49,21 +51,19 @@ def register(subparsers: Any) -> None:
         help="data-parallel training; requires a torchrun launch (automatic when torchrun "
         "sets WORLD_SIZE > 1); batch sizes are per process",
     )
+    add_set_option(p, ("train",))
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the best checkpoint path."""
-    from ..config import load_preset
     from ..data.dataset import load_dataset
     from ..io_utils import log
     from ..scale.ddp import distributed_env, init_distributed, shutdown
     from ..surrogate.checkpoint import read_checkpoint
-    from ..training import TrainConfig, train
+    from ..training import train
 
-    preset = load_preset(args.preset) if args.preset else {}
-    cfg = TrainConfig.from_preset(
-        preset,
+    named = dict(
         mode=args.mode,
         cell=args.cell,
         epochs=args.epochs,
@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         device=args.device,
         members=args.members,
     )
+    cfg = configs(args, ("train",), {"train": named})["train"]
     dataset = load_dataset(args.dataset, splits=("train", "val"))
     dist = None
     if args.ddp or distributed_env():

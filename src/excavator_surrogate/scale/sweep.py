@@ -35,7 +35,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..config import from_dict, to_dict
+from ..config import stage_config, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
 from ..io_utils import atomic_path, log, write_json, write_text
@@ -109,9 +109,7 @@ class SweepConfig:
     @classmethod
     def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> SweepConfig:
         """Build from a preset's ``[sweep]`` table, then apply non-None overrides."""
-        cfg = from_dict(cls, dict(preset.get("sweep", {})), where="[sweep]")
-        over = {k: v for k, v in overrides.items() if v is not None}
-        return replace(cfg, **over) if over else cfg
+        return stage_config(cls, preset, "sweep", overrides=overrides)
 
 
 @dataclass

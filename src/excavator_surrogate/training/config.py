@@ -153,19 +153,34 @@ class TrainConfig:
 
     @classmethod
     def adapt_table(cls, table: dict[str, Any], *, changed: set[str]) -> dict[str, Any]:
-        """``table`` with the other mode's knobs dropped when ``mode`` is among the ``changed``
-        (overridden) keys, unless they were overridden too (``exsur train --mode windowed`` on a
+        """Check a ``[train]`` table against its mode: a knob of the other mode is an error, even
+        at its default, unless ``mode`` is among the ``changed`` (overridden) keys: then the other
+        mode's knobs are dropped, unless overridden too (``exsur train --mode windowed`` on a
         stateful preset)."""
-        if "mode" not in changed or table.get("mode") not in MODE_FIELDS:
-            return table
-        drop = {n for m, ns in MODE_FIELDS.items() if m != table["mode"] for n in ns} - changed
-        return {k: v for k, v in table.items() if k not in drop}
+        mode = table.get("mode", cls.mode)
+        if mode not in MODE_FIELDS:
+            return table  # from_dict names the bad mode
+        other = {n for m, ns in MODE_FIELDS.items() if m != mode for n in ns}
+        if "mode" in changed:
+            return {k: v for k, v in table.items() if k not in other - changed}
+        stray = sorted(other & set(table))
+        if stray:
+            owner = next(m for m, ns in MODE_FIELDS.items() if stray[0] in ns)
+            raise ConfigError(
+                f'[train] {stray[0]} is read only by mode = "{owner}" (this table trains '
+                f'mode = "{mode}"): remove it (exsur config show marks the knobs not read)'
+            )
+        return table
 
     @classmethod
     def mode_bases(cls, preset: dict[str, Any], **overrides: Any) -> dict[str, TrainConfig]:
         """One config per mode from a ``[train]`` table that may set both modes' knobs (the
         base of a sweep over modes): each drops the other mode's knobs."""
         return {m: cls.from_preset(preset, **{**overrides, "mode": m}) for m in MODE_FIELDS}
+
+    def unread_fields(self) -> tuple[str, ...]:
+        """Knobs this config's mode does not read (they must keep their defaults)."""
+        return tuple(n for m, ns in MODE_FIELDS.items() if m != self.mode for n in ns)
 
     def for_mode(self, mode: str) -> TrainConfig:
         """This config trained in ``mode``: the other mode's knobs go back to their defaults."""
