@@ -297,6 +297,7 @@ def field_docs(cls: type) -> dict[str, str]:
     for klass in reversed(cls.__mro__):
         if not dataclasses.is_dataclass(klass):
             continue
+        docs.update(vars(klass).get("__field_docs__", {}))  # generated dataclasses
         try:
             tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
         except (OSError, TypeError, SyntaxError):
@@ -314,7 +315,7 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def describe_config(section: str, cfg: Any) -> str:
+def describe_config(section: str, cfg: Any, *, doc: str | None = None) -> str:
     """``cfg`` as a TOML table ``[section]`` with each field's docstring as a comment above it
     (nested config dataclasses as sub-tables; ``None`` fields, and the fields named by the
     config's optional ``unread_fields()``, as commented-out lines)."""
@@ -322,12 +323,13 @@ def describe_config(section: str, cfg: Any) -> str:
 
     docs = field_docs(type(cfg))
     unread = set(cfg.unread_fields()) if hasattr(cfg, "unread_fields") else set()
-    lines = [f"[{section}]"]
+    lines = [] if not doc else textwrap.wrap(doc, 98, initial_indent="# ", subsequent_indent="# ")
+    lines.append(f"[{section}]")
     subs = []
     for f in dataclasses.fields(cfg):
         v = getattr(cfg, f.name)
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
-            subs.append((f"{section}.{f.name}", v))
+            subs.append((f"{section}.{f.name}", v, docs.get(f.name)))
             continue
         doc = docs.get(f.name)
         if doc:
@@ -340,6 +342,6 @@ def describe_config(section: str, cfg: Any) -> str:
         else:
             lines.append(f"{f.name} = {toml_value(plain)}")
     text = "\n".join(lines) + "\n"
-    for name, sub in subs:
-        text += "\n" + describe_config(name, sub)
+    for name, sub, sub_doc in subs:
+        text += "\n" + describe_config(name, sub, doc=sub_doc)
     return text
