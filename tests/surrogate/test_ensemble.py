@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_train_config
 
 from excavator_surrogate.cli import main
 from excavator_surrogate.errors import ConfigError
@@ -18,6 +17,8 @@ from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_check
 from excavator_surrogate.surrogate.ensemble import merge, n_member
 from excavator_surrogate.surrogate.features import joint_limits
 from excavator_surrogate.training import member_configs, train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 PLAY = (0.05, 0.2)
 

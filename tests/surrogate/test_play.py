@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_train_config
 
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.checkpoint import (
@@ -24,6 +23,8 @@ from excavator_surrogate.surrogate.features import (
 )
 from excavator_surrogate.surrogate.rollout import window_rollout
 from excavator_surrogate.training import TrainConfig, train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 PLAY = (0.05, 0.2)
 

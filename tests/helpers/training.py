@@ -1,52 +1,11 @@
-"""Test helpers: untrained tiny surrogates and in-memory synthetic datasets."""
+"""Tiny datasets and training configs for the training tests."""
 
 from __future__ import annotations
 
-import torch
-
-from excavator_surrogate.data import Dataset, Episode
-from excavator_surrogate.spec import MachineSpec
-from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate
-from excavator_surrogate.surrogate.model import build_net
+from excavator_surrogate.data import Dataset
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training import TrainConfig
 from excavator_surrogate.training.config import MODE_FIELDS
-from shared_helpers import drive_into_stops
-
-
-def make_surrogate(
-    spec: MachineSpec,
-    episodes: list[Episode],
-    *,
-    cell: str = "lstm",
-    mode: str = "windowed",
-    window: int = 8,
-    hidden: int = 12,
-    seed: int = 0,
-    end_stops: bool = False,
-    drive: float = 0.0,
-    play: tuple[float, ...] = (),
-) -> Surrogate:
-    """An untrained tiny surrogate with normalisation fitted on ``episodes``.
-
-    ``play``: half-widths of command play features.  ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias,
-    so that the free run runs into the joint limits (for end-stop tests)."""
-    torch.manual_seed(seed)
-    cfg = ModelConfig(
-        n_feature=spec.n_feature + len(play) * spec.n_joint,
-        n_joint=spec.n_joint,
-        window=window,
-        hidden=hidden,
-        n_layer=2,
-        cell=cell,
-        head_hidden=hidden,
-    )
-    net = build_net(cfg).eval()
-    drive_into_stops(net, drive, spec.n_joint)
-    norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec, play=play)
-    return Surrogate(
-        net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
-    )
 
 
 def tiny_train_config(**overrides) -> TrainConfig:

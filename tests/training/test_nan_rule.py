@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 import torch
-from surrogate_helpers import tiny_dataset, tiny_train_config
 from torch import nn
 
 from excavator_surrogate.scale.ddp import DistContext, spawn_local
@@ -22,6 +21,7 @@ from excavator_surrogate.training import (
     horizon_loss,
     train,
 )
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
 class _NanGrad(torch.autograd.Function):

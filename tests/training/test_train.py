@@ -8,13 +8,14 @@ import math
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_train_config
 
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import free_run_error, load_checkpoint, read_checkpoint
 from excavator_surrogate.surrogate.features import omega_target
 from excavator_surrogate.surrogate.rollout import window_rollout
 from excavator_surrogate.training import TrainConfig, horizon_loss, train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
 def _smooth_l1(a: float, b: float) -> float:
