@@ -32,7 +32,7 @@ from .loss import LossFn, default_loss
 from .modes import Mode, make_mode
 from .optim import Optimisation, cosine_lr
 from .parallel import LrAt, Parallel, SingleProcess, rank0_deadline, rank0_lr
-from .records import tb_epoch, tb_writer, write_config, write_log
+from .records import epoch_row, tb_epoch, tb_writer, write_config, write_log
 from .resume import start
 from .selection import choose, is_better
 
@@ -182,24 +182,16 @@ def train_network(
             if cfg.lr_schedule == "plateau":
                 optim.sched.step(val["val_error"] if math.isfinite(val["val_error"]) else 1e30)
             improved = is_better(val["val_error"], best_val, min_delta=cfg.min_delta)
-            row = {
-                "epoch": epoch,
-                "time_s": round(t2 - t_start, 3),
-                "epoch_s": round(t1 - t0, 3),
-                "val_s": round(t2 - t1, 3),
-                "lr": lr,
-                "train_loss": loss,
-                "n_sample": n,
-                "val_error": val["val_error"],
-                "val_theta_r2_min": min(val["theta_r2"]),
-                "best": int(improved),
-            }
-            if optim.ema_sur is not None:
-                row.update(
-                    val_error_raw=choice.vals["raw"]["val_error"],
-                    val_error_ema=choice.vals["ema"]["val_error"],
-                    weights=choice.pick,
-                )
+            row = epoch_row(
+                epoch,
+                times=(t_start, t0, t1, t2),
+                lr=lr,
+                loss=loss,
+                n_sample=n,
+                choice=choice,
+                improved=improved,
+                with_ema=optim.ema_sur is not None,
+            )
             history.append(row)
             if improved:
                 best_val, bad = val["val_error"], 0

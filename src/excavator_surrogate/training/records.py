@@ -11,6 +11,7 @@ from typing import Any
 from ..config import dumps_toml, to_dict
 from ..io_utils import log, write_text
 from .config import TrainConfig
+from .selection import Choice
 
 LOG_FIELDS = (
     "epoch",
@@ -28,6 +29,42 @@ LOG_FIELDS = (
     "weights",
 )
 """Columns of a single network's ``log.csv`` (one row per epoch)."""
+
+
+def epoch_row(
+    epoch: int,
+    *,
+    times: tuple[float, float, float, float],
+    lr: float,
+    loss: float,
+    n_sample: int,
+    choice: Choice,
+    improved: bool,
+    with_ema: bool,
+) -> dict[str, Any]:
+    """One ``log.csv`` row.  ``times``: monotonic clock at the run's start, the epoch's start,
+    the end of its training and the end of its validation [s]."""
+    t_start, t0, t1, t2 = times
+    val = choice.val
+    row: dict[str, Any] = {
+        "epoch": epoch,
+        "time_s": round(t2 - t_start, 3),
+        "epoch_s": round(t1 - t0, 3),
+        "val_s": round(t2 - t1, 3),
+        "lr": lr,
+        "train_loss": loss,
+        "n_sample": n_sample,
+        "val_error": val["val_error"],
+        "val_theta_r2_min": min(val["theta_r2"]),
+        "best": int(improved),
+    }
+    if with_ema:
+        row.update(
+            val_error_raw=choice.vals["raw"]["val_error"],
+            val_error_ema=choice.vals["ema"]["val_error"],
+            weights=choice.pick,
+        )
+    return row
 
 
 def write_config(out: Path, cfg: TrainConfig) -> None:
