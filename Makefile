@@ -1,6 +1,6 @@
 # The two commands a fresh machine needs (see README):
 #   make demo   -> end-to-end pipeline on the built-in MuJoCo excavator (quick preset, <= 5 min)
-#   make test   -> lint + the whole test suite (what CI runs)
+#   make test   -> lint (ruff + the import-linter layer contract) + the whole test suite (what CI runs)
 PY ?= python3
 OUT ?= runs/quick
 
@@ -14,11 +14,13 @@ demo: install
 
 test: install
 	$(PY) -m ruff check src tests bench examples
+	lint-imports
 	$(PY) -m pytest -q
 
 lint:
 	$(PY) -m ruff check src tests bench examples
 	$(PY) -m ruff format --check src tests bench examples
+	lint-imports
 
 format:
 	$(PY) -m ruff format src tests bench examples

@@ -22,7 +22,8 @@ import time
 
 import numpy as np
 
-from excavator_surrogate.clean.kalman import METHODS, CleanConfig, FusionResult, fuse
+from excavator_surrogate.clean.config import METHODS, CleanConfig
+from excavator_surrogate.clean.kalman import FusionResult, fuse
 from excavator_surrogate.clean.reference import reference_fuse
 from excavator_surrogate.clean.synthetic import noisy_batch
 from excavator_surrogate.simulate.sensors import SensorConfig

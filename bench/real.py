@@ -5,7 +5,7 @@ production hydraulic excavator, third-party data that is never shipped with exsu
 README), imports it with ``examples/real_excavator.toml`` (duty 50 validates, every other duty
 trains) and, in one run on the same data:
 
-- trains the default recipe of ``exsur train DATASET`` (:func:`excavator_surrogate.surrogate.auto.auto_config`)
+- trains the default recipe of ``exsur train DATASET`` (:func:`excavator_surrogate.training.auto.auto_config`)
   with 3 seeds, recording each seed's training wall time (every ensemble member counted);
 - fits the linear ARX baseline (velocity form, ridge picked on validation);
 - trains the best reference of the issue: a plain 2 x 128 LSTM with the one-step loss
@@ -41,10 +41,10 @@ from excavator_surrogate.evaluate.cbe import evaluate_models
 from excavator_surrogate.ingest.mapping import load_mapping
 from excavator_surrogate.ingest.pipeline import import_logs
 from excavator_surrogate.io_utils import log
-from excavator_surrogate.surrogate.auto import auto_config
 from excavator_surrogate.surrogate.baselines import fit_arx
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
-from excavator_surrogate.surrogate.train import TrainConfig, train
+from excavator_surrogate.training import TrainConfig, train
+from excavator_surrogate.training.auto import auto_config
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "real" / "h1-dev"

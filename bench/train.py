@@ -26,8 +26,9 @@ import torch
 from excavator_surrogate.config import load_preset
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.evaluate import evaluate_models, min_r2
-from excavator_surrogate.surrogate import TrainConfig, load_checkpoint, read_checkpoint, train
+from excavator_surrogate.surrogate import load_checkpoint, read_checkpoint
 from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
+from excavator_surrogate.training import TrainConfig, train
 
 
 def _parse() -> argparse.Namespace:

@@ -1,7 +1,7 @@
 """Write example machine logs and their import mapping: the "bring your own machine" demo.
 
 The machine is a 3-joint hydraulic arm (boom, arm, bucket; no swing) simulated in numpy by
-``tests/ingest/arm3_plant.py`` (independent of the package's MuJoCo plant).  The logs look
+``tests/helpers/arm3_plant.py`` (independent of the package's MuJoCo plant).  The logs look
 like a real controller's: CSV at 100 Hz with timing jitter, time in ms, angles in degrees,
 two one-way valve duties per joint in %, no velocity channel.  One log has a 3 s logger
 pause (it is split into two episodes) and one is too short for the model window (it is
@@ -19,11 +19,11 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-PLANT = Path(__file__).resolve().parents[1] / "tests" / "ingest" / "arm3_plant.py"
+PLANT = Path(__file__).resolve().parents[1] / "tests" / "helpers" / "arm3_plant.py"
 
 
 def load_plant() -> ModuleType:
-    """Import ``tests/ingest/arm3_plant.py`` by path (the tests folder is not a package)."""
+    """Import ``tests/helpers/arm3_plant.py`` by path (the tests are not installed)."""
     spec = importlib.util.spec_from_file_location("arm3_plant", PLANT)
     if spec is None or spec.loader is None:
         raise SystemExit(

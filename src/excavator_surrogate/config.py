@@ -18,10 +18,12 @@ every output folder can record the config that produced it (``config.toml``).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import tomllib
 import types
 import typing
+from collections.abc import Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -180,21 +182,24 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return conv(cfg)
 
 
+def toml_value(v: Any) -> str:
+    """One TOML value (scalar, list or inline table)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
 def dumps_toml(tables: dict[str, Any]) -> str:
     """Minimal TOML writer for config records (scalars, lists, nested tables)."""
-
-    def scalar(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, int | float):
-            return repr(v)
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        if isinstance(v, list):
-            return "[" + ", ".join(scalar(x) for x in v) + "]"
-        if isinstance(v, dict):
-            return "{ " + ", ".join(f"{k} = {scalar(x)}" for k, x in v.items()) + " }"
-        raise TypeError(f"cannot write {type(v).__name__} to TOML")
+    scalar = toml_value
 
     lines: list[str] = []
     plain = {k: v for k, v in tables.items() if not isinstance(v, dict)}
@@ -219,3 +224,131 @@ def dumps_toml(tables: dict[str, Any]) -> str:
         if isinstance(v, dict):
             table(k, v)
     return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def parse_sets(items: Sequence[str], *, sections: Sequence[str] | None = None) -> dict[str, Any]:
+    """``["train.lr=3e-4", "simulate.hydraulics.drift=false"]`` as nested tables.
+
+    Values are TOML (``3e-4``, ``true``, ``[0.02, 0.05]``, ``"cpu"``); a bare word that is not
+    TOML is taken as a string (``train.device=cuda``).  With ``sections``, a key outside them is
+    an error (``exsur train`` reads only ``[train]``).
+
+    Raises:
+        ConfigError: an item without ``SECTION.KEY=VALUE`` or outside ``sections``.
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        path = key.strip().split(".")
+        if not sep or len(path) < 2 or not all(path):
+            raise ConfigError(f"--set {item!r}: expected SECTION.KEY=VALUE, e.g. train.lr=3e-4")
+        if sections is not None and path[0] not in sections:
+            raise ConfigError(f"--set {item!r}: this command reads only [{'], ['.join(sections)}]")
+        try:
+            value = tomllib.loads(f"v = {text.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()
+        node = out
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item!r}: {part} was set to a value above")
+        node[path[-1]] = value
+    return out
+
+
+def merge_tables(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over`` merged in key by key (nested tables merged, not replaced)."""
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, Mapping) and isinstance(out.get(k), Mapping):
+            out[k] = merge_tables(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def stage_config(
+    cls: type[C],
+    preset: Mapping[str, Any],
+    section: str,
+    *,
+    overrides: Mapping[str, Any] | None = None,
+    where: str = "",
+) -> C:
+    """The one way a stage's config is built: ``preset[section]``, then ``overrides``.
+
+    ``overrides`` are the command's ``--set SECTION.KEY=VALUE`` table for this section and its
+    named flags (None values skipped; nested tables merged).  Every key goes through the strict
+    :func:`from_dict`.  A class may define ``adapt_table(table, *, changed)`` to drop knobs that
+    an override makes meaningless (``TrainConfig``: the other mode's knobs when ``mode`` changes).
+
+    Raises:
+        ConfigError: unknown key or bad value, naming ``where [section].key``.
+    """
+    over = {k: v for k, v in (overrides or {}).items() if v is not None}
+    table = merge_tables(dict(preset.get(section) or {}), over)
+    adapt = getattr(cls, "adapt_table", None)
+    if adapt is not None:
+        table = adapt(table, changed=set(over))
+    return from_dict(cls, table, where=f"{where} [{section}]".strip())
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The one-line docstrings under the fields of dataclass ``cls`` (first line of each)."""
+    import ast
+    import inspect
+    import textwrap
+
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        docs.update(vars(klass).get("__field_docs__", {}))  # generated dataclasses
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for a, b in itertools.pairwise(body):
+            if (
+                isinstance(a, ast.AnnAssign)
+                and isinstance(a.target, ast.Name)
+                and isinstance(b, ast.Expr)
+                and isinstance(b.value, ast.Constant)
+                and isinstance(b.value.value, str)
+            ):
+                docs[a.target.id] = " ".join(b.value.value.split())
+    return docs
+
+
+def describe_config(section: str, cfg: Any, *, doc: str | None = None) -> str:
+    """``cfg`` as a TOML table ``[section]`` with each field's docstring as a comment above it
+    (nested config dataclasses as sub-tables; ``None`` fields, and the fields named by the
+    config's optional ``unread_fields()``, as commented-out lines)."""
+    import textwrap
+
+    docs = field_docs(type(cfg))
+    unread = set(cfg.unread_fields()) if hasattr(cfg, "unread_fields") else set()
+    lines = [] if not doc else textwrap.wrap(doc, 98, initial_indent="# ", subsequent_indent="# ")
+    lines.append(f"[{section}]")
+    subs = []
+    for f in dataclasses.fields(cfg):
+        v = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            subs.append((f"{section}.{f.name}", v, docs.get(f.name)))
+            continue
+        doc = docs.get(f.name)
+        if doc:
+            lines += textwrap.wrap(doc, 98, initial_indent="# ", subsequent_indent="# ")
+        plain = to_dict({"v": v}).get("v")
+        if f.name in unread:
+            lines.append(f"# {f.name} = {toml_value(plain)}  (not read in this configuration)")
+        elif plain is None:
+            lines.append(f"# {f.name} = (unset)")
+        else:
+            lines.append(f"{f.name} = {toml_value(plain)}")
+    text = "\n".join(lines) + "\n"
+    for name, sub, sub_doc in subs:
+        text += "\n" + describe_config(name, sub, doc=sub_doc)
+    return text

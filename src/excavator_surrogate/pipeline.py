@@ -21,13 +21,16 @@ import dataclasses
 import json
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-from .config import dumps_toml, from_dict, load_preset, to_dict
+from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
 from .io_utils import atomic_dir, log, write_json, write_text
+from .stages import RunConfig, build_configs
+
+RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
+"""The preset tables ``exsur run`` reads."""
 
 DEFAULT_PRESET = "quick"
 """Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job."""
@@ -65,51 +68,6 @@ PAPER_TABLE_III: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {
 }
 
 
-@dataclass(frozen=True)
-class RunConfig:
-    """The ``[run]`` table of a preset: which stages and baselines ``exsur run`` includes."""
-
-    clean: bool = False
-    """Run the cleaning stage and train on the cleaned data (Stage II presets)."""
-    gru: bool = True
-    """Also train the same-size GRU baseline for the comparison table."""
-    arx: bool = True
-    """Also fit the linear ARX baseline for the comparison table."""
-    raw_baseline: bool = False
-    """With ``clean``: also train on the raw (uncleaned) data, for the effect-of-cleaning table."""
-    reference: Literal["measured", "true"] = "measured"
-    """Main evaluation reference: recorded angles, or the ground truth (Stage II)."""
-    paper_table: Literal["II", "III-noload", "III-compound", "none"] = "II"
-    """Which of the paper's tables to show alongside."""
-    fusion_figures: bool = True
-    """With ``clean``: draw the Figure-3-style fusion plot per joint of the first test episode."""
-    auto_train: bool = False
-    """Choose the training config from the data (the recipe of ``exsur train DATASET`` without
-    a preset); keys of the preset's ``[train]`` table override its choices."""
-
-
-def _stage_configs(preset: Mapping[str, Any], where: str) -> dict[str, Any]:
-    from .evaluate.cbe import EvaluateConfig
-    from .simulate.generate import SimulateConfig
-    from .surrogate.train import TrainConfig
-
-    cfgs: dict[str, Any] = {
-        "run": from_dict(RunConfig, preset.get("run", {}), where=f"{where} [run]"),
-        "simulate": from_dict(
-            SimulateConfig, preset.get("simulate", {}), where=f"{where} [simulate]"
-        ),
-        "train": from_dict(TrainConfig, preset.get("train", {}), where=f"{where} [train]"),
-        "evaluate": from_dict(
-            EvaluateConfig, preset.get("evaluate", {}), where=f"{where} [evaluate]"
-        ),
-    }
-    if cfgs["run"].clean:
-        from .clean import CleanConfig
-
-        cfgs["clean"] = from_dict(CleanConfig, preset.get("clean", {}), where=f"{where} [clean]")
-    return cfgs
-
-
 def run_pipeline(
     *,
     out: str | Path,
@@ -122,6 +80,7 @@ def run_pipeline(
     members: int | None = None,
     logs: Sequence[str | Path] | None = None,
     mapping: str | Path | None = None,
+    sets: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Run the whole pipeline for a preset and write the report folder ``out``.
 
@@ -137,6 +96,8 @@ def run_pipeline(
         members: overrides the seed-ensemble size of every trained model (1: single networks).
         logs: import these logs (files, folders, globs) with ``mapping`` instead of simulating.
         mapping: the mapping TOML of ``logs`` (see ``docs/import.md``).
+        sets: further overrides by table, e.g. ``{"train": {"lr": 3e-4}}`` (``--set``; the named
+            arguments above win).
 
     Returns:
         The content of ``metrics.json``.
@@ -144,7 +105,7 @@ def run_pipeline(
     from .data import load_dataset
     from .evaluate.cbe import evaluate_checkpoint
     from .simulate.generate import simulate_dataset
-    from .surrogate.train import train
+    from .training import train
 
     t_start = time.monotonic()
     if (logs is None) != (mapping is None):
@@ -153,24 +114,26 @@ def run_pipeline(
         raise ConfigError("give either --logs (with --mapping) or --data, not both")
     raw_preset = load_preset(preset)
     name = str(raw_preset.get("name", preset))
-    cfgs = _stage_configs(raw_preset, f"preset '{name}'")
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    named = {
+        "simulate": {"workers": workers, "seed": seed},
+        "train": {
+            "seed": seed,
+            "max_train_seconds": None if max_train_seconds is None else float(max_train_seconds),
+            "epochs": epochs,
+            "members": members,
+        },
+    }
+    over = merge_tables(
+        sets or {}, {k: {n: v for n, v in t.items() if v is not None} for k, t in named.items()}
+    )
+    cfgs = build_configs(
+        raw_preset, sections=RUN_SECTIONS, overrides=over, where=f"preset '{name}'"
+    )
     run_cfg: RunConfig = cfgs["run"]
     sim_cfg = cfgs["simulate"]
-    if workers is not None:
-        if workers < 1:
-            raise ConfigError(f"--workers must be >= 1, got {workers}")
-        sim_cfg = dataclasses.replace(sim_cfg, workers=workers)
-    train_over: dict[str, Any] = {}
-    if seed is not None:
-        sim_cfg = dataclasses.replace(sim_cfg, seed=seed)
-        train_over["seed"] = seed
-    if max_train_seconds is not None:
-        train_over["max_train_seconds"] = float(max_train_seconds)
-    if epochs is not None:
-        train_over["epochs"] = int(epochs)
-    if members is not None:
-        train_over["members"] = int(members)
-    train_cfg = dataclasses.replace(cfgs["train"], **train_over)
+    train_cfg = cfgs["train"]
     recipe: list[str] = []
     eval_cfg = cfgs["evaluate"]
     timings: dict[str, float] = {}
@@ -196,10 +159,10 @@ def run_pipeline(
         raw_ds = load_dataset(data_dir)
         train_ds = raw_ds
         if run_cfg.auto_train:
-            from .surrogate.auto import auto_config
+            from .training.auto import auto_config
 
             train_cfg, recipe = auto_config(
-                raw_ds, overrides={**raw_preset.get("train", {}), **train_over}
+                raw_ds, overrides=merge_tables(raw_preset.get("train", {}), over.get("train", {}))
             )
             for line in recipe:
                 log(f"run[{name}]: recipe: {line}")
@@ -302,7 +265,8 @@ def run_pipeline(
                 write_text(md, md.read_text().replace(str(tmp), str(out)))
         write_json(tmp / "metrics.json", metrics)
         # with the CLI overrides (and the data-driven recipe) applied
-        used = {**cfgs, "simulate": sim_cfg, "train": train_cfg, "evaluate": eval_cfg}
+        used = {k: v for k, v in cfgs.items() if k != "clean" or run_cfg.clean}
+        used.update(train=train_cfg, evaluate=eval_cfg)
         if logs is not None or data is not None:
             used.pop("simulate")
         record = {"name": name, **{k: to_dict(v) for k, v in used.items()}}

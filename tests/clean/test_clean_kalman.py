@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter, rts_smoother
 
-from excavator_surrogate.clean.kalman import METHODS, CleanConfig, fuse
+from excavator_surrogate.clean.config import METHODS, CleanConfig
+from excavator_surrogate.clean.kalman import fuse
 from excavator_surrogate.clean.reference import reference_fuse
 from excavator_surrogate.config import from_dict
 from excavator_surrogate.errors import ConfigError, DataError

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from excavator_surrogate.clean.kalman import CleanConfig, fuse
+from excavator_surrogate.clean.config import CleanConfig
+from excavator_surrogate.clean.kalman import fuse
 
 
 def _scores(data: dict[str, np.ndarray], res) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

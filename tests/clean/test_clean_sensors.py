@@ -8,15 +8,9 @@ import pytest
 from excavator_surrogate.clean.synthetic import smooth_random_motion
 from excavator_surrogate.config import from_dict
 from excavator_surrogate.data import Episode, read_episode, write_episode
+from excavator_surrogate.data.jumps import jump_mask_of, mask_to_runs, runs_to_mask
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.simulate.sensors import (
-    SensorConfig,
-    apply_sensors,
-    apply_sensors_episode,
-    jump_mask_of,
-    mask_to_runs,
-    runs_to_mask,
-)
+from excavator_surrogate.simulate.sensors import SensorConfig, apply_sensors, apply_sensors_episode
 from excavator_surrogate.spec import excavator_spec
 
 DT = 0.05

@@ -14,7 +14,7 @@ from excavator_surrogate.cli import main
 from excavator_surrogate.config import from_dict
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate.checkpoint import read_checkpoint
-from excavator_surrogate.surrogate.train import TrainConfig
+from excavator_surrogate.training import TrainConfig
 
 
 def fails(capsys: pytest.CaptureFixture[str], *argv: object) -> str:

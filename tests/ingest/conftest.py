@@ -6,11 +6,11 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
 import pytest
 
 from excavator_surrogate.cli import main
+from tests.helpers import arm3_plant
 
 
 @pytest.fixture(scope="session")

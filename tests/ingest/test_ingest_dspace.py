@@ -10,14 +10,14 @@ import gzip
 import tomllib
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
 import pytest
-from ingest_helpers import assert_nothing_written
 
 from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.ingest import convert_log, parse_mapping
-from excavator_surrogate.ingest.sources import log_kind
+from excavator_surrogate.ingest.readers import log_kind
+from tests.helpers import arm3_plant
+from tests.helpers.ingest import assert_nothing_written
 
 SENSORS = "Model Root/Sensors"
 VALVES = "Model Root/Valve commands"

@@ -5,9 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
-from ingest_helpers import assert_nothing_written, set_cell, write_lines
+
+from tests.helpers import arm3_plant
+from tests.helpers.ingest import assert_nothing_written, set_cell, write_lines
 
 
 def _fail(cli, work: Path, log: Path, *extra: str, mapping: str = "arm3.toml") -> str:

@@ -7,15 +7,15 @@ import math
 import tomllib
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from ingest_helpers import assert_nothing_written, write_lines
 
 from excavator_surrogate.data import load_dataset, read_manifest
 from excavator_surrogate.ingest import convert_log, load_mapping, parse_mapping
+from tests.helpers import arm3_plant
+from tests.helpers.ingest import assert_nothing_written, write_lines
 
 
 def _truth(cols: dict[str, np.ndarray], joint: str, t: np.ndarray) -> np.ndarray:

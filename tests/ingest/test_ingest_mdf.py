@@ -5,12 +5,12 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
 import pytest
-from ingest_helpers import assert_nothing_written
 
 from excavator_surrogate.ingest import convert_log, parse_mapping
+from tests.helpers import arm3_plant
+from tests.helpers.ingest import assert_nothing_written
 
 asammdf = pytest.importorskip("asammdf")
 
@@ -148,7 +148,7 @@ def test_mdf_ambiguous_names_with_sources(cli, tmp_path, short_cols):
 
 def test_mdf_rasters_resampled_onto_the_longest_master(tmp_path, short_cols):
     """A 10 Hz group on the 100 Hz master: floats linear, integers hold the previous sample."""
-    from excavator_surrogate.ingest.sources import read_log
+    from excavator_surrogate.ingest.readers import read_log
 
     t = short_cols["t_ms"] * 1e-3
     t_slow = np.arange(0.5, 9.0, 0.1)

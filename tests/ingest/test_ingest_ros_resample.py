@@ -6,10 +6,8 @@ import json
 import shutil
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
 import pytest
-from ingest_helpers import assert_nothing_written, write_lines
 
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.ingest import (
@@ -20,6 +18,8 @@ from excavator_surrogate.ingest import (
     load_mapping,
     resample_smooth,
 )
+from tests.helpers import arm3_plant
+from tests.helpers.ingest import assert_nothing_written, write_lines
 
 pytest.importorskip("rosbags")
 

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from ingest_helpers import assert_nothing_written, set_cell, write_lines
 
 from excavator_surrogate.data import load_dataset, read_episode, write_episode
 from excavator_surrogate.ingest.outliers import SPIKE_HALF_WINDOW, SPIKE_MAD, find_spikes
+from tests.helpers.ingest import assert_nothing_written, set_cell, write_lines
 
 
 def _fail(cli, *argv: object) -> str:

@@ -12,8 +12,9 @@ import torch
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.scale.ddp import DistContext, init_distributed, spawn_local
-from excavator_surrogate.surrogate import TrainConfig, read_checkpoint, train
+from excavator_surrogate.surrogate import read_checkpoint
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.training import TrainConfig, train
 
 WORLD = 2
 BASE: dict[str, Any] = dict(

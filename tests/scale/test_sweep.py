@@ -13,8 +13,9 @@ from excavator_surrogate.cli import main
 from excavator_surrogate.config import load_preset
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.scale.sweep import SweepConfig, run_sweep, safe_url
-from excavator_surrogate.surrogate import TrainConfig, load_checkpoint, train
+from excavator_surrogate.surrogate import load_checkpoint
 from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
+from excavator_surrogate.training import TrainConfig, train
 
 optuna = pytest.importorskip("optuna")
 
@@ -58,7 +59,7 @@ def test_sweep_eight_trials_report_and_join(tmp_path: Path) -> None:
         out=out,
         trials=7,
         sweep=SweepConfig.from_preset(preset),
-        base=TrainConfig.from_preset(preset),
+        base=TrainConfig.mode_bases(preset),
     )
     assert (out / "study.db").is_file()
     assert res.n_complete + res.n_pruned + res.n_fail == 7 and res.n_fail == 0

@@ -88,3 +88,22 @@ def test_fold_makes_no_short_pulses() -> None:
             runs = np.diff(np.concatenate([[0], edges, [len(s)]]))
             starts = np.concatenate([[0], edges])
             assert np.all((runs >= 10) | (s[starts] == 0) | (starts + runs == len(s)))
+
+
+def test_signals_are_declared_once_in_the_registry() -> None:
+    import dataclasses
+    import pickle
+
+    from excavator_surrogate.config import from_dict
+    from excavator_surrogate.simulate.signals import REGISTRY
+
+    cfg = ex.ExcitationConfig()
+    assert [f.name for f in dataclasses.fields(cfg)] == list(REGISTRY)
+    assert set(ex.SIGNALS) | set(ex.CLOSED_LOOP) == set(REGISTRY)
+    assert not set(ex.SIGNALS) & set(ex.CLOSED_LOOP)
+    for name, kind in REGISTRY.items():
+        assert getattr(cfg, name) == kind.params()
+    assert pickle.loads(pickle.dumps(cfg)) == cfg  # travels to simulation worker processes
+    assert from_dict(ex.ExcitationConfig, {"chirp": {"f_end": 0.5}}).chirp.f_end == 0.5
+    with pytest.raises(ConfigError, match="unknown key"):
+        from_dict(ex.ExcitationConfig, {"nope": {}})

@@ -6,9 +6,9 @@ import pytest
 
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError, DataError
-from excavator_surrogate.surrogate.auto import WINDOW, auto_config
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
-from excavator_surrogate.surrogate.train import _episodes
+from excavator_surrogate.training.auto import WINDOW, auto_config
+from excavator_surrogate.training.batches import split_episodes as _episodes
 
 
 def _dataset(lengths: list[int]) -> Dataset:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate
 
 from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.surrogate import load_checkpoint, rollout, save_checkpoint
 from excavator_surrogate.surrogate.checkpoint import checkpoint_dict
+from tests.helpers.surrogates import make_surrogate
 
 
 @pytest.mark.parametrize("cell", ["lstm", "gru", "arx"])

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate
 
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.checkpoint import (
@@ -22,6 +21,7 @@ from excavator_surrogate.surrogate.features import (
     joint_limits,
 )
 from excavator_surrogate.surrogate.rollout import window_rollout
+from tests.helpers.surrogates import make_surrogate
 
 
 def test_joint_limits_leave_periodic_and_open_joints_unbounded(spec):

@@ -9,15 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
 from excavator_surrogate.cli import main
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.surrogate import rollout, rollout_reference, train
+from excavator_surrogate.surrogate import free_run_error, rollout, rollout_reference
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge, n_member
 from excavator_surrogate.surrogate.features import joint_limits
-from excavator_surrogate.surrogate.train import free_run_error, member_configs
+from excavator_surrogate.training import member_configs, train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 PLAY = (0.05, 0.2)
 
@@ -91,7 +92,7 @@ def test_merge_rejects_members_that_do_not_fit(spec, episodes):
 
 
 def _tiny_ensemble_config(**overrides):
-    return tiny_stateful_config(epochs=2, seq_batch=4, play=PLAY, members=2, **overrides)
+    return tiny_train_config(epochs=2, seq_batch=4, play=PLAY, members=2, **overrides)
 
 
 @pytest.mark.parametrize("workers", [1, 2], ids=["sequential", "parallel"])

@@ -9,11 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.spec import MachineSpec
-from excavator_surrogate.surrogate import rollout, rollout_reference, train
+from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.envelope import fill_envelope
 from excavator_surrogate.surrogate.features import (
@@ -23,6 +22,9 @@ from excavator_surrogate.surrogate.features import (
     omega_target,
     unwrap_periodic,
 )
+from excavator_surrogate.training import train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
 def _bounded(spec: MachineSpec, omega_max: float) -> MachineSpec:
@@ -125,7 +127,7 @@ def test_training_without_declared_limits_stays_inside_the_observed_range(tmp_pa
         spec=spec,
         episodes={s: [e.replace(spec=spec) for e in eps] for s, eps in ds.episodes.items()},
     )
-    cfg = tiny_stateful_config(epochs=1, limit_margin=0.0, speed_margin=0.0)
+    cfg = tiny_train_config(epochs=1, limit_margin=0.0, speed_margin=0.0)
     sur = load_checkpoint(train(cfg, open_ds, out=tmp_path / "m", show_progress=False))
     lo, hi, w = envelope(sur.spec)
     th = np.concatenate([e.theta for e in open_ds.train])

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from surrogate_helpers import make_surrogate
 
 from excavator_surrogate.data import load_dataset, read_episode
 from excavator_surrogate.errors import ConfigError, DataError
@@ -18,9 +17,10 @@ from excavator_surrogate.spec import InputSpec, JointSpec, MachineSpec
 from excavator_surrogate.surrogate import load_checkpoint, rollout, save_checkpoint
 from excavator_surrogate.surrogate.features import encode_np
 from excavator_surrogate.surrogate.rollout import rollout_reference
+from tests.helpers.surrogates import make_surrogate
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "ingest"))
-from ingest_helpers import assert_nothing_written
+from tests.helpers.ingest import assert_nothing_written
 
 MAPPING = """\
 [machine]
@@ -250,9 +250,8 @@ def test_env_action_with_inputs_or_fixed(rpm_dataset, tmp_path):
 
 def test_train_with_inputs(rpm_dataset, tmp_path):
     """``train`` on a dataset with inputs: the checkpoint's model reads them (feature width)."""
-    from surrogate_helpers import tiny_stateful_config
-
     from excavator_surrogate.surrogate import train
+    from tests.helpers.training import tiny_train_config as tiny_stateful_config
 
     best = train(
         tiny_stateful_config(epochs=2, play=(0.1,)), rpm_dataset, out=tmp_path, show_progress=False

@@ -7,9 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
-from excavator_surrogate.surrogate import TrainConfig, rollout, rollout_reference, train
+from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.checkpoint import (
     checkpoint_dict,
     load_checkpoint,
@@ -23,6 +22,9 @@ from excavator_surrogate.surrogate.features import (
     scale_commands_np,
 )
 from excavator_surrogate.surrogate.rollout import window_rollout
+from excavator_surrogate.training import TrainConfig, train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 PLAY = (0.05, 0.2)
 
@@ -129,7 +131,7 @@ def test_checkpoint_keeps_play_widths_and_old_checkpoints_have_none(spec, episod
 @pytest.mark.parametrize("mode", ["windowed", "stateful"])
 def test_training_with_play_features(tmp_path, mode):
     ds = tiny_dataset(2, n_train=2, n_step=120)
-    cfg = tiny_stateful_config(
+    cfg = tiny_train_config(
         mode=mode,
         horizon=3,
         burn_in=10,

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate
 
 from excavator_surrogate.surrogate import (
     ClosedLoop,
@@ -14,6 +13,7 @@ from excavator_surrogate.surrogate import (
     rollout_episodes,
     rollout_reference,
 )
+from tests.helpers.surrogates import make_surrogate
 
 
 @pytest.mark.parametrize(

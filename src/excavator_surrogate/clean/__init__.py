@@ -11,7 +11,8 @@ from .api import (
     cleaning_metrics,
     pooled_cleaning_metrics,
 )
-from .kalman import METHODS, CleanConfig, FusionResult, backward_difference, fuse, integrate_gyro
+from .config import METHODS, CleanConfig
+from .kalman import FusionResult, backward_difference, fuse, integrate_gyro
 
 __all__ = [
     "METHODS",

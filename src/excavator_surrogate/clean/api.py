@@ -12,9 +12,11 @@ import numpy as np
 from ..config import to_dict
 from ..data.dataset import SPLITS, load_dataset, write_dataset
 from ..data.episode import Episode
+from ..data.jumps import jump_mask_of
 from ..errors import ConfigError, DataError
 from ..io_utils import log
-from .kalman import CleanConfig, backward_difference, fuse
+from .config import CleanConfig
+from .kalman import backward_difference, fuse
 
 _BATCH_FILL = 0.8
 """Episodes are batched with others at least this fraction of the batch's longest one."""
@@ -174,8 +176,6 @@ def _sums(raw: Episode, cleaned: Episode) -> dict[str, np.ndarray]:
     if om_true is not None:
         s["sq_om_raw"] = np.sum((raw.omega - om_true) ** 2, axis=0)
         s["sq_om_fused"] = np.sum((cleaned.omega - om_true) ** 2, axis=0)
-    from ..simulate.sensors import jump_mask_of  # lazy: simulate/ imports MuJoCo
-
     mask = jump_mask_of(raw)
     if mask is None:
         mask = jump_mask_of(cleaned)

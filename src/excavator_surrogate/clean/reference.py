@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kalman import CleanConfig, max_untrusted_steps
+from .config import CleanConfig, max_untrusted_steps
 
 
 def reference_fuse(

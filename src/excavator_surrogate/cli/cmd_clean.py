@@ -3,21 +3,20 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-from ..errors import ConfigError
 from ..outdir import out_dir, preset_files
 from .common import add_out
+from .knobs import add_set_option, configs
 
 if TYPE_CHECKING:
-    from ..clean.kalman import CleanConfig
+    from ..clean.config import CleanConfig
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``clean`` subcommand."""
-    from ..clean.kalman import METHODS
+    from ..clean.config import METHODS
 
     p = subparsers.add_parser(
         "clean",
@@ -48,27 +47,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also write the fusion figure (paper Fig. 3) of the first episode, each joint, to DIR/figures",
     )
+    add_set_option(p, ("clean",))
     p.set_defaults(func=run)
 
 
 def _config(args: argparse.Namespace) -> CleanConfig:
-    """CleanConfig from the preset's ``[clean]`` table (if any), then ``--method``."""
-    from ..clean.kalman import CleanConfig
-    from ..config import from_dict, load_preset
-
-    table: dict[str, Any] = {}
-    where = "clean"
-    if args.preset:
-        preset = load_preset(args.preset)
-        raw = preset.get("clean", {})
-        if not isinstance(raw, dict):
-            raise ConfigError(f"preset '{args.preset}': [clean] must be a table")
-        table = dict(raw)
-        where = f"preset '{args.preset}' [clean]"
-    cfg = from_dict(CleanConfig, table, where=where)
-    if args.method:
-        cfg = dataclasses.replace(cfg, method=args.method)
-    return cfg
+    """CleanConfig from the preset's ``[clean]`` table (if any), ``--set``, then ``--method``."""
+    return configs(args, ("clean",), {"clean": {"method": args.method}})["clean"]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import add_out
+from .knobs import add_set_option, configs
 
 
 def _compare(text: str) -> tuple[str, Path]:
@@ -49,20 +50,18 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--max-steps", type=int, default=None, help="truncate test episodes")
     p.add_argument("--device", default="cpu", help="torch device (cpu, cuda, cuda:N, auto)")
+    add_set_option(p, ("evaluate",))
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table."""
-    from ..config import load_preset
     from ..data.dataset import load_dataset
-    from ..evaluate.cbe import EvaluateConfig, evaluate_checkpoint
+    from ..evaluate.cbe import evaluate_checkpoint
     from ..io_utils import log
     from ..outdir import check_out_dir
 
-    preset = load_preset(args.preset) if args.preset else {}
-    cfg = EvaluateConfig.from_preset(
-        preset,
+    named = dict(
         split=args.split,
         reference=args.reference,
         arx=False if args.no_arx else None,
@@ -70,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         max_steps=args.max_steps,
     )
     check_out_dir(args.out, overwrite=args.overwrite)
+    cfg = configs(args, ("evaluate",), {"evaluate": named})["evaluate"]
     splits = (cfg.split, "train", "val") if cfg.arx else (cfg.split,)
     dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))
     evaluate_checkpoint(

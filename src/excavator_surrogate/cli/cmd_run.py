@@ -6,11 +6,12 @@ import argparse
 from pathlib import Path
 
 from .common import add_overwrite
+from .knobs import add_set_option, overrides
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``run`` subcommand."""
-    from ..pipeline import DEFAULT_PRESET
+    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS
 
     p = sub.add_parser(
         "run",
@@ -75,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="seed-ensemble members per trained model (1: a single network; default: the preset's)",
     )
     add_overwrite(p, replaced=True)
+    add_set_option(p, RUN_SECTIONS)
     p.set_defaults(func=checked_run)
 
 
@@ -93,7 +95,7 @@ def checked_run(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
     from ..evaluate.metrics import min_r2
-    from ..pipeline import DEFAULT_PRESET, run_pipeline
+    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS, run_pipeline
 
     preset = args.preset or ("real" if args.logs else DEFAULT_PRESET)
     metrics = run_pipeline(
@@ -107,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         max_train_seconds=args.max_train_seconds,
         epochs=args.epochs,
         members=args.members,
+        sets=overrides(args, RUN_SECTIONS),
     )
     print(
         f"{args.out}: worst-joint angle R² {min_r2(metrics, 'theta'):.4f}, "

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from typing import Any
 
-from ..config import from_dict, load_preset
+from ..config import load_preset
 from ..errors import ConfigError
 from ..outdir import out_dir, preset_files
 from .common import add_out
+from .knobs import add_set_option, configs
 
 DEFAULT_PRESET = "paper-stage1"
 
@@ -42,6 +42,7 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--seed", type=int, default=None, metavar="N", help="root seed (default: preset)"
     )
+    add_set_option(p, ("simulate",))
     p.set_defaults(func=run)
 
 
@@ -55,15 +56,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"preset '{args.preset}' has no [simulate] table; add one or choose another preset"
         )
-    cfg = from_dict(SimulateConfig, table, where=f"preset '{args.preset}' [simulate]")
-    changes: dict[str, Any] = {}
-    if args.seed is not None:
-        changes["seed"] = args.seed
-    if args.workers is not None:
-        if args.workers < 1:
-            raise ConfigError(f"--workers must be >= 1, got {args.workers}")
-        changes["workers"] = args.workers
-    cfg = dataclasses.replace(cfg, **changes)
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    named = {"simulate": {"seed": args.seed, "workers": args.workers}}
+    cfg: SimulateConfig = configs(args, ("simulate",), named)["simulate"]
     with out_dir(args.out, overwrite=args.overwrite, inputs=preset_files(args.preset)):
         path = simulate_dataset(
             cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import add_out
+from .knobs import add_set_option, overrides
 
 
 def register(subparsers: Any) -> None:
@@ -45,24 +46,32 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--device", default=None, help="torch device of the trials (cpu, cuda, auto)")
     p.add_argument("--seed", type=int, default=None, help="sampler seed (single-worker sweeps)")
+    add_set_option(p, ("train", "sweep"))
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
-    from ..config import load_preset
+    from ..config import load_preset, merge_tables
     from ..data.dataset import read_manifest
     from ..outdir import check_out_dir
     from ..scale.sweep import SweepConfig, run_sweep
-    from ..surrogate.train import TrainConfig
+    from ..training import TrainConfig
 
-    preset = load_preset(args.preset) if args.preset else {}
     check_out_dir(args.out, overwrite=args.overwrite)
     read_manifest(args.dataset)  # a missing dataset is an error before --out is created
-    base = TrainConfig.from_preset(preset, device=args.device)
-    scfg = SweepConfig.from_preset(
-        preset, epochs=args.epochs, max_train_seconds=args.max_train_seconds, seed=args.seed
-    )
+    named = {
+        "train": {"device": args.device},
+        "sweep": {
+            "epochs": args.epochs,
+            "max_train_seconds": args.max_train_seconds,
+            "seed": args.seed,
+        },
+    }
+    over = overrides(args, ("train", "sweep"), named)
+    preset = merge_tables(load_preset(args.preset) if args.preset else {}, over)
+    base = TrainConfig.mode_bases(preset)  # one base per mode: trials may switch mode
+    scfg = SweepConfig.from_preset(preset)
     res = run_sweep(
         args.dataset,
         out=args.out,

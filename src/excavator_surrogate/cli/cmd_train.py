@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import add_overwrite
+from .knobs import add_set_option, configs, overrides
 
 
 def register(subparsers: Any) -> None:
@@ -57,6 +58,7 @@ def register(subparsers: Any) -> None:
         "sets WORLD_SIZE > 1); batch sizes are per process",
     )
     add_overwrite(p, replaced=False)
+    add_set_option(p, ("train",))
     p.set_defaults(func=checked_run)
 
 
@@ -76,29 +78,30 @@ def checked_run(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the best checkpoint path."""
-    from ..config import dumps_toml, load_preset
+    from ..config import dumps_toml
     from ..data.dataset import load_dataset
     from ..io_utils import log, write_text
     from ..scale.ddp import distributed_env, init_distributed, shutdown
-    from ..surrogate.auto import auto_config, recipe_record
     from ..surrogate.checkpoint import read_checkpoint
-    from ..surrogate.train import TrainConfig, train
+    from ..training import train
+    from ..training.auto import auto_config, recipe_record
 
-    over = {
-        "mode": args.mode,
-        "cell": args.cell,
-        "epochs": args.epochs,
-        "max_train_seconds": args.max_train_seconds,
-        "seed": args.seed,
-        "device": args.device,
-        "members": args.members,
-    }
+    named = dict(
+        mode=args.mode,
+        cell=args.cell,
+        epochs=args.epochs,
+        max_train_seconds=args.max_train_seconds,
+        seed=args.seed,
+        device=args.device,
+        members=args.members,
+    )
     dataset = load_dataset(args.dataset, splits=("train", "val"))
     why: list[str] = []
     if args.preset:
-        cfg = TrainConfig.from_preset(load_preset(args.preset), **over)
+        cfg = configs(args, ("train",), {"train": named})["train"]
     else:
-        cfg, why = auto_config(dataset, overrides={k: v for k, v in over.items() if v is not None})
+        over = overrides(args, ("train",), {"train": named}).get("train", {})
+        cfg, why = auto_config(dataset, overrides=over)
         for line in why:
             log(f"recipe: {line}")
     dist = None

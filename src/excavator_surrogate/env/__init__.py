@@ -7,7 +7,7 @@ Importing this package registers both environments with gymnasium::
     import gymnasium as gym
     import excavator_surrogate.env  # noqa: F401  (registers the ids)
 
-    env = gym.make("ExcavatorSurrogate-v0", ckpt="runs/quick/model/checkpoint.pt")
+    env = gym.make("ExcavatorSurrogate-v0", ckpt="runs/quick/model/best.pt")
     envs = gym.make_vec("ExcavatorSurrogate-v0", num_envs=1024,
                         vectorization_mode="vector_entry_point", ckpt="...")
 

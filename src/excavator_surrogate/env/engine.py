@@ -28,8 +28,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..devices import resolve_device
 from ..errors import ConfigError
-from ..scale.devices import resolve_device
 from ..spec import MachineSpec
 from ..surrogate.features import Normalization, integrate, play_features, play_step
 from ..surrogate.model import Surrogate

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..scale.devices import resolve_device
+from ..devices import resolve_device
 from ..spec import MachineSpec
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
@@ -25,7 +25,7 @@ def load_surrogate(
 ) -> Surrogate:
     """A :class:`Surrogate` from a checkpoint path (or the object itself), in eval mode.
 
-    ``device``: ``cpu``, ``cuda[:N]`` or ``auto`` (see :func:`~excavator_surrogate.scale.devices.resolve_device`).
+    ``device``: ``cpu``, ``cuda[:N]`` or ``auto`` (see :func:`~excavator_surrogate.devices.resolve_device`).
     ``spec``: the machine the caller expects; a checkpoint of other joints, command ranges or
     rate raises :class:`~excavator_surrogate.errors.CheckpointError`.
     """

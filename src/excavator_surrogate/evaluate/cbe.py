@@ -24,7 +24,7 @@ from typing import Any, Literal
 
 import torch
 
-from ..config import from_dict
+from ..config import stage_config
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
@@ -67,11 +67,7 @@ class EvaluateConfig:
     @classmethod
     def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> EvaluateConfig:
         """Build from a preset's ``[evaluate]`` table, then apply non-None overrides."""
-        from dataclasses import replace
-
-        cfg = from_dict(cls, dict(preset.get("evaluate", {})), where="[evaluate]")
-        over = {k: v for k, v in overrides.items() if v is not None}
-        return replace(cfg, **over) if over else cfg
+        return stage_config(cls, preset, "evaluate", overrides=overrides)
 
 
 def evaluate_models(
@@ -153,7 +149,7 @@ def evaluate_checkpoint(
     t0 = time.monotonic()
     if num_threads > 0:
         torch.set_num_threads(num_threads)
-    from ..scale.devices import resolve_device
+    from ..devices import resolve_device
 
     dev = resolve_device(device)
     sur = load_checkpoint(ckpt, device=dev)

@@ -35,9 +35,10 @@ from .pipeline import (
     kalman_velocity,
     options_with,
 )
+from .readers import expand_sources, read_log
 from .report import render_markdown
 from .resample import antialias_sos, decimation_factor, interval_mean, resample_smooth
-from .sources import RawLog, Series, expand_sources, read_log
+from .sources import RawLog, Series
 from .split import assign_splits
 
 __all__ = [

@@ -36,6 +36,7 @@ from .mapping import (
     SplitOptions,
 )
 from .outliers import screen_angles
+from .readers import expand_sources, log_stem, read_log
 from .report import render_markdown
 from .resample import (
     antialias_sos,
@@ -44,7 +45,7 @@ from .resample import (
     interval_mean,
     resample_smooth,
 )
-from .sources import RawLog, Series, expand_sources, log_stem, read_log
+from .sources import RawLog, Series
 from .split import assign_splits
 
 REPORT_JSON = "import_report.json"

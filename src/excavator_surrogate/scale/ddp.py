@@ -7,7 +7,8 @@ Launch (one line, any number of processes / nodes)::
 ``exsur train`` sees torchrun's ``WORLD_SIZE`` / ``RANK`` / ``LOCAL_RANK`` / ``MASTER_ADDR`` /
 ``MASTER_PORT`` variables (or ``--ddp``) and calls :func:`init_distributed`, which joins the
 process group (``gloo`` on CPU, ``nccl`` on CUDA) and returns a :class:`DistContext` that
-:func:`~excavator_surrogate.surrogate.train.train` uses:
+:func:`~excavator_surrogate.training.train` uses (it implements the
+:class:`~excavator_surrogate.training.parallel.Parallel` interface):
 
 - **Sharding.** Every rank draws the same per-epoch permutation of the training windows
   (windowed mode) or sub-sequences (stateful mode) from the shared seed ``(seed, epoch)``.
@@ -19,9 +20,11 @@ process group (``gloo`` on CPU, ``nccl`` on CUDA) and returns a :class:`DistCont
   averaged gradient is exactly the gradient of the global-batch mean, also for a short last
   batch: a DDP run with per-rank batch ``B`` follows a single-process run with batch ``B*N``
   (same windows, same order) up to floating-point summation order.
-- **Control.** Non-finite steps are skipped on every rank together (decided on the all-reduced
-  gradient norm); with a wall-time budget the stop flag (and the cosine learning rate, which
-  depends on wall time) come from rank 0 each step, so ranks never diverge.
+- **Control.** Non-finite steps are skipped on every rank together: the one NaN rule of
+  :func:`~excavator_surrogate.training.parallel.clip_and_step` (any rank's loss, or the
+  all-reduced gradient norm, not finite; one small all-reduce per step for the loss flag).
+  With a wall-time budget the stop flag (and the cosine learning rate, which depends on wall
+  time) come from rank 0 each step, so ranks never diverge.
 - **Rank 0 only:** validation free-run, checkpoints, ``log.csv``, TensorBoard, progress
   lines.  The validation result is broadcast, so every rank runs the same ReduceLROnPlateau /
   early-stopping / best-epoch bookkeeping.  ``--resume`` loads the same checkpoint on every
@@ -49,9 +52,10 @@ import torch.distributed as tdist
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 
+from ..devices import resolve_device
 from ..errors import ConfigError
 from ..io_utils import log
-from .devices import resolve_device
+from ..training.parallel import clip_and_step
 
 _ENV = ("RANK", "WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT")
 
@@ -199,26 +203,20 @@ class DistContext:
         grad_clip: float,
         lr_at: Callable[[], float | None],
     ) -> bool:
-        """``backward`` (gradients all-reduced by DDP), clip, step, zero the gradients.
+        """``backward`` (gradients all-reduced by DDP), then
+        :func:`~excavator_surrogate.training.parallel.clip_and_step` (the one NaN rule).
 
-        Every rank must call this for every step.  A step whose all-reduced gradient is not
-        finite (a non-finite loss on any rank) is skipped on every rank.
+        Every rank must call this for every step.  A step is skipped on every rank together
+        when any rank's loss or the all-reduced gradient norm is not finite.
 
         Returns:
             True if the optimiser stepped.
         """
         (loss * weight if weight != 1.0 else loss).backward()
         lr = lr_at()  # always called: it may be a collective
+        loss_finite = not self.any(not bool(torch.isfinite(loss)))
         params = list(net.parameters())
-        max_norm = grad_clip if grad_clip > 0 else math.inf
-        norm = torch.nn.utils.clip_grad_norm_(params, max_norm)
-        ok = bool(torch.isfinite(norm))
-        if ok:
-            if lr is not None:
-                for g in opt.param_groups:
-                    g["lr"] = lr
-            opt.step()
-        opt.zero_grad(set_to_none=True)
+        ok = clip_and_step(params, opt, grad_clip=grad_clip, lr=lr, loss_finite=loss_finite)
         self.n_steps += 1
         if self.check_every > 0 and self.n_steps % self.check_every == 0:
             self.assert_replicas_equal(params)

@@ -1,6 +1,6 @@
 """Hyper-parameter sweeps with Optuna: ``exsur sweep DATA --out DIR --trials N``.
 
-Each trial samples a :class:`~excavator_surrogate.surrogate.train.TrainConfig` from the search
+Each trial samples a :class:`~excavator_surrogate.training.TrainConfig` from the search
 space of a :class:`SweepConfig` (window ``W``, hidden size, layers, horizon ``H``,
 ``lambda_bias``, learning rate, training mode), trains it into ``DIR/trials/trial_NNNN/`` and
 reports the validation free-run error after every epoch; the median pruner stops trials that
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..config import from_dict, to_dict
+from ..config import stage_config, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
 from ..io_utils import atomic_path, log, write_json, write_text
@@ -43,7 +43,7 @@ from ..io_utils import atomic_path, log, write_json, write_text
 if TYPE_CHECKING:  # optuna is an optional dependency (pip install 'excavator-surrogate[sweep]')
     import optuna
 
-    from ..surrogate.train import TrainConfig
+    from ..training import TrainConfig
 
 _CAP = 1e6
 """Stand-in for a diverged (non-finite) validation error in reports to Optuna."""
@@ -109,9 +109,7 @@ class SweepConfig:
     @classmethod
     def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> SweepConfig:
         """Build from a preset's ``[sweep]`` table, then apply non-None overrides."""
-        cfg = from_dict(cls, dict(preset.get("sweep", {})), where="[sweep]")
-        over = {k: v for k, v in overrides.items() if v is not None}
-        return replace(cfg, **over) if over else cfg
+        return stage_config(cls, preset, "sweep", overrides=overrides)
 
 
 @dataclass
@@ -224,15 +222,25 @@ def suggest(trial: optuna.Trial, scfg: SweepConfig) -> dict[str, Any]:
     return p
 
 
-def trial_config(base: TrainConfig, scfg: SweepConfig, params: Mapping[str, Any]) -> TrainConfig:
+def trial_config(
+    base: TrainConfig | Mapping[str, TrainConfig], scfg: SweepConfig, params: Mapping[str, Any]
+) -> TrainConfig:
     """The full training config of a trial: ``base`` with the sampled ``params`` and budget.
 
-    Stateful trials keep ``burn_in >= window`` (the warm-up of their rollouts) by raising
-    ``burn_in`` (and ``seq_len``) when needed.
+    ``base`` may hold one config per mode (:meth:`TrainConfig.mode_bases`: a ``[train]`` table
+    with both modes' knobs); a single ``base`` of the other mode than the trial's gives its
+    shared knobs and drops its own mode's.  Stateful trials keep ``burn_in >= window`` (the
+    warm-up of their rollouts) by raising ``burn_in`` (and ``seq_len``) when needed.
     """
+    params = dict(params)
+    if isinstance(base, Mapping):
+        mode = params.pop("mode", next(iter(base)))
+        base = base[mode]
+    else:
+        mode = params.pop("mode", base.mode)
     cfg = replace(
-        base,
-        **dict(params),
+        base.for_mode(mode),
+        **params,
         epochs=scfg.epochs,
         max_train_seconds=scfg.max_train_seconds,
         tensorboard=False,
@@ -245,13 +253,19 @@ def trial_config(base: TrainConfig, scfg: SweepConfig, params: Mapping[str, Any]
 class _Objective:
     """Train one trial; report per-epoch validation error; prune through ``train``'s hook."""
 
-    def __init__(self, dataset: Dataset, base: TrainConfig, scfg: SweepConfig, out: Path) -> None:
+    def __init__(
+        self,
+        dataset: Dataset,
+        base: TrainConfig | Mapping[str, TrainConfig],
+        scfg: SweepConfig,
+        out: Path,
+    ) -> None:
         self.dataset, self.base, self.scfg, self.out = dataset, base, scfg, out
 
     def __call__(self, trial: optuna.Trial) -> float:
         optuna = _optuna()
         from ..surrogate.checkpoint import read_checkpoint
-        from ..surrogate.train import train
+        from ..training import train
 
         cfg = trial_config(self.base, self.scfg, suggest(trial, self.scfg))
         tdir = self.out / "trials" / f"trial_{trial.number:04d}"
@@ -300,7 +314,7 @@ def run_sweep(
     study_name: str = "exsur",
     timeout: float | None = None,
     sweep: SweepConfig | None = None,
-    base: TrainConfig | None = None,
+    base: TrainConfig | Mapping[str, TrainConfig] | None = None,
 ) -> SweepResult:
     """Run ``trials`` trials of the study (joining it if it exists), then write the report.
 
@@ -312,12 +326,13 @@ def run_sweep(
         study_name: study to create or join.
         timeout: stop starting new trials after this many seconds (None: no limit).
         sweep: search space and per-trial budget.
-        base: training options that are not searched (device, batch sizes, seed ...).
+        base: training options that are not searched (device, batch sizes, seed ...), or one
+            such config per mode (:meth:`~excavator_surrogate.training.TrainConfig.mode_bases`).
 
     Returns:
         The study summary.
     """
-    from ..surrogate.train import TrainConfig
+    from ..training import TrainConfig
 
     _optuna()  # fail early with the install hint
     if trials < 1:

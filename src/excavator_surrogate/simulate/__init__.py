@@ -12,7 +12,7 @@ See docs/plant.md and docs/hydraulics.md.  Main entry points:
   (compound operation); :class:`~.soil.ChainHook` combines force hooks.
 - :mod:`.excitation`: command signals (``multisine``, ``steps``, ``chirp``, ``prbs``,
   ``work_cycle``) and the closed-loop digging operator (``dig_cycle``,
-  :class:`~.excitation.DigOperator`).
+  :class:`~.dig_operator.DigOperator`).
 - :func:`~.generate.simulate_dataset` / :class:`~.generate.SimulateConfig`: datasets.
 - :mod:`.hooks`: command-transform and force hooks.
 """

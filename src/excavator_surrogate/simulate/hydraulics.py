@@ -277,9 +277,9 @@ class HydraulicTransform:
         return spool_map(np.clip(x, -1.0, 1.0), p) * np.asarray(omega_max, dtype=np.float64)
 
     def nominal_model(self, *, omega_max: np.ndarray) -> Any:
-        """:class:`~.excitation.NominalModel` (static map + acceleration limit) of this plant,
+        """:class:`~.commands.NominalModel` (static map + acceleration limit) of this plant,
         used by the excitation signals to stay off the end stops."""
-        from .excitation import NominalModel
+        from .commands import NominalModel
 
         omega_max = np.asarray(omega_max, dtype=np.float64)
         accel = self.params.accel * omega_max

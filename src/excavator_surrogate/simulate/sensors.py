@@ -23,6 +23,7 @@ import numpy as np
 
 from ..config import to_dict
 from ..data.episode import Episode
+from ..data.jumps import mask_to_runs
 from ..errors import ConfigError, DataError
 
 PerJoint = float | tuple[float, ...]
@@ -111,26 +112,6 @@ def ar1_filter(e: np.ndarray, rho: float) -> np.ndarray:
         out[start : start + block] = x
         carry = x[-1]
     return out
-
-
-def mask_to_runs(mask: np.ndarray) -> list[list[int]]:
-    """Compact form of a (n_step, n_joint) bool mask: ``[[joint, start, stop), ...]`` runs of True."""
-    mask = np.asarray(mask, dtype=bool)
-    runs: list[list[int]] = []
-    for j in range(mask.shape[1]):
-        m = np.concatenate([[False], mask[:, j], [False]]).astype(np.int8)
-        edges = np.flatnonzero(np.diff(m))
-        runs.extend([j, int(a), int(b)] for a, b in zip(edges[0::2], edges[1::2]))
-    return runs
-
-
-def runs_to_mask(runs: list[list[int]], n_step: int, n_joint: int) -> np.ndarray:
-    """Inverse of :func:`mask_to_runs`: a (n_step, n_joint) bool mask."""
-    mask = np.zeros((n_step, n_joint), dtype=bool)
-    for run in runs:
-        j, a, b = (int(x) for x in run)
-        mask[a:b, j] = True
-    return mask
 
 
 def apply_sensors(
@@ -260,11 +241,3 @@ def apply_sensors_episode(
         omega_true=np.array(omega_true, dtype=np.float64),
         extra=extra,
     )
-
-
-def jump_mask_of(ep: Episode) -> np.ndarray | None:
-    """The (n_step, n_joint) jump mask stored by :func:`apply_sensors_episode`, or None."""
-    sensor = (ep.extra or {}).get("sensor")
-    if not isinstance(sensor, dict) or "jump_runs" not in sensor:
-        return None
-    return runs_to_mask(sensor["jump_runs"], ep.n_step, ep.spec.n_joint)

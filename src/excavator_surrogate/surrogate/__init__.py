@@ -1,8 +1,9 @@
-"""surrogate stage: LSTM/GRU surrogate model, training, closed-loop rollout, checkpoints, baselines.
+"""surrogate stage: LSTM/GRU surrogate model, closed-loop rollout, validation, checkpoints, baselines.
 
-Public API: :class:`TrainConfig`, :func:`train`, :func:`load_checkpoint`, :func:`save_checkpoint`,
-:class:`Surrogate`, :class:`ClosedLoop`, :func:`rollout`, :func:`rollout_episodes`,
-:func:`fit_arx`, :func:`omega_target`.
+Public API: :func:`load_checkpoint`, :func:`save_checkpoint`, :class:`Surrogate`,
+:class:`ClosedLoop`, :func:`rollout`, :func:`rollout_episodes`, :func:`free_run_error`,
+:func:`fit_arx`, :func:`omega_target`.  Training lives one layer up, in
+:mod:`excavator_surrogate.training`.
 """
 
 from .baselines import fit_arx
@@ -10,7 +11,7 @@ from .checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
 from .features import Normalization, encode_np, omega_target, unwrap_periodic, wrap_angle
 from .model import ARXNet, ModelConfig, Surrogate, SurrogateNet
 from .rollout import ClosedLoop, EpisodeRollout, rollout, rollout_episodes, rollout_reference
-from .train import TrainConfig, free_run_error, horizon_loss, train
+from .validation import free_run_error
 
 __all__ = [
     "ARXNet",
@@ -20,11 +21,9 @@ __all__ = [
     "Normalization",
     "Surrogate",
     "SurrogateNet",
-    "TrainConfig",
     "encode_np",
     "fit_arx",
     "free_run_error",
-    "horizon_loss",
     "load_checkpoint",
     "omega_target",
     "read_checkpoint",
@@ -32,7 +31,6 @@ __all__ = [
     "rollout_episodes",
     "rollout_reference",
     "save_checkpoint",
-    "train",
     "unwrap_periodic",
     "wrap_angle",
 ]

@@ -110,7 +110,7 @@ def fit_arx(
     val = [e for e in val if e.n_step > window + 1]
     if not val:
         return solve(DEFAULT_RIDGE)
-    from .train import free_run_error
+    from .validation import free_run_error
 
     best, best_err = None, np.inf
     for r in ridges:

@@ -1,12 +1,13 @@
-"""Helpers shared by the import tests."""
+"""Helpers of the import tests (logs of the 3-joint test arm, nothing-written checks)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
 
-import arm3_plant
 import numpy as np
+
+from . import arm3_plant
 
 
 def assert_nothing_written(out: Path) -> None:

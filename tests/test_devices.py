@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from excavator_surrogate import devices
+from excavator_surrogate.devices import resolve_device
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.scale import devices
-from excavator_surrogate.scale.devices import resolve_device
 
 NO_CUDA = "needs a CUDA GPU (torch.cuda.is_available() is False on this machine)"
 
@@ -42,8 +42,9 @@ def test_auto_picks_the_local_rank_gpu(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_train_rollout_and_env_on_cuda(tmp_path: Path) -> None:
     from excavator_surrogate.data import Dataset
     from excavator_surrogate.env.surrogate_env import load_surrogate
-    from excavator_surrogate.surrogate import TrainConfig, load_checkpoint, rollout, train
+    from excavator_surrogate.surrogate import load_checkpoint, rollout
     from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+    from excavator_surrogate.training import TrainConfig, train
 
     spec = synthetic_spec(2)
     ds = Dataset(spec=spec)

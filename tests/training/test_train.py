@@ -8,19 +8,14 @@ import math
 import numpy as np
 import pytest
 import torch
-from surrogate_helpers import make_surrogate, tiny_dataset, tiny_stateful_config
 
 from excavator_surrogate.errors import CheckpointError, ConfigError
-from excavator_surrogate.surrogate import (
-    TrainConfig,
-    free_run_error,
-    horizon_loss,
-    load_checkpoint,
-    read_checkpoint,
-    train,
-)
+from excavator_surrogate.surrogate import free_run_error, load_checkpoint, read_checkpoint
 from excavator_surrogate.surrogate.features import omega_target
 from excavator_surrogate.surrogate.rollout import window_rollout
+from excavator_surrogate.training import TrainConfig, horizon_loss, train
+from tests.helpers.surrogates import make_surrogate
+from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
 def _smooth_l1(a: float, b: float) -> float:
@@ -77,7 +72,7 @@ def test_h_step_loss_equals_hand_computed_loop(spec, episodes, lambda_bias):
 def test_training_reduces_free_run_error(tmp_path, mode, factor):
     torch.manual_seed(0)
     ds = tiny_dataset(2, n_train=4, n_step=400)
-    cfg = TrainConfig(
+    cfg = tiny_train_config(
         window=8,
         hidden=16,
         head_hidden=16,
@@ -110,7 +105,7 @@ def test_resume_continues_epochs_and_budget_stops(tmp_path):
     ds = tiny_dataset(2, n_train=2, n_step=120)
     kw = dict(feedback="free", teacher_epochs=1)
     train(
-        tiny_stateful_config(epochs=2, tensorboard=True, **kw),
+        tiny_train_config(epochs=2, tensorboard=True, **kw),
         ds,
         out=tmp_path / "a",
         show_progress=False,
@@ -118,12 +113,12 @@ def test_resume_continues_epochs_and_budget_stops(tmp_path):
     assert (tmp_path / "a" / "tb").is_dir()
     hist = read_checkpoint(tmp_path / "a" / "last.pt")["history"]
     assert all(math.isfinite(h["train_loss"]) for h in hist)
-    cfg3 = tiny_stateful_config(epochs=3, **kw)
+    cfg3 = tiny_train_config(epochs=3, **kw)
     train(cfg3, ds, out=tmp_path / "a", resume=tmp_path / "a" / "last.pt", show_progress=False)
     hist = read_checkpoint(tmp_path / "a" / "last.pt")["history"]
     assert [h["epoch"] for h in hist] == [0, 1, 2]
     with pytest.raises(CheckpointError, match="architecture"):
-        bad = tiny_stateful_config(hidden=9, epochs=3, **kw)
+        bad = tiny_train_config(hidden=9, epochs=3, **kw)
         train(bad, ds, out=tmp_path / "b", resume=tmp_path / "a" / "last.pt", show_progress=False)
     quick = TrainConfig(
         window=5, hidden=8, head_hidden=8, epochs=50, max_train_seconds=1e-3, tensorboard=False
@@ -146,7 +141,7 @@ def test_train_config_from_preset_and_validation():
 
 def test_weight_average_competes_for_the_best_checkpoint(tmp_path):
     ds = tiny_dataset(2, n_train=2, n_step=160)
-    cfg = tiny_stateful_config(seq_batch=2, epochs=4, patience=4, ema_decay=0.9)
+    cfg = tiny_train_config(seq_batch=2, epochs=4, patience=4, ema_decay=0.9)
     best = train(cfg, ds, out=tmp_path, show_progress=False)
     rows = list(csv.DictReader((tmp_path / "log.csv").open()))
     assert {r["weights"] for r in rows} <= {"raw", "ema"} and len(rows) == 4
@@ -163,3 +158,20 @@ def test_weight_average_competes_for_the_best_checkpoint(tmp_path):
     # the average is a different set of weights from the raw ones it follows
     ema_row = rows[-1]
     assert float(ema_row["val_error_raw"]) != float(ema_row["val_error_ema"])
+
+
+def test_a_knob_the_mode_does_not_read_is_an_error():
+    with pytest.raises(ConfigError, match=r"horizon = 10 is read only by mode = \"windowed\""):
+        TrainConfig(mode="stateful", horizon=10)
+    with pytest.raises(ConfigError, match="seq_len"):
+        TrainConfig(mode="windowed", seq_len=60)
+    TrainConfig(mode="stateful", horizon=1)  # the default is not a setting
+    cfg = TrainConfig(mode="stateful", seq_len=60, burn_in=10).for_mode("windowed")
+    assert (cfg.mode, cfg.seq_len, cfg.burn_in) == ("windowed", 150, 30)
+    # --mode on the command line drops the preset's knobs of the other mode
+    preset = {"train": {"mode": "stateful", "seq_len": 60, "window": 7}}
+    cfg = TrainConfig.from_preset(preset, mode="windowed")
+    assert (cfg.mode, cfg.seq_len, cfg.window) == ("windowed", 150, 7)
+    bases = TrainConfig.mode_bases({"train": {"seq_len": 60, "horizon": 3}})
+    assert (bases["windowed"].horizon, bases["windowed"].seq_len) == (3, 150)
+    assert (bases["stateful"].horizon, bases["stateful"].seq_len) == (1, 60)

@@ -35,7 +35,7 @@ import numpy as np
 from ..config import from_dict, to_dict
 from ..data.dataset import Dataset
 from ..errors import DataError
-from .train import TrainConfig
+from .config import TrainConfig
 
 TRAIN_BUDGET_S = 540.0
 """Wall time of the whole training (every member) on the reference 2-core machine [s]."""

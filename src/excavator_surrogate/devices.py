@@ -1,0 +1,90 @@
+"""Device selection: ``cpu``, ``cuda``, ``cuda:N`` or ``auto``.
+
+Every place that accepts a device string (``[train] device``, ``exsur train/evaluate --device``,
+the surrogate environments) resolves it with :func:`resolve_device`, so ``auto`` means the same
+thing everywhere: the first (or the process's local-rank) CUDA GPU when one is usable, else
+the CPU.  Apple ``mps`` and other backends are accepted when named explicitly but are never
+chosen by ``auto`` (the LSTM kernels there are not faster than the CPU for these small nets).
+"""
+
+from __future__ import annotations
+
+import os
+
+import torch
+
+from .errors import ConfigError
+
+DEVICE_CHOICES = ("cpu", "cuda", "auto")
+"""Device names offered by the command line (``cuda:N`` is accepted as well)."""
+
+
+def cuda_usable() -> bool:
+    """True if at least one CUDA device can be used by this process."""
+    try:
+        return bool(torch.cuda.is_available()) and torch.cuda.device_count() > 0
+    except Exception:  # broken driver installs raise instead of returning False
+        return False
+
+
+def resolve_device(
+    name: str | torch.device | None = "auto", *, local_rank: int | None = None
+) -> torch.device:
+    """Turn a device name into a usable :class:`torch.device`.
+
+    Args:
+        name: ``"cpu"``, ``"cuda"``, ``"cuda:N"``, ``"auto"`` (None means ``auto``), another
+            torch device string (``"mps"``), or a :class:`torch.device`.
+        local_rank: for ``cuda`` / ``auto`` without an index: the GPU of this process in a
+            multi-process (torchrun) job.  Default: ``$LOCAL_RANK`` if set, else the current GPU.
+
+    Returns:
+        The device; ``auto`` gives ``cuda:<local_rank>`` when CUDA is usable, else ``cpu``.
+
+    Raises:
+        ConfigError: CUDA asked for but not available, a GPU index out of range, or an
+            unknown device string.
+    """
+    if isinstance(name, torch.device):
+        text = str(name)
+    else:
+        text = (name or "auto").strip().lower()
+    if text == "auto":
+        if not cuda_usable():
+            return torch.device("cpu")
+        text = "cuda"
+    try:
+        dev = torch.device(text)
+    except (RuntimeError, ValueError) as e:
+        raise ConfigError(
+            f"unknown device '{name}': use one of {', '.join(DEVICE_CHOICES)} or cuda:N"
+        ) from e
+    if dev.type == "cuda":
+        if not cuda_usable():
+            raise ConfigError(
+                f"device '{name}' is not available (torch {torch.__version__} sees no CUDA GPU); "
+                "use --device cpu or auto"
+            )
+        n = torch.cuda.device_count()
+        index = dev.index
+        if index is None:
+            if local_rank is None and os.environ.get("LOCAL_RANK", "").isdigit():
+                local_rank = int(os.environ["LOCAL_RANK"])
+            index = (local_rank % n) if local_rank is not None else torch.cuda.current_device()
+        if not 0 <= index < n:
+            raise ConfigError(f"device '{name}': only {n} CUDA device(s) visible (0..{n - 1})")
+        return torch.device("cuda", index)
+    if dev.type == "mps" and not (
+        getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()
+    ):
+        raise ConfigError(f"device '{name}' is not available here; use --device cpu or auto")
+    return dev
+
+
+def device_label(dev: torch.device) -> str:
+    """Short human-readable description, e.g. ``cuda:0 (NVIDIA A100)`` or ``cpu (8 threads)``."""
+    if dev.type == "cuda":
+        return f"{dev} ({torch.cuda.get_device_name(dev)})"
+    if dev.type == "cpu":
+        return f"cpu ({torch.get_num_threads()} threads)"
+    return str(dev)

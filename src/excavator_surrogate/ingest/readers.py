@@ -1,0 +1,123 @@
+"""The log-format registry: every reader exsur knows, and what is derived from it.
+
+:data:`READERS` lists the formats in detection order (the first match wins): dSPACE
+ControlDesk CSV exports (:mod:`.dspace`), plain CSV, Parquet and ROS bags
+(:mod:`.sources`), ASAM MDF4 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
+:func:`log_stem`, :func:`expand_sources` and :data:`SUPPORTED` all derive from it, so adding
+a log format is one reader module plus one entry here.
+"""
+
+from __future__ import annotations
+
+import glob
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..errors import DataError
+from .dspace import READER as _DSPACE
+from .mapping import Mapping
+from .mdf import READER as _MDF
+from .sources import BUILTIN_READERS, RawLog, Reader
+
+READERS: tuple[Reader, ...] = (_DSPACE, *BUILTIN_READERS, _MDF)
+"""Every log format, in detection order (the first match wins)."""
+
+SUPPORTED = ", ".join(r.label for r in READERS)
+"""The supported formats, for messages."""
+
+
+def reader_for(path: Path, *, csv_format: str = "auto") -> Reader | None:
+    """The first reader of :data:`READERS` that matches ``path``, or None."""
+    for r in READERS:
+        if r.match(path, csv_format):
+            return r
+    return None
+
+
+def log_kind(path: Path, *, csv_format: str = "auto") -> str | None:
+    """Kind of the log at ``path`` (``csv``, ``dspace``, ``parquet``, ``rosbag2``, ``mdf`` ...), or None."""
+    r = reader_for(path, csv_format=csv_format)
+    return r.kind if r is not None else None
+
+
+def log_stem(path: Path) -> str:
+    """The file name without its log suffix (``run.dspace.csv.gz`` -> ``run``)."""
+    name = path.name
+    ends = sorted({s for r in READERS for s in r.suffixes}, key=len, reverse=True)
+    for suf in ends:
+        if name.lower().endswith(suf):
+            return name[: -len(suf)]
+    return name
+
+
+def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
+    """Turn SOURCE arguments (files, folders, glob patterns) into a sorted-per-argument file list.
+
+    A folder contributes its supported files and rosbag2 sub-folders (not recursive); a
+    rosbag2 folder (with ``metadata.yaml``) is one log.  Duplicates are removed.
+
+    Raises:
+        DataError: a source that does not exist, is unsupported, or matches nothing.
+    """
+    out: list[Path] = []
+
+    def add(p: Path) -> None:
+        r = reader_for(p)
+        if r is None:
+            raise DataError(p, "unsupported log type", fix=f"give {SUPPORTED}")
+        if r.whole_folder and not p.is_dir():
+            p = p.parent  # a storage file inside a bag folder: read the whole bag
+        if p not in out:
+            out.append(p)
+
+    for s in sources:
+        p = Path(s)
+        if p.exists():
+            if p.is_dir() and log_kind(p) is None:
+                found = [
+                    c for c in sorted(p.iterdir()) if not c.name.startswith(".") and log_kind(c)
+                ]
+                if not found:
+                    raise DataError(p, "folder holds no log files", fix=f"put {SUPPORTED} in it")
+                for c in found:
+                    add(c)
+            else:
+                add(p)
+        elif any(ch in str(s) for ch in "*?["):
+            hits = [Path(h) for h in sorted(glob.glob(str(s), recursive=True))]
+            hits = [h for h in hits if log_kind(h)]
+            if not hits:
+                raise DataError(
+                    s,
+                    "glob pattern matches no log files",
+                    fix=f"check the pattern; supported: {SUPPORTED}",
+                )
+            for h in hits:
+                add(h)
+        else:
+            raise DataError(p, "file not found", fix="check the path")
+    return out
+
+
+def read_log(path: Path, mapping: Mapping) -> RawLog:
+    """Read the channels ``mapping`` needs from the log at ``path`` (see :data:`READERS`).
+
+    Raises:
+        DataError: unreadable file, missing/duplicated columns, non-numeric values, bad time.
+    """
+    r = reader_for(path, csv_format=mapping.csv.format)
+    if r is None:
+        raise DataError(path, "unsupported log type", fix=f"give {SUPPORTED}")
+    if r.maps == "columns" and mapping.is_ros:
+        raise DataError(
+            path,
+            f"this is a {r.kind} log but the mapping maps ROS topics",
+            fix="map columns (column = ...) for CSV/Parquet/dSPACE/MDF logs",
+        )
+    if r.maps == "topics" and not mapping.is_ros:
+        raise DataError(
+            path,
+            "this is a ROS bag but the mapping maps table columns",
+            fix="map topic = ... and field = ... for bags",
+        )
+    return r.read(path, mapping)

@@ -1,0 +1,75 @@
+"""The public entry point :func:`train`: one network, or a seed ensemble of them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..data.dataset import Dataset
+from ..errors import ConfigError
+from .config import TrainConfig
+from .ensembles import train_ensemble
+from .loop import EpochCallback, train_network
+from .loss import LossFn
+from .parallel import Parallel
+
+
+def train(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    out: str | Path,
+    resume: str | Path | None = None,
+    show_progress: bool | None = None,
+    on_epoch: EpochCallback | None = None,
+    dist: Parallel | None = None,
+    loss: LossFn | None = None,
+) -> Path:
+    """Train a surrogate on ``dataset.train``, select it by free-run error on ``dataset.val``.
+
+    Writes into ``out``: ``best.pt`` (best validation free-run), ``last.pt`` (latest, for
+    resuming), ``log.csv`` (one row per epoch), ``config.toml`` and ``tb/`` (TensorBoard).
+    With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`).
+
+    Args:
+        cfg: training options.
+        dataset: episodes with ``train`` and ``val`` splits (``val`` empty: validate on train, with a warning).
+        out: output folder (created).
+        resume: checkpoint (``last.pt`` or ``best.pt``) to continue from; architecture must match.
+        show_progress: progress bar (None: only on a terminal or with ``EXSUR_PROGRESS=1``).
+        on_epoch: called after every epoch (once the checkpoints are written) with the epoch and
+            its ``log.csv`` row (``val_error``, ``train_loss``, ...); returning True stops training
+            (sweeps prune trials this way).  With DDP it runs on rank 0 only.
+        dist: data-parallel context, e.g. from :func:`excavator_surrogate.scale.ddp.init_distributed`
+            (every rank calls ``train`` with the same arguments); None trains in this process.
+        loss: ``loss(y_hat, y) -> scalar`` (default: :func:`~.loss.horizon_loss` with
+            ``cfg.lambda_bias``).
+
+    Returns:
+        Path of ``best.pt``.
+
+    Raises:
+        DataError: no usable training episodes.  CheckpointError: bad ``resume`` file.
+    """
+    if cfg.members > 1:
+        for given, what in (
+            (resume, "resume"),
+            (dist, "data-parallel training"),
+            (on_epoch, "on_epoch"),
+            (loss, "a custom loss"),
+        ):
+            if given is not None:
+                raise ConfigError(
+                    f"[train] members = {cfg.members}: {what} works per member; train each member "
+                    "as a single network (members = 1) and merge them with 'exsur merge'"
+                )
+        return train_ensemble(cfg, dataset, out=out, show_progress=show_progress)
+    return train_network(
+        cfg,
+        dataset,
+        out=out,
+        resume=resume,
+        show_progress=show_progress,
+        on_epoch=on_epoch,
+        par=dist,
+        loss=loss,
+    )

@@ -1,0 +1,211 @@
+"""The ``[train]`` table: :class:`TrainConfig`, and which knobs each training mode reads.
+
+A knob that the chosen ``mode`` does not read (``horizon`` under ``stateful``, ``seq_len`` under
+``windowed`` ...) is an error unless it keeps its default, so a preset never sets a value that is
+silently ignored.  :meth:`TrainConfig.for_mode` switches mode and drops the other mode's knobs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Any, Literal
+
+from ..config import stage_config
+from ..errors import ConfigError
+from ..surrogate.model import ModelConfig
+
+MODE_FIELDS: dict[str, tuple[str, ...]] = {
+    "windowed": ("horizon", "batch_size"),
+    "stateful": ("seq_len", "burn_in", "tbptt", "seq_batch", "feedback", "teacher_epochs"),
+}
+"""Fields read by one training mode only (every other field is read by both)."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Surrogate training options (``[train]`` table of a preset)."""
+
+    window: int = 30
+    """Window length W [samples]; also the warm-up of every closed-loop rollout."""
+    hidden: int = 128
+    """Recurrent state width."""
+    layers: int = 2
+    """Stacked recurrent layers."""
+    head_hidden: int = 128
+    """Width of the FC layer of the output head."""
+    cell: Literal["lstm", "gru"] = "lstm"
+    """Recurrent cell (``gru`` is the same-size baseline)."""
+    mode: Literal["windowed", "stateful"] = "windowed"
+    """Training (and rollout) mode: sliding windows (paper) or carried state (faster)."""
+    horizon: int = 1
+    """Windowed: H, rollout steps in the loss (1 = one-step training); stateful mode has no H: its
+    loss runs over TBPTT chunks of ``tbptt`` steps (free-run with ``feedback = "free"``)."""
+    lambda_bias: float = 0.0
+    """Weight of the mean-bias penalty over the horizon (paper: 0.3 for compound data)."""
+    lr: float = 1e-3
+    """Adam learning rate."""
+    batch_size: int = 256
+    """Windowed: windows per batch; per process with DDP (global batch = batch_size x world size)."""
+    epochs: int = 50
+    """Maximum number of epochs."""
+    patience: int = 25
+    """Early stopping: epochs without a better validation free-run error."""
+    min_delta: float = 0.0
+    """Relative improvement of the validation error that counts as better."""
+    plateau_factor: float = 0.5
+    """ReduceLROnPlateau factor on the validation error."""
+    plateau_patience: int = 10
+    """ReduceLROnPlateau patience [epochs] (the free-run error is noisy: keep this generous)."""
+    min_lr: float = 1e-5
+    """Lower bound of the learning rate."""
+    lr_schedule: Literal["plateau", "cosine"] = "plateau"
+    """``plateau``: ReduceLROnPlateau on the validation error (paper); ``cosine``: decay from ``lr``
+    to ``min_lr`` over the run (progress = max(epoch / epochs, elapsed / max_train_seconds))."""
+    grad_clip: float = 1.0
+    """Clip the gradient norm to this value (0 disables)."""
+    seed: int = 0
+    """Seed of weight init and sampling (epoch e samples with seed (seed, e))."""
+    seq_len: int = 150
+    """Stateful: sub-sequence length [samples] including the burn-in."""
+    burn_in: int = 30
+    """Stateful: leading samples fed with recorded data, without loss or gradient."""
+    tbptt: int = 10
+    """Stateful: steps per truncated-BPTT chunk (one optimiser step per chunk)."""
+    seq_batch: int = 16
+    """Stateful: sub-sequences per batch (per process with DDP)."""
+    feedback: Literal["free", "teacher"] = "teacher"
+    """Stateful: after the burn-in, feed recorded angles (teacher, fast) or integrated ones (free)."""
+    teacher_epochs: int = 1
+    """Stateful free mode: the first epochs are teacher-forced (curriculum)."""
+    epoch_samples: int = 0
+    """Cap on target samples per epoch (0 = every training sample once)."""
+    val_steps: int = 0
+    """Truncate validation episodes to this many samples for the free-run (0 = full length)."""
+    max_train_seconds: float = 0.0
+    """Wall-time budget for training incl. validation [s] (0 = unlimited)."""
+    device: str = "cpu"
+    """Torch device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA if available, else CPU)."""
+    num_threads: int = 1
+    """Torch intra-op threads (0 keeps torch's default; 1 is fastest for these small nets on shared CPUs)."""
+    ema_decay: float = 0.0
+    """Keep an exponential moving average of the weights (decay per optimiser step, e.g. 0.999);
+    each epoch both the raw and the averaged weights are validated and the better one competes
+    for ``best.pt`` (0 = off)."""
+    play: tuple[float, ...] = ()
+    """Half-widths of play (backlash) operators on the scaled commands whose states are extra
+    input features (valve hysteresis memory; ours, not the paper's); empty = paper's 9-D input."""
+    members: int = 1
+    """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
+    each selected by its own validation free run, and merge them into one network whose omega is
+    the members' mean (``OUT/member_<i>/``; ours, not the paper's).  1 = a single network."""
+    member_workers: int = 0
+    """Members trained in parallel processes, each with ``num_threads`` threads (0 = one
+    process per member, up to the CPU count; 1 = one after the other in this process)."""
+    end_stops: bool = True
+    """Keep free runs inside the machine's envelope: clip angles to the joint limits (end stops)
+    and velocities to the speed bounds, in training rollouts and in every rollout of the trained
+    model (stored in the checkpoint's spec)."""
+    limit_margin: float = 0.02
+    """End stops the spec lacks come from the angle range seen in training, widened by this
+    fraction of the range on each side (negative: none from data)."""
+    speed_margin: float = 0.25
+    """Speed bounds the spec lacks are the largest |omega| seen in training times
+    ``1 + speed_margin`` (negative: none from data)."""
+    tensorboard: bool = True
+    """Write TensorBoard scalars to ``OUT/tb`` (skipped if tensorboard is not installed)."""
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.window >= 1, "window must be >= 1"),
+            (
+                self.hidden >= 1 and self.layers >= 1 and self.head_hidden >= 1,
+                "hidden/layers/head_hidden must be >= 1",
+            ),
+            (self.horizon >= 1, "horizon must be >= 1"),
+            (all(0 < b <= 1 for b in self.play), "play widths must be in (0, 1]"),
+            (self.lambda_bias >= 0, "lambda_bias must be >= 0"),
+            (self.lr > 0, "lr must be > 0"),
+            (self.batch_size >= 1 and self.seq_batch >= 1, "batch sizes must be >= 1"),
+            (self.epochs >= 1, "epochs must be >= 1"),
+            (self.burn_in >= 1, "burn_in must be >= 1"),
+            (self.seq_len > self.burn_in, "seq_len must exceed burn_in"),
+            (self.tbptt >= 1, "tbptt must be >= 1"),
+            (self.members >= 1, "members must be >= 1"),
+            (math.isfinite(self.limit_margin), "limit_margin must be finite"),
+            (math.isfinite(self.speed_margin), "speed_margin must be finite"),
+            (self.member_workers >= 0, "member_workers must be >= 0"),
+            (0 < self.plateau_factor < 1, "plateau_factor must be in (0, 1)"),
+            (self.cell in ("lstm", "gru"), "cell must be lstm or gru"),
+            (self.mode in ("windowed", "stateful"), "mode must be windowed or stateful"),
+            (self.lr_schedule in ("plateau", "cosine"), "lr_schedule must be plateau or cosine"),
+            (self.feedback in ("free", "teacher"), "feedback must be free or teacher"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ConfigError(f"[train] {msg}")
+        defaults = {f.name: f.default for f in fields(self)}
+        for other, names in MODE_FIELDS.items():
+            if other == self.mode:
+                continue
+            for name in names:
+                if getattr(self, name) != defaults[name]:
+                    raise ConfigError(
+                        f"[train] {name} = {getattr(self, name)!r} is read only by mode = "
+                        f'"{other}" (this config trains mode = "{self.mode}"): remove it'
+                    )
+
+    @classmethod
+    def from_preset(cls, preset: dict[str, Any], **overrides: Any) -> TrainConfig:
+        """Build from a loaded preset's ``[train]`` table, then apply non-None overrides
+        (see :func:`~excavator_surrogate.config.stage_config`)."""
+        return stage_config(cls, preset, "train", overrides=overrides)
+
+    @classmethod
+    def adapt_table(cls, table: dict[str, Any], *, changed: set[str]) -> dict[str, Any]:
+        """Check a ``[train]`` table against its mode: a knob of the other mode is an error, even
+        at its default, unless ``mode`` is among the ``changed`` (overridden) keys: then the other
+        mode's knobs are dropped, unless overridden too (``exsur train --mode windowed`` on a
+        stateful preset)."""
+        mode = table.get("mode", cls.mode)
+        if mode not in MODE_FIELDS:
+            return table  # from_dict names the bad mode
+        other = {n for m, ns in MODE_FIELDS.items() if m != mode for n in ns}
+        if "mode" in changed:
+            return {k: v for k, v in table.items() if k not in other - changed}
+        stray = sorted(other & set(table))
+        if stray:
+            owner = next(m for m, ns in MODE_FIELDS.items() if stray[0] in ns)
+            raise ConfigError(
+                f'[train] {stray[0]} is read only by mode = "{owner}" (this table trains '
+                f'mode = "{mode}"): remove it (exsur config show marks the knobs not read)'
+            )
+        return table
+
+    @classmethod
+    def mode_bases(cls, preset: dict[str, Any], **overrides: Any) -> dict[str, TrainConfig]:
+        """One config per mode from a ``[train]`` table that may set both modes' knobs (the
+        base of a sweep over modes): each drops the other mode's knobs."""
+        return {m: cls.from_preset(preset, **{**overrides, "mode": m}) for m in MODE_FIELDS}
+
+    def unread_fields(self) -> tuple[str, ...]:
+        """Knobs this config's mode does not read (they must keep their defaults)."""
+        return tuple(n for m, ns in MODE_FIELDS.items() if m != self.mode for n in ns)
+
+    def for_mode(self, mode: str) -> TrainConfig:
+        """This config trained in ``mode``: the other mode's knobs go back to their defaults."""
+        defaults = {f.name: f.default for f in fields(self)}
+        reset = {n: defaults[n] for m, ns in MODE_FIELDS.items() if m != mode for n in ns}
+        return replace(self, mode=mode, **reset)  # type: ignore[arg-type]
+
+    def model_config(self, n_feature: int, n_joint: int) -> ModelConfig:
+        """Architecture implied by this config."""
+        return ModelConfig(
+            n_feature=n_feature,
+            n_joint=n_joint,
+            window=self.window,
+            hidden=self.hidden,
+            n_layer=self.layers,
+            cell=self.cell,
+            head_hidden=self.head_hidden,
+        )

@@ -1,0 +1,132 @@
+"""Seed ensembles: train ``members`` networks (seeds ``seed, seed + 1, ...``) and merge them."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from ..config import to_dict
+from ..data.dataset import Dataset
+from ..errors import ExsurError
+from ..io_utils import log
+from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
+from ..surrogate.ensemble import merge
+from ..surrogate.validation import free_run_error
+from .batches import split_episodes
+from .config import TrainConfig
+from .loop import train_network
+from .records import write_config, write_log
+
+
+def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
+    """The single-network configs of ``cfg``'s ensemble members (seeds ``seed + i``)."""
+    return [
+        replace(cfg, members=1, member_workers=0, seed=cfg.seed + i) for i in range(cfg.members)
+    ]
+
+
+def _member_job(
+    index: int, cfg: TrainConfig, dataset: Dataset, out: Path
+) -> tuple[str, str | None]:
+    """Train one member in a worker process; returns ``(best_path, error message or None)``."""
+    from ..io_utils import set_log_tag
+
+    set_log_tag(f"exsur member {index}")
+    try:
+        return str(train_network(cfg, dataset, out=out, show_progress=False)), None
+    except ExsurError as e:  # user errors cross the process boundary as their one-line message
+        return "", str(e)
+
+
+def train_ensemble(
+    cfg: TrainConfig, dataset: Dataset, *, out: str | Path, show_progress: bool | None = None
+) -> Path:
+    """Train ``cfg.members`` networks with seeds ``seed, seed + 1, ...`` and merge them.
+
+    Each member is trained exactly as one network is trained, into ``OUT/member_<i>/`` (its own
+    ``best.pt``, ``log.csv``, selection by its own validation free run), in up to
+    ``cfg.member_workers`` parallel processes.  The members' best checkpoints are merged by
+    :func:`~excavator_surrogate.surrogate.ensemble.merge` into ``OUT/best.pt`` (omega = the
+    members' mean), whose validation free run is scored and stored in its metrics;
+    ``OUT/log.csv`` has one row per member and one for the ensemble.
+
+    Returns:
+        Path of ``OUT/best.pt``.
+    """
+    import multiprocessing
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+
+    _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    cfgs = member_configs(cfg)
+    dirs = [out / f"member_{i}" for i in range(cfg.members)]
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    workers = min(cfg.member_workers or cpus or 1, cfg.members)
+    write_config(out, cfg)
+    log(
+        f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
+        f"{workers} in parallel, into {out}/member_*"
+    )
+    t0 = time.monotonic()
+    if workers <= 1:
+        bests = [
+            train_network(c, dataset, out=d, show_progress=show_progress)
+            for c, d in zip(cfgs, dirs)
+        ]
+    else:
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch threads
+        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            jobs = [
+                pool.submit(_member_job, i, c, dataset, d)
+                for i, (c, d) in enumerate(zip(cfgs, dirs))
+            ]
+            results = [j.result() for j in jobs]
+        for i, (_, err) in enumerate(results):
+            if err is not None:
+                raise ExsurError(f"ensemble member {i}: {err}")
+        bests = [Path(p) for p, _ in results]
+    members = [load_checkpoint(b) for b in bests]
+    sur = merge(members)
+    sur.train_config = to_dict(cfg)
+    val = free_run_error(sur, val_eps, max_steps=cfg.val_steps or None)
+    rows: list[dict[str, Any]] = []
+    for i, m in enumerate(members):
+        mm = m.metrics or {}
+        rows.append(
+            {
+                "member": i,
+                "seed": cfgs[i].seed,
+                "epoch": mm.get("epoch"),
+                "val_error": mm.get("val_error"),
+                "val_theta_r2_min": min((mm.get("val") or {}).get("theta_r2") or [math.nan]),
+            }
+        )
+    rows.append(
+        {
+            "member": "ensemble",
+            "seed": "",
+            "epoch": "",
+            "val_error": val["val_error"],
+            "val_theta_r2_min": min(val["theta_r2"]),
+        }
+    )
+    sur.metrics = {
+        **(sur.metrics or {}),
+        "val_error": val["val_error"],
+        "val": val,
+        "best_val_error": val["val_error"],
+        "train_s": round(time.monotonic() - t0, 1),
+    }
+    best = save_checkpoint(out / "best.pt", sur, history=rows)
+    write_log(out / "log.csv", rows, fields=list(rows[0]))
+    member_vals = ", ".join(f"{r['val_error']:.4g}" for r in rows[:-1])
+    log(
+        f"seed ensemble: members' val_error {member_vals}; merged {val['val_error']:.4g} "
+        f"(min theta R2 {min(val['theta_r2']):.3f}) -> {best}"
+    )
+    return best

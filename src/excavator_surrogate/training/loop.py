@@ -1,0 +1,248 @@
+"""The epoch loop: one network, any mode, any loss, one process or many.
+
+:func:`train_network` is the only training loop.  Per epoch it asks the mode
+(:mod:`.modes`) for the epoch's batches, lets the :class:`~.parallel.Parallel` context shard
+each one, feeds the mode's predictions to the loss (:mod:`.loss`) and steps under the one NaN
+rule (:func:`~.parallel.clip_and_step`); then it validates (:mod:`.selection`), keeps
+``best.pt`` / ``last.pt`` (:mod:`.resume` reads them back) and writes ``log.csv``
+(:mod:`.records`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..config import to_dict
+from ..data.dataset import Dataset
+from ..devices import resolve_device
+from ..errors import ConfigError
+from ..io_utils import log, progress
+from ..surrogate.checkpoint import save_checkpoint
+from ..surrogate.model import Surrogate
+from .batches import make_data, split_episodes
+from .config import TrainConfig
+from .loss import LossFn, default_loss
+from .modes import Mode, make_mode
+from .optim import Optimisation, cosine_lr
+from .parallel import LrAt, Parallel, SingleProcess, rank0_deadline, rank0_lr
+from .records import epoch_row, tb_epoch, tb_writer, write_config, write_log
+from .resume import start
+from .selection import choose, is_better
+
+EpochCallback = Callable[[int, dict[str, Any]], bool]
+"""``on_epoch(epoch, row) -> stop``: called after every epoch (rank 0) with the ``log.csv`` row."""
+
+
+def run_epoch(
+    mode: Mode,
+    net: Any,
+    par: Parallel,
+    opt: torch.optim.Optimizer,
+    *,
+    epoch: int,
+    rng: np.random.Generator,
+    loss_fn: LossFn,
+    grad_clip: float,
+    lr_at: LrAt,
+    past: Callable[[], bool],
+    show: Callable[..., Any],
+) -> tuple[float, int]:
+    """Train one epoch; returns this rank's ``(mean loss per target sample, samples)``."""
+    batches = mode.batches(rng, par.world_size)
+    total, count = 0.0, 0
+    for batch in show(batches, total=len(batches), desc="train"):
+        index, weight, n_real = par.shard_batch(batch)
+        for y_hat, y, n_step in mode.predict(net, index, epoch):
+            loss = loss_fn(y_hat, y)
+            stepped = par.backward_step(
+                loss, weight=weight, net=net, opt=opt, grad_clip=grad_clip, lr_at=lr_at
+            )
+            if stepped and n_real:
+                total += float(loss.detach()) * n_real * n_step
+                count += n_real * n_step
+        if past():
+            break
+    return (total / count if count else math.nan), count
+
+
+def _progress(show_progress: bool | None, main: bool) -> Callable[..., Any]:
+    if show_progress is False or not main:
+        return lambda it, **kw: it
+    disable = None if show_progress is None else not show_progress
+    return lambda it, **kw: progress(it, disable=disable, **kw)
+
+
+def train_network(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    out: str | Path,
+    resume: str | Path | None = None,
+    show_progress: bool | None = None,
+    on_epoch: EpochCallback | None = None,
+    par: Parallel | None = None,
+    loss: LossFn | None = None,
+) -> Path:
+    """Train one network (see :func:`~excavator_surrogate.training.api.train`); returns ``best.pt``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if par is None:
+        try:
+            par = SingleProcess(device=resolve_device(cfg.device))
+        except ConfigError as e:
+            raise ConfigError(f"[train] {e}") from e
+    main = par.is_main
+    say = log if main else (lambda msg: None)
+    loss_fn = loss if loss is not None else default_loss(lambda_bias=cfg.lambda_bias)
+    if cfg.num_threads > 0:
+        torch.set_num_threads(cfg.num_threads)
+    spec = dataset.spec
+    train_eps, val_eps = split_episodes(cfg, dataset)
+    val_steps = cfg.val_steps or None
+
+    torch.manual_seed(cfg.seed)
+    mcfg = cfg.model_config(spec.n_feature + len(cfg.play) * spec.n_joint, spec.n_joint)
+    st = start(cfg, mcfg, spec, train_eps, resume)
+    net, history = st.net, st.history
+    for line in st.derived:
+        say(line)
+    net.to(par.device).train()
+    sur = Surrogate(
+        net=net,
+        spec=st.spec,
+        norm=st.norm.to(par.device),
+        model_cfg=mcfg,
+        mode=cfg.mode,
+        train_config=to_dict(cfg),
+        metrics={},
+        name=cfg.cell,
+        end_stops=cfg.end_stops,
+    )
+    data = make_data(train_eps, st.norm, par.device)
+    optim = Optimisation.build(cfg, sur)
+    if st.train_state:
+        optim.load(st.train_state, where=str(resume))
+        say(f"resuming from {resume} at epoch {st.epoch} (best val_error {st.best_val:.4g})")
+    best_val, bad = st.best_val, st.bad_epochs
+
+    if main:
+        write_config(out, cfg)
+    tb = tb_writer(out, cfg.tensorboard) if main else None
+    t_start = time.monotonic() - st.elapsed_s
+    budget = cfg.max_train_seconds if cfg.max_train_seconds > 0 else math.inf
+    past = rank0_deadline(par, t_start + budget)
+    show = _progress(show_progress, main)
+    mode = make_mode(cfg, data, sur)
+    dnet = par.wrap(net)
+    best_path, last_path = out / "best.pt", out / "last.pt"
+    n_param = sum(p.numel() for p in net.parameters())
+    say(
+        f"training {cfg.cell} ({n_param} parameters, {cfg.mode}) on {len(train_eps)} episode(s) "
+        f"/ {data.x.shape[0]} samples; validating on {len(val_eps)} episode(s)"
+    )
+    if par.world_size > 1:
+        per = cfg.batch_size if cfg.mode == "windowed" else cfg.seq_batch
+        say(f"data parallel: {par.world_size} ranks x batch {per} = global {per * par.world_size}")
+    cands = [("raw", sur)] + ([("ema", optim.ema_sur)] if optim.ema_sur is not None else [])
+    try:
+        for epoch in range(st.epoch, cfg.epochs):
+            rng = np.random.default_rng([cfg.seed, epoch])
+            net.train()
+            t0 = time.monotonic()
+            lr_at = rank0_lr(
+                par,
+                cosine_lr(cfg, epoch, t_start, budget),
+                timed=math.isfinite(budget) and cfg.lr_schedule == "cosine",
+            )
+            loss, n = run_epoch(
+                mode,
+                dnet,
+                par,
+                optim.opt,
+                epoch=epoch,
+                rng=rng,
+                loss_fn=loss_fn,
+                grad_clip=cfg.grad_clip,
+                lr_at=lr_at,
+                past=past,
+                show=show,
+            )
+            t1 = time.monotonic()
+            loss, n = par.global_loss(loss, n)
+            choice = choose(cands, val_eps, par, max_steps=val_steps)
+            val = choice.val
+            t2 = time.monotonic()
+            net.train()
+            lr = optim.lr
+            if cfg.lr_schedule == "plateau":
+                optim.sched.step(val["val_error"] if math.isfinite(val["val_error"]) else 1e30)
+            improved = is_better(val["val_error"], best_val, min_delta=cfg.min_delta)
+            row = epoch_row(
+                epoch,
+                times=(t_start, t0, t1, t2),
+                lr=lr,
+                loss=loss,
+                n_sample=n,
+                choice=choice,
+                improved=improved,
+                with_ema=optim.ema_sur is not None,
+            )
+            history.append(row)
+            if improved:
+                best_val, bad = val["val_error"], 0
+            else:
+                bad += 1
+            state = {
+                "epoch": epoch,
+                **optim.state(),
+                "best_val": best_val,
+                "bad_epochs": bad,
+                "elapsed_s": t2 - t_start,
+            }
+            sur.metrics = {
+                "epoch": epoch,
+                "val_error": val["val_error"],
+                "val": val,
+                "best_val_error": best_val,
+                "train_loss": loss,
+            }
+            if main:
+                if improved:
+                    choice.chosen.metrics = sur.metrics
+                    save_checkpoint(best_path, choice.chosen, history=history, train_state=state)
+                save_checkpoint(last_path, sur, history=history, train_state=state)
+                write_log(out / "log.csv", history)
+            tb_epoch(tb, epoch, loss=loss, val=val, lr=lr, names=spec.names)
+            say(
+                f"epoch {epoch}: loss {loss:.4g}, val_error {val['val_error']:.4g}, "
+                f"min theta R2 {min(val['theta_r2']):.3f}, lr {lr:.2g}, "
+                f"{'(' + choice.pick + ' weights) ' if optim.ema_sur is not None else ''}"
+                f"{t1 - t0:.1f}+{t2 - t1:.1f} s{' *' if improved else ''}"
+            )
+            stop_req = bool(on_epoch(epoch, dict(row))) if on_epoch is not None and main else False
+            over = time.monotonic() > t_start + budget
+            if par.world_size > 1:  # rank 0 decides for everyone
+                stop_req, over = par.broadcast((stop_req, over))
+            if stop_req:
+                say(f"stopping: requested after epoch {epoch}")
+                break
+            if bad >= cfg.patience:
+                say(f"early stop: no improvement for {bad} epochs")
+                break
+            if over:
+                say(f"stopping: training budget of {budget:g} s used")
+                break
+    finally:
+        if tb is not None:
+            tb.close()
+    if main and not best_path.exists():  # every epoch diverged: keep the last one
+        save_checkpoint(best_path, sur, history=history, train_state=None)
+    par.barrier()  # best.pt is complete before any rank returns its path
+    return best_path

@@ -1,0 +1,161 @@
+"""Training modes: how an epoch is cut into batches and what the net predicts for a batch.
+
+Both modes produce the same :class:`~excavator_surrogate.surrogate.model.SurrogateNet`; the
+epoch loop (:mod:`.loop`) is the same for both.  A mode has two methods:
+
+- ``batches(rng, world)``: the epoch's global batches (arrays of global sample indices);
+- ``predict(net, index, epoch)``: yields ``(y_hat, y, n_step)`` pieces for one (rank's share
+  of a) batch, one per optimiser step; the loop computes the loss, steps, then resumes the
+  generator.  ``n_step`` is the number of target steps per sequence that the piece's mean loss
+  covers (for the epoch's sample-weighted train loss).
+
+``windowed`` (paper III-B): a sample is a window of ``W`` recorded samples ending at ``t``; the
+net (zero initial state) predicts ``omega[t+1]``, which is integrated into the angle, re-encoded
+with the recorded command ``u[t+1]`` and appended to the window, ``H`` times.  Cost per epoch
+~ ``n_sample * W * H`` recurrent steps.
+
+``stateful`` (faster): random sub-sequences of ``seq_len`` samples; the first ``burn_in``
+samples are fed with recorded angles without gradient to build up ``(h, c)``; the rest is
+either teacher-forced (recorded angles, one fused recurrent call) or free-run (integrated
+angles fed back), with truncated BPTT: every ``tbptt`` steps the loss is back-propagated, the
+optimiser steps and state/angle are detached.  Cost per epoch ~ ``n_sample`` recurrent steps.
+
+Adding a mode: a class here with these two methods, registered in :data:`MODES` (its name and
+its own knobs go into :class:`~.config.TrainConfig` and ``MODE_FIELDS``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+from ..surrogate.features import integrate
+from ..surrogate.model import Surrogate
+from ..surrogate.rollout import window_rollout
+from .batches import TrainData, global_batches, sequence_starts, windowed_indices
+from .config import TrainConfig
+
+Piece = tuple[torch.Tensor, torch.Tensor, int]
+"""``(y_hat, y, n_step)``: predictions and targets ``(n_batch, n_step, n_joint)``."""
+
+
+class Mode(Protocol):
+    """A training mode (see the module docstring)."""
+
+    def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
+        """The epoch's global batches (``world`` ranks share each)."""
+        ...
+
+    def predict(self, net: Any, index: np.ndarray, epoch: int) -> Iterator[Piece]:
+        """Predictions for the samples ``index``, one piece per optimiser step."""
+        ...
+
+
+@dataclass
+class Windowed:
+    """Sliding windows with an ``H``-step rollout per sample (paper III-B)."""
+
+    cfg: TrainConfig
+    data: TrainData
+    sur: Surrogate
+    _ar: dict[str, torch.Tensor] = field(init=False, repr=False)
+    _limits: Any = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        dev, w, h = self.data.x.device, self.cfg.window, self.cfg.horizon
+        self._ar = {
+            "w": torch.arange(-w + 1, 1, device=dev),
+            "u": torch.arange(1, h, device=dev),
+            "y": torch.arange(1, h + 1, device=dev),
+        }
+        self._limits = self.sur.limits()
+
+    def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
+        """Shuffled window ends, capped at ``epoch_samples``, ``batch_size * world`` per batch."""
+        idx = windowed_indices(self.data, self.cfg.window, self.cfg.horizon)
+        rng.shuffle(idx)
+        if self.cfg.epoch_samples > 0:
+            idx = idx[: self.cfg.epoch_samples]
+        return global_batches(idx, self.cfg.batch_size * world)
+
+    def predict(self, net: Any, index: np.ndarray, epoch: int) -> Iterator[Piece]:
+        """One piece: the ``H``-step rollouts of the windows ending at ``index``."""
+        data, ar = self.data, self._ar
+        t = torch.as_tensor(index, device=data.x.device)
+        y_hat, _ = window_rollout(
+            net,
+            self.sur.norm,
+            data.x[t[:, None] + ar["w"]],
+            data.theta[t],
+            data.u[t[:, None] + ar["u"]],
+            z_next=data.z[t[:, None] + ar["u"]],
+            n_horizon=self.cfg.horizon,
+            dt=self.sur.spec.dt,
+            limits=self._limits,
+        )
+        yield y_hat, data.y[t[:, None] + ar["y"]], 1
+
+
+@dataclass
+class Stateful:
+    """Sub-sequences with a burn-in and truncated BPTT, teacher-forced or free-run."""
+
+    cfg: TrainConfig
+    data: TrainData
+    sur: Surrogate
+    _limits: Any = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._limits = self.sur.limits()
+
+    def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
+        """Shuffled sub-sequence starts, capped at ``epoch_samples``, ``seq_batch * world`` per batch."""
+        cfg = self.cfg
+        starts = sequence_starts(self.data, cfg.seq_len, cfg.burn_in, rng)
+        rng.shuffle(starts)
+        if cfg.epoch_samples > 0:
+            starts = starts[: max(1, cfg.epoch_samples // (cfg.seq_len - cfg.burn_in + 1))]
+        return global_batches(starts, cfg.seq_batch * world)
+
+    def predict(self, net: Any, index: np.ndarray, epoch: int) -> Iterator[Piece]:
+        """One piece per TBPTT chunk after the burn-in; state and angle are detached between."""
+        cfg, data, norm = self.cfg, self.data, self.sur.norm
+        dt, limits = self.sur.spec.dt, self._limits
+        teacher = cfg.feedback == "teacher" or epoch < cfg.teacher_epochs
+        s = torch.as_tensor(index, device=data.x.device)
+        g = s[:, None] + torch.arange(cfg.seq_len, device=data.x.device)
+        x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
+        z_seq = data.z[g]
+        state = net.init_state(len(s))
+        b0 = cfg.burn_in - 1  # first step whose output is in the loss
+        if b0 > 0:
+            with torch.no_grad():
+                _, state = net.forward_seq(x_seq[:, :b0], state)
+        theta = th_seq[:, b0]
+        for j0 in range(b0, cfg.seq_len, cfg.tbptt):
+            j1 = min(j0 + cfg.tbptt, cfg.seq_len)
+            if teacher:
+                y_hat, state = net.forward_seq(x_seq[:, j0:j1], state)
+            else:
+                ys = []
+                for j in range(j0, j1):
+                    y, state = net.step(norm.encode(theta, u_seq[:, j], z_seq[:, j]), state)
+                    theta, _ = integrate(theta, norm.omega(y), dt=dt, limits=limits)
+                    ys.append(y)
+                y_hat = torch.stack(ys, dim=1)
+            yield y_hat, y_seq[:, j0:j1], y_hat.shape[1]
+            state = (state[0].detach(), state[1].detach())
+            theta = theta.detach()
+
+
+MODES: dict[str, type[Windowed] | type[Stateful]] = {"windowed": Windowed, "stateful": Stateful}
+"""Training modes by ``[train] mode`` name."""
+
+
+def make_mode(cfg: TrainConfig, data: TrainData, sur: Surrogate) -> Mode:
+    """The strategy of ``cfg.mode`` over ``data`` for the surrogate ``sur``."""
+    return MODES[cfg.mode](cfg=cfg, data=data, sur=sur)

@@ -1,0 +1,87 @@
+"""Optimiser, learning-rate schedules and the weight average (EMA) of one training run."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import torch
+
+from ..errors import CheckpointError
+from ..surrogate.model import Surrogate
+from .config import TrainConfig
+from .parallel import LrAt
+
+
+@dataclass
+class Optimisation:
+    """Adam, ReduceLROnPlateau and the optional EMA copy of the weights."""
+
+    opt: torch.optim.Optimizer
+    sched: Any  # torch.optim.lr_scheduler.ReduceLROnPlateau
+    ema_sur: Surrogate | None
+    """The surrogate with the averaged weights (None: ``ema_decay = 0``)."""
+
+    @classmethod
+    def build(cls, cfg: TrainConfig, sur: Surrogate) -> Optimisation:
+        """Fresh optimiser state for ``sur.net``."""
+        net = sur.net
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+        ema_sur: Surrogate | None = None
+        if cfg.ema_decay > 0:
+            ema = torch.optim.swa_utils.AveragedModel(
+                net, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(cfg.ema_decay)
+            )
+            opt.register_step_post_hook(lambda *_: ema.update_parameters(net))
+            ema_sur = replace(sur, net=ema.module)
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            opt,
+            mode="min",
+            factor=cfg.plateau_factor,
+            patience=cfg.plateau_patience,
+            min_lr=cfg.min_lr,
+        )
+        return cls(opt=opt, sched=sched, ema_sur=ema_sur)
+
+    def state(self) -> dict[str, Any]:
+        """Optimiser and scheduler state for ``last.pt``."""
+        return {"optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict()}
+
+    def load(self, ts: dict[str, Any], *, where: str) -> None:
+        """Restore :meth:`state` from a checkpoint's ``train_state``.
+
+        Raises:
+            CheckpointError: the state does not fit this optimiser.
+        """
+        try:
+            self.opt.load_state_dict(ts["optimizer"])
+            self.sched.load_state_dict(ts["scheduler"])
+        except (KeyError, ValueError, TypeError) as e:
+            raise CheckpointError(
+                f"{where}: optimiser state does not fit ({e}); resume from a matching last.pt"
+            ) from e
+
+    @property
+    def lr(self) -> float:
+        """Current learning rate."""
+        return float(self.opt.param_groups[0]["lr"])
+
+
+def cosine_lr(cfg: TrainConfig, epoch: int, t_start: float, budget: float) -> LrAt:
+    """Per-step learning rate of the cosine schedule (None: leave it to ReduceLROnPlateau).
+
+    Progress = max(epoch / epochs, elapsed / budget), clipped to 1.
+    """
+    if cfg.lr_schedule != "cosine":
+        return lambda: None
+
+    def lr() -> float:
+        progress = epoch / cfg.epochs
+        if math.isfinite(budget):
+            progress = max(progress, (time.monotonic() - t_start) / budget)
+        progress = min(progress, 1.0)
+        return cfg.min_lr + 0.5 * (cfg.lr - cfg.min_lr) * (1.0 + math.cos(math.pi * progress))
+
+    return lr

@@ -1,0 +1,110 @@
+"""What a training run writes besides checkpoints: ``config.toml``, ``log.csv``, TensorBoard."""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from ..config import dumps_toml, to_dict
+from ..io_utils import log, write_text
+from .config import TrainConfig
+from .selection import Choice
+
+LOG_FIELDS = (
+    "epoch",
+    "time_s",
+    "epoch_s",
+    "val_s",
+    "lr",
+    "train_loss",
+    "n_sample",
+    "val_error",
+    "val_theta_r2_min",
+    "best",
+    "val_error_raw",
+    "val_error_ema",
+    "weights",
+)
+"""Columns of a single network's ``log.csv`` (one row per epoch)."""
+
+
+def epoch_row(
+    epoch: int,
+    *,
+    times: tuple[float, float, float, float],
+    lr: float,
+    loss: float,
+    n_sample: int,
+    choice: Choice,
+    improved: bool,
+    with_ema: bool,
+) -> dict[str, Any]:
+    """One ``log.csv`` row.  ``times``: monotonic clock at the run's start, the epoch's start,
+    the end of its training and the end of its validation [s]."""
+    t_start, t0, t1, t2 = times
+    val = choice.val
+    row: dict[str, Any] = {
+        "epoch": epoch,
+        "time_s": round(t2 - t_start, 3),
+        "epoch_s": round(t1 - t0, 3),
+        "val_s": round(t2 - t1, 3),
+        "lr": lr,
+        "train_loss": loss,
+        "n_sample": n_sample,
+        "val_error": val["val_error"],
+        "val_theta_r2_min": min(val["theta_r2"]),
+        "best": int(improved),
+    }
+    if with_ema:
+        row.update(
+            val_error_raw=choice.vals["raw"]["val_error"],
+            val_error_ema=choice.vals["ema"]["val_error"],
+            weights=choice.pick,
+        )
+    return row
+
+
+def write_config(out: Path, cfg: TrainConfig) -> None:
+    """``OUT/config.toml``: the ``[train]`` table that produced the run."""
+    write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg)}))
+
+
+def write_log(
+    path: Path, history: list[dict[str, Any]], fields: Sequence[str] = LOG_FIELDS
+) -> None:
+    """``history`` rows as CSV with ``fields`` as columns (extra keys ignored)."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(fields), extrasaction="ignore")
+    w.writeheader()
+    for row in history:
+        w.writerow(row)
+    write_text(path, buf.getvalue())
+
+
+def tb_writer(out: Path, enabled: bool) -> Any:
+    """A TensorBoard ``SummaryWriter`` on ``OUT/tb`` (None: disabled or not installed)."""
+    if not enabled:
+        return None
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except Exception:  # tensorboard not installed
+        log("tensorboard is not installed; skipping TensorBoard logs (pip install tensorboard)")
+        return None
+    return SummaryWriter(log_dir=str(out / "tb"))
+
+
+def tb_epoch(
+    tb: Any, epoch: int, *, loss: float, val: dict[str, Any], lr: float, names: Sequence[str]
+) -> None:
+    """One epoch's scalars (no-op for ``tb`` None)."""
+    if tb is None:
+        return
+    tb.add_scalar("loss/train", loss, epoch)
+    tb.add_scalar("val/error", min(val["val_error"], 1e6), epoch)
+    tb.add_scalar("lr", lr, epoch)
+    for name, r2 in zip(names, val["theta_r2"]):
+        tb.add_scalar(f"val_theta_r2/{name}", max(r2, -10.0), epoch)
+    tb.flush()

@@ -1,0 +1,105 @@
+"""Starting a run: a fresh network, or the network and training state of a checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..data.episode import Episode
+from ..errors import CheckpointError
+from ..spec import MachineSpec
+from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
+from ..surrogate.envelope import fill_envelope
+from ..surrogate.features import Normalization
+from ..surrogate.model import ModelConfig, SurrogateNet
+from .config import TrainConfig
+
+
+@dataclass
+class Start:
+    """Where a run starts: network, normalisation, and the progress of a resumed run."""
+
+    net: SurrogateNet
+    norm: Normalization
+    spec: MachineSpec
+    """The machine the net runs on: the dataset's, with the envelope completed from the
+    training data (:func:`~excavator_surrogate.surrogate.envelope.fill_envelope`), or the
+    resumed checkpoint's."""
+    derived: list[str] = field(default_factory=list)
+    """One line per joint whose bounds came from the data (for the log)."""
+    train_state: dict[str, Any] | None = None
+    """``last.pt``'s optimiser/scheduler/bookkeeping state (None: fresh run)."""
+    history: list[dict[str, Any]] = field(default_factory=list)
+    """``log.csv`` rows of the epochs already trained."""
+
+    @property
+    def epoch(self) -> int:
+        """First epoch to train."""
+        return int(self.train_state["epoch"]) + 1 if self.train_state else 0
+
+    @property
+    def best_val(self) -> float:
+        """Best validation error so far."""
+        return float(self.train_state["best_val"]) if self.train_state else float("inf")
+
+    @property
+    def bad_epochs(self) -> int:
+        """Epochs since the last improvement."""
+        return int(self.train_state["bad_epochs"]) if self.train_state else 0
+
+    @property
+    def elapsed_s(self) -> float:
+        """Wall time already spent [s]."""
+        return float(self.train_state.get("elapsed_s", 0.0)) if self.train_state else 0.0
+
+
+def start(
+    cfg: TrainConfig,
+    mcfg: ModelConfig,
+    spec: MachineSpec,
+    train_eps: list[Episode],
+    resume: str | Path | None,
+) -> Start:
+    """A fresh net (weights from the current torch seed, normalisation fitted on ``train_eps``)
+    or the state of checkpoint ``resume``.
+
+    Raises:
+        CheckpointError: ``resume`` has another architecture or other joints.
+    """
+    if resume is None:
+        derived: list[str] = []
+        if cfg.end_stops:
+            spec, bounds = fill_envelope(
+                spec, train_eps, limit_margin=cfg.limit_margin, speed_margin=cfg.speed_margin
+            )
+            for name, b in bounds.items():
+                got = [
+                    k for k in ("theta_min", "theta_max", "omega_max") if b[f"{k}_source"] == "data"
+                ]
+                if got:
+                    derived.append(
+                        f"{name}: {', '.join(f'{k} {b[k]:.4g}' for k in got)} from the training data"
+                    )
+        norm = Normalization.fit(
+            [e.theta for e in train_eps], [e.u for e in train_eps], spec, play=cfg.play
+        )
+        return Start(net=SurrogateNet(mcfg), norm=norm, spec=spec, derived=derived)
+    ck = read_checkpoint(resume)
+    old = surrogate_from_dict(ck, where=str(resume))
+    if old.model_cfg != mcfg:
+        raise CheckpointError(
+            f"{resume}: architecture {old.model_cfg.to_dict()} differs from the config's {mcfg.to_dict()}; "
+            "resume with the same window/hidden/layers/cell"
+        )
+    if old.spec.names != spec.names:
+        raise CheckpointError(
+            f"{resume}: joints {list(old.spec.names)} differ from the dataset's {list(spec.names)}"
+        )
+    return Start(
+        net=old.net,
+        norm=old.norm,
+        spec=old.spec,
+        train_state=ck.get("train_state") or None,
+        history=list(ck.get("history") or []),
+    )

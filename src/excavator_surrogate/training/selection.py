@@ -1,0 +1,63 @@
+"""Model selection: validate the epoch's candidates by free run, keep the best epoch.
+
+After every epoch the candidates (the raw weights, and the weight average with ``ema_decay``)
+are rolled out in closed loop on the validation episodes on the main rank
+(:func:`~excavator_surrogate.surrogate.validation.free_run_error`); the better one competes for
+``best.pt``.  The result is broadcast, so every rank keeps the same bookkeeping.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from ..data.episode import Episode
+from ..surrogate.model import Surrogate
+from ..surrogate.validation import free_run_error
+from .parallel import Parallel
+
+
+def finite_or_inf(x: float) -> float:
+    """``x``, or +inf if it is NaN (a diverged candidate never wins)."""
+    return x if math.isfinite(x) else math.inf
+
+
+@dataclass
+class Choice:
+    """The validated candidates of one epoch and the one picked."""
+
+    vals: dict[str, dict[str, Any]]
+    """Free-run scores by candidate label (``raw``, ``ema``)."""
+    pick: str
+    """Label of the better candidate."""
+    chosen: Surrogate
+    """The better candidate."""
+
+    @property
+    def val(self) -> dict[str, Any]:
+        """Scores of the chosen candidate."""
+        return self.vals[self.pick]
+
+
+def choose(
+    cands: list[tuple[str, Surrogate]],
+    val_eps: list[Episode],
+    par: Parallel,
+    *,
+    max_steps: int | None,
+) -> Choice:
+    """Validate every candidate (main rank, broadcast) and pick the lowest ``val_error``."""
+    vals = {
+        label: par.broadcast(
+            free_run_error(cand, val_eps, max_steps=max_steps) if par.is_main else None
+        )
+        for label, cand in cands
+    }
+    pick = min(vals, key=lambda k: finite_or_inf(vals[k]["val_error"]))
+    return Choice(vals=vals, pick=pick, chosen=dict(cands)[pick])
+
+
+def is_better(val_error: float, best: float, *, min_delta: float) -> bool:
+    """A validation error that counts as an improvement over ``best``."""
+    return val_error < best * (1.0 - min_delta)

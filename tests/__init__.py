@@ -1,0 +1,1 @@
+"""The test suite, a package mirroring ``src/excavator_surrogate`` (shared helpers: ``tests.helpers``)."""

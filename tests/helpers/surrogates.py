@@ -1,0 +1,91 @@
+"""Tiny untrained surrogates for tests (no training needed)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+from excavator_surrogate.data import Episode
+from excavator_surrogate.spec import EXCAVATOR, MachineSpec
+from excavator_surrogate.surrogate.features import Normalization
+from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+
+
+def drive_into_stops(net: nn.Module, drive: float, n_joint: int) -> None:
+    """Add ``+/- drive`` (alternating by joint, normalised units) to the output bias of an
+    untrained surrogate network so that its free runs reach the joint limits (end-stop tests)."""
+    if not drive:
+        return
+    last = net.linear if hasattr(net, "linear") else net.head[-1]
+    with torch.no_grad():
+        last.bias += drive * torch.tensor([(-1.0) ** j for j in range(n_joint)])
+
+
+def tiny_surrogate(
+    spec: MachineSpec = EXCAVATOR,
+    episodes: Sequence[Episode] | None = None,
+    *,
+    mode: str = "stateful",
+    cell: str = "lstm",
+    window: int = 6,
+    hidden: int = 16,
+    seed: int = 0,
+    end_stops: bool = False,
+    drive: float = 0.0,
+    play: tuple[float, ...] = (),
+) -> Surrogate:
+    """An untrained 2-layer surrogate of ``spec`` (weights from ``torch.manual_seed(seed)``).
+
+    The normalisation is fitted on ``episodes`` if given, else drawn from ``seed`` (non-trivial
+    feature statistics, slow bounded output: omega std 0.05 rad/s).  ``play``: half-widths of
+    command play features (inputs widen by ``len(play) * n_joint``).  ``drive`` adds
+    +/- ``drive`` (alternating by joint, normalised units) to the output bias so that free runs
+    reach the joint limits (end-stop tests).
+    """
+    torch.manual_seed(seed)
+    n_feature = spec.n_feature + len(play) * spec.n_joint
+    cfg = ModelConfig(
+        n_feature=n_feature,
+        n_joint=spec.n_joint,
+        window=window,
+        hidden=hidden,
+        n_layer=2,
+        cell=cell,
+        head_hidden=hidden,
+    )
+    if episodes is not None:
+        norm = Normalization.fit(
+            [e.theta for e in episodes], [e.u for e in episodes], spec, play=play
+        )
+    else:
+        rng = np.random.default_rng(seed)
+        norm = Normalization.from_arrays(
+            x_mean=rng.normal(size=n_feature) * 0.1,
+            x_std=1.0 + rng.random(n_feature),
+            y_mean=np.zeros(spec.n_joint),
+            y_std=np.full(spec.n_joint, 0.05),
+            spec=spec,
+            play=play,
+        )
+    net = build_net(cfg).eval()
+    drive_into_stops(net, drive, spec.n_joint)
+    return Surrogate(
+        net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
+    )
+
+
+def make_surrogate(
+    spec: MachineSpec,
+    episodes: Sequence[Episode],
+    *,
+    mode: str = "windowed",
+    window: int = 8,
+    hidden: int = 12,
+    **kw,
+) -> Surrogate:
+    """:func:`tiny_surrogate` with the normalisation fitted on ``episodes`` (windowed, W = 8,
+    12 units unless given)."""
+    return tiny_surrogate(spec, episodes, mode=mode, window=window, hidden=hidden, **kw)
