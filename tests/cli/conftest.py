@@ -11,7 +11,7 @@ from excavator_surrogate.data import write_dataset
 from excavator_surrogate.surrogate.synthetic import synthetic_spec, synthetic_split
 
 TINY_TRAIN = (
-    "[train]\nwindow = 6\nhidden = 8\nhead_hidden = 8\nbatch_size = 64\ntensorboard = false\n"
+    "[train]\nwindow = 6\nhidden = 8\nhead_hidden = 8\ntensorboard = false\n"
     'seq_len = 40\nburn_in = 6\ntbptt = 10\nmode = "stateful"\n'
 )
 

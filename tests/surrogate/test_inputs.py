@@ -250,7 +250,7 @@ def test_env_action_with_inputs_or_fixed(rpm_dataset, tmp_path):
 
 def test_train_with_inputs(rpm_dataset, tmp_path):
     """``train`` on a dataset with inputs: the checkpoint's model reads them (feature width)."""
-    from excavator_surrogate.surrogate import train
+    from excavator_surrogate.training import train
     from tests.helpers.training import tiny_train_config as tiny_stateful_config
 
     best = train(
@@ -258,7 +258,8 @@ def test_train_with_inputs(rpm_dataset, tmp_path):
     )
     sur = load_checkpoint(best)
     spec = rpm_dataset.spec
-    assert sur.spec == spec and sur.model_cfg.n_feature == spec.n_feature + spec.n_joint
+    assert sur.spec.mismatch(spec) is None and sur.spec.inputs == spec.inputs
+    assert sur.model_cfg.n_feature == spec.n_feature + spec.n_joint
     ep = rpm_dataset.val[0]
     theta_hat, _ = rollout(sur, ep.theta[None], ep.u[None])
     assert theta_hat.shape == (1, ep.n_step, 2) and np.isfinite(theta_hat).all()
