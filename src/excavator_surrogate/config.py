@@ -45,7 +45,9 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     p = Path(str(name_or_path))
     if p.suffix == ".toml" or p.is_file():
         if not p.exists():
-            raise ConfigError(f"{p}: preset file not found (give a shipped name: {', '.join(preset_names())})")
+            raise ConfigError(
+                f"{p}: preset file not found (give a shipped name: {', '.join(preset_names())})"
+            )
         text = p.read_text()
         where = str(p)
     else:
@@ -61,7 +63,9 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: invalid TOML ({e})") from e
     base = data.pop("extends", None)
-    own_name = data.get("name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path))
+    own_name = data.get(
+        "name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path)
+    )
     if base is not None:
         merged = load_preset(base)
         for k, v in data.items():

@@ -128,7 +128,9 @@ class MachineSpec:
                 meta=dict(d.get("meta", {})),
             )
         except (KeyError, TypeError) as e:
-            raise ConfigError(f"malformed machine spec ({e}): expected keys name, rate_hz, joints") from e
+            raise ConfigError(
+                f"malformed machine spec ({e}): expected keys name, rate_hz, joints"
+            ) from e
 
 
 def excavator_spec(rate_hz: float = 20.0) -> MachineSpec:

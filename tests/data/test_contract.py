@@ -29,9 +29,21 @@ def make_episode(spec: MachineSpec = EXCAVATOR, n: int = 50, *, name: str = "ep"
     u = rng.uniform(-1000, 1000, (n, spec.n_joint))
     omega = rng.normal(size=(n, spec.n_joint)) * 0.1
     theta = np.cumsum(omega, axis=0) * spec.dt
-    return Episode(spec=spec, time=t, u=u, theta=theta, omega=omega, theta_true=theta.copy(),
-                   omega_true=omega.copy(), trusted=np.ones((n, spec.n_joint), bool),
-                   source="test", condition="noload", seed=7, generator={"kind": "unit"}, name=name)
+    return Episode(
+        spec=spec,
+        time=t,
+        u=u,
+        theta=theta,
+        omega=omega,
+        theta_true=theta.copy(),
+        omega_true=omega.copy(),
+        trusted=np.ones((n, spec.n_joint), bool),
+        source="test",
+        condition="noload",
+        seed=7,
+        generator={"kind": "unit"},
+        name=name,
+    )
 
 
 def test_roundtrip_exact(tmp_path: Path) -> None:
@@ -41,7 +53,12 @@ def test_roundtrip_exact(tmp_path: Path) -> None:
     for role in ("time", "u", "theta", "omega", "theta_true", "omega_true", "trusted"):
         np.testing.assert_array_equal(getattr(back, role), getattr(ep, role))
     assert back.spec == ep.spec
-    assert (back.source, back.condition, back.seed, back.generator) == ("test", "noload", 7, {"kind": "unit"})
+    assert (back.source, back.condition, back.seed, back.generator) == (
+        "test",
+        "noload",
+        7,
+        {"kind": "unit"},
+    )
 
 
 def test_independent_reader_sees_columns_and_metadata(tmp_path: Path) -> None:
@@ -57,7 +74,9 @@ def test_independent_reader_sees_columns_and_metadata(tmp_path: Path) -> None:
 
 
 def test_any_joint_count(tmp_path: Path) -> None:
-    spec = MachineSpec(joints=tuple(JointSpec(f"j{i}", periodic=i == 0) for i in range(6)), rate_hz=50.0)
+    spec = MachineSpec(
+        joints=tuple(JointSpec(f"j{i}", periodic=i == 0) for i in range(6)), rate_hz=50.0
+    )
     ep = make_episode(spec)
     write_episode(tmp_path / "six.parquet", ep)
     assert read_episode(tmp_path / "six.parquet").spec.n_joint == 6
@@ -81,15 +100,31 @@ def _set(table: pa.Table, col: str, values) -> pa.Table:
 
 CASES = {
     "missing column": (lambda t: t.drop(["theta_arm"]), "column 'theta_arm'", "missing"),
-    "nan value": (lambda t: _set(t, "omega_boom", np.r_[np.zeros(10), np.nan, np.zeros(39)]),
-                  "column 'omega_boom', row 10", "non-finite"),
-    "inf value": (lambda t: _set(t, "theta_swing", np.r_[np.zeros(3), np.inf, np.zeros(46)]),
-                  "column 'theta_swing', row 3", "non-finite"),
-    "time not increasing": (lambda t: _set(t, "time", np.r_[np.arange(20), 19, np.arange(21, 50)] * 0.05),
-                            "column 'time', row 20", "strictly increasing"),
-    "wrong rate": (lambda t: _set(t, "time", np.arange(50) * 0.1), "column 'time', row 1", "1/rate_hz"),
-    "command out of range": (lambda t: _set(t, "u_bucket", np.r_[np.zeros(5), 1500.0, np.zeros(44)]),
-                             "column 'u_bucket', row 5", "outside [-1000, 1000]"),
+    "nan value": (
+        lambda t: _set(t, "omega_boom", np.r_[np.zeros(10), np.nan, np.zeros(39)]),
+        "column 'omega_boom', row 10",
+        "non-finite",
+    ),
+    "inf value": (
+        lambda t: _set(t, "theta_swing", np.r_[np.zeros(3), np.inf, np.zeros(46)]),
+        "column 'theta_swing', row 3",
+        "non-finite",
+    ),
+    "time not increasing": (
+        lambda t: _set(t, "time", np.r_[np.arange(20), 19, np.arange(21, 50)] * 0.05),
+        "column 'time', row 20",
+        "strictly increasing",
+    ),
+    "wrong rate": (
+        lambda t: _set(t, "time", np.arange(50) * 0.1),
+        "column 'time', row 1",
+        "1/rate_hz",
+    ),
+    "command out of range": (
+        lambda t: _set(t, "u_bucket", np.r_[np.zeros(5), 1500.0, np.zeros(44)]),
+        "column 'u_bucket', row 5",
+        "outside [-1000, 1000]",
+    ),
     "non-numeric": (lambda t: _set(t, "u_arm", ["x"] * 50), "column 'u_arm'", "not numeric"),
     "no metadata": (lambda t: t.replace_schema_metadata({}), "ep.parquet", "no 'exsur' metadata"),
 }
@@ -126,7 +161,9 @@ def test_write_refuses_invalid_and_leaves_nothing(tmp_path: Path) -> None:
         write_episode(tmp_path / "x.parquet", ep)
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(DataError):
-        write_dataset(tmp_path / "ds", [(make_episode(name="a"), "train"), (ep.replace(name="b"), "test")])
+        write_dataset(
+            tmp_path / "ds", [(make_episode(name="a"), "train"), (ep.replace(name="b"), "test")]
+        )
     assert list(tmp_path.iterdir()) == []
 
 

@@ -17,7 +17,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Prints one line per path; exits non-zero at the first violation.",
     )
     p.add_argument("paths", nargs="+", type=Path, help="episode .parquet files or dataset folders")
-    p.add_argument("--min-steps", type=int, default=1, help="minimum samples per episode (model window + 1)")
+    p.add_argument(
+        "--min-steps", type=int, default=1, help="minimum samples per episode (model window + 1)"
+    )
     p.set_defaults(func=run)
 
 
@@ -27,10 +29,14 @@ def run(args: argparse.Namespace) -> int:
         if path.is_dir():
             ds = load_dataset(path, min_steps=args.min_steps)
             counts = {s: len(ds.split(s)) for s in ("train", "val", "test")}
-            print(f"{path}: ok, joints {list(ds.spec.names)} at {ds.spec.rate_hz:g} Hz, "
-                  f"episodes {counts}, samples {ds.n_samples()}")
+            print(
+                f"{path}: ok, joints {list(ds.spec.names)} at {ds.spec.rate_hz:g} Hz, "
+                f"episodes {counts}, samples {ds.n_samples()}"
+            )
         else:
             ep = read_episode(path, min_steps=args.min_steps)
-            print(f"{path}: ok, joints {list(ep.spec.names)} at {ep.spec.rate_hz:g} Hz, "
-                  f"{ep.n_step} samples, source {ep.source}")
+            print(
+                f"{path}: ok, joints {list(ep.spec.names)} at {ep.spec.rate_hz:g} Hz, "
+                f"{ep.n_step} samples, source {ep.source}"
+            )
     return 0

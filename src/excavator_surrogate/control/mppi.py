@@ -100,7 +100,9 @@ class MPPI:
         self.periodic = np.asarray(spec.periodic, dtype=bool)
         w = np.ones(n) if not cfg.joint_weights else np.asarray(cfg.joint_weights, dtype=float)
         if w.shape != (n,) or np.any(w < 0):
-            raise ConfigError(f"mppi.joint_weights: need {n} non-negative weights, got {w.tolist()}")
+            raise ConfigError(
+                f"mppi.joint_weights: need {n} non-negative weights, got {w.tolist()}"
+            )
         self.w = w
         self.rng = np.random.default_rng(cfg.seed)
         self.mean = np.zeros((cfg.n_horizon, n))
@@ -142,7 +144,9 @@ class MPPI:
         if self.periodic.any():
             e[..., self.periodic] = (e[..., self.periodic] + math.pi) % (2 * math.pi) - math.pi
         track = np.einsum("knj,j->k", e * e, self.w) / e.shape[1]
-        dv = np.diff(np.concatenate([np.broadcast_to(self.u_prev, v[:, :1].shape), v], axis=1), axis=1)
+        dv = np.diff(
+            np.concatenate([np.broadcast_to(self.u_prev, v[:, :1].shape), v], axis=1), axis=1
+        )
         return track + self.cfg.smooth * (dv * dv).sum(axis=(1, 2)) / v.shape[1]
 
     def plan(self, theta_ref: np.ndarray) -> np.ndarray:
@@ -164,7 +168,9 @@ class MPPI:
         self.mean = np.einsum("k,knj->nj", wts, v)
         out = self.mean[: cfg.replan].copy()
         self.u_prev = out[-1].copy()
-        self.mean = np.concatenate([self.mean[cfg.replan :], np.repeat(self.mean[-1:], cfg.replan, axis=0)])
+        self.mean = np.concatenate(
+            [self.mean[cfg.replan :], np.repeat(self.mean[-1:], cfg.replan, axis=0)]
+        )
         self.stats.plan_s.append(time.perf_counter() - t0)
         self.stats.cost.append(s_min)
         return out * self.u_scale + self.u_center

@@ -122,7 +122,7 @@ class PlantPredictor:
     def predict(self, u: np.ndarray) -> np.ndarray:
         """See :meth:`Predictor.predict`."""
         u = np.asarray(u, dtype=np.float64)
-        n_batch, n_step, _ = u.shape
+        n_batch = u.shape[0]
         tiled = getattr(self.plant.transform, "tiled", None)
         if tiled is None:
             raise ConfigError(

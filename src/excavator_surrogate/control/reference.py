@@ -56,7 +56,9 @@ def dig_reference(
             f"(swing, boom, arm, bucket), the machine has {spec.n_joint}"
         )
     if not time_scale > 0 or hold_s < 0:
-        raise ConfigError(f"dig_reference: need time_scale > 0 and hold_s >= 0, got {time_scale}, {hold_s}")
+        raise ConfigError(
+            f"dig_reference: need time_scale > 0 and hold_s >= 0, got {time_scale}, {hold_s}"
+        )
     dt = spec.dt
     poses = [_pose(spec, p) for _, _, p in DIG_CYCLE]
     n_hold = round(hold_s / dt)

@@ -89,17 +89,34 @@ def write_dataset(
         (tmp / "episodes").mkdir()
         for ep, split in items:
             if split not in SPLITS:
-                raise DataError(out, f"unknown split '{split}' for episode {ep.name}", fix=f"use one of {SPLITS}")
+                raise DataError(
+                    out,
+                    f"unknown split '{split}' for episode {ep.name}",
+                    fix=f"use one of {SPLITS}",
+                )
             if ep.spec.names != spec.names or ep.spec.rate_hz != spec.rate_hz:
-                raise DataError(out, f"episode {ep.name} has a different joint spec or rate",
-                                fix="write one dataset per machine and rate")
+                raise DataError(
+                    out,
+                    f"episode {ep.name} has a different joint spec or rate",
+                    fix="write one dataset per machine and rate",
+                )
             if ep.name in names:
-                raise DataError(out, f"duplicate episode name '{ep.name}'", fix="give episodes unique names")
+                raise DataError(
+                    out, f"duplicate episode name '{ep.name}'", fix="give episodes unique names"
+                )
             names.add(ep.name)
             rel = f"episodes/{ep.name}.parquet"
             write_episode(tmp / rel, ep)
-            entries.append({"file": rel, "split": split, "n_step": ep.n_step,
-                            "source": ep.source, "condition": ep.condition, "seed": ep.seed})
+            entries.append(
+                {
+                    "file": rel,
+                    "split": split,
+                    "n_step": ep.n_step,
+                    "source": ep.source,
+                    "condition": ep.condition,
+                    "seed": ep.seed,
+                }
+            )
         manifest = {
             "schema_version": SCHEMA_VERSION,
             "spec": spec.to_dict(),
@@ -120,18 +137,30 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
     root = Path(root)
     mpath = root / MANIFEST
     if not root.is_dir():
-        raise DataError(root, "dataset folder not found", fix="run 'exsur simulate' or 'exsur import' first")
+        raise DataError(
+            root, "dataset folder not found", fix="run 'exsur simulate' or 'exsur import' first"
+        )
     if not mpath.exists():
-        raise DataError(mpath, "manifest.json is missing", fix="a dataset folder is written by 'exsur simulate' or 'exsur import'")
+        raise DataError(
+            mpath,
+            "manifest.json is missing",
+            fix="a dataset folder is written by 'exsur simulate' or 'exsur import'",
+        )
     try:
         manifest = json.loads(mpath.read_text())
     except json.JSONDecodeError as e:
-        raise DataError(mpath, f"invalid JSON at line {e.lineno}", fix="regenerate the dataset") from e
+        raise DataError(
+            mpath, f"invalid JSON at line {e.lineno}", fix="regenerate the dataset"
+        ) from e
     if not isinstance(manifest, dict) or not isinstance(manifest.get("episodes"), list):
         raise DataError(mpath, "no 'episodes' list", fix="regenerate the dataset")
     for i, e in enumerate(manifest["episodes"]):
         if not isinstance(e, dict) or "file" not in e or e.get("split") not in SPLITS:
-            raise DataError(mpath, f"episode entry {i} needs 'file' and 'split' in {SPLITS}", fix="fix or regenerate the manifest")
+            raise DataError(
+                mpath,
+                f"episode entry {i} needs 'file' and 'split' in {SPLITS}",
+                fix="fix or regenerate the manifest",
+            )
     return manifest
 
 
@@ -158,5 +187,7 @@ def load_dataset(
             spec = ep.spec
         ds_eps[e["split"]].append(ep)
     if spec is None:
-        raise DataError(root / MANIFEST, "dataset has no episodes and no spec", fix="regenerate the dataset")
+        raise DataError(
+            root / MANIFEST, "dataset has no episodes and no spec", fix="regenerate the dataset"
+        )
     return Dataset(spec=spec, episodes=ds_eps, root=root, manifest=manifest)

@@ -198,17 +198,24 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     try:
         schema = pq.read_schema(path)
     except Exception as e:  # pyarrow raises several types for corrupt files
-        raise DataError(path, f"not a readable Parquet file ({type(e).__name__})",
-                        fix="re-export the episode as Parquet, or use 'exsur import' for CSV logs") from e
+        raise DataError(
+            path,
+            f"not a readable Parquet file ({type(e).__name__})",
+            fix="re-export the episode as Parquet, or use 'exsur import' for CSV logs",
+        ) from e
     raw = (schema.metadata or {}).get(META_KEY)
     if raw is None:
-        raise DataError(path, "no 'exsur' metadata in the Parquet schema",
-                        fix="this is not an exsur episode; convert logs with 'exsur import'")
+        raise DataError(
+            path,
+            "no 'exsur' metadata in the Parquet schema",
+            fix="this is not an exsur episode; convert logs with 'exsur import'",
+        )
     try:
         meta = json.loads(raw)
     except json.JSONDecodeError as e:
-        raise DataError(path, "the 'exsur' metadata is not valid JSON",
-                        fix="re-write the episode with exsur") from e
+        raise DataError(
+            path, "the 'exsur' metadata is not valid JSON", fix="re-write the episode with exsur"
+        ) from e
     return meta
 
 
@@ -234,24 +241,38 @@ def read_episode(
     meta = read_metadata(path)
     version = meta.get("schema_version")
     if version != SCHEMA_VERSION:
-        raise DataError(path, f"schema_version {version!r} is not supported (this exsur reads {SCHEMA_VERSION})",
-                        fix="re-create the dataset with this version of exsur")
+        raise DataError(
+            path,
+            f"schema_version {version!r} is not supported (this exsur reads {SCHEMA_VERSION})",
+            fix="re-create the dataset with this version of exsur",
+        )
     try:
         file_spec = MachineSpec.from_dict(meta["spec"])
     except Exception as e:
-        raise DataError(path, f"metadata 'spec' is malformed ({e})", fix="re-write the episode with exsur") from e
+        raise DataError(
+            path, f"metadata 'spec' is malformed ({e})", fix="re-write the episode with exsur"
+        ) from e
     rate = meta.get("rate_hz")
     if not isinstance(rate, int | float) or abs(float(rate) - file_spec.rate_hz) > 1e-9:
-        raise DataError(path, f"metadata rate_hz {rate!r} disagrees with the spec's {file_spec.rate_hz}",
-                        fix="re-write the episode with exsur")
+        raise DataError(
+            path,
+            f"metadata rate_hz {rate!r} disagrees with the spec's {file_spec.rate_hz}",
+            fix="re-write the episode with exsur",
+        )
     if spec is not None and spec.names != file_spec.names:
-        raise DataError(path, f"joints {list(file_spec.names)} do not match the expected {list(spec.names)}",
-                        fix="use a dataset recorded for the same machine")
+        raise DataError(
+            path,
+            f"joints {list(file_spec.names)} do not match the expected {list(spec.names)}",
+            fix="use a dataset recorded for the same machine",
+        )
     try:
         table = pq.read_table(path)
     except Exception as e:
-        raise DataError(path, f"cannot read Parquet data ({type(e).__name__}: {e})",
-                        fix="the file is corrupt; regenerate or re-import it") from e
+        raise DataError(
+            path,
+            f"cannot read Parquet data ({type(e).__name__}: {e})",
+            fix="the file is corrupt; regenerate or re-import it",
+        ) from e
     names = table.column_names
     dup = sorted({c for c in names if names.count(c) > 1})
     if dup:
@@ -260,18 +281,30 @@ def read_episode(
     required = ["time", *cols["u"], *cols["theta"], *cols["omega"]]
     for c in required:
         if c not in names:
-            raise DataError(path, "required column is missing", column=c,
-                            fix=f"an episode for joints {list(file_spec.names)} needs time, u_*, theta_*, omega_*")
+            raise DataError(
+                path,
+                "required column is missing",
+                column=c,
+                fix=f"an episode for joints {list(file_spec.names)} needs time, u_*, theta_*, omega_*",
+            )
 
     def num(c: str) -> np.ndarray:
         col = table.column(c)
         if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type)):
-            raise DataError(path, f"values are of type {col.type}, not numeric", column=c,
-                            fix="store numbers only")
+            raise DataError(
+                path,
+                f"values are of type {col.type}, not numeric",
+                column=c,
+                fix="store numbers only",
+            )
         if col.null_count:
             arr = col.to_numpy(zero_copy_only=False)
-            row = int(np.flatnonzero(np.isnan(arr.astype(float)))[0]) if arr.dtype.kind == "f" else 0
-            raise DataError(path, "contains a null value", column=c, row=row, fix="fill or drop the gap")
+            row = (
+                int(np.flatnonzero(np.isnan(arr.astype(float)))[0]) if arr.dtype.kind == "f" else 0
+            )
+            raise DataError(
+                path, "contains a null value", column=c, row=row, fix="fill or drop the gap"
+            )
         return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
 
     def stack(role: str) -> np.ndarray | None:
@@ -281,7 +314,9 @@ def read_episode(
             return None
         if not all(present):
             missing = cs[present.index(False)]
-            raise DataError(path, f"optional '{role}' columns must be given for every joint", column=missing)
+            raise DataError(
+                path, f"optional '{role}' columns must be given for every joint", column=missing
+            )
         return np.stack([num(c) for c in cs], axis=1)
 
     trusted = None
@@ -289,8 +324,13 @@ def read_episode(
         if not all(c in names for c in cols["trusted"]):
             missing = next(c for c in cols["trusted"] if c not in names)
             raise DataError(path, "trusted flags must be given for every joint", column=missing)
-        trusted = np.stack([np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=bool)
-                            for c in cols["trusted"]], axis=1)
+        trusted = np.stack(
+            [
+                np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=bool)
+                for c in cols["trusted"]
+            ],
+            axis=1,
+        )
 
     ep = Episode(
         spec=file_spec,
@@ -332,11 +372,17 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
         if arr is None:
             continue
         if arr.shape != (n, spec.n_joint):
-            raise DataError(where, f"'{role}' has shape {arr.shape}, expected ({n}, {spec.n_joint})",
-                            column=cols[role][0])
+            raise DataError(
+                where,
+                f"'{role}' has shape {arr.shape}, expected ({n}, {spec.n_joint})",
+                column=cols[role][0],
+            )
     if n < min_steps:
-        raise DataError(where, f"episode has {n} samples, fewer than the {min_steps} required by the model window",
-                        fix="drop it, join it with its neighbours, or use a smaller window")
+        raise DataError(
+            where,
+            f"episode has {n} samples, fewer than the {min_steps} required by the model window",
+            fix="drop it, join it with its neighbours, or use a smaller window",
+        )
     for role in ("u", "theta", "omega", "theta_true", "omega_true"):
         arr = getattr(ep, role)
         if arr is None:
@@ -344,30 +390,53 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
         bad = ~np.isfinite(arr)
         if bad.any():
             row, k = (int(x) for x in np.argwhere(bad)[0])
-            raise DataError(where, f"non-finite value {arr[row, k]!r}", column=cols[role][k], row=row,
-                            fix="fill or drop the gap ('exsur import --nan fill' can fill short gaps)")
+            raise DataError(
+                where,
+                f"non-finite value {arr[row, k]!r}",
+                column=cols[role][k],
+                row=row,
+                fix="fill or drop the gap ('exsur import --nan fill' can fill short gaps)",
+            )
     bad_t = ~np.isfinite(ep.time)
     if bad_t.any():
-        raise DataError(where, "non-finite time", column="time", row=int(np.flatnonzero(bad_t)[0]),
-                        fix="drop rows with missing timestamps")
+        raise DataError(
+            where,
+            "non-finite time",
+            column="time",
+            row=int(np.flatnonzero(bad_t)[0]),
+            fix="drop rows with missing timestamps",
+        )
     if n >= 2:
         dts = np.diff(ep.time)
         nonmono = dts <= 0
         if nonmono.any():
             row = int(np.flatnonzero(nonmono)[0]) + 1
-            raise DataError(where, f"time is not strictly increasing ({ep.time[row - 1]!r} -> {ep.time[row]!r})",
-                            column="time", row=row, fix="sort by time and drop duplicate timestamps")
+            raise DataError(
+                where,
+                f"time is not strictly increasing ({ep.time[row - 1]!r} -> {ep.time[row]!r})",
+                column="time",
+                row=row,
+                fix="sort by time and drop duplicate timestamps",
+            )
         off = np.abs(dts - spec.dt) > RATE_RTOL * spec.dt
         if off.any():
             row = int(np.flatnonzero(off)[0]) + 1
-            raise DataError(where, f"time step {dts[row - 1]:.6g} s differs from 1/rate_hz = {spec.dt:.6g} s",
-                            column="time", row=row,
-                            fix="resample to the declared rate with 'exsur import --rate'")
+            raise DataError(
+                where,
+                f"time step {dts[row - 1]:.6g} s differs from 1/rate_hz = {spec.dt:.6g} s",
+                column="time",
+                row=row,
+                fix="resample to the declared rate with 'exsur import --rate'",
+            )
     for k, j in enumerate(spec.joints):
         col = ep.u[:, k]
         out = (col < j.u_min - 1e-9) | (col > j.u_max + 1e-9)
         if out.any():
             row = int(np.flatnonzero(out)[0])
-            raise DataError(where, f"command {col[row]:.6g} outside [{j.u_min:g}, {j.u_max:g}]",
-                            column=cols["u"][k], row=row,
-                            fix="clip commands to the range or fix the command scale in the import mapping")
+            raise DataError(
+                where,
+                f"command {col[row]:.6g} outside [{j.u_min:g}, {j.u_max:g}]",
+                column=cols["u"][k],
+                row=row,
+                fix="clip commands to the range or fix the command scale in the import mapping",
+            )
