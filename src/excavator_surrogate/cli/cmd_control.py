@@ -44,6 +44,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--rl-envs", type=int, default=128, metavar="N", help="parallel envs per PPO run"
     )
+    p.add_argument(
+        "--rl-eval", type=int, default=16, metavar="N", help="evaluation episodes on the plant (16)"
+    )
+    p.add_argument(
+        "--rl-episode-steps", type=int, default=300, metavar="N", help="reach episode length (300)"
+    )
     p.add_argument("--seed", type=int, default=0, help="MPPI noise and PPO seed")
     p.set_defaults(func=run)
 
@@ -63,7 +69,13 @@ def run(args: argparse.Namespace) -> int:
     mppi = MPPIConfig(
         n_sample=args.samples, n_horizon=args.horizon, replan=args.replan, seed=args.seed
     )
-    rl = RLConfig(total_steps=args.rl_steps, n_envs=args.rl_envs, seed=args.seed)
+    rl = RLConfig(
+        total_steps=args.rl_steps,
+        n_envs=args.rl_envs,
+        n_eval=args.rl_eval,
+        episode_steps=args.rl_episode_steps,
+        seed=args.seed,
+    )
     run_control(
         sur,
         args.out,

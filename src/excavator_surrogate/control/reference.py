@@ -14,16 +14,18 @@ from ..spec import MachineSpec
 
 DIG_CYCLE: tuple[tuple[str, float, tuple[float, ...]], ...] = (
     ("start", 0.0, (0.0, 0.55, 0.35, 0.35)),
-    ("approach", 3.0, (0.0, 0.40, 0.25, 0.25)),
+    ("approach", 2.0, (0.0, 0.40, 0.25, 0.25)),
     ("penetrate", 2.5, (0.0, 0.25, 0.45, 0.30)),
-    ("curl", 2.5, (0.0, 0.25, 0.65, 0.75)),
-    ("lift", 3.0, (0.0, 0.65, 0.60, 0.80)),
-    ("swing", 5.0, (0.9, 0.65, 0.60, 0.80)),
-    ("dump", 2.5, (0.9, 0.65, 0.40, 0.20)),
-    ("return", 5.0, (0.0, 0.55, 0.35, 0.35)),
+    ("curl", 4.0, (0.0, 0.25, 0.65, 0.75)),
+    ("lift", 4.5, (0.0, 0.65, 0.60, 0.80)),
+    ("swing", 4.0, (0.7, 0.65, 0.60, 0.80)),
+    ("dump", 5.0, (0.7, 0.65, 0.40, 0.20)),
+    ("return", 4.0, (0.0, 0.55, 0.35, 0.35)),
 )
-"""(phase, duration [s], pose) of one cycle; pose: radians for periodic joints, fractions of
-the range for limited ones, in the excavator's joint order (swing, boom, arm, bucket)."""
+"""(phase, duration [s], pose) of one cycle (26 s); pose: radians for periodic joints,
+fractions of the range for limited ones, in the excavator's joint order (swing, boom, arm,
+bucket).  Durations keep every joint's peak speed within 70 % of the hydraulic plant's top
+speed in that direction, and the swing's acceleration within its limit (0.24 rad/s²)."""
 
 
 def _pose(spec: MachineSpec, pose: tuple[float, ...]) -> np.ndarray:

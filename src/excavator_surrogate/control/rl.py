@@ -234,7 +234,7 @@ def train(
         "MlpPolicy",
         vec,
         n_steps=cfg.n_steps,
-        batch_size=cfg.batch_size,
+        batch_size=min(cfg.batch_size, per_update),
         n_epochs=cfg.n_epochs,
         learning_rate=cfg.learning_rate,
         gamma=cfg.gamma,
