@@ -21,6 +21,34 @@ def drive_into_stops(net: nn.Module, drive: float, n_joint: int) -> None:
         last.bias += drive * torch.tensor([(-1.0) ** j for j in range(n_joint)])
 
 
+def tiny_net(
+    spec: MachineSpec,
+    *,
+    cell: str,
+    window: int,
+    hidden: int,
+    seed: int,
+    drive: float = 0.0,
+    play: tuple[float, ...] = (),
+) -> tuple[nn.Module, ModelConfig]:
+    """An untrained 2-layer network (eval mode) for ``spec`` (inputs widen by
+    ``len(play) * n_joint`` play features) and its config; ``drive``: see
+    :func:`drive_into_stops`."""
+    torch.manual_seed(seed)
+    cfg = ModelConfig(
+        n_feature=spec.n_feature + len(play) * spec.n_joint,
+        n_joint=spec.n_joint,
+        window=window,
+        hidden=hidden,
+        n_layer=2,
+        cell=cell,
+        head_hidden=hidden,
+    )
+    net = build_net(cfg).eval()
+    drive_into_stops(net, drive, spec.n_joint)
+    return net, cfg
+
+
 def tiny_surrogate(
     *,
     mode: str = "stateful",
@@ -39,18 +67,11 @@ def tiny_surrogate(
 
     ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias so
     that free runs reach the joint limits (end-stop tests)."""
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
-    n_feature = spec.n_feature + len(play) * spec.n_joint
-    cfg = ModelConfig(
-        n_feature=n_feature,
-        n_joint=spec.n_joint,
-        window=window,
-        hidden=hidden,
-        n_layer=2,
-        cell=cell,
-        head_hidden=hidden,
+    net, cfg = tiny_net(
+        spec, cell=cell, window=window, hidden=hidden, seed=seed, drive=drive, play=play
     )
+    rng = np.random.default_rng(seed)
+    n_feature = cfg.n_feature
     norm = Normalization.from_arrays(
         x_mean=rng.normal(size=n_feature) * 0.1,
         x_std=1.0 + rng.random(n_feature),
@@ -59,8 +80,6 @@ def tiny_surrogate(
         spec=spec,
         play=play,
     )
-    net = build_net(cfg).eval()
-    drive_into_stops(net, drive, spec.n_joint)
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
     )

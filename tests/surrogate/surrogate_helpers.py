@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import torch
-
 from excavator_surrogate.data import Dataset, Episode
 from excavator_surrogate.spec import MachineSpec
-from excavator_surrogate.surrogate import ModelConfig, Normalization, Surrogate, TrainConfig
-from excavator_surrogate.surrogate.model import build_net
+from excavator_surrogate.surrogate import Normalization, Surrogate, TrainConfig
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
-from shared_helpers import drive_into_stops
+from shared_helpers import tiny_net
 
 
 def make_surrogate(
@@ -29,18 +26,9 @@ def make_surrogate(
 
     ``play``: half-widths of command play features.  ``drive`` adds +/- ``drive`` (alternating by joint, normalised units) to the output bias,
     so that the free run runs into the joint limits (for end-stop tests)."""
-    torch.manual_seed(seed)
-    cfg = ModelConfig(
-        n_feature=spec.n_feature + len(play) * spec.n_joint,
-        n_joint=spec.n_joint,
-        window=window,
-        hidden=hidden,
-        n_layer=2,
-        cell=cell,
-        head_hidden=hidden,
+    net, cfg = tiny_net(
+        spec, cell=cell, window=window, hidden=hidden, seed=seed, drive=drive, play=play
     )
-    net = build_net(cfg).eval()
-    drive_into_stops(net, drive, spec.n_joint)
     norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec, play=play)
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops

@@ -28,13 +28,17 @@ bucket).  Durations keep every joint's peak speed within 70 % of the hydraulic p
 speed in that direction, and the swing's acceleration within its limit (0.24 rad/s²)."""
 
 
-def _pose(spec: MachineSpec, pose: tuple[float, ...]) -> np.ndarray:
+def pose(spec: MachineSpec, values: tuple[float, ...]) -> np.ndarray:
+    """Angles (n_joint,) [rad] from ``values``: radians for periodic (or unlimited) joints,
+    fractions of the range for limited ones."""
+    if len(values) != spec.n_joint:
+        raise ConfigError(f"pose: need {spec.n_joint} values, got {len(values)}")
     out = np.empty(spec.n_joint)
     for k, j in enumerate(spec.joints):
         if j.periodic or j.theta_min is None or j.theta_max is None:
-            out[k] = pose[k]
+            out[k] = values[k]
         else:
-            out[k] = j.theta_min + pose[k] * (j.theta_max - j.theta_min)
+            out[k] = j.theta_min + values[k] * (j.theta_max - j.theta_min)
     return out
 
 
@@ -62,7 +66,7 @@ def dig_reference(
             f"dig_reference: need time_scale > 0 and hold_s >= 0, got {time_scale}, {hold_s}"
         )
     dt = spec.dt
-    poses = [_pose(spec, p) for _, _, p in DIG_CYCLE]
+    poses = [pose(spec, p) for _, _, p in DIG_CYCLE]
     n_hold = round(hold_s / dt)
     rows = [np.repeat(poses[0][None], n_hold + 1, axis=0)]
     phases = [("hold", 0.0)]

@@ -76,25 +76,11 @@ class RLConfig:
             )
 
 
-def target_pose(spec: MachineSpec, target: tuple[float, ...]) -> np.ndarray:
-    """Target angles (n_joint,) [rad] from radians (periodic) / range fractions (limited)."""
-    if len(target) != spec.n_joint:
-        raise ConfigError(f"rl.target: need {spec.n_joint} values, got {len(target)}")
-    out = np.empty(spec.n_joint)
-    for k, j in enumerate(spec.joints):
-        if j.periodic or j.theta_min is None or j.theta_max is None:
-            out[k] = target[k]
-        else:
-            out[k] = j.theta_min + target[k] * (j.theta_max - j.theta_min)
-    return out
-
-
 def _task(spec: MachineSpec, cfg: RLConfig) -> Any:
     from ..env.tasks import ReachTask
+    from .reference import pose
 
-    return ReachTask(
-        spec, target=target_pose(spec, cfg.target), tol=cfg.tol, omega_tol=cfg.omega_tol
-    )
+    return ReachTask(spec, target=pose(spec, cfg.target), tol=cfg.tol, omega_tol=cfg.omega_tol)
 
 
 def _plant_env(spec: MachineSpec, cfg: RLConfig) -> Any:
