@@ -9,6 +9,7 @@ import pytest
 
 from excavator_surrogate.control.predict import PlantPredictor, SurrogatePredictor
 from excavator_surrogate.env.mujoco_env import ExcavatorMujocoEnv
+from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.simulate.hydraulics import HydraulicTransform
 from excavator_surrogate.surrogate.rollout import ClosedLoop
 from shared_helpers import tiny_surrogate
@@ -88,3 +89,30 @@ def test_tiled_transform_continues_the_history() -> None:
     ref = tr(more)
     for i in range(3):
         np.testing.assert_array_equal(out[i], ref[0])
+
+
+def test_bias_correction_adds_the_measured_velocity_error() -> None:
+    """With bias_gain = 1 the correction is the last step's (measured - predicted) / T_s,
+    ramped over the horizon; with 0 the predictor is unchanged."""
+    sur = tiny_surrogate()
+    rng = np.random.default_rng(3)
+    theta, u_hist = _history(rng)
+    plain = SurrogatePredictor(sur, n_batch=K)
+    fixed = SurrogatePredictor(sur, n_batch=K, bias_gain=1.0)
+    for p in (plain, fixed):
+        p.reset(theta[0])
+        for k in range(N_HIST):
+            p.observe(u_hist[k], theta[k + 1])
+    # the last one-step prediction of the synced engine, redone by hand
+    ref = SurrogatePredictor(sur, n_batch=K)
+    ref.reset(theta[0])
+    for k in range(N_HIST - 1):
+        ref.observe(u_hist[k], theta[k + 1])
+    pred, _ = ref.sync.step(u_hist[-1][None])
+    b = (theta[-1] - pred[0].numpy()) / sur.spec.dt
+    np.testing.assert_allclose(fixed.bias, b, atol=1e-9)
+    u = rng.uniform(-1000, 1000, (K, N, 4))
+    ramp = np.arange(1, N + 1)[:, None] * sur.spec.dt
+    np.testing.assert_allclose(fixed.predict(u), plain.predict(u) + ramp * b, atol=1e-9)
+    with pytest.raises(ConfigError, match="bias_gain"):
+        SurrogatePredictor(sur, n_batch=K, bias_gain=2.0)

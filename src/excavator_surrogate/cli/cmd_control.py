@@ -34,6 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="machine samples per MPPI control step (2)",
     )
     p.add_argument(
+        "--bias-gain",
+        type=float,
+        default=0.1,
+        help="velocity-bias correction of the surrogate's predictions (0: off; default 0.1)",
+    )
+    p.add_argument(
         "--time-scale", type=float, default=1.0, help="stretch the digging reference (1.0)"
     )
     p.add_argument("--no-oracle", action="store_true", help="skip MPPI through the plant model")
@@ -86,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         do_rl=not args.no_rl,
         oracle=not args.no_oracle,
         time_scale=args.time_scale,
+        bias_gain=args.bias_gain,
         log=log,
     )
     print((args.out / "report.md").read_text(), end="")

@@ -53,25 +53,41 @@ class SurrogatePredictor:
         sur: the surrogate (any LSTM/GRU checkpoint; stateful or windowed).
         n_batch: candidates per call (the batch of the rollout engine).
         mode: ``stateful`` / ``windowed``; default: the checkpoint's mode.
+        bias_gain: weight ``a`` of the velocity-bias estimate (offset-free MPC): after every
+            measured step, ``b ← (1 - a) b + a (θ_measured - θ_predicted) / T_s`` from the
+            synced engine's own one-step prediction, and ``predict`` adds ``b · T_s · (n + 1)``
+            to sample ``n`` of every candidate; 0 (default) switches it off.
     """
 
-    def __init__(self, sur: Surrogate, *, n_batch: int, mode: str | None = None) -> None:
+    def __init__(
+        self, sur: Surrogate, *, n_batch: int, mode: str | None = None, bias_gain: float = 0.0
+    ) -> None:
         from ..env.engine import SurrogateEngine
 
         self.spec = sur.spec
         self.sync = SurrogateEngine(sur, n_envs=1, mode=mode)  # type: ignore[arg-type]
         self.batch = SurrogateEngine(sur, n_envs=n_batch, mode=mode)  # type: ignore[arg-type]
         self.n_batch = int(n_batch)
+        if not 0.0 <= bias_gain <= 1.0:
+            raise ConfigError(f"SurrogatePredictor: bias_gain must be in [0, 1], got {bias_gain}")
+        self.bias_gain = float(bias_gain)
+        self.bias = np.zeros(sur.spec.n_joint)
+        """Velocity-bias estimate (n_joint,) [rad/s] (zero unless ``bias_gain > 0``)."""
 
     def reset(self, theta0: np.ndarray) -> None:
         """At rest at ``theta0`` (n_joint,): the engine's at-rest warm-up."""
         self.sync.reset(np.asarray(theta0, dtype=np.float64)[None])
+        self.bias[:] = 0.0
 
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
         """Consume the applied ``u`` from the current (measured) angle, then take the measured
         ``theta`` as the new current angle."""
-        self.sync.step(np.asarray(u, dtype=np.float64)[None])
-        self.sync.observe(np.asarray(theta, dtype=np.float64)[None])
+        pred, _ = self.sync.step(np.asarray(u, dtype=np.float64)[None])
+        theta = np.asarray(theta, dtype=np.float64)
+        if self.bias_gain:
+            err = (theta - pred[0].cpu().numpy()) / self.spec.dt
+            self.bias += self.bias_gain * (err - self.bias)
+        self.sync.observe(theta[None])
 
     @torch.inference_mode()
     def predict(self, u: np.ndarray) -> np.ndarray:
@@ -88,6 +104,9 @@ class SurrogatePredictor:
         for k in range(n_step):
             theta, _ = self.batch.step(u_t[:, k])
             out[:, k] = theta
+        if self.bias_gain:
+            ramp = np.arange(1, n_step + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
+            return out.numpy() + ramp * self.bias
         return out.numpy()
 
 

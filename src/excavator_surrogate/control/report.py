@@ -69,7 +69,9 @@ def goals(metrics: dict[str, Any]) -> dict[str, bool]:
     rl = metrics.get("rl")
     if rl:
         s, p = rl["surrogate"]["plant"]["success"], rl["plant"]["plant"]["success"]
-        g["rl_success_90pct_of_plant_trained"] = bool(p > 0 and s >= SUCCESS_RATIO_MIN * p)
+        # met when the surrogate-trained policy succeeds at all and reaches 90 % of the
+        # plant-trained one (both failing is no evidence either way: not met)
+        g["rl_success_90pct_of_plant_trained"] = bool(s > 0 and s >= SUCCESS_RATIO_MIN * p)
         g["rl_trains_5x_faster"] = bool(rl["train_speedup"] >= TRAIN_SPEEDUP_MIN)
     return g
 
@@ -82,6 +84,7 @@ def rl_metrics(res: dict[str, Any]) -> dict[str, Any]:
         "surrogate": res["surrogate"],
         "plant": res["plant"],
         "curve": res.get("curve", []),
+        "curve_plant_trained": res.get("curve_plant_trained", []),
         "train_speedup": res["plant"]["train_s"] / max(res["surrogate"]["train_s"], 1e-12),
     }
     p = res["plant"]["plant"]["success"]
@@ -121,12 +124,18 @@ def plot_curve(path: Path, rl: dict[str, Any]) -> None:
     steps = [p["steps"] for p in curve]
     for key, style in (("plant", "o-"), ("surrogate", "s--")):
         ax.plot(steps, [p[key]["return"] for p in curve], style, label=f"return on the {key}")
-    ax.axhline(
-        rl["plant"]["plant"]["return"], color="k", lw=0.8, ls=":", label="plant-trained, final"
-    )
-    ax.set_xlabel("env-steps (surrogate training)")
+    other = rl.get("curve_plant_trained") or []
+    if other:
+        ax.plot(
+            [p["steps"] for p in other],
+            [p["plant"]["return"] for p in other],
+            "^:",
+            color="k",
+            label="plant-trained policy, on the plant",
+        )
+    ax.set_xlabel("env-steps of training")
     ax.set_ylabel("mean episode return")
-    ax.set_title("PPO trained on the surrogate, evaluated on both")
+    ax.set_title("PPO: surrogate-trained policy on the plant and on the surrogate")
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -149,7 +158,8 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
         "",
         f"MPPI: K = {metrics['mppi_config']['n_sample']} candidates, N = "
         f"{metrics['mppi_config']['n_horizon']} samples, a plan every "
-        f"{metrics['mppi_config']['replan']} samples.",
+        f"{metrics['mppi_config']['replan']} samples; surrogate predictor bias gain "
+        f"{metrics['bias_gain']:g}.",
         "",
         "| run | " + " | ".join(f"RMSE {n} [rad]" for n in names) + " | ms / control step |",
         "|---|" + "---:|" * (len(names) + 1),
@@ -214,6 +224,7 @@ def run_control(
     do_rl: bool = True,
     oracle: bool = True,
     time_scale: float = 1.0,
+    bias_gain: float = 0.1,
     log: Any = None,
 ) -> dict[str, Any]:
     """Run tracking (and RL) on ``sur`` and write the report folder ``out``; returns the metrics."""
@@ -224,12 +235,19 @@ def run_control(
     names = tuple(sur.spec.names)
     mcfg = mppi or MPPIConfig()
     track = compare_tracking(
-        sur, plant=plant, mppi=mcfg, time_scale=time_scale, oracle=oracle, log=log
+        sur,
+        plant=plant,
+        mppi=mcfg,
+        time_scale=time_scale,
+        oracle=oracle,
+        bias_gain=bias_gain,
+        log=log,
     )
     metrics: dict[str, Any] = {
         "ckpt": ckpt,
         "plant": plant,
         "mppi_config": asdict(mcfg),
+        "bias_gain": bias_gain,
         "pi_gains": dict(zip(names, np.asarray(track["pi_gains"]).tolist())),
         "mppi": mppi_metrics(track["runs"], names),
     }

@@ -237,8 +237,8 @@ def train(
 
 def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) -> dict[str, Any]:
     """Train on the surrogate and on the plant (same env-step budget), evaluate both on the
-    plant.  Returns ``{"surrogate": {...}, "plant": {...}, "curve": [...], "config": cfg}``
-    with, per policy, ``train_s``, ``plant`` (return/success/length on the plant) and
+    plant.  Returns ``{"surrogate": {...}, "plant": {...}, "curve": [...],
+    "curve_plant_trained": [...], "config": cfg}`` with, per policy, ``train_s``, ``plant`` (return/success/length on the plant) and
     ``surrogate`` (on the surrogate, for the surrogate-trained policy)."""
     import torch
     from gymnasium.vector import AutoresetMode
@@ -267,7 +267,10 @@ def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) 
         }
         out["curve"] = res["curve"]
         say(f"PPO on the plant ({cfg.plant}): {cfg.n_envs} envs, {cfg.total_steps} env-steps")
-        res = train(plant_vector_env(spec, cfg, cfg.n_envs, same), cfg, log=say)
+        res = train(
+            plant_vector_env(spec, cfg, cfg.n_envs, same), cfg, evals={"plant": ev_plant}, log=say
+        )
+        out["curve_plant_trained"] = res["curve"]
         pol = _policy(res["model"], res["low"], res["high"])
         out["plant"] = {
             "train_s": res["train_s"],

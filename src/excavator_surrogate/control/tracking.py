@@ -193,6 +193,7 @@ def compare_tracking(
     mppi: MPPIConfig | None = None,
     time_scale: float = 1.0,
     oracle: bool = True,
+    bias_gain: float = 0.1,
     log: Any = None,
 ) -> dict[str, Any]:
     """MPPI through the surrogate, MPPI through the plant model (oracle) and PI on the plant.
@@ -203,6 +204,8 @@ def compare_tracking(
         mppi: planner options (the same for surrogate and oracle).
         time_scale: stretches the digging reference (see :func:`~.reference.dig_reference`).
         oracle: also run the oracle (the slow part).
+        bias_gain: velocity-bias correction of the surrogate predictor
+            (:class:`~.predict.SurrogatePredictor`; 0: off).
         log: optional ``print``-like callable for progress lines.
 
     Returns:
