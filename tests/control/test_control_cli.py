@@ -26,6 +26,7 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["mppi"]["runs"]) == {"mppi_surrogate", "mppi_oracle", "pi"}
     assert m["mppi"]["runs"]["mppi_surrogate"]["n_control_steps"] > 10
+    assert m["bias_gain"] == 0.1 and any(m["mppi"]["runs"]["mppi_surrogate"]["bias_rad_s"])
     assert set(m["mppi"]["rmse_ratio"]) == {"swing", "boom", "arm", "bucket"}
     assert m["rl"]["surrogate"]["train_s"] > 0 and "success" in m["rl"]["plant"]["plant"]
     assert len(m["rl"]["curve"]) >= 1 and "plant" in m["rl"]["curve"][0]

@@ -45,6 +45,7 @@ def mppi_metrics(runs: dict[str, TrackResult], names: tuple[str, ...]) -> dict[s
             "n_control_steps": r.n_control,
             "wall_s": r.total_s,
             "truncated": r.truncated,
+            **r.extra,
         }
     sur, ora = runs.get("mppi_surrogate"), runs.get("mppi_oracle")
     if sur is not None and ora is not None:

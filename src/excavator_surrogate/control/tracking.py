@@ -224,17 +224,17 @@ def compare_tracking(
     runs: dict[str, TrackResult] = {}
     env = ExcavatorMujocoEnv(plant=plant, spec=spec)  # type: ignore[arg-type]
     try:
+        sur_pred = SurrogatePredictor(sur, n_batch=cfg.n_sample, bias_gain=bias_gain)
         ctrls: list[tuple[str, Controller]] = [
-            (
-                "mppi_surrogate",
-                MPPIController(MPPI(SurrogatePredictor(sur, n_batch=cfg.n_sample), cfg)),
-            )
+            ("mppi_surrogate", MPPIController(MPPI(sur_pred, cfg)))
         ]
         if oracle:
             ctrls.append(("mppi_oracle", MPPIController(MPPI(PlantPredictor(env.plant), cfg))))
         ctrls.append(("pi", PIController(pi)))
         for name, ctrl in ctrls:
             res = track(env, ctrl, theta_ref, name=name)
+            if name == "mppi_surrogate":
+                res.extra["bias_rad_s"] = sur_pred.bias.tolist()  # the final velocity bias
             runs[name] = res
             say(
                 f"{name}: RMSE {np.array2string(res.rmse, precision=4)} rad, "
