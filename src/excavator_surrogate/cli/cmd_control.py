@@ -37,10 +37,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--bias-gain",
         type=float,
         default=0.1,
+        metavar="A",
         help="velocity-bias correction of the surrogate's predictions (0: off; default 0.1)",
     )
     p.add_argument(
-        "--time-scale", type=float, default=1.0, help="stretch the digging reference (1.0)"
+        "--time-scale",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="stretch the digging reference (1.0)",
     )
     p.add_argument("--no-oracle", action="store_true", help="skip MPPI through the plant model")
     p.add_argument("--no-rl", action="store_true", help="skip the PPO comparison")

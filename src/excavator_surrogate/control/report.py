@@ -229,9 +229,11 @@ def run_control(
     log: Any = None,
 ) -> dict[str, Any]:
     """Run tracking (and RL) on ``sur`` and write the report folder ``out``; returns the metrics."""
-    from .rl import compare_rl
+    from .rl import compare_rl, require_sb3
     from .tracking import compare_tracking
 
+    if do_rl:
+        require_sb3()  # fail before the long tracking runs, not after them
     t0 = time.perf_counter()
     names = tuple(sur.spec.names)
     mcfg = mppi or MPPIConfig()

@@ -157,7 +157,8 @@ def _policy(model: Any, low: np.ndarray, high: np.ndarray) -> Any:
     return act
 
 
-def _require_sb3() -> None:
+def require_sb3() -> None:
+    """Raise a one-line :class:`ConfigError` unless Stable-Baselines3 is installed."""
     try:
         import stable_baselines3  # noqa: F401
     except ImportError as e:  # pragma: no cover - depends on the install
@@ -172,7 +173,7 @@ def train(
     """Train PPO on the Gymnasium vector env ``venv`` (SAME_STEP autoreset) for
     ``cfg.total_steps`` env-steps; ``evals`` maps names to evaluation vector envs for the
     learning curve.  Returns ``{"model", "train_s", "curve"}`` (curve: one dict per point)."""
-    _require_sb3()
+    require_sb3()
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
 
