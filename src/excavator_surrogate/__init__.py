@@ -1,14 +1,19 @@
 """excavator-surrogate: learn system-level LSTM surrogates of hydraulic excavators.
 
-Pipeline: simulate -> clean -> train -> evaluate -> env.  See docs/design.md.
+Pipeline: simulate -> clean -> train -> evaluate -> env -> control.  See docs/design.md.
+
+Importing the package registers the Gymnasium environments ``ExcavatorMujoco-v0`` and
+``ExcavatorSurrogate-v0`` (as environment packages do), so ``gym.make(...)`` works after a
+plain ``import excavator_surrogate``.  Registration imports gymnasium only: torch, MuJoCo
+and the environment classes load on first use.
 """
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
-
+from . import env as _env  # noqa: F401  (registers the Gymnasium environments)
 from .errors import CheckpointError, ConfigError, DataError, ExsurError
 from .spec import EXCAVATOR, InputSpec, JointSpec, MachineSpec, excavator_spec
+from .version import __version__
 
 __all__ = [
     "EXCAVATOR",

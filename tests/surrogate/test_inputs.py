@@ -3,7 +3,6 @@ CSV with an ``[[inputs]]`` table, through features, rollouts and checkpoints."""
 
 from __future__ import annotations
 
-import sys
 import tomllib
 from pathlib import Path
 
@@ -17,10 +16,8 @@ from excavator_surrogate.spec import InputSpec, JointSpec, MachineSpec
 from excavator_surrogate.surrogate import load_checkpoint, rollout, save_checkpoint
 from excavator_surrogate.surrogate.features import encode_np
 from excavator_surrogate.surrogate.rollout import rollout_reference
-from tests.helpers.surrogates import make_surrogate
-
-sys.path.insert(0, str(Path(__file__).parents[1] / "ingest"))
 from tests.helpers.ingest import assert_nothing_written
+from tests.helpers.surrogates import make_surrogate
 
 MAPPING = """\
 [machine]

@@ -470,6 +470,35 @@ class SurrogateEngine:
         return self.theta
 
     @torch.inference_mode()
+    def observe(self, theta: np.ndarray | torch.Tensor) -> None:
+        """Overwrite the current angles with measured ones ``theta`` (n_envs, n_joint) [rad]:
+        the next :meth:`step` then consumes the measurement (teacher forcing), which keeps the
+        recurrent state synced to a real machine's measured history."""
+        self.theta.copy_(torch.as_tensor(np.asarray(theta, dtype=np.float64), device=self.device))
+
+    @torch.inference_mode()
+    def fork(self, src: SurrogateEngine, row: int = 0) -> torch.Tensor:
+        """Copy env ``row`` of ``src`` (same surrogate and mode) into every env of this engine.
+
+        Afterwards each of the ``n_envs`` copies continues exactly as ``src``'s env ``row``
+        would (a sampling planner's candidates start from the synced machine state).
+
+        Returns:
+            The current angles ``theta`` (n_envs, n_joint) float64 [rad] (a live tensor).
+        """
+        if src.mode != self.mode or src.window != self.window or src.spec != self.spec:
+            raise ConfigError("fork: both engines must run the same surrogate in the same mode")
+        self.theta.copy_(src.theta[row].expand_as(self.theta))
+        self.z = src.z[row : row + 1].expand_as(self.z).clone()
+        if self.mode == "stateful":
+            self.h = src.h[:, row : row + 1].expand_as(self.h).contiguous()
+            self.c = src.c[:, row : row + 1].expand_as(self.c).contiguous()
+        else:
+            self._ring = src._ring[row : row + 1].expand_as(self._ring).contiguous()
+            self._pos = src._pos
+        return self.theta
+
+    @torch.inference_mode()
     def step(self, u: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Apply commands ``u`` (n_envs, n_u) [command units] at the current sample k (the
         joints', then the exogenous inputs').

@@ -60,6 +60,13 @@ class ZeroOrderHold:
         del n_batch, timestep
         self.substeps = int(substeps)
 
+    def tiled(self, n_batch: int) -> ZeroOrderHold:
+        """A copy for ``n_batch`` parallel sequences (stateless: the same transform)."""
+        del n_batch
+        out = ZeroOrderHold()
+        out.substeps = self.substeps
+        return out
+
     def __call__(self, u: np.ndarray) -> np.ndarray:
         """``u: (n_batch, n_step, n_joint)`` -> ``(n_batch, n_step * substeps, n_joint)``."""
         return np.repeat(np.asarray(u, dtype=np.float64), self.substeps, axis=1)

@@ -30,6 +30,7 @@ values for a 70-80 t excavator or engineering estimates (said so there).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, fields
 from functools import partial
 from typing import Any
@@ -382,6 +383,19 @@ class HydraulicTransform:
                 self._lag[:, j] = yt[j, :, -1]
             y = yt.transpose(1, 2, 0)
         return np.where(y >= 0, y * p.u_pos, y * p.u_neg)
+
+    def tiled(self, n_batch: int) -> HydraulicTransform:
+        """A copy that continues this transform's ONE command history in ``n_batch`` parallel
+        sequences (what a sampling planner forks from the machine's current state)."""
+        if self.n_batch != 1:
+            raise ConfigError(
+                f"hydraulic transform: only a single-sequence transform can be tiled, this one has {self.n_batch}"
+            )
+        out = copy.copy(self)
+        out.n_batch = int(n_batch)
+        for k in ("_play", "_rate", "_delay", "_lag"):
+            setattr(out, k, np.repeat(getattr(self, k), n_batch, axis=0))
+        return out
 
     def state_dict(self) -> dict[str, Any]:
         """Copies of the internal states (for debugging and tests)."""

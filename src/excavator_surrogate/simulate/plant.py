@@ -387,10 +387,56 @@ class MujocoExcavator:
                 "the batched rollout cannot apply a force hook; use simulate()/step()"
             )
         u, theta0 = self._check_batch(u, theta0)
+        state = self.initial_state(theta0)
+        self.transform.reset(
+            n_batch=u.shape[0], substeps=self.substeps, timestep=self.model.opt.timestep
+        )
+        return self._rollout(state, u)
+
+    def physics_state(self) -> np.ndarray:
+        """The Python-loop data's full physics state ``(n_state,)`` (time, qpos, qvel, act and
+        the actuator delay history): with the transform's state, all a rollout continues from."""
+        out = np.empty(self.n_state)
+        mujoco.mj_getState(self.model, self.data, out, _FULL)
+        return out
+
+    def rollout_from(self, state: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
+        """Continue a batch of episodes from full physics states with ``mujoco.rollout``.
+
+        Unlike :meth:`rollout`, the command transform is NOT reset: it must already hold the
+        ``n_batch`` command histories that belong to ``state`` (e.g. a tiled copy of another
+        plant's transform, see :meth:`~.hydraulics.HydraulicTransform.tiled`).
+
+        Args:
+            state: (n_batch, n_state) full physics states (:meth:`physics_state`).
+            u: (n_batch, n_step, n_joint) commands; u[:, k] acts during [t_k, t_{k+1});
+                u[:, -1] is never applied.
+
+        Returns:
+            ``{"theta", "omega"}``, each (n_batch, n_step, n_joint) [rad], [rad/s]; sample 0
+            is the state's angle and instantaneous velocity.
+        """
+        if self.force_hook is not None:
+            raise ConfigError(
+                "the batched rollout cannot apply a force hook; use simulate()/step()"
+            )
+        state = np.asarray(state, dtype=np.float64)
+        u = np.asarray(u, dtype=np.float64)
+        if state.ndim != 2 or state.shape[1] != self.n_state:
+            raise ConfigError(f"state must have shape (n_batch, {self.n_state}), got {state.shape}")
+        if u.ndim != 3 or u.shape[0] != state.shape[0] or u.shape[2] != self.n_joint:
+            raise ConfigError(
+                f"u must have shape ({state.shape[0]}, n_step, {self.n_joint}), got {u.shape}"
+            )
+        if not np.all(np.isfinite(u)):
+            raise ConfigError("u contains non-finite commands")
+        return self._rollout(np.ascontiguousarray(state), u)
+
+    def _rollout(self, state: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
+        """``mujoco.rollout`` from ``state: (n_batch, n_state)`` with the transform as it is."""
         m = self.model
         n_batch, n_step, n_joint = u.shape
         sub = self.substeps
-        state = self.initial_state(theta0)
         theta = np.empty_like(u)
         omega = np.empty_like(u)
         q, v = self._offsets["QPOS"], self._offsets["QVEL"]
@@ -398,7 +444,6 @@ class MujocoExcavator:
         omega[:, 0] = state[:, v + self._vadr]
         if n_step == 1:
             return {"theta": theta, "omega": omega}
-        self.transform.reset(n_batch=n_batch, substeps=sub, timestep=m.opt.timestep)
         self._ensure_pool()
         bytes_per_step = n_batch * sub * (self.n_state + m.nu) * 8
         chunk = max(1, min(n_step - 1, int(self.config.chunk_mb * 2**20 // bytes_per_step)))

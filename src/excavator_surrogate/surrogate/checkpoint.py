@@ -28,10 +28,10 @@ from typing import Any
 
 import torch
 
-from .. import __version__
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
+from ..version import __version__
 from .features import Normalization
 from .model import ModelConfig, Surrogate, build_net
 

@@ -1,0 +1,185 @@
+"""Model-predictive path integral control (MPPI) through a batched predictor.
+
+At every control step the planner samples ``K`` perturbations of its current mean command
+sequence (``N`` samples long), rolls all ``K`` candidates out in ONE batched call of a
+:class:`~.predict.Predictor` (the surrogate, or the plant model itself as an oracle), scores
+them against the reference over the horizon and moves the mean to the cost-weighted average
+of the candidates (Williams et al., "Information theoretic MPC", 2017).  The first
+``replan`` commands of the mean are applied, then the mean is shifted (warm start).
+
+Cost of a candidate (``e``: angle error, periodic joints wrapped, in rad; ``ũ`` the command
+in units of each joint's half range)::
+
+    S = Σ_n Σ_j w_j e[n, j]² / N  +  smooth · Σ_n Σ_j (ũ[n, j] - ũ[n-1, j])² / N
+
+Weights ``exp(-(S - S_min) / λ)`` with the temperature relative to the batch's spread,
+``λ = temperature · (mean(S) - S_min)``: the update then does not depend on the units of
+the cost.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..spec import MachineSpec
+from .predict import Predictor
+
+
+@dataclass(frozen=True)
+class MPPIConfig:
+    """Options of :class:`MPPI`."""
+
+    n_sample: int = 256
+    """K: candidate command sequences per control step (one batched rollout)."""
+    n_horizon: int = 20
+    """N: horizon [samples of the machine's rate] (20 = 1 s at 20 Hz)."""
+    replan: int = 2
+    """Machine samples per control step: the first ``replan`` commands of the plan are applied
+    (2 at 20 Hz = a 10 Hz planner)."""
+    sigma: float = 0.35
+    """Standard deviation of the command noise [fraction of each joint's half range]."""
+    beta: float = 0.8
+    """AR(1) correlation of the noise from one sample to the next (smooth candidates)."""
+    temperature: float = 0.1
+    """λ relative to the batch's cost spread ``mean(S) - min(S)`` (smaller: greedier)."""
+    smooth: float = 0.01
+    """Weight of the squared command change per sample (in half ranges)."""
+    joint_weights: tuple[float, ...] = ()
+    """Per-joint weights ``w_j`` of the squared angle error; empty = 1 for every joint."""
+    seed: int = 0
+    """Seed of the noise generator."""
+
+    def __post_init__(self) -> None:
+        if self.n_sample < 2 or self.n_horizon < 1 or not 1 <= self.replan <= self.n_horizon:
+            raise ConfigError(
+                "mppi: need n_sample >= 2, n_horizon >= 1 and 1 <= replan <= n_horizon, got "
+                f"{self.n_sample}, {self.n_horizon}, {self.replan}"
+            )
+        if not self.sigma > 0 or not 0 <= self.beta < 1 or not self.temperature > 0:
+            raise ConfigError(
+                f"mppi: need sigma > 0, 0 <= beta < 1, temperature > 0, got {self.sigma}, {self.beta}, {self.temperature}"
+            )
+
+
+@dataclass
+class PlanStats:
+    """Per control step bookkeeping of :class:`MPPI`."""
+
+    plan_s: list[float] = field(default_factory=list)
+    """Wall time of each control step (sampling, batched rollout, update) [s]."""
+    cost: list[float] = field(default_factory=list)
+    """Lowest candidate cost of each control step."""
+
+
+class MPPI:
+    """MPPI tracking controller of joint-angle references.
+
+    Args:
+        predictor: the batched model (``n_sample`` rows per call).
+        config: options.
+
+    Use: ``reset(theta0)``, then per machine sample ``k`` call ``act(k, theta_ref)`` for the
+    command and ``observe(u, theta)`` with the measurement after it.
+    """
+
+    def __init__(self, predictor: Predictor, config: MPPIConfig | None = None) -> None:
+        self.cfg = cfg = config or MPPIConfig()
+        self.predictor = predictor
+        spec: MachineSpec = predictor.spec
+        self.spec = spec
+        n = spec.n_joint
+        self.u_center = np.array([j.u_center for j in spec.joints])
+        self.u_scale = np.array([j.u_scale for j in spec.joints])
+        self.u_min = np.array([j.u_min for j in spec.joints])
+        self.u_max = np.array([j.u_max for j in spec.joints])
+        self.periodic = np.asarray(spec.periodic, dtype=bool)
+        w = np.ones(n) if not cfg.joint_weights else np.asarray(cfg.joint_weights, dtype=float)
+        if w.shape != (n,) or np.any(w < 0):
+            raise ConfigError(
+                f"mppi.joint_weights: need {n} non-negative weights, got {w.tolist()}"
+            )
+        self.w = w
+        self.rng = np.random.default_rng(cfg.seed)
+        self.mean = np.zeros((cfg.n_horizon, n))
+        """Current plan (n_horizon, n_joint) in half ranges around u_center."""
+        self.u_prev = np.zeros(n)
+        self._plan = np.zeros((cfg.replan, n))
+        self.stats = PlanStats()
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """Start at rest at ``theta0`` (n_joint,) [rad]: empty plan, fresh noise generator."""
+        self.predictor.reset(theta0)
+        self.rng = np.random.default_rng(self.cfg.seed)
+        self.mean[:] = 0.0
+        self.u_prev = (np.clip(0.0, self.u_min, self.u_max) - self.u_center) / self.u_scale
+        self.stats = PlanStats()
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """Forward the applied command and the measurement to the predictor."""
+        self.predictor.observe(u, theta)
+
+    def noise(self) -> np.ndarray:
+        """AR(1)-correlated perturbations (n_sample, n_horizon, n_joint) [half ranges]; row 0
+        is zero (the unperturbed mean is always a candidate)."""
+        cfg = self.cfg
+        w = self.rng.standard_normal((cfg.n_sample, cfg.n_horizon, self.spec.n_joint))
+        eps = np.empty_like(w)
+        eps[:, 0] = w[:, 0]
+        a = math.sqrt(1.0 - cfg.beta**2)
+        for k in range(1, cfg.n_horizon):
+            eps[:, k] = cfg.beta * eps[:, k - 1] + a * w[:, k]
+        eps *= cfg.sigma
+        eps[0] = 0.0
+        return eps
+
+    def cost(self, theta: np.ndarray, theta_ref: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Costs (n_sample,) of predicted angles ``theta`` (n_sample, N, n_joint) against
+        ``theta_ref`` (N, n_joint) [rad] with candidate commands ``v`` [half ranges]."""
+        e = theta - theta_ref[None]
+        if self.periodic.any():
+            e[..., self.periodic] = (e[..., self.periodic] + math.pi) % (2 * math.pi) - math.pi
+        track = np.einsum("knj,j->k", e * e, self.w) / e.shape[1]
+        dv = np.diff(
+            np.concatenate([np.broadcast_to(self.u_prev, v[:, :1].shape), v], axis=1), axis=1
+        )
+        return track + self.cfg.smooth * (dv * dv).sum(axis=(1, 2)) / v.shape[1]
+
+    def plan(self, theta_ref: np.ndarray) -> np.ndarray:
+        """One control step: returns the next ``replan`` commands (replan, n_joint) [command
+        units] for the reference ``theta_ref`` (n_horizon, n_joint) of samples k+1..k+N."""
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        lo = (self.u_min - self.u_center) / self.u_scale
+        hi = (self.u_max - self.u_center) / self.u_scale
+        v = np.clip(self.mean[None] + self.noise(), lo, hi)  # (K, N, J) half ranges
+        theta = self.predictor.predict(v * self.u_scale + self.u_center)
+        s = self.cost(theta, theta_ref, v)
+        s = np.where(np.isfinite(s), s, np.inf)
+        s_min = float(s.min())
+        spread = float(np.mean(s[np.isfinite(s)]) - s_min)
+        lam = cfg.temperature * max(spread, 1e-12)
+        wts = np.exp(-(s - s_min) / lam)
+        wts /= wts.sum()
+        self.mean = np.einsum("k,knj->nj", wts, v)
+        out = self.mean[: cfg.replan].copy()
+        self.u_prev = out[-1].copy()
+        self.mean = np.concatenate(
+            [self.mean[cfg.replan :], np.repeat(self.mean[-1:], cfg.replan, axis=0)]
+        )
+        self.stats.plan_s.append(time.perf_counter() - t0)
+        self.stats.cost.append(s_min)
+        return out * self.u_scale + self.u_center
+
+    def act(self, k: int, theta_ref: np.ndarray) -> np.ndarray:
+        """Command (n_joint,) [command units] at machine sample ``k`` (``k = 0, 1, ...`` since
+        :meth:`reset`); plans every ``replan`` samples.  ``theta_ref``: (>= n_horizon,
+        n_joint) reference of samples k+1..k+N (padded by the caller past the end)."""
+        r = k % self.cfg.replan
+        if r == 0:
+            self._plan = self.plan(np.asarray(theta_ref, dtype=np.float64)[: self.cfg.n_horizon])
+        return self._plan[r]

@@ -1,0 +1,154 @@
+"""Batched predictors a sampling planner rolls its candidates through.
+
+A predictor follows the machine (``reset`` at rest, then ``observe`` every applied command
+and measured angle) and, at a control step, rolls ``n_batch`` candidate command sequences
+out from the machine's current state in ONE batched call (``predict``):
+
+- :class:`SurrogatePredictor`: the learned surrogate.  A one-env
+  :class:`~excavator_surrogate.env.engine.SurrogateEngine` consumes the measured history
+  (teacher forcing: each step is fed the measured angle), so its recurrent state is synced
+  to the machine; ``predict`` forks that state into an ``n_batch``-env engine and steps the
+  candidates together, ``n_step`` batched steps.
+- :class:`PlantPredictor`: the oracle.  It reads the full physics state of the plant (and
+  the hydraulic transform's command history) and continues it with ``mujoco.rollout`` on a
+  copy of the plant, i.e. planning through the plant model itself.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError
+from ..simulate.plant import MujocoExcavator
+from ..spec import MachineSpec
+from ..surrogate.model import Surrogate
+
+
+class Predictor(Protocol):
+    """What :class:`~.mppi.MPPI` needs from a model of the machine."""
+
+    spec: MachineSpec
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """The machine starts at rest at ``theta0`` (n_joint,) [rad]."""
+        ...
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """The machine applied ``u`` (n_joint,) and then measured ``theta`` (n_joint,) [rad]."""
+        ...
+
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        """Angles ``theta[k+1..k+n_step]`` (n_batch, n_step, n_joint) [rad] after the commands
+        ``u`` (n_batch, n_step, n_joint) applied from the current sample ``k``."""
+        ...
+
+
+class SurrogatePredictor:
+    """Candidates rolled out through the surrogate from its state synced to the machine.
+
+    Args:
+        sur: the surrogate (any LSTM/GRU checkpoint; stateful or windowed).
+        n_batch: candidates per call (the batch of the rollout engine).
+        mode: ``stateful`` / ``windowed``; default: the checkpoint's mode.
+        bias_gain: weight ``a`` of the velocity-bias estimate (offset-free MPC): after every
+            measured step, ``b ← (1 - a) b + a (θ_measured - θ_predicted) / T_s`` from the
+            synced engine's own one-step prediction, and ``predict`` adds ``b · T_s · (n + 1)``
+            to sample ``n`` of every candidate; 0 (default) switches it off.
+    """
+
+    def __init__(
+        self, sur: Surrogate, *, n_batch: int, mode: str | None = None, bias_gain: float = 0.0
+    ) -> None:
+        from ..env.engine import SurrogateEngine
+
+        self.spec = sur.spec
+        self.sync = SurrogateEngine(sur, n_envs=1, mode=mode)  # type: ignore[arg-type]
+        self.batch = SurrogateEngine(sur, n_envs=n_batch, mode=mode)  # type: ignore[arg-type]
+        self.n_batch = int(n_batch)
+        if not 0.0 <= bias_gain <= 1.0:
+            raise ConfigError(f"SurrogatePredictor: bias_gain must be in [0, 1], got {bias_gain}")
+        self.bias_gain = float(bias_gain)
+        self.bias = np.zeros(sur.spec.n_joint)
+        """Velocity-bias estimate (n_joint,) [rad/s] (zero unless ``bias_gain > 0``)."""
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """At rest at ``theta0`` (n_joint,): the engine's at-rest warm-up."""
+        self.sync.reset(np.asarray(theta0, dtype=np.float64)[None])
+        self.bias[:] = 0.0
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """Consume the applied ``u`` from the current (measured) angle, then take the measured
+        ``theta`` as the new current angle."""
+        pred, _ = self.sync.step(np.asarray(u, dtype=np.float64)[None])
+        theta = np.asarray(theta, dtype=np.float64)
+        if self.bias_gain:
+            err = (theta - pred[0].cpu().numpy()) / self.spec.dt
+            self.bias += self.bias_gain * (err - self.bias)
+        self.sync.observe(theta[None])
+
+    @torch.inference_mode()
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        """See :meth:`Predictor.predict`; ``u`` must have ``n_batch`` rows."""
+        u = np.asarray(u, dtype=np.float32)
+        n_batch, n_step, n_joint = u.shape
+        if n_batch != self.n_batch or n_joint != self.spec.n_joint:
+            raise ConfigError(
+                f"SurrogatePredictor: u must have shape ({self.n_batch}, n_step, {self.spec.n_joint}), got {u.shape}"
+            )
+        self.batch.fork(self.sync)
+        u_t = torch.from_numpy(u)
+        out = torch.empty(n_batch, n_step, n_joint, dtype=torch.float64)
+        for k in range(n_step):
+            theta, _ = self.batch.step(u_t[:, k])
+            out[:, k] = theta
+        if self.bias_gain:
+            ramp = np.arange(1, n_step + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
+            return out.numpy() + ramp * self.bias
+        return out.numpy()
+
+
+class PlantPredictor:
+    """The oracle: candidates rolled out with ``mujoco.rollout`` from the plant's true state.
+
+    Args:
+        plant: the machine being controlled (its ``data`` and ``transform`` are read, never
+            changed).
+        n_threads: ``mujoco.rollout`` threads of the planning copy.
+    """
+
+    def __init__(self, plant: MujocoExcavator, *, n_threads: int = 1) -> None:
+        from dataclasses import replace
+
+        self.plant = plant
+        self.spec = plant.spec
+        self.model = MujocoExcavator(
+            replace(plant.config, n_threads=int(n_threads)),
+            spec=plant.spec,
+            command_transform=plant.transform,
+        )
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """Nothing to do: the oracle reads the plant's state at every call."""
+        del theta0
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """Nothing to do: the oracle reads the plant's state at every call."""
+        del u, theta
+
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        """See :meth:`Predictor.predict`."""
+        u = np.asarray(u, dtype=np.float64)
+        n_batch = u.shape[0]
+        tiled = getattr(self.plant.transform, "tiled", None)
+        if tiled is None:
+            raise ConfigError(
+                f"PlantPredictor: the plant's command transform ({type(self.plant.transform).__name__}) "
+                "has no tiled(n_batch) method to fork its state"
+            )
+        self.model.transform = tiled(n_batch)
+        state = np.repeat(self.plant.physics_state()[None], n_batch, axis=0)
+        pad = np.concatenate([u, u[:, -1:]], axis=1)  # u[:, -1] of a rollout is never applied
+        return self.model.rollout_from(state, pad)["theta"][:, 1:]

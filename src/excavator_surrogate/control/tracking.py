@@ -1,0 +1,245 @@
+"""Track the digging reference on an excavator environment: MPPI (surrogate / oracle) and PI.
+
+:func:`compare_tracking` runs, in one call, on ``ExcavatorMujoco-v0``:
+
+- MPPI planning through the surrogate (:class:`~.predict.SurrogatePredictor`, synced to the
+  machine's measured history);
+- the same MPPI planning through the plant model itself (:class:`~.predict.PlantPredictor`,
+  ``mujoco.rollout`` on a copy of the plant: the oracle);
+- the PI baseline (:class:`~.pi.JointPI`) with gains tuned on the surrogate;
+
+and reports the tracking RMSE per joint and the wall time per control step of each.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from ..env.base import ExcavatorEnv
+from ..surrogate.model import Surrogate
+from .mppi import MPPI, MPPIConfig
+from .pi import KP_GRID, TI, JointPI
+from .predict import PlantPredictor, SurrogatePredictor
+from .reference import dig_reference, horizon_window
+
+
+class Controller(Protocol):
+    """A tracking controller driven sample by sample by :func:`track`."""
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """Start at rest at ``theta0`` (n_joint,) [rad]."""
+        ...
+
+    def act(self, k: int, obs: np.ndarray, theta_ref: np.ndarray) -> np.ndarray:
+        """Command (n_joint,) at sample ``k`` from the observation ``[θ, ω]`` and the whole
+        reference ``theta_ref`` (n_step, n_joint) [rad]."""
+        ...
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """The machine applied ``u`` and then measured ``theta`` (unwrapped) [rad]."""
+        ...
+
+    def control_step_times(self) -> list[float]:
+        """Wall time of every control step so far [s]."""
+        ...
+
+
+class MPPIController:
+    """:class:`~.mppi.MPPI` as a :class:`Controller` (plans every ``replan`` samples)."""
+
+    def __init__(self, mppi: MPPI) -> None:
+        self.mppi = mppi
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """Reset planner and predictor."""
+        self.mppi.reset(theta0)
+
+    def act(self, k: int, obs: np.ndarray, theta_ref: np.ndarray) -> np.ndarray:
+        """The plan's command for sample ``k`` (tracks samples k+1..k+N)."""
+        del obs
+        return self.mppi.act(k, horizon_window(theta_ref, k, self.mppi.cfg.n_horizon))
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """Keep the predictor synced to the machine."""
+        self.mppi.observe(u, theta)
+
+    def control_step_times(self) -> list[float]:
+        """Planning time of every control step [s]."""
+        return list(self.mppi.stats.plan_s)
+
+
+class PIController:
+    """:class:`~.pi.JointPI` as a :class:`Controller`: target ``theta_ref[k+1]``."""
+
+    def __init__(self, pi: JointPI) -> None:
+        self.pi = pi
+        self._times: list[float] = []
+
+    def reset(self, theta0: np.ndarray) -> None:
+        """Clear the integrator and the timings."""
+        del theta0
+        self.pi.reset()
+        self._times = []
+
+    def act(self, k: int, obs: np.ndarray, theta_ref: np.ndarray) -> np.ndarray:
+        """PI command toward the next reference sample."""
+        t0 = time.perf_counter()
+        u = self.pi(obs, theta_ref[min(k + 1, len(theta_ref) - 1)])
+        self._times.append(time.perf_counter() - t0)
+        return u
+
+    def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
+        """Nothing to do (the PI reads the observation)."""
+        del u, theta
+
+    def control_step_times(self) -> list[float]:
+        """Time of every ``act`` [s]."""
+        return list(self._times)
+
+
+@dataclass
+class TrackResult:
+    """One tracking run."""
+
+    name: str
+    theta: np.ndarray
+    """(n_step, n_joint) measured angles [rad] (unwrapped), sample 0 = start."""
+    u: np.ndarray
+    """(n_step - 1, n_joint) applied commands."""
+    rmse: np.ndarray
+    """(n_joint,) RMS tracking error over samples 1..n_step-1 [rad] (periodic joints wrapped)."""
+    step_s: float
+    """Mean wall time per control step [s]."""
+    n_control: int
+    """Number of control steps."""
+    total_s: float
+    """Wall time of the whole run (controller + machine) [s]."""
+    truncated: bool = False
+    """The environment truncated the run (divergence guard)."""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def tracking_error(theta: np.ndarray, theta_ref: np.ndarray, periodic: np.ndarray) -> np.ndarray:
+    """``theta - theta_ref`` (..., n_joint) [rad] with periodic joints wrapped to [-π, π)."""
+    e = np.asarray(theta, dtype=np.float64) - theta_ref
+    if periodic.any():
+        e[..., periodic] = (e[..., periodic] + np.pi) % (2 * np.pi) - np.pi
+    return e
+
+
+def track(
+    env: ExcavatorEnv, ctrl: Controller, theta_ref: np.ndarray, *, name: str = ""
+) -> TrackResult:
+    """Run ``ctrl`` on ``env`` (an unwrapped excavator env) from rest at ``theta_ref[0]``.
+
+    Args:
+        env: ``ExcavatorMujoco-v0`` or ``ExcavatorSurrogate-v0`` (``.unwrapped``).
+        ctrl: the controller.
+        theta_ref: (n_step, n_joint) reference [rad]; the run has ``n_step - 1`` commands.
+    """
+    t0 = time.perf_counter()
+    obs, _ = env.reset(options={"theta0": theta_ref[0]})
+    ctrl.reset(theta_ref[0])
+    n_step = len(theta_ref)
+    theta = [env.theta.copy()]
+    us = []
+    truncated = False
+    for k in range(n_step - 1):
+        u = np.asarray(ctrl.act(k, obs, theta_ref), dtype=np.float64)
+        obs, _, _, truncated, info = env.step(u.astype(np.float32))
+        u_applied = np.asarray(info["u"], dtype=np.float64)
+        ctrl.observe(u_applied, env.theta.copy())
+        theta.append(env.theta.copy())
+        us.append(u_applied)
+        if truncated:
+            break
+    th = np.array(theta)
+    periodic = np.asarray(env.machine.periodic, dtype=bool)
+    e = tracking_error(th[1:], theta_ref[1 : len(th)], periodic)
+    times = ctrl.control_step_times()
+    return TrackResult(
+        name=name,
+        theta=th,
+        u=np.array(us),
+        rmse=np.sqrt(np.mean(e * e, axis=0)),
+        step_s=float(np.mean(times)) if times else float("nan"),
+        n_control=len(times),
+        total_s=time.perf_counter() - t0,
+        truncated=bool(truncated),
+    )
+
+
+def tune_pi(sur_env: ExcavatorEnv, theta_ref: np.ndarray) -> JointPI:
+    """PI gains tuned on the surrogate (per joint, the kp of :data:`~.pi.KP_GRID` with the
+    lowest tracking RMSE of ``theta_ref``; ``ki = kp / TI``), as examples/pi_controller.py."""
+    spec = sur_env.machine
+    scores = []
+    for kp in KP_GRID:
+        gains = np.full(spec.n_joint, kp)
+        res = track(sur_env, PIController(JointPI(spec, kp=gains, ki=gains / TI)), theta_ref)
+        scores.append(res.rmse if not res.truncated else np.full(spec.n_joint, np.inf))
+    best = np.array(KP_GRID)[np.argmin(np.array(scores), axis=0)]
+    return JointPI(spec, kp=best, ki=best / TI)
+
+
+def compare_tracking(
+    sur: Surrogate,
+    *,
+    plant: str = "hydraulic",
+    mppi: MPPIConfig | None = None,
+    time_scale: float = 1.0,
+    oracle: bool = True,
+    bias_gain: float = 0.1,
+    log: Any = None,
+) -> dict[str, Any]:
+    """MPPI through the surrogate, MPPI through the plant model (oracle) and PI on the plant.
+
+    Args:
+        sur: the surrogate.
+        plant: ``ideal`` or ``hydraulic`` plant of ``ExcavatorMujoco-v0``.
+        mppi: planner options (the same for surrogate and oracle).
+        time_scale: stretches the digging reference (see :func:`~.reference.dig_reference`).
+        oracle: also run the oracle (the slow part).
+        bias_gain: velocity-bias correction of the surrogate predictor
+            (:class:`~.predict.SurrogatePredictor`; 0: off).
+        log: optional ``print``-like callable for progress lines.
+
+    Returns:
+        ``{"reference": theta_ref, "time": t, "phases": [...], "runs": {name: TrackResult},
+        "pi_gains": kp}``.
+    """
+    from ..env.mujoco_env import ExcavatorMujocoEnv
+    from ..env.surrogate_env import ExcavatorSurrogateEnv
+
+    cfg = mppi or MPPIConfig()
+    spec = sur.spec
+    theta_ref, t, phases = dig_reference(spec, time_scale=time_scale)
+    say = log or (lambda *_: None)
+    sur_env = ExcavatorSurrogateEnv(sur)
+    pi = tune_pi(sur_env, theta_ref)
+    runs: dict[str, TrackResult] = {}
+    env = ExcavatorMujocoEnv(plant=plant, spec=spec)  # type: ignore[arg-type]
+    try:
+        sur_pred = SurrogatePredictor(sur, n_batch=cfg.n_sample, bias_gain=bias_gain)
+        ctrls: list[tuple[str, Controller]] = [
+            ("mppi_surrogate", MPPIController(MPPI(sur_pred, cfg)))
+        ]
+        if oracle:
+            ctrls.append(("mppi_oracle", MPPIController(MPPI(PlantPredictor(env.plant), cfg))))
+        ctrls.append(("pi", PIController(pi)))
+        for name, ctrl in ctrls:
+            res = track(env, ctrl, theta_ref, name=name)
+            if name == "mppi_surrogate":
+                res.extra["bias_rad_s"] = sur_pred.bias.tolist()  # the final velocity bias
+            runs[name] = res
+            say(
+                f"{name}: RMSE {np.array2string(res.rmse, precision=4)} rad, "
+                f"{res.step_s * 1e3:.1f} ms per control step, {res.total_s:.1f} s"
+            )
+    finally:
+        env.close()
+    return {"reference": theta_ref, "time": t, "phases": phases, "runs": runs, "pi_gains": pi.kp}

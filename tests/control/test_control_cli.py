@@ -1,0 +1,66 @@
+"""``exsur control`` end to end on a tiny untrained checkpoint (tiny K, N, PPO budget)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from excavator_surrogate.cli import main
+
+
+def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "ctl"
+    argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "4", "--horizon", "3"]
+    argv += ["--time-scale", "0.1", "--rl-steps", "64", "--rl-envs", "2", "--rl-eval", "2"]
+    argv += ["--rl-episode-steps", "8"]
+    assert main(argv) == 0
+    assert {p.name for p in out.iterdir()} == {
+        "report.md",
+        "metrics.json",
+        "tracking.png",
+        "learning_curve.png",
+        "trajectories.npz",
+    }
+    m = json.loads((out / "metrics.json").read_text())
+    assert set(m["mppi"]["runs"]) == {"mppi_surrogate", "mppi_oracle", "pi"}
+    assert m["mppi"]["runs"]["mppi_surrogate"]["n_control_steps"] > 10
+    assert m["bias_gain"] == 0.1 and any(m["mppi"]["runs"]["mppi_surrogate"]["bias_rad_s"])
+    assert set(m["mppi"]["rmse_ratio"]) == {"swing", "boom", "arm", "bucket"}
+    assert m["rl"]["surrogate"]["train_s"] > 0 and "success" in m["rl"]["plant"]["plant"]
+    assert len(m["rl"]["curve"]) >= 1 and "plant" in m["rl"]["curve"][0]
+    assert set(m["goals"]) == {
+        "mppi_rmse_within_1.25x_oracle",
+        "mppi_10_control_steps_per_s",
+        "mppi_10x_faster_than_oracle",
+        "rl_success_90pct_of_plant_trained",
+        "rl_trains_5x_faster",
+    }
+    assert "| mppi_oracle |" in capsys.readouterr().out
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp folders
+
+
+def test_control_bad_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
+    bad = tmp_path / "nope.pt"
+    assert main(["control", str(bad), "--out", str(tmp_path / "o"), "--no-rl"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope.pt" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_control_bad_option_is_one_line(tiny_ckpt: Path, tmp_path: Path, capsys) -> None:
+    rc = main(["control", str(tiny_ckpt), "--out", str(tmp_path / "o"), "--replan", "50"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "replan" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("n", [0])
+def test_rl_config_rejects_too_small_budgets(n: int) -> None:
+    from excavator_surrogate.control.rl import RLConfig
+    from excavator_surrogate.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="total_steps"):
+        RLConfig(total_steps=n)
