@@ -155,7 +155,7 @@ def run_pipeline(
         else:
             data_dir = Path(data)
             log(f"run[{name}]: using dataset {data_dir}")
-        timings["simulate"] = time.monotonic() - t0
+        timings["import" if logs is not None else "simulate"] = time.monotonic() - t0
         raw_ds = load_dataset(data_dir)
         train_ds = raw_ds
         if run_cfg.auto_train:
@@ -339,6 +339,15 @@ def render_report(
         f"reference: {run.get('reference', '?')}): **worst-joint angle R² {worst_theta:.4f}, "
         f"worst-joint ω R² {worst_omega:.4f}**.",
         "",
+        *(
+            [
+                f"No test split: scored on the '{run.get('split')}' split, which also selected "
+                "the checkpoint, so these numbers are optimistic.",
+                "",
+            ]
+            if run.get("split", "test") != "test"
+            else []
+        ),
         "Timings [s]: " + ", ".join(f"{k} {v}" for k, v in run.get("timings_s", {}).items()),
         "",
         "![closed-loop comparison](cbe.png)",
