@@ -144,7 +144,7 @@ def run_pipeline(
         t0 = time.monotonic()
         if logs is not None:
             from .ingest.mapping import load_mapping
-            from .ingest.pipeline import import_logs
+            from .ingest.convert import import_logs
 
             log(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
             import_logs(list(logs), load_mapping(mapping), out=tmp / "data", quiet=True)

@@ -10,6 +10,15 @@ assigns train/val/test by source file and writes a dataset folder atomically, wi
 
 from __future__ import annotations
 
+from .convert import (
+    REPORT_JSON,
+    REPORT_MD,
+    FileResult,
+    convert_log,
+    import_logs,
+    kalman_velocity,
+    options_with,
+)
 from .mapping import (
     AngleMap,
     Channel,
@@ -25,15 +34,6 @@ from .mapping import (
     VelocityMap,
     load_mapping,
     parse_mapping,
-)
-from .pipeline import (
-    REPORT_JSON,
-    REPORT_MD,
-    FileResult,
-    convert_log,
-    import_logs,
-    kalman_velocity,
-    options_with,
 )
 from .readers import expand_sources, read_log
 from .report import render_markdown

@@ -1,8 +1,8 @@
 """The log-format registry: every reader exsur knows, and what is derived from it.
 
 :data:`READERS` lists the formats in detection order (the first match wins): dSPACE
-ControlDesk CSV exports (:mod:`.dspace`), plain CSV, Parquet and ROS bags
-(:mod:`.sources`), ASAM MDF4 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
+ControlDesk CSV exports (:mod:`.dspace`), plain CSV and Parquet
+(:mod:`.sources`), ROS bags (:mod:`.ros`), ASAM MDF4 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
 :func:`log_stem`, :func:`expand_sources` and :data:`SUPPORTED` all derive from it, so adding
 a log format is one reader module plus one entry here.
 """
@@ -17,9 +17,10 @@ from ..errors import DataError
 from .dspace import READER as _DSPACE
 from .mapping import Mapping
 from .mdf import READER as _MDF
-from .sources import BUILTIN_READERS, RawLog, Reader
+from .ros import ROS_READERS
+from .sources import TABLE_READERS, RawLog, Reader
 
-READERS: tuple[Reader, ...] = (_DSPACE, *BUILTIN_READERS, _MDF)
+READERS: tuple[Reader, ...] = (_DSPACE, *TABLE_READERS, *ROS_READERS, _MDF)
 """Every log format, in detection order (the first match wins)."""
 
 SUPPORTED = ", ".join(r.label for r in READERS)

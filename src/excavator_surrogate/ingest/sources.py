@@ -1,13 +1,13 @@
-"""Reading raw logs: the reader registry, CSV (plain or .gz), Parquet, ROS 2 / ROS 1 bags, MCAP.
+"""Reading raw logs: the common types (:class:`RawLog`, :class:`Series`, :class:`Reader`) and
+the table readers, CSV (plain or .gz) and Parquet.
 
 Every reader returns a :class:`RawLog`: one or more :class:`Series` (a time base plus the
 raw values of the channels that live on it).  A CSV/Parquet file has one series
 (``"table"``); a bag has one series per topic.  Values are raw (no unit conversion);
 missing cells are NaN.  Rows are counted from 0, header not counted.
 
-:data:`READERS` lists every log format (this module's, plus dSPACE ControlDesk CSV in
-:mod:`.dspace` and ASAM MDF4 in :mod:`.mdf`); :func:`log_kind`, :func:`read_log` and
-:data:`SUPPORTED` derive from it, so a new format is one module plus one line here.
+:data:`excavator_surrogate.ingest.readers.READERS` lists every log format (these, ROS bags
+in :mod:`.ros`, dSPACE ControlDesk CSV in :mod:`.dspace`, ASAM MDF4 in :mod:`.mdf`).
 """
 
 from __future__ import annotations
@@ -15,19 +15,18 @@ from __future__ import annotations
 import csv as _csv
 import difflib
 import gzip
-import re
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..errors import ConfigError, DataError
-from .mapping import TABLE, Channel, CsvOptions, Mapping, TimeMap
+from .mapping import TABLE, CsvOptions, Mapping, TimeMap
 
 CSV_SUFFIXES = (".csv", ".csv.gz")
 PARQUET_SUFFIXES = (".parquet", ".pq")
@@ -93,13 +92,6 @@ class Reader:
 def has_suffix(*suffixes: str) -> Callable[[Path, str], bool]:
     """A ``Reader.match`` that accepts files whose name ends in one of ``suffixes``."""
     return lambda path, _fmt: not path.is_dir() and path.name.lower().endswith(suffixes)
-
-
-def _bag_folder(path: Path, _fmt: str) -> bool:
-    if path.is_dir():
-        return (path / "metadata.yaml").exists()
-    name = path.name.lower()
-    return name.endswith((".mcap", ".db3")) and (path.parent / "metadata.yaml").exists()
 
 
 # --------------------------------------------------------------------------------------
@@ -421,225 +413,9 @@ def _datetime_ns(path: Path, col: pa.ChunkedArray, name: str) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------
-# ROS bags
-
-_TOKEN = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)|\[([^\]]+)\]|\.")
-
-
-def parse_field_path(path: str) -> list[tuple[str, Any]]:
-    """``"position[1]"`` -> ``[("attr", "position"), ("index", 1)]``; ``[boom]`` is a name lookup."""
-    out: list[tuple[str, Any]] = []
-    pos = 0
-    for m in _TOKEN.finditer(path):
-        if m.start() != pos:
-            break
-        pos = m.end()
-        if m.group(1):
-            out.append(("attr", m.group(1)))
-        elif m.group(2) is not None:
-            idx = m.group(2).strip().strip("'\"")
-            out.append(("index", int(idx)) if re.fullmatch(r"-?\d+", idx) else ("name", idx))
-    if pos != len(path) or not out or out[0][0] != "attr":
-        raise ValueError(
-            f"cannot parse field path {path!r}; write e.g. position[1] or pose.position.x"
-        )
-    return out
-
-
-def _extract(msg: Any, tokens: list[tuple[str, Any]]) -> float:
-    obj = msg
-    parent = msg
-    for kind, arg in tokens:
-        if kind == "attr":
-            parent = obj
-            if not hasattr(obj, arg):
-                fields = [
-                    f for f in getattr(obj, "__dataclass_fields__", {}) if not f.startswith("__")
-                ]
-                raise ValueError(f"no field '{arg}' (fields: {', '.join(fields)})")
-            obj = getattr(obj, arg)
-        elif kind == "index":
-            if arg >= len(obj) or arg < -len(obj):
-                raise ValueError(f"index {arg} out of range (the array has {len(obj)} values)")
-            obj = obj[arg]
-        else:
-            names = list(getattr(parent, "name", []) or [])
-            if arg not in names:
-                raise ValueError(f"no joint named '{arg}' in the message's name list {names}")
-            obj = obj[names.index(arg)]
-    if isinstance(obj, bool | int | float | np.number):
-        return float(obj)
-    raise ValueError(f"value of type {type(obj).__name__} is not a number")
-
-
-def _header_ns(msg: Any) -> int | None:
-    h = getattr(msg, "header", None)
-    st = getattr(h, "stamp", None)
-    if st is None:
-        return None
-    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
-
-
-def _need_ros(path: Path) -> None:
-    import importlib.util
-
-    for mod in ("rosbags", "mcap"):
-        if importlib.util.find_spec(mod) is None:
-            raise ConfigError(
-                f"{path}: reading ROS bags needs the '{mod}' package; "
-                "install the extra: pip install 'excavator-surrogate[ros]'"
-            )
-
-
-def _iter_ros(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
-    """Yield ``(topic, log_time_ns, msg)``; raises DataError for missing topics."""
-    if kind == "mcap":
-        yield from _iter_mcap(path, topics)
-        return
-    _need_ros(path)
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    try:
-        reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
-        reader.open()
-    except Exception as e:  # rosbags raises several types for broken bags
-        raise DataError(
-            path,
-            f"cannot open the bag ({type(e).__name__}: {e})",
-            fix="check that it is a complete ROS bag (rosbag2 folder with metadata.yaml)",
-        ) from e
-    try:
-        present = sorted(reader.topics)
-        for t in sorted(topics):
-            if t not in present:
-                raise DataError(
-                    path,
-                    f"topic '{t}' is not in the bag",
-                    fix=f"topics present: {', '.join(present)}",
-                )
-        conns = [c for c in reader.connections if c.topic in topics]
-        for con, ts, raw in reader.messages(connections=conns):
-            yield con.topic, int(ts), reader.deserialize(raw, con.msgtype)
-    finally:
-        reader.close()
-
-
-def _iter_mcap(path: Path, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
-    _need_ros(path)
-    from mcap.reader import make_reader
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
-    store = get_typestore(Stores.EMPTY)
-    registered: set[str] = set()
-    try:
-        with open(path, "rb") as fh:
-            reader = make_reader(fh)
-            summary = reader.get_summary()
-            present = sorted({c.topic for c in summary.channels.values()}) if summary else []
-            if summary:
-                for t in sorted(topics):
-                    if t not in present:
-                        raise DataError(
-                            path,
-                            f"topic '{t}' is not in the file",
-                            fix=f"topics present: {', '.join(present)}",
-                        )
-            for schema, channel, message in reader.iter_messages(topics=sorted(topics)):
-                if schema is None or schema.encoding != "ros2msg":
-                    raise DataError(
-                        path,
-                        f"topic '{channel.topic}' is not ROS 2 CDR (schema {getattr(schema, 'encoding', None)})",
-                        fix="only ROS 2 messages can be imported from MCAP",
-                    )
-                if schema.name not in registered:
-                    store.register(get_types_from_msg(schema.data.decode(), schema.name))
-                    registered.add(schema.name)
-                yield (
-                    channel.topic,
-                    int(message.log_time),
-                    store.deserialize_cdr(message.data, schema.name),
-                )
-    except DataError:
-        raise
-    except Exception as e:
-        raise DataError(
-            path,
-            f"cannot read the MCAP file ({type(e).__name__}: {e})",
-            fix="check that the file is complete",
-        ) from e
-
-
-def _read_ros(path: Path, kind: str, mapping: Mapping) -> RawLog:
-    chans: list[Channel] = mapping.channels()
-    by_topic: dict[str, list[str]] = {}
-    for c in chans:
-        by_topic.setdefault(c.series, []).append(c.key)
-    tokens: dict[tuple[str, str], list[tuple[str, Any]]] = {}
-    for c in chans:
-        try:
-            tokens[(c.series, c.key)] = parse_field_path(c.key)
-        except ValueError as e:
-            raise DataError(
-                mapping.where, str(e), column=c.label, fix="fix the field path in the mapping"
-            ) from None
-    stamp = mapping.time.stamp
-    times: dict[str, list[int]] = {t: [] for t in by_topic}
-    vals: dict[str, list[list[float]]] = {t: [] for t in by_topic}
-    used_header: dict[str, bool] = {}
-    for topic, log_ns, msg in _iter_ros(path, kind, set(by_topic)):
-        row = len(times[topic])
-        hdr = _header_ns(msg) if stamp != "log" else None
-        if stamp == "header" and hdr is None:
-            raise DataError(
-                path,
-                "message has no header.stamp",
-                column=topic,
-                row=row,
-                fix='set [time] stamp = "log" to use the bag time',
-            )
-        from_header = hdr is not None and (stamp == "header" or hdr > 0)
-        use = hdr if from_header and hdr is not None else log_ns
-        used_header[topic] = used_header.get(topic, False) or from_header
-        times[topic].append(use)
-        rowvals = []
-        for key in by_topic[topic]:
-            try:
-                rowvals.append(_extract(msg, tokens[(topic, key)]))
-            except ValueError as e:
-                raise DataError(
-                    path,
-                    f"field path '{key}': {e}",
-                    column=f"{topic}:{key}",
-                    row=row,
-                    fix=f"fix the field in {mapping.where}",
-                ) from None
-        vals[topic].append(rowvals)
-    empty = [t for t, v in times.items() if not v]
-    if empty:
-        raise DataError(
-            path, f"topic '{empty[0]}' has no messages", fix="record the topic or map another one"
-        )
-    origin_ns = min(v[0] for v in times.values())
-    series: dict[str, Series] = {}
-    for topic, keys in by_topic.items():
-        t_ns = np.asarray(times[topic], dtype=np.int64)
-        arr = np.asarray(vals[topic], dtype=np.float64).reshape(len(t_ns), len(keys))
-        label = f"{topic} ({'header.stamp' if used_header.get(topic) else 'log time'})"
-        series[topic] = Series(
-            topic,
-            (t_ns - origin_ns).astype(np.float64) * 1e-9,
-            {k: arr[:, i] for i, k in enumerate(keys)},
-            label,
-        )
-    origin = datetime.fromtimestamp(origin_ns / 1e9, tz=UTC).isoformat() if origin_ns > 0 else "0"
-    return RawLog(path=path, kind=kind, series=series, origin=origin, columns=sorted(by_topic))
-
-
-# --------------------------------------------------------------------------------------
 # the formats read here (the registry is excavator_surrogate.ingest.readers.READERS)
 
-BUILTIN_READERS: tuple[Reader, ...] = (
+TABLE_READERS: tuple[Reader, ...] = (
     Reader(
         "csv",
         "CSV (.csv, .csv.gz)",
@@ -654,30 +430,5 @@ BUILTIN_READERS: tuple[Reader, ...] = (
         has_suffix(*PARQUET_SUFFIXES),
         lambda path, mapping: _read_table(path, "parquet", mapping),
     ),
-    Reader(
-        "rosbag2",
-        "ROS 2 bags (rosbag2 folder)",
-        (".mcap", ".db3"),
-        _bag_folder,
-        lambda path, mapping: _read_ros(path, "rosbag2", mapping),
-        maps="topics",
-        whole_folder=True,
-    ),
-    Reader(
-        "mcap",
-        "MCAP (.mcap)",
-        (".mcap",),
-        has_suffix(".mcap"),
-        lambda path, mapping: _read_ros(path, "mcap", mapping),
-        maps="topics",
-    ),
-    Reader(
-        "rosbag1",
-        "ROS 1 bags (.bag)",
-        (".bag",),
-        has_suffix(".bag"),
-        lambda path, mapping: _read_ros(path, "rosbag1", mapping),
-        maps="topics",
-    ),
 )
-"""The formats this module reads (CSV, Parquet, ROS); :mod:`.readers` adds the others."""
+"""The table formats (CSV, Parquet); :mod:`.readers` lists every format."""
