@@ -143,8 +143,8 @@ def run_pipeline(
         # ---- simulate (or take the user's dataset) --------------------------------------
         t0 = time.monotonic()
         if logs is not None:
-            from .ingest.mapping import load_mapping
             from .ingest.convert import import_logs
+            from .ingest.mapping import load_mapping
 
             log(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
             import_logs(list(logs), load_mapping(mapping), out=tmp / "data", quiet=True)
