@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
+from .evaluate.run_report import ReportContext, render_run_report
 from .io_utils import atomic_dir, log, write_json, write_text
 from .stages import RunConfig, build_configs
 
@@ -34,38 +35,6 @@ RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
 
 DEFAULT_PRESET = "quick"
 """Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job."""
-
-# The paper's Table III (real excavator), per joint: (rmse, mae, r2).
-PAPER_TABLE_III: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {
-    "noload": {
-        "omega": {
-            "swing": (0.0481, 0.0302, 0.9755),
-            "boom": (0.0342, 0.0164, 0.8487),
-            "arm": (0.0941, 0.0466, 0.8841),
-            "bucket": (0.1528, 0.0559, 0.5828),
-        },
-        "theta": {
-            "swing": (0.1822, 0.1553, 0.9989),
-            "boom": (0.0691, 0.0496, 0.9286),
-            "arm": (0.1053, 0.0733, 0.9737),
-            "bucket": (0.1200, 0.0984, 0.9706),
-        },
-    },
-    "compound": {
-        "omega": {
-            "swing": (0.0249, 0.0175, 0.9750),
-            "boom": (0.0259, 0.0171, 0.7920),
-            "arm": (0.0269, 0.0185, 0.8734),
-            "bucket": (0.0753, 0.0516, 0.8815),
-        },
-        "theta": {
-            "swing": (0.1451, 0.1120, 0.9774),
-            "boom": (0.0763, 0.0654, 0.8210),
-            "arm": (0.1469, 0.1251, 0.7309),
-            "bucket": (0.3395, 0.3101, 0.8667),
-        },
-    },
-}
 
 
 def run_pipeline(
@@ -279,12 +248,14 @@ def run_pipeline(
         write_text(tmp / "config.toml", dumps_toml(record))
         write_text(
             tmp / "report.md",
-            render_report(
+            render_run_report(
                 metrics,
-                name=name,
-                run_cfg=run_cfg,
-                spec_names=raw_ds.spec.names,
-                table_md=(tmp / "table.md").read_text(),
+                ReportContext(
+                    name=name,
+                    spec_names=raw_ds.spec.names,
+                    table_md=(tmp / "table.md").read_text(),
+                    paper_table=run_cfg.paper_table,
+                ),
             ),
         )
     log(f"run[{name}]: done in {timings['total']:.0f} s -> {out / 'report.md'}")
@@ -310,138 +281,3 @@ def _score_against_truth(
         max_steps=eval_cfg.max_steps or None,
     )
     return metrics
-
-
-def _fmt(v: Any) -> str:
-    return "n/a" if v is None else f"{v:.4f}"
-
-
-def render_report(
-    metrics: Mapping[str, Any],
-    *,
-    name: str,
-    run_cfg: RunConfig,
-    spec_names: tuple[str, ...],
-    table_md: str,
-) -> str:
-    """The human-readable ``report.md`` of a run."""
-    from .evaluate.metrics import min_r2
-
-    run = metrics.get("run", {})
-    lines = [f"# exsur run: preset `{name}`", ""]
-    th = metrics["theta"]
-    om = metrics["omega"]
-    worst_theta = min(v["r2"] for v in th.values() if v.get("r2") is not None)
-    worst_omega = min(v["r2"] for v in om.values() if v.get("r2") is not None)
-    lines += [
-        f"Closed-loop free run on the {run.get('split', 'test')} split "
-        f"({run.get('n_step_scored', '?')} scored steps, "
-        f"reference: {run.get('reference', '?')}): **worst-joint angle R² {worst_theta:.4f}, "
-        f"worst-joint ω R² {worst_omega:.4f}**.",
-        "",
-        *(
-            [
-                f"No test split: scored on the '{run.get('split')}' split, which also selected "
-                "the checkpoint, so these numbers are optimistic.",
-                "",
-            ]
-            if run.get("split", "test") != "test"
-            else []
-        ),
-        "Timings [s]: " + ", ".join(f"{k} {v}" for k, v in run.get("timings_s", {}).items()),
-        "",
-        "![closed-loop comparison](cbe.png)",
-        "",
-    ]
-    paper_key = {"III-noload": "noload", "III-compound": "compound"}.get(run_cfg.paper_table)
-    if paper_key and set(spec_names) == {"swing", "boom", "arm", "bucket"}:
-        ref = PAPER_TABLE_III[paper_key]
-        lines += [
-            f"## Against the paper's Table III ({paper_key})",
-            "",
-            "| Type | Joint | RMSE (ours / paper) | MAE (ours / paper) | R² (ours / paper) |",
-            "|---|---|---|---|---|",
-        ]
-        for typ, label in (("omega", "ω"), ("theta", "θ")):
-            for j in spec_names:
-                m = metrics[typ][j]
-                p = ref[typ][j]
-                lines.append(
-                    f"| {label} | {j} | {_fmt(m['rmse'])} / {p[0]:.4f} | {_fmt(m['mae'])} / {p[1]:.4f} "
-                    f"| {_fmt(m['r2'])} / {p[2]:.4f} |"
-                )
-        lines.append("")
-    if metrics.get("cleaning"):
-        lines += [
-            "## Cleaning (adaptive Kalman filter) against the ground truth",
-            "",
-            "| Joint | raw angle RMSE [rad] | fused angle RMSE [rad] | ratio | jump precision | jump recall |",
-            "|---|---|---|---|---|---|",
-        ]
-        for j, c in metrics["cleaning"].items():
-            if not isinstance(c, dict):
-                continue
-            lines.append(
-                f"| {j} | {_fmt(c.get('rmse_raw'))} | {_fmt(c.get('rmse_fused'))} | {_fmt(c.get('rmse_ratio'))} "
-                f"| {_fmt(c.get('jump_precision'))} | {_fmt(c.get('jump_recall'))} |"
-            )
-        lines += [""] + [f"![fusion {j}](fusion_{j}.png)" for j in spec_names] + [""]
-    if "against_cleaned" in metrics:
-        lines += [
-            "## Surrogate CBE: against the truth vs against the cleaned data",
-            "",
-            "| Joint | θ R² (truth) | θ R² (cleaned) | ω R² (truth) | ω R² (cleaned) |",
-            "|---|---|---|---|---|",
-        ]
-        ac = metrics["against_cleaned"]
-        for j in spec_names:
-            lines.append(
-                f"| {j} | {_fmt(th[j]['r2'])} | {_fmt(ac['theta'][j]['r2'])} | {_fmt(om[j]['r2'])} "
-                f"| {_fmt(ac['omega'][j]['r2'])} |"
-            )
-        lines.append("")
-    if "cleaning_effect" in metrics:
-        ce = metrics["cleaning_effect"]
-        lines += [
-            "## Effect of cleaning: the same LSTM trained on cleaned vs raw data (scored against the truth)",
-            "",
-            "| Joint | θ R² cleaned | θ R² raw | θ RMSE cleaned | θ RMSE raw | ω R² cleaned | ω R² raw |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        c, r = ce["trained on cleaned"], ce["trained on raw"]
-        for j in spec_names:
-            lines.append(
-                f"| {j} | {_fmt(c['theta'][j]['r2'])} | {_fmt(r['theta'][j]['r2'])} | {_fmt(c['theta'][j]['rmse'])} "
-                f"| {_fmt(r['theta'][j]['rmse'])} | {_fmt(c['omega'][j]['r2'])} | {_fmt(r['omega'][j]['r2'])} |"
-            )
-        lines.append("")
-    if "ensemble_members" in metrics:
-        em = metrics["ensemble_members"]
-        lines += [
-            "## Seed ensemble: the merged network vs its members "
-            f"(scored against the {'truth' if run_cfg.reference == 'true' else 'measured data'})",
-            "",
-            "| Model | "
-            + " | ".join(f"θ R² {j}" for j in spec_names)
-            + " | worst θ R² | worst ω R² |",
-            "|---|" + "---|" * (len(spec_names) + 2),
-        ]
-        for label, m in em.items():
-            lines.append(
-                f"| {label} | "
-                + " | ".join(_fmt(m["theta"][j]["r2"]) for j in spec_names)
-                + f" | {_fmt(min_r2(m, 'theta'))} | {_fmt(min_r2(m, 'omega'))} |"
-            )
-        lines.append("")
-    lines += [
-        "## CBE table",
-        "",
-        table_md.replace("# Closed-loop behavioural equivalence (CBE)", "").strip(),
-        "",
-    ]
-    lines += [
-        "Files: `metrics.json`, `table.md`, `config.toml`, `model/best.pt` (load with "
-        "`excavator_surrogate.surrogate.load_checkpoint`), `data/`.",
-        "",
-    ]
-    return "\n".join(lines)

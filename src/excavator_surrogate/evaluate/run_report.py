@@ -1,0 +1,252 @@
+"""The ``report.md`` of ``exsur run``, built from sections.
+
+Each section is a function ``(metrics, ctx) -> lines`` that returns nothing when the run has
+no such result; :data:`SECTIONS` lists them in report order, so a new result is one function
+and one entry.  ``metrics`` is the run's ``metrics.json`` content; paths in it are relative
+to the report folder.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .metrics import min_r2
+
+# The paper's Table III (real excavator), per joint: (rmse, mae, r2).
+PAPER_TABLE_III: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {
+    "noload": {
+        "omega": {
+            "swing": (0.0481, 0.0302, 0.9755),
+            "boom": (0.0342, 0.0164, 0.8487),
+            "arm": (0.0941, 0.0466, 0.8841),
+            "bucket": (0.1528, 0.0559, 0.5828),
+        },
+        "theta": {
+            "swing": (0.1822, 0.1553, 0.9989),
+            "boom": (0.0691, 0.0496, 0.9286),
+            "arm": (0.1053, 0.0733, 0.9737),
+            "bucket": (0.1200, 0.0984, 0.9706),
+        },
+    },
+    "compound": {
+        "omega": {
+            "swing": (0.0249, 0.0175, 0.9750),
+            "boom": (0.0259, 0.0171, 0.7920),
+            "arm": (0.0269, 0.0185, 0.8734),
+            "bucket": (0.0753, 0.0516, 0.8815),
+        },
+        "theta": {
+            "swing": (0.1451, 0.1120, 0.9774),
+            "boom": (0.0763, 0.0654, 0.8210),
+            "arm": (0.1469, 0.1251, 0.7309),
+            "bucket": (0.3395, 0.3101, 0.8667),
+        },
+    },
+}
+
+
+@dataclass(frozen=True)
+class ReportContext:
+    """What the sections need besides ``metrics.json``."""
+
+    name: str
+    """The preset's name."""
+    spec_names: tuple[str, ...]
+    """Joint names in order."""
+    table_md: str
+    """The CBE table (``table.md``)."""
+    paper_table: str = "none"
+    """Which of the paper's tables to show: ``II``, ``III-noload``, ``III-compound``, ``none``."""
+
+
+def _fmt(v: Any) -> str:
+    return "n/a" if v is None else f"{v:.4f}"
+
+
+def _summary(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """Title, worst-joint R², the split scored, timings and the figure."""
+    run = metrics.get("run", {})
+    th = metrics["theta"]
+    om = metrics["omega"]
+    lines = [f"# exsur run: preset `{ctx.name}`", ""]
+    worst_theta = min(v["r2"] for v in th.values() if v.get("r2") is not None)
+    worst_omega = min(v["r2"] for v in om.values() if v.get("r2") is not None)
+    lines += [
+        f"Closed-loop free run on the {run.get('split', 'test')} split "
+        f"({run.get('n_step_scored', '?')} scored steps, "
+        f"reference: {run.get('reference', '?')}): **worst-joint angle R² {worst_theta:.4f}, "
+        f"worst-joint ω R² {worst_omega:.4f}**.",
+        "",
+        *(
+            [
+                f"No test split: scored on the '{run.get('split')}' split, which also selected "
+                "the checkpoint, so these numbers are optimistic.",
+                "",
+            ]
+            if run.get("split", "test") != "test"
+            else []
+        ),
+        "Timings [s]: " + ", ".join(f"{k} {v}" for k, v in run.get("timings_s", {}).items()),
+        "",
+        "![closed-loop comparison](cbe.png)",
+        "",
+    ]
+    return lines
+
+
+def _paper_table_iii(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The paper's Table III next to ours (Stage II presets of the 4-joint excavator)."""
+    lines: list[str] = []
+    paper_key = {"III-noload": "noload", "III-compound": "compound"}.get(ctx.paper_table)
+    if paper_key and set(ctx.spec_names) == {"swing", "boom", "arm", "bucket"}:
+        ref = PAPER_TABLE_III[paper_key]
+        lines += [
+            f"## Against the paper's Table III ({paper_key})",
+            "",
+            "| Type | Joint | RMSE (ours / paper) | MAE (ours / paper) | R² (ours / paper) |",
+            "|---|---|---|---|---|",
+        ]
+        for typ, label in (("omega", "ω"), ("theta", "θ")):
+            for j in ctx.spec_names:
+                m = metrics[typ][j]
+                p = ref[typ][j]
+                lines.append(
+                    f"| {label} | {j} | {_fmt(m['rmse'])} / {p[0]:.4f} | {_fmt(m['mae'])} / {p[1]:.4f} "
+                    f"| {_fmt(m['r2'])} / {p[2]:.4f} |"
+                )
+        lines.append("")
+    return lines
+
+
+def _cleaning(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """Kalman cleaning against the ground truth."""
+    lines: list[str] = []
+    if metrics.get("cleaning"):
+        lines += [
+            "## Cleaning (adaptive Kalman filter) against the ground truth",
+            "",
+            "| Joint | raw angle RMSE [rad] | fused angle RMSE [rad] | ratio | jump precision | jump recall |",
+            "|---|---|---|---|---|---|",
+        ]
+        for j, c in metrics["cleaning"].items():
+            if not isinstance(c, dict):
+                continue
+            lines.append(
+                f"| {j} | {_fmt(c.get('rmse_raw'))} | {_fmt(c.get('rmse_fused'))} | {_fmt(c.get('rmse_ratio'))} "
+                f"| {_fmt(c.get('jump_precision'))} | {_fmt(c.get('jump_recall'))} |"
+            )
+        lines += [""] + [f"![fusion {j}](fusion_{j}.png)" for j in ctx.spec_names] + [""]
+    return lines
+
+
+def _against_cleaned(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The surrogate scored against the truth and against the cleaned data."""
+    th = metrics["theta"]
+    om = metrics["omega"]
+    lines: list[str] = []
+    if "against_cleaned" in metrics:
+        lines += [
+            "## Surrogate CBE: against the truth vs against the cleaned data",
+            "",
+            "| Joint | θ R² (truth) | θ R² (cleaned) | ω R² (truth) | ω R² (cleaned) |",
+            "|---|---|---|---|---|",
+        ]
+        ac = metrics["against_cleaned"]
+        for j in ctx.spec_names:
+            lines.append(
+                f"| {j} | {_fmt(th[j]['r2'])} | {_fmt(ac['theta'][j]['r2'])} | {_fmt(om[j]['r2'])} "
+                f"| {_fmt(ac['omega'][j]['r2'])} |"
+            )
+        lines.append("")
+    return lines
+
+
+def _cleaning_effect(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The same LSTM trained on cleaned vs raw data."""
+    lines: list[str] = []
+    if "cleaning_effect" in metrics:
+        ce = metrics["cleaning_effect"]
+        lines += [
+            "## Effect of cleaning: the same LSTM trained on cleaned vs raw data (scored against the truth)",
+            "",
+            "| Joint | θ R² cleaned | θ R² raw | θ RMSE cleaned | θ RMSE raw | ω R² cleaned | ω R² raw |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        c, r = ce["trained on cleaned"], ce["trained on raw"]
+        for j in ctx.spec_names:
+            lines.append(
+                f"| {j} | {_fmt(c['theta'][j]['r2'])} | {_fmt(r['theta'][j]['r2'])} | {_fmt(c['theta'][j]['rmse'])} "
+                f"| {_fmt(r['theta'][j]['rmse'])} | {_fmt(c['omega'][j]['r2'])} | {_fmt(r['omega'][j]['r2'])} |"
+            )
+        lines.append("")
+    return lines
+
+
+def _ensemble_members(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The seed ensemble's members vs the merged network."""
+    run = metrics.get("run", {})
+    lines: list[str] = []
+    if "ensemble_members" in metrics:
+        em = metrics["ensemble_members"]
+        lines += [
+            "## Seed ensemble: the merged network vs its members "
+            f"(scored against the {'truth' if run.get('reference') == 'true' else 'measured data'})",
+            "",
+            "| Model | "
+            + " | ".join(f"θ R² {j}" for j in ctx.spec_names)
+            + " | worst θ R² | worst ω R² |",
+            "|---|" + "---|" * (len(ctx.spec_names) + 2),
+        ]
+        for label, m in em.items():
+            lines.append(
+                f"| {label} | "
+                + " | ".join(_fmt(m["theta"][j]["r2"]) for j in ctx.spec_names)
+                + f" | {_fmt(min_r2(m, 'theta'))} | {_fmt(min_r2(m, 'omega'))} |"
+            )
+        lines.append("")
+    return lines
+
+
+def _cbe_table(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The CBE table (paper layout, baselines)."""
+    lines: list[str] = []
+    lines += [
+        "## CBE table",
+        "",
+        ctx.table_md.replace("# Closed-loop behavioural equivalence (CBE)", "").strip(),
+        "",
+    ]
+    return lines
+
+
+def _files(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """What the folder holds."""
+    lines: list[str] = []
+    lines += [
+        "Files: `metrics.json`, `table.md`, `config.toml`, `model/best.pt` (load with "
+        "`excavator_surrogate.surrogate.load_checkpoint`), `data/`.",
+        "",
+    ]
+    return lines
+
+
+Section = Callable[[Mapping[str, Any], ReportContext], list[str]]
+
+SECTIONS: tuple[Section, ...] = (
+    _summary,
+    _paper_table_iii,
+    _cleaning,
+    _against_cleaned,
+    _cleaning_effect,
+    _ensemble_members,
+    _cbe_table,
+    _files,
+)
+"""The report's sections, in order."""
+
+
+def render_run_report(metrics: Mapping[str, Any], ctx: ReportContext) -> str:
+    """The human-readable ``report.md`` of a run: every section of :data:`SECTIONS`."""
+    return "\n".join(line for section in SECTIONS for line in section(metrics, ctx))
