@@ -88,3 +88,10 @@ def device_label(dev: torch.device) -> str:
     if dev.type == "cpu":
         return f"cpu ({torch.get_num_threads()} threads)"
     return str(dev)
+
+
+def usable_cpus() -> int:
+    """CPUs this process may use (its affinity mask where the OS has one; at least 1)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1

@@ -128,7 +128,7 @@ def run_pipeline(
         raw_ds = load_dataset(data_dir)
         train_ds = raw_ds
         if run_cfg.auto_train:
-            from .training.auto import auto_config
+            from .training.auto import auto_config, recipe_table
 
             train_cfg, recipe = auto_config(
                 raw_ds, overrides=merge_tables(raw_preset.get("train", {}), over.get("train", {}))
@@ -203,7 +203,7 @@ def run_pipeline(
             )
             result_extra["against_cleaned"] = {k: against[k] for k in ("omega", "theta")}
         if raw_best is not None:
-            result_extra["cleaning_effect"] = _score_against_truth(
+            result_extra["cleaning_effect"] = _score_models(
                 {"trained on cleaned": best, "trained on raw": raw_best}, train_ds, eval_cfg
             )
         if train_cfg.members > 1:
@@ -211,7 +211,7 @@ def run_pipeline(
                 f"member {i}": best.parent / f"member_{i}" / "best.pt"
                 for i in range(train_cfg.members)
             }
-            result_extra["ensemble_members"] = _score_against_truth(
+            result_extra["ensemble_members"] = _score_models(
                 {"ensemble": best, **member_paths},
                 train_ds,
                 eval_cfg,
@@ -244,7 +244,7 @@ def run_pipeline(
         if logs is not None:
             record["logs"] = {"sources": [str(p) for p in logs], "mapping": str(mapping)}
         if recipe:
-            record["recipe"] = {"name": "auto", "why": recipe}
+            record["recipe"] = recipe_table(recipe)
         write_text(tmp / "config.toml", dumps_toml(record))
         write_text(
             tmp / "report.md",
@@ -262,7 +262,7 @@ def run_pipeline(
     return metrics
 
 
-def _score_against_truth(
+def _score_models(
     models: Mapping[str, Path],
     ds: Any,
     eval_cfg: Any,

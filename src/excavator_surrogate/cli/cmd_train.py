@@ -78,13 +78,13 @@ def checked_run(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the best checkpoint path."""
-    from ..config import dumps_toml
+    from ..config import dumps_toml, to_dict
     from ..data.dataset import load_dataset
     from ..io_utils import log, write_text
     from ..scale.ddp import distributed_env, init_distributed, shutdown
     from ..surrogate.checkpoint import read_checkpoint
     from ..training import train
-    from ..training.auto import auto_config, recipe_record
+    from ..training.auto import auto_config, recipe_table
 
     named = dict(
         mode=args.mode,
@@ -114,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
     if dist is not None and not dist.is_main:
         return 0
     if not args.preset:  # record why the recipe chose what it did next to the config
-        write_text(Path(args.out) / "config.toml", dumps_toml(recipe_record(cfg, why)))
+        record = {"train": to_dict(cfg), "recipe": recipe_table(why)}
+        write_text(Path(args.out) / "config.toml", dumps_toml(record))
     m = read_checkpoint(best).get("metrics", {})
     ens = m.get("ensemble")
     which = f"{ens['n_member']}-member ensemble" if ens else f"epoch {m.get('epoch')}"

@@ -26,7 +26,6 @@ the command line ``exsur train DATA --members 1``.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Mapping
 from typing import Any
 
@@ -34,6 +33,7 @@ import numpy as np
 
 from ..config import from_dict, to_dict
 from ..data.dataset import Dataset
+from ..devices import usable_cpus
 from ..errors import DataError
 from .config import TrainConfig
 
@@ -49,13 +49,6 @@ EPOCHS = 40
 """Epochs of the cosine schedule (the wall-time budget ends it earlier on a slow machine)."""
 MEMBERS = 4
 """Seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
-
-
-def cpu_count() -> int:
-    """CPUs this process may use."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 def auto_config(
@@ -82,7 +75,7 @@ def auto_config(
     lengths = np.array([e.n_step for e in dataset.train])
     if lengths.size == 0:
         raise DataError(dataset.root, "has no training episodes", fix="import or simulate some")
-    cpus = cpus or cpu_count()
+    cpus = cpus or usable_cpus()
     why: list[str] = []
     short = int(lengths.min())
     window = WINDOW
@@ -136,6 +129,6 @@ def auto_config(
     return cfg, why
 
 
-def recipe_record(cfg: TrainConfig, why: list[str]) -> dict[str, Any]:
-    """``{"train": ..., "recipe": {"name": "auto", "why": [...]}}`` for ``config.toml``."""
-    return {"train": to_dict(cfg), "recipe": {"name": "auto", "why": list(why)}}
+def recipe_table(why: list[str]) -> dict[str, Any]:
+    """The ``[recipe]`` table of ``config.toml``: ``{"name": "auto", "why": [...]}``."""
+    return {"name": "auto", "why": list(why)}

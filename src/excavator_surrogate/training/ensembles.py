@@ -10,6 +10,7 @@ from typing import Any
 
 from ..config import to_dict
 from ..data.dataset import Dataset
+from ..devices import usable_cpus
 from ..errors import ExsurError
 from ..io_utils import log
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
@@ -57,7 +58,6 @@ def train_ensemble(
         Path of ``OUT/best.pt``.
     """
     import multiprocessing
-    import os
     from concurrent.futures import ProcessPoolExecutor
 
     _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
@@ -65,8 +65,7 @@ def train_ensemble(
     out.mkdir(parents=True, exist_ok=True)
     cfgs = member_configs(cfg)
     dirs = [out / f"member_{i}" for i in range(cfg.members)]
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    workers = min(cfg.member_workers or cpus or 1, cfg.members)
+    workers = min(cfg.member_workers or usable_cpus(), cfg.members)
     write_config(out, cfg)
     log(
         f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
