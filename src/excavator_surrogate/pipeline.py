@@ -112,7 +112,7 @@ def run_pipeline(
         # ---- simulate (or take the user's dataset) --------------------------------------
         t0 = time.monotonic()
         if logs is not None:
-            from .ingest.convert import import_logs
+            from .ingest import import_logs
             from .ingest.mapping import load_mapping
 
             log(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
