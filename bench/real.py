@@ -38,7 +38,7 @@ import numpy as np
 
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.evaluate.cbe import evaluate_models
-from excavator_surrogate.ingest.convert import import_logs
+from excavator_surrogate.ingest import import_logs
 from excavator_surrogate.ingest.mapping import load_mapping
 from excavator_surrogate.io_utils import log
 from excavator_surrogate.surrogate.baselines import fit_arx

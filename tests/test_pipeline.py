@@ -53,11 +53,20 @@ def test_run_stage1_report(tmp_path: Path) -> None:
     assert set(m["theta"]["boom"]) >= {"rmse", "mae", "r2"}
     assert set(m["compare"]) == {"GRU", "ARX"}
     assert m["run"]["preset"] == "tiny-test" and "total" in m["run"]["timings_s"]
-    # Paths point at the final folder, never at the temporary build folder.
-    assert ".tmp" not in json.dumps(m) and ".tmp" not in (out / "report.md").read_text()
+    # Paths inside the run folder are relative to it: right after the temporary build folder
+    # is renamed into place, and after the folder is moved.
+    assert m["run"]["checkpoint"] == "model/best.pt" and m["run"]["dataset"] == "data"
+    assert m["run"]["out"] == str(out.resolve())
+    report = (out / "report.md").read_text()
+    assert "- checkpoint: model/best.pt" in report and "- dataset: data" in report
+    assert ".tmp" not in json.dumps(m) and ".tmp" not in report
     cfg = tomllib.loads((out / "config.toml").read_text())
     assert cfg["train"]["hidden"] == 16 and cfg["simulate"]["n_train"] == 2
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    moved = tmp_path / "moved"
+    out.rename(moved)
+    assert (moved / m["run"]["checkpoint"]).is_file()
+    assert (moved / m["run"]["dataset"] / "manifest.json").is_file()
 
 
 def test_run_stage2_cleaning_section(tmp_path: Path) -> None:

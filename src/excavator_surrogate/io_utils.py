@@ -168,6 +168,17 @@ def write_json(path: str | Path, obj: Any) -> None:
     write_text(path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
 
 
+def recorded_path(path: str | Path, root: str | Path) -> str:
+    """``path`` as written into a file of the output folder ``root``.
+
+    Inside ``root``: relative to it, with ``/`` (``"model/best.pt"``), so the record stays
+    right when the folder is renamed or moved (e.g. from its temporary build folder into
+    place).  Outside ``root``: absolute.  Resolve a relative record with ``root / path``.
+    """
+    p, r = Path(path).resolve(), Path(root).resolve()
+    return p.relative_to(r).as_posix() if p.is_relative_to(r) else str(p)
+
+
 def _json_default(o: Any) -> Any:
     try:
         import numpy as np

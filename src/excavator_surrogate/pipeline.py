@@ -4,7 +4,8 @@ The report folder (written atomically: built in a temporary sibling, renamed whe
 
     OUT/
       report.md          # everything a person wants to read: tables, figures, timings
-      metrics.json       # CBE of the LSTM (+ "compare" baselines, "cleaning", "against_cleaned")
+      metrics.json       # CBE of the LSTM (+ "compare" baselines, "cleaning", "against_cleaned");
+                         # its paths are relative to OUT ("model/best.pt"), absolute outside it
       table.md           # the paper-layout CBE table (and baselines)
       cbe.png            # Figure-2-style closed-loop comparison
       fusion_<joint>.png # Figure-3-style Kalman fusion (Stage II presets)
@@ -18,7 +19,6 @@ The report folder (written atomically: built in a temporary sibling, renamed whe
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -112,7 +112,7 @@ def run_pipeline(
         # ---- simulate (or take the user's dataset) --------------------------------------
         t0 = time.monotonic()
         if logs is not None:
-            from .ingest.convert import import_logs
+            from .ingest import import_logs
             from .ingest.mapping import load_mapping
 
             log(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
@@ -189,8 +189,15 @@ def run_pipeline(
         ev = dataclasses.asdict(eval_cfg)
         ev["arx"] = run_cfg.arx and ev["arx"]
         ev["paper"] = run_cfg.paper_table == "II" and ev["paper"]
+        # Paths inside the run folder are recorded relative to it ("model/best.pt"), so they
+        # stay right when the temporary folder is renamed into place.
         metrics = evaluate_checkpoint(
-            best, train_ds, out=tmp, compare=compare, **{**ev, "reference": run_cfg.reference}
+            best,
+            train_ds,
+            out=tmp,
+            root=tmp,
+            compare=compare,
+            **{**ev, "reference": run_cfg.reference},
         )
         if run_cfg.clean:
             # Also score against the cleaned data (the only reference a real machine gives).
@@ -198,6 +205,7 @@ def run_pipeline(
                 best,
                 train_ds,
                 out=tmp / "eval_cleaned",
+                root=tmp,
                 compare=None,
                 **{**ev, "reference": "measured", "arx": False, "paper": False},
             )
@@ -225,13 +233,8 @@ def run_pipeline(
             "preset": name,
             "split": eval_cfg.split,
             "timings_s": {k: round(v, 1) for k, v in timings.items()},
-            "out": str(out),
+            "out": str(out.resolve()),
         }
-        # Paths recorded while building point into the temporary folder: point them at OUT.
-        metrics = json.loads(json.dumps(metrics).replace(str(tmp), str(out)))
-        for md in (tmp / "table.md", tmp / "eval_cleaned" / "table.md"):
-            if md.exists():
-                write_text(md, md.read_text().replace(str(tmp), str(out)))
         write_json(tmp / "metrics.json", metrics)
         # with the CLI overrides (and the data-driven recipe) applied
         used = {k: v for k, v in cfgs.items() if k != "clean" or run_cfg.clean}

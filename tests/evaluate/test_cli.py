@@ -69,6 +69,9 @@ def test_train_then_evaluate(tmp_path, dataset_dir, capsys):
         and m["run"]["mode"] == "stateful"
     )
     assert "ARX" in m["compare"]
+    # the checkpoint and the dataset lie outside --out: recorded absolute
+    assert m["run"]["checkpoint"] == str((run / "best.pt").resolve())
+    assert m["run"]["dataset"] == str(dataset_dir.resolve())
     assert (tmp_path / "ev" / "table.md").exists() and (tmp_path / "ev" / "cbe.png").exists()
     assert not (tmp_path / "ev" / "cbe_step_0201.png").exists()  # max_figures = 1
     # a second model in the table

@@ -51,6 +51,8 @@ def test_run_logs_writes_the_report_folder(arm3_dir: Path, tmp_path: Path, cli) 
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["theta"]) == {"boom", "arm", "bucket"}
     assert "ARX" in json.dumps(metrics)
+    # the imported dataset and the model are recorded relative to the run folder
+    assert metrics["run"]["dataset"] == "data" and metrics["run"]["checkpoint"] == "model/best.pt"
     cfg = tomllib.loads((out / "config.toml").read_text())
     assert cfg["logs"]["mapping"] == str(mapping)
     assert cfg["train"]["hidden"] == 8 and cfg["train"]["mode"] == "stateful"

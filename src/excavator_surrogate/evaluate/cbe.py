@@ -28,7 +28,7 @@ from ..config import stage_config
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
-from ..io_utils import log, write_json, write_text
+from ..io_utils import log, recorded_path, write_json, write_text
 from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.features import unwrap_periodic
@@ -123,6 +123,7 @@ def evaluate_checkpoint(
     max_figures: int = 4,
     num_threads: int = 1,
     device: str | torch.device = "cpu",
+    root: str | Path | None = None,
 ) -> dict[str, Any]:
     """Evaluate a checkpoint on one split and write ``metrics.json``, ``table.md``, ``cbe.png``.
 
@@ -140,6 +141,9 @@ def evaluate_checkpoint(
         max_figures: at most this many episode figures.
         num_threads: torch intra-op threads (0 keeps torch's default).
         device: where the models are rolled out (``cpu``, ``cuda[:N]``, ``auto``).
+        root: the output folder the recorded ``checkpoint`` and ``dataset`` paths are
+            relative to when they lie inside it (absolute otherwise; see
+            :func:`~excavator_surrogate.io_utils.recorded_path`); default ``out``.
 
     Returns:
         The ``metrics.json`` content.
@@ -186,9 +190,10 @@ def evaluate_checkpoint(
         models, episodes, reference=reference, max_steps=max_steps or None
     )
     main_runs = runs[primary]
+    root = out if root is None else root
     run_info = {
-        "checkpoint": str(ckpt),
-        "dataset": str(dataset.root) if dataset.root else None,
+        "checkpoint": recorded_path(ckpt, root),
+        "dataset": recorded_path(dataset.root, root) if dataset.root else None,
         "split": split,
         "reference": reference,
         "model": sur.model_cfg.to_dict(),

@@ -10,15 +10,8 @@ assigns train/val/test by source file and writes a dataset folder atomically, wi
 
 from __future__ import annotations
 
-from .convert import (
-    REPORT_JSON,
-    REPORT_MD,
-    FileResult,
-    convert_log,
-    import_logs,
-    kalman_velocity,
-    options_with,
-)
+from .convert import FileResult, convert_log, kalman_velocity
+from .importer import REPORT_JSON, REPORT_MD, import_logs, options_with
 from .mapping import (
     AngleMap,
     Channel,

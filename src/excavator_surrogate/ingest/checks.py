@@ -1,0 +1,246 @@
+"""The validation rules of one log, each failing as one line (file, column, row, fix).
+
+Time bases (:func:`check_time`, :func:`check_rate`), missing values
+(:func:`apply_nan_policy`), angle and velocity units (:func:`check_angle_unit`,
+:func:`check_velocity_unit`) and commands (:func:`command_of`: channels -> command in the
+joint's range).  :mod:`.convert` runs them in that order.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import DataError
+from .mapping import DEG, Channel, CommandMap, ImportOptions, InputMap, JointMap, Mapping
+from .sources import Series
+
+MAX_PLAUSIBLE_SPEED = 10.0
+"""Joint speed [rad/s] above which a 'rad' angle column is taken to hold degrees."""
+
+
+def check_time(path: Path, s: Series) -> float:
+    """Strictly increasing time; returns the typical step [s] (mean of the steps that are not gaps)."""
+    t = s.time
+    if t.shape[0] < 2:
+        raise DataError(
+            path,
+            f"only {t.shape[0]} sample(s)",
+            column=s.time_label,
+            fix="a log needs many samples; remove the file",
+        )
+    d = np.diff(t)
+    bad = ~(d > 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0]) + 1
+        if d[i - 1] == 0:
+            raise DataError(
+                path,
+                f"duplicate timestamp {t[i]:.6f} s (same as row {i - 1})",
+                column=s.time_label,
+                row=i,
+                fix="drop the duplicated rows; exsur does not guess which one is right",
+            )
+        raise DataError(
+            path,
+            f"time goes backwards ({t[i - 1]:.6f} s -> {t[i]:.6f} s)",
+            column=s.time_label,
+            row=i,
+            fix="sort the log by time",
+        )
+    med = float(np.median(d))
+    normal = d[d <= 1.5 * med]
+    return float(np.mean(normal)) if normal.size else med
+
+
+def check_rate(path: Path, s: Series, dt_in: float, mapping: Mapping) -> None:
+    """A typical step ``dt_in`` [s] outside 0.5-20000 Hz is an error (naming a likelier time unit)."""
+    rate = 1.0 / dt_in
+    if 0.5 <= rate <= 20000:
+        return
+    fix = "check the time column"
+    unit = mapping.time.unit
+    if s.name == "table" and unit in ("s", "ms", "us", "ns"):
+        scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+        for cand, f in scale.items():
+            r = rate * scale[unit] / f
+            if cand != unit and 5 <= r <= 1000:
+                fix = f'the time unit looks wrong: set [time] unit = "{cand}" ({r:.4g} Hz)'
+                break
+    raise DataError(
+        path,
+        f"typical time step {dt_in:.6g} s means {rate:.4g} Hz, outside 0.5-20000 Hz",
+        column=s.time_label,
+        fix=fix,
+    )
+
+
+def apply_nan_policy(
+    path: Path, t: np.ndarray, x: np.ndarray, label: str, *, options: ImportOptions
+) -> tuple[np.ndarray, int, int]:
+    """Apply the NaN policy; returns ``(values, n_filled, n_runs)``."""
+    bad = ~np.isfinite(x)
+    if not bad.any():
+        return x, 0, 0
+    first = int(np.flatnonzero(bad)[0])
+    if options.nan == "fail":
+        raise DataError(
+            path,
+            f"missing or non-finite value ({float(x[first])!r})",
+            column=label,
+            row=first,
+            fix=f"clean the log, or use --nan fill to interpolate gaps of up to {options.max_fill} samples",
+        )
+    if bad.all():
+        raise DataError(
+            path, "every value is missing", column=label, fix="map a column that holds data"
+        )
+    edges = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    starts = np.flatnonzero(edges == 1)
+    ends = np.flatnonzero(edges == -1)
+    lengths = ends - starts
+    long = lengths > options.max_fill
+    if long.any():
+        k = int(np.flatnonzero(long)[0])
+        raise DataError(
+            path,
+            f"{int(lengths[k])} consecutive missing values, more than --max-fill {options.max_fill}",
+            column=label,
+            row=int(starts[k]),
+            fix="raise --max-fill, or cut the log at this gap",
+        )
+    good = ~bad
+    x = x.copy()
+    x[bad] = np.interp(t[bad], t[good], x[good])
+    return x, int(bad.sum()), int(starts.shape[0])
+
+
+def check_angle_unit(
+    path: Path, t: np.ndarray, th: np.ndarray, j: JointMap, label: str, where: str
+) -> None:
+    """A 'rad' angle beyond ±2π (or moving implausibly fast) holds degrees."""
+    if j.angle.unit != "rad":
+        return
+    big = np.abs(th) > 2 * math.pi + 1e-6
+    if not big.any():
+        return
+    row = int(np.flatnonzero(big)[0])
+    if j.periodic:
+        jumps = np.abs(np.diff(th)) > math.pi
+        step = max(1, round(0.1 / float(np.median(np.diff(t)))))
+        v = np.abs(np.diff(th[::step]) / np.diff(t[::step])) if th.shape[0] > step else np.zeros(1)
+        if not jumps.any() and float(np.percentile(v, 99)) <= MAX_PLAUSIBLE_SPEED:
+            return  # an unwrapped periodic angle in rad
+    raise DataError(
+        path,
+        f"angle {th[row]:.6g} is beyond ±2π in a rad column: looks like degrees",
+        column=label,
+        row=row,
+        fix=f"set unit = \"deg\" in the angle of joint '{j.name}' in {where}",
+    )
+
+
+def _to_command(x: np.ndarray, c: CommandMap) -> np.ndarray:
+    """Signed channel value (after scale/offset) -> command in ``c.range``."""
+    lo, hi = c.range
+    if c.unit == "%":
+        return 0.5 * (lo + hi) + x / 100.0 * 0.5 * (hi - lo)
+    if c.unit == "raw":
+        rlo, rhi = c.raw_range  # type: ignore[misc]
+        return lo + (x - rlo) / (rhi - rlo) * (hi - lo)
+    return x
+
+
+def command_of(
+    path: Path,
+    j: JointMap | InputMap,
+    chans: tuple[Channel, ...],
+    vals: dict[Channel, np.ndarray],
+    *,
+    options: ImportOptions,
+    where: str,
+    entry: dict[str, Any],
+) -> np.ndarray:
+    """(n_row,) command of joint or input ``j`` in its range, from its ``chans`` in ``vals``.
+
+    A two-channel command is ``up - down``; out-of-range values are an error, or clipped
+    (and counted in ``entry["clipped"]``) with ``options.clip_commands``.
+    """
+    c = j.command
+    what = f"joint '{j.name}' command" if isinstance(j, JointMap) else f"input '{j.name}'"
+    span = c.range[1] - c.range[0]
+    tol = 1e-9 * span
+    raw = [vals[ch] * c.scale + c.offset for ch in chans]
+    if c.two_channel:
+        for ch, x in zip(chans, raw):
+            neg = x < -tol
+            if neg.any() and not options.clip_commands:
+                row = int(np.flatnonzero(neg)[0])
+                raise DataError(
+                    path,
+                    f"one-way command channel is negative ({x[row]:.6g})",
+                    column=ch.label,
+                    row=row,
+                    fix=f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
+                )
+        x = (
+            np.maximum(raw[0], 0.0) - np.maximum(raw[1], 0.0)
+            if options.clip_commands
+            else raw[0] - raw[1]
+        )
+        label = f"{chans[0].label} - {chans[1].label}"
+    else:
+        x = raw[0]
+        label = chans[0].label
+    u = _to_command(x, c)
+    out = (u < c.range[0] - tol) | (u > c.range[1] + tol)
+    if out.any():
+        row = int(np.flatnonzero(out)[0])
+        if not options.clip_commands:
+            raise DataError(
+                path,
+                f"command {u[row]:.6g} (log value {x[row]:.6g} {c.unit}) is outside "
+                f"[{c.range[0]:g}, {c.range[1]:g}] after scaling",
+                column=label,
+                row=row,
+                fix=f"check unit/scale/range of {what} in {where}, or use --clip-commands",
+            )
+        entry["clipped"][j.name] = int(out.sum())
+        u = np.clip(u, c.range[0], c.range[1])
+    return u
+
+
+def check_velocity_unit(
+    path: Path, omega_m: np.ndarray, omega_d: np.ndarray, j: JointMap, label: str, where: str
+) -> None:
+    """Measured velocity vs the angle's rate of change: catches deg/s vs rad/s and sign errors."""
+    nd = float(np.dot(omega_d, omega_d))
+    nm = float(np.dot(omega_m, omega_m))
+    if omega_d.shape[0] < 10 or nd / omega_d.shape[0] < 1e-4 or nm == 0:
+        return  # the joint hardly moves: nothing to compare
+    corr = float(np.dot(omega_m, omega_d)) / math.sqrt(nd * nm)
+    ratio = float(np.dot(omega_m, omega_d)) / nd
+    if corr < -0.8:
+        raise DataError(
+            path,
+            "measured velocity has the opposite sign of the angle's rate of change",
+            column=label,
+            fix=f"set scale = -1 in the velocity of joint '{j.name}' in {where}",
+        )
+    if corr > 0.8 and 0.5 / DEG < ratio < 2.0 / DEG:
+        raise DataError(
+            path,
+            f"measured velocity is {ratio:.3g}x the angle's rate of change: looks like deg/s",
+            column=label,
+            fix=f"set unit = \"deg/s\" in the velocity of joint '{j.name}' in {where}",
+        )
+    if corr > 0.8 and 0.5 * DEG < ratio < 2.0 * DEG:
+        raise DataError(
+            path,
+            f"measured velocity is {ratio:.3g}x the angle's rate of change: looks like rad/s",
+            column=label,
+            fix=f"set unit = \"rad/s\" in the velocity of joint '{j.name}' in {where}",
+        )
