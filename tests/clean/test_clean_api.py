@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from excavator_surrogate.clean import (
     cleaning_metrics,
     pooled_cleaning_metrics,
 )
+from excavator_surrogate.clean.api import _relative_source
 from excavator_surrogate.data import load_dataset, read_manifest
 from excavator_surrogate.errors import ConfigError, DataError
 
@@ -110,7 +112,8 @@ def test_clean_dataset(noisy_dataset, tmp_path) -> None:
             assert e.extra["cleaning"]["method"] == "gyro"
     manifest = read_manifest(out)
     assert manifest["config"]["clean"]["method"] == "gyro"
-    assert manifest["cleaned_from"] == str(noisy_dataset)
+    # recorded so that it resolves from the cleaned dataset folder, wherever the pair is moved
+    assert (out / manifest["cleaned_from"]).resolve() == Path(noisy_dataset).resolve()
     assert set(manifest["cleaning"]) == set(src.spec.names)
     assert "[clean]" in (out / "config.toml").read_text()
     # re-running replaces the folder atomically; no temp folders left behind
@@ -131,3 +134,9 @@ def test_warns_when_omega_is_derived_from_theta(noisy_episode, capsys) -> None:
     assert "['arm']" in err and "tau_cons=inf" in err
     clean_episode(noisy_episode.replace(omega=om), config=CleanConfig(method="paper"))
     assert capsys.readouterr().err == ""
+
+
+def test_cleaned_from_is_relative_for_siblings(tmp_path) -> None:
+    run = tmp_path / "run"
+    assert _relative_source(run / "data", run / "data_clean") == "../data"
+    assert _relative_source(tmp_path / "x" / "data", run / "clean") == str(tmp_path / "x" / "data")

@@ -251,6 +251,12 @@ def pooled_cleaning_metrics(pairs: Iterable[tuple[Episode, Episode]]) -> dict[st
     return _metrics_from_sums(total, names)
 
 
+def _relative_source(src: Path, out: Path) -> str:
+    """``src`` as recorded in ``out``'s manifest: ``"../<name>"`` for a sibling folder, else absolute."""
+    s, o = src.resolve(), out.resolve()
+    return f"../{s.name}" if s.parent == o.parent else str(s)
+
+
 def clean_dataset(src: str | Path, out: str | Path, *, config: CleanConfig | None = None) -> Path:
     """Clean every episode of dataset ``src`` into a new dataset folder ``out``.
 
@@ -276,7 +282,9 @@ def clean_dataset(src: str | Path, out: str | Path, *, config: CleanConfig | Non
         [(c, split) for c, (_, split) in zip(cleaned, items)],
         config={"clean": to_dict(cfg)},
         extra={
-            "cleaned_from": str(src),
+            # relative to this dataset folder when both sit in one folder ("../data"), so a
+            # run folder can be renamed into place; otherwise absolute
+            "cleaned_from": _relative_source(src, out),
             "source_config": ds.manifest.get("config", {}),
             "cleaning": summary,
         },

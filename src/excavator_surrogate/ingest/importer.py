@@ -193,7 +193,8 @@ def _report(
     n_samples = {s: sum(ep.n_step for ep, sp in items if sp == s) for s in ("train", "val", "test")}
     return {
         "report_version": 1,
-        "out": str(out) if out is not None else None,
+        # the dataset folder holding this report ("." : it moves with the folder); None: dry run
+        "out": "." if out is not None else None,
         "mapping": str(mapping.path) if mapping.path is not None else None,
         "spec": spec.to_dict(),
         "options": to_dict(options),

@@ -70,7 +70,7 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += ["", "Warnings:"]
         lines += [f"- {w}" for w in report["warnings"]]
     if report.get("out"):
-        lines += ["", f"Wrote {report['out']} (manifest.json, episodes/, import_report.json)."]
+        lines += ["", "Wrote this dataset folder (manifest.json, episodes/, import_report.json)."]
     else:
         lines += ["", "Dry run: nothing written."]
     return "\n".join(lines) + "\n"
