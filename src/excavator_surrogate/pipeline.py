@@ -164,7 +164,8 @@ def run_pipeline(
         # ---- train ----------------------------------------------------------------------
         t0 = time.monotonic()
         log(f"run[{name}]: train LSTM ({train_cfg.mode})")
-        best = train(train_cfg, train_ds, out=tmp / "model")
+        notes = {"recipe": recipe_table(recipe)} if recipe else None
+        best = train(train_cfg, train_ds, out=tmp / "model", notes=notes)
         timings["train_lstm"] = time.monotonic() - t0
         compare: dict[str, Path] = {}
         if run_cfg.gru:

@@ -61,3 +61,18 @@ def test_no_training_episode_is_a_data_error():
     ds.episodes["train"] = []
     with pytest.raises(DataError, match="no training episodes"):
         auto_config(ds)
+
+
+def test_recipe_reasons_are_written_next_to_the_config_once(tmp_path):
+    import tomllib
+
+    from excavator_surrogate.training import train
+
+    ds = _dataset([120, 130])
+    cfg, why = auto_config(ds, overrides={"members": 1, "epochs": 1, "hidden": 8}, cpus=1)
+    from excavator_surrogate.training.auto import recipe_table
+
+    train(cfg, ds, out=tmp_path, show_progress=False, notes={"recipe": recipe_table(why)})
+    written = tomllib.loads((tmp_path / "config.toml").read_text())
+    assert written["train"]["hidden"] == 8 and written["train"]["seq_len"] == cfg.seq_len
+    assert written["recipe"] == recipe_table(why) and written["recipe"]

@@ -78,9 +78,8 @@ def checked_run(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the best checkpoint path."""
-    from ..config import dumps_toml, to_dict
     from ..data.dataset import load_dataset
-    from ..io_utils import log, write_text
+    from ..io_utils import log
     from ..scale.ddp import distributed_env, init_distributed, shutdown
     from ..surrogate.checkpoint import read_checkpoint
     from ..training import train
@@ -108,14 +107,12 @@ def run(args: argparse.Namespace) -> int:
     if args.ddp or distributed_env():
         dist = init_distributed(device=cfg.device, require=args.ddp)
     try:
-        best = train(cfg, dataset, out=args.out, resume=args.resume, dist=dist)
+        notes = None if args.preset else {"recipe": recipe_table(why)}  # why the recipe chose so
+        best = train(cfg, dataset, out=args.out, resume=args.resume, dist=dist, notes=notes)
     finally:
         shutdown(dist)
     if dist is not None and not dist.is_main:
         return 0
-    if not args.preset:  # record why the recipe chose what it did next to the config
-        record = {"train": to_dict(cfg), "recipe": recipe_table(why)}
-        write_text(Path(args.out) / "config.toml", dumps_toml(record))
     m = read_checkpoint(best).get("metrics", {})
     ens = m.get("ensemble")
     which = f"{ens['n_member']}-member ensemble" if ens else f"epoch {m.get('epoch')}"

@@ -139,13 +139,7 @@ def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Map
                     f"not by {mapping.csv.delimiter!r}",
                     fix=f"set [csv] delimiter = {_toml_str(delim)} in {mapping.where}",
                 )
-            shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
-            raise DataError(
-                path,
-                "mapped column is missing",
-                column=c,
-                fix=f"fix the column name in {mapping.where}; the log has: {shown}",
-            )
+            raise missing_channel(path, c, names, mapping, what="column")
 
 
 def _other_delimiter(names: list[str], column: str, current: str) -> str | None:
@@ -160,8 +154,11 @@ def _toml_str(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace("\t", "\\t").replace('"', '\\"') + '"'
 
 
-def missing_channel(path: Path, name: str, names: Sequence[str], mapping: Mapping) -> DataError:
-    """The error for a mapped channel that the log lacks: the nearest name and the first 12."""
+def missing_channel(
+    path: Path, name: str, names: Sequence[str], mapping: Mapping, *, what: str = "channel"
+) -> DataError:
+    """The error for a mapped ``what`` (channel, column) that the log lacks: the nearest name
+    and the first 12."""
     close = difflib.get_close_matches(name, list(names), n=1)
     hint = f"did you mean '{close[0]}'? " if close else ""
     shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
@@ -169,7 +166,7 @@ def missing_channel(path: Path, name: str, names: Sequence[str], mapping: Mappin
         path,
         "mapped column is missing",
         column=name,
-        fix=f"{hint}fix the channel name in {mapping.where}; the log has: {shown}",
+        fix=f"{hint}fix the {what} name in {mapping.where}; the log has: {shown}",
     )
 
 

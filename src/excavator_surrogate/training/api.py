@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from ..data.dataset import Dataset
 from ..errors import ConfigError
@@ -23,6 +25,7 @@ def train(
     on_epoch: EpochCallback | None = None,
     dist: Parallel | None = None,
     loss: LossFn | None = None,
+    notes: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train a surrogate on ``dataset.train``, select it by free-run error on ``dataset.val``.
 
@@ -43,6 +46,7 @@ def train(
             (every rank calls ``train`` with the same arguments); None trains in this process.
         loss: ``loss(y_hat, y) -> scalar`` (default: :func:`~.loss.horizon_loss` with
             ``cfg.lambda_bias``).
+        notes: extra tables written after ``[train]`` into ``config.toml`` (e.g. ``recipe``).
 
     Returns:
         Path of ``best.pt``.
@@ -62,7 +66,7 @@ def train(
                     f"[train] members = {cfg.members}: {what} works per member; train each member "
                     "as a single network (members = 1) and merge them with 'exsur merge'"
                 )
-        return train_ensemble(cfg, dataset, out=out, show_progress=show_progress)
+        return train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
     return train_network(
         cfg,
         dataset,
@@ -72,4 +76,5 @@ def train(
         on_epoch=on_epoch,
         par=dist,
         loss=loss,
+        notes=notes,
     )

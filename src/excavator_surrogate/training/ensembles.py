@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -43,7 +44,12 @@ def _member_job(
 
 
 def train_ensemble(
-    cfg: TrainConfig, dataset: Dataset, *, out: str | Path, show_progress: bool | None = None
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    out: str | Path,
+    show_progress: bool | None = None,
+    notes: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train ``cfg.members`` networks with seeds ``seed, seed + 1, ...`` and merge them.
 
@@ -66,7 +72,7 @@ def train_ensemble(
     cfgs = member_configs(cfg)
     dirs = [out / f"member_{i}" for i in range(cfg.members)]
     workers = min(cfg.member_workers or usable_cpus(), cfg.members)
-    write_config(out, cfg)
+    write_config(out, cfg, notes=notes)
     log(
         f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
         f"{workers} in parallel, into {out}/member_*"

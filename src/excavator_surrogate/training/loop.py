@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -89,6 +89,7 @@ def train_network(
     on_epoch: EpochCallback | None = None,
     par: Parallel | None = None,
     loss: LossFn | None = None,
+    notes: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train one network (see :func:`~excavator_surrogate.training.api.train`); returns ``best.pt``."""
     out = Path(out)
@@ -133,7 +134,7 @@ def train_network(
     best_val, bad = st.best_val, st.bad_epochs
 
     if main:
-        write_config(out, cfg)
+        write_config(out, cfg, notes=notes)
     tb = tb_writer(out, cfg.tensorboard) if main else None
     t_start = time.monotonic() - st.elapsed_s
     budget = cfg.max_train_seconds if cfg.max_train_seconds > 0 else math.inf

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -67,9 +67,10 @@ def epoch_row(
     return row
 
 
-def write_config(out: Path, cfg: TrainConfig) -> None:
-    """``OUT/config.toml``: the ``[train]`` table that produced the run."""
-    write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg)}))
+def write_config(out: Path, cfg: TrainConfig, *, notes: Mapping[str, Any] | None = None) -> None:
+    """``OUT/config.toml``: the ``[train]`` table that produced the run, then ``notes``' tables
+    (e.g. ``[recipe]``: why the data-driven recipe chose what it did)."""
+    write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg), **(notes or {})}))
 
 
 def write_log(
