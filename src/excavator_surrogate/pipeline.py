@@ -74,7 +74,7 @@ def run_pipeline(
     from .data import load_dataset
     from .evaluate.cbe import evaluate_checkpoint
     from .simulate.generate import simulate_dataset
-    from .training import train
+    from .training import TrainJob, train_parallel
 
     t_start = time.monotonic()
     if (logs is None) != (mapping is None):
@@ -162,25 +162,24 @@ def run_pipeline(
                     )
 
         # ---- train ----------------------------------------------------------------------
+        # the LSTM, then the baselines the run asks for: side by side when they fit the CPUs
         t0 = time.monotonic()
-        log(f"run[{name}]: train LSTM ({train_cfg.mode})")
         notes = {"recipe": recipe_table(recipe)} if recipe else None
-        best = train(train_cfg, train_ds, out=tmp / "model", notes=notes)
-        timings["train_lstm"] = time.monotonic() - t0
-        compare: dict[str, Path] = {}
+        jobs = [TrainJob(train_cfg, train_ds, tmp / "model", tag="exsur lstm", notes=notes)]
         if run_cfg.gru:
-            t0 = time.monotonic()
-            log(f"run[{name}]: train GRU baseline")
-            compare["GRU"] = train(
-                dataclasses.replace(train_cfg, cell="gru"), train_ds, out=tmp / "model_gru"
-            )
-            timings["train_gru"] = time.monotonic() - t0
-        raw_best: Path | None = None
+            gru_cfg = dataclasses.replace(train_cfg, cell="gru")
+            jobs.append(TrainJob(gru_cfg, train_ds, tmp / "model_gru", tag="exsur gru"))
         if run_cfg.clean and run_cfg.raw_baseline:
-            t0 = time.monotonic()
-            log(f"run[{name}]: train LSTM on raw (uncleaned) data")
-            raw_best = train(train_cfg, raw_ds, out=tmp / "model_raw")
-            timings["train_raw"] = time.monotonic() - t0
+            jobs.append(TrainJob(train_cfg, raw_ds, tmp / "model_raw", tag="exsur lstm-raw"))
+        log(
+            f"run[{name}]: train LSTM ({train_cfg.mode})"
+            + "".join(f", {j.tag.split()[-1]} baseline" for j in jobs[1:])
+        )
+        bests = dict(zip((j.out.name for j in jobs), train_parallel(jobs)))
+        timings["train"] = time.monotonic() - t0
+        best = bests["model"]
+        compare: dict[str, Path] = {"GRU": bests["model_gru"]} if "model_gru" in bests else {}
+        raw_best: Path | None = bests.get("model_raw")
 
         # ---- evaluate -------------------------------------------------------------------
         t0 = time.monotonic()

@@ -12,14 +12,16 @@ One idea per module:
 - :mod:`.selection` - free-run validation and best-epoch selection;
 - :mod:`.resume` - starting fresh or from a checkpoint;
 - :mod:`.records` - ``config.toml``, ``log.csv``, TensorBoard;
+- :mod:`.jobs` - independent trainings side by side in processes (:class:`TrainJob`);
 - :mod:`.ensembles` - seed ensembles (:func:`train_ensemble`);
-- :mod:`.api` - :func:`train`.
+- :mod:`.api` - :func:`train`, :func:`train_parallel`.
 """
 
 from ..surrogate.validation import free_run_error
-from .api import train
+from .api import train, train_parallel
 from .config import TrainConfig
 from .ensembles import member_configs, train_ensemble
+from .jobs import TrainJob
 from .loop import EpochCallback, train_network
 from .loss import LossFn, horizon_loss
 from .parallel import Parallel, SingleProcess, clip_and_step
@@ -30,6 +32,7 @@ __all__ = [
     "Parallel",
     "SingleProcess",
     "TrainConfig",
+    "TrainJob",
     "clip_and_step",
     "free_run_error",
     "horizon_loss",
@@ -37,4 +40,5 @@ __all__ = [
     "train",
     "train_ensemble",
     "train_network",
+    "train_parallel",
 ]

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from ..data.dataset import Dataset
+from ..devices import usable_cpus
 from ..errors import ConfigError
+from ..io_utils import log
 from .config import TrainConfig
 from .ensembles import train_ensemble
+from .jobs import TrainJob, run_jobs
 from .loop import EpochCallback, train_network
 from .loss import LossFn
 from .parallel import Parallel
@@ -78,3 +81,34 @@ def train(
         loss=loss,
         notes=notes,
     )
+
+
+def _train_job(job: TrainJob, show_progress: bool | None) -> Path:
+    return train(job.cfg, job.dataset, out=job.out, show_progress=show_progress, notes=job.notes)
+
+
+def train_parallel(
+    jobs: Sequence[TrainJob], *, cpus: int | None = None, show_progress: bool | None = None
+) -> list[Path]:
+    """Train independent models (e.g. a run's LSTM and its raw-data baseline) side by side.
+
+    They run in parallel processes when every job's ensemble members fit on the CPUs at once
+    (``sum of min(members, cpus) <= cpus``; single networks on two cores: two at a time), else
+    one after the other (each ensemble then spreads its own members over the CPUs).  Each job
+    trains exactly as :func:`train` would train it alone.
+
+    Args:
+        jobs: the trainings.
+        cpus: CPUs to plan for (default: :func:`~excavator_surrogate.devices.usable_cpus`).
+        show_progress: progress bars (sequential jobs only).
+
+    Returns:
+        The jobs' ``best.pt`` paths, in order.
+    """
+    cpus = usable_cpus() if cpus is None else cpus
+    need = sum(min(j.cfg.members, cpus) if j.cfg.members > 1 else 1 for j in jobs)
+    parallel = len(jobs) > 1 and need <= cpus and all(j.cfg.device == "cpu" for j in jobs)
+    if parallel:
+        log(f"training {len(jobs)} models side by side: " + ", ".join(j.tag for j in jobs))
+    workers = len(jobs) if parallel else 1
+    return run_jobs(_train_job, jobs, workers=workers, show_progress=show_progress)

@@ -12,13 +12,13 @@ from typing import Any
 from ..config import to_dict
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
-from ..errors import ExsurError
 from ..io_utils import log
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
+from .jobs import TrainJob, run_jobs
 from .loop import train_network
 from .records import write_config, write_log
 
@@ -30,17 +30,9 @@ def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
     ]
 
 
-def _member_job(
-    index: int, cfg: TrainConfig, dataset: Dataset, out: Path
-) -> tuple[str, str | None]:
-    """Train one member in a worker process; returns ``(best_path, error message or None)``."""
-    from ..io_utils import set_log_tag
-
-    set_log_tag(f"exsur member {index}")
-    try:
-        return str(train_network(cfg, dataset, out=out, show_progress=False)), None
-    except ExsurError as e:  # user errors cross the process boundary as their one-line message
-        return "", str(e)
+def _train_member(job: TrainJob, show_progress: bool | None) -> Path:
+    """One member, trained exactly as a single network."""
+    return train_network(job.cfg, job.dataset, out=job.out, show_progress=show_progress)
 
 
 def train_ensemble(
@@ -63,9 +55,6 @@ def train_ensemble(
     Returns:
         Path of ``OUT/best.pt``.
     """
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
     _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -78,23 +67,11 @@ def train_ensemble(
         f"{workers} in parallel, into {out}/member_*"
     )
     t0 = time.monotonic()
-    if workers <= 1:
-        bests = [
-            train_network(c, dataset, out=d, show_progress=show_progress)
-            for c, d in zip(cfgs, dirs)
-        ]
-    else:
-        ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch threads
-        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            jobs = [
-                pool.submit(_member_job, i, c, dataset, d)
-                for i, (c, d) in enumerate(zip(cfgs, dirs))
-            ]
-            results = [j.result() for j in jobs]
-        for i, (_, err) in enumerate(results):
-            if err is not None:
-                raise ExsurError(f"ensemble member {i}: {err}")
-        bests = [Path(p) for p, _ in results]
+    jobs = [
+        TrainJob(cfg=c, dataset=dataset, out=d, tag=f"exsur member {i}")
+        for i, (c, d) in enumerate(zip(cfgs, dirs))
+    ]
+    bests = run_jobs(_train_member, jobs, workers=workers, show_progress=show_progress)
     members = [load_checkpoint(b) for b in bests]
     sur = merge(members)
     sur.train_config = to_dict(cfg)
