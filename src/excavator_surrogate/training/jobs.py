@@ -70,11 +70,18 @@ def run_jobs(
         return [fn(job, show_progress) for job in jobs]
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
 
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch threads
-    with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
-        futures = [pool.submit(_in_worker, fn, job) for job in jobs]
-        results = [f.result() for f in futures]
+    try:
+        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
+            futures = [pool.submit(_in_worker, fn, job) for job in jobs]
+            results = [f.result() for f in futures]
+    except BrokenProcessPool as e:  # killed (out of memory?) or its code changed under it
+        raise ExsurError(
+            f"a training process died abruptly ({e.__class__.__name__}); rerun with the jobs "
+            "one after the other (--set train.member_workers=1) or with less data per process"
+        ) from e
     for job, (_, err) in zip(jobs, results):
         if err is not None:
             raise ExsurError(f"{job.tag or job.out}: {err}")
