@@ -94,7 +94,8 @@ def train_parallel(
 
     They run in parallel processes when every job's ensemble members fit on the CPUs at once
     (``sum of min(members, cpus) <= cpus``; single networks on two cores: two at a time), else
-    one after the other (each ensemble then spreads its own members over the CPUs).  Each job
+    one after the other (each ensemble then spreads its own members over the CPUs; also when a
+    job says ``member_workers = 1``, or trains on a GPU).  Each job
     trains exactly as :func:`train` would train it alone.
 
     Args:
@@ -107,7 +108,11 @@ def train_parallel(
     """
     cpus = usable_cpus() if cpus is None else cpus
     need = sum(min(j.cfg.members, cpus) if j.cfg.members > 1 else 1 for j in jobs)
-    parallel = len(jobs) > 1 and need <= cpus and all(j.cfg.device == "cpu" for j in jobs)
+    parallel = (
+        len(jobs) > 1
+        and need <= cpus
+        and all(j.cfg.device == "cpu" and j.cfg.member_workers != 1 for j in jobs)
+    )
     if parallel:
         log(f"training {len(jobs)} models side by side: " + ", ".join(j.tag for j in jobs))
     workers = len(jobs) if parallel else 1

@@ -101,7 +101,8 @@ class TrainConfig:
     the members' mean (``OUT/member_<i>/``; ours, not the paper's).  1 = a single network."""
     member_workers: int = 0
     """Members trained in parallel processes, each with ``num_threads`` threads (0 = one
-    process per member, up to the CPU count; 1 = one after the other in this process)."""
+    process per member, up to the CPU count; 1 = one after the other in this process, and so
+    are a run's models)."""
     end_stops: bool = True
     """Keep free runs inside the machine's envelope: clip angles to the joint limits (end stops)
     and velocities to the speed bounds, in training rollouts and in every rollout of the trained
