@@ -1,160 +1,287 @@
-"""Benchmark: windowed (paper) vs stateful (TBPTT) training on the same data, in one run.
+"""Benchmark: training throughput of the paper's 2 x 128 LSTM against this machine's matmul peak.
 
-Reports per mode: wall time per training epoch, time to reach a target validation free-run
-error, best validation error and the final CBE metrics (min R^2 over joints for theta and
-omega) on the test split; then the stateful/windowed ratios.  The last line is one JSON object.
+For each training mode (windowed H-step rollouts; stateful teacher-forced; stateful with
+free-run feedback) and sequence batch size, one measured slice of a real training epoch (the
+package's own mode strategies, loss, clipping, NaN rule and Adam step: ``run_epoch``) on
+synthetic 4-joint data.  Reported: loss samples/s, recurrent steps/s and achieved GFLOP/s.
+Next to it, timed in the same run with the same threads: the dense float32 matmul peak of a
+GEMM shaped like the LSTM's largest one (``(n_batch, 2H) @ (2H, 4H)``), and of a 1024^3 GEMM.
+Also side by side: the fused one-step cell (``SurrogateNet.step``) against a one-step
+``nn.LSTM`` call, as used by free-run training and validation.
+
+FLOP count (multiply-add = 2): forward per recurrent step and sample
+``F = 2 * sum_layers 4H (n_in + H) + 2 * (H * H_head + H_head * n_joint)``; a step inside the
+loss costs ``3F`` (forward, input and weight gradients), a burn-in step ``F``.
 
 Usage::
 
-    python bench/train.py                            # synthetic 4-joint data, 120 s budget per mode
-    python bench/train.py --dataset runs/quick/data --preset quick --budget 150
+    python bench/train.py                       # 2 threads, CPU, ~2 min
+    python bench/train.py --threads 1 --seconds 3
+    python bench/train.py --device cuda         # the same ratios on a GPU
+
+The last line is one JSON object with a ``goals`` object of booleans.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
-import tempfile
 import time
 from dataclasses import replace
-from pathlib import Path
 
+import numpy as np
 import torch
 
-from excavator_surrogate.config import load_preset
-from excavator_surrogate.data import load_dataset
-from excavator_surrogate.evaluate import evaluate_models, min_r2
-from excavator_surrogate.surrogate import load_checkpoint, read_checkpoint
-from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
-from excavator_surrogate.training import TrainConfig, train
+from excavator_surrogate.devices import resolve_device
+from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, SurrogateNet
+from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.training import TrainConfig
+from excavator_surrogate.training.batches import make_data
+from excavator_surrogate.training.loop import run_epoch
+from excavator_surrogate.training.loss import default_loss
+from excavator_surrogate.training.modes import make_mode
+from excavator_surrogate.training.optim import Optimisation
+from excavator_surrogate.training.parallel import SingleProcess
+from excavator_surrogate.training.resume import start
+
+GOAL_RATIO = 0.30
+"""Stateful training of the 2 x 128 LSTM reaches this fraction of the matmul peak (issue 15)."""
 
 
 def _parse() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--dataset", type=Path, default=None, help="dataset folder (default: synthetic)")
-    p.add_argument("--preset", default=None, help="preset whose [train] table is the base config")
-    p.add_argument("--out", type=Path, default=None, help="work folder (default: a temp folder)")
+    p.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
+    p.add_argument("--device", default="cpu", help="cpu, cuda, cuda:N")
+    p.add_argument("--seconds", type=float, default=6.0, help="timed seconds per configuration")
     p.add_argument(
-        "--budget", type=float, default=120.0, help="training wall-time budget per mode [s]"
+        "--seq-batch", default="16,64,256", help="stateful sequence batches (comma-separated)"
     )
-    p.add_argument("--epochs", type=int, default=200, help="max epochs per mode")
-    p.add_argument(
-        "--target", type=float, default=0.15, help="target validation error (NRMSE of theta)"
-    )
-    p.add_argument("--hidden", type=int, default=None, help="override hidden width")
-    p.add_argument("--window", type=int, default=None, help="override window W")
-    p.add_argument("--n-joint", type=int, default=4, help="synthetic: joints")
-    p.add_argument("--n-train", type=int, default=8, help="synthetic: training episodes")
-    p.add_argument(
-        "--n-step", type=int, default=1200, help="synthetic: samples per train/val episode"
-    )
-    p.add_argument(
-        "--test-steps", type=int, default=1800, help="synthetic: samples of the step test"
-    )
-    p.add_argument("--threads", type=int, default=1, help="torch threads")
-    p.add_argument("--modes", default="windowed,stateful", help="comma-separated modes to run")
+    p.add_argument("--hidden", type=int, default=128, help="LSTM width (paper: 128)")
     return p.parse_args()
+
+
+def _sync(dev: torch.device) -> None:
+    if dev.type == "cuda":
+        torch.cuda.synchronize(dev)
+
+
+def matmul_gflops(n: int, k: int, m: int, *, dev: torch.device, seconds: float = 1.0) -> float:
+    """Achieved GFLOP/s of ``(n, k) @ (k, m)`` in float32, best of a few timed bursts."""
+    a, b = torch.randn(n, k, device=dev), torch.randn(k, m, device=dev)
+    for _ in range(5):
+        a @ b
+    best = 0.0
+    for _ in range(3):
+        _sync(dev)
+        t0, reps = time.perf_counter(), 0
+        while time.perf_counter() - t0 < seconds / 3:
+            a @ b
+            reps += 1
+        _sync(dev)
+        best = max(best, 2.0 * n * k * m * reps / (time.perf_counter() - t0) / 1e9)
+    return best
+
+
+def forward_flop(mc: ModelConfig) -> float:
+    """Forward FLOP per recurrent step and sample (see the module docstring)."""
+    h, f = mc.hidden, 0.0
+    n_in = mc.n_feature
+    for _ in range(mc.n_layer):
+        f += 2 * 4 * h * (n_in + h)
+        n_in = h
+    return f + 2 * (h * mc.head_hidden + mc.head_hidden * mc.n_joint)
+
+
+def _dataset(n_joint: int = 4, n_episode: int = 12, n_step: int = 4000):
+    spec = synthetic_spec(n_joint)
+    eps = [
+        synthetic_episode(spec, kind="sine" if i % 2 else "step", n_step=n_step, seed=i)
+        for i in range(n_episode)
+    ]
+    return spec, eps
+
+
+def measure(
+    cfg: TrainConfig, spec, episodes, *, dev: torch.device, seconds: float
+) -> dict[str, float]:
+    """Train slices of an epoch of ``cfg`` for about ``seconds``; throughput and GFLOP/s."""
+    torch.manual_seed(0)
+    mcfg = cfg.model_config(spec.n_feature, spec.n_joint)
+    st = start(cfg, mcfg, spec, episodes, None)
+    net = st.net.to(dev).train()
+    sur = Surrogate(
+        net=net,
+        spec=st.spec,
+        norm=st.norm.to(dev),
+        model_cfg=mcfg,
+        mode=cfg.mode,
+        train_config={},
+        metrics={},
+        name="lstm",
+    )
+    data = make_data(episodes, st.norm, dev)
+    optim = Optimisation.build(cfg, sur)
+    mode = make_mode(cfg, data, sur)
+    par = SingleProcess(device=dev)
+    loss_fn = default_loss(lambda_bias=cfg.lambda_bias)
+    f = forward_flop(mcfg)
+
+    def one(seconds: float) -> tuple[int, float]:
+        """Train whole epochs (the last one cut at the deadline): (loss samples, seconds)."""
+        _sync(dev)
+        t0 = time.perf_counter()
+        deadline, total, epoch = t0 + seconds, 0, 10  # epoch 10: past any teacher warm-up
+        while time.perf_counter() < deadline:
+            _, n = run_epoch(
+                mode,
+                net,
+                par,
+                optim.opt,
+                epoch=epoch,
+                rng=np.random.default_rng(epoch),
+                loss_fn=loss_fn,
+                grad_clip=cfg.grad_clip,
+                lr_at=lambda: None,
+                past=lambda: time.perf_counter() > deadline,
+                show=lambda it, **kw: it,
+            )
+            total, epoch = total + n, epoch + 1
+        _sync(dev)
+        return total, time.perf_counter() - t0
+
+    one(min(1.0, seconds / 4))  # warm-up
+    n, dt = one(seconds)
+    if cfg.mode == "windowed":  # a sample is a window end: H rollout steps re-run W steps each
+        grad_steps = float(n * cfg.window * cfg.horizon)
+        fwd_steps = 0.0
+    else:
+        per_seq = cfg.seq_len - cfg.burn_in + 1  # loss samples per sub-sequence
+        grad_steps = float(n)
+        fwd_steps = n / per_seq * (cfg.burn_in - 1)
+    flop = 3 * f * grad_steps + f * fwd_steps
+    return {
+        "samples_per_s": n / dt,
+        "steps_per_s": (grad_steps + fwd_steps) / dt,
+        "gflops": flop / dt / 1e9,
+        "seconds": dt,
+    }
+
+
+def step_speed(mc: ModelConfig, *, n_batch: int, dev: torch.device, seconds: float) -> dict:
+    """Forward + backward of 40 one-step calls: fused cell vs a one-step ``nn.LSTM`` call."""
+    net = SurrogateNet(mc).to(dev)
+    x = torch.randn(n_batch, 40, mc.n_feature, device=dev)
+
+    def module_step(x_t, state):
+        y, state = net.forward_seq(x_t.unsqueeze(1), state)
+        return y[:, 0], state
+
+    out = {}
+    for name, step in (("module", module_step), ("cell", net.step)):
+
+        def go(step=step):
+            state, ys = net.init_state(n_batch), []
+            for k in range(x.shape[1]):
+                y, state = step(x[:, k], state)
+                ys.append(y)
+            torch.stack(ys, 1).square().mean().backward()
+
+        go()
+        _sync(dev)
+        t0, reps = time.perf_counter(), 0
+        while time.perf_counter() - t0 < seconds:
+            go()
+            reps += 1
+        _sync(dev)
+        out[name] = n_batch * 40 * reps / (time.perf_counter() - t0)
+    return out
 
 
 def main() -> int:
     args = _parse()
+    dev = resolve_device(args.device)
     torch.set_num_threads(args.threads)
-    work = args.out or Path(tempfile.mkdtemp(prefix="exsur-bench-"))
-    if args.dataset is None:
-        t0 = time.monotonic()
-        args.dataset = write_synthetic_dataset(
-            work / "data",
-            synthetic_spec(args.n_joint),
-            n_train=args.n_train,
-            n_val=1,
-            n_test=1,
-            n_step=args.n_step,
-            test_steps=args.test_steps,
-            noise=0.001,
-        )
-        print(
-            f"synthetic dataset in {time.monotonic() - t0:.1f} s: {args.dataset}", file=sys.stderr
-        )
-    ds = load_dataset(args.dataset)
-    base = TrainConfig.from_preset(load_preset(args.preset)) if args.preset else TrainConfig()
-    over = {
-        "epochs": args.epochs,
-        "max_train_seconds": args.budget,
-        "tensorboard": False,
-        "patience": 10**6,
-        "num_threads": args.threads,
-    }
-    if args.hidden:
-        over |= {"hidden": args.hidden, "head_hidden": args.hidden}
-    if args.window:
-        over["window"] = args.window
-    results: dict[str, dict] = {}
-    for mode in args.modes.split(","):
-        cfg = replace(base, mode=mode, **over)
-        best = train(cfg, ds, out=work / mode, show_progress=False)
-        hist = read_checkpoint(work / mode / "last.pt")["history"]
-        sur = load_checkpoint(best)
-        metrics, _ = evaluate_models({mode: sur}, ds.test)
-        m = metrics[mode]
-        reach = next((h["time_s"] for h in hist if h["val_error"] <= args.target), math.inf)
-        full = [h["epoch_s"] for h in hist if h["n_sample"] > 0]
-        results[mode] = {
-            "epochs": len(hist),
-            "epoch_s": sum(full) / len(full),
-            "val_s": sum(h["val_s"] for h in hist) / len(hist),
-            "time_to_target_s": reach,
-            "best_val_error": min(h["val_error"] for h in hist),
-            "theta_r2_min": min_r2(m, "theta"),
-            "omega_r2_min": min_r2(m, "omega"),
-            "theta_r2": {j: v["r2"] for j, v in m["theta"].items()},
-            "omega_r2": {j: v["r2"] for j, v in m["omega"].items()},
-        }
-    print(
-        f"\n{'mode':>9} | epochs | s/epoch | val s | t(val<={args.target}) | best val | min θ R² | min ω R²"
+    spec, eps = _dataset()
+    h = args.hidden
+    base = TrainConfig(
+        hidden=h,
+        head_hidden=h,
+        window=30,
+        num_threads=args.threads,
+        tensorboard=False,
+        device=str(dev),
     )
-    for mode, r in results.items():
-        print(
-            f"{mode:>9} | {r['epochs']:6d} | {r['epoch_s']:7.2f} | {r['val_s']:5.2f} | "
-            f"{r['time_to_target_s']:12.1f} | {r['best_val_error']:8.4f} | {r['theta_r2_min']:8.4f} | "
-            f"{r['omega_r2_min']:8.4f}"
+    configs: list[tuple[str, TrainConfig]] = [
+        ("windowed H=1", replace(base, mode="windowed", horizon=1, batch_size=256)),
+        ("windowed H=10", replace(base, mode="windowed", horizon=10, batch_size=256)),
+    ]
+    stateful = replace(base, mode="stateful", seq_len=150, burn_in=30, tbptt=10)
+    for nb in (int(b) for b in args.seq_batch.split(",")):
+        configs.append((f"stateful teacher b={nb}", replace(stateful, seq_batch=nb)))
+        configs.append(
+            (
+                f"stateful free b={nb}",
+                replace(stateful, seq_batch=nb, feedback="free", teacher_epochs=0),
+            )
         )
-    ratios = {}
-    if {"windowed", "stateful"} <= set(results):
-        w, s = results["windowed"], results["stateful"]
-        ratios = {
-            "epoch_time_windowed_over_stateful": w["epoch_s"] / s["epoch_s"],
-            "time_to_target_windowed_over_stateful": (
-                w["time_to_target_s"] / s["time_to_target_s"]
-                if math.isfinite(s["time_to_target_s"])
-                else None
-            ),
-        }
+    print(f"device {dev}, {torch.get_num_threads()} threads, hidden {h}", file=sys.stderr)
+    results = {}
+    for name, cfg in configs:
+        results[name] = measure(cfg, spec, eps, dev=dev, seconds=args.seconds)
+        r = results[name]
         print(
-            "ratios (windowed / stateful):",
-            {k: (round(v, 2) if v else v) for k, v in ratios.items()},
+            f"{name:>24}: {r['samples_per_s']:9.0f} samples/s {r['steps_per_s']:10.0f} steps/s "
+            f"{r['gflops']:7.1f} GFLOP/s",
+            file=sys.stderr,
         )
-
-    def clean(o):  # JSON has no inf
-        if isinstance(o, float) and not math.isfinite(o):
-            return None
-        if isinstance(o, dict):
-            return {k: clean(v) for k, v in o.items()}
-        return o
-
+    # the peak, timed after the training slices in the same process and thread setting
+    nb_max = max(int(b) for b in args.seq_batch.split(","))
+    peak_shape = matmul_gflops(nb_max, 2 * h, 4 * h, dev=dev)
+    peak_big = matmul_gflops(1024, 1024, 1024, dev=dev)
+    peak = max(peak_shape, peak_big)
+    mc = ModelConfig(n_feature=spec.n_feature, n_joint=spec.n_joint, hidden=h, head_hidden=h)
+    cell = step_speed(mc, n_batch=16, dev=dev, seconds=min(3.0, args.seconds))
+    for r in results.values():
+        r["fraction_of_peak"] = r["gflops"] / peak
+    print(
+        f"\nmatmul peak: {peak_shape:.1f} GFLOP/s ({nb_max} x {2 * h} @ {2 * h} x {4 * h}), "
+        f"{peak_big:.1f} GFLOP/s (1024^3)\n"
+        f"{'mode':>24} | samples/s | GFLOP/s | of peak\n"
+        + "\n".join(
+            f"{k:>24} | {r['samples_per_s']:9.0f} | {r['gflops']:7.1f} | {r['fraction_of_peak']:6.1%}"
+            for k, r in results.items()
+        )
+        + f"\none-step cell vs one-step nn.LSTM (batch 16, fwd+bwd): "
+        f"{cell['cell'] / cell['module']:.2f}x ({cell['cell']:.0f} vs {cell['module']:.0f} steps/s)"
+    )
+    best_stateful = max(r["fraction_of_peak"] for k, r in results.items() if "teacher" in k)
+    best_free = max(r["fraction_of_peak"] for k, r in results.items() if "free" in k)
+    small = f"stateful teacher b={min(int(b) for b in args.seq_batch.split(','))}"
+    large = f"stateful teacher b={nb_max}"
     print(
         json.dumps(
-            clean(
-                {
-                    "bench": "train",
-                    "dataset": str(args.dataset),
-                    "budget_s": args.budget,
-                    "target": args.target,
-                    "results": results,
-                    "ratios": ratios,
-                }
-            )
+            {
+                "bench": "train",
+                "device": str(dev),
+                "threads": torch.get_num_threads(),
+                "hidden": h,
+                "matmul_peak_gflops": round(peak, 1),
+                "matmul_shape_gflops": round(peak_shape, 1),
+                "results": {k: {n: round(v, 4) for n, v in r.items()} for k, r in results.items()},
+                "ratios": {
+                    "stateful_teacher_of_peak": round(best_stateful, 3),
+                    "stateful_free_of_peak": round(best_free, 3),
+                    "large_over_small_batch": round(
+                        results[large]["samples_per_s"] / results[small]["samples_per_s"], 2
+                    ),
+                    "cell_over_module_step": round(cell["cell"] / cell["module"], 2),
+                },
+                "goals": {
+                    "stateful_ge_30pct_of_peak": best_stateful >= GOAL_RATIO,
+                    "fused_cell_faster": cell["cell"] > cell["module"],
+                },
+            }
         )
     )
     return 0

@@ -33,7 +33,8 @@ from .stages import RunConfig, build_configs
 RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
 """The preset tables ``exsur run`` reads."""
 
-DEFAULT_PRESET = "quick"
+DEFAULT_PRESET = "quick-hydraulic"
+"""The README's main demo (`make demo`): the hydraulic stand-in, where the LSTM beats ARX."""
 """Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job."""
 
 

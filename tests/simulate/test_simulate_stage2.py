@@ -218,7 +218,8 @@ def test_stage2_presets_match_the_paper() -> None:
     assert (t["mode"], t["feedback"], t["tbptt"]) == ("stateful", "free", 10)
     for name in ("quick-noload", "quick-compound"):
         q = from_dict(SimulateConfig, load_preset(name)["simulate"])
-        assert q.plant == "hydraulic" and q.sensors and q.n_train * q.steps_train <= 30_000
+        # sized for the 5-minute demo: simulation takes seconds, training ~150 s per model
+        assert q.plant == "hydraulic" and q.sensors and q.n_train * q.steps_train <= 150_000
     with pytest.raises(ConfigError, match="plant"):
         SimulateConfig(plant="pneumatic")
     with pytest.raises(ConfigError, match="dig_cycle"):
