@@ -1,5 +1,5 @@
 # The two commands a fresh machine needs (see README):
-#   make demo   -> end-to-end pipeline on the built-in MuJoCo excavator (quick preset, <= 5 min)
+#   make demo   -> end-to-end pipeline on the built-in hydraulic MuJoCo excavator (quick-hydraulic, <= 5 min)
 #   make test   -> lint (ruff + the import-linter layer contract) + the whole test suite (what CI runs)
 PY ?= python3
 OUT ?= runs/quick

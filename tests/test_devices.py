@@ -50,12 +50,19 @@ def test_train_rollout_and_env_on_cuda(tmp_path: Path) -> None:
     ds = Dataset(spec=spec)
     ds.episodes["train"] = [synthetic_episode(spec, n_step=150, seed=i) for i in range(2)]
     ds.episodes["val"] = [synthetic_episode(spec, n_step=100, seed=9)]
-    for mode in ("windowed", "stateful"):
+    runs = {
+        "windowed": dict(mode="windowed"),
+        "stateful": dict(mode="stateful", seq_len=30, burn_in=5, tbptt=5, seq_batch=2),
+        "free": dict(
+            mode="stateful", seq_len=30, burn_in=5, tbptt=5, seq_batch=2, feedback="free",
+            teacher_epochs=0,
+        ),
+    }  # fmt: skip
+    for name, kw in runs.items():  # every training path, the fused free-run cell included
         cfg = TrainConfig(
-            window=5, hidden=8, head_hidden=8, epochs=2, mode=mode, device="auto",
-            seq_len=30, burn_in=5, tbptt=5, seq_batch=2, tensorboard=False,
+            window=5, hidden=8, head_hidden=8, epochs=2, device="auto", tensorboard=False, **kw
         )  # fmt: skip
-        best = train(cfg, ds, out=tmp_path / mode, show_progress=False)
+        best = train(cfg, ds, out=tmp_path / name, show_progress=False)
         gpu = load_surrogate(best, device="auto")
         assert gpu.device.type == "cuda"
         cpu = load_checkpoint(best)

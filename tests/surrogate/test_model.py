@@ -7,12 +7,16 @@ import torch
 
 from excavator_surrogate.surrogate.model import ModelConfig, SurrogateNet
 
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
+
+@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("cell", ["lstm", "gru"])
-def test_step_equals_forward_seq(cell: str) -> None:
+def test_step_equals_forward_seq(cell: str, device: str) -> None:
     torch.manual_seed(0)
     net = SurrogateNet(ModelConfig(n_feature=7, n_joint=3, hidden=16, head_hidden=8, cell=cell))
-    x = torch.randn(5, 12, 7)
+    net = net.to(device)
+    x = torch.randn(5, 12, 7, device=device)
     state0 = tuple(s + 0.1 * torch.randn_like(s) for s in net.init_state(5))
 
     y_seq, (h_seq, c_seq) = net.forward_seq(x, state0)
