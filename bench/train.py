@@ -198,6 +198,11 @@ def step_speed(mc: ModelConfig, *, n_batch: int, dev: torch.device, seconds: flo
     return out
 
 
+def nb_max_of(args: argparse.Namespace) -> int:
+    """The largest sequence batch measured."""
+    return max(int(b) for b in args.seq_batch.split(","))
+
+
 def main() -> int:
     args = _parse()
     dev = resolve_device(args.device)
@@ -235,6 +240,24 @@ def main() -> int:
             f"{r['gflops']:7.1f} GFLOP/s",
             file=sys.stderr,
         )
+    # float32 matmul setting: oneDNN may run float32 GEMMs / RNNs in bf16 (AMX) when allowed
+    bf16 = {}
+    if dev.type == "cpu" and hasattr(torch.backends.mkldnn, "rnn"):
+        mk = torch.backends.mkldnn
+        saved = (mk.matmul.fp32_precision, mk.rnn.fp32_precision)
+        try:
+            mk.matmul.fp32_precision = mk.rnn.fp32_precision = "bf16"
+            for name, cfg in configs:
+                if name.startswith("stateful") and name.endswith(f"b={nb_max_of(args)}"):
+                    bf16[name] = measure(cfg, spec, eps, dev=dev, seconds=args.seconds)
+                    print(
+                        f"{name + ' bf16':>24}: {bf16[name]['samples_per_s']:9.0f} samples/s",
+                        file=sys.stderr,
+                    )
+        except (RuntimeError, ValueError) as e:  # no bf16 support in this build / CPU
+            print(f"oneDNN bf16 not available: {e}", file=sys.stderr)
+        finally:
+            mk.matmul.fp32_precision, mk.rnn.fp32_precision = saved
     # the peak, timed after the training slices in the same process and thread setting
     nb_max = max(int(b) for b in args.seq_batch.split(","))
     peak_shape = matmul_gflops(nb_max, 2 * h, 4 * h, dev=dev)
@@ -251,6 +274,11 @@ def main() -> int:
         + "\n".join(
             f"{k:>24} | {r['samples_per_s']:9.0f} | {r['gflops']:7.1f} | {r['fraction_of_peak']:6.1%}"
             for k, r in results.items()
+        )
+        + "".join(
+            f"\n{k + ' bf16':>24} | {r['samples_per_s']:9.0f} | "
+            f"{r['samples_per_s'] / results[k]['samples_per_s']:.2f}x float32 (accuracy not verified)"
+            for k, r in bf16.items()
         )
         + f"\none-step cell vs one-step nn.LSTM (batch 16, fwd+bwd): "
         f"{cell['cell'] / cell['module']:.2f}x ({cell['cell']:.0f} vs {cell['module']:.0f} steps/s)"
@@ -276,6 +304,12 @@ def main() -> int:
                         results[large]["samples_per_s"] / results[small]["samples_per_s"], 2
                     ),
                     "cell_over_module_step": round(cell["cell"] / cell["module"], 2),
+                    **{
+                        f"bf16_over_fp32 {k}": round(
+                            r["samples_per_s"] / results[k]["samples_per_s"], 2
+                        )
+                        for k, r in bf16.items()
+                    },
                 },
                 "goals": {
                     "stateful_ge_30pct_of_peak": best_stateful >= GOAL_RATIO,
