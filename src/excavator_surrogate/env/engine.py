@@ -32,7 +32,7 @@ from ..devices import resolve_device
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.features import Normalization, integrate, play_features, play_step
-from ..surrogate.model import Surrogate
+from ..surrogate.model import Surrogate, step_layers
 from .inputs import ActionLayout
 
 Mode = Literal["windowed", "stateful"]
@@ -393,18 +393,7 @@ class SurrogateEngine:
         self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """One sample through the layers with cell ops; x (m, n_raw); returns (out, h, c) new tensors."""
-        hs, cs = [], []
-        inp = x
-        lstm = self._is_lstm
-        for layer, w in enumerate(self._layers):
-            if lstm:
-                h_l, c_l = torch.lstm_cell(inp, (h[layer], c[layer]), *w)
-            else:
-                h_l, c_l = torch.gru_cell(inp, h[layer], *w), c[layer]
-            hs.append(h_l)
-            cs.append(c_l)
-            inp = h_l
-        return inp, torch.stack(hs), torch.stack(cs)
+        return step_layers(x, h, c, self._layers, lstm=self._is_lstm)
 
     def _rnn_seq(
         self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor

@@ -17,6 +17,7 @@ Inputs and outputs are *normalised* (see :class:`~.features.Normalization`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any, Literal
 
@@ -67,6 +68,43 @@ class ModelConfig:
         if cfg.cell not in ("lstm", "gru", "arx"):
             raise CheckpointError(f"unknown cell '{cfg.cell}' (this exsur knows lstm, gru, arx)")
         return cfg
+
+
+CELL_WEIGHTS = ("weight_ih", "weight_hh", "bias_ih", "bias_hh")
+"""Per-layer parameter names of ``nn.LSTM`` / ``nn.GRU`` (suffix ``_l<layer>``)."""
+
+
+def step_layers(
+    x: torch.Tensor,
+    h: torch.Tensor,
+    c: torch.Tensor,
+    weights: Sequence[tuple[torch.Tensor, ...]],
+    *,
+    lstm: bool,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One sample through stacked LSTM / GRU layers, one fused cell op per layer.
+
+    Args:
+        x: (n_batch, n_in) layer-0 input.
+        h, c: (n_layer, n_batch, hidden) state (``c`` passes through for a GRU).
+        weights: per layer ``(w_ih, w_hh, b_ih, b_hh)``.
+        lstm: LSTM cells (else GRU).
+
+    Returns:
+        The last layer's output (n_batch, hidden) and the new ``h``, ``c`` (new tensors).
+    """
+    hs, cs = [], []
+    inp = x
+    for layer, w in enumerate(weights):
+        # gates = W_ih x + b_ih + W_hh h + b_hh, then the LSTM / GRU update of (h, c)
+        if lstm:
+            h_l, c_l = torch.lstm_cell(inp, (h[layer], c[layer]), *w)
+        else:
+            h_l, c_l = torch.gru_cell(inp, h[layer], *w), c[layer]
+        hs.append(h_l)
+        cs.append(c_l)
+        inp = h_l
+    return inp, torch.stack(hs), torch.stack(cs)
 
 
 class SurrogateNet(nn.Module):
@@ -128,32 +166,12 @@ class SurrogateNet(nn.Module):
         ~190 us forward + ~290 us backward in oneDNN's sequence kernel on CPU, the cell ~2x less
         (free-run training and validation step one sample at a time).
         """
-        h, c = state
-        hs, cs = [], []
-        inp = x_t
-        lstm = self.cfg.cell == "lstm"
-        for layer in range(self.cfg.n_layer):
-            # gates = W_ih x + b_ih + W_hh h + b_hh, then the LSTM / GRU update of (h, c)
-            w = self._cell_weights[layer]
-            if lstm:
-                h_l, c_l = torch.lstm_cell(inp, (h[layer], c[layer]), *w)
-            else:
-                h_l, c_l = torch.gru_cell(inp, h[layer], *w), c[layer]
-            hs.append(h_l)
-            cs.append(c_l)
-            inp = h_l
-        return self.head(inp), (torch.stack(hs), torch.stack(cs))
-
-    @property
-    def _cell_weights(self) -> list[tuple[torch.Tensor, ...]]:
-        """Per layer ``(w_ih, w_hh, b_ih, b_hh)`` of the recurrent module (live parameters)."""
-        return [
-            tuple(
-                getattr(self.rnn, f"{n}_l{layer}")
-                for n in ("weight_ih", "weight_hh", "bias_ih", "bias_hh")
-            )
+        weights = [
+            tuple(getattr(self.rnn, f"{n}_l{layer}") for n in CELL_WEIGHTS)
             for layer in range(self.cfg.n_layer)
         ]
+        out, h, c = step_layers(x_t, *state, weights, lstm=self.cfg.cell == "lstm")
+        return self.head(out), (h, c)
 
 
 class ARXNet(nn.Module):
