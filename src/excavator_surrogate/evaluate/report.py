@@ -21,6 +21,38 @@ PAPER_TABLE_II: dict[str, dict[str, tuple[float, float, float]]] = {
 }
 """Paper Table II (Stage I, MuJoCo, 1800-step step test): (RMSE, MAE, R^2) per joint."""
 
+PAPER_TABLE_III: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {
+    "noload": {
+        "omega": {
+            "swing": (0.0481, 0.0302, 0.9755),
+            "boom": (0.0342, 0.0164, 0.8487),
+            "arm": (0.0941, 0.0466, 0.8841),
+            "bucket": (0.1528, 0.0559, 0.5828),
+        },
+        "theta": {
+            "swing": (0.1822, 0.1553, 0.9989),
+            "boom": (0.0691, 0.0496, 0.9286),
+            "arm": (0.1053, 0.0733, 0.9737),
+            "bucket": (0.1200, 0.0984, 0.9706),
+        },
+    },
+    "compound": {
+        "omega": {
+            "swing": (0.0249, 0.0175, 0.9750),
+            "boom": (0.0259, 0.0171, 0.7920),
+            "arm": (0.0269, 0.0185, 0.8734),
+            "bucket": (0.0753, 0.0516, 0.8815),
+        },
+        "theta": {
+            "swing": (0.1451, 0.1120, 0.9774),
+            "boom": (0.0763, 0.0654, 0.8210),
+            "arm": (0.1469, 0.1251, 0.7309),
+            "bucket": (0.3395, 0.3101, 0.8667),
+        },
+    },
+}
+"""Paper Table III (Stage II, real excavator): (RMSE, MAE, R^2) per condition and joint."""
+
 _TYPE = {"omega": "Angular velocity ω [rad/s]", "theta": "Angle trajectory θ [rad]"}
 
 
