@@ -198,16 +198,13 @@ def step_speed(mc: ModelConfig, *, n_batch: int, dev: torch.device, seconds: flo
     return out
 
 
-def nb_max_of(args: argparse.Namespace) -> int:
-    """The largest sequence batch measured."""
-    return max(int(b) for b in args.seq_batch.split(","))
-
-
 def main() -> int:
     args = _parse()
     dev = resolve_device(args.device)
     torch.set_num_threads(args.threads)
     spec, eps = _dataset()
+    batches = sorted(int(b) for b in args.seq_batch.split(","))  # stateful sequence batches
+    nb_max = batches[-1]
     h = args.hidden
     base = TrainConfig(
         hidden=h,
@@ -222,7 +219,7 @@ def main() -> int:
         ("windowed H=10", replace(base, mode="windowed", horizon=10, batch_size=256)),
     ]
     stateful = replace(base, mode="stateful", seq_len=150, burn_in=30, tbptt=10)
-    for nb in (int(b) for b in args.seq_batch.split(",")):
+    for nb in batches:
         configs.append((f"stateful teacher b={nb}", replace(stateful, seq_batch=nb)))
         configs.append(
             (
@@ -248,7 +245,7 @@ def main() -> int:
         try:
             mk.matmul.fp32_precision = mk.rnn.fp32_precision = "bf16"
             for name, cfg in configs:
-                if name.startswith("stateful") and name.endswith(f"b={nb_max_of(args)}"):
+                if name.startswith("stateful") and name.endswith(f"b={nb_max}"):
                     bf16[name] = measure(cfg, spec, eps, dev=dev, seconds=args.seconds)
                     print(
                         f"{name + ' bf16':>24}: {bf16[name]['samples_per_s']:9.0f} samples/s",
@@ -259,7 +256,6 @@ def main() -> int:
         finally:
             mk.matmul.fp32_precision, mk.rnn.fp32_precision = saved
     # the peak, timed after the training slices in the same process and thread setting
-    nb_max = max(int(b) for b in args.seq_batch.split(","))
     peak_shape = matmul_gflops(nb_max, 2 * h, 4 * h, dev=dev)
     peak_big = matmul_gflops(1024, 1024, 1024, dev=dev)
     peak = max(peak_shape, peak_big)
@@ -285,7 +281,7 @@ def main() -> int:
     )
     best_stateful = max(r["fraction_of_peak"] for k, r in results.items() if "teacher" in k)
     best_free = max(r["fraction_of_peak"] for k, r in results.items() if "free" in k)
-    small = f"stateful teacher b={min(int(b) for b in args.seq_batch.split(','))}"
+    small = f"stateful teacher b={batches[0]}"
     large = f"stateful teacher b={nb_max}"
     print(
         json.dumps(

@@ -34,8 +34,8 @@ RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
 """The preset tables ``exsur run`` reads."""
 
 DEFAULT_PRESET = "quick-hydraulic"
-"""The README's main demo (`make demo`): the hydraulic stand-in, where the LSTM beats ARX."""
-"""Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job."""
+"""Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job (``make demo``),
+on the hydraulic stand-in, where the LSTM beats ARX."""
 
 
 def run_pipeline(

@@ -107,7 +107,7 @@ def train_parallel(
         The jobs' ``best.pt`` paths, in order.
     """
     cpus = usable_cpus() if cpus is None else cpus
-    need = sum(min(j.cfg.members, cpus) if j.cfg.members > 1 else 1 for j in jobs)
+    need = sum(min(j.cfg.members, cpus) for j in jobs)  # processes at once, members >= 1
     parallel = (
         len(jobs) > 1
         and need <= cpus
