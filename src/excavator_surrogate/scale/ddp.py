@@ -363,6 +363,9 @@ def _local_entry(
     assert ctx is not None
     try:
         fn(ctx, *args)
+        # leave together: a rank that destroys its gloo group while a peer is still at work
+        # can abort that peer at exit ("terminate called without an active exception")
+        ctx.barrier()
     finally:
         shutdown(ctx)
 
