@@ -185,6 +185,52 @@ def test_reach_task_reward_and_termination(kind: str, stateful_ckpt: Path) -> No
     assert not terminated and reward < -0.9
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_reach_task_success_bonus_on_the_terminating_step(kind: str, stateful_ckpt: Path) -> None:
+    target = np.array([0.0, 0.1, 1.5, 0.5])
+    task = ReachTask(EXCAVATOR, target=target, tol=0.05, omega_tol=1.0, success_bonus=10.0)
+    env = _env(kind, stateful_ckpt, task=task)
+    env.reset(options={"theta0": target + np.array([0.02, 0.0, 0.0, 0.0])})
+    _, reward, terminated, _, info = env.step(np.zeros(4))
+    assert terminated and reward == pytest.approx(10.0 - info["distance"])
+    env.reset(options={"theta0": [1.0, 0.1, 1.5, 0.5]})
+    _, reward, terminated, _, info = env.step(np.zeros(4))
+    assert not terminated and reward == pytest.approx(-info["distance"])
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_reach_task_start_radius_chooses_the_random_start(kind: str, stateful_ckpt: Path) -> None:
+    target = np.array([2.8, 0.1, 1.5, 0.5])
+    task = ReachTask(EXCAVATOR, target=target, start_radius=0.3)
+    env = _env(kind, stateful_ckpt, task=task, reset_margin=0.25)
+    lo = np.array([j.theta_min for j in EXCAVATOR.joints[1:]])
+    hi = np.array([j.theta_max for j in EXCAVATOR.joints[1:]])
+    swing = []
+    for seed in range(40):
+        env.reset(seed=seed)
+        theta0 = env.unwrapped.theta
+        swing.append(theta0[0])
+        margin = 0.25 * (hi - lo)
+        assert np.all(theta0[1:] >= lo + margin - 1e-9) and np.all(theta0[1:] <= hi - margin + 1e-9)
+    swing = np.array(swing)
+    # unwrapped start within the radius of the target (no wrap across ±π in between)
+    assert np.all(np.abs(swing - 2.8) <= 0.3) and swing.max() > 3.0 and swing.min() < 2.6
+    # the given pose still wins over the task's random start
+    env.reset(options={"theta0": [0.0, 0.1, 1.5, 0.5]})
+    assert env.unwrapped.theta[0] == 0.0
+
+
+def test_reach_task_start_radius_needs_a_fixed_target() -> None:
+    with pytest.raises(ConfigError, match="start_radius needs a fixed target"):
+        ReachTask(EXCAVATOR, start_radius=0.5)
+    with pytest.raises(ConfigError, match="start_radius"):
+        ReachTask(EXCAVATOR, target=np.zeros(4), start_radius=-1.0)
+    assert (
+        ReachTask(EXCAVATOR, target=np.zeros(4)).sample_start(np.random.default_rng(0), margin=0.1)
+        is None
+    )
+
+
 def test_spaces_follow_the_machine_spec(make_surrogate) -> None:
     spec = MachineSpec(
         joints=(JointSpec("a", u_min=-5, u_max=5), JointSpec("b", periodic=True, u_min=0, u_max=2)),

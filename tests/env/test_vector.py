@@ -26,30 +26,40 @@ N_ENVS = 3
 LIMIT = 7  # short episodes so autoresets happen within the test
 
 
-def _sync(ckpt: Path, mode: AutoresetMode) -> SyncVectorEnv:
+TASKS = {
+    "random-target": lambda: ReachTask(EXCAVATOR, tol=0.0),
+    # the task chooses the random start poses (swing near the target)
+    "start-radius": lambda: ReachTask(
+        EXCAVATOR, target=np.array([3.0, 0.1, 1.5, 0.5]), tol=0.0, start_radius=0.4
+    ),
+}
+
+
+def _sync(ckpt: Path, mode: AutoresetMode, task: str = "random-target") -> SyncVectorEnv:
     def make() -> gym.Env:
-        env = ExcavatorSurrogateEnv(ckpt, task=ReachTask(EXCAVATOR, tol=0.0))
+        env = ExcavatorSurrogateEnv(ckpt, task=TASKS[task]())
         return gym.wrappers.TimeLimit(env, LIMIT)
 
     return SyncVectorEnv([make for _ in range(N_ENVS)], autoreset_mode=mode)
 
 
+@pytest.mark.parametrize("task", list(TASKS))
 @pytest.mark.parametrize("ckpt_name", ["stateful_ckpt", "windowed_ckpt"])
 @pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
 def test_matches_sync_vector_env_of_single_envs(
-    ckpt_name: str, mode: AutoresetMode, request: pytest.FixtureRequest
+    ckpt_name: str, mode: AutoresetMode, task: str, request: pytest.FixtureRequest
 ) -> None:
     ckpt = request.getfixturevalue(ckpt_name)
     vec = SurrogateVectorEnv(
         ckpt,
         N_ENVS,
-        task=ReachTask(EXCAVATOR, tol=0.0),
+        task=TASKS[task](),
         max_episode_steps=LIMIT,
         autoreset_mode=mode,
     )
     assert vec.metadata["autoreset_mode"] == mode
     assert vec.engine.mode == ("stateful" if ckpt_name == "stateful_ckpt" else "windowed")
-    ref = _sync(ckpt, mode)
+    ref = _sync(ckpt, mode, task)
     o1, i1 = vec.reset(seed=5)
     o2, i2 = ref.reset(seed=5)
     np.testing.assert_allclose(o1, o2, atol=1e-6)

@@ -50,7 +50,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-oracle", action="store_true", help="skip MPPI through the plant model")
     p.add_argument("--no-rl", action="store_true", help="skip the PPO comparison")
     p.add_argument(
-        "--rl-steps", type=int, default=300_000, metavar="N", help="env-steps per PPO run (300000)"
+        "--rl-steps",
+        type=int,
+        default=1_000_000,
+        metavar="N",
+        help="env-steps per PPO run (1000000)",
     )
     p.add_argument(
         "--rl-envs", type=int, default=128, metavar="N", help="parallel envs per PPO run"
@@ -60,6 +64,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--rl-episode-steps", type=int, default=300, metavar="N", help="reach episode length (300)"
+    )
+    p.add_argument(
+        "--rl-start-radius",
+        type=float,
+        default=1.0,
+        metavar="RAD",
+        help="reach starts with the swing within ± this of its target [rad] (1.0); "
+        "a negative value: anywhere on the circle",
     )
     p.add_argument("--seed", type=int, default=0, help="MPPI noise and PPO seed")
     p.set_defaults(func=run)
@@ -85,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         n_envs=args.rl_envs,
         n_eval=args.rl_eval,
         episode_steps=args.rl_episode_steps,
+        start_radius=None if args.rl_start_radius < 0 else args.rl_start_radius,
         seed=args.seed,
     )
     run_control(

@@ -185,8 +185,14 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
             "## RL (Stable-Baselines3 PPO, ReachTask)",
             "",
             f"{c['n_envs']} envs, {c['total_steps']} env-steps each, success = target reached "
-            f"within {c['tol']} rad and held below {c['omega_tol']} rad/s; {c['n_eval']} "
-            "evaluation episodes on the plant (deterministic policy).",
+            f"within {c['tol']} rad and held below {c['omega_tol']} rad/s (reward +"
+            f"{c['success_bonus']:g}); swing start "
+            + (
+                "anywhere on the circle"
+                if c["start_radius"] is None
+                else f"within ±{c['start_radius']:g} rad of the target"
+            )
+            + f"; {c['n_eval']} evaluation episodes on the plant (deterministic policy).",
             "",
             "| trained on | train wall time [s] | return on the plant | success on the plant |",
             "|---|---:|---:|---:|",

@@ -36,7 +36,7 @@ class RLConfig:
 
     n_envs: int = 128
     """Parallel environments of each training run (the same for surrogate and plant)."""
-    total_steps: int = 300_000
+    total_steps: int = 1_000_000
     """Env-step budget of each training run."""
     n_steps: int = 32
     """PPO rollout length per env (one update every ``n_envs * n_steps`` env-steps)."""
@@ -55,6 +55,10 @@ class RLConfig:
     """Target pose: radians for periodic joints, fractions of the range for limited ones."""
     start_margin: float = 0.25
     """Fraction of each limited joint's range avoided by random start poses."""
+    start_radius: float | None = 1.0
+    """The swing starts within ± this of its target [rad]; ``None``: anywhere on the circle."""
+    success_bonus: float = 10.0
+    """Reward on the step that reaches the target and holds still (ends the episode)."""
     tol: float = 0.1
     """Angle tolerance of success [rad]."""
     omega_tol: float = 0.1
@@ -80,7 +84,14 @@ def _task(spec: MachineSpec, cfg: RLConfig) -> Any:
     from ..env.tasks import ReachTask
     from .reference import pose
 
-    return ReachTask(spec, target=pose(spec, cfg.target), tol=cfg.tol, omega_tol=cfg.omega_tol)
+    return ReachTask(
+        spec,
+        target=pose(spec, cfg.target),
+        tol=cfg.tol,
+        omega_tol=cfg.omega_tol,
+        success_bonus=cfg.success_bonus,
+        start_radius=cfg.start_radius,
+    )
 
 
 def _plant_env(spec: MachineSpec, cfg: RLConfig) -> Any:

@@ -28,7 +28,7 @@ from .safety import (
     DivergenceGuard,
     GuardConfig,
 )
-from .tasks import Task, sample_pose
+from .tasks import Task, start_pose
 
 
 def action_space(spec: MachineSpec, layout: ActionLayout | None = None) -> spaces.Box:
@@ -154,14 +154,15 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         """Start at rest at ``options["theta0"]`` (n_joint,) [rad] or at a random pose.
 
         Random poses are uniform in ``[-π, π)`` for periodic joints and inside the joint limits
-        (shrunk by ``reset_margin`` of the range) otherwise, drawn from ``self.np_random``.
+        (shrunk by ``reset_margin`` of the range) otherwise, drawn from ``self.np_random``; a
+        task with ``sample_start`` (e.g. ``ReachTask(start_radius=...)``) chooses them instead.
         """
         super().reset(seed=seed)
         options = options or {}
         if options.get("theta0") is not None:
             theta0 = check_theta0(self.machine, options["theta0"], where=f"{self.env_id}.reset")
         else:
-            theta0 = sample_pose(self.machine, self.np_random, margin=self.reset_margin)
+            theta0 = start_pose(self.machine, self.task, self.np_random, margin=self.reset_margin)
         self._dyn_reset(theta0)
         self.theta = theta0.copy()
         self.omega = np.zeros(self.machine.n_joint)

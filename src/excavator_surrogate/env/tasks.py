@@ -4,6 +4,11 @@ An environment without a task returns reward 0 and never terminates (episodes en
 truncation only).  A task is any object with the two methods of :class:`Task`; it works on
 *batches* ``(n_envs, n_joint)`` so the same task serves the single environments
 (``n_envs = 1``) and :class:`~excavator_surrogate.env.vector.SurrogateVectorEnv`.
+
+A task may also choose the random start poses: when it has a method
+``sample_start(rng, *, margin) -> (n_joint,) | None`` (see :meth:`ReachTask.sample_start`),
+the environments call it for every reset without ``options["theta0"]`` and use its pose
+unless it returns ``None``.
 """
 
 from __future__ import annotations
@@ -67,8 +72,9 @@ class ReachTask:
     """Reach a target joint configuration and stop there.
 
     Reward per step: ``-‖e‖₂ - ctrl_cost · ‖(u - u_center) / u_scale‖₂²`` where ``e`` is the
-    joint-angle error [rad] (wrapped to ``[-π, π)`` for periodic joints).  The episode
-    terminates when every ``|e_j| < tol`` and every ``|ω_j| < omega_tol``.
+    joint-angle error [rad] (wrapped to ``[-π, π)`` for periodic joints), plus
+    ``success_bonus`` on the step that ends the episode.  The episode terminates when every
+    ``|e_j| < tol`` and every ``|ω_j| < omega_tol``.
 
     Args:
         spec: the machine.
@@ -79,6 +85,11 @@ class ReachTask:
         omega_tol: velocity tolerance [rad/s].
         ctrl_cost: weight of the command penalty.
         margin: fraction of each joint range excluded at both ends when sampling targets.
+        success_bonus: reward added on the terminating step (reaching and holding still
+            then pays more than merely ending the per-step penalty).
+        start_radius: with a fixed ``target``, periodic joints (the swing) start within
+            ``± start_radius`` [rad] of it (:meth:`sample_start`); ``None``: the
+            environment's random poses (anywhere on the circle).
     """
 
     def __init__(
@@ -90,6 +101,8 @@ class ReachTask:
         omega_tol: float = 0.05,
         ctrl_cost: float = 0.0,
         margin: float = 0.15,
+        success_bonus: float = 0.0,
+        start_radius: float | None = None,
     ) -> None:
         self.spec = spec
         self.fixed_target = None if target is None else self._check(target, "target")
@@ -97,6 +110,13 @@ class ReachTask:
         self.omega_tol = float(omega_tol)
         self.ctrl_cost = float(ctrl_cost)
         self.margin = float(margin)
+        self.success_bonus = float(success_bonus)
+        if start_radius is not None and (self.fixed_target is None or not start_radius >= 0):
+            raise ConfigError(
+                "ReachTask: start_radius needs a fixed target and a radius >= 0 [rad], got "
+                f"target={target!r}, start_radius={start_radius!r}"
+            )
+        self.start_radius = None if start_radius is None else float(start_radius)
         self.target = np.zeros((0, spec.n_joint))
         self._periodic = np.asarray(spec.periodic, dtype=bool)
         self._u_center = np.array([j.u_center for j in spec.joints])
@@ -114,6 +134,17 @@ class ReachTask:
     def sample_target(self, rng: np.random.Generator) -> np.ndarray:
         """One random target (n_joint,) [rad] inside the joint limits."""
         return sample_pose(self.spec, rng, margin=self.margin)
+
+    def sample_start(self, rng: np.random.Generator, *, margin: float) -> np.ndarray | None:
+        """A random start pose (n_joint,) [rad]: the environment's pose (:func:`sample_pose`
+        with its reset ``margin``) with every periodic joint moved to ``target ± U(start_radius)``;
+        ``None`` without ``start_radius`` (the environment then draws its own pose)."""
+        if self.start_radius is None or self.fixed_target is None:
+            return None
+        pose = sample_pose(self.spec, rng, margin=margin)
+        for k in np.flatnonzero(self._periodic):
+            pose[k] = self.fixed_target[k] + rng.uniform(-self.start_radius, self.start_radius)
+        return pose
 
     def reset(
         self,
@@ -147,7 +178,8 @@ class ReachTask:
     def evaluate(
         self, theta: np.ndarray, omega: np.ndarray, u: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """Reward ``-‖e‖ - ctrl_cost·‖ũ‖²``; terminated when within ``tol``/``omega_tol``."""
+        """Reward ``-‖e‖ - ctrl_cost·‖ũ‖² (+ success_bonus on termination)``; terminated when
+        within ``tol``/``omega_tol``."""
         e = self.error(theta)
         dist = np.sqrt((e * e).sum(axis=1))
         reward = -dist
@@ -156,6 +188,8 @@ class ReachTask:
             reward = reward - self.ctrl_cost * (us * us).sum(axis=1)
         with np.errstate(invalid="ignore"):
             done = (np.abs(e) < self.tol).all(axis=1) & (np.abs(omega) < self.omega_tol).all(axis=1)
+        if self.success_bonus:
+            reward = reward + self.success_bonus * done
         return reward, done, {"distance": dist}
 
 
@@ -177,3 +211,14 @@ def sample_pose(spec: MachineSpec, rng: np.random.Generator, *, margin: float = 
             lo, hi = -0.5, 0.5
         out[k] = rng.uniform(lo, hi)
     return out
+
+
+def start_pose(
+    spec: MachineSpec, task: Any, rng: np.random.Generator, *, margin: float
+) -> np.ndarray:
+    """The random start pose (n_joint,) [rad] of an environment reset: the task's
+    ``sample_start(rng, margin=margin)`` when it has one that returns a pose, else
+    :func:`sample_pose`."""
+    sample = getattr(task, "sample_start", None)
+    pose = sample(rng, margin=margin) if sample is not None else None
+    return sample_pose(spec, rng, margin=margin) if pose is None else np.asarray(pose, float)

@@ -41,7 +41,7 @@ from .engine import Impl, Mode, SurrogateEngine
 from .inputs import ActionLayout
 from .safety import GUARD_NAN, GUARD_OK, ActionChecker, ActionMode, DivergenceGuard, GuardConfig
 from .surrogate_env import load_surrogate
-from .tasks import Task, sample_pose
+from .tasks import Task, start_pose
 
 
 class SurrogateVectorEnv(VectorEnv):
@@ -158,7 +158,7 @@ class SurrogateVectorEnv(VectorEnv):
             if given is not None:
                 theta0[i] = check_theta0(spec, g[i], where=f"{self.env_id}.reset env {i}")
             else:
-                theta0[i] = sample_pose(spec, self._rngs[i], margin=self.reset_margin)
+                theta0[i] = start_pose(spec, self.task, self._rngs[i], margin=self.reset_margin)
         return theta0
 
     def _write_obs(self, theta: np.ndarray, omega: np.ndarray, rows: np.ndarray | None) -> None:
