@@ -1,0 +1,109 @@
+"""Per-member LSTM kernel for merged seed ensembles (``SurrogateEngine(impl="members")``).
+
+A merged ensemble (:func:`~excavator_surrogate.surrogate.ensemble.merge`) is one LSTM whose
+weights are block-diagonal: member ``m`` owns rows ``[m H, (m + 1) H)`` of every gate block
+and, from layer 1 on and in every recurrent matrix, only the matching columns.  The dense
+kernels multiply all the zero blocks too: with ``M`` members that is ``M`` times the useful
+work of the recurrent products.  :class:`MemberLSTM` cuts the blocks back out and steps the
+members as one batched matmul (``torch.baddbmm`` over the member axis), about 1.5x faster per
+step at 256 envs on one core for two members of width 64.
+
+State layout: ``h``, ``c`` (n_layer, M, n_envs, H), member-major, so no step copies it.
+:func:`to_dense` / :func:`from_dense` convert to and from the dense ``(n_layer, n_envs, M H)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+
+_GATES = 4  # LSTM: input, forget, cell, output (PyTorch's row order)
+
+
+class MemberLSTM:
+    """The members' blocks of a merged LSTM's (folded) layer weights.
+
+    Args:
+        layers: per layer ``(w_ih, w_hh, b_ih, b_hh)`` of the merged LSTM, ``w_ih``
+            (4 M H, n_in), ``w_hh`` (4 M H, M H).
+        n_member: M.
+
+    Use :meth:`from_layers`, which returns ``None`` when the weights are not exactly
+    block-diagonal with M equal blocks (the dense kernels then apply).
+    """
+
+    def __init__(self, layers: Sequence[tuple[torch.Tensor, ...]], n_member: int) -> None:
+        m = int(n_member)
+        hidden = layers[0][1].shape[1]
+        self.n_member = m
+        self.width = h = hidden // m
+        self.weights: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+        for k, (w_ih, w_hh, b_ih, b_hh) in enumerate(layers):
+            rows = [_rows(i, h, m) for i in range(m)]
+            # member i: W_ih,i (n_in_i, 4H), W_hh,i (H, 4H), b_i (1, 4H), transposed for x @ W
+            wi = torch.stack(
+                [w_ih[r] if k == 0 else w_ih[r][:, i * h : (i + 1) * h] for i, r in enumerate(rows)]
+            ).transpose(1, 2)
+            wh = torch.stack([w_hh[r][:, i * h : (i + 1) * h] for i, r in enumerate(rows)])
+            b = torch.stack([(b_ih + b_hh)[r] for r in rows]).unsqueeze(1)
+            self.weights.append((wi.contiguous(), wh.transpose(1, 2).contiguous(), b))
+
+    @classmethod
+    def from_layers(
+        cls, layers: Sequence[tuple[torch.Tensor, ...]], n_member: int
+    ) -> MemberLSTM | None:
+        """The member kernel, or ``None`` unless the merged weights are exactly M equal
+        diagonal blocks (everything off the blocks is zero)."""
+        m = int(n_member)
+        hidden = layers[0][1].shape[1]
+        if m < 2 or hidden % m:
+            return None
+        h = hidden // m
+        for k, (w_ih, w_hh, _, _) in enumerate(layers):
+            mats = [w_hh] if k == 0 else [w_ih, w_hh]
+            for w in mats:
+                mask = torch.ones_like(w, dtype=torch.bool)
+                for i, r in enumerate([_rows(i, h, m) for i in range(m)]):
+                    mask[r.unsqueeze(1), torch.arange(i * h, (i + 1) * h)] = False
+                if torch.count_nonzero(w[mask]) != 0:
+                    return None
+        return cls(layers, m)
+
+    def step(
+        self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One sample: ``x`` (n_envs, n_raw), ``h``, ``c`` (n_layer, M, n_envs, H).
+
+        Returns the last layer's output as the dense (n_envs, M H) and the new ``h``, ``c``.
+        """
+        inp = x.unsqueeze(0).expand(self.n_member, -1, -1)
+        hs, cs = [], []
+        for k, (wi, wh, b) in enumerate(self.weights):
+            # gates = b + x W_ih,m + h W_hh,m per member m: (M, n_envs, 4H)
+            g = torch.baddbmm(b, inp, wi).baddbmm_(h[k], wh)
+            i, f, gg, o = g.chunk(_GATES, dim=-1)
+            # c' = σ(f) ⊙ c + σ(i) ⊙ tanh(g);  h' = σ(o) ⊙ tanh(c')
+            c_k = torch.sigmoid(f).mul_(c[k]).add_(torch.sigmoid(i).mul_(torch.tanh(gg)))
+            h_k = torch.sigmoid(o).mul_(torch.tanh(c_k))
+            hs.append(h_k)
+            cs.append(c_k)
+            inp = h_k
+        return to_dense(inp), torch.stack(hs), torch.stack(cs)
+
+
+def _rows(i: int, h: int, m: int) -> torch.Tensor:
+    """Row indices of member ``i`` in the 4 gate blocks of a merged (4 M h)-row matrix."""
+    return torch.cat([torch.arange(g * m * h + i * h, g * m * h + (i + 1) * h) for g in range(4)])
+
+
+def to_dense(h: torch.Tensor) -> torch.Tensor:
+    """Member-major ``(..., M, n_envs, H)`` to the dense ``(..., n_envs, M H)``."""
+    *lead, m, n, w = h.shape
+    return h.transpose(-3, -2).reshape(*lead, n, m * w)
+
+
+def from_dense(h: torch.Tensor, n_member: int) -> torch.Tensor:
+    """The dense ``(..., n_envs, M H)`` to member-major ``(..., M, n_envs, H)``."""
+    *lead, n, hidden = h.shape
+    return h.reshape(*lead, n, n_member, hidden // n_member).transpose(-3, -2).contiguous()

@@ -1,0 +1,91 @@
+"""The per-member kernel of merged LSTM ensembles against the dense kernels and the plain loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from excavator_surrogate.env.engine import MEMBERS_MIN_BATCH, SurrogateEngine
+from excavator_surrogate.env.members import MemberLSTM, from_dense, to_dense
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.rollout import rollout_reference
+
+KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2))
+
+
+@pytest.fixture(scope="module")
+def members(make_surrogate):
+    return [make_surrogate(seed=s, hidden=16, **KW) for s in range(3)]
+
+
+def test_layout_round_trip() -> None:
+    h = torch.randn(2, 5, 12)
+    m = from_dense(h, 3)
+    assert m.shape == (2, 3, 5, 4)
+    torch.testing.assert_close(to_dense(m), h)
+    torch.testing.assert_close(m[:, 1], h[:, :, 4:8])
+
+
+def test_members_kernel_equals_plain_loop_and_dense_kernels(members) -> None:
+    """Three members stepped as one batched matmul equal the members stepped one by one with
+    their omega averaged (the plain loop), and the dense cell and module kernels; masked
+    resets and a fork from a dense one-env engine keep them equal."""
+    ens = merge(members)
+    rng = np.random.default_rng(5)
+    n, w, n_cmd = 4, members[0].window, 30
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    u = rng.uniform(-1000, 1000, (n, n_cmd, 4))
+    engines = {k: SurrogateEngine(ens, n_envs=n, impl=k) for k in ("members", "cell", "module")}
+    assert engines["members"].impl == "members" and engines["members"].h.shape == (2, 3, n, 16)
+    out = {}
+    for k, eng in engines.items():
+        eng.reset(theta0)
+        out[k] = np.stack([eng.step(u[:, j])[0].numpy().copy() for j in range(n_cmd)], axis=1)
+    for i in range(n):
+        u_ref = np.concatenate([np.zeros((w - 1, 4)), u[i], np.zeros((1, 4))])
+        th_ref, _ = rollout_reference(members, np.repeat(theta0[i][None], w, 0), u_ref)
+        np.testing.assert_allclose(out["members"][i], th_ref[w:], atol=1e-5)
+    for k in ("cell", "module"):
+        np.testing.assert_allclose(out["members"], out[k], atol=1e-5)
+    # a masked reset, then a fork of env 2 of a dense engine into every env
+    mask = np.array([True, False, True, False])
+    for eng in engines.values():
+        eng.reset(theta0[::-1].copy(), mask)
+    steps = {k: eng.step(u[:, 0])[0].numpy().copy() for k, eng in engines.items()}
+    np.testing.assert_allclose(steps["members"], steps["cell"], atol=1e-5)
+    for eng in engines.values():
+        eng.fork(engines["cell"], row=2)
+    steps = {k: eng.step(u[:, 1])[0].numpy().copy() for k, eng in engines.items()}
+    np.testing.assert_allclose(steps["members"], steps["cell"], atol=1e-5)
+    h_m, c_m = engines["members"].dense_state()
+    h_c, c_c = engines["cell"].dense_state()
+    torch.testing.assert_close(h_m, h_c, atol=1e-5, rtol=0)
+    torch.testing.assert_close(c_m, c_c, atol=1e-5, rtol=0)
+
+
+def test_auto_picks_the_member_kernel_from_its_batch_size(members, make_surrogate) -> None:
+    ens = merge(members)
+    assert SurrogateEngine(ens, n_envs=MEMBERS_MIN_BATCH).impl == "members"
+    assert SurrogateEngine(ens, n_envs=MEMBERS_MIN_BATCH - 1).impl == "cell"
+    single = make_surrogate(seed=0, hidden=16, **KW)
+    assert SurrogateEngine(single, n_envs=MEMBERS_MIN_BATCH).impl == "cell"
+    with pytest.raises(ConfigError, match="impl='members' needs a merged LSTM seed ensemble"):
+        SurrogateEngine(single, n_envs=4, impl="members")
+    # members of different widths, and GRU ensembles, stay on the dense kernels
+    mixed = merge([members[0], make_surrogate(seed=1, hidden=8, **KW)])
+    assert SurrogateEngine(mixed, n_envs=MEMBERS_MIN_BATCH).impl == "cell"
+    gru = merge([make_surrogate(seed=s, hidden=8, cell="gru", **KW) for s in range(2)])
+    assert SurrogateEngine(gru, n_envs=MEMBERS_MIN_BATCH).impl == "cell"
+
+
+def test_from_layers_rejects_weights_off_the_blocks() -> None:
+    m, h, n_in = 2, 3, 5
+    w_ih = torch.zeros(4 * m * h, n_in) + 0.1
+    w_hh = torch.zeros(4 * m * h, m * h)
+    b = torch.zeros(4 * m * h)
+    assert MemberLSTM.from_layers([(w_ih, w_hh, b, b)], m) is not None
+    w_hh[0, m * h - 1] = 1.0  # member 0's input-gate row reads member 1's state
+    assert MemberLSTM.from_layers([(w_ih, w_hh, b, b)], m) is None
+    assert MemberLSTM.from_layers([(w_ih, torch.zeros(4 * 5, 5), b, b)], 2) is None  # 5 % 2
