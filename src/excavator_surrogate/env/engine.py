@@ -1,10 +1,5 @@
 """Batched, allocation-light closed-loop engine behind the surrogate environments.
 
-:class:`FusedStep` is the single-step surrogate with the feature encoding and the feature /
-target normalisation *folded into the weights*: it maps raw angles and commands straight to
-angular velocities, ``(theta, u, h, c) -> (omega, theta_next, h', c')``.  It is written with
-plain matmuls and pointwise ops, so it exports to ONNX as is (see :mod:`.export`).
-
 :class:`SurrogateEngine` steps ``n_envs`` copies of a surrogate in one torch batch:
 
 - **stateful** checkpoints (``mode="stateful"``) are stepped one sample at a time carrying
@@ -32,11 +27,10 @@ from torch import nn
 
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ..spec import MachineSpec
 from ..surrogate.ensemble import n_member
-from ..surrogate.features import Normalization, integrate, play_features, play_step
+from ..surrogate.features import integrate
 from ..surrogate.model import Surrogate, step_layers
-from .inputs import ActionLayout
+from .fused import FusedStep, play_and_features, rest_command
 from .members import MemberLSTM, from_dense, to_dense
 
 Mode = Literal["windowed", "stateful"]
@@ -82,223 +76,6 @@ class _NoOp:
 
     def __exit__(self, *exc: object) -> None:
         return None
-
-
-def rest_command(spec: MachineSpec) -> np.ndarray:
-    """The at-rest command (n_u,): 0 clipped into each joint's ``[u_min, u_max]``, then each
-    exogenous input at the centre of its range (an env with fixed inputs overrides them)."""
-    return ActionLayout(spec).rest()
-
-
-def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
-    """Matrix ``M`` (n_feature, n_raw) and offset ``e`` (n_feature,) with
-    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (n_u), f]``
-    (``u``: the joints' commands then the exogenous inputs; ``f``: the Q * J play features
-    ``(z - us) / b``, if any)."""
-    spec, norm = sur.spec, sur.norm
-    n_joint, n_u = spec.n_joint, spec.n_u
-    per = [k for k, p in enumerate(spec.periodic) if p]
-    n_per = len(per)
-    n_play = norm.n_play * n_joint
-    n_raw = n_joint + 2 * n_per + n_u + n_play
-    m = norm.x_mean.double().cpu().numpy()
-    s = norm.x_std.double().cpu().numpy()
-    mat = np.zeros((norm.n_feature, n_raw))
-    off = -m / s
-    col = 0
-    for k, js in enumerate(spec.joints):
-        if js.periodic:
-            p = per.index(k)
-            mat[col, n_joint + p] = 1.0 / s[col]
-            mat[col + 1, n_joint + n_per + p] = 1.0 / s[col + 1]
-            col += 2
-        else:
-            mat[col, k] = 1.0 / s[col]
-            col += 1
-    for k, js in enumerate(spec.u_specs):
-        mat[col, n_joint + 2 * n_per + k] = 1.0 / (js.u_scale * s[col])
-        off[col] += -js.u_center / js.u_scale / s[col]
-        col += 1
-    for k in range(n_play):
-        mat[col, n_joint + 2 * n_per + n_u + k] = 1.0 / s[col]
-        col += 1
-    return mat, off
-
-
-def add_play(module: nn.Module, sur: Surrogate) -> None:
-    """Register the surrogate's play operators on ``module``: float32 buffers ``play`` (Q,)
-    half-widths, ``u_center`` / ``u_scale`` (n_u,); ``module.n_play`` = Q (0: none)."""
-    norm = sur.norm.to("cpu", torch.float32)
-    module.n_play = norm.n_play
-    for k in ("play", "u_center", "u_scale"):
-        module.register_buffer(k, getattr(norm, k).clone())
-
-
-def play_and_features(
-    module: nn.Module | Normalization, z: torch.Tensor, u: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Play states after ``u`` and their features, with the buffers of :func:`add_play` (or
-    the same-named tensors of a :class:`Normalization`).
-
-    Args:
-        z: (..., Q, n_joint) play states before ``u``.
-        u: (..., n_u) commands [command units]; the first ``n_joint`` (the joints') drive
-            the play operators, exogenous inputs do not.
-
-    Returns:
-        ``z_new`` (..., Q, n_joint) and features ``(z_new - us) / b`` (..., Q * n_joint).
-    """
-    nj = z.shape[-1]
-    us = (u[..., :nj] - module.u_center[:nj]) / module.u_scale[:nj]
-    z = play_step(z, us, module.play)
-    return z, play_features(z, us, module.play)
-
-
-def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
-    """Register the surrogate's envelope on ``module`` as float32 buffers ``theta_lo`` /
-    ``theta_hi`` (n_joint,) [rad] and ``omega_max`` (n_joint,) [rad/s], each None when the
-    surrogate has none (they then stay out of the graph)."""
-    lim = sur.limits_np()
-    for name, k in (("theta_lo", 0), ("theta_hi", 1), ("omega_max", 2)):
-        has = lim is not None and k < len(lim)
-        module.register_buffer(name, torch.tensor(lim[k], dtype=torch.float32) if has else None)
-
-
-def end_stops(module: nn.Module) -> tuple[torch.Tensor, ...] | None:
-    """The ``(theta_lo, theta_hi[, omega_max])`` buffers of :func:`add_end_stops`, or None."""
-    lo, hi, w = module.theta_lo, module.theta_hi, module.omega_max
-    if lo is None:
-        return None
-    return (lo, hi) if w is None else (lo, hi, w)  # type: ignore[return-value]
-
-
-class FusedStep(nn.Module):
-    """One closed-loop step with encoding and normalisation folded into the weights.
-
-    ``forward(theta, u, h, c[, z])``:
-
-    - ``theta``: (n_batch, n_joint) angles θ[k] [rad] (periodic joints wrapped or not);
-    - ``u``: (n_batch, n_u) commands u[k] [command units] (joints', then exogenous inputs');
-    - ``h``, ``c``: (n_layer, n_batch, hidden) recurrent state (``c`` unused and passed
-      through for GRU cells);
-    - ``z``: (n_batch, Q, n_joint) play states before ``u`` (only if the surrogate has
-      ``Q = n_play > 0`` play features).
-
-    Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
-    [rad] (clipped to the end stops if the surrogate has them), the new ``h``, ``c`` and,
-    with play features, the new ``z``.  Only LSTM/GRU surrogates can be fused.
-    """
-
-    def __init__(self, sur: Surrogate) -> None:
-        super().__init__()
-        net = sur.net
-        cell = sur.model_cfg.cell
-        if cell not in ("lstm", "gru"):
-            raise ConfigError(f"only LSTM/GRU surrogates can be stepped statefully, not '{cell}'")
-        spec = sur.spec
-        self.cell = cell
-        self.n_layer = sur.model_cfg.n_layer
-        add_end_stops(self, sur)
-        add_play(self, sur)
-        self.hidden = sur.model_cfg.hidden
-        self.n_joint = spec.n_joint
-        self.dt = float(spec.dt)
-        per = [k for k, p in enumerate(spec.periodic) if p]
-        self.register_buffer("periodic_idx", torch.tensor(per, dtype=torch.long), persistent=False)
-        self.has_periodic = bool(per)
-        mat, off = _fold_input(sur)
-        rnn = net.rnn
-        f32 = torch.float32
-
-        def p(name: str) -> np.ndarray:
-            return getattr(rnn, name).detach().double().cpu().numpy()
-
-        self.w_ih = nn.ParameterList()
-        self.w_hh = nn.ParameterList()
-        self.b_ih = nn.ParameterList()
-        self.b_hh = nn.ParameterList()
-        for layer in range(self.n_layer):
-            w_ih = p(f"weight_ih_l{layer}")
-            b_ih = p(f"bias_ih_l{layer}")
-            if layer == 0:
-                b_ih = b_ih + w_ih @ off
-                w_ih = w_ih @ mat
-            for lst, a in (
-                (self.w_ih, w_ih),
-                (self.w_hh, p(f"weight_hh_l{layer}")),
-                (self.b_ih, b_ih),
-                (self.b_hh, p(f"bias_hh_l{layer}")),
-            ):
-                lst.append(nn.Parameter(torch.tensor(a, dtype=f32), requires_grad=False))
-        lin1, lin2 = net.head[0], net.head[2]
-        y_std = sur.norm.y_std.double().cpu().numpy()
-        y_mean = sur.norm.y_mean.double().cpu().numpy()
-        w2 = lin2.weight.detach().double().cpu().numpy() * y_std[:, None]
-        b2 = lin2.bias.detach().double().cpu().numpy() * y_std + y_mean
-        self.w1 = nn.Parameter(lin1.weight.detach().float().clone(), requires_grad=False)
-        self.b1 = nn.Parameter(lin1.bias.detach().float().clone(), requires_grad=False)
-        self.w2 = nn.Parameter(torch.tensor(w2, dtype=f32), requires_grad=False)
-        self.b2 = nn.Parameter(torch.tensor(b2, dtype=f32), requires_grad=False)
-
-    @property
-    def n_raw(self) -> int:
-        """Width of the raw feature vector ``[theta, sin θ_p, cos θ_p, u]``."""
-        return int(self.w_ih[0].shape[1])
-
-    def features(
-        self, theta: torch.Tensor, u: torch.Tensor, f: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """Raw features ``[theta, sin θ_p, cos θ_p, u, f]`` (n_batch, n_raw), float32, with
-        ``f`` the play features of :func:`play_and_features` (None without play)."""
-        tail = [u] if f is None else [u, f]
-        if self.has_periodic:
-            tp = theta.index_select(-1, self.periodic_idx)
-            return torch.cat([theta, torch.sin(tp), torch.cos(tp), *tail], dim=-1)
-        return torch.cat([theta, *tail], dim=-1)
-
-    def head(self, out: torch.Tensor) -> torch.Tensor:
-        """Angular velocity [rad/s] from the last layer's output (n_batch, hidden)."""
-        z = torch.relu(torch.nn.functional.linear(out, self.w1, self.b1))
-        return torch.nn.functional.linear(z, self.w2, self.b2)
-
-    def forward(
-        self,
-        theta: torch.Tensor,
-        u: torch.Tensor,
-        h: torch.Tensor,
-        c: torch.Tensor,
-        z: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, ...]:
-        """See the class docstring."""
-        f = None
-        if self.n_play:
-            if z is None:
-                raise ValueError("this surrogate has play features: pass the play state z")
-            z, f = play_and_features(self, z, u)
-        inp = self.features(theta, u, f)
-        hs, cs = [], []
-        for layer in range(self.n_layer):
-            h_l, c_l = h[layer], c[layer]
-            gi = torch.nn.functional.linear(inp, self.w_ih[layer], self.b_ih[layer])
-            gh = torch.nn.functional.linear(h_l, self.w_hh[layer], self.b_hh[layer])
-            if self.cell == "lstm":
-                i, f, g, o = (gi + gh).chunk(4, dim=-1)
-                c_l = torch.sigmoid(f) * c_l + torch.sigmoid(i) * torch.tanh(g)
-                h_l = torch.sigmoid(o) * torch.tanh(c_l)
-            else:
-                ir, iz, in_ = gi.chunk(3, dim=-1)
-                hr, hz, hn = gh.chunk(3, dim=-1)
-                r = torch.sigmoid(ir + hr)
-                upd = torch.sigmoid(iz + hz)
-                n = torch.tanh(in_ + r * hn)
-                h_l = (1.0 - upd) * n + upd * h_l
-            hs.append(h_l)
-            cs.append(c_l)
-            inp = h_l
-        theta_next, omega = integrate(theta, self.head(inp), dt=self.dt, limits=end_stops(self))
-        if self.n_play:
-            return omega, theta_next, torch.stack(hs), torch.stack(cs), z
-        return omega, theta_next, torch.stack(hs), torch.stack(cs)
 
 
 class SurrogateEngine:
@@ -518,6 +295,47 @@ class SurrogateEngine:
         self.theta.copy_(torch.as_tensor(np.asarray(theta, dtype=np.float64), device=self.device))
 
     @torch.inference_mode()
+    def export_row(self, row: int = 0) -> dict[str, torch.Tensor | int]:
+        """The complete state of env ``row`` in a kernel-independent layout (copies): ``theta``
+        (1, n_joint), ``z`` (1, Q, n_joint) and ``h``, ``c`` (n_layer, 1, hidden) (stateful)
+        or ``ring`` (1, 2 W, n_feature) and ``pos`` (windowed).  :meth:`fork_state` continues
+        it, here or in another process's engine of the same surrogate."""
+        out: dict[str, torch.Tensor | int] = {
+            "theta": self.theta[row : row + 1].clone(),
+            "z": self.z[row : row + 1].clone(),
+        }
+        if self.mode == "stateful":
+            out["h"], out["c"] = self.dense_state(row)
+        else:
+            out["ring"], out["pos"] = self._ring[row : row + 1].clone(), self._pos
+        return out
+
+    @torch.inference_mode()
+    def fork_state(self, state: dict[str, torch.Tensor | int]) -> torch.Tensor:
+        """Put every env in the state ``state`` of :meth:`export_row` (same surrogate and mode).
+
+        Returns:
+            The current angles ``theta`` (n_envs, n_joint) float64 [rad] (a live tensor).
+        """
+        if ("h" in state) != (self.mode == "stateful"):
+            raise ConfigError("fork: both engines must run the same surrogate in the same mode")
+        dev = self.device
+        self.theta.copy_(torch.as_tensor(state["theta"], device=dev).expand_as(self.theta))
+        self.z = torch.as_tensor(state["z"], device=dev).expand_as(self.z).clone()
+        if self.mode == "stateful":
+            h = torch.as_tensor(state["h"], device=dev)
+            c = torch.as_tensor(state["c"], device=dev)
+            if self._members is not None:  # (n_layer, 1, hidden) -> (n_layer, M, 1, width)
+                h, c = from_dense(h, self._members.n_member), from_dense(c, self._members.n_member)
+            self.h = h.expand_as(self.h).contiguous()
+            self.c = c.expand_as(self.c).contiguous()
+        else:
+            ring = torch.as_tensor(state["ring"], device=dev)
+            self._ring = ring.expand_as(self._ring).contiguous()
+            self._pos = int(state["pos"])
+        return self.theta
+
+    @torch.inference_mode()
     def fork(self, src: SurrogateEngine, row: int = 0) -> torch.Tensor:
         """Copy env ``row`` of ``src`` (same surrogate and mode) into every env of this engine.
 
@@ -529,18 +347,7 @@ class SurrogateEngine:
         """
         if src.mode != self.mode or src.window != self.window or src.spec != self.spec:
             raise ConfigError("fork: both engines must run the same surrogate in the same mode")
-        self.theta.copy_(src.theta[row].expand_as(self.theta))
-        self.z = src.z[row : row + 1].expand_as(self.z).clone()
-        if self.mode == "stateful":
-            h, c = src.dense_state(row)  # (n_layer, 1, hidden): the kernels' layouts may differ
-            if self._members is not None:
-                h, c = from_dense(h, self._members.n_member), from_dense(c, self._members.n_member)
-            self.h = h.expand_as(self.h).contiguous()
-            self.c = c.expand_as(self.c).contiguous()
-        else:
-            self._ring = src._ring[row : row + 1].expand_as(self._ring).contiguous()
-            self._pos = src._pos
-        return self.theta
+        return self.fork_state(src.export_row(row))
 
     @torch.inference_mode()
     def step(self, u: np.ndarray | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

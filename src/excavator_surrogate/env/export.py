@@ -1,6 +1,6 @@
 """ONNX export of the single-step surrogate and an onnxruntime stepper.
 
-Stateful export (LSTM/GRU checkpoints, the default): the graph is :class:`~.engine.FusedStep`,
+Stateful export (LSTM/GRU checkpoints, the default): the graph is :class:`~.fused.FusedStep`,
 i.e. the feature encoding and the normalisation are folded into the weights, and the
 recurrent state is explicit:
 
@@ -50,7 +50,8 @@ from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.features import integrate, play_features, play_np, scale_commands_np
 from ..surrogate.model import Surrogate
-from .engine import FusedStep, Mode, add_end_stops, end_stops, rest_command
+from .engine import Mode
+from .fused import FusedStep, add_end_stops, end_stops, rest_command
 from .surrogate_env import load_surrogate
 
 OPSET = 18
