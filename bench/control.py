@@ -9,9 +9,10 @@ call and updates the plan.  This benchmark tracks the start of the digging refer
 - ``oracle``: :class:`~excavator_surrogate.control.predict.PlantPredictor` (``mujoco.rollout``
   on a copy of the plant from its true state),
 
-for the same K, N and number of control steps, with 1 and 2 threads each (torch threads /
-``mujoco.rollout`` threads; the goals use the best), and reports control steps/s and the
-ratio.  Without ``--ckpt`` the surrogate is an UNTRAINED LSTM of the paper's size (2 x 128,
+for the same K, N and number of control steps, on 1 and 2 CPUs each (the surrogate's
+candidates split over that many processes, ``SurrogatePredictor(workers=...)``, one torch
+thread each; ``mujoco.rollout`` on that many threads; the goals use each side's best), and
+reports control steps/s and the ratio.  Without ``--ckpt`` the surrogate is an UNTRAINED LSTM of the paper's size (2 x 128,
 W = 30): speed does not depend on training.  ``--report DIR`` adds the tracking-accuracy and
 RL goals of an ``exsur control`` report folder (its metrics.json).  Ends with ONE JSON line.
 Usage::
@@ -48,13 +49,17 @@ def control_rate(kind: str, sur: object, cfg: MPPIConfig, n_control: int, thread
     theta_ref, _, _ = dig_reference(sur.spec)  # type: ignore[attr-defined]
     theta_ref = theta_ref[: n_control * cfg.replan + 1]
     env = ExcavatorMujocoEnv(plant="hydraulic", spec=sur.spec)  # type: ignore[attr-defined]
-    torch.set_num_threads(threads)
+    torch.set_num_threads(1)
     if kind == "surrogate":
-        pred = SurrogatePredictor(sur, n_batch=cfg.n_sample)  # type: ignore[arg-type]
+        pred = SurrogatePredictor(sur, n_batch=cfg.n_sample, workers=threads)  # type: ignore[arg-type]
     else:
         pred = PlantPredictor(env.plant, n_threads=threads)
-    res = track(env, MPPIController(MPPI(pred, cfg)), theta_ref)
-    env.close()
+    try:
+        res = track(env, MPPIController(MPPI(pred, cfg)), theta_ref)
+    finally:
+        if isinstance(pred, SurrogatePredictor):
+            pred.close()
+        env.close()
     return 1.0 / res.step_s  # res.step_s: mean wall time of the run's control steps
 
 
@@ -80,7 +85,7 @@ def main() -> None:
                 key = f"{kind}_t{t}"
                 res[key] = control_rate(kind, sur, cfg, args.steps, t)
                 print(
-                    f"MPPI K={cfg.n_sample} N={cfg.n_horizon} through the {kind:9s}, {t} thread(s): "
+                    f"MPPI K={cfg.n_sample} N={cfg.n_horizon} through the {kind:9s}, {t} CPU(s): "
                     f"{res[key]:8.2f} control steps/s ({1e3 / res[key]:8.1f} ms each)",
                     flush=True,
                 )

@@ -14,7 +14,7 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     out = tmp_path / "ctl"
     argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "4", "--horizon", "3"]
     argv += ["--time-scale", "0.1", "--rl-steps", "64", "--rl-envs", "2", "--rl-eval", "2"]
-    argv += ["--rl-episode-steps", "8"]
+    argv += ["--rl-episode-steps", "8", "--cpus", "2"]
     assert main(argv) == 0
     assert {p.name for p in out.iterdir()} == {
         "report.md",
@@ -26,6 +26,7 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["mppi"]["runs"]) == {"mppi_surrogate", "mppi_oracle", "pi"}
     assert m["mppi"]["runs"]["mppi_surrogate"]["n_control_steps"] > 10
+    assert m["cpus"] == 2  # the surrogate planner used a worker process, the oracle 2 threads
     assert m["bias_gain"] == 0.1 and any(m["mppi"]["runs"]["mppi_surrogate"]["bias_rad_s"])
     assert set(m["mppi"]["rmse_ratio"]) == {"swing", "boom", "arm", "bucket"}
     assert m["rl"]["surrogate"]["train_s"] > 0 and "success" in m["rl"]["plant"]["plant"]
@@ -49,11 +50,16 @@ def test_control_bad_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "o").exists()
 
 
-def test_control_bad_option_is_one_line(tiny_ckpt: Path, tmp_path: Path, capsys) -> None:
-    rc = main(["control", str(tiny_ckpt), "--out", str(tmp_path / "o"), "--replan", "50"])
+@pytest.mark.parametrize(
+    ("opt", "word"), [(["--replan", "50"], "replan"), (["--cpus", "0"], "--cpus")]
+)
+def test_control_bad_option_is_one_line(
+    opt: list[str], word: str, tiny_ckpt: Path, tmp_path: Path, capsys
+) -> None:
+    rc = main(["control", str(tiny_ckpt), "--out", str(tmp_path / "o"), *opt])
     assert rc == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "replan" in err[0]
+    assert len(err) == 1 and word in err[0]
     assert not (tmp_path / "o").exists()
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from excavator_surrogate.control.predict import PlantPredictor, SurrogatePredictor
 from excavator_surrogate.env.mujoco_env import ExcavatorMujocoEnv
-from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.errors import ConfigError, ExsurError
 from excavator_surrogate.simulate.hydraulics import HydraulicTransform
 from excavator_surrogate.surrogate.rollout import ClosedLoop
 from tests.helpers.surrogates import tiny_surrogate
@@ -116,3 +116,49 @@ def test_bias_correction_adds_the_measured_velocity_error() -> None:
     np.testing.assert_allclose(fixed.predict(u), plain.predict(u) + ramp * b, atol=1e-9)
     with pytest.raises(ConfigError, match="bias_gain"):
         SurrogatePredictor(sur, n_batch=K, bias_gain=2.0)
+
+
+@pytest.mark.parametrize("mode", ["stateful", "windowed"])
+def test_worker_processes_split_the_candidates_exactly(mode: str) -> None:
+    """Candidates split over this process and two spawned workers give the same angles as
+    one process, call after call (each call re-sends the synced state)."""
+    from excavator_surrogate.surrogate.ensemble import merge
+
+    members = [tiny_surrogate(mode=mode, play=(0.05,), window=5, seed=s) for s in range(2)]
+    sur = merge(members)
+    rng = np.random.default_rng(3)
+    theta, u_hist = _history(rng)
+    one = SurrogatePredictor(sur, n_batch=7, bias_gain=0.2)
+    three = SurrogatePredictor(sur, n_batch=7, bias_gain=0.2, workers=3)
+    try:
+        assert [w.impl for w in three.workers] == (
+            ["cell", "cell"] if mode == "stateful" else ["window", "window"]
+        )
+        for pred in (one, three):
+            pred.reset(theta[0])
+        for k in range(N_HIST):
+            for pred in (one, three):
+                pred.observe(u_hist[k], theta[k + 1])
+            if k % 4 == 0:
+                u = rng.uniform(-1000, 1000, (7, N, 4))
+                np.testing.assert_array_equal(three.predict(u), one.predict(u))
+    finally:
+        three.close()
+    assert three.workers == []
+    u = rng.uniform(-1000, 1000, (7, N, 4))
+    np.testing.assert_array_equal(three.predict(u), one.predict(u))  # closed: in-process
+
+
+def test_worker_errors_are_one_line() -> None:
+    sur = tiny_surrogate()
+    with pytest.raises(ConfigError, match="workers must be in"):
+        SurrogatePredictor(sur, n_batch=2, workers=3)
+    pred = SurrogatePredictor(sur, n_batch=4, workers=2)
+    try:
+        pred.workers[0]._proc.kill()
+        pred.workers[0]._proc.join()
+        pred.reset(THETA0)
+        with pytest.raises(ExsurError, match="rollout worker process died; rerun with workers=1"):
+            pred.predict(np.zeros((4, N, 4)))
+    finally:
+        pred.close()

@@ -47,6 +47,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="stretch the digging reference (1.0)",
     )
+    p.add_argument(
+        "--cpus",
+        type=int,
+        default=None,
+        metavar="N",
+        help="CPUs of each MPPI planner: surrogate candidates split over N processes, the "
+        "oracle's mujoco.rollout on N threads (default: all usable, at most 4)",
+    )
     p.add_argument("--no-oracle", action="store_true", help="skip MPPI through the plant model")
     p.add_argument("--no-rl", action="store_true", help="skip the PPO comparison")
     p.add_argument(
@@ -84,10 +92,15 @@ def run(args: argparse.Namespace) -> int:
     from ..control.mppi import MPPIConfig
     from ..control.report import run_control
     from ..control.rl import RLConfig
+    from ..devices import usable_cpus
+    from ..errors import ConfigError
     from ..io_utils import log
     from ..surrogate.checkpoint import load_checkpoint
 
     torch.set_num_threads(1)
+    cpus = min(usable_cpus(), 4) if args.cpus is None else args.cpus
+    if not 1 <= cpus <= args.samples:
+        raise ConfigError(f"--cpus must be in [1, --samples = {args.samples}], got {cpus}")
     sur = load_checkpoint(args.ckpt)
     mppi = MPPIConfig(
         n_sample=args.samples, n_horizon=args.horizon, replan=args.replan, seed=args.seed
@@ -111,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         oracle=not args.no_oracle,
         time_scale=args.time_scale,
         bias_gain=args.bias_gain,
+        cpus=cpus,
         log=log,
     )
     print((args.out / "report.md").read_text(), end="")

@@ -8,7 +8,8 @@ out from the machine's current state in ONE batched call (``predict``):
   :class:`~excavator_surrogate.env.engine.SurrogateEngine` consumes the measured history
   (teacher forcing: each step is fed the measured angle), so its recurrent state is synced
   to the machine; ``predict`` forks that state into an ``n_batch``-env engine and steps the
-  candidates together, ``n_step`` batched steps.
+  candidates together, ``n_step`` batched steps (with ``workers > 1``, split over helper
+  processes, :mod:`.workers`).
 - :class:`PlantPredictor`: the oracle.  It reads the full physics state of the plant (and
   the hydraulic transform's command history) and continues it with ``mujoco.rollout`` on a
   copy of the plant, i.e. planning through the plant model itself.
@@ -16,6 +17,8 @@ out from the machine's current state in ONE batched call (``predict``):
 
 from __future__ import annotations
 
+from functools import partial
+from itertools import pairwise
 from typing import Protocol
 
 import numpy as np
@@ -25,6 +28,7 @@ from ..errors import ConfigError
 from ..simulate.plant import MujocoExcavator
 from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
+from .workers import RolloutWorker, rollout
 
 
 class Predictor(Protocol):
@@ -57,19 +61,43 @@ class SurrogatePredictor:
             measured step, ``b ← (1 - a) b + a (θ_measured - θ_predicted) / T_s`` from the
             synced engine's own one-step prediction, and ``predict`` adds ``b · T_s · (n + 1)``
             to sample ``n`` of every candidate; 0 (default) switches it off.
+        workers: processes the candidates are split over (1: this process only; ``k > 1``:
+            this one and ``k - 1`` spawned :class:`~.workers.RolloutWorker`; ``close()``
+            ends them).  Each process runs one torch thread.
     """
 
     def __init__(
-        self, sur: Surrogate, *, n_batch: int, mode: str | None = None, bias_gain: float = 0.0
+        self,
+        sur: Surrogate,
+        *,
+        n_batch: int,
+        mode: str | None = None,
+        bias_gain: float = 0.0,
+        workers: int = 1,
     ) -> None:
         from ..env.engine import SurrogateEngine
 
-        self.spec = sur.spec
-        self.sync = SurrogateEngine(sur, n_envs=1, mode=mode)  # type: ignore[arg-type]
-        self.batch = SurrogateEngine(sur, n_envs=n_batch, mode=mode)  # type: ignore[arg-type]
-        self.n_batch = int(n_batch)
         if not 0.0 <= bias_gain <= 1.0:
             raise ConfigError(f"SurrogatePredictor: bias_gain must be in [0, 1], got {bias_gain}")
+        if not 1 <= workers <= n_batch:
+            raise ConfigError(
+                f"SurrogatePredictor: workers must be in [1, n_batch = {n_batch}], got {workers}"
+            )
+        self.spec = sur.spec
+        self.n_batch = int(n_batch)
+        # candidate rows [edges[i], edges[i + 1]) go to process i (0: this one)
+        edges = np.linspace(0, self.n_batch, int(workers) + 1).round().astype(int)
+        self._edges = edges.tolist()
+        self._engine = partial(SurrogateEngine, sur, mode=mode)
+        self.sync = self._engine(n_envs=1)
+        self.batch = self._engine(n_envs=int(edges[1]))
+        self.workers: list[RolloutWorker] = []
+        try:
+            for a, b in pairwise(edges[1:]):
+                self.workers.append(RolloutWorker(sur, n_batch=int(b - a), mode=mode))
+        except BaseException:
+            self.close()
+            raise
         self.bias_gain = float(bias_gain)
         self.bias = np.zeros(sur.spec.n_joint)
         """Velocity-bias estimate (n_joint,) [rad/s] (zero unless ``bias_gain > 0``)."""
@@ -98,16 +126,29 @@ class SurrogatePredictor:
             raise ConfigError(
                 f"SurrogatePredictor: u must have shape ({self.n_batch}, n_step, {self.spec.n_joint}), got {u.shape}"
             )
-        self.batch.fork(self.sync)
-        u_t = torch.from_numpy(u)
-        out = torch.empty(n_batch, n_step, n_joint, dtype=torch.float64)
-        for k in range(n_step):
-            theta, _ = self.batch.step(u_t[:, k])
-            out[:, k] = theta
+        state = self.sync.export_row(0)
+        if self.workers:  # numpy, not tensors: no shared-memory files per call
+            state = {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state.items()}
+        e = self._edges
+        for w, a, b in zip(self.workers, e[1:-1], e[2:]):
+            w.submit(state, u[a:b])
+        parts = [rollout(self.batch, state, u[: e[1]])]
+        parts += [w.result() for w in self.workers]
+        out = parts[0] if len(parts) == 1 else np.concatenate(parts)
         if self.bias_gain:
             ramp = np.arange(1, n_step + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
-            return out.numpy() + ramp * self.bias
-        return out.numpy()
+            return out + ramp * self.bias
+        return out
+
+    def close(self) -> None:
+        """End the worker processes (if any); the predictor then runs in this process only."""
+        if not self.workers:
+            return
+        for w in self.workers:
+            w.close()
+        self.workers = []
+        self._edges = [0, self.n_batch]
+        self.batch = self._engine(n_envs=self.n_batch)
 
 
 class PlantPredictor:

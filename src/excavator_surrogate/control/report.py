@@ -153,7 +153,9 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
         "",
         f"Checkpoint `{metrics['ckpt']}`, plant `{metrics['plant']}`; "
         f"total {metrics['wall_s']:.0f} s. Timings are wall times of this run on this machine "
-        "(single-threaded; shared machines make them noisy).",
+        f"(MPPI on {metrics['cpus']} CPU(s): surrogate candidates split over that many "
+        "processes, the oracle's mujoco.rollout on that many threads; PPO single-threaded; "
+        "shared machines make them noisy).",
         "",
         "## Tracking the digging reference (MPPI vs PI)",
         "",
@@ -232,9 +234,11 @@ def run_control(
     oracle: bool = True,
     time_scale: float = 1.0,
     bias_gain: float = 0.1,
+    cpus: int = 1,
     log: Any = None,
 ) -> dict[str, Any]:
-    """Run tracking (and RL) on ``sur`` and write the report folder ``out``; returns the metrics."""
+    """Run tracking (and RL) on ``sur`` and write the report folder ``out``; returns the metrics.
+    ``cpus``: processes / threads of each MPPI planner (see :func:`~.tracking.compare_tracking`)."""
     from .rl import compare_rl, require_sb3
     from .tracking import compare_tracking
 
@@ -250,6 +254,7 @@ def run_control(
         time_scale=time_scale,
         oracle=oracle,
         bias_gain=bias_gain,
+        cpus=cpus,
         log=log,
     )
     metrics: dict[str, Any] = {
@@ -257,6 +262,7 @@ def run_control(
         "plant": plant,
         "mppi_config": asdict(mcfg),
         "bias_gain": bias_gain,
+        "cpus": cpus,
         "pi_gains": dict(zip(names, np.asarray(track["pi_gains"]).tolist())),
         "mppi": mppi_metrics(track["runs"], names),
     }

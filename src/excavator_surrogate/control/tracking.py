@@ -194,6 +194,7 @@ def compare_tracking(
     time_scale: float = 1.0,
     oracle: bool = True,
     bias_gain: float = 0.1,
+    cpus: int = 1,
     log: Any = None,
 ) -> dict[str, Any]:
     """MPPI through the surrogate, MPPI through the plant model (oracle) and PI on the plant.
@@ -206,6 +207,9 @@ def compare_tracking(
         oracle: also run the oracle (the slow part).
         bias_gain: velocity-bias correction of the surrogate predictor
             (:class:`~.predict.SurrogatePredictor`; 0: off).
+        cpus: CPUs of each planner: the surrogate's candidates are split over ``cpus``
+            processes (``SurrogatePredictor(workers=cpus)``), the oracle's ``mujoco.rollout``
+            runs ``cpus`` threads.
         log: optional ``print``-like callable for progress lines.
 
     Returns:
@@ -223,13 +227,14 @@ def compare_tracking(
     pi = tune_pi(sur_env, theta_ref)
     runs: dict[str, TrackResult] = {}
     env = ExcavatorMujocoEnv(plant=plant, spec=spec)  # type: ignore[arg-type]
+    sur_pred = SurrogatePredictor(sur, n_batch=cfg.n_sample, bias_gain=bias_gain, workers=cpus)
     try:
-        sur_pred = SurrogatePredictor(sur, n_batch=cfg.n_sample, bias_gain=bias_gain)
         ctrls: list[tuple[str, Controller]] = [
             ("mppi_surrogate", MPPIController(MPPI(sur_pred, cfg)))
         ]
         if oracle:
-            ctrls.append(("mppi_oracle", MPPIController(MPPI(PlantPredictor(env.plant), cfg))))
+            plant_pred = PlantPredictor(env.plant, n_threads=cpus)
+            ctrls.append(("mppi_oracle", MPPIController(MPPI(plant_pred, cfg))))
         ctrls.append(("pi", PIController(pi)))
         for name, ctrl in ctrls:
             res = track(env, ctrl, theta_ref, name=name)
@@ -241,5 +246,6 @@ def compare_tracking(
                 f"{res.step_s * 1e3:.1f} ms per control step, {res.total_s:.1f} s"
             )
     finally:
+        sur_pred.close()
         env.close()
     return {"reference": theta_ref, "time": t, "phases": phases, "runs": runs, "pi_gains": pi.kp}

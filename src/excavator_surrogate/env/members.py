@@ -18,7 +18,9 @@ from collections.abc import Sequence
 
 import torch
 
-_GATES = 4  # LSTM: input, forget, cell, output (PyTorch's row order)
+_ORDER = (0, 1, 3, 2)
+"""PyTorch's gate blocks are (input, forget, cell, output); the member kernel stores them as
+(input, forget, output, cell) so that one sigmoid covers the first three."""
 
 
 class MemberLSTM:
@@ -40,7 +42,7 @@ class MemberLSTM:
         self.width = h = hidden // m
         self.weights: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
         for k, (w_ih, w_hh, b_ih, b_hh) in enumerate(layers):
-            rows = [_rows(i, h, m) for i in range(m)]
+            rows = [_rows(i, h, m) for i in range(m)]  # gates in _ORDER
             # member i: W_ih,i (n_in_i, 4H), W_hh,i (H, 4H), b_i (1, 4H), transposed for x @ W
             wi = torch.stack(
                 [w_ih[r] if k == 0 else w_ih[r][:, i * h : (i + 1) * h] for i, r in enumerate(rows)]
@@ -78,23 +80,22 @@ class MemberLSTM:
         Returns the last layer's output as the dense (n_envs, M H) and the new ``h``, ``c``.
         """
         inp = x.unsqueeze(0).expand(self.n_member, -1, -1)
-        hs, cs = [], []
+        h_new, c_new = torch.empty_like(h), torch.empty_like(c)
+        w = self.width
         for k, (wi, wh, b) in enumerate(self.weights):
-            # gates = b + x W_ih,m + h W_hh,m per member m: (M, n_envs, 4H)
+            # gates = b + x W_ih,m + h W_hh,m per member m: (M, n_envs, 4H), order i f o g
             g = torch.baddbmm(b, inp, wi).baddbmm_(h[k], wh)
-            i, f, gg, o = g.chunk(_GATES, dim=-1)
+            s = torch.sigmoid(g[..., : 3 * w])
+            i, f, o = s[..., :w], s[..., w : 2 * w], s[..., 2 * w :]
             # c' = σ(f) ⊙ c + σ(i) ⊙ tanh(g);  h' = σ(o) ⊙ tanh(c')
-            c_k = torch.sigmoid(f).mul_(c[k]).add_(torch.sigmoid(i).mul_(torch.tanh(gg)))
-            h_k = torch.sigmoid(o).mul_(torch.tanh(c_k))
-            hs.append(h_k)
-            cs.append(c_k)
-            inp = h_k
-        return to_dense(inp), torch.stack(hs), torch.stack(cs)
+            c_k = torch.addcmul(f * c[k], i, torch.tanh(g[..., 3 * w :]), out=c_new[k])
+            inp = torch.mul(o, torch.tanh(c_k), out=h_new[k])
+        return to_dense(inp), h_new, c_new
 
 
 def _rows(i: int, h: int, m: int) -> torch.Tensor:
     """Row indices of member ``i`` in the 4 gate blocks of a merged (4 M h)-row matrix."""
-    return torch.cat([torch.arange(g * m * h + i * h, g * m * h + (i + 1) * h) for g in range(4)])
+    return torch.cat([torch.arange(g * m * h + i * h, g * m * h + (i + 1) * h) for g in _ORDER])
 
 
 def to_dense(h: torch.Tensor) -> torch.Tensor:
