@@ -26,6 +26,8 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["mppi"]["runs"]) == {"mppi_surrogate", "mppi_oracle", "pi"}
     assert m["mppi"]["runs"]["mppi_surrogate"]["n_control_steps"] > 10
+    hz = m["mppi"]["runs"]["mppi_surrogate"]["horizon_error_rad"]
+    assert hz["n_horizon"] == 3 and len(hz["rms"]) == 4 and all(v >= 0 for v in hz["p95"])
     assert m["cpus"] == 2  # the surrogate planner used a worker process, the oracle 2 threads
     assert m["bias_gain"] == 0.1 and any(m["mppi"]["runs"]["mppi_surrogate"]["bias_rad_s"])
     assert set(m["mppi"]["rmse_ratio"]) == {"swing", "boom", "arm", "bucket"}

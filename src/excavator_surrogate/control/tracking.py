@@ -173,6 +173,35 @@ def track(
     )
 
 
+def prediction_error(
+    sur: Surrogate, theta: np.ndarray, u: np.ndarray, *, n_horizon: int, every: int = 1
+) -> np.ndarray:
+    """How far the surrogate's open-loop predictions miss a recorded run.
+
+    The surrogate follows the run (synced to the measured angles, as the MPPI predictor is)
+    and, every ``every`` samples, predicts the next ``n_horizon`` angles under the commands
+    that were actually applied.  Returns the errors ``predicted - measured`` at the end of
+    each horizon (n_window, n_joint) [rad], periodic joints wrapped.
+
+    Args:
+        sur: the surrogate.
+        theta: (n_step, n_joint) measured angles [rad], sample 0 at rest.
+        u: (n_step - 1, n_joint) applied commands.
+        n_horizon: prediction horizon [samples].
+        every: spacing of the prediction starts [samples].
+    """
+    pred = SurrogatePredictor(sur, n_batch=1)
+    pred.reset(theta[0])
+    periodic = np.asarray(sur.spec.periodic, dtype=bool)
+    errors = []
+    for k in range(len(u)):
+        if k % every == 0 and k + n_horizon <= len(u):
+            th = pred.predict(u[None, k : k + n_horizon])[0, -1]
+            errors.append(tracking_error(th, theta[k + n_horizon], periodic))
+        pred.observe(u[k], theta[k + 1])
+    return np.array(errors).reshape(-1, sur.spec.n_joint)
+
+
 def tune_pi(sur_env: ExcavatorEnv, theta_ref: np.ndarray) -> JointPI:
     """PI gains tuned on the surrogate (per joint, the kp of :data:`~.pi.KP_GRID` with the
     lowest tracking RMSE of ``theta_ref``; ``ki = kp / TI``), as examples/pi_controller.py."""
@@ -240,6 +269,13 @@ def compare_tracking(
             res = track(env, ctrl, theta_ref, name=name)
             if name == "mppi_surrogate":
                 res.extra["bias_rad_s"] = sur_pred.bias.tolist()  # the final velocity bias
+                err = np.abs(prediction_error(sur, res.theta, res.u, n_horizon=cfg.n_horizon))
+                if len(err):
+                    res.extra["horizon_error_rad"] = {
+                        "rms": np.sqrt(np.mean(err**2, axis=0)).tolist(),
+                        "p95": np.percentile(err, 95, axis=0).tolist(),
+                        "n_horizon": cfg.n_horizon,
+                    }
             runs[name] = res
             say(
                 f"{name}: RMSE {np.array2string(res.rmse, precision=4)} rad, "
