@@ -160,5 +160,7 @@ def test_worker_errors_are_one_line() -> None:
         pred.reset(THETA0)
         with pytest.raises(ExsurError, match="rollout worker process died; rerun with workers=1"):
             pred.predict(np.zeros((4, N, 4)))
+        assert pred.workers == []  # closed: the next call runs in this process
+        assert pred.predict(np.zeros((4, N, 4))).shape == (4, N, 4)
     finally:
         pred.close()

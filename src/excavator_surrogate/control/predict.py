@@ -130,10 +130,14 @@ class SurrogatePredictor:
         if self.workers:  # numpy, not tensors: no shared-memory files per call
             state = {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state.items()}
         e = self._edges
-        for w, a, b in zip(self.workers, e[1:-1], e[2:]):
-            w.submit(state, u[a:b])
-        parts = [rollout(self.batch, state, u[: e[1]])]
-        parts += [w.result() for w in self.workers]
+        try:
+            for w, a, b in zip(self.workers, e[1:-1], e[2:]):
+                w.submit(state, u[a:b])
+            parts = [rollout(self.batch, state, u[: e[1]])]
+            parts += [w.result() for w in self.workers]
+        except BaseException:
+            self.close()  # no worker is left with an unread answer; later calls run here
+            raise
         out = parts[0] if len(parts) == 1 else np.concatenate(parts)
         if self.bias_gain:
             ramp = np.arange(1, n_step + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
