@@ -6,7 +6,8 @@
   :class:`PlantPredictor` (``mujoco.rollout`` on a copy of the plant: the oracle).
 - :func:`dig_reference`: a digging-like joint-space reference (approach, penetrate, curl,
   lift, swing, dump, return); :func:`compare_tracking` tracks it with MPPI (surrogate and
-  oracle) and the PI baseline :class:`JointPI` on ``ExcavatorMujoco-v0``.
+  oracle) and the PI baseline :class:`JointPI` on ``ExcavatorMujoco-v0``;
+  :func:`prediction_error` says how far the surrogate's own horizon predictions miss a run.
 - :func:`compare_rl` (:mod:`.rl`, needs the ``[control]`` extra): PPO from Stable-Baselines3
   trained on :class:`~excavator_surrogate.env.vector.SurrogateVectorEnv` and on the plant,
   both evaluated on the plant.
@@ -31,6 +32,7 @@ _LAZY = {
     "dig_reference": ".reference",
     "compare_tracking": ".tracking",
     "track": ".tracking",
+    "prediction_error": ".tracking",
     "RLConfig": ".rl",
     "compare_rl": ".rl",
     "run_control": ".report",
