@@ -50,7 +50,10 @@ def _serve(conn: Any, sur: Surrogate, n_batch: int, mode: str | None) -> None:
         conn.send(("error", f"{type(e).__name__}: {e}"))
         return
     while True:
-        msg = conn.recv()
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):  # the parent is gone
+            return
         if msg is None:
             return
         try:
