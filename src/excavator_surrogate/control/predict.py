@@ -133,7 +133,13 @@ class SurrogatePredictor:
         try:
             for w, a, b in zip(self.workers, e[1:-1], e[2:]):
                 w.submit(state, u[a:b])
-            parts = [rollout(self.batch, state, u[: e[1]])]
+            threads = torch.get_num_threads()
+            if self.workers:  # one thread per process, this one too: they share the cores
+                torch.set_num_threads(1)
+            try:
+                parts = [rollout(self.batch, state, u[: e[1]])]
+            finally:
+                torch.set_num_threads(threads)
             parts += [w.result() for w in self.workers]
         except BaseException:
             self.close()  # no worker is left with an unread answer; later calls run here
