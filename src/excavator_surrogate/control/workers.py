@@ -62,7 +62,10 @@ def _serve(conn: Any, sur: Surrogate, n_batch: int, mode: str | None) -> None:
             conn.send(("error", f"{type(e).__name__}: {e}"))
 
 
-_DIED = "a rollout worker process died; rerun with workers=1 (one process) to see why"
+_DIED = (
+    "a rollout worker process died; rerun with workers=1 (one process) to see why (workers are "
+    "spawned: a script that starts them needs its code under `if __name__ == '__main__':`)"
+)
 
 
 class RolloutWorker:
