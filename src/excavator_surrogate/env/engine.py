@@ -50,7 +50,7 @@ do not gain from threads, and on a shared machine OpenMP barriers waiting for de
 threads made small-batch steps up to 10x slower."""
 
 
-class _OneThread:
+class OneThread:
     """Context manager: ``torch.set_num_threads(1)`` inside, previous count restored after."""
 
     __slots__ = ("prev",)
@@ -121,7 +121,7 @@ class SurrogateEngine:
         self.window = int(sur.window)
         self.dt = float(self.spec.dt)
         self.u_rest = rest_command(self.spec)
-        self._threads = _OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else _NoOp()
+        self._threads = OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else _NoOp()
         n_joint = self.spec.n_joint
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
         self.norm = sur.norm.to(self.device, torch.float32)
@@ -171,7 +171,7 @@ class SurrogateEngine:
 
     def _member_kernel(self, sur: Surrogate, impl: Impl) -> MemberLSTM | None:
         """The per-member kernel when ``impl`` asks for it (or ``auto`` picks it), else None."""
-        if impl not in ("auto", "members"):
+        if impl not in ("auto", "members") or (impl == "auto" and self.n_envs < MEMBERS_MIN_BATCH):
             return None
         kernel = MemberLSTM.from_layers(self._layers, n_member(sur)) if self._is_lstm else None
         if impl == "members" and kernel is None:
@@ -179,8 +179,6 @@ class SurrogateEngine:
                 f"impl='members' needs a merged LSTM seed ensemble of equal members; "
                 f"'{sur.name}' is not one (use impl='auto')"
             )
-        if impl == "auto" and self.n_envs < MEMBERS_MIN_BATCH:
-            return None
         return kernel
 
     def _state_shape(self, n: int) -> tuple[int, ...]:
@@ -215,18 +213,16 @@ class SurrogateEngine:
     def _rnn_cells(
         self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One sample through the layers with cell ops; x (m, n_raw); returns (out, h, c) new tensors."""
+        """One sample through the layers with cell ops (the member kernel's, if any); x (m,
+        n_raw); returns (out, h, c) new tensors."""
+        if self._members is not None:
+            return self._members.step(x, h, c)
         return step_layers(x, h, c, self._layers, lstm=self._is_lstm)
 
     def _rnn_seq(
         self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """A sequence x (m, n_step, n_raw) from state (h, c); returns (last output, h, c)."""
-        if self._members is not None:
-            out = x.new_zeros(x.shape[0], self.fused.hidden)
-            for k in range(x.shape[1]):
-                out, h, c = self._members.step(x[:, k], h, c)
-            return out, h, c
         if self.impl == "module":
             assert self._module is not None
             if self.fused.cell == "lstm":
@@ -364,9 +360,7 @@ class SurrogateEngine:
             if self.mode == "stateful":
                 f = self.fused
                 r = f.features(theta.float(), u_t, p_t)
-                if self._members is not None:
-                    out, self.h, self.c = self._members.step(r, self.h, self.c)
-                elif self.impl == "module":
+                if self.impl == "module":
                     out, self.h, self.c = self._rnn_seq(r.unsqueeze(1), self.h, self.c)
                 else:
                     out, self.h, self.c = self._rnn_cells(r, self.h, self.c)

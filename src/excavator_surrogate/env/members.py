@@ -5,8 +5,9 @@ weights are block-diagonal: member ``m`` owns rows ``[m H, (m + 1) H)`` of every
 and, from layer 1 on and in every recurrent matrix, only the matching columns.  The dense
 kernels multiply all the zero blocks too: with ``M`` members that is ``M`` times the useful
 work of the recurrent products.  :class:`MemberLSTM` cuts the blocks back out and steps the
-members as one batched matmul (``torch.baddbmm`` over the member axis), about 1.5x faster per
-step at 256 envs on one core for two members of width 64.
+members as one batched matmul (``torch.baddbmm`` over the member axis): for two members of
+width 64 at 256 envs on one core, a whole engine step takes 1.04 ms against the dense cell's
+1.42 (1.36x).
 
 State layout: ``h``, ``c`` (n_layer, M, n_envs, H), member-major, so no step copies it.
 :func:`to_dense` / :func:`from_dense` convert to and from the dense ``(n_layer, n_envs, M H)``.
@@ -41,8 +42,8 @@ class MemberLSTM:
         self.n_member = m
         self.width = h = hidden // m
         self.weights: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]] = []
+        rows = [_rows(i, h, m) for i in range(m)]  # gates in _ORDER
         for k, (w_ih, w_hh, b_ih, b_hh) in enumerate(layers):
-            rows = [_rows(i, h, m) for i in range(m)]  # gates in _ORDER
             # member i: W_ih,i (n_in_i, 4H), W_hh,i (H, 4H), b_i (1, 4H), transposed for x @ W
             wi = torch.stack(
                 [w_ih[r] if k == 0 else w_ih[r][:, i * h : (i + 1) * h] for i, r in enumerate(rows)]
@@ -62,14 +63,14 @@ class MemberLSTM:
         if m < 2 or hidden % m:
             return None
         h = hidden // m
+        # off the blocks: True everywhere except member i's rows x member i's columns
+        off = torch.ones(4 * hidden, hidden, dtype=torch.bool)
+        for i in range(m):
+            off[_rows(i, h, m).unsqueeze(1), torch.arange(i * h, (i + 1) * h)] = False
         for k, (w_ih, w_hh, _, _) in enumerate(layers):
             mats = [w_hh] if k == 0 else [w_ih, w_hh]
-            for w in mats:
-                mask = torch.ones_like(w, dtype=torch.bool)
-                for i, r in enumerate([_rows(i, h, m) for i in range(m)]):
-                    mask[r.unsqueeze(1), torch.arange(i * h, (i + 1) * h)] = False
-                if torch.count_nonzero(w[mask]) != 0:
-                    return None
+            if any(torch.count_nonzero(w[off.to(w.device)]) for w in mats):
+                return None
         return cls(layers, m)
 
     def step(
