@@ -17,6 +17,7 @@ out from the machine's current state in ONE batched call (``predict``):
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from functools import partial
 from itertools import pairwise
 from typing import Protocol
@@ -24,6 +25,7 @@ from typing import Protocol
 import numpy as np
 import torch
 
+from ..env.engine import OneThread
 from ..errors import ConfigError
 from ..simulate.plant import MujocoExcavator
 from ..spec import MachineSpec
@@ -133,13 +135,9 @@ class SurrogatePredictor:
         try:
             for w, a, b in zip(self.workers, e[1:-1], e[2:]):
                 w.submit(state, u[a:b])
-            threads = torch.get_num_threads()
-            if self.workers:  # one thread per process, this one too: they share the cores
-                torch.set_num_threads(1)
-            try:
+            # one torch thread per process, this one too: they share the cores
+            with OneThread() if self.workers else nullcontext():
                 parts = [rollout(self.batch, state, u[: e[1]])]
-            finally:
-                torch.set_num_threads(threads)
             parts += [w.result() for w in self.workers]
         except BaseException:
             self.close()  # no worker is left with an unread answer; later calls run here
