@@ -27,13 +27,22 @@ def _history(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize(
-    ("mode", "cell", "play"),
-    [("stateful", "lstm", ()), ("stateful", "gru", (0.05,)), ("windowed", "lstm", (0.05, 0.1))],
+    ("mode", "cell", "play", "omega_in"),
+    [
+        ("stateful", "lstm", (), False),
+        ("stateful", "gru", (0.05,), False),
+        ("windowed", "lstm", (0.05, 0.1), False),
+        ("stateful", "lstm", (), True),
+        ("windowed", "lstm", (0.05,), True),
+    ],
 )
-def test_surrogate_batch_matches_single_closed_loops(mode: str, cell: str, play: tuple) -> None:
+def test_surrogate_batch_matches_single_closed_loops(
+    mode: str, cell: str, play: tuple, omega_in: bool
+) -> None:
     """Synced to a measured history, the K-candidate batched rollout equals K single
-    ClosedLoop rollouts, each warmed up on the at-rest samples plus the full history."""
-    sur = tiny_surrogate(mode=mode, cell=cell, play=play, window=5)
+    ClosedLoop rollouts, each warmed up on the at-rest samples plus the full history (with
+    the velocity feature: the measured velocities of that history)."""
+    sur = tiny_surrogate(mode=mode, cell=cell, play=play, window=5, omega_in=omega_in)
     rng = np.random.default_rng(0)
     theta, u_hist = _history(rng)
     pred = SurrogatePredictor(sur, n_batch=K)
@@ -118,13 +127,16 @@ def test_bias_correction_adds_the_measured_velocity_error() -> None:
         SurrogatePredictor(sur, n_batch=K, bias_gain=2.0)
 
 
-@pytest.mark.parametrize("mode", ["stateful", "windowed"])
-def test_worker_processes_split_the_candidates_exactly(mode: str) -> None:
+@pytest.mark.parametrize(
+    ("mode", "omega_in"), [("stateful", False), ("windowed", False), ("stateful", True)]
+)
+def test_worker_processes_split_the_candidates_exactly(mode: str, omega_in: bool) -> None:
     """Candidates split over this process and two spawned workers give the same angles as
     one process, call after call (each call re-sends the synced state)."""
     from excavator_surrogate.surrogate.ensemble import merge
 
-    members = [tiny_surrogate(mode=mode, play=(0.05,), window=5, seed=s) for s in range(2)]
+    kw = dict(mode=mode, play=(0.05,), window=5, omega_in=omega_in)
+    members = [tiny_surrogate(seed=s, **kw) for s in range(2)]
     sur = merge(members)
     rng = np.random.default_rng(3)
     theta, u_hist = _history(rng)

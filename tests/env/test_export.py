@@ -44,9 +44,9 @@ def _step_side_by_side(
     ],
 )
 @pytest.mark.parametrize(
-    ("end_stops", "play"),
-    [(False, ()), (True, ()), (False, (0.05, 0.2))],
-    ids=["free", "stops", "play"],
+    ("end_stops", "play", "omega_in"),
+    [(False, (), False), (True, (), False), (False, (0.05, 0.2), False), (True, (), True)],
+    ids=["free", "stops", "play", "velocity"],
 )
 def test_onnx_stepper_matches_torch(
     mode: str,
@@ -54,18 +54,25 @@ def test_onnx_stepper_matches_torch(
     exporter: str,
     end_stops: bool,
     play: tuple[float, ...],
+    omega_in: bool,
     make_surrogate,
     tmp_path: Path,
 ) -> None:
     sur = make_surrogate(
-        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0, play=play
+        mode=mode,
+        cell=cell,
+        end_stops=end_stops,
+        drive=20.0 if end_stops else 0.0,
+        play=play,
+        omega_in=omega_in,
+        residual=omega_in and cell != "arx",
     )
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)
     names = [i.name for i in model.graph.input]
     expect = ["theta", "u", "h", "c"] if mode == "stateful" else ["theta", "u"]
-    assert names == expect + (["z"] if play else [])
+    assert names == expect + (["z"] if play else []) + (["w"] if omega_in else [])
     stepper = OnnxStepper(path)
     assert stepper.spec == sur.spec and stepper.mode == mode
     th = _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=5), n_step=40, seed=0)
@@ -109,10 +116,11 @@ def test_cli_export(
 
 
 def test_onnx_runs_a_merged_ensemble(make_surrogate, tmp_path: Path) -> None:
-    """A merged seed ensemble exports like any stateful checkpoint and matches the engine."""
+    """A merged seed ensemble exports like any stateful checkpoint and matches the engine
+    (with play features and the velocity feature: inputs z, then w)."""
     from excavator_surrogate.surrogate.ensemble import merge
 
-    kw = dict(mode="stateful", play=(0.05, 0.2))
+    kw = dict(mode="stateful", play=(0.05, 0.2), omega_in=True)
     sur = merge([make_surrogate(seed=0, **kw), make_surrogate(seed=1, hidden=8, **kw)])
     stepper = OnnxStepper(export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript"))
     _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=2), n_step=30, seed=1)

@@ -12,7 +12,7 @@ from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.rollout import rollout_reference
 
-KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2))
+KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2), omega_in=True)
 
 
 @pytest.fixture(scope="module")

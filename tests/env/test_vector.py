@@ -96,22 +96,34 @@ def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("end_stops", "play"),
-    [(False, ()), (True, ()), (False, (0.05, 0.2))],
-    ids=["free", "stops", "play"],
+    ("end_stops", "play", "omega_in"),
+    [(False, (), False), (True, (), False), (False, (0.05, 0.2), False), (True, (0.05,), True)],
+    ids=["free", "stops", "play", "velocity"],
 )
 @pytest.mark.parametrize(
     ("mode", "cell"),
     [("stateful", "lstm"), ("stateful", "gru"), ("windowed", "lstm"), ("windowed", "arx")],
 )
 def test_engine_matches_closed_loop_reference(
-    mode: str, cell: str, end_stops: bool, play: tuple[float, ...], make_surrogate
+    mode: str,
+    cell: str,
+    end_stops: bool,
+    play: tuple[float, ...],
+    omega_in: bool,
+    make_surrogate,
 ) -> None:
     """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
     (with end stops: driven into them, and both stop at the same place; with command play
-    features: the engine carries the same play states)."""
+    features: the engine carries the same play states; with the velocity feature: the same
+    fed-back velocities, clipped at the stops)."""
     sur = make_surrogate(
-        mode=mode, cell=cell, end_stops=end_stops, drive=20.0 if end_stops else 0.0, play=play
+        mode=mode,
+        cell=cell,
+        end_stops=end_stops,
+        drive=20.0 if end_stops else 0.0,
+        play=play,
+        omega_in=omega_in,
+        residual=omega_in and cell != "arx",
     )
     rng = np.random.default_rng(2)
     n, w = 3, sur.window

@@ -36,17 +36,21 @@ def tiny_surrogate(
     end_stops: bool = False,
     drive: float = 0.0,
     play: tuple[float, ...] = (),
+    omega_in: bool = False,
+    residual: bool = False,
 ) -> Surrogate:
     """An untrained 2-layer surrogate of ``spec`` (weights from ``torch.manual_seed(seed)``).
 
     The normalisation is fitted on ``episodes`` if given, else drawn from ``seed`` (non-trivial
     feature statistics, slow bounded output: omega std 0.05 rad/s).  ``play``: half-widths of
-    command play features (inputs widen by ``len(play) * n_joint``).  ``drive`` adds
+    command play features (inputs widen by ``len(play) * n_joint``); ``omega_in``: the
+    velocity feature (inputs widen by ``n_joint``); ``residual``: the head adds it (needs
+    ``omega_in``).  ``drive`` adds
     +/- ``drive`` (alternating by joint, normalised units) to the output bias so that free runs
     reach the joint limits (end-stop tests).
     """
     torch.manual_seed(seed)
-    n_feature = spec.n_feature + len(play) * spec.n_joint
+    n_feature = spec.n_feature + (len(play) + omega_in) * spec.n_joint
     cfg = ModelConfig(
         n_feature=n_feature,
         n_joint=spec.n_joint,
@@ -55,10 +59,11 @@ def tiny_surrogate(
         n_layer=2,
         cell=cell,
         head_hidden=hidden,
+        residual=residual,
     )
     if episodes is not None:
         norm = Normalization.fit(
-            [e.theta for e in episodes], [e.u for e in episodes], spec, play=play
+            [e.theta for e in episodes], [e.u for e in episodes], spec, play=play, omega_in=omega_in
         )
     else:
         rng = np.random.default_rng(seed)
@@ -69,6 +74,7 @@ def tiny_surrogate(
             y_std=np.full(spec.n_joint, 0.05),
             spec=spec,
             play=play,
+            omega_in=omega_in,
         )
     net = build_net(cfg).eval()
     drive_into_stops(net, drive, spec.n_joint)

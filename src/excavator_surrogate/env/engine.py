@@ -95,7 +95,10 @@ class SurrogateEngine:
     State: ``theta`` (n_envs, n_joint) float64 [rad]; ``h``, ``c`` (n_layer, n_envs, hidden)
     (stateful; ``impl="members"``: (n_layer, M, n_envs, hidden / M), see
     :meth:`dense_state`) or a ring buffer of normalised features (windowed); ``z`` (n_envs,
-    Q, n_joint) play states of the commands (Q = 0 unless the surrogate has play features).
+    Q, n_joint) play states of the commands (Q = 0 unless the surrogate has play features);
+    with a velocity feature (``norm.omega_in``), ``w`` (n_envs, n_joint) float64 [rad/s], the
+    velocity feature of the current sample, and ``theta_prev``, the angle the last step
+    started from (:meth:`observe` turns a measured angle into the measured velocity).
     """
 
     def __init__(
@@ -126,6 +129,9 @@ class SurrogateEngine:
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
         self.norm = sur.norm.to(self.device, torch.float32)
         self.z = torch.zeros(self.n_envs, self.norm.n_play, n_joint, device=self.device)
+        self.omega_in = bool(self.norm.omega_in)
+        self.w = torch.zeros_like(self.theta)
+        self.theta_prev = torch.zeros_like(self.theta)
         lim = sur.limits()
         self._limits = None if lim is None else tuple(a.double() for a in lim)
         self._members: MemberLSTM | None = None
@@ -245,7 +251,10 @@ class SurrogateEngine:
                 return
         th = theta0.index_select(0, idx)
         self.theta.index_copy_(0, idx, th)
+        self.theta_prev.index_copy_(0, idx, th)
+        self.w.index_fill_(0, idx, 0.0)  # at rest
         m = idx.numel()
+        w0 = th.new_zeros(m, th.shape[1]).float() if self.omega_in else None
         u0 = torch.as_tensor(self.u_rest, device=self.device).expand(m, -1).float()
         n_warm = self.window - 1
         z0, p0 = self._play_step(self.z.new_zeros(m, *self.z.shape[1:]), u0)
@@ -255,13 +264,13 @@ class SurrogateEngine:
             h = torch.zeros(self._state_shape(m), device=self.device)
             c = torch.zeros_like(h)
             if n_warm > 0:
-                r = f.features(th.float(), u0, p0)
+                r = f.features(th.float(), u0, p0, w0)
                 _, h, c = self._rnn_seq(r.unsqueeze(1).expand(m, n_warm, -1), h, c)
             env_dim = h.dim() - 2  # (n_layer, [M,] n_envs, width)
             self.h.index_copy_(env_dim, idx, h)
             self.c.index_copy_(env_dim, idx, c)
         else:
-            row = self.norm.encode(th.float(), u0, z0)  # (m, n_feature)
+            row = self.norm.encode(th.float(), u0, z0, w0)  # (m, n_feature)
             self._ring.index_copy_(
                 0, idx, row.unsqueeze(1).expand(m, self._ring.shape[1], -1).contiguous()
             )
@@ -287,17 +296,23 @@ class SurrogateEngine:
     def observe(self, theta: np.ndarray | torch.Tensor) -> None:
         """Overwrite the current angles with measured ones ``theta`` (n_envs, n_joint) [rad]:
         the next :meth:`step` then consumes the measurement (teacher forcing), which keeps the
-        recurrent state synced to a real machine's measured history."""
+        recurrent state synced to a real machine's measured history.  With a velocity
+        feature, it becomes the measured ``wrap(theta - theta_prev) / T_s``, from the angle
+        the last step started from (the reset angle if none)."""
         self.theta.copy_(torch.as_tensor(np.asarray(theta, dtype=np.float64), device=self.device))
+        if self.omega_in:
+            self.w.copy_(self.norm.velocity(self.theta, self.theta_prev, self.dt))
 
     @torch.inference_mode()
     def export_row(self, row: int = 0) -> dict[str, torch.Tensor | int]:
-        """The complete state of env ``row`` in a kernel-independent layout (copies): ``theta``
-        (1, n_joint), ``z`` (1, Q, n_joint) and ``h``, ``c`` (n_layer, 1, hidden) (stateful)
-        or ``ring`` (1, 2 W, n_feature) and ``pos`` (windowed).  :meth:`fork_state` continues
+        """The complete state of env ``row`` in a kernel-independent layout (copies): ``theta``,
+        ``theta_prev``, ``w`` (1, n_joint), ``z`` (1, Q, n_joint) and ``h``, ``c`` (n_layer, 1,
+        hidden) (stateful) or ``ring`` (1, 2 W, n_feature) and ``pos`` (windowed).  :meth:`fork_state` continues
         it, here or in another process's engine of the same surrogate."""
         out: dict[str, torch.Tensor | int] = {
             "theta": self.theta[row : row + 1].clone(),
+            "theta_prev": self.theta_prev[row : row + 1].clone(),
+            "w": self.w[row : row + 1].clone(),
             "z": self.z[row : row + 1].clone(),
         }
         if self.mode == "stateful":
@@ -318,6 +333,8 @@ class SurrogateEngine:
         dev = self.device
         self.theta.copy_(torch.as_tensor(state["theta"], device=dev).expand_as(self.theta))
         self.z = torch.as_tensor(state["z"], device=dev).expand_as(self.z).clone()
+        for k in ("theta_prev", "w"):
+            getattr(self, k).copy_(torch.as_tensor(state[k], device=dev).expand_as(self.theta))
         if self.mode == "stateful":
             h = torch.as_tensor(state["h"], device=dev)
             c = torch.as_tensor(state["c"], device=dev)
@@ -356,19 +373,25 @@ class SurrogateEngine:
         with self._threads:
             u_t = torch.as_tensor(u, device=self.device).float()
             theta = self.theta
+            w_t = self.w.float() if self.omega_in else None
+            if self.omega_in:
+                self.theta_prev.copy_(theta)
             self.z, p_t = self._play_step(self.z, u_t)
             if self.mode == "stateful":
                 f = self.fused
-                r = f.features(theta.float(), u_t, p_t)
+                r = f.features(theta.float(), u_t, p_t, w_t)
                 if self.impl == "module":
                     out, self.h, self.c = self._rnn_seq(r.unsqueeze(1), self.h, self.c)
                 else:
                     out, self.h, self.c = self._rnn_cells(r, self.h, self.c)
                 w1, b1, w2, b2 = self._head
-                omega = torch.addmm(b2, torch.relu(torch.addmm(b1, out, w1.t())), w2.t()).double()
+                omega = torch.addmm(b2, torch.relu(torch.addmm(b1, out, w1.t())), w2.t())
+                if f.residual:
+                    omega = omega + w_t  # omega[k+1] = omega[k] + change
+                omega = omega.double()
             else:
                 w, p = self.window, self._pos
-                row = self.norm.encode(theta.float(), u_t, self.z)
+                row = self.norm.encode(theta.float(), u_t, self.z, w_t)
                 self._ring[:, p] = row
                 self._ring[:, p + w] = row
                 y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
@@ -379,6 +402,8 @@ class SurrogateEngine:
             else:
                 theta_next, omega = integrate(theta, omega, dt=self.dt, limits=self._limits)
                 theta.copy_(theta_next)
+            if self.omega_in:
+                self.w.copy_(omega)
         return theta, omega
 
 

@@ -20,16 +20,21 @@ outputs
 
 A surrogate with Q > 0 command play features (``TrainConfig.play``) has one more input
 ``z`` (n_batch, Q, n_joint), the play states before ``u`` (zeros at rest), and output
-``z_out``, the states after it; the play operators are in the graph.
+``z_out``, the states after it; the play operators are in the graph.  A surrogate with a
+velocity feature (``TrainConfig.velocity_input``) has one more input after those, ``w``
+(n_batch, n_joint) [rad/s]: the ``omega`` of the previous step (zeros at rest), or the
+measured ``wrap(θ[k] - θ[k-1]) / T_s`` when synced to a machine.
 
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
 of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
-n_joint), the play states after each of them, with play features); outputs ``omega`` and
+n_joint), the play states after each of them, with play features; ``w``, (n_batch, W,
+n_joint), their velocity features, with a velocity feature); outputs ``omega`` and
 ``theta_next`` as above (the encoding and normalisation are in the graph).
 
 The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON machine
 spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``,
-``exsur_play`` (JSON list of play half-widths, empty without play features).
+``exsur_play`` (JSON list of play half-widths, empty without play features),
+``exsur_omega_in`` (``1`` with a velocity feature).
 :class:`OnnxStepper` runs the exported file with the same warm-up convention as the
 environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 """
@@ -60,8 +65,9 @@ Exporter = Literal["auto", "dynamo", "torchscript"]
 
 class WindowStep(nn.Module):
     """Windowed step with encoding and normalisation in the graph:
-    ``(theta (n, W, J), u (n, W, n_u)[, z (n, W, Q, J)]) -> (omega (n, J), theta_next (n, J))``
-    (``u``: the joints' commands, then the exogenous inputs')."""
+    ``(theta (n, W, J), u (n, W, n_u)[, z (n, W, Q, J)][, w (n, W, J)]) -> (omega (n, J),
+    theta_next (n, J))`` (``u``: the joints' commands, then the exogenous inputs'; ``w``: the
+    velocity features [rad/s])."""
 
     def __init__(self, sur: Surrogate) -> None:
         super().__init__()
@@ -71,11 +77,16 @@ class WindowStep(nn.Module):
         for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play"):
             self.register_buffer(k, getattr(norm, k).clone())
         self.n_play = norm.n_play
+        self.omega_in = norm.omega_in
         self.dt = float(sur.spec.dt)
         add_end_stops(self, sur)
 
     def forward(
-        self, theta: torch.Tensor, u: torch.Tensor, z: torch.Tensor | None = None
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        z: torch.Tensor | None = None,
+        w: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """See the class docstring."""
         parts = []
@@ -88,12 +99,46 @@ class WindowStep(nn.Module):
             if z is None:
                 raise ValueError("this surrogate has play features: pass the play states z")
             parts.append(play_features(z, us[..., : len(self.periodic)], self.play))
+        if self.omega_in:
+            if w is None:
+                raise ValueError("this surrogate has a velocity feature: pass w")
+            parts.append(w)
         x = torch.cat(parts, dim=-1)
         y = self.net((x - self.x_mean) / self.x_std)
         theta_next, omega = integrate(
             theta[:, -1], y * self.y_std + self.y_mean, dt=self.dt, limits=end_stops(self)
         )
         return omega, theta_next
+
+
+class _VelocityOnly(nn.Module):
+    """``forward(theta, u, [h, c,] w)`` of a step without play features: the velocity
+    feature is the graph's last input (no ``z`` input in between)."""
+
+    def __init__(self, step: nn.Module) -> None:
+        super().__init__()
+        self.step = step
+
+
+class _StatefulVelocityOnly(_VelocityOnly):
+    def forward(  # type: ignore[override]
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        h: torch.Tensor,
+        c: torch.Tensor,
+        w: torch.Tensor,
+    ) -> tuple[torch.Tensor, ...]:
+        """:class:`~.fused.FusedStep` with ``z = None``."""
+        return self.step(theta, u, h, c, None, w)
+
+
+class _WindowVelocityOnly(_VelocityOnly):
+    def forward(  # type: ignore[override]
+        self, theta: torch.Tensor, u: torch.Tensor, w: torch.Tensor
+    ) -> tuple[torch.Tensor, ...]:
+        """:class:`WindowStep` with ``z = None``."""
+        return self.step(theta, u, None, w)
 
 
 def export_onnx(
@@ -125,6 +170,7 @@ def export_onnx(
     spec = sur.spec
     n_joint, n_u = spec.n_joint, spec.n_u
     n_play = sur.norm.n_play
+    omega_in = sur.norm.omega_in
     n_b = 2
     if mode == "stateful":
         module: nn.Module = FusedStep(sur).eval()
@@ -145,6 +191,12 @@ def export_onnx(
             inputs.append("z")
             outputs.append("z_out")
             axes.update({"z": {0: "batch"}, "z_out": {0: "batch"}})
+        if omega_in:
+            args = (*args, torch.zeros(n_b, n_joint))
+            inputs.append("w")
+            axes["w"] = {0: "batch"}
+            if not n_play:
+                module = _StatefulVelocityOnly(module).eval()
     elif mode == "windowed":
         module = WindowStep(sur).eval()
         w = sur.window
@@ -156,6 +208,12 @@ def export_onnx(
             args = (*args, torch.zeros(n_b, w, n_play, n_joint))
             inputs.append("z")
             axes["z"] = {0: "batch"}
+        if omega_in:
+            args = (*args, torch.zeros(n_b, w, n_joint))
+            inputs.append("w")
+            axes["w"] = {0: "batch"}
+            if not n_play:
+                module = _WindowVelocityOnly(module).eval()
         axes.update({"omega": {0: "batch"}, "theta_next": {0: "batch"}})
     else:
         raise ConfigError(f"export mode must be 'stateful' or 'windowed', got {mode!r}")
@@ -256,6 +314,7 @@ def _add_metadata(path: Path, sur: Surrogate, mode: str) -> None:
         "exsur_hidden": str(sur.model_cfg.hidden),
         "exsur_name": sur.name,
         "exsur_play": json.dumps(list(sur.norm.play_widths)),
+        "exsur_omega_in": str(int(sur.norm.omega_in)),
     }
     for k, v in meta.items():
         p = model.metadata_props.add()
@@ -302,7 +361,12 @@ class OnnxStepper:
         self.u_rest = rest_command(self.spec).astype(np.float32)
         self.play = np.asarray(json.loads(meta.get("exsur_play", "[]")), dtype=np.float32)
         """(Q,) play half-widths (empty: no play features)."""
+        self.omega_in = meta.get("exsur_omega_in", "0") == "1"
+        """Whether the graph takes a velocity feature ``w``."""
         n_joint = self.spec.n_joint
+        self.w = np.zeros((0, n_joint), dtype=np.float32)
+        """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
+        self._w_win = np.zeros((0, self.window, n_joint), np.float32)
         self.z = np.zeros((0, len(self.play), n_joint), dtype=np.float32)
         """Play states (n_batch, Q, n_joint) after the last command."""
         self._z_win = np.zeros((0, self.window, len(self.play), n_joint), np.float32)
@@ -319,6 +383,7 @@ class OnnxStepper:
         u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
         z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
         self.z = z_rest
+        self.w = np.zeros_like(theta0)  # at rest
         if self.mode == "stateful":
             self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
             self.c = np.zeros_like(self.h)
@@ -326,11 +391,14 @@ class OnnxStepper:
                 feed = {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
                 if len(self.play):
                     feed["z"] = z_rest
+                if self.omega_in:
+                    feed["w"] = self.w
                 _, _, self.h, self.c, *_ = self.session.run(None, feed)
         else:
             self._theta_win = np.repeat(theta0[:, None], self.window, axis=1)
             self._u_win = np.repeat(u0[:, None], self.window, axis=1)
             self._z_win = np.repeat(z_rest[:, None], self.window, axis=1)
+            self._w_win = np.zeros_like(self._theta_win)
         return self.theta
 
     def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -346,6 +414,8 @@ class OnnxStepper:
         u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape[0], self.spec.n_u)
         if self.mode == "stateful":
             feed = {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
+            if self.omega_in:
+                feed["w"] = self.w
             if len(self.play):
                 feed["z"] = self.z
                 omega, theta, self.h, self.c, self.z = self.session.run(None, feed)
@@ -359,9 +429,14 @@ class OnnxStepper:
             if len(self.play):
                 self._z_win[:, -1] = self.z
                 feed["z"] = self._z_win
+            if self.omega_in:
+                self._w_win[:, -1] = self.w
+                feed["w"] = self._w_win
             omega, theta = self.session.run(None, feed)
             self._theta_win = np.roll(self._theta_win, -1, axis=1)
             self._u_win = np.roll(self._u_win, -1, axis=1)
             self._z_win = np.roll(self._z_win, -1, axis=1)
+            self._w_win = np.roll(self._w_win, -1, axis=1)
         self.theta = theta
+        self.w = omega
         return theta, omega

@@ -28,15 +28,16 @@ def rest_command(spec: MachineSpec) -> np.ndarray:
 
 def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
     """Matrix ``M`` (n_feature, n_raw) and offset ``e`` (n_feature,) with
-    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (n_u), f]``
-    (``u``: the joints' commands then the exogenous inputs; ``f``: the Q * J play features
-    ``(z - us) / b``, if any)."""
+    ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (n_u), f,
+    w]`` (``u``: the joints' commands then the exogenous inputs; ``f``: the Q * J play
+    features ``(z - us) / b``, if any; ``w``: the J velocity features [rad/s], if any)."""
     spec, norm = sur.spec, sur.norm
     n_joint, n_u = spec.n_joint, spec.n_u
     per = [k for k, p in enumerate(spec.periodic) if p]
     n_per = len(per)
     n_play = norm.n_play * n_joint
-    n_raw = n_joint + 2 * n_per + n_u + n_play
+    n_w = n_joint if norm.omega_in else 0
+    n_raw = n_joint + 2 * n_per + n_u + n_play + n_w
     m = norm.x_mean.double().cpu().numpy()
     s = norm.x_std.double().cpu().numpy()
     mat = np.zeros((norm.n_feature, n_raw))
@@ -55,7 +56,7 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
         mat[col, n_joint + 2 * n_per + k] = 1.0 / (js.u_scale * s[col])
         off[col] += -js.u_center / js.u_scale / s[col]
         col += 1
-    for k in range(n_play):
+    for k in range(n_play + n_w):
         mat[col, n_joint + 2 * n_per + n_u + k] = 1.0 / s[col]
         col += 1
     return mat, off
@@ -118,11 +119,14 @@ class FusedStep(nn.Module):
     - ``h``, ``c``: (n_layer, n_batch, hidden) recurrent state (``c`` unused and passed
       through for GRU cells);
     - ``z``: (n_batch, Q, n_joint) play states before ``u`` (only if the surrogate has
-      ``Q = n_play > 0`` play features).
+      ``Q = n_play > 0`` play features);
+    - ``w``: (n_batch, n_joint) velocity feature of sample k [rad/s] (only if the surrogate
+      has one, ``omega_in``): the ``omega`` this step returned last time, or the measured
+      ``wrap(θ[k] - θ[k-1]) / T_s`` after a measured angle.
 
     Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
     [rad] (clipped to the end stops if the surrogate has them), the new ``h``, ``c`` and,
-    with play features, the new ``z``.  Only LSTM/GRU surrogates can be fused.
+    with play features, the new ``z``.  (``omega`` is the next step's ``w``.)  Only LSTM/GRU surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:
@@ -136,6 +140,7 @@ class FusedStep(nn.Module):
         self.n_layer = sur.model_cfg.n_layer
         add_end_stops(self, sur)
         add_play(self, sur)
+        self.omega_in = bool(sur.norm.omega_in)
         self.hidden = sur.model_cfg.hidden
         self.n_joint = spec.n_joint
         self.dt = float(spec.dt)
@@ -170,7 +175,9 @@ class FusedStep(nn.Module):
         y_std = sur.norm.y_std.double().cpu().numpy()
         y_mean = sur.norm.y_mean.double().cpu().numpy()
         w2 = lin2.weight.detach().double().cpu().numpy() * y_std[:, None]
-        b2 = lin2.bias.detach().double().cpu().numpy() * y_std + y_mean
+        # omega = y_std y + y_mean; residual: y_std head + w (the velocity feature, raw)
+        self.residual = bool(sur.model_cfg.residual)
+        b2 = lin2.bias.detach().double().cpu().numpy() * y_std + (0.0 if self.residual else y_mean)
         self.w1 = nn.Parameter(lin1.weight.detach().float().clone(), requires_grad=False)
         self.b1 = nn.Parameter(lin1.bias.detach().float().clone(), requires_grad=False)
         self.w2 = nn.Parameter(torch.tensor(w2, dtype=f32), requires_grad=False)
@@ -182,18 +189,24 @@ class FusedStep(nn.Module):
         return int(self.w_ih[0].shape[1])
 
     def features(
-        self, theta: torch.Tensor, u: torch.Tensor, f: torch.Tensor | None = None
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        f: torch.Tensor | None = None,
+        w: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Raw features ``[theta, sin θ_p, cos θ_p, u, f]`` (n_batch, n_raw), float32, with
-        ``f`` the play features of :func:`play_and_features` (None without play)."""
-        tail = [u] if f is None else [u, f]
+        """Raw features ``[theta, sin θ_p, cos θ_p, u, f, w]`` (n_batch, n_raw), float32, with
+        ``f`` the play features of :func:`play_and_features` (None without play) and ``w``
+        the velocity feature [rad/s] (None without one)."""
+        tail = [u] + ([] if f is None else [f]) + ([] if w is None else [w])
         if self.has_periodic:
             tp = theta.index_select(-1, self.periodic_idx)
             return torch.cat([theta, torch.sin(tp), torch.cos(tp), *tail], dim=-1)
         return torch.cat([theta, *tail], dim=-1)
 
     def head(self, out: torch.Tensor) -> torch.Tensor:
-        """Angular velocity [rad/s] from the last layer's output (n_batch, hidden)."""
+        """Angular velocity [rad/s] from the last layer's output (n_batch, hidden) (with a
+        residual head: its change, to be added to the velocity feature)."""
         z = torch.relu(torch.nn.functional.linear(out, self.w1, self.b1))
         return torch.nn.functional.linear(z, self.w2, self.b2)
 
@@ -204,14 +217,19 @@ class FusedStep(nn.Module):
         h: torch.Tensor,
         c: torch.Tensor,
         z: torch.Tensor | None = None,
+        w: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, ...]:
         """See the class docstring."""
+        if self.n_play and z is None:
+            raise ValueError("this surrogate has play features: pass the play state z")
+        if self.omega_in and w is None:
+            raise ValueError("this surrogate has a velocity feature: pass w")
         f = None
         if self.n_play:
-            if z is None:
-                raise ValueError("this surrogate has play features: pass the play state z")
             z, f = play_and_features(self, z, u)
-        inp = self.features(theta, u, f)
+        else:
+            z = None
+        inp = self.features(theta, u, f, w if self.omega_in else None)
         hs, cs = [], []
         for layer in range(self.n_layer):
             h_l, c_l = h[layer], c[layer]
@@ -231,7 +249,10 @@ class FusedStep(nn.Module):
             hs.append(h_l)
             cs.append(c_l)
             inp = h_l
-        theta_next, omega = integrate(theta, self.head(inp), dt=self.dt, limits=end_stops(self))
-        if self.n_play:
+        omega = self.head(inp)
+        if self.residual:
+            omega = omega + w
+        theta_next, omega = integrate(theta, omega, dt=self.dt, limits=end_stops(self))
+        if z is not None:
             return omega, theta_next, torch.stack(hs), torch.stack(cs), z
         return omega, theta_next, torch.stack(hs), torch.stack(cs)

@@ -18,7 +18,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ..data.episode import Episode
 from ..errors import DataError
 from ..spec import MachineSpec
-from .features import Normalization, omega_target
+from .features import Normalization, omega_in_np, omega_target
 from .model import ARXNet, ModelConfig, Surrogate
 
 RIDGES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
@@ -72,7 +72,8 @@ def fit_arx(
     for ep in episodes:
         if ep.n_step <= window:
             continue
-        x = norm.encode_np(ep.theta, ep.u, spec, norm.play_from_rest_np(ep.u, spec))
+        z = norm.play_from_rest_np(ep.u, spec)
+        x = norm.encode_np(ep.theta, ep.u, spec, z, omega_in_np(ep.theta, spec))
         y = (omega_target(ep.theta, spec) - y_mean) / y_std
         win = sliding_window_view(x, window, axis=0)  # (n_step-W+1, n_feature, W)
         phi = win.transpose(0, 2, 1).reshape(win.shape[0], -1)[:-1]  # windows ending at t=W-1..N-2

@@ -13,7 +13,7 @@ input layer stacks the members' rows, and the output layer averages the members'
 (``ClosedLoop``, the vector env, the fused engine, ONNX export) with no ensemble code path to
 keep equal.  Members may differ in normalisation (each member's input and output affine maps
 are folded into its block) and in width; they must share the machine spec, cell, depth,
-window, rollout mode, end stops and play features.
+window, rollout mode, end stops, play features and velocity feature.
 
 :func:`~.rollout.rollout_reference` with a list of members is the plain loop (members
 stepped one by one, omega averaged in NumPy) that the merged network is tested against.
@@ -49,6 +49,8 @@ def check_members(surs: Sequence[Surrogate]) -> None:
             (s.mode == ref.mode, "rollout mode"),
             (bool(s.end_stops) == bool(ref.end_stops), "end stops"),
             (torch.equal(s.norm.play.cpu(), ref.norm.play.cpu()), "play widths"),
+            (s.norm.omega_in == ref.norm.omega_in, "velocity feature"),
+            (s.model_cfg.residual == ref.model_cfg.residual, "residual head"),
             (s.model_cfg.n_feature == ref.model_cfg.n_feature, "input features"),
         ]
         for ok, what in checks:
@@ -67,7 +69,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
     """Merge K surrogates into one whose omega is the mean of theirs (see the module docstring).
 
     Args:
-        surs: K >= 1 members (LSTM or GRU, same spec/cell/depth/window/mode/end stops/play).
+        surs: K >= 1 members (LSTM or GRU, same spec/cell/depth/window/mode/end stops/play/velocity feature/head).
         name: label of the merged model (default ``"<cell>-ensemble-K"``).
 
     Returns:
@@ -90,6 +92,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
     h_off = np.concatenate([[0], np.cumsum(hid)])
     f_off = np.concatenate([[0], np.cumsum(head)])
     h_tot, f_tot = int(h_off[-1]), int(f_off[-1])
+    residual = ref.model_cfg.residual
     norm0 = ref.norm.to("cpu", torch.float32)
     xm0, xs0 = _np(norm0.x_mean), _np(norm0.x_std)
     ym0, ys0 = _np(norm0.y_mean), _np(norm0.y_std)
@@ -132,9 +135,11 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         w1[f_lo:f_hi, lo:hi] = _np(lin1.weight)
         b1[f_lo:f_hi] = _np(lin1.bias)
         # y = (mean_m (ys_m (W2_m a_m + b2_m) + ym_m) - ym0) / ys0   (member 0's output scale)
+        # residual: omega = mean_m ys_m (W2_m a_m + b2_m) + w = ys0 y + w, so no ym terms
         w2[:, f_lo:f_hi] = _np(lin2.weight) * (ys / (n_member * ys0))[:, None]
-        b2 += (ys * _np(lin2.bias) + ym) / (n_member * ys0)
-    b2 -= ym0 / ys0
+        b2 += (ys * _np(lin2.bias) + (0.0 if residual else ym)) / (n_member * ys0)
+    if not residual:
+        b2 -= ym0 / ys0
 
     mcfg = ModelConfig(
         n_feature=ref.model_cfg.n_feature,
@@ -144,6 +149,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         n_layer=n_layer,
         cell=cell,
         head_hidden=f_tot,
+        residual=residual,
     )
     net = SurrogateNet(mcfg)
     f32 = torch.float32

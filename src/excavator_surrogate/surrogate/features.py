@@ -11,6 +11,11 @@ rest, and ``(z_p - us) / b_p`` in ``[-1, 1]`` is appended per width and joint (w
 play acts on the joints' commands only, not on exogenous inputs.
 It says from which side the command last arrived -- the state of a valve's hysteresis, which a
 recurrent net cannot learn to remember across a long hold from truncated-BPTT training.
+Optionally (``omega_in``, ours) the previous velocity ``omega_in[k] = wrap(theta[k] -
+theta[k-1]) / T_s`` [rad/s] (0 at the first sample of an episode, which starts at rest) is
+appended per joint: the measured velocity while synced to a machine, the integrated prediction
+in a free run.  It is the state of a slow, acceleration-limited flow (a heavy swing), which the
+net otherwise has to infer from the small differences of consecutive angle features.
 Features and targets are then standardised with statistics of the training split
 (:class:`Normalization`), which travel with the checkpoint.
 
@@ -148,6 +153,15 @@ def integrate_np(
     return stopped, np.where(hit, (stopped - theta) / dt, omega)
 
 
+def omega_in_np(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
+    """The velocity input feature of every sample: :func:`omega_target` with row 0 set to 0
+    (an episode starts at rest).  ``theta: (n_step, n_joint)`` [rad] -> ``(n_step, n_joint)``
+    [rad/s]."""
+    out = omega_target(theta, spec)
+    out[:1] = 0.0
+    return out
+
+
 def unwrap_periodic(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
     """Unwrap periodic joints along the time axis (-2): ``(..., n_step, n_joint)`` [rad]."""
     theta = np.array(theta, dtype=np.float64, copy=True)
@@ -225,6 +239,7 @@ def encode_np(
     *,
     play: Sequence[float] = (),
     z: np.ndarray | None = None,
+    omega: np.ndarray | None = None,
 ) -> np.ndarray:
     """Raw (un-normalised) features, NumPy version.
 
@@ -233,10 +248,13 @@ def encode_np(
         u: (..., n_u) commands [command units]: the joints', then the exogenous inputs'.
         play: half-widths of the play operators (empty: the paper's features).
         z: (..., P, n_joint) play states after this sample (:func:`play_np`); required with ``play``.
+        omega: (..., n_joint) velocity input feature [rad/s] (:func:`omega_in_np`), or None
+            (not a feature).
 
     Returns:
         (..., n_feature) features: angle part (sin/cos for periodic joints), scaled commands,
-        then the play features; ``n_feature = spec.n_feature + P * n_joint``.
+        the play features, then ``omega``; ``n_feature = spec.n_feature + P * n_joint`` (+
+        ``n_joint`` with ``omega``).
     """
     theta = np.asarray(theta, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
@@ -252,6 +270,8 @@ def encode_np(
         if z is None:
             raise ValueError("encode_np: play features need the play states z")
         out.append(play_features_np(z, us[..., : spec.n_joint], play))
+    if omega is not None:
+        out.append(np.asarray(omega, dtype=np.float64))
     return np.concatenate(out, axis=-1)
 
 
@@ -274,6 +294,9 @@ class Normalization:
     u_scale: torch.Tensor
     play: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
     """(P,) half-widths of the command play operators [scaled command units]; empty: none."""
+    omega_in: bool = False
+    """The previous velocity (:func:`omega_in_np`) is a feature (the last ``n_joint`` columns),
+    standardised with the target's ``y_mean`` / ``y_std`` (what a residual head adds)."""
 
     @property
     def n_play(self) -> int:
@@ -282,7 +305,7 @@ class Normalization:
 
     @property
     def n_feature(self) -> int:
-        """Input width: ``spec.n_feature + P * n_joint``."""
+        """Input width: ``spec.n_feature + P * n_joint`` (+ ``n_joint`` with ``omega_in``)."""
         return int(self.x_mean.shape[0])
 
     @classmethod
@@ -293,12 +316,20 @@ class Normalization:
         spec: MachineSpec,
         *,
         play: Sequence[float] = (),
+        omega_in: bool = False,
     ) -> Normalization:
         """Statistics from lists of per-episode ``(n_step, n_joint)`` angle and command arrays
-        (each episode starting at rest, for the play states)."""
+        (each episode starting at rest, for the play states and the velocity feature)."""
         x = np.concatenate(
             [
-                encode_np(t, u, spec, play=play, z=_play_from_rest(u, spec, play))
+                encode_np(
+                    t,
+                    u,
+                    spec,
+                    play=play,
+                    z=_play_from_rest(u, spec, play),
+                    omega=omega_in_np(t, spec) if omega_in else None,
+                )
                 for t, u in zip(thetas, us)
             ],
             axis=0,
@@ -313,6 +344,7 @@ class Normalization:
             y_std=y_std,
             spec=spec,
             play=play,
+            omega_in=omega_in,
         )
 
     @classmethod
@@ -325,8 +357,11 @@ class Normalization:
         y_std: Any,
         spec: MachineSpec,
         play: Sequence[float] | torch.Tensor = (),
+        omega_in: bool = False,
     ) -> Normalization:
-        """Build from array-likes (checkpoint tensors or NumPy)."""
+        """Build from array-likes (checkpoint tensors or NumPy); with ``omega_in`` the last
+        ``n_joint`` feature statistics are set to the target's (the velocity feature is
+        standardised like the target, so a residual head can add it)."""
 
         def t(a: Any) -> torch.Tensor:
             return torch.as_tensor(np.asarray(a, dtype=np.float32)).clone()
@@ -334,15 +369,19 @@ class Normalization:
         widths = t(play).reshape(-1)
         if widths.numel() and not bool(torch.all(widths > 0)):
             raise ValueError(f"play widths must be > 0, got {widths.tolist()}")
+        xm, xs = t(x_mean), t(x_std)
+        if omega_in:  # the velocity feature in the target's units (a residual head adds it)
+            xm[-spec.n_joint :], xs[-spec.n_joint :] = t(y_mean), t(y_std)
         return cls(
-            x_mean=t(x_mean),
-            x_std=t(x_std),
+            x_mean=xm,
+            x_std=xs,
             y_mean=t(y_mean),
             y_std=t(y_std),
             periodic=tuple(spec.periodic),
             u_center=t([c.u_center for c in spec.u_specs]),
             u_scale=t([c.u_scale for c in spec.u_specs]),
             play=widths,
+            omega_in=bool(omega_in),
         )
 
     def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> Normalization:
@@ -351,19 +390,23 @@ class Normalization:
             k: getattr(self, k).to(device=device, dtype=dtype)
             for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play")
         }
-        return Normalization(periodic=self.periodic, **kw)
+        return Normalization(periodic=self.periodic, omega_in=self.omega_in, **kw)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """Plain tensors for the checkpoint."""
-        return {
+        """Plain tensors for the checkpoint (``omega_in`` only when set, so checkpoints without
+        the velocity feature stay as they were)."""
+        out = {
             k: getattr(self, k).detach().cpu().float()
             for k in ("x_mean", "x_std", "y_mean", "y_std", "play")
         }
+        if self.omega_in:
+            out["omega_in"] = torch.tensor(1.0)
+        return out
 
     @classmethod
     def from_state_dict(cls, d: dict[str, Any], spec: MachineSpec) -> Normalization:
-        """Inverse of :meth:`state_dict`; checks sizes against ``spec`` (no ``play`` entry:
-        a checkpoint from before play features, none)."""
+        """Inverse of :meth:`state_dict`; checks sizes against ``spec`` (no ``play`` /
+        ``omega_in`` entry: a checkpoint from before those features, none)."""
         try:
             norm = cls.from_arrays(
                 x_mean=d["x_mean"],
@@ -372,10 +415,11 @@ class Normalization:
                 y_std=d["y_std"],
                 spec=spec,
                 play=d.get("play", ()),
+                omega_in=bool(float(d.get("omega_in", 0.0))),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(f"normalisation entry is malformed ({e})") from e
-        n_feature = spec.n_feature + norm.n_play * spec.n_joint
+        n_feature = spec.n_feature + norm.n_play * spec.n_joint + norm.omega_in * spec.n_joint
         if norm.x_mean.shape != (n_feature,) or norm.y_mean.shape != (spec.n_joint,):
             raise CheckpointError(
                 f"normalisation sizes {tuple(norm.x_mean.shape)}/{tuple(norm.y_mean.shape)} do not match "
@@ -408,10 +452,32 @@ class Normalization:
             return z.new_zeros(z.shape[0], 0, *z.shape[1:])
         return torch.stack(zs, dim=1)
 
+    # ---- velocity feature -------------------------------------------------------------------
+
+    def velocity(self, theta: torch.Tensor, theta_prev: torch.Tensor, dt: float) -> torch.Tensor:
+        """The velocity feature from measured angles, ``wrap(theta - theta_prev) / T_s``
+        (``wrap`` on periodic joints); ``theta``, ``theta_prev``: (..., n_joint) [rad] ->
+        (..., n_joint) [rad/s]."""
+        d = theta - theta_prev
+        per = torch.tensor(self.periodic, device=d.device)
+        # wrap(d) = (d + pi) mod 2 pi - pi
+        d = torch.where(per, torch.remainder(d + math.pi, 2.0 * math.pi) - math.pi, d)
+        return d / dt
+
+    def velocity_seq(self, theta: torch.Tensor, dt: float) -> torch.Tensor:
+        """Torch twin of :func:`omega_in_np` along axis -2: ``theta: (..., n_step, n_joint)``
+        [rad] -> (..., n_step, n_joint) [rad/s], sample 0 at rest (0)."""
+        w = self.velocity(theta[..., 1:, :], theta[..., :-1, :], dt)
+        return torch.cat([torch.zeros_like(theta[..., :1, :]), w], dim=-2)
+
     # ---- torch encoding (differentiable in theta) -------------------------------------------
 
     def encode(
-        self, theta: torch.Tensor, u: torch.Tensor, z: torch.Tensor | None = None
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        z: torch.Tensor | None = None,
+        omega: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Normalised features from angles and commands.
 
@@ -420,6 +486,8 @@ class Normalization:
             u: (..., n_u) commands [command units] (joints', then exogenous inputs').
             z: (..., P, n_joint) play states after ``u`` (:meth:`play_update`); needed when
                 ``n_play > 0``, ignored otherwise.
+            omega: (..., n_joint) velocity input ``wrap(theta[k] - theta[k-1]) / T_s``
+                [rad/s]; needed with ``omega_in``, ignored otherwise.
 
         Returns:
             (..., n_feature) normalised features (same layout as :func:`encode_np`).
@@ -437,14 +505,27 @@ class Normalization:
             if z is None:
                 raise ValueError("encode: this normalisation has play features; pass z")
             out.append(play_features(z, us[..., : len(self.periodic)], self.play))
+        if self.omega_in:
+            if omega is None:
+                raise ValueError("encode: this normalisation has a velocity feature; pass omega")
+            out.append(omega)
         x = torch.cat(out, dim=-1)
         return (x - self.x_mean) / self.x_std
 
     def encode_np(
-        self, theta: np.ndarray, u: np.ndarray, spec: MachineSpec, z: np.ndarray | None = None
+        self,
+        theta: np.ndarray,
+        u: np.ndarray,
+        spec: MachineSpec,
+        z: np.ndarray | None = None,
+        omega: np.ndarray | None = None,
     ) -> np.ndarray:
         """NumPy twin of :meth:`encode` (float64), used by reference implementations."""
-        x = encode_np(theta, u, spec, play=self.play_widths, z=z)
+        if self.omega_in and omega is None:
+            raise ValueError("encode_np: this normalisation has a velocity feature; pass omega")
+        x = encode_np(
+            theta, u, spec, play=self.play_widths, z=z, omega=omega if self.omega_in else None
+        )
         return (x - self.x_mean.cpu().double().numpy()) / self.x_std.cpu().double().numpy()
 
     @property

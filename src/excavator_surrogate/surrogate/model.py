@@ -53,6 +53,10 @@ class ModelConfig:
     """``lstm``, ``gru`` or ``arx`` (linear baseline)."""
     head_hidden: int = 128
     """Width of the FC layer between the recurrent output and the linear output layer."""
+    residual: bool = False
+    """The head predicts the change of the velocity: ``y = head(h) + x[..., -n_joint:]``, the
+    last ``n_joint`` inputs being the velocity feature, normalised like the target
+    (:attr:`~.features.Normalization.omega_in`); LSTM/GRU only."""
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
@@ -67,6 +71,8 @@ class ModelConfig:
             raise CheckpointError(f"model entry is malformed ({e})") from e
         if cfg.cell not in ("lstm", "gru", "arx"):
             raise CheckpointError(f"unknown cell '{cfg.cell}' (this exsur knows lstm, gru, arx)")
+        if cfg.residual and (cfg.cell == "arx" or cfg.n_feature <= cfg.n_joint):
+            raise CheckpointError("a residual head needs an LSTM/GRU with a velocity feature")
         return cfg
 
 
@@ -108,7 +114,9 @@ def step_layers(
 
 
 class SurrogateNet(nn.Module):
-    """Stacked LSTM/GRU with an FC-ReLU-linear head; outputs normalised omega per joint."""
+    """Stacked LSTM/GRU with an FC-ReLU-linear head; outputs normalised omega per joint (with
+    ``cfg.residual``: the head's output plus the normalised velocity feature of the same
+    sample, i.e. the net predicts how the velocity changes)."""
 
     stateful_capable = True
 
@@ -151,12 +159,21 @@ class SurrogateNet(nn.Module):
         else:
             out, h = self.rnn(x, state[0])
             c = state[1]
-        return self.head(out), (h, c)
+        return self._out(out, x), (h, c)
+
+    def _out(self, out: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Head of the recurrent output ``out`` (..., hidden) for the inputs ``x`` (...,
+        n_feature) of the same samples: ``head(out)`` (+ the velocity feature if residual)."""
+        y = self.head(out)
+        if self.cfg.residual:
+            # omega[k+1] = omega[k] + change, in the target's normalisation
+            y = y + x[..., -self.cfg.n_joint :]
+        return y
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Windowed forward: ``x: (n_batch, W, n_feature)`` -> ``(n_batch, n_joint)`` from the last step."""
         out, _ = self.rnn(x)
-        return self.head(out[:, -1])
+        return self._out(out[:, -1], x[:, -1])
 
     def step(self, x_t: torch.Tensor, state: State) -> tuple[torch.Tensor, State]:
         """One sample: ``x_t: (n_batch, n_feature)`` -> (``(n_batch, n_joint)``, new ``(h, c)``).
@@ -171,7 +188,7 @@ class SurrogateNet(nn.Module):
             for layer in range(self.cfg.n_layer)
         ]
         out, h, c = step_layers(x_t, *state, weights, lstm=self.cfg.cell == "lstm")
-        return self.head(out), (h, c)
+        return self._out(out, x_t), (h, c)
 
 
 class ARXNet(nn.Module):

@@ -28,7 +28,7 @@ import torch
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from .ensemble import check_members
-from .features import Normalization, integrate, integrate_np, omega_target
+from .features import Normalization, integrate, integrate_np, omega_in_np, omega_target
 from .model import State, Surrogate
 
 Mode = Literal["windowed", "stateful"]
@@ -67,11 +67,12 @@ def window_rollout(
     ys, thetas = [], []
     for h in range(n_horizon):
         y = net(x_win)
-        theta, _ = integrate(theta, norm.omega(y), dt=dt, limits=limits)
+        theta, omega = integrate(theta, norm.omega(y), dt=dt, limits=limits)
         ys.append(y)
         thetas.append(theta)
         if h < n_horizon - 1:
-            row = norm.encode(theta, u_next[:, h], None if z_next is None else z_next[:, h])
+            z = None if z_next is None else z_next[:, h]
+            row = norm.encode(theta, u_next[:, h], z, omega)
             x_win = torch.cat([x_win[:, 1:], row.unsqueeze(1)], dim=1)
     return torch.stack(ys, dim=1), torch.stack(thetas, dim=1)
 
@@ -99,6 +100,9 @@ class ClosedLoop:
         self._state: State | None = None
         self.z: torch.Tensor | None = None
         """Play states ``(n_batch, P, n_joint)`` after the last command (P = 0: no play features)."""
+        self.omega: torch.Tensor | None = None
+        """Velocity feature of the current sample ``(n_batch, n_joint)`` [rad/s]: measured
+        (history) or the last integrated prediction."""
         self._limits = sur.limits()
 
     def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -117,7 +121,7 @@ class ClosedLoop:
 
         In windowed mode only the last ``W`` samples matter; a shorter history is padded by
         repeating its first sample.  Play states (if the features have them) start at rest
-        before ``u[0]``.  Returns the current angle ``theta[n_hist-1]``.
+        before ``u[0]``, and so does the velocity feature (0 at ``theta[0]``).  Returns the current angle ``theta[n_hist-1]``.
         """
         theta_hist = self._t(theta_hist)
         u_hist = self._t(u_hist)
@@ -129,8 +133,10 @@ class ClosedLoop:
             )
         z_hist = self.norm.play_seq(self.norm.play_rest(n_batch), u_hist)
         self.z = z_hist[:, -1] if n_hist > 1 else self.norm.play_rest(n_batch)
+        w_hist = self.norm.velocity_seq(theta_hist, self.dt)  # (n_batch, n_hist, n_joint)
+        self.omega = w_hist[:, -1]
         # (n_batch, n_hist-1, n_feature)
-        rows = self.norm.encode(theta_hist[:, :-1], u_hist, z_hist)
+        rows = self.norm.encode(theta_hist[:, :-1], u_hist, z_hist, w_hist[:, :-1])
         self.theta = theta_hist[:, -1].clone()
         if self.mode == "windowed":
             w1 = self.sur.window - 1
@@ -152,7 +158,7 @@ class ClosedLoop:
             raise RuntimeError("call reset() before step()")
         u = self._t(u)
         self.z = self.norm.play_update(self.z, u)
-        row = self.norm.encode(self.theta, u, self.z)
+        row = self.norm.encode(self.theta, u, self.z, self.omega)
         if self.mode == "windowed":
             x = torch.cat([self._rows, row.unsqueeze(1)], dim=1)
             if x.shape[1] < self.sur.window:  # short history: repeat its first sample
@@ -162,10 +168,10 @@ class ClosedLoop:
             self._rows = x[:, 1:]
         else:
             y, self._state = self.sur.net.step(row, self._state)
-        self.theta, omega = integrate(
+        self.theta, self.omega = integrate(
             self.theta, self.norm.omega(y), dt=self.dt, limits=self._limits
         )
-        return self.theta, omega
+        return self.theta, self.omega
 
 
 @torch.no_grad()
@@ -329,10 +335,12 @@ def rollout_reference(
     windows: list[list[np.ndarray]] = [[] for _ in surs]
     states = [s.net.init_state(1) if mode == "stateful" else None for s in surs]
     zs = ref.norm.play_from_rest_np(u, spec)  # commands only: independent of the loop
+    w_rec = omega_in_np(np.asarray(theta[:warmup], dtype=np.float64), spec)  # recorded velocity
     for k in range(n_step - 1):
         omegas = []
+        w_k = w_rec[k] if k < warmup else omega_hat[k]  # the velocity feature of sample k
         for m, s in enumerate(surs):
-            x = s.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k])
+            x = s.norm.encode_np(theta_hat[k], u[k], spec, None if zs is None else zs[k], w_k)
             t = {"dtype": s.dtype, "device": s.device}
             if mode == "windowed":
                 window = windows[m]

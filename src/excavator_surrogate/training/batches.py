@@ -17,7 +17,7 @@ from ..data.dataset import Dataset
 from ..data.episode import Episode
 from ..errors import DataError
 from ..io_utils import log
-from ..surrogate.features import Normalization, omega_target
+from ..surrogate.features import Normalization, omega_in_np, omega_target
 from .config import TrainConfig
 
 
@@ -33,6 +33,8 @@ class TrainData:
     """(T, n_joint) commands."""
     z: torch.Tensor
     """(T, P, n_joint) play states after u (P = 0: no play features)."""
+    w: torch.Tensor
+    """(T, n_joint) recorded velocity feature [rad/s] (:func:`omega_in_np`, used or not)."""
     y: torch.Tensor
     """(T, n_joint) normalised targets (row 0 of each episode NaN)."""
     starts: np.ndarray
@@ -44,11 +46,13 @@ class TrainData:
 def make_data(episodes: list[Episode], norm: Normalization, device: torch.device) -> TrainData:
     """Normalise and concatenate ``episodes`` on ``device``."""
     spec = episodes[0].spec
-    xs, ths, us, zs, ys = [], [], [], [], []
+    xs, ths, us, zs, ws, ys = [], [], [], [], [], []
     y_mean, y_std = norm.y_mean.double().numpy(), norm.y_std.double().numpy()
     for ep in episodes:
         z = norm.play_from_rest_np(ep.u, spec)
-        xs.append(norm.encode_np(ep.theta, ep.u, spec, z))
+        w = omega_in_np(ep.theta, spec)
+        xs.append(norm.encode_np(ep.theta, ep.u, spec, z, w))
+        ws.append(w)
         ths.append(ep.theta)
         us.append(ep.u)
         zs.append(np.zeros((ep.n_step, 0, spec.n_joint)) if z is None else z)
@@ -60,7 +64,7 @@ def make_data(episodes: list[Episode], norm: Normalization, device: torch.device
         return torch.as_tensor(np.concatenate(parts), dtype=torch.float32, device=device)
 
     return TrainData(
-        x=t(xs), theta=t(ths), u=t(us), z=t(zs), y=t(ys), starts=starts, lengths=lengths
+        x=t(xs), theta=t(ths), u=t(us), z=t(zs), w=t(ws), y=t(ys), starts=starts, lengths=lengths
     )
 
 

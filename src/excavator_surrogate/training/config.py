@@ -95,6 +95,13 @@ class TrainConfig:
     play: tuple[float, ...] = ()
     """Half-widths of play (backlash) operators on the scaled commands whose states are extra
     input features (valve hysteresis memory; ours, not the paper's); empty = paper's 9-D input."""
+    velocity_input: bool = False
+    """Feed the previous angular velocity ``wrap(theta[k] - theta[k-1]) / T_s`` as ``n_joint``
+    more input features: measured while synced to a machine, the integrated prediction in a
+    free run (the state of acceleration-limited hydraulics; ours, not the paper's)."""
+    residual: bool = False
+    """With ``velocity_input``: the net predicts the change of the velocity, added to the
+    velocity feature (``omega[k+1] = omega[k] + net``; ours, not the paper's)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is
@@ -132,6 +139,7 @@ class TrainConfig:
             (self.burn_in >= 1, "burn_in must be >= 1"),
             (self.seq_len > self.burn_in, "seq_len must exceed burn_in"),
             (self.tbptt >= 1, "tbptt must be >= 1"),
+            (self.velocity_input or not self.residual, "residual needs velocity_input = true"),
             (self.members >= 1, "members must be >= 1"),
             (math.isfinite(self.limit_margin), "limit_margin must be finite"),
             (math.isfinite(self.speed_margin), "speed_margin must be finite"),
@@ -209,4 +217,5 @@ class TrainConfig:
             n_layer=self.layers,
             cell=self.cell,
             head_hidden=self.head_hidden,
+            residual=self.residual,
         )

@@ -129,13 +129,13 @@ class Stateful:
         s = torch.as_tensor(index, device=data.x.device)
         g = s[:, None] + torch.arange(cfg.seq_len, device=data.x.device)
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
-        z_seq = data.z[g]
+        z_seq, w_seq = data.z[g], data.w[g]
         state = net.init_state(len(s))
         b0 = cfg.burn_in - 1  # first step whose output is in the loss
         if b0 > 0:
             with torch.no_grad():
                 _, state = net.forward_seq(x_seq[:, :b0], state)
-        theta = th_seq[:, b0]
+        theta, omega = th_seq[:, b0], w_seq[:, b0]
         for j0 in range(b0, cfg.seq_len, cfg.tbptt):
             j1 = min(j0 + cfg.tbptt, cfg.seq_len)
             if teacher:
@@ -143,13 +143,14 @@ class Stateful:
             else:
                 ys = []
                 for j in range(j0, j1):
-                    y, state = net.step(norm.encode(theta, u_seq[:, j], z_seq[:, j]), state)
-                    theta, _ = integrate(theta, norm.omega(y), dt=dt, limits=limits)
+                    x = norm.encode(theta, u_seq[:, j], z_seq[:, j], omega)
+                    y, state = net.step(x, state)
+                    theta, omega = integrate(theta, norm.omega(y), dt=dt, limits=limits)
                     ys.append(y)
                 y_hat = torch.stack(ys, dim=1)
             yield y_hat, y_seq[:, j0:j1], y_hat.shape[1]
             state = (state[0].detach(), state[1].detach())
-            theta = theta.detach()
+            theta, omega = theta.detach(), omega.detach()
 
 
 MODES: dict[str, type[Windowed] | type[Stateful]] = {"windowed": Windowed, "stateful": Stateful}

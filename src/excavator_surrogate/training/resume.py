@@ -82,7 +82,11 @@ def start(
                         f"{name}: {', '.join(f'{k} {b[k]:.4g}' for k in got)} from the training data"
                     )
         norm = Normalization.fit(
-            [e.theta for e in train_eps], [e.u for e in train_eps], spec, play=cfg.play
+            [e.theta for e in train_eps],
+            [e.u for e in train_eps],
+            spec,
+            play=cfg.play,
+            omega_in=cfg.velocity_input,
         )
         return Start(net=SurrogateNet(mcfg), norm=norm, spec=spec, derived=derived)
     ck = read_checkpoint(resume)
