@@ -43,8 +43,10 @@ class MPPIConfig:
     (2 at 20 Hz = a 10 Hz planner)."""
     sigma: float = 0.35
     """Standard deviation of the command noise [fraction of each joint's half range]."""
-    beta: float = 0.8
-    """AR(1) correlation of the noise from one sample to the next (smooth candidates)."""
+    beta: float = 0.9
+    """AR(1) correlation of the noise from one sample to the next (smooth candidates; 0.9
+    rather than 0.8: through the demo surrogate the swing stayed within 1.25x of the oracle on
+    15 of 15 runs instead of 10, and the oracle's swing RMSE varied less over seeds)."""
     temperature: float = 0.1
     """λ relative to the batch's cost spread ``mean(S) - min(S)`` (smaller: greedier)."""
     smooth: float = 0.01
