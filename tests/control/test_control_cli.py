@@ -29,6 +29,8 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     hz = m["mppi"]["runs"]["mppi_surrogate"]["horizon_error_rad"]
     assert hz["n_horizon"] == 3 and len(hz["rms"]) == 4 and all(v >= 0 for v in hz["p95"])
     assert m["cpus"] == 2  # the surrogate planner used a worker process, the oracle 2 threads
+    assert m["surrogate"]["velocity_input"] is False and m["surrogate"]["residual"] is False
+    assert "velocity_input = true" in (out / "report.md").read_text()  # the advice
     assert m["bias_gain"] == 0.1 and any(m["mppi"]["runs"]["mppi_surrogate"]["bias_rad_s"])
     assert set(m["mppi"]["rmse_ratio"]) == {"swing", "boom", "arm", "bucket"}
     assert m["rl"]["surrogate"]["train_s"] > 0 and "success" in m["rl"]["plant"]["plant"]
@@ -72,3 +74,12 @@ def test_rl_config_rejects_too_small_budgets(n: int) -> None:
 
     with pytest.raises(ConfigError, match="total_steps"):
         RLConfig(total_steps=n)
+
+
+def test_report_says_what_the_surrogate_reads_of_the_measured_state() -> None:
+    from excavator_surrogate.control.report import _surrogate_line
+
+    ok = _surrogate_line({"name": "lstm", "velocity_input": True, "residual": True})
+    assert "starts from the measured velocity" in ok and "train with" not in ok
+    for info in ({"name": "lstm", "velocity_input": True, "residual": False}, {}):
+        assert "train with `velocity_input = true`" in _surrogate_line(info)

@@ -146,6 +146,22 @@ def _fmt(x: float) -> str:
     return f"{x:.4f}" if abs(x) < 100 else f"{x:.1f}"
 
 
+def _surrogate_line(info: dict[str, Any]) -> str:
+    """What the planner's surrogate reads of the measured state (and what to do if little)."""
+    name = info.get("name", "?")
+    if info.get("velocity_input") and info.get("residual"):
+        return (
+            f"Surrogate `{name}`: velocity feature and residual head, so every prediction "
+            "starts from the measured velocity (docs/surrogate.md)."
+        )
+    return (
+        f"Surrogate `{name}`: without the velocity feature and residual head, it predicts "
+        "acceleration-limited joints (a heavy swing) poorly from the measured state, and "
+        "MPC plans from that state; train with `velocity_input = true` and `residual = true` "
+        "(the `quick-hydraulic` preset does; docs/control.md)."
+    )
+
+
 def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
     """The markdown report."""
     lines = [
@@ -163,6 +179,8 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
         f"{metrics['mppi_config']['n_horizon']} samples, a plan every "
         f"{metrics['mppi_config']['replan']} samples; surrogate predictor bias gain "
         f"{metrics['bias_gain']:g}.",
+        "",
+        _surrogate_line(metrics.get("surrogate", {})),
         "",
         "| run | " + " | ".join(f"RMSE {n} [rad]" for n in names) + " | ms / control step |",
         "|---|" + "---:|" * (len(names) + 1),
@@ -275,6 +293,11 @@ def run_control(
         "mppi_config": asdict(mcfg),
         "bias_gain": bias_gain,
         "cpus": cpus,
+        "surrogate": {
+            "name": sur.name,
+            "velocity_input": bool(sur.norm.omega_in),
+            "residual": bool(sur.model_cfg.residual),
+        },
         "pi_gains": dict(zip(names, np.asarray(track["pi_gains"]).tolist())),
         "mppi": mppi_metrics(track["runs"], names),
     }
