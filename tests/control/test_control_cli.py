@@ -14,7 +14,7 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     out = tmp_path / "ctl"
     argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "4", "--horizon", "3"]
     argv += ["--time-scale", "0.1", "--rl-steps", "64", "--rl-envs", "2", "--rl-eval", "2"]
-    argv += ["--rl-episode-steps", "8", "--cpus", "2"]
+    argv += ["--rl-episode-steps", "8", "--cpus", "2", "--mppi-seeds", "2"]
     assert main(argv) == 0
     assert {p.name for p in out.iterdir()} == {
         "report.md",
@@ -33,6 +33,14 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     assert "velocity_input = true" in (out / "report.md").read_text()  # the advice
     assert m["bias_gain"] == 0.1 and any(m["mppi"]["runs"]["mppi_surrogate"]["bias_rad_s"])
     assert set(m["mppi"]["rmse_ratio"]) == {"swing", "boom", "arm", "bucket"}
+    # the seed study: seed 0 is the main run, the target takes the worst seed
+    seeds = m["mppi"]["seeds"]
+    assert [r["seed"] for r in seeds] == [0, 1]
+    assert seeds[0]["rmse_ratio"] == m["mppi"]["rmse_ratio"]
+    worst = max(r["rmse_ratio_max"] for r in seeds)
+    assert m["mppi"]["rmse_ratio_max_over_seeds"] == worst
+    assert m["goals"]["mppi_rmse_within_1.25x_oracle"] == (worst <= 1.25)
+    assert "Seed study" in (out / "report.md").read_text()
     assert m["rl"]["surrogate"]["train_s"] > 0 and "success" in m["rl"]["plant"]["plant"]
     assert len(m["rl"]["curve"]) >= 1 and "plant" in m["rl"]["curve"][0]
     assert set(m["goals"]) == {
@@ -55,7 +63,12 @@ def test_control_bad_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
 
 
 @pytest.mark.parametrize(
-    ("opt", "word"), [(["--replan", "50"], "replan"), (["--cpus", "0"], "--cpus")]
+    ("opt", "word"),
+    [
+        (["--replan", "50"], "replan"),
+        (["--cpus", "0"], "--cpus"),
+        (["--mppi-seeds", "0"], "--mppi-seeds"),
+    ],
 )
 def test_control_bad_option_is_one_line(
     opt: list[str], word: str, tiny_ckpt: Path, tmp_path: Path, capsys

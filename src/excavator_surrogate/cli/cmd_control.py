@@ -55,6 +55,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="CPUs of each MPPI planner: surrogate candidates split over N processes, the "
         "oracle's mujoco.rollout on N threads (default: all usable, at most 4)",
     )
+    p.add_argument(
+        "--mppi-seeds",
+        type=int,
+        default=1,
+        metavar="N",
+        help="repeat both MPPI runs with N noise seeds (a seed study; the tracking target then "
+        "takes the worst; each oracle run adds about a minute; default 1)",
+    )
     p.add_argument("--no-oracle", action="store_true", help="skip MPPI through the plant model")
     p.add_argument("--no-rl", action="store_true", help="skip the PPO comparison")
     p.add_argument(
@@ -101,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
     cpus = min(usable_cpus(), 4) if args.cpus is None else args.cpus
     if not 1 <= cpus <= args.samples:
         raise ConfigError(f"--cpus must be in [1, --samples = {args.samples}], got {cpus}")
+    if args.mppi_seeds < 1:
+        raise ConfigError(f"--mppi-seeds must be >= 1, got {args.mppi_seeds}")
     sur = load_checkpoint(args.ckpt)
     mppi = MPPIConfig(
         n_sample=args.samples, n_horizon=args.horizon, replan=args.replan, seed=args.seed
@@ -125,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         time_scale=args.time_scale,
         bias_gain=args.bias_gain,
         cpus=cpus,
+        n_seeds=args.mppi_seeds,
         log=log,
     )
     print((args.out / "report.md").read_text(), end="")

@@ -56,13 +56,35 @@ def mppi_metrics(runs: dict[str, TrackResult], names: tuple[str, ...]) -> dict[s
     return out
 
 
+def seed_metrics(
+    seed_runs: dict[int, dict[str, TrackResult]], names: tuple[str, ...]
+) -> list[dict[str, Any]]:
+    """Per MPPI seed: each run's RMSE per joint and, with both runs, the surrogate/oracle
+    ratios (the seed study of :func:`~.tracking.compare_tracking`)."""
+    out = []
+    for seed, runs in sorted(seed_runs.items()):
+        row: dict[str, Any] = {
+            "seed": seed,
+            "rmse_rad": {k: dict(zip(names, r.rmse.tolist())) for k, r in runs.items()},
+            "truncated": {k: r.truncated for k, r in runs.items()},
+        }
+        sur, ora = runs.get("mppi_surrogate"), runs.get("mppi_oracle")
+        if sur is not None and ora is not None:
+            ratio = sur.rmse / np.maximum(ora.rmse, 1e-12)
+            row["rmse_ratio"] = dict(zip(names, ratio.tolist()))
+            row["rmse_ratio_max"] = float(ratio.max())
+        out.append(row)
+    return out
+
+
 def goals(metrics: dict[str, Any]) -> dict[str, bool]:
     """The targets of issue 14 that this run measured (missing parts are left out)."""
     g: dict[str, bool] = {}
     m = metrics.get("mppi", {})
     sur = m.get("runs", {}).get("mppi_surrogate")
-    if "rmse_ratio_max" in m:
-        g["mppi_rmse_within_1.25x_oracle"] = bool(m["rmse_ratio_max"] <= RMSE_RATIO_MAX)
+    worst = m.get("rmse_ratio_max_over_seeds", m.get("rmse_ratio_max"))
+    if worst is not None:  # with a seed study, every seed must meet it
+        g["mppi_rmse_within_1.25x_oracle"] = bool(worst <= RMSE_RATIO_MAX)
     if sur is not None:
         g["mppi_10_control_steps_per_s"] = bool(sur["control_steps_per_s"] >= STEPS_PER_S_MIN)
     if "speedup" in m:
@@ -197,6 +219,24 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
             f"Surrogate MPPI: {m['runs']['mppi_surrogate']['control_steps_per_s']:.1f} control "
             f"steps/s, {m['speedup']:.1f}x faster per control step than the oracle.",
         ]
+    seeds = [r for r in m.get("seeds", []) if "rmse_ratio" in r]
+    if seeds:
+        lines += [
+            "",
+            f"Seed study: the two MPPI runs repeated with {len(seeds)} noise seeds, "
+            "surrogate / oracle RMSE:",
+            "",
+            "| MPPI seed | " + " | ".join(names) + " | worst |",
+            "|---:|" + "---:|" * (len(names) + 1),
+        ]
+        for r in seeds:
+            cells = " | ".join(f"{r['rmse_ratio'][n]:.2f}" for n in names)
+            lines.append(f"| {r['seed']} | {cells} | {r['rmse_ratio_max']:.2f} |")
+        lines += [
+            "",
+            f"Worst over the seeds: {m['rmse_ratio_max_over_seeds']:.2f} (the tracking target "
+            "uses it).",
+        ]
     hz = m["runs"].get("mppi_surrogate", {}).get("horizon_error_rad")
     if hz:
         rms = ", ".join(f"{n} {v:.4f}" for n, v in zip(names, hz["rms"]))
@@ -265,10 +305,12 @@ def run_control(
     time_scale: float = 1.0,
     bias_gain: float = 0.1,
     cpus: int = 1,
+    n_seeds: int = 1,
     log: Any = None,
 ) -> dict[str, Any]:
     """Run tracking (and RL) on ``sur`` and write the report folder ``out``; returns the metrics.
-    ``cpus``: processes / threads of each MPPI planner (see :func:`~.tracking.compare_tracking`)."""
+    ``cpus``: processes / threads of each MPPI planner; ``n_seeds``: MPPI noise seeds of the
+    seed study (see :func:`~.tracking.compare_tracking`)."""
     from .rl import compare_rl, require_sb3
     from .tracking import compare_tracking
 
@@ -285,6 +327,7 @@ def run_control(
         oracle=oracle,
         bias_gain=bias_gain,
         cpus=cpus,
+        n_seeds=n_seeds,
         log=log,
     )
     metrics: dict[str, Any] = {
@@ -301,6 +344,12 @@ def run_control(
         "pi_gains": dict(zip(names, np.asarray(track["pi_gains"]).tolist())),
         "mppi": mppi_metrics(track["runs"], names),
     }
+    if n_seeds > 1:
+        seeds = seed_metrics(track["seed_runs"], names)
+        metrics["mppi"]["seeds"] = seeds
+        worst = [r["rmse_ratio_max"] for r in seeds if "rmse_ratio_max" in r]
+        if worst:
+            metrics["mppi"]["rmse_ratio_max_over_seeds"] = max(worst)
     if do_rl:
         rcfg = replace(rl or RLConfig(), plant=plant)
         metrics["rl"] = rl_metrics(compare_rl(sur, rcfg, log=log))

@@ -14,12 +14,13 @@ and reports the tracking RMSE per joint and the wall time per control step of ea
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 
 from ..env.base import ExcavatorEnv
+from ..errors import ConfigError
 from ..surrogate.model import Surrogate
 from .mppi import MPPI, MPPIConfig
 from .pi import KP_GRID, TI, JointPI
@@ -224,6 +225,7 @@ def compare_tracking(
     oracle: bool = True,
     bias_gain: float = 0.1,
     cpus: int = 1,
+    n_seeds: int = 1,
     log: Any = None,
 ) -> dict[str, Any]:
     """MPPI through the surrogate, MPPI through the plant model (oracle) and PI on the plant.
@@ -239,12 +241,17 @@ def compare_tracking(
         cpus: CPUs of each planner: the surrogate's candidates are split over ``cpus``
             processes (``SurrogatePredictor(workers=cpus)``), the oracle's ``mujoco.rollout``
             runs ``cpus`` threads.
+        n_seeds: MPPI noise seeds ``mppi.seed, mppi.seed + 1, ...`` the two MPPI runs are
+            repeated with (a seed study; ``runs`` holds the first seed's).
         log: optional ``print``-like callable for progress lines.
 
     Returns:
         ``{"reference": theta_ref, "time": t, "phases": [...], "runs": {name: TrackResult},
-        "pi_gains": kp}``.
+        "pi_gains": kp, "seed_runs": {seed: {name: TrackResult}}}`` (the MPPI runs of every
+        seed, the first one's included).
     """
+    if n_seeds < 1:
+        raise ConfigError(f"compare_tracking: n_seeds must be >= 1, got {n_seeds}")
     from ..env.mujoco_env import ExcavatorMujocoEnv
     from ..env.surrogate_env import ExcavatorSurrogateEnv
 
@@ -281,7 +288,32 @@ def compare_tracking(
                 f"{name}: RMSE {np.array2string(res.rmse, precision=4)} rad, "
                 f"{res.step_s * 1e3:.1f} ms per control step, {res.total_s:.1f} s"
             )
+        seed_runs = {cfg.seed: {k: r for k, r in runs.items() if k != "pi"}}
+        for seed in range(cfg.seed + 1, cfg.seed + n_seeds):
+            cfg_s = replace(cfg, seed=seed)
+            preds = [("mppi_surrogate", sur_pred)] + (
+                [("mppi_oracle", plant_pred)] if oracle else []
+            )
+            seed_runs[seed] = {
+                name: track(env, MPPIController(MPPI(pred, cfg_s)), theta_ref, name=name)
+                for name, pred in preds
+            }
+            say(
+                f"MPPI seed {seed}: RMSE "
+                + ", ".join(
+                    f"{k} {np.array2string(r.rmse, precision=4)}"
+                    for k, r in seed_runs[seed].items()
+                )
+                + " rad"
+            )
     finally:
         sur_pred.close()
         env.close()
-    return {"reference": theta_ref, "time": t, "phases": phases, "runs": runs, "pi_gains": pi.kp}
+    return {
+        "reference": theta_ref,
+        "time": t,
+        "phases": phases,
+        "runs": runs,
+        "pi_gains": pi.kp,
+        "seed_runs": seed_runs,
+    }
