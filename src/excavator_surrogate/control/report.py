@@ -33,6 +33,16 @@ TRAIN_SPEEDUP_MIN = 5.0
 """Target: training wall time on the plant / on the surrogate (same env-step budget)."""
 
 
+def rmse_ratios(runs: dict[str, TrackResult], names: tuple[str, ...]) -> dict[str, Any]:
+    """``rmse_ratio`` (per joint) and ``rmse_ratio_max`` of the surrogate's MPPI run over the
+    oracle's; empty unless ``runs`` has both."""
+    sur, ora = runs.get("mppi_surrogate"), runs.get("mppi_oracle")
+    if sur is None or ora is None:
+        return {}
+    ratio = sur.rmse / np.maximum(ora.rmse, 1e-12)
+    return {"rmse_ratio": dict(zip(names, ratio.tolist())), "rmse_ratio_max": float(ratio.max())}
+
+
 def mppi_metrics(runs: dict[str, TrackResult], names: tuple[str, ...]) -> dict[str, Any]:
     """Per-run RMSE per joint and timing, and the surrogate/oracle ratios."""
     out: dict[str, Any] = {"runs": {}}
@@ -47,12 +57,9 @@ def mppi_metrics(runs: dict[str, TrackResult], names: tuple[str, ...]) -> dict[s
             "truncated": r.truncated,
             **r.extra,
         }
-    sur, ora = runs.get("mppi_surrogate"), runs.get("mppi_oracle")
-    if sur is not None and ora is not None:
-        ratio = sur.rmse / np.maximum(ora.rmse, 1e-12)
-        out["rmse_ratio"] = dict(zip(names, ratio.tolist()))
-        out["rmse_ratio_max"] = float(ratio.max())
-        out["speedup"] = ora.step_s / sur.step_s
+    out.update(rmse_ratios(runs, names))
+    if "rmse_ratio" in out:
+        out["speedup"] = runs["mppi_oracle"].step_s / runs["mppi_surrogate"].step_s
     return out
 
 
@@ -61,20 +68,15 @@ def seed_metrics(
 ) -> list[dict[str, Any]]:
     """Per MPPI seed: each run's RMSE per joint and, with both runs, the surrogate/oracle
     ratios (the seed study of :func:`~.tracking.compare_tracking`)."""
-    out = []
-    for seed, runs in sorted(seed_runs.items()):
-        row: dict[str, Any] = {
+    return [
+        {
             "seed": seed,
             "rmse_rad": {k: dict(zip(names, r.rmse.tolist())) for k, r in runs.items()},
             "truncated": {k: r.truncated for k, r in runs.items()},
+            **rmse_ratios(runs, names),
         }
-        sur, ora = runs.get("mppi_surrogate"), runs.get("mppi_oracle")
-        if sur is not None and ora is not None:
-            ratio = sur.rmse / np.maximum(ora.rmse, 1e-12)
-            row["rmse_ratio"] = dict(zip(names, ratio.tolist()))
-            row["rmse_ratio_max"] = float(ratio.max())
-        out.append(row)
-    return out
+        for seed, runs in sorted(seed_runs.items())
+    ]
 
 
 def goals(metrics: dict[str, Any]) -> dict[str, bool]:

@@ -289,11 +289,9 @@ def compare_tracking(
                 f"{res.step_s * 1e3:.1f} ms per control step, {res.total_s:.1f} s"
             )
         seed_runs = {cfg.seed: {k: r for k, r in runs.items() if k != "pi"}}
+        preds = [("mppi_surrogate", sur_pred)] + ([("mppi_oracle", plant_pred)] if oracle else [])
         for seed in range(cfg.seed + 1, cfg.seed + n_seeds):
             cfg_s = replace(cfg, seed=seed)
-            preds = [("mppi_surrogate", sur_pred)] + (
-                [("mppi_oracle", plant_pred)] if oracle else []
-            )
             seed_runs[seed] = {
                 name: track(env, MPPIController(MPPI(pred, cfg_s)), theta_ref, name=name)
                 for name, pred in preds
