@@ -251,10 +251,12 @@ class SurrogateEngine:
                 return
         th = theta0.index_select(0, idx)
         self.theta.index_copy_(0, idx, th)
-        self.theta_prev.index_copy_(0, idx, th)
-        self.w.index_fill_(0, idx, 0.0)  # at rest
         m = idx.numel()
-        w0 = th.new_zeros(m, th.shape[1]).float() if self.omega_in else None
+        w0 = None
+        if self.omega_in:
+            self.theta_prev.index_copy_(0, idx, th)
+            self.w.index_fill_(0, idx, 0.0)  # at rest
+            w0 = th.new_zeros(m, th.shape[1]).float()
         u0 = torch.as_tensor(self.u_rest, device=self.device).expand(m, -1).float()
         n_warm = self.window - 1
         z0, p0 = self._play_step(self.z.new_zeros(m, *self.z.shape[1:]), u0)

@@ -73,7 +73,8 @@ def fit_arx(
         if ep.n_step <= window:
             continue
         z = norm.play_from_rest_np(ep.u, spec)
-        x = norm.encode_np(ep.theta, ep.u, spec, z, omega_in_np(ep.theta, spec))
+        w = omega_in_np(ep.theta, spec) if norm.omega_in else None
+        x = norm.encode_np(ep.theta, ep.u, spec, z, w)
         y = (omega_target(ep.theta, spec) - y_mean) / y_std
         win = sliding_window_view(x, window, axis=0)  # (n_step-W+1, n_feature, W)
         phi = win.transpose(0, 2, 1).reshape(win.shape[0], -1)[:-1]  # windows ending at t=W-1..N-2

@@ -298,6 +298,10 @@ class Normalization:
     """The previous velocity (:func:`omega_in_np`) is a feature (the last ``n_joint`` columns),
     standardised with the target's ``y_mean`` / ``y_std`` (what a residual head adds)."""
 
+    def __post_init__(self) -> None:
+        self.periodic_mask = torch.tensor(self.periodic, device=self.u_center.device)
+        """(n_joint,) bool: which joints wrap (on the device of the other tensors)."""
+
     @property
     def n_play(self) -> int:
         """Number P of play operators per joint (0: the paper's features)."""
@@ -459,9 +463,10 @@ class Normalization:
         (``wrap`` on periodic joints); ``theta``, ``theta_prev``: (..., n_joint) [rad] ->
         (..., n_joint) [rad/s]."""
         d = theta - theta_prev
-        per = torch.tensor(self.periodic, device=d.device)
         # wrap(d) = (d + pi) mod 2 pi - pi
-        d = torch.where(per, torch.remainder(d + math.pi, 2.0 * math.pi) - math.pi, d)
+        d = torch.where(
+            self.periodic_mask, torch.remainder(d + math.pi, 2.0 * math.pi) - math.pi, d
+        )
         return d / dt
 
     def velocity_seq(self, theta: torch.Tensor, dt: float) -> torch.Tensor:
