@@ -13,6 +13,7 @@ from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.surrogate.features import joint_limits
+from tests.helpers.surrogates import variant_surrogate
 
 
 def _step_side_by_side(
@@ -55,18 +56,9 @@ def test_onnx_stepper_matches_torch(
     end_stops: bool,
     play: tuple[float, ...],
     omega_in: bool,
-    make_surrogate,
     tmp_path: Path,
 ) -> None:
-    sur = make_surrogate(
-        mode=mode,
-        cell=cell,
-        end_stops=end_stops,
-        drive=20.0 if end_stops else 0.0,
-        play=play,
-        omega_in=omega_in,
-        residual=omega_in and cell != "arx",
-    )
+    sur = variant_surrogate(mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in)
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)

@@ -21,6 +21,7 @@ from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.features import joint_limits
 from excavator_surrogate.surrogate.rollout import ClosedLoop
+from tests.helpers.surrogates import variant_surrogate
 
 N_ENVS = 3
 LIMIT = 7  # short episodes so autoresets happen within the test
@@ -110,21 +111,12 @@ def test_engine_matches_closed_loop_reference(
     end_stops: bool,
     play: tuple[float, ...],
     omega_in: bool,
-    make_surrogate,
 ) -> None:
     """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
     (with end stops: driven into them, and both stop at the same place; with command play
     features: the engine carries the same play states; with the velocity feature: the same
     fed-back velocities, clipped at the stops)."""
-    sur = make_surrogate(
-        mode=mode,
-        cell=cell,
-        end_stops=end_stops,
-        drive=20.0 if end_stops else 0.0,
-        play=play,
-        omega_in=omega_in,
-        residual=omega_in and cell != "arx",
-    )
+    sur = variant_surrogate(mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in)
     rng = np.random.default_rng(2)
     n, w = 3, sur.window
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])

@@ -95,3 +95,19 @@ def make_surrogate(
     """:func:`tiny_surrogate` with the normalisation fitted on ``episodes`` (windowed, W = 8,
     12 units unless given)."""
     return tiny_surrogate(spec, episodes, mode=mode, window=window, hidden=hidden, **kw)
+
+
+def variant_surrogate(
+    *, mode: str, cell: str, end_stops: bool, play: tuple[float, ...], omega_in: bool
+) -> Surrogate:
+    """:func:`tiny_surrogate` for the runtime-equivalence tests: with end stops it is driven
+    into them, and a velocity feature comes with the residual head (where the cell has one)."""
+    return tiny_surrogate(
+        mode=mode,
+        cell=cell,
+        end_stops=end_stops,
+        drive=20.0 if end_stops else 0.0,
+        play=play,
+        omega_in=omega_in,
+        residual=omega_in and cell != "arx",
+    )

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from excavator_surrogate.data import Dataset
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint
+from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
-from excavator_surrogate.training import TrainConfig
+from excavator_surrogate.training import TrainConfig, train
 from excavator_surrogate.training.config import MODE_FIELDS
 
 
@@ -46,3 +50,22 @@ def tiny_dataset(
         synthetic_episode(spec, kind="step", n_step=n_step, seed=seed * 100 + 60)
     )
     return ds
+
+
+def train_tiny_free_run(out: Path, mode: str, **overrides) -> tuple[Dataset, Surrogate]:
+    """Train two epochs (the first teacher-forced, then free run) of a tiny config in
+    ``mode`` on a tiny 2-joint dataset, with extra config fields ``overrides`` (the input
+    features under test); returns the dataset and the loaded best checkpoint."""
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    cfg = tiny_train_config(
+        mode=mode,
+        horizon=3,
+        burn_in=10,
+        seq_batch=2,
+        batch_size=16,
+        epochs=2,
+        feedback="free",
+        teacher_epochs=1,
+        **overrides,
+    )
+    return ds, load_checkpoint(train(cfg, ds, out=out, show_progress=False))

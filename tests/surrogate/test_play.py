@@ -22,9 +22,9 @@ from excavator_surrogate.surrogate.features import (
     scale_commands_np,
 )
 from excavator_surrogate.surrogate.rollout import window_rollout
-from excavator_surrogate.training import TrainConfig, train
+from excavator_surrogate.training import TrainConfig
 from tests.helpers.surrogates import make_surrogate
-from tests.helpers.training import tiny_dataset, tiny_train_config
+from tests.helpers.training import train_tiny_free_run
 
 PLAY = (0.05, 0.2)
 
@@ -130,19 +130,7 @@ def test_checkpoint_keeps_play_widths_and_old_checkpoints_have_none(spec, episod
 
 @pytest.mark.parametrize("mode", ["windowed", "stateful"])
 def test_training_with_play_features(tmp_path, mode):
-    ds = tiny_dataset(2, n_train=2, n_step=120)
-    cfg = tiny_train_config(
-        mode=mode,
-        horizon=3,
-        burn_in=10,
-        seq_batch=2,
-        batch_size=16,
-        epochs=2,
-        feedback="free",
-        teacher_epochs=1,
-        play=PLAY,
-    )
-    sur = load_checkpoint(train(cfg, ds, out=tmp_path, show_progress=False))
+    ds, sur = train_tiny_free_run(tmp_path, mode, play=PLAY)
     assert sur.norm.play_widths == pytest.approx(PLAY)
     assert sur.model_cfg.n_feature == ds.spec.n_feature + len(PLAY) * ds.spec.n_joint
     th, _ = rollout(sur, ds.test[0].theta[None], ds.test[0].u[None])

@@ -18,9 +18,8 @@ from excavator_surrogate.surrogate.features import (
     omega_target,
 )
 from excavator_surrogate.surrogate.rollout import ClosedLoop, window_rollout
-from excavator_surrogate.training import train
 from tests.helpers.surrogates import make_surrogate
-from tests.helpers.training import tiny_dataset, tiny_train_config
+from tests.helpers.training import tiny_train_config, train_tiny_free_run
 
 
 def test_the_feature_is_the_backward_difference_from_rest(spec, episodes):
@@ -147,20 +146,7 @@ def test_checkpoint_keeps_the_velocity_feature(spec, episodes, tmp_path: Path):
 
 @pytest.mark.parametrize("mode", ["windowed", "stateful"])
 def test_training_with_the_velocity_feature(tmp_path, mode):
-    ds = tiny_dataset(2, n_train=2, n_step=120)
-    cfg = tiny_train_config(
-        mode=mode,
-        horizon=3,
-        burn_in=10,
-        seq_batch=2,
-        batch_size=16,
-        epochs=2,
-        feedback="free",
-        teacher_epochs=1,
-        velocity_input=True,
-        residual=True,
-    )
-    sur = load_checkpoint(train(cfg, ds, out=tmp_path, show_progress=False))
+    ds, sur = train_tiny_free_run(tmp_path, mode, velocity_input=True, residual=True)
     assert sur.norm.omega_in and sur.model_cfg.residual
     assert sur.model_cfg.n_feature == ds.spec.n_feature + ds.spec.n_joint
     th, _ = rollout(sur, ds.test[0].theta[None], ds.test[0].u[None])
