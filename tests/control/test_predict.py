@@ -127,12 +127,29 @@ def test_bias_correction_adds_the_measured_velocity_error() -> None:
         SurrogatePredictor(sur, n_batch=K, bias_gain=2.0)
 
 
+def _assert_split_close(got: np.ndarray, ref: np.ndarray, theta_now: np.ndarray) -> None:
+    """``got`` equals ``ref`` (n_batch, n_step, n_joint) up to float32 roundings of each step's
+    angle change from ``theta_now`` (n_joint,), summed over the steps, times a margin of 4
+    for the recurrent state."""
+    steps = np.abs(np.diff(ref, axis=1, prepend=np.broadcast_to(theta_now, ref[:, :1].shape)))
+    atol = 4 * np.finfo(np.float32).eps * steps.max() * ref.shape[1]
+    assert atol > 0
+    err = np.abs(got - ref).max()
+    assert err <= atol, f"split differs by {err:.3g} > {atol:.3g}"
+
+
 @pytest.mark.parametrize(
     ("mode", "omega_in"), [("stateful", False), ("windowed", False), ("stateful", True)]
 )
-def test_worker_processes_split_the_candidates_exactly(mode: str, omega_in: bool) -> None:
+def test_worker_processes_split_the_candidates(mode: str, omega_in: bool) -> None:
     """Candidates split over this process and two spawned workers give the same angles as
-    one process, call after call (each call re-sends the synced state)."""
+    one process, call after call (each call re-sends the synced state).
+
+    Not bitwise: each process runs another batch shape (3, 2, 2 rows against 7), and the CPU's
+    kernels may round those differently.  The network runs in float32 and its velocity is
+    integrated in float64, so the two may differ by float32 roundings of each step's angle
+    change, summed over the horizon (with margin for the recurrent state); a wrong split,
+    a stale state or a swapped row is off by orders of magnitude more."""
     from excavator_surrogate.surrogate.ensemble import merge
 
     kw = dict(mode=mode, play=(0.05,), window=5, omega_in=omega_in)
@@ -153,12 +170,13 @@ def test_worker_processes_split_the_candidates_exactly(mode: str, omega_in: bool
                 pred.observe(u_hist[k], theta[k + 1])
             if k % 4 == 0:
                 u = rng.uniform(-1000, 1000, (7, N, 4))
-                np.testing.assert_array_equal(three.predict(u), one.predict(u))
+                _assert_split_close(three.predict(u), one.predict(u), theta[k + 1])
     finally:
         three.close()
     assert three.workers == []
     u = rng.uniform(-1000, 1000, (7, N, 4))
-    np.testing.assert_array_equal(three.predict(u), one.predict(u))  # closed: in-process
+    # closed: in this process, the same shape and threads as ``one``: bitwise
+    np.testing.assert_array_equal(three.predict(u), one.predict(u))
 
 
 def test_worker_errors_are_one_line() -> None:
