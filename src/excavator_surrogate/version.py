@@ -1,3 +1,4 @@
-"""The package version (one place; the checkpoint records it)."""
+"""The package version: the one place it is written (pyproject.toml reads it through
+``[tool.setuptools.dynamic]``; ``exsur --version`` prints it; the checkpoint records it)."""
 
 __version__ = "0.1.0"
