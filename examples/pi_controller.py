@@ -6,7 +6,8 @@ development.  This script
 1. tunes one proportional gain per joint on ``ExcavatorSurrogate-v0`` (a small grid search
    on the tracking error of a waypoint sequence; the integral gain follows the P gain),
 2. runs the SAME controller object, with the gains found on the surrogate, on
-   ``ExcavatorMujoco-v0`` (the "real" machine here), and
+   ``ExcavatorMujoco-v0`` (the "real" machine here: the plant the checkpoint was trained on,
+   ideal or hydraulic), and
 3. prints the RMS / final tracking errors of both side by side.
 
 Both environments share one interface (observation ``[θ, ω]``, command per joint), so the
@@ -29,6 +30,8 @@ import numpy as np
 
 import excavator_surrogate.env  # noqa: F401  (registers the environments)
 from excavator_surrogate.control.pi import KP_GRID, TI, JointPI
+from excavator_surrogate.env.plants import checkpoint_plant
+from excavator_surrogate.errors import ExsurError
 from excavator_surrogate.spec import MachineSpec
 
 
@@ -77,15 +80,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ckpt", required=True, help="checkpoint, e.g. runs/quick/model/best.pt")
     ap.add_argument("--hold", type=float, default=6.0, help="seconds per waypoint (default 6)")
+    ap.add_argument(
+        "--plant",
+        choices=["ideal", "hydraulic"],
+        default=None,
+        help="MuJoCo plant (default: the one the checkpoint was trained on; another is refused)",
+    )
     args = ap.parse_args()
     t0 = time.perf_counter()
     sur = gym.make("ExcavatorSurrogate-v0", ckpt=args.ckpt).unwrapped
     spec: MachineSpec = sur.machine
+    # the machine check of exsur compare / control: the checkpoint's own plant by default
+    plant = checkpoint_plant(spec, args.plant, ckpt=args.ckpt, default="ideal")
     start, targets = waypoints(spec)
     hold = round(args.hold * spec.rate_hz)
     limit = len(targets) * hold + 1
     sur_env = gym.wrappers.TimeLimit(sur, limit)
-    mj_env = gym.wrappers.TimeLimit(gym.make("ExcavatorMujoco-v0", spec=spec).unwrapped, limit)
+    mj_env = gym.wrappers.TimeLimit(
+        gym.make("ExcavatorMujoco-v0", spec=spec, plant=plant).unwrapped, limit
+    )
 
     # 1. develop on the surrogate: per joint, the P gain with the lowest RMS + settled RMS
     #    error (high gains slew faster but, with the 50 ms actuation delay, chatter)
@@ -120,4 +133,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except ExsurError as e:  # a wrong checkpoint or plant: one line, no traceback
+        raise SystemExit(f"pi_controller: error: {e}") from None

@@ -30,7 +30,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="start pose, comma-separated angles in rad (default: the file's first theta, else mid-range)",
     )
-    p.add_argument("--plant", choices=["ideal", "hydraulic"], default="ideal", help="MuJoCo plant")
+    p.add_argument(
+        "--plant",
+        choices=["ideal", "hydraulic"],
+        default=None,
+        help="MuJoCo plant (default: the one the checkpoint was trained on; another is refused)",
+    )
     p.add_argument("--device", default="cpu", help="surrogate device (cpu, cuda, auto)")
     p.set_defaults(func=run)
 
@@ -51,7 +56,9 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(
                 f"--theta0 must be comma-separated numbers in rad, got '{args.theta0}'"
             ) from e
-    out = check_out_dir(args.out or args.ckpt.parent / "compare", overwrite=args.overwrite)
+    out = check_out_dir(
+        args.out or args.ckpt.parent / "compare", overwrite=args.overwrite, lock=True
+    )
     res = compare(
         args.ckpt, args.commands, theta0=theta0, out=out, plant=args.plant, device=args.device
     )

@@ -20,7 +20,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("ckpt", type=Path, help="surrogate checkpoint .pt")
     p.add_argument("--out", type=Path, required=True, help="report folder (replaced atomically)")
     p.add_argument(
-        "--plant", choices=["ideal", "hydraulic"], default="hydraulic", help="MuJoCo plant"
+        "--plant",
+        choices=["ideal", "hydraulic"],
+        default=None,
+        help="MuJoCo plant (default: the one the checkpoint was trained on, hydraulic if it "
+        "does not record it; another is refused)",
     )
     p.add_argument("--samples", type=int, default=256, metavar="K", help="MPPI candidates (256)")
     p.add_argument(
@@ -101,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
     from ..control.report import run_control
     from ..control.rl import RLConfig
     from ..devices import usable_cpus
+    from ..env.plants import checkpoint_plant
     from ..errors import ConfigError
     from ..io_utils import log
     from ..surrogate.checkpoint import load_checkpoint
@@ -112,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
     if args.mppi_seeds < 1:
         raise ConfigError(f"--mppi-seeds must be >= 1, got {args.mppi_seeds}")
     sur = load_checkpoint(args.ckpt)
+    # the machine check, before any run: another machine or plant is refused in one line
+    plant = checkpoint_plant(sur.spec, args.plant, ckpt=args.ckpt, default="hydraulic")
     mppi = MPPIConfig(
         n_sample=args.samples, n_horizon=args.horizon, replan=args.replan, seed=args.seed
     )
@@ -127,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         sur,
         args.out,
         ckpt=str(args.ckpt),
-        plant=args.plant,
+        plant=plant,
         mppi=mppi,
         rl=rl,
         do_rl=not args.no_rl,

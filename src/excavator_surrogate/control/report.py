@@ -299,7 +299,7 @@ def run_control(
     out: Path,
     *,
     ckpt: str = "",
-    plant: str = "hydraulic",
+    plant: str | None = None,
     mppi: MPPIConfig | None = None,
     rl: RLConfig | None = None,
     do_rl: bool = True,
@@ -312,9 +312,16 @@ def run_control(
 ) -> dict[str, Any]:
     """Run tracking (and RL) on ``sur`` and write the report folder ``out``; returns the metrics.
     ``cpus``: processes / threads of each MPPI planner; ``n_seeds``: MPPI noise seeds of the
-    seed study (see :func:`~.tracking.compare_tracking`)."""
+    seed study (see :func:`~.tracking.compare_tracking`); ``plant``: None for the one ``sur``
+    was trained on (another machine or plant is refused before any run:
+    :func:`~excavator_surrogate.env.plants.checkpoint_plant`)."""
+    from ..env.plants import checkpoint_plant
     from .rl import compare_rl, require_sb3
     from .tracking import compare_tracking
+
+    plant = checkpoint_plant(
+        sur.spec, plant, ckpt=ckpt or f"surrogate '{sur.name}'", default="hydraulic"
+    )
 
     if do_rl:
         require_sb3()  # fail before the long tracking runs, not after them
@@ -357,7 +364,7 @@ def run_control(
         metrics["rl"] = rl_metrics(compare_rl(sur, rcfg, log=log))
     metrics["wall_s"] = time.perf_counter() - t0
     metrics["goals"] = goals(metrics)
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, kind="control") as tmp:
         plot_tracking(tmp / "tracking.png", track, names)
         np.savez(
             tmp / "trajectories.npz",

@@ -19,7 +19,7 @@ Needs the ``[control]`` extra (``pip install excavator-surrogate[control]``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from typing import Any
 
@@ -67,8 +67,10 @@ class RLConfig:
     """Evaluation episodes (fixed seeds; the same start poses on every environment)."""
     n_curve: int = 8
     """Learning-curve points (evaluations during training)."""
-    plant: str = "hydraulic"
-    """``ExcavatorMujoco-v0`` plant: ``ideal`` or ``hydraulic``."""
+    plant: str | None = None
+    """``ExcavatorMujoco-v0`` plant: ``ideal`` or ``hydraulic``; None: the one the surrogate
+    was trained on (``hydraulic`` if its checkpoint does not record it; another plant than
+    the surrogate's is refused, :func:`~excavator_surrogate.env.plants.checkpoint_plant`)."""
     seed: int = 0
     """Seed of PPO and of the training environments."""
 
@@ -255,9 +257,13 @@ def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) 
     import torch
     from gymnasium.vector import AutoresetMode
 
+    from ..env.plants import checkpoint_plant
+
     cfg = cfg or RLConfig()
-    torch.set_num_threads(1)
     spec = sur.spec
+    plant = checkpoint_plant(spec, cfg.plant, ckpt=f"surrogate '{sur.name}'", default="hydraulic")
+    cfg = replace(cfg, plant=plant)
+    torch.set_num_threads(1)
     say = log or (lambda *_: None)
     same, off = AutoresetMode.SAME_STEP, AutoresetMode.NEXT_STEP
     ev_plant = plant_vector_env(spec, cfg, cfg.n_eval, off)

@@ -219,7 +219,7 @@ def tune_pi(sur_env: ExcavatorEnv, theta_ref: np.ndarray) -> JointPI:
 def compare_tracking(
     sur: Surrogate,
     *,
-    plant: str = "hydraulic",
+    plant: str | None = None,
     mppi: MPPIConfig | None = None,
     time_scale: float = 1.0,
     oracle: bool = True,
@@ -232,7 +232,9 @@ def compare_tracking(
 
     Args:
         sur: the surrogate.
-        plant: ``ideal`` or ``hydraulic`` plant of ``ExcavatorMujoco-v0``.
+        plant: ``ideal`` or ``hydraulic`` plant of ``ExcavatorMujoco-v0``; None: the one the
+            surrogate was trained on (``hydraulic`` if not recorded; another machine or plant
+            is refused: :func:`~excavator_surrogate.env.plants.checkpoint_plant`).
         mppi: planner options (the same for surrogate and oracle).
         time_scale: stretches the digging reference (see :func:`~.reference.dig_reference`).
         oracle: also run the oracle (the slow part).
@@ -253,10 +255,12 @@ def compare_tracking(
     if n_seeds < 1:
         raise ConfigError(f"compare_tracking: n_seeds must be >= 1, got {n_seeds}")
     from ..env.mujoco_env import ExcavatorMujocoEnv
+    from ..env.plants import checkpoint_plant
     from ..env.surrogate_env import ExcavatorSurrogateEnv
 
     cfg = mppi or MPPIConfig()
     spec = sur.spec
+    plant = checkpoint_plant(spec, plant, ckpt=f"surrogate '{sur.name}'", default="hydraulic")
     theta_ref, t, phases = dig_reference(spec, time_scale=time_scale)
     say = log or (lambda *_: None)
     sur_env = ExcavatorSurrogateEnv(sur)

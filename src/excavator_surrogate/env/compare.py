@@ -29,11 +29,11 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from ..io_utils import write_json, write_text
-from ..spec import EXCAVATOR, MachineSpec
-from ..surrogate.checkpoint import check_compatible
+from ..io_utils import atomic_files, write_json, write_text
+from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv, check_theta0
+from .plants import checkpoint_plant
 from .safety import GuardConfig
 
 DEFAULT_SECONDS = 90.0
@@ -262,7 +262,7 @@ def compare(
     *,
     theta0: np.ndarray | None = None,
     out: str | Path | None = None,
-    plant: str = "ideal",
+    plant: str | None = None,
     device: str = "cpu",
     mode: str | None = None,
 ) -> CompareResult:
@@ -274,7 +274,10 @@ def compare(
         theta0: start pose (n_joint,) [rad]; default: the source's, else mid-range.
         out: if given, write ``metrics.json``, ``table.md``, ``compare.png`` and
             ``trajectories.npz`` into this folder.
-        plant: ``ideal`` or ``hydraulic`` MuJoCo plant.
+        plant: ``ideal`` or ``hydraulic`` MuJoCo plant; default: the one the checkpoint was
+            trained on (``ideal`` if it does not record it).  Another machine or plant than
+            the checkpoint's raises :class:`~excavator_surrogate.errors.CheckpointError`
+            (:func:`~.plants.checkpoint_plant`).
         device: torch device of the surrogate.
         mode: surrogate rollout mode (default: the checkpoint's).
 
@@ -294,17 +297,9 @@ def compare(
         action_mode="reject",
     )
     spec = sur_env.machine
+    label = ckpt if not isinstance(ckpt, Surrogate) else f"surrogate '{sur_env.surrogate.name}'"
+    plant = checkpoint_plant(spec, plant, ckpt=label, default="ideal")
     mj_env = ExcavatorMujocoEnv(plant=plant, spec=spec, guard=no_guard, action_mode="reject")  # type: ignore[arg-type]
-    try:
-        check_compatible(
-            spec,
-            EXCAVATOR.with_rate(mj_env.plant.spec.rate_hz),
-            ckpt=ckpt if not isinstance(ckpt, Surrogate) else sur_env.surrogate.name,
-            data_name="the built-in MuJoCo excavator",
-        )
-    except BaseException:
-        mj_env.close()
-        raise
     if not isinstance(commands, Commands):
         commands = load_commands(commands, spec, theta0=theta0, omega_max=mj_env.plant.omega_max)
     start = theta0 if theta0 is not None else commands.theta0
@@ -352,39 +347,37 @@ def write_outputs(result: CompareResult, out: str | Path) -> Path:
     from ..plotting.cbe import plot_cbe
 
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    run = result.metrics["run"]
-    write_json(out / "metrics.json", result.metrics)
-    lines = [
-        "# Equivalence check: ExcavatorSurrogate-v0 vs ExcavatorMujoco-v0",
-        "",
-        *(f"- {k}: {v}" for k, v in run.items()),
-        "",
-        "Closed-loop behavioural equivalence, MuJoCo as reference (paper Table II layout):",
-        "",
-        markdown_table({k: result.metrics[k] for k in ("omega", "theta")}),
-    ]
-    write_text(out / "table.md", "\n".join(lines))
-    plot_cbe(
-        out / "compare.png",
-        time=result.time,
-        omega_ref=result.omega_ref,
-        theta_ref=result.theta_ref,
-        predictions={"surrogate": (result.omega_hat, result.theta_hat)},
-        names=result.names,
-        warmup=0,
-        title=f"{run['commands']}: ExcavatorSurrogate-v0 vs ExcavatorMujoco-v0 (same commands)",
-        ref_label="MuJoCo",
-    )
-    tmp = out / ".trajectories.tmp.npz"
-    np.savez_compressed(
-        tmp,
-        time=result.time,
-        u=result.u,
-        theta_mujoco=result.theta_ref,
-        omega_mujoco=result.omega_ref,
-        theta_surrogate=result.theta_hat,
-        omega_surrogate=result.omega_hat,
-    )
-    tmp.replace(out / "trajectories.npz")
+    with atomic_files(out, kind="compare") as tmp:  # all files or none
+        run = result.metrics["run"]
+        write_json(tmp / "metrics.json", result.metrics)
+        lines = [
+            "# Equivalence check: ExcavatorSurrogate-v0 vs ExcavatorMujoco-v0",
+            "",
+            *(f"- {k}: {v}" for k, v in run.items()),
+            "",
+            "Closed-loop behavioural equivalence, MuJoCo as reference (paper Table II layout):",
+            "",
+            markdown_table({k: result.metrics[k] for k in ("omega", "theta")}),
+        ]
+        write_text(tmp / "table.md", "\n".join(lines))
+        plot_cbe(
+            tmp / "compare.png",
+            time=result.time,
+            omega_ref=result.omega_ref,
+            theta_ref=result.theta_ref,
+            predictions={"surrogate": (result.omega_hat, result.theta_hat)},
+            names=result.names,
+            warmup=0,
+            title=f"{run['commands']}: ExcavatorSurrogate-v0 vs ExcavatorMujoco-v0 (same commands)",
+            ref_label="MuJoCo",
+        )
+        np.savez_compressed(
+            tmp / "trajectories.npz",
+            time=result.time,
+            u=result.u,
+            theta_mujoco=result.theta_ref,
+            omega_mujoco=result.omega_ref,
+            theta_surrogate=result.theta_hat,
+            omega_surrogate=result.omega_hat,
+        )
     return out

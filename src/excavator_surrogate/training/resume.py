@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +14,18 @@ from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
 from ..surrogate.model import ModelConfig, SurrogateNet
 from .config import TrainConfig
+
+SOURCE_META = "data_source"
+"""Key of ``MachineSpec.meta`` under which a trained checkpoint records where its training
+data came from: the episodes' ``source`` (``mujoco-ideal``, ``mujoco-hydraulic``, ``import``
+...), several joined by ``+``.  Commands that run a checkpoint against a built-in plant read
+it (:mod:`excavator_surrogate.env.plants`)."""
+
+
+def with_source(spec: MachineSpec, episodes: list[Episode]) -> MachineSpec:
+    """``spec`` with the episodes' data source recorded in its ``meta`` (:data:`SOURCE_META`)."""
+    source = "+".join(sorted({str(e.source) for e in episodes}))
+    return replace(spec, meta={**spec.meta, SOURCE_META: source})
 
 
 @dataclass
@@ -81,6 +93,7 @@ def start(
                     derived.append(
                         f"{name}: {', '.join(f'{k} {b[k]:.4g}' for k in got)} from the training data"
                     )
+        spec = with_source(spec, train_eps)
         norm = Normalization.fit(
             [e.theta for e in train_eps],
             [e.u for e in train_eps],
