@@ -28,6 +28,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
 
+import tomli_w
+
 from .errors import ConfigError
 
 C = TypeVar("C")
@@ -183,47 +185,32 @@ def to_dict(cfg: Any) -> dict[str, Any]:
 
 
 def toml_value(v: Any) -> str:
-    """One TOML value (scalar, list or inline table)."""
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    """One TOML value on one line (scalar, array or inline table), for the commented lines
+    of :func:`describe_config`.
+
+    tomli-w formats every scalar and key (escapes, floats, ``inf``); only the one-line joining
+    of arrays and inline tables is done here, because tomli-w writes arrays over several lines,
+    which a commented-out ``# key = value`` line cannot hold.
+
+    Raises:
+        TypeError: a value TOML cannot hold (``None``, a ``Path``: convert with :func:`to_dict`).
+    """
     if isinstance(v, list | tuple):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {toml_value(x)}" for k, x in v.items()) + " }"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+        items = (f"{tomli_w.dumps({str(k): 0})[:-5]} = {toml_value(x)}" for k, x in v.items())
+        return "{ " + ", ".join(items) + " }"
+    return tomli_w.dumps({"v": v})[4:-1]
 
 
-def dumps_toml(tables: dict[str, Any]) -> str:
-    """Minimal TOML writer for config records (scalars, lists, nested tables)."""
-    scalar = toml_value
+def dumps_toml(tables: Mapping[str, Any]) -> str:
+    """A config record (``config.toml``) as TOML text, written by tomli-w: scalars first,
+    then one ``[table]`` per nested dict.
 
-    lines: list[str] = []
-    plain = {k: v for k, v in tables.items() if not isinstance(v, dict)}
-    for k, v in plain.items():
-        lines.append(f"{k} = {scalar(v)}")
-
-    def table(prefix: str, d: dict[str, Any]) -> None:
-        lines.append("")
-        lines.append(f"[{prefix}]")
-        subs = {}
-        for k, v in d.items():
-            if isinstance(v, dict) and v and all(isinstance(x, dict) for x in v.values()):
-                subs[k] = v
-            elif isinstance(v, dict) and any(isinstance(x, dict) for x in v.values()):
-                subs[k] = v
-            else:
-                lines.append(f"{k} = {scalar(v)}")
-        for k, v in subs.items():
-            table(f"{prefix}.{k}", v)
-
-    for k, v in tables.items():
-        if isinstance(v, dict):
-            table(k, v)
-    return "\n".join(lines).lstrip("\n") + "\n"
+    Raises:
+        TypeError: a value TOML cannot hold (``None``, a ``Path``: convert with :func:`to_dict`).
+    """
+    return tomli_w.dumps(dict(tables))
 
 
 def parse_sets(items: Sequence[str], *, sections: Sequence[str] | None = None) -> dict[str, Any]:
