@@ -1,12 +1,16 @@
-"""Angle outliers in raw logs: single-sample spikes and values beyond the declared joint limits.
+"""Angle outliers in raw logs: spikes, impossible samples and values beyond the joint limits.
 
-Both are found on the input samples, before resampling (the anti-alias filter would smear
-one corrupt sample over hundreds of output samples).  ``[import] outliers`` decides:
+Spikes (corrupt runs of up to three samples), impossible samples (magnitudes no sensor
+reads, and bursts of any length entered and left at speeds no joint reaches; see
+:mod:`.bursts`, no limits needed) and angles beyond the declared joint limits are all found
+on the input samples, before resampling (the anti-alias filter would smear one corrupt
+sample over hundreds of output samples).  ``[import] outliers`` decides:
 
 - ``fail`` (default): the first one is an error naming the file, row, column and joint;
-- ``drop``: spike rows and out-of-limit rows are removed (short holes are bridged by the
-  resampler, holes longer than ``max_gap`` split the episode);
-- ``clip``: spike rows are removed, out-of-limit angles are clipped to the limits.
+- ``drop``: their rows are removed (short holes are bridged by the resampler, holes longer
+  than ``max_gap`` split the episode);
+- ``clip``: spike and impossible rows are removed, out-of-limit angles are clipped to the
+  limits.
 
 Counts go to the import report (``outliers`` per joint).
 """
@@ -22,6 +26,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from ..errors import DataError
 from ..spec import JointSpec
+from .bursts import MAX_TURNS, MAX_TURNS_PERIODIC, Burst, find_impossible
 from .mapping import DEG, Channel, JointMap, Mapping
 from .sources import RawLog, Series
 
@@ -66,11 +71,45 @@ def find_spikes(x: np.ndarray, dt_in: float) -> np.ndarray:
     return spikes
 
 
-def _angle(vals: np.ndarray, j: JointMap) -> np.ndarray:
-    """Raw channel -> angle [rad] (periodic joints unwrapped)."""
-    th = vals * j.angle.scale + j.angle.offset
-    th = th * DEG if j.angle.unit == "deg" else th
-    return np.unwrap(th) if j.periodic else th
+def _angle(vals: np.ndarray, j: JointMap, *, unwrap: bool = True) -> np.ndarray:
+    """Raw channel -> angle [rad] (periodic joints unwrapped unless ``unwrap`` is False)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        th = vals * j.angle.scale + j.angle.offset
+        th = th * DEG if j.angle.unit == "deg" else th
+        return np.unwrap(th) if j.periodic and unwrap else th
+
+
+def _impossible_error(
+    path: Path,
+    raw_vals: np.ndarray,
+    j: JointMap,
+    ch: Channel,
+    bursts: list[Burst],
+    row: int,
+    fix: str,
+) -> DataError:
+    """The one-line error for the impossible run holding ``row``."""
+    b = next(b for b in bursts if b.start <= row < b.stop)
+    unit = j.angle.unit or "rad"
+    value = raw_vals[row] * j.angle.scale + j.angle.offset
+    n = b.stop - b.start
+    rows = f" (rows {b.start}-{b.stop - 1}, {n} samples)" if n > 1 else ""
+    if b.reason == "magnitude":
+        turns = MAX_TURNS_PERIODIC if j.periodic else MAX_TURNS
+        why = f"no sensor reads it (not finite, or beyond ±{turns:g} turns)"
+    else:
+        f = 1.0 / DEG if unit == "deg" else 1.0
+        why = (
+            f"it is entered or left at {b.speed * f:.3g} {unit}/s, far above the log's own "
+            f"speeds (99th percentile {b.scale * f:.3g} {unit}/s)"
+        )
+    return DataError(
+        path,
+        f"joint '{j.name}': angle {value:.6g} {unit} is impossible{rows}: {why}",
+        column=ch.label,
+        row=row,
+        fix=fix,
+    )
 
 
 def _in_unit(x: float, j: JointMap) -> str:
@@ -116,8 +155,21 @@ def screen_angles(
         ch = mapping.angle_channel(j)
         th = _angle(vals[ch], j)
         spikes = find_spikes(th, dt_in[ch.series])
-        if spikes.any() and policy == "fail":
-            row = int(np.flatnonzero(spikes)[0])
+        t_in = raw.series[ch.series].time
+        impossible, bursts = find_impossible(
+            _angle(vals[ch], j, unwrap=False), t_in, periodic=j.periodic
+        )
+        out = np.zeros_like(spikes)
+        lo, hi = js.theta_min, js.theta_max
+        if not j.periodic and lo is not None and hi is not None:
+            margin = LIMIT_MARGIN * (hi - lo)
+            out = ~spikes & ((th < lo - margin) | (th > hi + margin))
+        impossible &= ~(spikes | out)  # the declared limits name it better
+        first = [
+            int(np.flatnonzero(m)[0]) if m.any() else len(th) for m in (spikes, out, impossible)
+        ]
+        if spikes.any() and policy == "fail" and first[0] <= min(first[1:]):
+            row = first[0]
             raise DataError(
                 path,
                 f"joint '{j.name}': angle {_in_unit(th[row], j)} is a spike (its neighbours "
@@ -127,28 +179,28 @@ def screen_angles(
                 fix=fix,
             )
         if check_unit is not None:
-            keep = ~spikes
+            # most samples impossible or out of limits: a unit or scale mistake, first
+            keep = ~spikes if (impossible | out).mean() > 0.5 else ~(spikes | impossible)
             th_unit = vals[ch][keep] * j.angle.scale + j.angle.offset
-            check_unit(raw.series[ch.series].time[keep], th_unit, j, ch.label)
-        out = np.zeros_like(spikes)
-        lo, hi = js.theta_min, js.theta_max
-        if not j.periodic and lo is not None and hi is not None:
-            margin = LIMIT_MARGIN * (hi - lo)
-            out = ~spikes & ((th < lo - margin) | (th > hi + margin))
-            if out.any() and policy == "fail":
-                row = int(np.flatnonzero(out)[0])
-                raise DataError(
-                    path,
-                    f"joint '{j.name}': angle {_in_unit(th[row], j)} is outside the declared "
-                    f"limits [{_in_unit(lo, j)}, {_in_unit(hi, j)}] (+{LIMIT_MARGIN:.0%} of the "
-                    f"range); {int(out.sum())} sample(s) are",
-                    column=ch.label,
-                    row=row,
-                    fix=f"check the angle's unit/scale/offset and limits of joint '{j.name}', or {fix}",
-                )
+            check_unit(t_in[keep], th_unit, j, ch.label)
+        if out.any() and policy == "fail" and first[1] <= first[2]:
+            row = first[1]
+            raise DataError(
+                path,
+                f"joint '{j.name}': angle {_in_unit(th[row], j)} is outside the declared "
+                f"limits [{_in_unit(lo, j)}, {_in_unit(hi, j)}] (+{LIMIT_MARGIN:.0%} of the "
+                f"range); {int(out.sum())} sample(s) are",
+                column=ch.label,
+                row=row,
+                fix=f"check the angle's unit/scale/offset and limits of joint '{j.name}', or {fix}",
+            )
+        if impossible.any() and policy == "fail":
+            raise _impossible_error(path, vals[ch], j, ch, bursts, first[2], fix)
         counts: dict[str, int] = {}
         if spikes.any():
             counts["spikes_dropped"] = int(spikes.sum())
+        if impossible.any():
+            counts["impossible_dropped"] = int(impossible.sum())
         if out.any() and policy == "clip":
             counts["clipped"] = int(out.sum())
             clipped = np.clip(th, lo, hi) / (DEG if j.angle.unit == "deg" else 1.0)
@@ -158,7 +210,7 @@ def screen_angles(
             counts["out_of_limits_dropped"] = int(out.sum())
         if counts:
             entry["outliers"][j.name] = counts
-        bad = spikes | out
+        bad = spikes | impossible | out
         if bad.any():
             prev = drop.get(ch.series)
             drop[ch.series] = bad if prev is None else prev | bad
