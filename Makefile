@@ -1,30 +1,81 @@
 # The two commands a fresh machine needs (see README):
 #   make demo   -> end-to-end pipeline on the built-in hydraulic MuJoCo excavator (quick-hydraulic, <= 5 min)
 #   make test   -> lint (ruff + the import-linter layer contract) + the whole test suite (what CI runs)
+#
+# Both work in a project virtual environment $(VENV) created with $(PY); nothing is installed into
+# the system Python.  `make demo` installs the package alone (no extras); `make test` adds the dev
+# extra.  Stamp files in $(VENV) skip the install while pyproject.toml is unchanged.
+#
+# torch: CPU build by default.  A torch already in $(VENV), or a wheel pip finds offline through
+# its configured find-links, is used as is (no index is contacted for it); otherwise torch comes
+# from $(TORCH_INDEX).  CUDA: make demo TORCH_INDEX=https://download.pytorch.org/whl/cu126
+# (in a fresh $(VENV): rm -rf .venv first).  TORCH_INDEX= (empty): torch from PyPI like any
+# other dependency (on Linux that is the CUDA build).
 PY ?= python3
+VENV ?= .venv
 OUT ?= runs/quick
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
+TORCH_SPEC ?= torch>=2.4,<2.14
+DOCS_SITE ?= build/site
 
-.PHONY: install demo test lint format bench
+BIN := $(VENV)/bin
+VPY := $(BIN)/python
+PIP := $(VPY) -m pip
+SRC := src tests bench examples
 
-install:
-	$(PY) -m pip install -q -e ".[dev]"
+.PHONY: install install-dev demo test lint format docs bench
 
-demo: install
-	$(PY) -m excavator_surrogate run --out $(OUT)
+install: $(VENV)/.stamp-base
+install-dev: $(VENV)/.stamp-dev
 
-test: install
-	$(PY) -m ruff check src tests bench examples
-	lint-imports
-	$(PY) -m pytest -q
+$(VPY):
+	$(PY) -m venv $(VENV)
 
-lint:
-	$(PY) -m ruff check src tests bench examples
-	$(PY) -m ruff format --check src tests bench examples
-	lint-imports
+$(VENV)/.stamp-torch: | $(VPY)
+	@if $(VPY) -c "import torch" 2>/dev/null; then \
+		echo "torch: $$($(VPY) -c 'import torch; print(torch.__version__)') already in $(VENV)"; \
+	elif $(PIP) install -q --no-index --no-deps --only-binary=:all: "$(TORCH_SPEC)" 2>/dev/null; then \
+		echo "torch: installed from pip's find-links"; \
+	elif [ -n "$(TORCH_INDEX)" ]; then \
+		$(PIP) install --only-binary=:all: "$(TORCH_SPEC)" --index-url "$(TORCH_INDEX)"; \
+	else \
+		echo "torch: TORCH_INDEX is empty, torch comes from PyPI with the package"; \
+	fi
+	@touch $@
 
-format:
-	$(PY) -m ruff format src tests bench examples
-	$(PY) -m ruff check --fix src tests bench examples
+$(VENV)/.stamp-base: pyproject.toml $(VENV)/.stamp-torch
+	$(PIP) install -q -e .
+	@touch $@
 
-bench:
-	for b in bench/*.py; do $(PY) $$b || exit 1; done
+$(VENV)/.stamp-dev: pyproject.toml $(VENV)/.stamp-torch
+	$(PIP) install -q -e ".[dev]"
+	@touch $@ $(VENV)/.stamp-base
+
+demo: $(VENV)/.stamp-base
+	$(VPY) -m excavator_surrogate run --out $(OUT)
+
+test: $(VENV)/.stamp-dev
+	$(BIN)/ruff check $(SRC)
+	$(BIN)/lint-imports
+	$(VPY) -m pytest -q
+	@$(MAKE) --no-print-directory docs
+
+# The documentation site, when mkdocs.yml exists (built into $(DOCS_SITE), warnings are errors).
+docs: $(VENV)/.stamp-dev
+	@if [ -f mkdocs.yml ]; then \
+		$(BIN)/mkdocs build --strict --site-dir $(DOCS_SITE); \
+	else \
+		echo "docs: no mkdocs.yml, site build skipped"; \
+	fi
+
+lint: $(VENV)/.stamp-dev
+	$(BIN)/ruff check $(SRC)
+	$(BIN)/ruff format --check $(SRC)
+	$(BIN)/lint-imports
+
+format: $(VENV)/.stamp-dev
+	$(BIN)/ruff format $(SRC)
+	$(BIN)/ruff check --fix $(SRC)
+
+bench: $(VENV)/.stamp-dev
+	for b in bench/*.py; do $(VPY) $$b || exit 1; done
