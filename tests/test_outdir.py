@@ -10,17 +10,20 @@ from pathlib import Path
 import pytest
 
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.io_utils import atomic_dir, sweep_stale
+from excavator_surrogate.io_utils import atomic_dir, mark_output, sweep_stale
 from excavator_surrogate.outdir import (
+    MARKER,
     check_out_dir,
     check_out_file,
     foreign_entry,
     is_exsur_output,
+    read_marker,
     replace_allowed,
 )
 
 
 def _dataset(root: Path) -> Path:
+    mark_output(root, "dataset")
     (root / "episodes").mkdir(parents=True)
     (root / "episodes" / "a.parquet").write_bytes(b"x")
     (root / "manifest.json").write_text("{}")
@@ -30,7 +33,7 @@ def _dataset(root: Path) -> Path:
 
 def _run(root: Path) -> Path:
     """A folder laid out like 'exsur run' output: report + nested dataset and model."""
-    root.mkdir()
+    mark_output(root, "run")
     for name in ("report.md", "metrics.json", "table.md", "cbe.png", "config.toml"):
         (root / name).write_text("")
     _dataset(root / "data")
@@ -66,10 +69,51 @@ def test_a_foreign_file_anywhere_is_named(tmp_path: Path, extra: str, named: str
 
 
 def test_exsur_names_without_a_marker_are_not_enough(tmp_path: Path) -> None:
-    d = tmp_path / "d"
-    d.mkdir()
-    (d / "table.md").write_text("mine")  # a name exsur writes, but no manifest/metrics/best.pt
-    assert not is_exsur_output(d)
+    """Another project's best.pt / config.toml / manifest.json (a web app's) is not exsur's:
+    only the marker exsur writes itself says so, by content."""
+    for names in (["table.md"], ["best.pt", "last.pt", "config.toml"], ["manifest.json"]):
+        d = tmp_path / "_".join(names)
+        d.mkdir()
+        for n in names:
+            (d / n).write_text("theirs")
+        assert foreign_entry(d) == MARKER and not is_exsur_output(d)
+        with pytest.raises(
+            ConfigError,
+            match=r"which exsur did not write \(no exsur marker \.exsur\.json.*--overwrite",
+        ):
+            check_out_dir(d)
+        with pytest.raises(ConfigError, match="no exsur marker"), atomic_dir(d) as tmp:
+            (tmp / "manifest.json").write_text("{}")
+        assert sorted(p.name for p in d.iterdir()) == sorted(names)  # untouched
+        (d / MARKER).write_text('{"kind": "dataset"}')  # a look-alike: wrong content
+        assert not is_exsur_output(d)
+
+
+def test_the_marker_is_written_first_and_kept(tmp_path: Path) -> None:
+    with atomic_dir(tmp_path / "ds", kind="dataset") as tmp:
+        assert read_marker(tmp)["kind"] == "dataset"  # before the first file
+    m = read_marker(tmp_path / "ds")
+    assert m["format"] == "exsur-output" and m["version"] and m["created"]
+    assert is_exsur_output(tmp_path / "ds")
+    mark_output(tmp_path / "ds", "model")  # a later writer keeps the folder's marker
+    assert read_marker(tmp_path / "ds") == m
+    with pytest.raises(ValueError, match="not one of"):
+        mark_output(tmp_path / "x", "notes")
+
+
+def test_exsur_folders_with_any_of_its_files_are_its_own(tmp_path: Path) -> None:
+    """A control report (tracking.png), an ensemble killed after its first member, a sweep:
+    marked, so a rerun into them is allowed."""
+    ctl = mark_output(tmp_path / "ctl", "control")
+    for n in ("tracking.png", "learning_curve.png", "trajectories.npz", "report.md"):
+        (ctl / n).write_text("")
+    ens = mark_output(tmp_path / "ens", "model")
+    (ens / "config.toml").write_text("")
+    mark_output(ens / "member_0", "model")
+    (ens / "member_0" / "log.csv").write_text("")
+    for d in (ctl, ens):
+        assert is_exsur_output(d), foreign_entry(d)
+        assert check_out_dir(d) == d
 
 
 def test_symlink_is_foreign(tmp_path: Path) -> None:
@@ -92,13 +136,13 @@ def test_atomic_dir_replaces_its_own_output_or_with_consent(tmp_path: Path) -> N
     ds = _dataset(tmp_path / "ds")
     with atomic_dir(ds) as tmp:
         (tmp / "manifest.json").write_text('{"new": 1}')
-    assert sorted(p.name for p in ds.iterdir()) == ["manifest.json"]
+    assert sorted(p.name for p in ds.iterdir()) == [MARKER, "manifest.json"]
     d = tmp_path / "d"
     d.mkdir()
     (d / "precious.txt").write_text("x")
     with replace_allowed(d), atomic_dir(d) as tmp:
         (tmp / "manifest.json").write_text("{}")
-    assert sorted(p.name for p in d.iterdir()) == ["manifest.json"]
+    assert sorted(p.name for p in d.iterdir()) == [MARKER, "manifest.json"]
 
 
 def test_atomic_dir_refuses_the_current_folder(tmp_path: Path, monkeypatch) -> None:

@@ -108,12 +108,13 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def atomic_dir(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
+def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output") -> Iterator[Path]:
     """Yield a temporary folder next to ``path``; move it onto ``path`` when the block succeeds.
 
-    An existing ``path`` is replaced only after the new content is complete
-    (``overwrite=True``), and only if the output-folder rule allows it
-    (:func:`~excavator_surrogate.outdir.may_replace`: empty, written by exsur, or
+    The temporary folder starts with the output marker of ``kind`` (:func:`mark_output`), so
+    the result is recognised as exsur's by content.  An existing ``path`` is replaced only
+    after the new content is complete (``overwrite=True``), and only if the output-folder rule
+    allows it (:func:`~excavator_surrogate.outdir.may_replace`: empty, written by exsur, or
     ``--overwrite``).  On failure the temporary folder is deleted.  Temporary folders that
     killed runs left next to ``path`` are removed first.
 
@@ -126,6 +127,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
     sweep_stale(path)
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
+        mark_output(tmp, kind)
         yield tmp
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp creates 0700 folders
         if path.exists():
@@ -143,18 +145,54 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True) -> Iterator[Path]:
         raise
 
 
+@contextlib.contextmanager
+def atomic_files(path: str | Path, *, kind: str) -> Iterator[Path]:
+    """All or nothing for a command that writes files INTO folder ``path`` (keeping what is
+    already there): yield a temporary folder next to ``path``; when the block succeeds, mark
+    ``path`` (:func:`mark_output`) and rename every file of the temporary folder into it.
+
+    A failure in the block (a full disk while writing a figure) leaves ``path`` untouched.
+    The renames need no space, so once they start they complete.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    sweep_stale(path)
+    tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        mark_output(path, kind)
+        for f in sorted(tmp.iterdir()):
+            if f.is_dir():
+                raise IsADirectoryError(f"atomic_files: {f.name} is a folder; use atomic_dir")
+            os.chmod(f, 0o666 & ~_umask())
+            os.replace(f, path / f.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def mark_output(path: str | Path, kind: str) -> Path:
+    """Create folder ``path`` (if needed) and write its output marker
+    (:data:`~excavator_surrogate.outdir.MARKER`, ``{"format", "kind", "version", "created"}``)
+    atomically, BEFORE the first file of the output; a folder already marked keeps its
+    marker.  Returns ``path``."""
+    from .outdir import MARKER, marker, read_marker
+
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    if read_marker(path) is None:
+        write_json(path / MARKER, marker(kind))
+    return path
+
+
 def _check_replaceable(path: Path) -> None:
     from .errors import ConfigError
-    from .outdir import check_not_cwd, foreign_entry, may_replace
+    from .outdir import check_not_cwd, may_replace, refusal
 
     check_not_cwd(path, "output folder")
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{path}: output folder exists and is a file; give a folder")
     if not may_replace(path):
-        raise ConfigError(
-            f"{path}: holds '{foreign_entry(path)}', which exsur did not write; choose a new or "
-            "empty folder, or pass --overwrite to replace it"
-        )
+        raise ConfigError(refusal(path, "output folder"))
 
 
 def write_text(path: str | Path, text: str) -> None:

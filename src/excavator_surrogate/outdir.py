@@ -4,15 +4,18 @@ Every command that writes ``--out`` checks it first with :func:`check_out_dir` (
 :func:`check_out_file` (single files), before it reads or computes anything expensive:
 
 - a folder that does not exist, or is empty, is always fine;
-- an existing folder is replaced (``simulate``, ``clean``, ``run``, ``import``) or written into
-  (``train``, ``evaluate``, ``compare``, ``sweep``) only when exsur wrote it: it holds one of
-  the files that mark an exsur output (``manifest.json``, ``metrics.json``, ``best.pt`` ...)
-  and nothing but names exsur writes (:func:`is_exsur_output`); anything else needs an explicit
-  ``--overwrite``;
+- an existing folder is replaced (``simulate``, ``clean``, ``run``, ``import``, ``control``) or
+  written into (``train``, ``evaluate``, ``compare``, ``sweep``) only when exsur wrote it: it
+  holds the marker :data:`MARKER` (written before the first file of every output folder) and
+  nothing but names exsur writes (:func:`is_exsur_output`); anything else, including a folder
+  of an older exsur without the marker, needs an explicit ``--overwrite``;
 - an input of the command (a log, the mapping, a dataset) never lies inside the output folder,
   not even with ``--overwrite``;
 - the current folder, or one of its parents, is never an output folder;
-- a file output (``export``, ``merge``) is never an existing folder nor one of the inputs.
+- a file output (``export``, ``merge``) is never an existing folder nor one of the inputs, has
+  the command's suffix, and replaces only a file exsur wrote (checked by content);
+- one writer per folder: the CLI holds an OS lock (:func:`lock_out`) on ``.<name>.lock`` next
+  to the folder for the whole command; the OS releases it when the process dies.
 
 :func:`~excavator_surrogate.io_utils.atomic_dir` applies the same rule when it replaces a
 folder, so the Python API is protected too; ``--overwrite`` reaches it through
@@ -23,18 +26,35 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
+import fcntl
 import fnmatch
+import json
 import os
 from collections.abc import Iterable, Iterator
+from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 from .errors import ConfigError
+from .version import __version__
 
-SIGNATURES = ("manifest.json", "metrics.json", "best.pt", "last.pt", "sweep.json", "report.md")
-"""Files that mark a folder as an exsur output (a dataset, a model, an evaluation, a run)."""
+MARKER = ".exsur.json"
+"""The file that marks a folder as an exsur output, by content (:func:`marker`)."""
+
+MARKER_FORMAT = "exsur-output"
+"""The ``format`` field of :data:`MARKER`."""
+
+KINDS = ("dataset", "model", "evaluation", "compare", "run", "control", "sweep", "output")
+"""What an output folder is (the marker's ``kind``)."""
 
 FILES = (
-    *SIGNATURES,
+    "manifest.json",
+    "metrics.json",
+    "best.pt",
+    "last.pt",
+    "sweep.json",
+    "report.md",
     "config.toml",
     "import_report.json",
     "import_report.md",
@@ -43,6 +63,8 @@ FILES = (
     "cbe_*.png",
     "fusion_*.png",
     "compare.png",
+    "tracking.png",
+    "learning_curve.png",
     "trajectories.npz",
     "log.csv",
     "sweep.md",
@@ -58,8 +80,8 @@ DIRS = {"episodes": ("*.parquet", "*.png"), "figures": ("*.png",), "tb": ("event
 """Sub-folders with a fixed content pattern (`exsur plot` puts PNGs next to episodes); other
 sub-folders must follow the rule themselves."""
 
-TEMP = (".*.tmp", ".*.old-*", ".*.tmp.npz")
-"""Temporary names of exsur's atomic writes (left behind only by a killed process)."""
+TEMP = (".*.tmp", ".*.old-*", ".*.tmp.npz", ".*.lock")
+"""Temporary names of exsur's atomic writes and locks (left behind only by a killed process)."""
 
 _ALLOWED: contextvars.ContextVar[frozenset[Path]] = contextvars.ContextVar(
     "exsur_replace_allowed", default=frozenset()
@@ -70,17 +92,38 @@ def _match(name: str, patterns: Iterable[str]) -> bool:
     return any(fnmatch.fnmatchcase(name, p) for p in patterns)
 
 
+def marker(kind: str) -> dict[str, Any]:
+    """The content of :data:`MARKER` for an output folder of ``kind`` (one of :data:`KINDS`)."""
+    if kind not in KINDS:
+        raise ValueError(f"output kind {kind!r} is not one of {KINDS}")
+    created = datetime.now(UTC).isoformat(timespec="seconds")
+    return {"format": MARKER_FORMAT, "kind": kind, "version": __version__, "created": created}
+
+
+def read_marker(path: str | Path) -> dict[str, Any] | None:
+    """The marker of folder ``path`` (None: absent, unreadable or not exsur's)."""
+    try:
+        d = json.loads((Path(path) / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    ok = isinstance(d, dict) and d.get("format") == MARKER_FORMAT and d.get("kind") in KINDS
+    return d if ok else None
+
+
 def foreign_entry(path: Path, *, top: bool = True) -> str | None:
     """The first entry of folder ``path`` that exsur would not have written (None: all are exsur's).
 
-    At the top level one of :data:`SIGNATURES` must be present (an empty folder passes).
+    At the top level the folder must hold a valid :data:`MARKER` (an empty folder passes);
+    without one the answer is ``MARKER`` itself.
     """
     try:
-        entries = sorted(path.iterdir())
+        entries = sorted(e for e in path.iterdir() if e.name != MARKER)
     except OSError as e:
         return f"{path.name} ({e.strerror})"
     if not entries:
         return None
+    if top and read_marker(path) is None:
+        return MARKER
     for e in entries:
         name = e.name
         if _match(name, TEMP):
@@ -99,9 +142,20 @@ def foreign_entry(path: Path, *, top: bool = True) -> str | None:
             continue
         if not _match(name, FILES):
             return name
-    if top and not any((path / s).is_file() for s in SIGNATURES):
-        return entries[0].name
     return None
+
+
+def refusal(path: Path, flag: str) -> str:
+    """The one-line error for a folder exsur may not replace (``foreign_entry`` is not None)."""
+    bad = foreign_entry(path)
+    hint = "choose a new or empty folder, or pass --overwrite to replace it"
+    if bad == MARKER:
+        first = min((e.name for e in path.iterdir() if not _match(e.name, TEMP)), default="")
+        return (
+            f"{path}: {flag} holds '{first}', which exsur did not write (no exsur marker "
+            f"{MARKER}; an older exsur's output has none either); {hint}"
+        )
+    return f"{path}: {flag} holds '{bad}', which exsur did not write; {hint}"
 
 
 def is_exsur_output(path: str | Path) -> bool:
@@ -167,6 +221,7 @@ def check_out_dir(
     overwrite: bool = False,
     inputs: Iterable[str | Path] = (),
     flag: str = "--out",
+    lock: bool = False,
 ) -> Path:
     """Check an output folder against the output-folder rule (see the module docstring).
 
@@ -175,6 +230,7 @@ def check_out_dir(
         overwrite: the user passed ``--overwrite``: a folder exsur did not write may be used.
         inputs: files and folders the command reads; none may lie inside ``out``.
         flag: option name used in messages.
+        lock: also take the folder's writer lock (:func:`lock_out`) before the checks.
 
     Returns:
         ``out`` as a Path.
@@ -188,40 +244,168 @@ def check_out_dir(
         raise ConfigError(f"{out}: {flag} exists and is a file; give a folder")
     _inputs_inside(out, inputs, flag)
     _writable(out, flag)
+    if lock:
+        lock_out(out, flag)
     if out.is_dir():
         if out.is_symlink() and not overwrite:
             raise ConfigError(
                 f"{out}: {flag} is a symbolic link; give a real folder, or pass --overwrite"
             )
-        bad = foreign_entry(out)
-        if bad is not None and not overwrite:
-            raise ConfigError(
-                f"{out}: {flag} holds '{bad}', which exsur did not write; choose a new or empty "
-                "folder, or pass --overwrite to replace it"
-            )
+        if not overwrite and foreign_entry(out) is not None:
+            raise ConfigError(refusal(out, flag))
         if not os.access(out, os.W_OK | os.X_OK):
             raise ConfigError(f"{out}: {flag} is not writable; give another {flag}")
     return out
 
 
 def check_out_file(
-    out: str | Path, *, inputs: Iterable[str | Path] = (), flag: str = "--out", example: str
+    out: str | Path,
+    *,
+    inputs: Iterable[str | Path] = (),
+    flag: str = "--out",
+    example: str,
+    overwrite: bool = False,
 ) -> Path:
-    """Check a single output file: not a folder, not an input, in a writable folder.
+    """Check a single output file: not a folder, not an input, in a writable folder, with the
+    suffix of ``example``; an existing file is replaced only if exsur wrote it
+    (:func:`is_exsur_file`) or with ``overwrite``.
 
     ``example`` is a file name shown in messages (``model.onnx``).
     """
     out = Path(out)
     if out.is_dir() or out.name in ("", ".", ".."):
         raise ConfigError(f"{out}: {flag} is a folder; give a file name such as {example}")
+    suffix = Path(example).suffix
+    if out.suffix.lower() != suffix:
+        raise ConfigError(
+            f"{out}: {flag} must end in {suffix} (this command writes a {suffix} file); "
+            f"give a file name such as {example}"
+        )
     ro = out.resolve()
     for s in inputs:
         if Path(s).resolve() == ro:
             raise ConfigError(f"{s}: {flag} is one of the inputs; write to another file")
     _writable(out.parent, flag)
-    if out.exists() and not os.access(out, os.W_OK):
-        raise ConfigError(f"{out}: {flag} is not writable; give another file")
+    _probe(out, flag)
+    if out.exists() or out.is_symlink():
+        if not overwrite and not is_exsur_file(out):
+            raise ConfigError(
+                f"{out}: {flag} exists and exsur did not write it; give a new file name, or "
+                "pass --overwrite to replace it"
+            )
+        if not os.access(out, os.W_OK):
+            raise ConfigError(f"{out}: {flag} is not writable; give another file")
     return out
+
+
+def _probe(out: Path, flag: str) -> None:
+    """Create and remove a temporary file next to ``out``: a folder that only pretends to be
+    writable (``/proc``, a read-only mount seen by root) fails here in one line."""
+    import tempfile
+
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as e:
+        raise ConfigError(
+            f"{out}: cannot write {flag} there ({e.strerror or e}); give another {flag}"
+        ) from e
+
+
+def is_exsur_file(path: str | Path) -> bool:
+    """True if ``path`` is a regular file that exsur wrote, checked by content: a ``.pt``
+    checkpoint (``format`` ``exsur-*``) or an ``.onnx`` model with exsur's metadata."""
+    p = Path(path)
+    if p.is_symlink() or not p.is_file():
+        return False
+    try:
+        if p.suffix == ".pt":
+            import torch
+
+            obj = torch.load(p, map_location="cpu", weights_only=True)
+            return isinstance(obj, dict) and str(obj.get("format", "")).startswith("exsur-")
+        if p.suffix == ".onnx":
+            import onnx
+
+            model = onnx.load(str(p), load_external_data=False)
+            return any(m.key == "exsur_spec" for m in model.metadata_props)
+    except Exception:  # not a checkpoint / model at all: not exsur's
+        return False
+    return False
+
+
+def lock_file(out: str | Path) -> Path:
+    """The writer lock of output folder ``out``: ``.<name>.lock`` next to it (a sibling, so a
+    command that replaces the whole folder holds it across the swap)."""
+    p = Path(os.path.abspath(out))
+    return p.parent / f".{p.name}.lock"
+
+
+_HELD: dict[Path, int] = {}
+
+
+def lock_out(out: str | Path, flag: str = "--out") -> None:
+    """Take the exclusive writer lock of output folder ``out`` (an OS ``flock``, held until
+    :func:`release_locks` or the end of the process; a killed run leaves no stale lock).
+
+    Re-entrant within a process.  Processes that an exsur command spawns to write parts of the
+    folder (ensemble members, sweep trials) do not lock: the command holds the lock for them.
+
+    Raises:
+        ConfigError: another process holds the lock, or the path cannot be created.
+    """
+    path = lock_file(out)
+    if path in _HELD:
+        return
+    for _ in range(5):  # the file may be unlinked by its releasing owner between open and lock
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        except OSError as e:
+            raise ConfigError(
+                f"{out}: cannot write {flag} there ({e.strerror}); give another {flag}"
+            ) from e
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            owner = _read_owner(fd)
+            os.close(fd)
+            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise ConfigError(
+                    f"{out}: another exsur process{owner} is writing this {flag}; wait for it "
+                    f"to finish or give another {flag}"
+                ) from None
+            return  # a file system without locks: write unlocked, as before
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except OSError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+            _HELD[path] = fd
+            return
+        os.close(fd)
+    raise ConfigError(f"{out}: could not lock {path}; retry")
+
+
+def _read_owner(fd: int) -> str:
+    try:
+        pid = os.pread(fd, 32, 0).decode().strip()
+    except OSError:
+        return ""
+    return f" (pid {pid})" if pid.isdigit() else ""
+
+
+def release_locks() -> None:
+    """Release every writer lock this process holds (the CLI calls it when a command ends)."""
+    for path, fd in list(_HELD.items()):
+        with contextlib.suppress(OSError):
+            path.unlink()  # while still locked: a waiting opener re-checks the inode
+        os.close(fd)
+        del _HELD[path]
 
 
 @contextlib.contextmanager
@@ -232,8 +416,9 @@ def out_dir(
     inputs: Iterable[str | Path] = (),
     flag: str = "--out",
 ) -> Iterator[Path]:
-    """:func:`check_out_dir`, then a block in which ``overwrite`` lets exsur replace ``out``."""
-    p = check_out_dir(out, overwrite=overwrite, inputs=inputs, flag=flag)
+    """:func:`check_out_dir` with the writer lock, then a block in which ``overwrite`` lets exsur
+    replace ``out`` (the lock is released by :func:`release_locks`)."""
+    p = check_out_dir(out, overwrite=overwrite, inputs=inputs, flag=flag, lock=True)
     if overwrite:
         with replace_allowed(p):
             yield p
