@@ -109,7 +109,7 @@ def run_pipeline(
     timings: dict[str, float] = {}
     out = Path(out)
 
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, kind="run") as tmp:
         # ---- simulate (or take the user's dataset) --------------------------------------
         t0 = time.monotonic()
         if logs is not None:

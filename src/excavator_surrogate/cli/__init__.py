@@ -36,6 +36,8 @@ _OS_ERRORS = (
     errno.ENOTEMPTY,
     errno.EBUSY,
     errno.EXDEV,
+    errno.ENOENT,
+    errno.EINVAL,
 )
 """OS errors a user causes with a path (permissions, full disk ...): one line, exit 2."""
 
@@ -106,14 +108,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         if e.errno not in _OS_ERRORS:
             raise
         where = f"{e.filename}: " if e.filename else ""
-        print(
-            f"exsur: error: {where}{e.strerror or e} (check the path and its permissions)",
-            file=sys.stderr,
-        )
+        full = e.errno in (errno.ENOSPC, errno.EDQUOT)
+        fix = "free disk space and rerun" if full else "check the path and its permissions"
+        print(f"exsur: error: {where}{e.strerror or e} ({fix})", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("exsur: interrupted", file=sys.stderr)
         return 130
+    finally:
+        from ..outdir import release_locks
+
+        release_locks()  # the command's --out writer lock (outdir.lock_out)
 
 
 if __name__ == "__main__":  # pragma: no cover

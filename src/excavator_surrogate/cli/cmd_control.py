@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 from pathlib import Path
+
+from .common import add_overwrite
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("ckpt", type=Path, help="surrogate checkpoint .pt")
     p.add_argument("--out", type=Path, required=True, help="report folder (replaced atomically)")
+    add_overwrite(p, replaced=True)
     p.add_argument(
         "--plant",
         choices=["ideal", "hydraulic"],
@@ -108,8 +112,10 @@ def run(args: argparse.Namespace) -> int:
     from ..env.plants import checkpoint_plant
     from ..errors import ConfigError
     from ..io_utils import log
+    from ..outdir import check_out_dir, replace_allowed
     from ..surrogate.checkpoint import load_checkpoint
 
+    out_dir = check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.ckpt], lock=True)
     torch.set_num_threads(1)
     cpus = min(usable_cpus(), 4) if args.cpus is None else args.cpus
     if not 1 <= cpus <= args.samples:
@@ -130,20 +136,21 @@ def run(args: argparse.Namespace) -> int:
         start_radius=None if args.rl_start_radius < 0 else args.rl_start_radius,
         seed=args.seed,
     )
-    run_control(
-        sur,
-        args.out,
-        ckpt=str(args.ckpt),
-        plant=plant,
-        mppi=mppi,
-        rl=rl,
-        do_rl=not args.no_rl,
-        oracle=not args.no_oracle,
-        time_scale=args.time_scale,
-        bias_gain=args.bias_gain,
-        cpus=cpus,
-        n_seeds=args.mppi_seeds,
-        log=log,
-    )
+    with replace_allowed(out_dir) if args.overwrite else contextlib.nullcontext():
+        run_control(
+            sur,
+            args.out,
+            ckpt=str(args.ckpt),
+            plant=plant,
+            mppi=mppi,
+            rl=rl,
+            do_rl=not args.no_rl,
+            oracle=not args.no_oracle,
+            time_scale=args.time_scale,
+            bias_gain=args.bias_gain,
+            cpus=cpus,
+            n_seeds=args.mppi_seeds,
+            log=log,
+        )
     print((args.out / "report.md").read_text(), end="")
     return 0

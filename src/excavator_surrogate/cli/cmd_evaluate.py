@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         paper=False if args.no_paper else None,
         max_steps=args.max_steps,
     )
-    check_out_dir(args.out, overwrite=args.overwrite)
+    check_out_dir(args.out, overwrite=args.overwrite, lock=True)
     cfg = configs(args, ("evaluate",), {"evaluate": named})["evaluate"]
     splits = (cfg.split, "train", "val") if cfg.arx else (cfg.split,)
     dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))

@@ -19,6 +19,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("ckpt", type=Path, help="checkpoint .pt written by 'exsur train'")
     p.add_argument("--out", type=Path, required=True, help="target .onnx file")
     p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even if exsur did not write it (docs/design.md)",
+    )
+    p.add_argument(
         "--mode",
         choices=["stateful", "windowed"],
         default=None,
@@ -46,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
     from ..env.tasks import sample_pose
     from ..outdir import check_out_file
 
-    check_out_file(args.out, inputs=[args.ckpt], example="model.onnx")
+    check_out_file(
+        args.out, inputs=[args.ckpt], example="model.onnx", overwrite=args.overwrite
+    )
     sur = load_surrogate(args.ckpt)
     mode = args.mode or sur.mode
     out = export_onnx(sur, args.out, mode=mode, opset=args.opset, exporter=args.exporter)

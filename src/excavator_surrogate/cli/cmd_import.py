@@ -170,6 +170,10 @@ def run(args: argparse.Namespace) -> int:
     """Import the logs; print the Markdown summary; return 0."""
     if args.out is None and not args.dry_run:
         raise ConfigError("--out DIR is required (or --dry-run to only validate)")
+    if not args.dry_run:
+        from ..outdir import lock_out
+
+        lock_out(args.out)  # one writer per folder, for the whole import
     mapping = load_mapping(args.mapping)
     options = options_with(
         mapping.options,

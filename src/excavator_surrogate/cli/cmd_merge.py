@@ -19,6 +19,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("ckpts", type=Path, nargs="+", help="member checkpoints (best.pt)")
     p.add_argument("--out", type=Path, required=True, help="merged checkpoint .pt")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out even if exsur did not write it (docs/design.md)",
+    )
     p.add_argument("--name", default=None, help="model label (default <cell>-ensemble-K)")
     p.set_defaults(func=run)
 
@@ -29,7 +34,9 @@ def run(args: argparse.Namespace) -> int:
     from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
     from ..surrogate.ensemble import merge
 
-    check_out_file(args.out, inputs=args.ckpts, example="ensemble.pt")
+    check_out_file(
+        args.out, inputs=args.ckpts, example="ensemble.pt", overwrite=args.overwrite
+    )
     members = [load_checkpoint(p) for p in args.ckpts]
     sur = merge(members, name=args.name)
     sur.metrics["ensemble"]["sources"] = [str(p) for p in args.ckpts]

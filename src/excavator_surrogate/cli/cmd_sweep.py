@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from ..scale.sweep import SweepConfig, run_sweep
     from ..training import TrainConfig
 
-    check_out_dir(args.out, overwrite=args.overwrite)
+    check_out_dir(args.out, overwrite=args.overwrite, lock=True)
     read_manifest(args.dataset)  # a missing dataset is an error before --out is created
     named = {
         "train": {"device": args.device},

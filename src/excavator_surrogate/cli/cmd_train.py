@@ -68,7 +68,7 @@ def checked_run(args: argparse.Namespace) -> int:
     from ..outdir import check_out_dir
     from ..surrogate.checkpoint import check_compatible, load_checkpoint
 
-    check_out_dir(args.out, overwrite=args.overwrite)
+    check_out_dir(args.out, overwrite=args.overwrite, lock=True)
     if args.resume is not None:
         resumed = load_checkpoint(args.resume)
         spec = load_dataset(args.dataset, splits=()).spec  # the manifest only

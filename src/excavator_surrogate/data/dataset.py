@@ -85,7 +85,7 @@ def write_dataset(
     spec = items[0][0].spec
     entries = []
     names: set[str] = set()
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, kind="dataset") as tmp:
         (tmp / "episodes").mkdir()
         for ep, split in items:
             if split not in SPLITS:

@@ -28,7 +28,7 @@ from ..config import stage_config
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
-from ..io_utils import log, recorded_path, write_json, write_text
+from ..io_utils import atomic_files, log, recorded_path, write_json, write_text
 from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.features import unwrap_periodic
@@ -209,30 +209,30 @@ def evaluate_checkpoint(
     if len(models) > 1:
         result["compare"] = {k: v for k, v in metrics.items() if k != primary}
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "metrics.json", _json_safe(result))
-    write_text(
-        out / "table.md", report_markdown(metrics, primary=primary, run=run_info, paper=paper)
-    )
-    if figure:
-        from ..plotting.cbe import plot_cbe
+    with atomic_files(out, kind="evaluation") as tmp:  # all files or none
+        write_json(tmp / "metrics.json", _json_safe(result))
+        write_text(
+            tmp / "table.md", report_markdown(metrics, primary=primary, run=run_info, paper=paper)
+        )
+        if figure:
+            from ..plotting.cbe import plot_cbe
 
-        for i, r in enumerate(main_runs[:max_figures]):
-            name = "cbe.png" if i == 0 else f"cbe_{r.name}.png"
-            preds = {
-                label: (runs[label][i].omega_hat, runs[label][i].theta_hat) for label in models
-            }
-            plot_cbe(
-                out / name,
-                time=r.time,
-                omega_ref=r.omega_ref,
-                theta_ref=unwrap_periodic(r.theta_ref, sur.spec),
-                predictions=preds,
-                names=sur.spec.names,
-                warmup=r.warmup,
-                title=f"{r.name}: closed-loop free run vs {reference} ({split})",
-                ref_label=reference,
-            )
+            for i, r in enumerate(main_runs[:max_figures]):
+                name = "cbe.png" if i == 0 else f"cbe_{r.name}.png"
+                preds = {
+                    label: (runs[label][i].omega_hat, runs[label][i].theta_hat) for label in models
+                }
+                plot_cbe(
+                    tmp / name,
+                    time=r.time,
+                    omega_ref=r.omega_ref,
+                    theta_ref=unwrap_periodic(r.theta_ref, sur.spec),
+                    predictions=preds,
+                    names=sur.spec.names,
+                    warmup=r.warmup,
+                    title=f"{r.name}: closed-loop free run vs {reference} ({split})",
+                    ref_label=reference,
+                )
     return result
 
 

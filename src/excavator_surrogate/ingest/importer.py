@@ -96,7 +96,7 @@ def import_logs(
         }
         with (
             replace_allowed(outp) if overwrite else contextlib.nullcontext(),
-            atomic_dir(outp) as tmp,
+            atomic_dir(outp, kind="dataset") as tmp,
         ):
             write_dataset(tmp, items, config=config, extra=extra)
             write_json(tmp / REPORT_JSON, report)

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 from ..config import stage_config, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
-from ..io_utils import atomic_path, log, write_json, write_text
+from ..io_utils import atomic_path, log, mark_output, write_json, write_text
 
 if TYPE_CHECKING:  # optuna is an optional dependency (pip install 'excavator-surrogate[sweep]')
     import optuna
@@ -342,7 +342,7 @@ def run_sweep(
     scfg = sweep or SweepConfig()
     base = base or TrainConfig()
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    mark_output(out, "sweep")
     storage = storage or default_storage(out)
     dataset = data if isinstance(data, Dataset) else load_dataset(data, splits=("train", "val"))
     study = open_study(storage=storage, study_name=study_name, scfg=scfg)

@@ -23,6 +23,9 @@ It is written atomically; a missing, corrupt or incompatible file raises
 
 from __future__ import annotations
 
+import contextlib
+import errno
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -74,9 +77,33 @@ def save_checkpoint(
     """Write ``sur`` (and optional training state for resuming) to ``path`` atomically."""
     path = Path(path)
     ckpt = checkpoint_dict(sur, history=history, train_state=train_state)
-    with atomic_path(path) as tmp:
+    with _write_errors(path), atomic_path(path) as tmp:
         torch.save(ckpt, tmp)
     return path
+
+
+@contextlib.contextmanager
+def _write_errors(path: Path) -> Iterator[None]:
+    """A failed checkpoint write (full disk, quota, unwritable folder) as one line naming
+    ``path``; ``torch.save`` reports a full disk as a RuntimeError (``unexpected pos``)."""
+    try:
+        yield
+    except OSError as e:
+        raise CheckpointError(f"{path}: cannot write the checkpoint ({_why(e)})") from e
+    except RuntimeError as e:
+        text = str(e)
+        if not any(s in text for s in ("unexpected pos", "write failed", "PytorchStreamWriter")):
+            raise
+        raise CheckpointError(
+            f"{path}: cannot write the checkpoint (the write failed: disk full?); free disk space "
+            "or write elsewhere"
+        ) from e
+
+
+def _why(e: OSError) -> str:
+    if e.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{e.strerror}; free disk space or write elsewhere"
+    return f"{e.strerror or e}; check the folder and its permissions"
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:

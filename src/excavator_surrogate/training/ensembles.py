@@ -12,7 +12,7 @@ from typing import Any
 from ..config import to_dict
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
-from ..io_utils import log
+from ..io_utils import log, mark_output
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.validation import free_run_error
@@ -56,8 +56,7 @@ def train_ensemble(
         Path of ``OUT/best.pt``.
     """
     _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = mark_output(out, "model")  # before the first file; members mark their own
     cfgs = member_configs(cfg)
     dirs = [out / f"member_{i}" for i in range(cfg.members)]
     workers = min(cfg.member_workers or usable_cpus(), cfg.members)

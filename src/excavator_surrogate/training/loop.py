@@ -23,7 +23,7 @@ from ..config import to_dict
 from ..data.dataset import Dataset
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ..io_utils import log, progress
+from ..io_utils import log, mark_output, progress
 from ..surrogate.checkpoint import save_checkpoint
 from ..surrogate.model import Surrogate
 from .batches import make_data, split_episodes
@@ -92,8 +92,7 @@ def train_network(
     notes: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train one network (see :func:`~excavator_surrogate.training.api.train`); returns ``best.pt``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = mark_output(out, "model")  # before the first file: the folder is exsur's
     if par is None:
         try:
             par = SingleProcess(device=resolve_device(cfg.device))

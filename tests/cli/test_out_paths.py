@@ -1,0 +1,208 @@
+"""Issue 25: output paths. One writer per folder, unusable --out paths, full disks and file
+outputs that are not exsur's are one-line errors; nothing half-written is left."""
+
+from __future__ import annotations
+
+import errno
+import shutil
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from excavator_surrogate.cli import main
+from excavator_surrogate.outdir import MARKER, is_exsur_output, read_marker
+
+HOLD = (
+    "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
+    "print('locked', flush=True); sys.stdin.read()"
+)
+
+
+def fails(capsys: pytest.CaptureFixture[str], *argv: object) -> str:
+    """Run exsur; assert exit code 2 and a one-line error after the progress lines; return it."""
+    rc = main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "Traceback" not in err, err
+    last = err.rstrip("\n").split("\n")[-1]
+    assert last.startswith("exsur: error: ") and err.count("exsur: error:") == 1, err
+    return last
+
+
+def _leftovers(out: Path) -> list[str]:
+    """Temporary siblings of ``out`` and temporary files anywhere inside it."""
+    near = [p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}.")]
+    inside = [p.name for p in out.rglob(".*") if p.name != MARKER] if out.is_dir() else []
+    return near + inside
+
+
+@pytest.fixture
+def held(tmp_path: Path) -> Iterator[Path]:
+    """An output folder whose writer lock another process holds (as a running train would)."""
+    out = tmp_path / "M"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(out)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "locked"
+        yield out
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_second_writer_is_refused(
+    held: Path, data_dir: Path, model3: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    tiny = data_dir / "tiny.toml"
+    for argv in (
+        ["train", data_dir / "ds3", "--preset", tiny, "--epochs", "1"],
+        ["evaluate", model3 / "best.pt", data_dir / "ds3"],
+        ["clean", data_dir / "ds3"],
+        ["simulate", "--preset", "tiny"],
+    ):
+        err = fails(capsys, *argv, "--out", held)
+        assert f"{held}: another exsur process (pid " in err and "is writing this --out" in err
+    assert not held.exists()
+
+
+def test_the_lock_dies_with_its_process(tmp_path: Path, data_dir: Path) -> None:
+    """A killed writer leaves no stale lock: the next command runs."""
+    out = tmp_path / "M"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == b"locked"
+    proc.kill()
+    proc.wait()
+    assert main(["clean", str(data_dir / "ds3"), "--out", str(out)]) == 0
+    assert read_marker(out)["kind"] == "dataset"
+    assert _leftovers(out) == []
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["simulate", "--preset", "tiny", "--out", "/proc/x"],
+        ["train", "DS", "--out", "/proc/x"],
+        ["evaluate", "CKPT", "DS", "--out", "/proc/x"],
+        ["import", "DS", "--mapping", "MAP", "--out", "/proc/x"],
+        ["clean", "DS", "--out", "/proc/x"],
+        ["export", "CKPT", "--out", "/proc/x.onnx"],
+        ["merge", "CKPT", "CKPT2", "--out", "/proc/x.pt"],
+    ],
+    ids=lambda a: a[0],
+)
+def test_an_unusable_out_is_one_line(
+    argv: list[str], tmp_path: Path, data_dir: Path, model3: Path, capsys
+) -> None:
+    if not Path("/proc/self").exists():
+        pytest.skip("needs /proc")
+    _other_model(model3 / "best.pt", tmp_path / "b.pt")
+    subst = {
+        "DS": data_dir / "ds3",
+        "CKPT": model3 / "best.pt",
+        "CKPT2": tmp_path / "b.pt",
+        "MAP": tmp_path / "map.toml",
+    }
+    err = fails(capsys, *[subst.get(a, a) for a in argv])
+    assert "/proc" in err
+
+
+def test_disk_full_while_saving_a_checkpoint(
+    tmp_path: Path, data_dir: Path, monkeypatch, capsys
+) -> None:
+    """torch.save reports a full disk as 'unexpected pos': one line, no partial checkpoint."""
+    import torch
+
+    def full(obj, f, *a, **k):
+        raise RuntimeError(
+            "[enforce fail at inline_container.cc:603] . unexpected pos 1536 vs 1468"
+        )
+
+    monkeypatch.setattr(torch, "save", full)
+    out = tmp_path / "M"
+    tiny = data_dir / "tiny.toml"
+    err = fails(capsys, "train", data_dir / "ds3", "--out", out, "--preset", tiny, "--epochs", "1")
+    assert ".pt: cannot write the checkpoint" in err and "free disk space" in err
+    assert not list(out.rglob("*.pt")) and _leftovers(out) == []
+
+
+def test_disk_full_during_evaluate_writes_nothing(
+    tmp_path: Path, data_dir: Path, model3: Path, monkeypatch, capsys
+) -> None:
+    """All or nothing: metrics.json and table.md are not left without the figure."""
+    import excavator_surrogate.plotting.cbe as plots
+
+    def full(path, **kw):
+        Path(path).write_bytes(b"\x89PNG half")
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(plots, "plot_cbe", full)
+    out = tmp_path / "E"
+    err = fails(capsys, "evaluate", model3 / "best.pt", data_dir / "ds3", "--out", out)
+    assert "cbe.png: No space left on device (free disk space and rerun)" in err
+    assert not out.exists() and _leftovers(out) == []
+    # into an existing exsur folder (the model's): its files stay, none is added
+    before = sorted(p.name for p in model3.iterdir())
+    fails(capsys, "evaluate", model3 / "best.pt", data_dir / "ds3", "--out", model3)
+    assert sorted(p.name for p in model3.iterdir()) == before and _leftovers(model3) == []
+
+
+def _other_model(ckpt: Path, path: Path) -> Path:
+    """A copy of checkpoint ``ckpt`` with other weights (a second ensemble member)."""
+    import torch
+
+    d = torch.load(ckpt, weights_only=True)
+    d["state_dict"] = {
+        k: v + 0.01 if v.is_floating_point() else v for k, v in d["state_dict"].items()
+    }
+    torch.save(d, path)
+    return path
+
+
+def test_file_outputs_replace_only_exsur_files(tmp_path: Path, model3: Path, capsys) -> None:
+    ckpt, other = model3 / "best.pt", _other_model(model3 / "best.pt", tmp_path / "b.pt")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine")
+    assert "must end in .onnx" in fails(capsys, "export", ckpt, "--out", notes)
+    thesis = tmp_path / "thesis.tex"
+    thesis.write_text("mine")
+    assert "must end in .pt" in fails(capsys, "merge", ckpt, other, "--out", thesis)
+    assert notes.read_text() == thesis.read_text() == "mine"
+    fake = tmp_path / "model.onnx"
+    fake.write_text("another tool's model")
+    err = fails(capsys, "export", ckpt, "--out", fake)
+    assert "exists and exsur did not write it" in err and "--overwrite" in err
+    theirs = tmp_path / "theirs.pt"
+    theirs.write_bytes(b"another project's weights")
+    assert "exsur did not write it" in fails(capsys, "merge", ckpt, other, "--out", theirs)
+    assert fake.read_text() == "another tool's model"
+    # exsur's own checkpoint is replaced; another one only with --overwrite
+    mine = tmp_path / "ens.pt"
+    shutil.copy(ckpt, mine)
+    assert main(["merge", str(ckpt), str(other), "--out", str(mine)]) == 0
+    assert main(["merge", str(ckpt), str(other), "--out", str(theirs), "--overwrite"]) == 0
+    capsys.readouterr()
+
+
+def test_train_marks_the_folder_and_every_member(tmp_path: Path, data_dir: Path) -> None:
+    """An ensemble killed after its first member is still recognised as exsur's."""
+    out = tmp_path / "E"
+    argv = ["train", data_dir / "ds3", "--out", out, "--preset", data_dir / "tiny.toml"]
+    extra = ["--epochs", "1", "--members", "2", "--set", "train.member_workers=1"]
+    assert main([str(a) for a in [*argv, *extra]]) == 0
+    for d in (out, out / "member_0", out / "member_1"):
+        assert read_marker(d)["kind"] == "model", d
+    (out / "best.pt").unlink()  # as if killed while training member 1
+    (out / "log.csv").unlink()
+    shutil.rmtree(out / "member_1")
+    assert is_exsur_output(out)
+    assert main([str(a) for a in [*argv, *extra]]) == 0
+    assert (out / "best.pt").is_file() and _leftovers(out) == []
