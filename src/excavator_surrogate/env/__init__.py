@@ -11,6 +11,10 @@ Importing this package registers both environments with gymnasium::
     envs = gym.make_vec("ExcavatorSurrogate-v0", num_envs=1024,
                         vectorization_mode="vector_entry_point", ckpt="...")
 
+``render_mode="rgb_array"`` (headless frames) and ``action_scale="normalized"`` (``[-1, 1]``
+actions, for Stable-Baselines3) work on both; ``render`` draws them, ``plants`` holds the
+machine check of every command that runs a checkpoint against the plant.
+
 Classes are imported lazily (``from excavator_surrogate.env import SurrogateVectorEnv``), so
 registering does not import torch or MuJoCo.  The equivalence check lives in
 :mod:`excavator_surrogate.env.compare` (``compare.compare``).
@@ -39,6 +43,9 @@ _LAZY = {
     "GuardConfig": ".safety",
     "export_onnx": ".export",
     "OnnxStepper": ".export",
+    "RenderError": ".render",
+    "side_by_side": ".render",
+    "checkpoint_plant": ".plants",
 }
 
 
@@ -91,9 +98,12 @@ __all__ = [
     "GuardConfig",
     "OnnxStepper",
     "ReachTask",
+    "RenderError",
     "SurrogateEngine",
     "SurrogateVectorEnv",
     "Task",
+    "checkpoint_plant",
     "export_onnx",
     "register_envs",
+    "side_by_side",
 ]

@@ -14,45 +14,77 @@ import math
 from typing import Any, ClassVar
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium import spaces
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from .inputs import ActionLayout
+from .render import (
+    RENDER_MODES,
+    RENDER_SIZE,
+    FrameRenderer,
+    Viewer,
+    check_render_mode,
+    check_size,
+)
 from .safety import (
     GUARD_NAMES,
     GUARD_OK,
     ActionChecker,
     ActionMode,
+    ActionScale,
     DivergenceGuard,
     GuardConfig,
+    check_action_scale,
 )
 from .tasks import Task, start_pose
 
 
-def action_space(spec: MachineSpec, layout: ActionLayout | None = None) -> spaces.Box:
-    """``Box(u_min, u_max, (n_action,), float32)`` from the command ranges of the action's
-    columns (default: every command column, ``n_action = spec.n_u``)."""
+def action_space(
+    spec: MachineSpec, layout: ActionLayout | None = None, *, scale: ActionScale = "raw"
+) -> spaces.Box:
+    """The action's Box, float32, ``(n_action,)`` over the action's columns (default: every
+    command column, ``n_action = spec.n_u``): ``[u_min, u_max]`` per column with
+    ``scale="raw"``, ``[-1, 1]`` with ``scale="normalized"``."""
     cols = (layout or ActionLayout(spec)).columns
+    if check_action_scale(scale) == "normalized":
+        return spaces.Box(-1.0, 1.0, (len(cols),), dtype=np.float32)
     lo = np.array([c.u_min for c in cols], dtype=np.float32)
     hi = np.array([c.u_max for c in cols], dtype=np.float32)
     return spaces.Box(lo, hi, dtype=np.float32)
 
 
-def observation_space(spec: MachineSpec, *, wrap: bool = True) -> spaces.Box:
-    """``Box((2 n_joint,), float32)``: θ per joint then ω per joint.
+def observation_space(
+    spec: MachineSpec, *, wrap: bool = True, guard: GuardConfig | None = None
+) -> spaces.Box:
+    """``Box((2 n_joint,), float32)``: θ per joint then ω per joint, finite where the
+    envelope gives a bound.
 
-    Periodic joints' θ lies in ``[-π, π]`` when ``wrap`` is True; every other entry is unbounded
-    (the surrogate may leave the joint limits; the divergence guard reports it).
+    - θ of a periodic joint: ``[-π, π]`` when ``wrap`` is True, else unbounded;
+    - θ of a limited joint: its limits widened by the guard's ``limit_margin`` (the
+      divergence guard truncates beyond); unbounded without a limit or a margin;
+    - ω: ``±guard.omega_max`` (truncation beyond); unbounded if that check is off.
+
+    Observations are clipped into these bounds; they differ from the state only on a step
+    the guard truncates (``env.unwrapped.theta`` / ``omega`` hold the unclipped values).
     """
+    guard = guard or GuardConfig()
     n = spec.n_joint
     lo = np.full(2 * n, -np.inf, dtype=np.float32)
     hi = np.full(2 * n, np.inf, dtype=np.float32)
-    if wrap:
-        for k, j in enumerate(spec.joints):
-            if j.periodic:
+    for k, j in enumerate(spec.joints):
+        if j.periodic:
+            if wrap:
                 lo[k], hi[k] = -math.pi, math.pi
+        elif guard.limit_margin is not None:
+            if j.theta_min is not None:
+                lo[k] = j.theta_min - guard.limit_margin
+            if j.theta_max is not None:
+                hi[k] = j.theta_max + guard.limit_margin
+    if guard.omega_max is not None:
+        lo[n:], hi[n:] = -guard.omega_max, guard.omega_max
     return spaces.Box(lo, hi, dtype=np.float32)
 
 
@@ -89,9 +121,17 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         reset_margin: fraction of each joint range avoided when sampling random start poses.
         inputs: exogenous inputs held fixed (``{"engine_rpm": 1800.0}``), left out of the
             action; the others are part of it (:mod:`.inputs`).
+        action_scale: ``"raw"`` (actions in command units, ``[u_min, u_max]``) or
+            ``"normalized"`` (``[-1, 1]`` per column, mapped linearly onto the range: what
+            Stable-Baselines3 and Gymnasium's checkers expect).
+        render_mode: None, ``"rgb_array"`` (headless frames, :meth:`render`) or ``"human"``
+            (MuJoCo's viewer, needs a display); see :mod:`.render`.
+        render_size: ``(width, height)`` of ``rgb_array`` frames [pixels].
+
+    Subclasses provide the scene to draw with ``_scene() -> (MjModel, MjData)``.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": [], "render_fps": 20}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": list(RENDER_MODES), "render_fps": 20}
     env_id: ClassVar[str] = "Excavator"
 
     def __init__(
@@ -104,7 +144,14 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         wrap_theta: bool = True,
         reset_margin: float = 0.1,
         inputs: dict[str, float] | None = None,
+        action_scale: ActionScale = "raw",
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = RENDER_SIZE,
     ) -> None:
+        self.render_mode = check_render_mode(render_mode, where=self.env_id)
+        self.render_size = check_size(render_size, where=self.env_id)
+        self._renderer: FrameRenderer | None = None
+        self._viewer: Viewer | None = None
         self.machine = spec
         """The machine (joints, command ranges, rate); ``self.spec`` is gymnasium's EnvSpec."""
         self.task = task
@@ -114,10 +161,17 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         self.metadata = {**type(self).metadata, "render_fps": spec.rate_hz}
         self.layout = ActionLayout.make(spec, inputs, where=self.env_id)
         """The action's columns and the fixed exogenous inputs."""
-        self.action_space = action_space(spec, self.layout)
-        self.observation_space = observation_space(spec, wrap=self.wrap_theta)
+        self.action_scale = check_action_scale(action_scale)
+        self.action_space = action_space(spec, self.layout, scale=action_scale)
+        self.observation_space = observation_space(spec, wrap=self.wrap_theta, guard=guard)
+        self._obs_lo = self.observation_space.low
+        self._obs_hi = self.observation_space.high
         self._check_action = ActionChecker(
-            spec, env_name=self.env_id, action_mode=action_mode, layout=self.layout
+            spec,
+            env_name=self.env_id,
+            action_mode=action_mode,
+            layout=self.layout,
+            scale=action_scale,
         )
         self._guard = DivergenceGuard(spec, guard)
         self._periodic = np.asarray(spec.periodic, dtype=bool)
@@ -138,6 +192,49 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
     def _dyn_step(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
+    def _scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The MJCF model and the data posed at the current state, for rendering."""
+        raise NotImplementedError
+
+    # ---- rendering ----------------------------------------------------------------------------
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: the current pose as an ``(height, width, 3)`` uint8 frame;
+        ``human``: draw it in the viewer (returns None); no render mode: None.
+
+        Raises:
+            RenderError: no OpenGL backend / no display (one line saying what to do).
+        """
+        if self.render_mode is None:
+            gym.logger.warn(
+                f"{self.env_id}: render() without a render_mode; pass render_mode='rgb_array' "
+                "to gym.make"
+            )
+            return None
+        model, data = self._scene()
+        if self.render_mode == "human":
+            if self._viewer is None:
+                self._viewer = Viewer(model, data, where=self.env_id)
+            self._viewer.show()
+            return None
+        if self._renderer is None:
+            self._renderer = FrameRenderer(model, size=self.render_size, where=self.env_id)
+        return self._renderer.frame(data)
+
+    def close(self) -> None:
+        """Release the renderer and the viewer, if any."""
+        for obj in (self._renderer, self._viewer):
+            if obj is not None:
+                obj.close()
+        self._renderer = self._viewer = None
+        super().close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the renderer and the viewer (recreated on the next frame)."""
+        state = self.__dict__.copy()
+        state["_renderer"] = state["_viewer"] = None
+        return state
+
     # ---- gymnasium API ------------------------------------------------------------------------
 
     def _obs(self) -> np.ndarray:
@@ -146,7 +243,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
             th = th.copy()
             p = self._periodic
             th[p] = (th[p] + math.pi) % (2.0 * math.pi) - math.pi
-        return np.concatenate([th, self.omega]).astype(np.float32)
+        obs = np.concatenate([th, self.omega]).astype(np.float32)
+        return np.clip(obs, self._obs_lo, self._obs_hi)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -174,6 +272,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
             )
             info.update({k: v[0] for k, v in extra.items()})
         self._last_obs = self._obs()
+        if self.render_mode == "human":
+            self.render()
         return self._last_obs.copy(), info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -191,6 +291,7 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
             "guard": GUARD_NAMES[c],
             "limit_violation": violation[0],
             "u": u,
+            "theta": np.array(theta, dtype=np.float64),
         }
         truncated = c != GUARD_OK
         finite = bool(np.isfinite(theta).all() and np.isfinite(omega).all())
@@ -205,4 +306,6 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
             r, done, extra = self.task.evaluate(self.theta[None], self.omega[None], u_joint)
             reward, terminated = float(r[0]), bool(done[0])
             info.update({k: v[0] for k, v in extra.items()})
+        if self.render_mode == "human":
+            self.render()
         return self._last_obs.copy(), reward, terminated, truncated, info

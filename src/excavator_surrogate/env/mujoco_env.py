@@ -12,7 +12,8 @@ from ..errors import ConfigError
 from ..simulate.plant import MujocoExcavator, PlantConfig
 from ..spec import EXCAVATOR, MachineSpec
 from .base import ExcavatorEnv
-from .safety import ActionMode, GuardConfig
+from .render import RENDER_SIZE
+from .safety import ActionMode, ActionScale, GuardConfig
 from .tasks import Task
 
 PlantKind = Literal["ideal", "hydraulic"]
@@ -70,6 +71,7 @@ class ExcavatorMujocoEnv(ExcavatorEnv):
     A command ``u`` demands a joint speed ``u / gear`` (``u_max`` = the joint's top speed).
     NaN/inf actions raise :class:`~.safety.ActionError`; out-of-range actions are clipped
     (``action_mode="clip"``) or raise (``action_mode="reject"``).
+    ``action_scale="normalized"``: ``Box(-1, 1)`` instead, mapped linearly onto the ranges.
 
     ## Observation Space
     ``Box((2·n_joint,), float32)``: angles then angular velocities.
@@ -77,17 +79,27 @@ class ExcavatorMujocoEnv(ExcavatorEnv):
     | Num | Observation                          | Min  | Max | Name (in XML) | Joint | Type (Unit)              |
     |-----|--------------------------------------|------|-----|---------------|-------|--------------------------|
     | 0   | swing angle θ₀ (wrapped to [-π, π))  | -π   | π   | swing         | hinge | angle (rad)              |
-    | 1   | boom angle θ₁                        | -Inf | Inf | boom          | hinge | angle (rad)              |
-    | 2   | arm angle θ₂                         | -Inf | Inf | arm           | hinge | angle (rad)              |
-    | 3   | bucket angle θ₃                      | -Inf | Inf | bucket        | hinge | angle (rad)              |
-    | 4   | swing angular velocity ω₀            | -Inf | Inf | swing         | hinge | angular velocity (rad/s) |
-    | 5   | boom angular velocity ω₁             | -Inf | Inf | boom          | hinge | angular velocity (rad/s) |
-    | 6   | arm angular velocity ω₂              | -Inf | Inf | arm           | hinge | angular velocity (rad/s) |
-    | 7   | bucket angular velocity ω₃           | -Inf | Inf | bucket        | hinge | angular velocity (rad/s) |
+    | 1   | boom angle θ₁                        | -0.85| 0.95| boom          | hinge | angle (rad)              |
+    | 2   | arm angle θ₂                         | 0.45 | 2.75| arm           | hinge | angle (rad)              |
+    | 3   | bucket angle θ₃                      | -0.7 | 2.6 | bucket        | hinge | angle (rad)              |
+    | 4   | swing angular velocity ω₀            | -20  | 20 | swing         | hinge | angular velocity (rad/s) |
+    | 5   | boom angular velocity ω₁             | -20  | 20 | boom          | hinge | angular velocity (rad/s) |
+    | 6   | arm angular velocity ω₂              | -20  | 20 | arm           | hinge | angular velocity (rad/s) |
+    | 7   | bucket angular velocity ω₃           | -20  | 20 | bucket        | hinge | angular velocity (rad/s) |
 
     Periodic joints (swing) are wrapped to ``[-π, π)`` (``wrap_theta=False``: unwrapped, bounds
-    ±Inf); ``env.unwrapped.theta`` holds unwrapped angles.  ω is the mean velocity over the
+    ±Inf); ``env.unwrapped.theta`` holds unwrapped angles.  Limited joints' bounds are their
+    limits ± ``guard.limit_margin``, ω's ``±guard.omega_max`` (the divergence guard truncates
+    beyond; the observation is clipped into the bounds).  ω is the mean velocity over the
     last control period, ``(θ[k] - θ[k-1]) / T_s`` (the data convention of the datasets).
+
+    ## Info
+    ``guard``, ``limit_violation``, ``u`` and ``theta`` on each step (``theta`` on reset), and
+    the task's entries, as ``ExcavatorSurrogate-v0``.
+
+    ## Rendering
+    ``render_mode="rgb_array"``: offscreen frames of the plant; ``"human"``: MuJoCo's viewer
+    (needs a display).  See :mod:`.render`.
 
     ## Rewards
     0 unless a ``task`` is given (e.g. :class:`~.tasks.ReachTask`).
@@ -112,6 +124,9 @@ class ExcavatorMujocoEnv(ExcavatorEnv):
     | `guard`        | **GuardConfig / None**  | defaults    | divergence-guard thresholds                        |
     | `wrap_theta`   | **bool**                | `True`      | wrap periodic θ in the observation                 |
     | `reset_margin` | **float**               | `0.1`       | fraction of joint ranges avoided by random starts  |
+    | `action_scale` | **str**                 | `"raw"`     | ``raw`` commands or ``normalized`` ``[-1, 1]``     |
+    | `render_mode`  | **str / None**          | `None`      | ``rgb_array`` or ``human`` (:mod:`.render`)        |
+    | `render_size`  | **tuple**               | `(480, 360)`| ``(width, height)`` of ``rgb_array`` frames        |
 
     Pickling copies the full physics state (including the actuator delay history), so a
     restored environment continues the episode identically.
@@ -131,6 +146,9 @@ class ExcavatorMujocoEnv(ExcavatorEnv):
         guard: GuardConfig | None = None,
         wrap_theta: bool = True,
         reset_margin: float = 0.1,
+        action_scale: ActionScale = "raw",
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = RENDER_SIZE,
     ) -> None:
         if plant not in ("ideal", "hydraulic"):
             raise ConfigError(
@@ -148,7 +166,13 @@ class ExcavatorMujocoEnv(ExcavatorEnv):
             guard=guard,
             wrap_theta=wrap_theta,
             reset_margin=reset_margin,
+            action_scale=action_scale,
+            render_mode=render_mode,
+            render_size=render_size,
         )
+
+    def _scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        return self.plant.model, self.plant.data
 
     def _dyn_reset(self, theta0: np.ndarray) -> None:
         self.plant.reset(theta0=theta0)
@@ -164,7 +188,7 @@ class ExcavatorMujocoEnv(ExcavatorEnv):
     # ---- pickling: MuJoCo objects are rebuilt from the config and the full physics state ------
 
     def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
+        state = super().__getstate__()
         plant: MujocoExcavator = state.pop("plant")
         phys = np.empty(mujoco.mj_stateSize(plant.model, _INTEGRATION))
         mujoco.mj_getState(plant.model, plant.data, phys, _INTEGRATION)

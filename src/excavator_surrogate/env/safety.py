@@ -22,6 +22,8 @@ from .inputs import ActionLayout
 
 ActionMode = Literal["clip", "reject"]
 ACTION_MODES: tuple[str, ...] = ("clip", "reject")
+ActionScale = Literal["raw", "normalized"]
+ACTION_SCALES: tuple[str, ...] = ("raw", "normalized")
 
 GUARD_OK = 0
 """Guard code: state is fine."""
@@ -38,6 +40,13 @@ class ActionError(ExsurError, ValueError):
     """An action that cannot be applied (non-finite, wrong shape, or out of range in reject mode)."""
 
 
+def check_action_scale(scale: str) -> ActionScale:
+    """``scale`` if it is ``"raw"`` or ``"normalized"``, else :class:`ActionError`."""
+    if scale not in ACTION_SCALES:
+        raise ActionError(f"action_scale must be 'raw' or 'normalized', got {scale!r}")
+    return scale  # type: ignore[return-value]
+
+
 def check_action_mode(action_mode: str) -> None:
     """Raise :class:`ActionError` if ``action_mode`` is not ``"clip"`` or ``"reject"``."""
     if action_mode not in ACTION_MODES:
@@ -45,7 +54,8 @@ def check_action_mode(action_mode: str) -> None:
 
 
 class ActionChecker:
-    """Validates and conditions batches of actions ``(n_envs, n_action)`` [command units].
+    """Validates and conditions batches of actions ``(n_envs, n_action)`` and returns commands
+    [command units].
 
     Args:
         spec: the machine (command ranges per joint).
@@ -54,6 +64,10 @@ class ActionChecker:
         env_name: used in error messages.
         action_mode: ``"clip"`` (clip to the range) or ``"reject"`` (raise on out-of-range).
         atol: tolerance for ``reject`` (values within ``atol`` of a bound are clipped silently).
+        scale: ``"raw"`` (actions are commands) or ``"normalized"`` (actions in ``[-1, 1]``,
+            checked and clipped there, then mapped linearly onto ``[u_min, u_max]``: ``u =
+            u_min + (a + 1) / 2 · (u_max - u_min)``, the map of
+            :func:`~excavator_surrogate.control.sb3_vec.unit_to_command`).
     """
 
     def __init__(
@@ -64,8 +78,10 @@ class ActionChecker:
         action_mode: ActionMode = "clip",
         atol: float = 1e-6,
         layout: ActionLayout | None = None,
+        scale: ActionScale = "raw",
     ) -> None:
         check_action_mode(action_mode)
+        self.scale = check_action_scale(scale)
         self.spec = spec
         self.layout = layout or ActionLayout(spec)
         cols = self.layout.columns
@@ -76,6 +92,10 @@ class ActionChecker:
         self.atol = float(atol)
         self.u_min = np.array([c.u_min for c in cols], dtype=np.float64)
         self.u_max = np.array([c.u_max for c in cols], dtype=np.float64)
+        unit = np.ones(len(cols))
+        self._lo, self._hi = (
+            (-unit, unit) if self.scale == "normalized" else (self.u_min, self.u_max)
+        )
 
     def __call__(self, action: object, *, n_envs: int | None = None) -> np.ndarray:
         """Return the action as float64 ``(n_envs, n_action)`` (or ``(n_action,)`` if ``n_envs`` is None).
@@ -110,7 +130,7 @@ class ActionChecker:
             raise ActionError(
                 f"{self.env_name}: {self._where(idx)} is {float(u[tuple(idx)])}; actions must be finite"
             )
-        lo, hi = self.u_min, self.u_max
+        lo, hi = self._lo, self._hi
         if self.action_mode == "reject":
             bad = (u < lo - self.atol) | (u > hi + self.atol)
             if bad.any():
@@ -120,7 +140,10 @@ class ActionChecker:
                     f"{self.env_name}: {self._where(idx)} = {u[tuple(idx)]:.6g} is outside "
                     f"[{lo[k]:g}, {hi[k]:g}] (action_mode='reject'; use action_mode='clip' to clip)"
                 )
-        return np.clip(u, lo, hi)
+        u = np.clip(u, lo, hi)
+        if self.scale == "normalized":
+            u = self.u_min + 0.5 * (u + 1.0) * (self.u_max - self.u_min)
+        return u
 
     def _where(self, idx: np.ndarray) -> str:
         k = int(idx[-1])

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import mujoco
 import numpy as np
 import torch
 
@@ -13,7 +15,8 @@ from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv
 from .engine import Impl, Mode, SurrogateEngine
-from .safety import ActionMode, GuardConfig
+from .render import RENDER_SIZE, PoseScene
+from .safety import ActionMode, ActionScale, GuardConfig
 from .tasks import Task
 
 
@@ -69,6 +72,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     NaN/inf actions raise :class:`~.safety.ActionError`; out-of-range actions are clipped
     (``action_mode="clip"``) or raise (``action_mode="reject"``).
+    ``action_scale="normalized"``: ``Box(-1, 1)`` instead, mapped linearly onto the ranges.
 
     ## Observation Space
     ``Box((2·n_joint,), float32)``: angles then angular velocities.
@@ -76,17 +80,19 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | Num | Observation                          | Min  | Max | Joint  | Type (Unit)              |
     |-----|--------------------------------------|------|-----|--------|--------------------------|
     | 0   | swing angle θ₀ (wrapped to [-π, π))  | -π   | π   | swing  | angle (rad)              |
-    | 1   | boom angle θ₁                        | -Inf | Inf | boom   | angle (rad)              |
-    | 2   | arm angle θ₂                         | -Inf | Inf | arm    | angle (rad)              |
-    | 3   | bucket angle θ₃                      | -Inf | Inf | bucket | angle (rad)              |
-    | 4   | swing angular velocity ω₀            | -Inf | Inf | swing  | angular velocity (rad/s) |
-    | 5   | boom angular velocity ω₁             | -Inf | Inf | boom   | angular velocity (rad/s) |
-    | 6   | arm angular velocity ω₂              | -Inf | Inf | arm    | angular velocity (rad/s) |
-    | 7   | bucket angular velocity ω₃           | -Inf | Inf | bucket | angular velocity (rad/s) |
+    | 1   | boom angle θ₁                        | -0.85| 0.95| boom   | angle (rad)              |
+    | 2   | arm angle θ₂                         | 0.45 | 2.75| arm    | angle (rad)              |
+    | 3   | bucket angle θ₃                      | -0.7 | 2.6 | bucket | angle (rad)              |
+    | 4   | swing angular velocity ω₀            | -20  | 20 | swing  | angular velocity (rad/s) |
+    | 5   | boom angular velocity ω₁             | -20  | 20 | boom   | angular velocity (rad/s) |
+    | 6   | arm angular velocity ω₂              | -20  | 20 | arm    | angular velocity (rad/s) |
+    | 7   | bucket angular velocity ω₃           | -20  | 20 | bucket | angular velocity (rad/s) |
 
     Periodic joints (swing) are wrapped to ``[-π, π)`` in the observation (``wrap_theta=False``
     keeps them unwrapped, observation bounds then ±Inf); ``env.unwrapped.theta`` always holds
-    the unwrapped angles.  ω is the mean velocity over the last control period.
+    the unwrapped angles.  Limited joints' bounds are their limits ± ``guard.limit_margin``,
+    ω's ``±guard.omega_max`` (the divergence guard truncates beyond; the observation is
+    clipped into the bounds).  ω is the mean velocity over the last control period.
 
     ## Rewards
     0 unless a ``task`` is given (e.g. :class:`~.tasks.ReachTask`).
@@ -102,7 +108,13 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     ## Info
     ``guard`` (str, "" when fine), ``limit_violation`` (bool per joint, outside the limits),
-    ``u`` (applied command), ``theta`` on reset, and the task's entries.
+    ``u`` (applied command, command units), ``theta`` (unwrapped angles, on reset and step),
+    and the task's entries: the keys of :class:`~.vector.SurrogateVectorEnv`'s ``info``.
+
+    ## Rendering
+    ``render_mode="rgb_array"``: the predicted pose drawn on the built-in excavator's MJCF
+    (the same picture ``ExcavatorMujoco-v0`` draws at that pose); ``"human"``: MuJoCo's
+    viewer (needs a display).  See :mod:`.render`.
 
     ## Arguments
     | Parameter      | Type                    | Default   | Description                                             |
@@ -118,6 +130,9 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | `reset_margin` | **float**               | `0.1`     | fraction of joint ranges avoided by random starts       |
     | `spec`         | **MachineSpec / None**  | `None`    | expected machine: a checkpoint of another one raises    |
     | `inputs`       | **dict / None**         | `None`    | exogenous inputs held fixed (left out of the action)    |
+    | `action_scale` | **str**                 | `"raw"`   | ``raw`` commands or ``normalized`` ``[-1, 1]``          |
+    | `render_mode`  | **str / None**          | `None`    | ``rgb_array`` or ``human`` (the predicted pose, :mod:`.render`) |
+    | `render_size`  | **tuple**               | `(480, 360)` | ``(width, height)`` of ``rgb_array`` frames          |
     """
 
     env_id = "ExcavatorSurrogate-v0"
@@ -136,6 +151,9 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         reset_margin: float = 0.1,
         spec: MachineSpec | None = None,
         inputs: dict[str, float] | None = None,
+        action_scale: ActionScale = "raw",
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = RENDER_SIZE,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         self.ckpt = str(ckpt) if not isinstance(ckpt, Surrogate) else None
@@ -147,10 +165,25 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
             wrap_theta=wrap_theta,
             reset_margin=reset_margin,
             inputs=inputs,
+            action_scale=action_scale,
+            render_mode=render_mode,
+            render_size=render_size,
         )
+        self._pose: PoseScene | None = None
         self.engine = SurrogateEngine(sur, n_envs=1, device=device, mode=mode, impl=impl)
         self.engine.u_rest = self.layout.rest()
         self.surrogate = sur
+
+    def _scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        """The built-in excavator's MJCF at the surrogate's predicted pose."""
+        if self._pose is None:
+            self._pose = PoseScene(self.machine, where=self.env_id)
+        return self._pose.model, self._pose.pose(self.theta)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state["_pose"] = None  # MuJoCo objects: rebuilt on the next frame
+        return state
 
     def _dyn_reset(self, theta0: np.ndarray) -> None:
         self.engine.reset(theta0[None])

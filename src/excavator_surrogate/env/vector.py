@@ -17,8 +17,10 @@ seeded ``seed + i`` -- the tests check exactly that -- but stepped as one batch:
 Observations (n_envs, 2·n_joint) float32 and actions (n_envs, n_joint) follow the tables of
 :class:`~excavator_surrogate.env.surrogate_env.ExcavatorSurrogateEnv`.  ``info`` holds
 ``guard`` (n_envs,) int8 (``safety.GUARD_*``: 0 fine, 1 joint limit, 2 speed, 3 NaN/inf),
-``limit_violation`` (n_envs, n_joint) bool, ``theta`` (n_envs, n_joint) unwrapped angles
-[rad] and the task's entries, each with gymnasium's ``_key`` mask.
+``limit_violation`` (n_envs, n_joint) bool, ``u`` (n_envs, n_u) the applied commands
+[command units], ``theta`` (n_envs, n_joint) unwrapped angles [rad] and the task's
+entries, each with gymnasium's ``_key`` mask: the keys of the single environments' step
+``info`` (whose ``guard`` is the name, ``safety.GUARD_NAMES[code]``).
 """
 
 from __future__ import annotations
@@ -39,7 +41,16 @@ from ..surrogate.model import Surrogate
 from .base import action_space, check_theta0, observation_space
 from .engine import Impl, Mode, SurrogateEngine
 from .inputs import ActionLayout
-from .safety import GUARD_NAN, GUARD_OK, ActionChecker, ActionMode, DivergenceGuard, GuardConfig
+from .safety import (
+    GUARD_NAN,
+    GUARD_OK,
+    ActionChecker,
+    ActionMode,
+    ActionScale,
+    DivergenceGuard,
+    GuardConfig,
+    check_action_scale,
+)
 from .surrogate_env import load_surrogate
 from .tasks import Task, start_pose
 
@@ -65,6 +76,8 @@ class SurrogateVectorEnv(VectorEnv):
             rate raises :class:`~excavator_surrogate.errors.CheckpointError`.
         inputs: exogenous inputs held fixed (``{"engine_rpm": 1800.0}``), left out of the
             action; the others are action entries after the joints' (:mod:`.inputs`).
+        action_scale: ``"raw"`` (command units) or ``"normalized"`` (``[-1, 1]`` per column,
+            mapped linearly onto the command range), as for the single environments.
     """
 
     env_id = "ExcavatorSurrogate-v0 (vector)"
@@ -86,6 +99,7 @@ class SurrogateVectorEnv(VectorEnv):
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         spec: MachineSpec | None = None,
         inputs: dict[str, float] | None = None,
+        action_scale: ActionScale = "raw",
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         self.engine = SurrogateEngine(sur, n_envs=n_envs, device=device, mode=mode, impl=impl)
@@ -103,15 +117,22 @@ class SurrogateVectorEnv(VectorEnv):
         self.layout = ActionLayout.make(spec, inputs, where=self.env_id)
         """The action's columns and the fixed exogenous inputs."""
         self.engine.u_rest = self.layout.rest()
-        self.single_action_space = action_space(spec, self.layout)
-        self.single_observation_space = observation_space(spec, wrap=wrap_theta)
+        self.action_scale = check_action_scale(action_scale)
+        self.single_action_space = action_space(spec, self.layout, scale=action_scale)
+        self.single_observation_space = observation_space(spec, wrap=wrap_theta, guard=guard)
+        self._obs_lo = self.single_observation_space.low
+        self._obs_hi = self.single_observation_space.high
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.task = task
         self.reset_margin = float(reset_margin)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self._check_action = ActionChecker(
-            spec, env_name=self.env_id, action_mode=action_mode, layout=self.layout
+            spec,
+            env_name=self.env_id,
+            action_mode=action_mode,
+            layout=self.layout,
+            scale=action_scale,
         )
         self._guard = DivergenceGuard(spec, guard)
         n, j = self.num_envs, spec.n_joint
@@ -162,7 +183,8 @@ class SurrogateVectorEnv(VectorEnv):
         return theta0
 
     def _write_obs(self, theta: np.ndarray, omega: np.ndarray, rows: np.ndarray | None) -> None:
-        """Write θ (wrapped) and ω into ``self._obs`` for ``rows`` (None: all)."""
+        """Write θ (wrapped) and ω, clipped into the observation bounds, into ``self._obs`` for
+        ``rows`` (None: all)."""
         j = self.machine.n_joint
         if rows is None:
             self._obs[:, :j] = theta
@@ -170,6 +192,7 @@ class SurrogateVectorEnv(VectorEnv):
             if self._wrap:
                 p = self._periodic
                 self._obs[:, :j][:, p] = (theta[:, p] + math.pi) % (2.0 * math.pi) - math.pi
+            np.clip(self._obs, self._obs_lo, self._obs_hi, out=self._obs)
         else:
             th = theta[rows]
             if self._wrap:
@@ -178,6 +201,7 @@ class SurrogateVectorEnv(VectorEnv):
                 th[:, p] = (th[:, p] + math.pi) % (2.0 * math.pi) - math.pi
             self._obs[rows, :j] = th
             self._obs[rows, j:] = omega[rows]
+            self._obs[rows] = np.clip(self._obs[rows], self._obs_lo, self._obs_hi)
 
     def _reset_envs(self, mask: np.ndarray, options: dict[str, Any]) -> dict[str, Any]:
         """Reset the envs in ``mask`` (engine, observation rows, counters, task)."""
@@ -267,7 +291,7 @@ class SurrogateVectorEnv(VectorEnv):
             self._write_obs(theta, omega, None)
         reward = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
-        info: dict[str, Any] = {"guard": code, "limit_violation": violation}
+        info: dict[str, Any] = {"guard": code, "limit_violation": violation, "u": u.copy()}
         if self.task is not None:
             r, done, extra = self.task.evaluate(theta, omega, u[:, : self.machine.n_joint])
             reward = np.where(nan, 0.0, r)
