@@ -17,6 +17,7 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
     argv += ["--rl-episode-steps", "8", "--cpus", "2", "--mppi-seeds", "2"]
     assert main(argv) == 0
     assert {p.name for p in out.iterdir()} == {
+        ".exsur.json",  # the output-folder marker (docs/design.md)
         "report.md",
         "metrics.json",
         "tracking.png",
