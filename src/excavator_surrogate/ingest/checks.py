@@ -22,6 +22,13 @@ MAX_PLAUSIBLE_SPEED = 10.0
 """Joint speed [rad/s] above which a 'rad' angle column is taken to hold degrees."""
 
 
+def fmt_time(x: float) -> str:
+    """A time [s] for a message: microseconds for ordinary values, ``:.6g`` for huge ones
+    (1e308 would print 300 digits) and ``inf``/``nan`` as such."""
+    x = float(x)
+    return f"{x:.6f}" if math.isfinite(x) and abs(x) < 1e9 else f"{x:.6g}"
+
+
 def check_time(path: Path, s: Series) -> float:
     """Strictly increasing time; returns the typical step [s] (mean of the steps that are not gaps)."""
     t = s.time
@@ -39,14 +46,14 @@ def check_time(path: Path, s: Series) -> float:
         if d[i - 1] == 0:
             raise DataError(
                 path,
-                f"duplicate timestamp {t[i]:.6f} s (same as row {i - 1})",
+                f"duplicate timestamp {fmt_time(t[i])} s (same as row {i - 1})",
                 column=s.time_label,
                 row=i,
                 fix="drop the duplicated rows; exsur does not guess which one is right",
             )
         raise DataError(
             path,
-            f"time goes backwards ({t[i - 1]:.6f} s -> {t[i]:.6f} s)",
+            f"time goes backwards ({fmt_time(t[i - 1])} s -> {fmt_time(t[i])} s)",
             column=s.time_label,
             row=i,
             fix="sort the log by time",
@@ -78,6 +85,25 @@ def check_rate(path: Path, s: Series, dt_in: float, mapping: Mapping) -> None:
     )
 
 
+def check_upsampling(
+    path: Path, s: Series, dt_in: float, rate_hz: float, max_upsample: float
+) -> None:
+    """A target rate above ``max_upsample`` x the series' own rate is an error (a typo in
+    ``--rate`` would otherwise write gigabytes of interpolated samples)."""
+    own = 1.0 / dt_in
+    if rate_hz <= max_upsample * own:
+        return
+    what = "the log" if s.name == "table" else f"topic {s.name}"
+    raise DataError(
+        path,
+        f"target rate {rate_hz:.6g} Hz is {rate_hz / own:.3g}x the {own:.4g} Hz of {what}, "
+        f"above the upsampling bound {max_upsample:g}x",
+        column=s.time_label,
+        fix="check --rate; to upsample this much anyway raise --max-upsample "
+        "([import] max_upsample)",
+    )
+
+
 def apply_nan_policy(
     path: Path, t: np.ndarray, x: np.ndarray, label: str, *, options: ImportOptions
 ) -> tuple[np.ndarray, int, int]:
@@ -89,7 +115,7 @@ def apply_nan_policy(
     if options.nan == "fail":
         raise DataError(
             path,
-            f"missing or non-finite value ({float(x[first])!r})",
+            f"missing or non-finite value ({float(x[first]):.6g})",
             column=label,
             row=first,
             fix=f"clean the log, or use --nan fill to interpolate gaps of up to {options.max_fill} samples",

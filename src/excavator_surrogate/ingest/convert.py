@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import re
@@ -28,9 +29,11 @@ from .checks import (
     check_angle_unit,
     check_rate,
     check_time,
+    check_upsampling,
     check_velocity_unit,
     command_of,
 )
+from .limits import memory_limit, too_big
 from .mapping import DEG, Channel, ImportOptions, InputMap, JointMap, Mapping
 from .outliers import screen_angles
 from .readers import log_stem, read_log
@@ -90,10 +93,10 @@ def convert_log(
     path = Path(path)
     options = options or mapping.options
     spec = spec or mapping.spec(options.rate_hz)
-    raw = read_log(path, mapping)
+    raw = read_log(path, dataclasses.replace(mapping, options=options))  # the reader's bounds
     where = mapping.path.name if mapping.path is not None else "the mapping"
     entry = _new_entry(path, raw)
-    dt_in = _time_bases(path, raw, mapping, rate_hz=spec.rate_hz, entry=entry)
+    dt_in = _time_bases(path, raw, mapping, rate_hz=spec.rate_hz, options=options, entry=entry)
     vals = _fill_missing(path, raw, mapping, options=options, entry=entry)
     # spikes and joint limits, on the input samples (before the anti-alias filter)
     screen_angles(
@@ -147,13 +150,20 @@ def _new_entry(path: Path, raw: RawLog) -> dict[str, Any]:
 
 
 def _time_bases(
-    path: Path, raw: RawLog, mapping: Mapping, *, rate_hz: float, entry: dict[str, Any]
+    path: Path,
+    raw: RawLog,
+    mapping: Mapping,
+    *,
+    rate_hz: float,
+    options: ImportOptions,
+    entry: dict[str, Any],
 ) -> dict[str, float]:
-    """Check each series' time column; series name -> typical input step [s]."""
+    """Check each series' time column and the upsampling; series name -> typical input step [s]."""
     dt_in: dict[str, float] = {}
     for s in raw.series.values():
         dt_in[s.name] = check_time(path, s)
         check_rate(path, s, dt_in[s.name], mapping)
+        check_upsampling(path, s, dt_in[s.name], rate_hz, options.max_upsample)
         steps = np.diff(s.time)
         steps = steps[steps <= 1.5 * float(np.median(steps))]  # jitter without the gaps
         entry["series"][s.name] = {
@@ -304,6 +314,12 @@ def _cut_episodes(
                 "reason": "the topics share no gap-free time span",
             }
         )
+    # estimate the output before resampling (time, u, theta, omega, the grids: 2 copies)
+    n_total = sum(max(math.floor((b - a) / dt + 1e-9) - 1, 0) for a, b in segs)
+    n_bytes = 2 * 8 * n_total * (1 + spec.n_u + 2 * spec.n_joint)
+    limit = memory_limit(options.max_memory_mb)
+    if n_bytes > limit:
+        raise too_big(path, f"resampling to {rate:.6g} Hz ({n_total} samples)", n_bytes, limit)
     episodes: list[Episode] = []
     for k, (a, b) in enumerate(segs):
         name = stem if len(segs) == 1 else f"{stem}_s{k}"

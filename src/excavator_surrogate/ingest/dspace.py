@@ -11,7 +11,8 @@ The layout, as ControlDesk 7 writes it (``,`` or ``;`` between cells)::
     ,0.01,1.6,0,...
 
 Trace 0 is the x axis (time; ``[time] column`` defaults to it, and it answers to
-``"time"`` when it has no name).  Most ``trace_names`` are the generic port name of the
+``"time"`` when it has no name).  A ``[time] column`` that names no other trace is the x
+axis too, so one mapping reads a rig's plain CSV logs (time column ``t``) and its exports.  Most ``trace_names`` are the generic port name of the
 recorded block (``In1``, ``Out1``) or empty, so such a trace is named by the last segment
 of its ``path``; a specific trace name is used as it is.  A mapping may also give the full
 name (``<path>/<trace name>``, or the ``path`` of a generically named trace).  A name that
@@ -34,6 +35,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..errors import DataError
+from .limits import TooBig, bounded_open, memory_limit, too_big
 from .mapping import TABLE, Mapping
 from .sources import (
     CSV_SUFFIXES,
@@ -110,11 +112,13 @@ def is_dspace(path: Path, csv_format: str) -> bool:
     return cell.decode("latin-1") in (*LABELS, "trace_values")
 
 
-def _read_bytes(path: Path) -> bytes:
-    opener = gzip.open if path.name.lower().endswith(".gz") else open
+def _read_bytes(path: Path, limit: int) -> bytes:
+    """The whole (decompressed) file; DataError past ``limit`` bytes."""
     try:
-        with opener(path, "rb") as f:
+        with bounded_open(path, limit) as f:
             return f.read()
+    except TooBig as e:
+        raise too_big(path, "decompressing the export", e.n_read, limit, more=True) from None
     except (OSError, EOFError, zlib.error) as e:
         raise DataError(
             path,
@@ -201,10 +205,12 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     """
     import pyarrow.csv as pcsv
 
-    data = _read_bytes(path)
+    data = _read_bytes(path, memory_limit(mapping.options.max_memory_mb))
     traces, start, delim, size = parse_header(path, data)
     tm = mapping.time
-    t_trace = traces[0] if tm.column is None else resolve(path, traces, str(tm.column), mapping)
+    t_trace = traces[0]  # the x axis; [time] column may name it as in the plain CSV logs
+    if tm.column is not None and any(str(tm.column) in t.aliases() for t in traces[1:]):
+        t_trace = resolve(path, traces, str(tm.column), mapping)
     keys = [c.key for c in mapping.channels()]
     chosen = {k: resolve(path, traces, k, mapping) for k in keys}
     wanted = sorted({t_trace.index, *(t.index for t in chosen.values())})

@@ -213,12 +213,24 @@ class ImportOptions:
     on_error: Literal["fail", "skip"] = "fail"
     """A file that fails validation stops the import (``fail``) or is skipped and reported."""
     outliers: Literal["fail", "drop", "clip"] = "fail"
-    """Angle spikes and angles beyond the joint limits: ``fail``, ``drop`` the rows, or ``clip``
-    to the limits (spikes are dropped); found before resampling (docs/import.md)."""
+    """Angle spikes, impossible samples and angles beyond the joint limits: ``fail``, ``drop``
+    the rows, or ``clip`` to the limits (spikes and impossible samples are dropped); found
+    before resampling (docs/import.md)."""
+    max_upsample: float = 10.0
+    """The target rate may be at most this multiple of a log's own rate (higher is refused)."""
+    max_memory_mb: float | None = None
+    """Bound on a log's decompressed text and its resampled output [MB]; None: a quarter of
+    the memory available when the import starts."""
 
     def __post_init__(self) -> None:
-        if self.rate_hz is not None and not self.rate_hz > 0:
-            raise ConfigError(f"rate_hz must be positive, got {self.rate_hz}")
+        if self.rate_hz is not None and not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
+            raise ConfigError(f"rate_hz must be positive and finite, got {self.rate_hz:.6g}")
+        if not (self.max_upsample >= 1 and math.isfinite(self.max_upsample)):
+            raise ConfigError(f"max_upsample must be >= 1 and finite, got {self.max_upsample:.6g}")
+        if self.max_memory_mb is not None and not (
+            self.max_memory_mb > 0 and math.isfinite(self.max_memory_mb)
+        ):
+            raise ConfigError(f"max_memory_mb must be positive, got {self.max_memory_mb:.6g}")
         if self.max_fill < 0:
             raise ConfigError(f"max_fill must be >= 0, got {self.max_fill}")
         if self.max_gap_s is not None and not self.max_gap_s > 0:
@@ -438,13 +450,19 @@ def _check_shared_channels(m: Mapping, where: str) -> None:
     seen: dict[Channel, str] = {}
     if m.time.column is not None:
         seen[Channel(TABLE, m.time.column)] = "the time"
+    users: list[tuple[str, list[tuple[str, Channel | None]]]] = []
     for j in m.joints:
         roles = [("angle", m.angle_channel(j)), ("velocity", m.velocity_channel(j))]
         roles += [("command", ch) for ch in m.command_channels(j)]
+        users.append((f"joint '{j.name}'", roles))
+    users += [
+        (f"input '{i.name}'", [("channel", ch) for ch in m.command_channels(i)]) for i in m.inputs
+    ]
+    for owner, roles in users:
         for role, ch in roles:
             if ch is None:
                 continue
-            user = f"the {role} of joint '{j.name}'"
+            user = f"the {role} of {owner}"
             if ch in seen:
                 raise ConfigError(
                     f"{where}: {ch.label} is mapped to both {seen[ch]} and {user}; "

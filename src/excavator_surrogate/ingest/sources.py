@@ -26,6 +26,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..errors import ConfigError, DataError
+from .limits import TooBig, bounded_open, memory_limit, too_big
 from .mapping import TABLE, CsvOptions, Mapping, TimeMap
 
 CSV_SUFFIXES = (".csv", ".csv.gz")
@@ -98,13 +99,19 @@ def has_suffix(*suffixes: str) -> Callable[[Path, str], bool]:
 # tables
 
 
+MAX_CSV_COLUMNS = 100_000
+"""A CSV header with more columns than this is refused (no logger writes that many)."""
+MAX_LINE_BYTES = 64 * 1024**2
+"""A header or skipped line longer than this is refused."""
+
+
 def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
         with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
             for _ in range(opts.skip_rows):
-                f.readline()
-            line = f.readline()
+                f.readline(MAX_LINE_BYTES)
+            line = f.readline(MAX_LINE_BYTES)
     except (OSError, UnicodeDecodeError, EOFError) as e:
         raise DataError(
             path,
@@ -117,7 +124,43 @@ def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
             "empty file or no header line",
             fix="the first line (after [csv] skip_rows) must hold the column names",
         )
-    return [c.strip() for c in next(_csv.reader([line], delimiter=opts.delimiter))]
+    if len(line) >= MAX_LINE_BYTES and not line.endswith("\n"):
+        raise DataError(
+            path,
+            f"the header (line {opts.skip_rows + 1}) is longer than {MAX_LINE_BYTES // 1024**2} MB",
+            fix="the file is not a CSV log (or its line ends are not \\n); re-export it",
+        )
+    names = [c.strip() for c in next(_csv.reader([line], delimiter=opts.delimiter))]
+    if len(names) > MAX_CSV_COLUMNS:
+        raise DataError(
+            path,
+            f"the header (line {opts.skip_rows + 1}) has {len(names)} columns: too many "
+            f"(more than {MAX_CSV_COLUMNS})",
+            fix="export only the channels the mapping needs, or check [csv] delimiter",
+        )
+    return names
+
+
+def _ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
+    """The first data row whose field count differs from the header's (streamed)."""
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
+            for _ in range(opts.skip_rows + 1):
+                f.readline()
+            for i, row in enumerate(_csv.reader(f, delimiter=opts.delimiter)):
+                if row and len(row) != n_header:
+                    what = "too many" if len(row) > n_header else "too few"
+                    return DataError(
+                        path,
+                        f"ragged rows: line {opts.skip_rows + 2 + i} of the file has "
+                        f"{len(row)} fields, the header {n_header} ({what})",
+                        row=i,
+                        fix="repair or cut the damaged line, or check [csv] delimiter",
+                    )
+    except (OSError, UnicodeDecodeError, EOFError, _csv.Error):
+        return None
+    return None
 
 
 def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Mapping) -> None:
@@ -182,7 +225,7 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     if kind == "csv":
         names = _csv_header(path, mapping.csv)
         _check_columns(path, names, needed, mapping)
-        table = _read_csv(path, mapping, needed, value_cols)
+        table = _read_csv(path, mapping, needed, value_cols, names=names)
     else:
         table, names = _read_parquet(path, needed, mapping)
     n = table.num_rows
@@ -201,10 +244,33 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     )
 
 
-def _read_csv(path: Path, mapping: Mapping, needed: list[str], value_cols: list[str]) -> pa.Table:
+def _read_csv(
+    path: Path, mapping: Mapping, needed: list[str], value_cols: list[str], *, names: list[str]
+) -> pa.Table:
+    limit = memory_limit(mapping.options.max_memory_mb)
+    gz = path.name.lower().endswith(".gz")
+    if not gz and path.stat().st_size > limit:
+        raise too_big(path, "reading the log", path.stat().st_size, limit)
+    try:
+        return _parse_csv(path, mapping, needed, value_cols, limit=limit, names=names)
+    except TooBig as e:
+        raise too_big(path, "decompressing the log", e.n_read, limit, more=True) from None
+
+
+def _parse_csv(
+    path: Path,
+    mapping: Mapping,
+    needed: list[str],
+    value_cols: list[str],
+    *,
+    limit: int,
+    names: list[str],
+) -> pa.Table:
     import pyarrow.csv as pcsv
 
-    read = pcsv.ReadOptions(skip_rows=mapping.csv.skip_rows, block_size=1 << 22)
+    # a block must hold the header line (pyarrow: "cannot infer number of columns")
+    block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
+    read = pcsv.ReadOptions(skip_rows=mapping.csv.skip_rows, block_size=block)
     parse = pcsv.ParseOptions(delimiter=mapping.csv.delimiter)
     types: dict[str, pa.DataType] = {c: pa.float64() for c in value_cols}
     tcol = str(mapping.time.column)
@@ -215,13 +281,17 @@ def _read_csv(path: Path, mapping: Mapping, needed: list[str], value_cols: list[
         conv = pcsv.ConvertOptions(
             include_columns=needed, column_types=column_types, strings_can_be_null=True
         )
-        return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=conv)
+        with bounded_open(path, limit) as src:
+            return pcsv.read_csv(src, read_options=read, parse_options=parse, convert_options=conv)
 
     try:
         return go(types)
     except pa.ArrowInvalid as e:
         msg = str(e)
         if "conversion error" not in msg and "CSV conversion" not in msg:
+            ragged = _ragged_row(path, mapping.csv, len(names)) if "columns" in msg else None
+            if ragged is not None:
+                raise ragged from e
             raise DataError(
                 path,
                 f"cannot parse the CSV ({msg.splitlines()[0]})",
@@ -360,12 +430,23 @@ def _parse_time(path: Path, col: pa.ChunkedArray, tm: TimeMap) -> tuple[np.ndarr
         row = int(np.flatnonzero(bad)[0])
         raise DataError(
             path,
-            f"non-finite timestamp {vals[row]!r}",
+            f"non-finite timestamp {float(vals[row]):g}",
             column=name,
             row=row,
             fix="drop rows without a valid time stamp",
         )
-    rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
+    with np.errstate(over="ignore", invalid="ignore"):
+        rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
+    bad = ~np.isfinite(rel)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            path,
+            f"timestamp {float(vals[row]):.6g} is out of range (row 0 reads {float(vals[0]):.6g})",
+            column=name,
+            row=row,
+            fix="drop rows without a valid time stamp",
+        )
     return rel, f"{float(vals[0])!r} {tm.unit}"
 
 
