@@ -43,9 +43,32 @@ def run(args: argparse.Namespace) -> int:
     from ..stages import STAGE_NAMES, show_configs
 
     sections = args.section or list(STAGE_NAMES)
+    if args.preset:
+        _refuse_mapping(args.preset)
     preset = load_preset(args.preset) if args.preset else {}
     where = f"preset '{preset.get('name', args.preset)}'" if args.preset else ""
     over = overrides(args, STAGE_NAMES)
     over = {k: v for k, v in over.items() if k in sections}
     print(show_configs(preset, sections=sections, overrides=over, where=where), end="")
     return 0
+
+
+def _refuse_mapping(name: str) -> None:
+    """An import mapping (``[[joints]]``, ``[machine]``) is not a preset: say what it is."""
+    import tomllib
+    from pathlib import Path
+
+    from ..errors import ConfigError
+
+    path = Path(name)
+    if not path.is_file():
+        return
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return  # load_preset reports it
+    if "joints" in data or "machine" in data:
+        raise ConfigError(
+            f"{path}: this is an import mapping, not a preset: use `exsur import LOGS "
+            f"--mapping {path}` (docs/import.md)"
+        )

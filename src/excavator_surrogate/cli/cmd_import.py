@@ -84,8 +84,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--outliers",
         choices=("fail", "drop", "clip"),
-        help="angle spikes and angles beyond the joint limits: fail, drop the rows, or clip "
-        "to the limits (docs/import.md)",
+        help="angle spikes, impossible samples (no limits needed) and angles beyond the joint "
+        "limits: fail, drop the rows, or clip to the limits (docs/import.md)",
+    )
+    p.add_argument(
+        "--max-upsample",
+        type=float,
+        metavar="X",
+        help="refuse a target rate above X times a log's own rate (default 10)",
+    )
+    p.add_argument(
+        "--max-memory",
+        type=float,
+        metavar="MB",
+        help="bound on a log's decompressed text and resampled output [MB] "
+        "(default: a quarter of the available memory)",
     )
     p.add_argument(
         "--on-error",
@@ -187,6 +200,8 @@ def run(args: argparse.Namespace) -> int:
         clip_commands=args.clip_commands,
         on_error=args.on_error,
         outliers=args.outliers,
+        max_upsample=args.max_upsample,
+        max_memory_mb=args.max_memory,
     )
     split = _split_options(args, mapping.split)
     report = import_logs(
