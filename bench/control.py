@@ -2,7 +2,7 @@
 
 One MPPI control step samples K command sequences of N samples, rolls them out in ONE batched
 call and updates the plan.  This benchmark tracks the start of the digging reference on
-``ExcavatorMujoco-v0`` (hydraulic plant) with
+``ExcavatorMujoco-v0`` (the checkpoint's plant; hydraulic for the untrained one) with
 
 - ``surrogate``: :class:`~excavator_surrogate.control.predict.SurrogatePredictor` (the
   surrogate engine synced to the plant's measured history), and
@@ -38,6 +38,7 @@ from excavator_surrogate.control.reference import dig_reference
 from excavator_surrogate.control.report import MPPI_SPEEDUP_MIN, STEPS_PER_S_MIN
 from excavator_surrogate.control.tracking import MPPIController, track
 from excavator_surrogate.env.mujoco_env import ExcavatorMujocoEnv
+from excavator_surrogate.env.plants import checkpoint_plant
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -53,7 +54,9 @@ def control_rate(kind: str, sur: object, cfg: MPPIConfig, n_control: int, thread
     steps after :data:`WARMUP` untimed ones."""
     theta_ref, _, _ = dig_reference(sur.spec)  # type: ignore[attr-defined]
     theta_ref = theta_ref[: (n_control + WARMUP) * cfg.replan + 1]
-    env = ExcavatorMujocoEnv(plant="hydraulic", spec=sur.spec)  # type: ignore[attr-defined]
+    # the plant the checkpoint was trained on (hydraulic if it does not record it)
+    plant = checkpoint_plant(sur.spec, None, ckpt="--ckpt", default="hydraulic")  # type: ignore[attr-defined]
+    env = ExcavatorMujocoEnv(plant=plant, spec=sur.spec)  # type: ignore[attr-defined,arg-type]
     torch.set_num_threads(1)
     if kind == "surrogate":
         pred = SurrogatePredictor(sur, n_batch=cfg.n_sample, workers=threads)  # type: ignore[arg-type]
