@@ -45,6 +45,9 @@ MARKER = ".exsur.json"
 MARKER_FORMAT = "exsur-output"
 """The ``format`` field of :data:`MARKER`."""
 
+PNG_SOFTWARE = f"exsur {__version__}"
+"""The ``Software`` text of the PNG files exsur writes alone (``exsur plot``)."""
+
 KINDS = ("dataset", "model", "evaluation", "compare", "run", "control", "sweep", "output")
 """What an output folder is (the marker's ``kind``)."""
 
@@ -316,7 +319,8 @@ def _probe(out: Path, flag: str) -> None:
 
 def is_exsur_file(path: str | Path) -> bool:
     """True if ``path`` is a regular file that exsur wrote, checked by content: a ``.pt``
-    checkpoint (``format`` ``exsur-*``) or an ``.onnx`` model with exsur's metadata."""
+    checkpoint (``format`` ``exsur-*``), an ``.onnx`` model with exsur's metadata or a
+    ``.png`` whose ``Software`` text is exsur's (:data:`PNG_SOFTWARE`)."""
     p = Path(path)
     if p.is_symlink() or not p.is_file():
         return False
@@ -331,6 +335,11 @@ def is_exsur_file(path: str | Path) -> bool:
 
             model = onnx.load(str(p), load_external_data=False)
             return any(m.key == "exsur_spec" for m in model.metadata_props)
+        if p.suffix == ".png":
+            from PIL import Image
+
+            with Image.open(p) as im:
+                return str(im.info.get("Software", "")).startswith("exsur ")
     except Exception:  # not a checkpoint / model at all: not exsur's
         return False
     return False

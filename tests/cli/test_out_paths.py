@@ -206,3 +206,21 @@ def test_train_marks_the_folder_and_every_member(tmp_path: Path, data_dir: Path)
     assert is_exsur_output(out)
     assert main([str(a) for a in [*argv, *extra]]) == 0
     assert (out / "best.pt").is_file() and _leftovers(out) == []
+
+
+def test_plot_replaces_only_its_own_images(tmp_path: Path, data_dir: Path, capsys) -> None:
+    from PIL import Image
+
+    ep = sorted((data_dir / "ds3" / "episodes").glob("*.parquet"))[0]
+    png = tmp_path / "ep.png"
+    for _ in range(2):  # the second run replaces the first one's image
+        assert main(["plot", str(ep), "--out", str(png)]) == 0
+    photo = tmp_path / "photo.png"
+    Image.new("RGB", (4, 4)).save(photo)
+    before = photo.read_bytes()
+    assert "exsur did not write it" in fails(capsys, "plot", ep, "--out", photo)
+    notes = tmp_path / "notes.txt"
+    assert "must end in .png" in fails(capsys, "plot", ep, "--out", notes)
+    assert photo.read_bytes() == before and not notes.exists()
+    assert main(["plot", str(ep), "--out", str(photo), "--overwrite"]) == 0
+    capsys.readouterr()

@@ -21,6 +21,11 @@ def register(subparsers: Any) -> None:
         metavar="PNG",
         help="output image (default: next to the episode, .png)",
     )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the image even if exsur did not write it (docs/design.md)",
+    )
     p.set_defaults(func=run)
 
 
@@ -31,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from ..plotting.episode import plot_episode
 
     out = Path(args.out) if args.out else Path(args.episode).with_suffix(".png")
-    check_out_file(out, inputs=[args.episode], example="episode.png")
+    check_out_file(out, inputs=[args.episode], example="episode.png", overwrite=args.overwrite)
     ep = read_episode(args.episode)
     print(plot_episode(ep, out=out))
     return 0

@@ -9,6 +9,7 @@ import numpy as np
 from ..data import Episode
 from ..errors import ConfigError
 from ..io_utils import atomic_path
+from ..outdir import PNG_SOFTWARE
 
 
 def plot_episode(ep: Episode, *, out: str | Path, title: str | None = None, dpi: int = 110) -> Path:
@@ -51,5 +52,5 @@ def plot_episode(ep: Episode, *, out: str | Path, title: str | None = None, dpi:
         or f"{ep.name}  ({ep.source}, {ep.condition}, {ep.n_step} samples @ {ep.spec.rate_hz:g} Hz)"
     )
     with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi)
+        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE})
     return out
