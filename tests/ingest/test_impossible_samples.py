@@ -145,3 +145,30 @@ def test_unit_mistake_is_still_named_as_such(cli, work, short_cols) -> None:
     log = write_lines(work / "a.csv", short_cols)
     rc, _, err = cli("import", log, "--mapping", work / "rad.toml", "--dry-run")
     assert rc == 2 and "looks like degrees" in err, err
+
+
+def test_impossible_measured_velocity_is_found(cli, work, short_cols) -> None:
+    """A 1e308 burst in a velocity channel is named in the log (it used to reach the dataset
+    writer and fail there, naming a temporary file)."""
+    cols = dict(short_cols)
+    t = cols["t_ms"] * 1e-3
+    cols["boom_rate"] = np.gradient(cols["boom_true_deg"], t)
+    cols["boom_rate"][300:305] = 1e308
+    columns = (*arm3_plant.LOG_COLUMNS, "boom_rate")
+    log = write_lines(work / "a.csv", cols, columns=columns)
+    angle = 'angle = { column = "boom_deg", unit = "deg" }'
+    text = _no_limits(work).read_text()
+    m = work / "vel.toml"
+    m.write_text(
+        text.replace(angle, angle + '\nvelocity = { column = "boom_rate", unit = "deg/s" }')
+    )
+    out = work / "X"
+    rc, _, err = cli("import", log, "--mapping", m, "--out", out, "--quiet")
+    assert rc == 2 and err.count("\n") == 1, err
+    assert (
+        f"{log}, column 'boom_rate', row 300: joint 'boom': velocity 1e+308 deg/s is impossible"
+        in err
+    )
+    assert_nothing_written(out)
+    rc, text, err = cli("import", log, "--mapping", m, "--dry-run", "--outliers", "drop")
+    assert rc == 0 and "outliers boom: impossible velocity dropped 5" in text, err

@@ -79,6 +79,38 @@ def _angle(vals: np.ndarray, j: JointMap, *, unwrap: bool = True) -> np.ndarray:
         return np.unwrap(th) if j.periodic and unwrap else th
 
 
+def _impossible_velocity(
+    path: Path,
+    raw_vals: np.ndarray,
+    j: JointMap,
+    ch: Channel,
+    dt_in: float,
+    policy: str,
+    fix: str,
+) -> np.ndarray:
+    """(n,) bool: measured velocities no sensor reads (not finite, or more than ``MAX_TURNS``
+    turns in one input step); an error under ``policy = "fail"``."""
+    assert j.velocity is not None
+    f = DEG if j.velocity.unit == "deg/s" else 1.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        v = raw_vals * j.velocity.scale + j.velocity.offset
+        bad = ~(np.abs(v * f) <= 2 * np.pi * MAX_TURNS / dt_in)
+    if bad.any() and policy == "fail":
+        row = int(np.flatnonzero(bad)[0])
+        stop = row + int(np.argmin(bad[row:])) if not bad[row:].all() else bad.shape[0]
+        rows = f" (rows {row}-{stop - 1}, {stop - row} samples)" if stop - row > 1 else ""
+        raise DataError(
+            path,
+            f"joint '{j.name}': velocity {v[row]:.6g} {j.velocity.unit} is impossible{rows}: no "
+            f"sensor reads it (not finite, or more than {MAX_TURNS:g} turns in one "
+            f"{dt_in:.3g} s input step)",
+            column=ch.label,
+            row=row,
+            fix=fix,
+        )
+    return bad
+
+
 def _impossible_error(
     path: Path,
     raw_vals: np.ndarray,
@@ -208,6 +240,13 @@ def screen_angles(
             out = np.zeros_like(out)
         elif out.any():
             counts["out_of_limits_dropped"] = int(out.sum())
+        vch = mapping.velocity_channel(j)
+        if vch is not None and j.velocity is not None:
+            vbad = _impossible_velocity(path, vals[vch], j, vch, dt_in[vch.series], policy, fix)
+            if vbad.any():
+                counts["impossible_velocity_dropped"] = int(vbad.sum())
+                prev = drop.get(vch.series)
+                drop[vch.series] = vbad if prev is None else prev | vbad
         if counts:
             entry["outliers"][j.name] = counts
         bad = spikes | impossible | out
