@@ -141,3 +141,29 @@ def test_example_mapping_reads_a_controldesk_export(cli, work, short_cols) -> No
     rc, text, err = cli("import", log, "--mapping", EXAMPLE, "--dry-run", "--quiet")
     assert rc == 0, err
     assert "files: 1 (1 imported" in text
+
+
+def test_parquet_columns_are_bounded(cli, work, short_cols) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    log = work / "a.parquet"
+    pq.write_table(pa.table({c: short_cols[c] for c in arm3_plant.LOG_COLUMNS}), log)
+    err = _fail(
+        cli, "import", log, "--mapping", work / "arm3.toml", "--dry-run", "--max-memory", 0.01
+    )
+    assert f"{log}: reading the mapped columns needs" in err
+
+
+def test_upsampling_bound_uses_the_fastest_series() -> None:
+    """A slow topic (a 1 Hz engine speed next to 100 Hz joints) may be held at 20 Hz."""
+    from excavator_surrogate.errors import DataError
+    from excavator_surrogate.ingest.checks import check_upsampling
+    from excavator_surrogate.ingest.sources import Series
+
+    fast = Series("/joints", np.arange(100) * 0.01, {}, "/joints header.stamp")
+    slow = Series("/engine", np.arange(3) * 1.0, {}, "/engine header.stamp")
+    dt = {"/joints": 0.01, "/engine": 1.0}
+    check_upsampling(Path("b"), [fast, slow], dt, 20.0, 10.0)
+    with pytest.raises(DataError, match=r"1e\+04x the 100 Hz of its fastest topic /joints"):
+        check_upsampling(Path("b"), [fast, slow], dt, 1e6, 10.0)

@@ -86,14 +86,15 @@ def check_rate(path: Path, s: Series, dt_in: float, mapping: Mapping) -> None:
 
 
 def check_upsampling(
-    path: Path, s: Series, dt_in: float, rate_hz: float, max_upsample: float
+    path: Path, series: list[Series], dt_in: dict[str, float], rate_hz: float, max_upsample: float
 ) -> None:
-    """A target rate above ``max_upsample`` x the series' own rate is an error (a typo in
-    ``--rate`` would otherwise write gigabytes of interpolated samples)."""
-    own = 1.0 / dt_in
+    """A target rate above ``max_upsample`` x the log's own rate (its fastest series; a slow
+    topic may be held) is an error: a typo in ``--rate`` would write gigabytes."""
+    s = min(series, key=lambda x: dt_in[x.name])
+    own = 1.0 / dt_in[s.name]
     if rate_hz <= max_upsample * own:
         return
-    what = "the log" if s.name == "table" else f"topic {s.name}"
+    what = "the log" if len(series) == 1 else f"its fastest topic {s.name}"
     raise DataError(
         path,
         f"target rate {rate_hz:.6g} Hz is {rate_hz / own:.3g}x the {own:.4g} Hz of {what}, "

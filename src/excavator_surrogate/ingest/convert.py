@@ -163,7 +163,6 @@ def _time_bases(
     for s in raw.series.values():
         dt_in[s.name] = check_time(path, s)
         check_rate(path, s, dt_in[s.name], mapping)
-        check_upsampling(path, s, dt_in[s.name], rate_hz, options.max_upsample)
         steps = np.diff(s.time)
         steps = steps[steps <= 1.5 * float(np.median(steps))]  # jitter without the gaps
         entry["series"][s.name] = {
@@ -176,6 +175,7 @@ def _time_bases(
             entry["notes"].append(
                 f"{s.name}: logged at {1.0 / dt_in[s.name]:.4g} Hz, upsampled to {rate_hz:g} Hz"
             )
+    check_upsampling(path, list(raw.series.values()), dt_in, rate_hz, options.max_upsample)
     return dt_in
 
 

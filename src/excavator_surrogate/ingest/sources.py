@@ -333,6 +333,16 @@ def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.T
         )
     names = list(schema.names)
     _check_columns(path, names, needed, mapping)
+    meta = pf.metadata
+    limit = memory_limit(mapping.options.max_memory_mb)
+    cols = [i for i in range(meta.num_columns) if meta.schema.column(i).name in needed]
+    size = sum(
+        meta.row_group(g).column(i).total_uncompressed_size
+        for g in range(meta.num_row_groups)
+        for i in cols
+    )
+    if size > limit:
+        raise too_big(path, "reading the mapped columns", size, limit)
     try:
         return pf.read(columns=needed), names
     except Exception as e:
