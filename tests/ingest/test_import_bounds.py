@@ -167,3 +167,14 @@ def test_upsampling_bound_uses_the_fastest_series() -> None:
     check_upsampling(Path("b"), [fast, slow], dt, 20.0, 10.0)
     with pytest.raises(DataError, match=r"1e\+04x the 100 Hz of its fastest topic /joints"):
         check_upsampling(Path("b"), [fast, slow], dt, 1e6, 10.0)
+
+
+def test_corrupt_gzip_is_one_line(cli, work, short_cols) -> None:
+    """The decompressed-size bound reads .gz in Python: a damaged stream stays one line."""
+    log = write_lines(work / "a.csv.gz", short_cols)
+    blob = bytearray(log.read_bytes())
+    for i in range(len(blob) // 3, len(blob) // 3 + 100):
+        blob[i] ^= 0x55
+    log.write_bytes(bytes(blob))
+    err = _fail(cli, "import", log, "--mapping", work / "arm3.toml", "--dry-run")
+    assert f"{log}: cannot read the file" in err

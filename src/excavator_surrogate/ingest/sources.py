@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv as _csv
 import difflib
 import gzip
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
@@ -281,7 +282,9 @@ def _parse_csv(
         conv = pcsv.ConvertOptions(
             include_columns=needed, column_types=column_types, strings_can_be_null=True
         )
-        with bounded_open(path, limit) as src:
+        if not path.name.lower().endswith(".gz"):  # its size was checked: read it natively
+            return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=conv)
+        with bounded_open(path, limit) as src:  # decompressed while counting
             return pcsv.read_csv(src, read_options=read, parse_options=parse, convert_options=conv)
 
     try:
@@ -297,7 +300,7 @@ def _parse_csv(
                 f"cannot parse the CSV ({msg.splitlines()[0]})",
                 fix="check the delimiter ([csv] delimiter) and that rows have as many fields as the header",
             ) from e
-    except (OSError, EOFError) as e:
+    except (OSError, EOFError, zlib.error) as e:
         raise DataError(
             path,
             f"cannot read the file ({type(e).__name__}: {e})",
