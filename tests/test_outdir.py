@@ -16,8 +16,12 @@ from excavator_surrogate.outdir import (
     check_out_dir,
     check_out_file,
     foreign_entry,
+    is_exsur_file,
     is_exsur_output,
+    lock_file,
+    lock_out,
     read_marker,
+    release_locks,
     replace_allowed,
 )
 
@@ -209,3 +213,62 @@ def test_check_out_file_rules(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="one of the inputs"):
         check_out_file(a, inputs=[a], example="e.pt")
     assert check_out_file(tmp_path / "b.pt", inputs=[a], example="e.pt") == tmp_path / "b.pt"
+
+
+def test_the_writer_lock(tmp_path: Path, monkeypatch) -> None:
+    out = tmp_path / "M"
+    hold = (
+        "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
+        "print('locked', flush=True); sys.stdin.read()"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", hold, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == b"locked"
+        assert lock_file(out) == tmp_path / ".M.lock"
+        with pytest.raises(ConfigError, match=rf"another exsur process \(pid {proc.pid}\)"):
+            check_out_dir(out, lock=True)
+        check_out_dir(out)  # the check alone does not lock
+        monkeypatch.setenv("RANK", "1")  # a torchrun rank > 0: rank 0 holds the lock
+        lock_out(out)
+        monkeypatch.delenv("RANK")
+    finally:
+        proc.stdin.close()
+        proc.wait()  # ends by itself once its stdin closes: the lock goes with it
+    try:
+        lock_out(out)
+        lock_out(out)  # re-entrant in one process
+        assert lock_file(out).read_text().strip() == str(os.getpid())
+    finally:
+        release_locks()
+    assert not lock_file(out).exists() and not out.exists()
+
+
+def test_file_outputs_by_content(tmp_path: Path) -> None:
+    import onnx
+    from onnx import TensorProto, helper
+
+    graph = helper.make_graph(
+        [helper.make_node("Identity", ["x"], ["y"])],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
+    )
+    model = helper.make_model(graph)
+    theirs, ours = tmp_path / "theirs.onnx", tmp_path / "ours.onnx"
+    onnx.save(model, theirs)
+    helper.set_model_props(model, {"exsur_spec": "{}"})
+    onnx.save(model, ours)
+    assert is_exsur_file(ours) and not is_exsur_file(theirs)
+    with pytest.raises(ConfigError, match="exists and exsur did not write it.*--overwrite"):
+        check_out_file(theirs, example="m.onnx")
+    assert check_out_file(theirs, example="m.onnx", overwrite=True) == theirs
+    assert check_out_file(ours, example="m.onnx") == ours
+    with pytest.raises(ConfigError, match=r"must end in \.onnx"):
+        check_out_file(tmp_path / "notes.txt", example="m.onnx")
+    torch = pytest.importorskip("torch")
+    torch.save({"format": "exsur-surrogate"}, tmp_path / "a.pt")
+    torch.save({"format": "other"}, tmp_path / "b.pt")
+    (tmp_path / "c.pt").write_bytes(b"not a checkpoint")
+    assert [is_exsur_file(tmp_path / n) for n in ("a.pt", "b.pt", "c.pt")] == [True, False, False]

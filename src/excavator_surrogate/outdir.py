@@ -360,13 +360,14 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
     :func:`release_locks` or the end of the process; a killed run leaves no stale lock).
 
     Re-entrant within a process.  Processes that an exsur command spawns to write parts of the
-    folder (ensemble members, sweep trials) do not lock: the command holds the lock for them.
+    folder (ensemble members, sweep trials) do not lock: the command holds the lock for them;
+    so do the ranks > 0 of a torchrun job (``RANK``): rank 0 holds it for the job.
 
     Raises:
         ConfigError: another process holds the lock, or the path cannot be created.
     """
     path = lock_file(out)
-    if path in _HELD:
+    if path in _HELD or os.environ.get("RANK", "0").strip() not in ("", "0"):
         return
     for _ in range(5):  # the file may be unlinked by its releasing owner between open and lock
         try:
