@@ -1,12 +1,15 @@
-"""recorded_path: paths written into an output folder (relative inside it, absolute outside)."""
+"""recorded_path: paths written into an output folder (relative inside it, absolute outside);
+atomic_files: all of a command's files written into a folder, or none."""
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 import pytest
 
-from excavator_surrogate.io_utils import recorded_path
+from excavator_surrogate.io_utils import atomic_files, mark_output, recorded_path
+from excavator_surrogate.outdir import MARKER, read_marker
 
 
 def test_inside_the_folder_is_relative_and_resolves_after_a_move(tmp_path: Path) -> None:
@@ -32,3 +35,22 @@ def test_outside_the_folder_is_absolute(tmp_path: Path, monkeypatch: pytest.Monk
     monkeypatch.chdir(tmp_path)
     assert recorded_path("run/model/best.pt", "run") == "model/best.pt"
     assert recorded_path("data", "run") == str((tmp_path / "data").resolve())
+
+
+def test_atomic_files_writes_all_or_nothing_into_a_folder(tmp_path: Path) -> None:
+    model = mark_output(tmp_path / "model", "model")
+    (model / "best.pt").write_text("weights")
+    with pytest.raises(OSError, match="No space left"), atomic_files(model, kind="evaluation") as t:
+        (t / "metrics.json").write_text("{}")
+        (t / "table.md").write_text("|")
+        raise OSError(errno.ENOSPC, "No space left on device", str(t / "cbe.png"))
+    assert sorted(p.name for p in model.iterdir()) == [MARKER, "best.pt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["model"]  # no temporary folder left
+    with atomic_files(model, kind="evaluation") as t:
+        (t / "metrics.json").write_text("{}")
+    assert sorted(p.name for p in model.iterdir()) == [MARKER, "best.pt", "metrics.json"]
+    assert read_marker(model)["kind"] == "model"  # the folder keeps its marker
+    with atomic_files(tmp_path / "new", kind="evaluation") as t:
+        (t / "table.md").write_text("|")
+    assert read_marker(tmp_path / "new")["kind"] == "evaluation"
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
