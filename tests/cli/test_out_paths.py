@@ -224,3 +224,23 @@ def test_plot_replaces_only_its_own_images(tmp_path: Path, data_dir: Path, capsy
     assert photo.read_bytes() == before and not notes.exists()
     assert main(["plot", str(ep), "--out", str(photo), "--overwrite"]) == 0
     capsys.readouterr()
+
+
+def test_control_reruns_into_its_own_folder(tmp_path: Path, capsys) -> None:
+    """'exsur control' twice into one folder: the second run replaces its own report (it was
+    refused: 'holds tracking.png, which exsur did not write'); a foreign folder is refused
+    before any run."""
+    from tests.helpers.surrogates import tiny_surrogate
+
+    from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+
+    ckpt = save_checkpoint(tmp_path / "tiny.pt", tiny_surrogate())
+    out = tmp_path / "ctl"
+    argv = ["control", ckpt, "--out", out, "--samples", "2", "--horizon", "2", "--no-rl"]
+    argv += ["--no-oracle", "--time-scale", "0.05", "--cpus", "1"]
+    for _ in range(2):
+        assert main([str(a) for a in argv]) == 0, capsys.readouterr().err
+    assert read_marker(out)["kind"] == "control" and (out / "tracking.png").is_file()
+    (out / "notes.txt").write_text("mine")
+    assert "holds 'notes.txt', which exsur did not write" in fails(capsys, *argv)
+    assert (out / "notes.txt").read_text() == "mine"
