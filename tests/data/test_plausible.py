@@ -69,3 +69,16 @@ def test_legitimate_motion_passes() -> None:
     omega = np.vstack([np.zeros((1, 4)), np.diff(theta, axis=0) / EXCAVATOR.dt])
     assert abs(theta[:, 0]).max() > 2 * np.pi * MAX_TURNS  # beyond the end-stopped bound
     check_plausible(ep.replace(theta=theta, omega=omega, theta_true=None, omega_true=None))
+
+
+def test_simulated_sensor_faults_pass() -> None:
+    """Stage II sensor spikes and offsets (up to 0.35 rad, 10x the default rates) are data the
+    cleaning stage must see, not impossible values."""
+    from excavator_surrogate.simulate.sensors import SensorConfig, apply_sensors_episode
+
+    ep = make_episode(n=4000)
+    cfg = SensorConfig(spike_rate=0.5, offset_rate=0.3)
+    for seed in range(3):
+        noisy = apply_sensors_episode(ep, config=cfg, rng=np.random.default_rng(seed))
+        assert len(noisy.extra["sensor"]["jump_runs"]) > 50
+        check_plausible(noisy)
