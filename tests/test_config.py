@@ -69,3 +69,34 @@ def test_atomic_outputs_respect_umask(tmp_path) -> None:
         assert (tmp_path / "d").stat().st_mode & 0o777 == 0o755
     finally:
         os.umask(old)
+
+
+@pytest.mark.parametrize("name", ["run", "simulate", "clean", "train", "evaluate", "sweep"])
+def test_every_stage_config_has_from_preset(name: str) -> None:
+    from excavator_surrogate.config import PresetConfig, load_preset, stage_config
+    from excavator_surrogate.stages import stage_classes
+
+    cls = stage_classes()[name]
+    assert issubclass(cls, PresetConfig) and cls.preset_table == name
+    preset = load_preset("paper-compound")  # sets keys of several tables, extends another
+    expected = stage_config(cls, preset, name)
+    assert cls.from_preset("paper-compound") == expected  # by name
+    assert cls.from_preset(preset) == expected  # a loaded preset
+    assert cls.from_preset({}) == cls()  # no table: the defaults
+    field = next(iter(to_dict(cls())))
+    value = getattr(expected, field)
+    # an override replaces the preset's value; None keeps it
+    assert getattr(cls.from_preset(preset, **{field: None}), field) == value
+    with pytest.raises(ConfigError, match=rf"\[{name}\].*no_such_key"):
+        cls.from_preset(preset, no_such_key=1)
+
+
+def test_from_preset_reads_the_table_and_overrides() -> None:
+    from excavator_surrogate.simulate import SimulateConfig
+    from excavator_surrogate.training import TrainConfig
+
+    assert SimulateConfig.from_preset("tiny").n_train == 2  # tiny.toml: n_train = 2
+    assert SimulateConfig.from_preset("tiny", n_train=5).n_train == 5
+    assert TrainConfig.from_preset("tiny", epochs=1).hidden == 16
+    with pytest.raises(ConfigError, match="no-such-preset"):
+        SimulateConfig.from_preset("no-such-preset")

@@ -10,10 +10,15 @@ and the environment classes load on first use.
 
 from __future__ import annotations
 
+import logging
+
 from . import env as _env  # noqa: F401  (registers the Gymnasium environments)
 from .errors import CheckpointError, ConfigError, DataError, ExsurError
 from .spec import EXCAVATOR, InputSpec, JointSpec, MachineSpec, excavator_spec
 from .version import __version__
+
+# a library logs, the application decides what is shown (the CLI: io_utils.setup_logging)
+logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
     "EXCAVATOR",

@@ -281,6 +281,39 @@ def stage_config(
     return from_dict(cls, table, where=f"{where} [{section}]".strip())
 
 
+class PresetConfig:
+    """Base of the stage configs: ``Config.from_preset(preset, **overrides)`` on every stage.
+
+    A config names its preset table in its class statement
+    (``class SimulateConfig(PresetConfig, table="simulate")``); it adds no field.
+    """
+
+    preset_table: typing.ClassVar[str] = ""
+    """The preset table this config is read from (``"simulate"``)."""
+
+    def __init_subclass__(cls, *, table: str = "", **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if table:
+            cls.preset_table = table
+
+    @classmethod
+    def from_preset(cls, preset: str | Path | Mapping[str, Any], **overrides: Any) -> typing.Self:
+        """The config of a preset's table, then ``overrides`` (None values skipped).
+
+        Args:
+            preset: a shipped preset's name (``"tiny"``), a TOML file, or a loaded preset
+                (:func:`load_preset`).
+            **overrides: field values that replace the preset's (``epochs=5``).
+
+        Raises:
+            ConfigError: unknown preset, or an unknown key or bad value in the table or the
+                overrides (one line naming ``[table].key``).
+        """
+        tables = preset if isinstance(preset, Mapping) else load_preset(preset)
+        where = "" if isinstance(preset, Mapping) else str(preset)
+        return stage_config(cls, tables, cls.preset_table, overrides=overrides, where=where)
+
+
 def field_docs(cls: type) -> dict[str, str]:
     """The one-line docstrings under the fields of dataclass ``cls`` (first line of each)."""
     import ast

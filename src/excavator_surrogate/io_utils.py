@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import shutil
 import sys
@@ -237,24 +238,115 @@ def progress(
 ) -> Iterable[T]:
     """A tqdm progress bar on stderr; silent when stderr is not a terminal unless forced.
 
-    ``disable=None`` shows the bar when stderr is a TTY or ``EXSUR_PROGRESS=1``.
+    ``disable=None`` shows the bar when the ``excavator_surrogate`` logger lets INFO lines
+    through (not with ``exsur -q`` or a WARNING level) and stderr is a TTY or
+    ``EXSUR_PROGRESS=1``.  ``disable=False`` forces the bar.
     """
     if disable is None:
-        disable = not (sys.stderr.isatty() or os.environ.get("EXSUR_PROGRESS") == "1")
+        disable = not logging.getLogger(LOGGER_NAME).isEnabledFor(logging.INFO) or not (
+            sys.stderr.isatty() or os.environ.get("EXSUR_PROGRESS") == "1"
+        )
     from tqdm.auto import tqdm
 
     return tqdm(it, total=total, desc=desc, disable=disable, leave=False, dynamic_ncols=True)
 
 
-_LOG_TAG = "exsur"
+LOGGER_NAME = "excavator_surrogate"
+"""The package logger: every module logs to ``logging.getLogger(__name__)`` below it."""
 
 
-def set_log_tag(tag: str) -> None:
-    """Tag of every later :func:`log` line (``[exsur]``; worker processes add who they are)."""
-    global _LOG_TAG
-    _LOG_TAG = tag
+class LogFormatter(logging.Formatter):
+    """``[exsur] message``; other levels than INFO say theirs (``[exsur] warning: ...``).
+
+    ``tag`` replaces ``exsur`` (a worker process names its job, ``[seed1] ...``).
+    """
+
+    def __init__(self, tag: str = "exsur") -> None:
+        super().__init__()
+        self.tag = tag
+
+    def format(self, record: logging.LogRecord) -> str:
+        """One line (plus a traceback if the record carries one)."""
+        level = "" if record.levelno == logging.INFO else f"{record.levelname.lower()}: "
+        text = f"[{self.tag}] {level}{record.getMessage()}"
+        if record.exc_info:
+            text += "\n" + self.formatException(record.exc_info)
+        return text
+
+
+class _StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Writes to the current ``sys.stderr`` (looked up on every line, as pytest swaps it)."""
+
+    def __init__(self) -> None:
+        super().__init__(sys.stderr)
+
+    @property  # type: ignore[override]
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
+def setup_logging(level: int = logging.INFO, *, tag: str = "exsur") -> logging.Handler:
+    """Show exsur's log lines on stderr as ``[exsur] ...`` from ``level`` up; returns the handler.
+
+    The CLI calls this (``-q``: WARNING, ``-v``: DEBUG); a script or notebook may too.  It
+    replaces the handler of an earlier call, so calling it twice does not double the lines.
+    Undo with :func:`remove_logging`.
+    """
+    pkg = logging.getLogger(LOGGER_NAME)
+    remove_logging()
+    handler = _StderrHandler()
+    handler.setFormatter(LogFormatter(tag))
+    handler._exsur = True  # type: ignore[attr-defined]
+    pkg.addHandler(handler)
+    pkg.setLevel(level)
+    return handler
+
+
+def remove_logging() -> None:
+    """Remove the handler of :func:`setup_logging` (the package logger keeps its level)."""
+    pkg = logging.getLogger(LOGGER_NAME)
+    for h in list(pkg.handlers):
+        if getattr(h, "_exsur", False):
+            pkg.removeHandler(h)
+
+
+def worker_log_config() -> tuple[int, bool]:
+    """What a spawned worker needs to log like this process: ``(level, shown)``.
+
+    ``shown``: some handler other than a ``NullHandler`` would print the package's lines here
+    (the CLI's, or the user's ``logging.basicConfig``).  Pass it to :func:`init_worker_logging`.
+    """
+    pkg = logging.getLogger(LOGGER_NAME)
+    shown = False
+    lg: logging.Logger | None = pkg
+    while lg is not None and not shown:
+        shown = any(not isinstance(h, logging.NullHandler) for h in lg.handlers)
+        lg = lg.parent if lg.propagate else None
+    return pkg.getEffectiveLevel(), shown
+
+
+def init_worker_logging(config: tuple[int, bool], *, tag: str = "") -> None:
+    """In a spawned worker: log at the parent's level, on stderr if the parent shows its lines.
+
+    Args:
+        config: :func:`worker_log_config` of the parent process.
+        tag: the worker's name in its lines (``[seed1] ...``); empty: ``exsur``.
+    """
+    level, shown = config
+    if shown:
+        setup_logging(level, tag=tag or "exsur")
+    else:
+        logging.getLogger(LOGGER_NAME).setLevel(level)
 
 
 def log(msg: str) -> None:
-    """One progress line on stderr (always shown: long jobs must show progress)."""
-    print(f"[{_LOG_TAG}] {msg}", file=sys.stderr, flush=True)
+    """One INFO line on the package logger (a callback for code that takes ``log=``).
+
+    Modules log to their own ``logging.getLogger(__name__)``; this is for callers that
+    pass a plain function.
+    """
+    logging.getLogger(LOGGER_NAME).info(msg)

@@ -19,6 +19,7 @@ The report folder (written atomically: built in a temporary sibling, renamed whe
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -27,8 +28,10 @@ from typing import Any, Literal
 from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
 from .evaluate.run_report import ReportContext, render_run_report
-from .io_utils import atomic_dir, log, write_json, write_text
+from .io_utils import atomic_dir, write_json, write_text
 from .stages import RunConfig, build_configs
+
+_log = logging.getLogger(__name__)
 
 RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
 """The preset tables ``exsur run`` reads."""
@@ -116,15 +119,15 @@ def run_pipeline(
             from .ingest import import_logs
             from .ingest.mapping import load_mapping
 
-            log(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
+            _log.info(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
             import_logs(list(logs), load_mapping(mapping), out=tmp / "data", quiet=True)
             data_dir = tmp / "data"
         elif data is None:
-            log(f"run[{name}]: simulate -> {out / 'data'}")
+            _log.info(f"run[{name}]: simulate -> {out / 'data'}")
             data_dir = simulate_dataset(sim_cfg, out=tmp / "data", extra={"preset": name})
         else:
             data_dir = Path(data)
-            log(f"run[{name}]: using dataset {data_dir}")
+            _log.info(f"run[{name}]: using dataset {data_dir}")
         timings["import" if logs is not None else "simulate"] = time.monotonic() - t0
         raw_ds = load_dataset(data_dir)
         train_ds = raw_ds
@@ -135,9 +138,9 @@ def run_pipeline(
                 raw_ds, overrides=merge_tables(raw_preset.get("train", {}), over.get("train", {}))
             )
             for line in recipe:
-                log(f"run[{name}]: recipe: {line}")
+                _log.info(f"run[{name}]: recipe: {line}")
         if not raw_ds.split(eval_cfg.split) and raw_ds.val:
-            log(
+            _log.info(
                 f"run[{name}]: the dataset has no '{eval_cfg.split}' split: evaluating on 'val', "
                 "which also selected the checkpoint (optimistic)"
             )
@@ -149,7 +152,7 @@ def run_pipeline(
             from .clean import clean_dataset
 
             t0 = time.monotonic()
-            log(f"run[{name}]: clean ({cfgs['clean'].method})")
+            _log.info(f"run[{name}]: clean ({cfgs['clean'].method})")
             clean_dir = clean_dataset(data_dir, tmp / "data_clean", config=cfgs["clean"])
             train_ds = load_dataset(clean_dir)
             result_extra["cleaning"] = train_ds.manifest.get("cleaning", {})
@@ -172,7 +175,7 @@ def run_pipeline(
             jobs.append(TrainJob(gru_cfg, train_ds, tmp / "model_gru", tag="exsur gru"))
         if run_cfg.clean and run_cfg.raw_baseline:
             jobs.append(TrainJob(train_cfg, raw_ds, tmp / "model_raw", tag="exsur lstm-raw"))
-        log(
+        _log.info(
             f"run[{name}]: train LSTM ({train_cfg.mode})"
             + "".join(f", {j.tag.split()[-1]} baseline" for j in jobs[1:])
         )
@@ -184,7 +187,7 @@ def run_pipeline(
 
         # ---- evaluate -------------------------------------------------------------------
         t0 = time.monotonic()
-        log(
+        _log.info(
             f"run[{name}]: evaluate (closed-loop free run on '{eval_cfg.split}', reference {run_cfg.reference})"
         )
         ev = dataclasses.asdict(eval_cfg)
@@ -262,7 +265,7 @@ def run_pipeline(
                 ),
             ),
         )
-    log(f"run[{name}]: done in {timings['total']:.0f} s -> {out / 'report.md'}")
+    _log.info(f"run[{name}]: done in {timings['total']:.0f} s -> {out / 'report.md'}")
     return metrics
 
 

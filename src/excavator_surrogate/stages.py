@@ -14,12 +14,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from .config import describe_config, stage_config
+from .config import PresetConfig, describe_config, stage_config
 from .errors import ConfigError
 
 
 @dataclass(frozen=True)
-class RunConfig:
+class RunConfig(PresetConfig, table="run"):
     """The ``[run]`` table of a preset: which stages and baselines ``exsur run`` includes."""
 
     clean: bool = False

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -14,9 +15,10 @@ from ..data.dataset import SPLITS, load_dataset, write_dataset
 from ..data.episode import Episode
 from ..data.jumps import jump_mask_of
 from ..errors import ConfigError, DataError
-from ..io_utils import log
 from .config import CleanConfig
 from .kalman import backward_difference, fuse
+
+_log = logging.getLogger(__name__)
 
 _BATCH_FILL = 0.8
 """Episodes are batched with others at least this fraction of the batch's longest one."""
@@ -90,7 +92,7 @@ def _warn_if_no_gyro(ep: Episode, theta: np.ndarray, config: CleanConfig) -> Non
         if np.allclose(ep.omega[1:, k], np.diff(theta[:, k]) / ep.dt, rtol=1e-6, atol=1e-9)
     ]
     if derived:
-        log(
+        _log.warning(
             f"clean: episode '{ep.name}': omega of {derived} is the backward difference of theta "
             f"(no gyro?); method '{config.method}' cannot detect jumps there, use method='paper' "
             "with tau_cons=inf"
@@ -274,7 +276,7 @@ def clean_dataset(src: str | Path, out: str | Path, *, config: CleanConfig | Non
         raise ConfigError(f"{out}: the output folder is the input dataset; choose another --out")
     ds = load_dataset(src)
     items = [(ep, split) for split in SPLITS for ep in ds.split(split)]
-    log(f"clean: {len(items)} episodes, {ds.n_samples()} samples, method {cfg.method}")
+    _log.info(f"clean: {len(items)} episodes, {ds.n_samples()} samples, method {cfg.method}")
     cleaned = clean_episodes([ep for ep, _ in items], config=cfg)
     summary = pooled_cleaning_metrics((ep, c) for (ep, _), c in zip(items, cleaned))
     path = write_dataset(
@@ -289,5 +291,5 @@ def clean_dataset(src: str | Path, out: str | Path, *, config: CleanConfig | Non
             "cleaning": summary,
         },
     )
-    log(f"clean: wrote {path}")
+    _log.info(f"clean: wrote {path}")
     return path

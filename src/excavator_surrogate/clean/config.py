@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+from ..config import PresetConfig
 from ..errors import ConfigError
 
 Method = Literal["paper", "gyro", "gyro3", "rts"]
@@ -18,7 +19,7 @@ METHODS: tuple[str, ...] = ("paper", "gyro", "gyro3", "rts")
 
 
 @dataclass(frozen=True)
-class CleanConfig:
+class CleanConfig(PresetConfig, table="clean"):
     """Parameters of the cleaning filters (all joints share them).  Units: rad, s."""
 
     method: Method = "rts"

@@ -7,21 +7,28 @@ stage adds a command without touching this file.
 
 User errors (:class:`~excavator_surrogate.errors.ExsurError`) are printed as one line,
 ``exsur: error: <message>``, with a non-zero exit code.
+
+Every subcommand takes ``-q`` (warnings and errors only) and ``-v`` (debug lines); the
+library's ``logging`` lines are shown on stderr as ``[exsur] ...`` while a command runs.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
+import logging
 import math
 import pkgutil
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from .. import __version__
 from ..errors import ConfigError, ExsurError
+from ..io_utils import LOGGER_NAME, remove_logging, setup_logging
+from .common import add_log_options, leaf_parsers, log_level
 
 _OS_ERRORS = (
     errno.EACCES,
@@ -88,8 +95,27 @@ def build_parser() -> argparse.ArgumentParser:
         if info.name.startswith("cmd_"):
             mod = importlib.import_module(f"{__name__}.{info.name}")
             mod.register(sub)
+    for leaf in leaf_parsers(parser):
+        if leaf is not parser:
+            add_log_options(leaf)
     _check_numbers(parser)
     return parser
+
+
+@contextlib.contextmanager
+def _logging(level: int) -> Iterator[None]:
+    """Show the package's log lines at ``level`` up on stderr while a command runs."""
+    pkg = logging.getLogger(LOGGER_NAME)
+    before = pkg.level
+    setup_logging(level)
+    logging.getLogger(__name__).debug(
+        "exsur %s, python %s, argv %s", __version__, sys.version.split()[0], sys.argv[1:]
+    )
+    try:
+        yield
+    finally:  # main() may run several times in one process (tests, scripts)
+        remove_logging()
+        pkg.setLevel(before)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -100,7 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
-        return int(args.func(args) or 0)
+        with _logging(log_level(args)):
+            return int(args.func(args) or 0)
     except ExsurError as e:
         print(f"exsur: error: {e}", file=sys.stderr)
         return e.exit_code

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 from .common import add_out
@@ -63,9 +64,8 @@ def run(args: argparse.Namespace) -> int:
         args.ckpt, args.commands, theta0=theta0, out=out, plant=args.plant, device=args.device
     )
     print((out / "table.md").read_text(), end="")
-    print(f"wrote {out}/metrics.json, table.md, compare.png, trajectories.npz")
+    log = logging.getLogger(__name__)
+    log.info(f"wrote {out}/metrics.json, table.md, compare.png, trajectories.npz")
     if res.metrics["run"]["diverged_at"] is not None:
-        print(
-            f"warning: the surrogate diverged (NaN) at sample {res.metrics['run']['diverged_at']}"
-        )
+        log.warning(f"the surrogate diverged (NaN) at sample {res.metrics['run']['diverged_at']}")
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 
@@ -37,3 +38,36 @@ def add_overwrite(p: argparse.ArgumentParser, *, replaced: bool) -> None:
         help=f"{'replace' if replaced else 'write into'} --out even if it holds files exsur did "
         "not write (docs/design.md)",
     )
+
+
+def add_log_options(p: argparse.ArgumentParser) -> None:
+    """``-q/--quiet`` and ``-v/--verbose``: how much of the ``[exsur] ...`` chatter is shown.
+
+    ``-q`` shows warnings and errors only (no progress lines or bars), ``-v`` adds debug lines.
+    The command's result on stdout (a table, a report, a path) is printed either way.
+    """
+    g = p.add_argument_group("output")
+    x = g.add_mutually_exclusive_group()
+    x.add_argument(
+        "-q", "--quiet", action="store_true", help="warnings and errors only (no progress)"
+    )
+    x.add_argument("-v", "--verbose", action="store_true", help="also debug lines")
+
+
+def log_level(args: argparse.Namespace) -> int:
+    """The ``logging`` level that ``-q`` / ``-v`` ask for (INFO without either)."""
+    if getattr(args, "quiet", False):
+        return logging.WARNING
+    if getattr(args, "verbose", False):
+        return logging.DEBUG
+    return logging.INFO
+
+
+def leaf_parsers(p: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
+    """The parsers under ``p`` that run a command (``exsur config show``, not ``exsur config``)."""
+    subs = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        return [p]
+    return [
+        leaf for a in subs for sp in dict.fromkeys(a.choices.values()) for leaf in leaf_parsers(sp)
+    ]

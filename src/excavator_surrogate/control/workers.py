@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from ..errors import ExsurError
+from ..io_utils import worker_log_config
 from ..surrogate.model import Surrogate
 
 
@@ -38,9 +39,14 @@ def rollout(engine: Any, state: dict[str, Any], u: np.ndarray) -> np.ndarray:
     return out.numpy()
 
 
-def _serve(conn: Any, sur: Surrogate, n_batch: int, mode: str | None) -> None:
+def _serve(
+    conn: Any, sur: Surrogate, n_batch: int, mode: str | None, log_config: tuple[int, bool]
+) -> None:
     """Worker process: build the engine, then answer ``(state, u)`` requests until ``None``."""
     from ..env.engine import SurrogateEngine
+    from ..io_utils import init_worker_logging
+
+    init_worker_logging(log_config, tag="exsur-rollout")  # the parent's level
 
     torch.set_num_threads(1)
     try:
@@ -79,7 +85,10 @@ class RolloutWorker:
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
-            target=_serve, args=(child, sur, int(n_batch), mode), daemon=True, name="exsur-rollout"
+            target=_serve,
+            args=(child, sur, int(n_batch), mode, worker_log_config()),
+            daemon=True,
+            name="exsur-rollout",
         )
         self._proc.start()
         child.close()

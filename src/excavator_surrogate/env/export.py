@@ -8,13 +8,13 @@ recurrent state is explicit:
 name       shape                          meaning
 =========  =============================  ==========================================
 inputs
-``theta``  (n_batch, n_joint) float32     angles θ[k] [rad]
+``theta``  (n_batch, n_joint) float32     angles θ[k] in rad
 ``u``      (n_batch, n_u) float32         commands u[k]: joints', then inputs'
 ``h``      (n_layer, n_batch, hidden)     recurrent state h
 ``c``      (n_layer, n_batch, hidden)     LSTM cell state c (passed through for GRU)
 outputs
-``omega``  (n_batch, n_joint) float32     ω̂[k+1] [rad/s]
-``theta_next``  (n_batch, n_joint)        θ[k] + T_s·ω̂[k+1] [rad]
+``omega``  (n_batch, n_joint) float32     ω̂[k+1] in rad/s
+``theta_next``  (n_batch, n_joint)        θ[k] + T_s·ω̂[k+1] in rad
 ``h_out``, ``c_out``                      new state
 =========  =============================  ==========================================
 

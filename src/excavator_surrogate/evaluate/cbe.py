@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
@@ -24,11 +25,11 @@ from typing import Any, Literal
 
 import torch
 
-from ..config import stage_config
+from ..config import PresetConfig
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
-from ..io_utils import atomic_files, log, recorded_path, write_json, write_text
+from ..io_utils import atomic_files, recorded_path, write_json, write_text
 from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.features import unwrap_periodic
@@ -37,9 +38,11 @@ from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .metrics import cbe_metrics
 from .report import report_markdown
 
+_log = logging.getLogger(__name__)
+
 
 @dataclass(frozen=True)
-class EvaluateConfig:
+class EvaluateConfig(PresetConfig, table="evaluate"):
     """CBE evaluation options (``[evaluate]`` table of a preset)."""
 
     split: str = "test"
@@ -63,11 +66,6 @@ class EvaluateConfig:
         for name in ("max_steps", "max_figures", "num_threads"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"[evaluate] {name} must be >= 0, got {getattr(self, name)}")
-
-    @classmethod
-    def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> EvaluateConfig:
-        """Build from a preset's ``[evaluate]`` table, then apply non-None overrides."""
-        return stage_config(cls, preset, "evaluate", overrides=overrides)
 
 
 def evaluate_models(
@@ -185,7 +183,7 @@ def evaluate_checkpoint(
                 end_stops=sur.end_stops,
             ).to(dev)
         else:
-            log("no training split loaded: skipping the ARX baseline")
+            _log.info("no training split loaded: skipping the ARX baseline")
     metrics, runs = evaluate_models(
         models, episodes, reference=reference, max_steps=max_steps or None
     )

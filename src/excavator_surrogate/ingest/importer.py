@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,7 @@ from typing import Any
 from ..config import to_dict
 from ..data import Episode, write_dataset
 from ..errors import DataError
-from ..io_utils import atomic_dir, log, progress, write_json, write_text
+from ..io_utils import atomic_dir, progress, write_json, write_text
 from ..outdir import check_out_dir, replace_allowed
 from ..spec import MachineSpec
 from .convert import FileResult, convert_log
@@ -25,6 +26,8 @@ from .mapping import ImportOptions, Mapping, SplitOptions
 from .readers import expand_sources
 from .report import render_markdown
 from .split import assign_splits
+
+_log = logging.getLogger(__name__)
 
 REPORT_JSON = "import_report.json"
 REPORT_MD = "import_report.md"
@@ -102,7 +105,7 @@ def import_logs(
             write_json(tmp / REPORT_JSON, report)
             write_text(tmp / REPORT_MD, md)
         if not quiet:
-            log(f"wrote {len(items)} episodes to {outp}")
+            _log.info(f"wrote {len(items)} episodes to {outp}")
     return report
 
 
@@ -124,7 +127,7 @@ def _convert_all(
             results.append(res)
             if not quiet:
                 n_out = sum(e.n_step for e in res.episodes)
-                log(
+                _log.info(
                     f"{p}: {res.entry['rows']} rows -> {len(res.episodes)} episode(s), {n_out} samples"
                 )
         except DataError as e:
@@ -132,7 +135,7 @@ def _convert_all(
                 raise
             failed.append({"file": str(p), "status": "failed", "error": str(e), "segments": []})
             if not quiet:
-                log(f"skipped {p}: {e}")
+                _log.warning(f"skipped {p}: {e}")
     return results, failed
 
 

@@ -39,6 +39,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import inspect
+import logging
 import math
 import os
 import socket
@@ -54,8 +55,9 @@ from torch.nn.parallel import DistributedDataParallel
 
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ..io_utils import log
 from ..training.parallel import clip_and_step
+
+_log = logging.getLogger(__name__)
 
 _ENV = ("RANK", "WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT")
 
@@ -331,7 +333,9 @@ def init_distributed(
         device=dev,
     )
     if ctx.is_main:
-        log(f"distributed: {ctx.world_size} processes, backend {ctx.backend}, device {dev.type}")
+        _log.info(
+            f"distributed: {ctx.world_size} processes, backend {ctx.backend}, device {dev.type}"
+        )
     return ctx
 
 
@@ -399,6 +403,8 @@ def spawn_local(
         except Exception as e:  # ProcessRaisedException carries the child's traceback as text
             text = str(e)
             if attempt < 2 and ("EADDRINUSE" in text or "address already in use" in text.lower()):
-                log("spawn_local: the free port was taken meanwhile; retrying on another port")
+                _log.warning(
+                    "spawn_local: the free port was taken meanwhile; retrying on another port"
+                )
                 continue
             raise

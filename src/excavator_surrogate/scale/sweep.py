@@ -24,6 +24,7 @@ fix a value), on top of the preset's ``[train]`` table for everything not search
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 import shutil
@@ -35,10 +36,12 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..config import stage_config, to_dict
+from ..config import PresetConfig, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
-from ..io_utils import atomic_path, log, mark_output, write_json, write_text
+from ..io_utils import atomic_path, mark_output, write_json, write_text
+
+_log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:  # optuna is an optional dependency (pip install 'excavator-surrogate[sweep]')
     import optuna
@@ -50,7 +53,7 @@ _CAP = 1e6
 
 
 @dataclass(frozen=True)
-class SweepConfig:
+class SweepConfig(PresetConfig, table="sweep"):
     """Search space and per-trial budget (``[sweep]`` table of a preset).
 
     Ranges are ``[low, high]`` (inclusive); ``low == high`` fixes the value.
@@ -105,11 +108,6 @@ class SweepConfig:
             raise ConfigError("[sweep] epochs and top must be >= 1")
         if self.pruner_startup < 0 or self.pruner_warmup < 0 or self.sampler_startup < 0:
             raise ConfigError("[sweep] pruner_startup, pruner_warmup, sampler_startup must be >= 0")
-
-    @classmethod
-    def from_preset(cls, preset: Mapping[str, Any], **overrides: Any) -> SweepConfig:
-        """Build from a preset's ``[sweep]`` table, then apply non-None overrides."""
-        return stage_config(cls, preset, "sweep", overrides=overrides)
 
 
 @dataclass
@@ -283,7 +281,7 @@ class _Objective:
             return False
 
         t0 = time.monotonic()
-        log(f"trial {trial.number}: {_fmt_params(trial.params)}")
+        _log.info(f"trial {trial.number}: {_fmt_params(trial.params)}")
         best = train(cfg, self.dataset, out=tdir, show_progress=False, on_epoch=on_epoch)
         metrics = read_checkpoint(best).get("metrics") or {}
         last = tdir / "last.pt"
@@ -346,7 +344,7 @@ def run_sweep(
     storage = storage or default_storage(out)
     dataset = data if isinstance(data, Dataset) else load_dataset(data, splits=("train", "val"))
     study = open_study(storage=storage, study_name=study_name, scfg=scfg)
-    log(f"sweep: study '{study_name}' at {safe_url(storage)}; running {trials} trial(s)")
+    _log.info(f"sweep: study '{study_name}' at {safe_url(storage)}; running {trials} trial(s)")
     study.optimize(
         _Objective(dataset, base, scfg, out),
         n_trials=trials,
@@ -506,7 +504,7 @@ def write_report(
                 shutil.copyfile(src, tmp)
             res.best_checkpoint = out / "best.pt"
         else:
-            log(
+            _log.info(
                 f"best trial {bt.number} ran on {bt.user_attrs.get('host', '?')}; its checkpoint "
                 f"{src} is not reachable from here: copy it by hand"
             )
@@ -524,7 +522,7 @@ def write_report(
             "trials": rows,
         },
     )
-    log(
+    _log.info(
         f"sweep: {counts['complete']} complete / {counts['pruned']} pruned / {counts['fail']} failed; "
         + (
             f"best trial {res.best_trial}: val_error {res.best_value:.4g}"

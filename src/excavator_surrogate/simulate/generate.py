@@ -21,6 +21,7 @@ batched ``mujoco.rollout``.  With ``sensors = true`` the sensor model
 from __future__ import annotations
 
 import dataclasses
+import logging
 import multiprocessing as mp
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -34,7 +35,7 @@ import numpy as np
 from .. import config as config_mod
 from ..data import Episode, write_dataset
 from ..errors import ConfigError
-from ..io_utils import log, progress
+from ..io_utils import init_worker_logging, progress, worker_log_config
 from ..spec import EXCAVATOR, MachineSpec
 from .excitation import (
     CLOSED_LOOP,
@@ -49,6 +50,8 @@ from .plant import MujocoExcavator, PlantConfig
 from .sensors import SensorConfig, apply_sensors_episode
 from .soil import ChainHook, SoilConfig, SoilHook
 
+_log = logging.getLogger(__name__)
+
 SOURCE = "mujoco-ideal"
 """``source`` metadata of episodes from the ideal Stage I plant."""
 SOURCES: dict[str, str] = {"ideal": "mujoco-ideal", "hydraulic": "mujoco-hydraulic"}
@@ -56,7 +59,7 @@ SOURCES: dict[str, str] = {"ideal": "mujoco-ideal", "hydraulic": "mujoco-hydraul
 
 
 @dataclass(frozen=True)
-class SimulateConfig:
+class SimulateConfig(config_mod.PresetConfig, table="simulate"):
     """What ``exsur simulate`` generates (TOML table ``[simulate]``)."""
 
     n_train: int = 12
@@ -394,8 +397,9 @@ def simulate_dataset(
     spec = spec.with_rate(cfg.rate_hz) if spec.rate_hz != cfg.rate_hz else spec
     jobs = plan_episodes(cfg)
     n_samples = sum(j.n_step for j in jobs)
-    log(
-        f"simulate: {len(jobs)} episodes, {n_samples} samples at {cfg.rate_hz:g} Hz, {workers} worker(s)"
+    _log.info(
+        f"simulate: {len(jobs)} episodes, {n_samples} samples at {cfg.rate_hz:g} Hz, "
+        f"{workers} worker(s)"
     )
     t0 = time.perf_counter()
     _plant(cfg, spec)  # fail early (bad MJCF / rate / hydraulics) in the parent, one-line error
@@ -405,7 +409,12 @@ def simulate_dataset(
         results = [_worker(a) for a in progress(args, total=len(args), desc="simulate")]
     else:
         ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=n_workers, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(
+            max_workers=n_workers,
+            mp_context=ctx,
+            initializer=init_worker_logging,  # the workers log at this process's level
+            initargs=(worker_log_config(),),
+        ) as pool:
             results = list(progress(pool.map(_worker, args), total=len(args), desc="simulate"))
     cfg_dict = config_mod.to_dict(cfg)
     items = []
@@ -439,5 +448,5 @@ def simulate_dataset(
             )
         items.append((ep, job.split))
     path = write_dataset(out, items, config={"simulate": cfg_dict}, extra=extra)
-    log(f"simulate: wrote {path} in {time.perf_counter() - t0:.1f} s")
+    _log.info(f"simulate: wrote {path} in {time.perf_counter() - t0:.1f} s")
     return path

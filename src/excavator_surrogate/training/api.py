@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -9,13 +10,14 @@ from typing import Any
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
 from ..errors import ConfigError
-from ..io_utils import log
 from .config import TrainConfig
 from .ensembles import train_ensemble
 from .jobs import TrainJob, run_jobs
 from .loop import EpochCallback, train_network
 from .loss import LossFn
 from .parallel import Parallel
+
+_log = logging.getLogger(__name__)
 
 
 def train(
@@ -114,6 +116,6 @@ def train_parallel(
         and all(j.cfg.device == "cpu" and j.cfg.member_workers != 1 for j in jobs)
     )
     if parallel:
-        log(f"training {len(jobs)} models side by side: " + ", ".join(j.tag for j in jobs))
+        _log.info(f"training {len(jobs)} models side by side: " + ", ".join(j.tag for j in jobs))
     workers = len(jobs) if parallel else 1
     return run_jobs(_train_job, jobs, workers=workers, show_progress=show_progress)

@@ -8,6 +8,7 @@ enough for a config.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,9 +17,10 @@ import torch
 from ..data.dataset import Dataset
 from ..data.episode import Episode
 from ..errors import DataError
-from ..io_utils import log
 from ..surrogate.features import Normalization, omega_in_np, omega_target
 from .config import TrainConfig
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -101,7 +103,7 @@ def global_batches(order: np.ndarray, size: int) -> list[np.ndarray]:
 def _usable(episodes: list[Episode], n_min: int, split: str) -> list[Episode]:
     keep = [e for e in episodes if e.n_step >= n_min]
     if len(keep) < len(episodes):
-        log(
+        _log.info(
             f"{split}: skipping {len(episodes) - len(keep)} episode(s) shorter than {n_min} samples"
         )
     return keep
@@ -131,8 +133,9 @@ def split_episodes(cfg: TrainConfig, dataset: Dataset) -> tuple[list[Episode], l
         )
     val_eps = _usable(dataset.val, cfg.window + 2, "val")
     if not val_eps:
-        log(
-            "no usable validation episodes: validating on the training episodes (model selection is optimistic)"
+        _log.warning(
+            "no usable validation episodes: validating on the training episodes "
+            "(model selection is optimistic)"
         )
         val_eps = train_eps
     return train_eps, val_eps

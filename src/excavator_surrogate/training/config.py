@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, fields, replace
 from typing import Any, Literal
 
-from ..config import stage_config
+from ..config import PresetConfig
 from ..errors import ConfigError
 from ..surrogate.model import ModelConfig
 
@@ -23,7 +23,7 @@ MODE_FIELDS: dict[str, tuple[str, ...]] = {
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(PresetConfig, table="train"):
     """Surrogate training options (``[train]`` table of a preset)."""
 
     window: int = 30
@@ -163,12 +163,6 @@ class TrainConfig:
                         f"[train] {name} = {getattr(self, name)!r} is read only by mode = "
                         f'"{other}" (this config trains mode = "{self.mode}"): remove it'
                     )
-
-    @classmethod
-    def from_preset(cls, preset: dict[str, Any], **overrides: Any) -> TrainConfig:
-        """Build from a loaded preset's ``[train]`` table, then apply non-None overrides
-        (see :func:`~excavator_surrogate.config.stage_config`)."""
-        return stage_config(cls, preset, "train", overrides=overrides)
 
     @classmethod
     def adapt_table(cls, table: dict[str, Any], *, changed: set[str]) -> dict[str, Any]:

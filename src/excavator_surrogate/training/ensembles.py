@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Mapping
@@ -12,7 +13,7 @@ from typing import Any
 from ..config import to_dict
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
-from ..io_utils import log, mark_output
+from ..io_utils import mark_output
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.validation import free_run_error
@@ -21,6 +22,8 @@ from .config import TrainConfig
 from .jobs import TrainJob, run_jobs
 from .loop import train_network
 from .records import write_config, write_log
+
+_log = logging.getLogger(__name__)
 
 
 def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
@@ -61,7 +64,7 @@ def train_ensemble(
     dirs = [out / f"member_{i}" for i in range(cfg.members)]
     workers = min(cfg.member_workers or usable_cpus(), cfg.members)
     write_config(out, cfg, notes=notes)
-    log(
+    _log.info(
         f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
         f"{workers} in parallel, into {out}/member_*"
     )
@@ -106,7 +109,7 @@ def train_ensemble(
     best = save_checkpoint(out / "best.pt", sur, history=rows)
     write_log(out / "log.csv", rows, fields=list(rows[0]))
     member_vals = ", ".join(f"{r['val_error']:.4g}" for r in rows[:-1])
-    log(
+    _log.info(
         f"seed ensemble: members' val_error {member_vals}; merged {val['val_error']:.4g} "
         f"(min theta R2 {min(val['theta_r2']):.3f}) -> {best}"
     )

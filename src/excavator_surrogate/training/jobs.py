@@ -42,12 +42,15 @@ JobFn = Callable[[TrainJob, "bool | None"], Path]
 """``fn(job, show_progress) -> best.pt``: a module-level function (it is pickled)."""
 
 
-def _in_worker(fn: JobFn, job: TrainJob) -> tuple[str, str | None]:
-    """Run ``fn(job)`` in a worker process; returns ``(best_path, error message or None)``."""
-    from ..io_utils import set_log_tag
+def _in_worker(fn: JobFn, job: TrainJob, log_config: tuple[int, bool]) -> tuple[str, str | None]:
+    """Run ``fn(job)`` in a worker process; returns ``(best_path, error message or None)``.
 
-    if job.tag:
-        set_log_tag(job.tag)
+    ``log_config``: the parent's :func:`~excavator_surrogate.io_utils.worker_log_config`; the
+    worker logs at the parent's level, its lines tagged with the job (``[seed1] ...``).
+    """
+    from ..io_utils import init_worker_logging
+
+    init_worker_logging(log_config, tag=job.tag)
     try:
         return str(fn(job, False)), None
     except ExsurError as e:  # user errors cross the process boundary as their one-line message
@@ -72,10 +75,13 @@ def run_jobs(
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
+    from ..io_utils import worker_log_config
+
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch threads
     try:
         with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
-            futures = [pool.submit(_in_worker, fn, job) for job in jobs]
+            log_config = worker_log_config()
+            futures = [pool.submit(_in_worker, fn, job, log_config) for job in jobs]
             results = [f.result() for f in futures]
     except BrokenProcessPool as e:  # killed (out of memory?) or its code changed under it
         raise ExsurError(

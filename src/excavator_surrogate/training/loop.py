@@ -10,6 +10,7 @@ rule (:func:`~.parallel.clip_and_step`); then it validates (:mod:`.selection`), 
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -23,7 +24,7 @@ from ..config import to_dict
 from ..data.dataset import Dataset
 from ..devices import resolve_device
 from ..errors import ConfigError
-from ..io_utils import log, mark_output, progress
+from ..io_utils import mark_output, progress
 from ..surrogate.checkpoint import save_checkpoint
 from ..surrogate.model import Surrogate
 from .batches import make_data, split_episodes
@@ -35,6 +36,8 @@ from .parallel import LrAt, Parallel, SingleProcess, rank0_deadline, rank0_lr
 from .records import epoch_row, tb_epoch, tb_writer, write_config, write_log
 from .resume import start
 from .selection import choose, is_better
+
+_log = logging.getLogger(__name__)
 
 EpochCallback = Callable[[int, dict[str, Any]], bool]
 """``on_epoch(epoch, row) -> stop``: called after every epoch (rank 0) with the ``log.csv`` row."""
@@ -99,7 +102,7 @@ def train_network(
         except ConfigError as e:
             raise ConfigError(f"[train] {e}") from e
     main = par.is_main
-    say = log if main else (lambda msg: None)
+    say = _log.info if main else (lambda msg: None)
     loss_fn = loss if loss is not None else default_loss(lambda_bias=cfg.lambda_bias)
     if cfg.num_threads > 0:
         torch.set_num_threads(cfg.num_threads)

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from ..config import dumps_toml, to_dict
-from ..io_utils import log, write_text
+from ..io_utils import write_text
 from .config import TrainConfig
 from .selection import Choice
+
+_log = logging.getLogger(__name__)
 
 LOG_FIELDS = (
     "epoch",
@@ -92,7 +95,9 @@ def tb_writer(out: Path, enabled: bool) -> Any:
     try:
         from torch.utils.tensorboard import SummaryWriter
     except Exception:  # tensorboard not installed
-        log("tensorboard is not installed; skipping TensorBoard logs (pip install tensorboard)")
+        _log.warning(
+            "tensorboard is not installed; skipping TensorBoard logs (pip install tensorboard)"
+        )
         return None
     return SummaryWriter(log_dir=str(out / "tb"))
 
