@@ -230,9 +230,13 @@ def test_the_writer_lock(tmp_path: Path, monkeypatch) -> None:
         with pytest.raises(ConfigError, match=rf"another exsur process \(pid {proc.pid}\)"):
             check_out_dir(out, lock=True)
         check_out_dir(out)  # the check alone does not lock
-        monkeypatch.setenv("RANK", "1")  # a torchrun rank > 0: rank 0 holds the lock
+        monkeypatch.setenv("RANK", "1")
+        with pytest.raises(ConfigError, match="another exsur process"):
+            lock_out(out)  # RANK alone is not a torchrun job
+        monkeypatch.setenv("WORLD_SIZE", "2")  # a torchrun rank > 0: rank 0 holds the lock
         lock_out(out)
         monkeypatch.delenv("RANK")
+        monkeypatch.delenv("WORLD_SIZE")
     finally:
         proc.stdin.close()
         proc.wait()  # ends by itself once its stdin closes: the lock goes with it

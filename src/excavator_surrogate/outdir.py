@@ -367,7 +367,7 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
         ConfigError: another process holds the lock, or the path cannot be created.
     """
     path = lock_file(out)
-    if path in _HELD or os.environ.get("RANK", "0").strip() not in ("", "0"):
+    if path in _HELD or _torchrun_rank() > 0:
         return
     for _ in range(5):  # the file may be unlinked by its releasing owner between open and lock
         try:
@@ -399,6 +399,16 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
             return
         os.close(fd)
     raise ConfigError(f"{out}: could not lock {path}; retry")
+
+
+def _torchrun_rank() -> int:
+    """``RANK`` of a torchrun job with ``WORLD_SIZE`` > 1 (0 outside one)."""
+    try:
+        if int(os.environ.get("WORLD_SIZE", "1")) > 1:
+            return int(os.environ.get("RANK", "0"))
+    except ValueError:
+        pass
+    return 0
 
 
 def _read_owner(fd: int) -> str:
