@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from excavator_surrogate.cli import main
-from excavator_surrogate.data import read_episode, write_episode
-from excavator_surrogate.data.episode import MAX_TURNS, check_plausible
+from excavator_surrogate.data import read_episode, validate_episode, write_episode
+from excavator_surrogate.data.plausible import MAX_TURNS
 from excavator_surrogate.errors import DataError
 from excavator_surrogate.spec import EXCAVATOR
 from tests.data.test_contract import make_episode
@@ -68,7 +68,7 @@ def test_legitimate_motion_passes() -> None:
     theta[1000:1012, 2] += 0.35  # a sensor offset as the Stage II simulation makes them
     omega = np.vstack([np.zeros((1, 4)), np.diff(theta, axis=0) / EXCAVATOR.dt])
     assert abs(theta[:, 0]).max() > 2 * np.pi * MAX_TURNS  # beyond the end-stopped bound
-    check_plausible(ep.replace(theta=theta, omega=omega, theta_true=None, omega_true=None))
+    validate_episode(ep.replace(theta=theta, omega=omega, theta_true=None, omega_true=None))
 
 
 def test_simulated_sensor_faults_pass() -> None:
@@ -81,4 +81,4 @@ def test_simulated_sensor_faults_pass() -> None:
     for seed in range(3):
         noisy = apply_sensors_episode(ep, config=cfg, rng=np.random.default_rng(seed))
         assert len(noisy.extra["sensor"]["jump_runs"]) > 50
-        check_plausible(noisy)
+        validate_episode(noisy)

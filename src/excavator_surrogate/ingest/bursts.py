@@ -6,7 +6,7 @@ the joint limits find longer ones only when the mapping declares limits, and mos
 
 - magnitudes no sensor reads: non-finite values, and angles beyond ``MAX_TURNS`` turns
   for a joint with end stops (``MAX_TURNS_PERIODIC`` for a periodic one; both are the data
-  contract's, :mod:`excavator_surrogate.data.episode`);
+  contract's, :mod:`excavator_surrogate.data.plausible`);
 - bursts: a jump implying a speed no joint reaches (above :data:`JUMP_SPEED` rad/s and
   :data:`JUMP_FACTOR` times the log's own 99th-percentile speed), paired with a jump back
   to where the joint could plausibly be by then.  The samples between are the burst,
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..data.episode import MAX_TURNS, MAX_TURNS_PERIODIC
+from ..data.plausible import MAX_TURNS, MAX_TURNS_PERIODIC
 
 JUMP_SPEED = 10.0
 """A jump is impossible only above this speed [rad/s] ..."""

@@ -1,0 +1,98 @@
+"""Plausibility bounds of the episode contract: values no joint and no sensor produce.
+
+No joint limits are needed: an angle beyond ±:data:`MAX_TURNS` turns, an end-stopped
+joint's angle more than one turn outside the range it keeps between the
+:data:`LEVEL_QUANTILE` quantiles, a velocity of more than :data:`MAX_TURNS` turns per sample
+step.  :func:`~.episode.validate_episode` runs :func:`check_plausible`; the import uses the
+same turn bounds on raw logs (``ingest/bursts.py``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataError
+from ..spec import MachineSpec
+
+MAX_TURNS = 10.0
+"""An angle beyond this many turns [2π rad] of a joint with end stops is impossible."""
+MAX_TURNS_PERIODIC = 1e4
+"""The same bound for a periodic joint (its stored angle may be unwrapped and count turns)."""
+LEVEL_QUANTILE = 0.01
+"""An end-stopped joint's angle is implausible more than one turn outside the range
+``[q, 1 - q]`` quantiles of its own column (no limits needed)."""
+
+_FIX = "re-import the log: exsur import finds impossible samples in the raw log (docs/import.md)"
+
+
+def check_plausible(
+    spec: MachineSpec,
+    arrays: dict[str, np.ndarray | None],
+    columns: dict[str, list[str]],
+    *,
+    where: str | Path | None = None,
+) -> None:
+    """Angles and velocities that no joint and no sensor produce, without declared limits.
+
+    Per joint: ``|theta|`` beyond :data:`MAX_TURNS` turns (:data:`MAX_TURNS_PERIODIC` for a
+    periodic joint); a joint with end stops more than one turn outside the range its angle
+    keeps between the :data:`LEVEL_QUANTILE` quantiles; ``|omega|`` moving more than
+    :data:`MAX_TURNS` turns in one sample step.  Simulated sensor jumps and real end stops
+    stay far inside these bounds; bursts of any size in raw logs are found by the import.
+
+    Args:
+        spec: the episode's machine.
+        arrays: role (``theta``, ``theta_true``, ``omega``, ``omega_true``) -> (n_step,
+            n_joint) values [rad, rad/s], or None when absent.
+        columns: role -> the column name of each joint (for messages).
+        where: the file (for messages).
+
+    Raises:
+        DataError: naming ``where``, the column and the first offending row.
+    """
+    turn = 2.0 * np.pi
+    for role in ("theta", "theta_true"):
+        arr = arrays.get(role)
+        if arr is None or arr.shape[0] == 0:
+            continue
+        for k, j in enumerate(spec.joints):
+            x = arr[:, k]
+            turns = MAX_TURNS_PERIODIC if j.periodic else MAX_TURNS
+            bad = np.abs(x) > turns * turn
+            which = "joint" if j.periodic else "joint with end stops"
+            why = f"beyond ±{turns:g} turns, which no {which} reaches"
+            if not bad.any() and not j.periodic:
+                lo, hi = np.quantile(x, [LEVEL_QUANTILE, 1.0 - LEVEL_QUANTILE])
+                bad = (x < lo - turn) | (x > hi + turn)
+                why = (
+                    f"more than one turn outside [{lo:.6g}, {hi:.6g}] rad, where the joint "
+                    f"stays {1 - 2 * LEVEL_QUANTILE:.0%} of the time"
+                )
+            if bad.any():
+                row = int(np.flatnonzero(bad)[0])
+                raise DataError(
+                    where,
+                    f"joint '{j.name}': angle {x[row]:.6g} rad is impossible ({why}) "
+                    f"in {int(bad.sum())} sample(s)",
+                    column=columns[role][k],
+                    row=row,
+                    fix=_FIX,
+                )
+    max_speed = MAX_TURNS * turn / spec.dt
+    for role in ("omega", "omega_true"):
+        arr = arrays.get(role)
+        if arr is None:
+            continue
+        bad = np.abs(arr) > max_speed
+        if bad.any():
+            row, k = (int(x) for x in np.argwhere(bad)[0])
+            raise DataError(
+                where,
+                f"velocity {arr[row, k]:.6g} rad/s is impossible (more than {MAX_TURNS:g} turns "
+                f"in one {spec.dt:.6g} s step) in {int(bad[:, k].sum())} sample(s)",
+                column=columns[role][k],
+                row=row,
+                fix=_FIX,
+            )
