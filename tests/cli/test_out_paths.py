@@ -15,9 +15,10 @@ import pytest
 from excavator_surrogate.cli import main
 from excavator_surrogate.outdir import MARKER, is_exsur_output, read_marker
 
-HOLD = (
-    "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
-    "print('locked', flush=True); sys.stdin.read()"
+HOLD = (  # what a running exsur writer holds: an flock on .NAME.lock next to its --out
+    "import fcntl, os, sys; from pathlib import Path; p = Path(sys.argv[1]); "
+    "f = open(p.parent / f'.{p.name}.lock', 'w'); fcntl.flock(f, fcntl.LOCK_EX); "
+    "f.write(str(os.getpid())); f.flush(); print('locked', flush=True); sys.stdin.read()"
 )
 
 
