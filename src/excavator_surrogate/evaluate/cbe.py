@@ -10,7 +10,8 @@
 
     {"omega": {"<joint>": {"rmse", "mae", "r2"}}, "theta": {...},
      "run": {checkpoint, dataset, split, reference, mode, model, n_episode, n_step_scored, warmup, episodes, ...},
-     "compare": {"<model>": {"omega": ..., "theta": ...}}}     # only with baselines
+     "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines
+     "uncertainty": {...}}   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .metrics import cbe_metrics
 from .report import report_markdown
+from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
 _log = logging.getLogger(__name__)
 
@@ -204,13 +206,20 @@ def evaluate_checkpoint(
         "seconds": round(time.monotonic() - t0, 3),
     }
     result: dict[str, Any] = {**metrics[primary], "run": run_info}
+    unc_runs = uncertainty_runs(
+        sur, episodes, main_runs, reference=reference, max_steps=max_steps or None
+    )
+    result["uncertainty"] = uncertainty_metrics(sur, unc_runs)
     if len(models) > 1:
         result["compare"] = {k: v for k, v in metrics.items() if k != primary}
     out = Path(out)
     with atomic_files(out, kind="evaluation") as tmp:  # all files or none
         write_json(tmp / "metrics.json", _json_safe(result))
         write_text(
-            tmp / "table.md", report_markdown(metrics, primary=primary, run=run_info, paper=paper)
+            tmp / "table.md",
+            report_markdown(metrics, primary=primary, run=run_info, paper=paper)
+            + "\n"
+            + uncertainty_markdown(result["uncertainty"], sur.spec.names),
         )
         if figure:
             from ..plotting.cbe import plot_cbe
@@ -220,6 +229,7 @@ def evaluate_checkpoint(
                 preds = {
                     label: (runs[label][i].omega_hat, runs[label][i].theta_hat) for label in models
                 }
+                bands, ood = figure_bands(unc_runs[i].pred)
                 plot_cbe(
                     tmp / name,
                     time=r.time,
@@ -230,6 +240,8 @@ def evaluate_checkpoint(
                     warmup=r.warmup,
                     title=f"{r.name}: closed-loop free run vs {reference} ({split})",
                     ref_label=reference,
+                    bands=bands,
+                    ood=ood,
                 )
     return result
 

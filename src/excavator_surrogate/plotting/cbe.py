@@ -21,6 +21,8 @@ def plot_cbe(
     warmup: int = 0,
     title: str = "",
     ref_label: str = "reference",
+    bands: Mapping[float, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    ood: np.ndarray | None = None,
 ) -> Path:
     """Write a PNG comparing surrogate free-runs with the reference.
 
@@ -34,6 +36,10 @@ def plot_cbe(
         warmup: samples shaded as warm-up (recorded data fed to the model).
         title: figure title.
         ref_label: legend label of the reference.
+        bands: the first (primary) model's uncertainty bands, level -> ``(omega_lo,
+            omega_hi, theta_lo, theta_hi)``, each (n_step, n_joint); shaded, widest palest.
+        ood: (n_step,) bool, steps flagged out of distribution: marked as a red strip at the
+            bottom of every panel.
     """
     import matplotlib
 
@@ -49,6 +55,18 @@ def plot_cbe(
         ):
             ax = axes[row, j]
             ax.plot(time, ref[:, j], color="k", lw=1.2, label=ref_label, zorder=3)
+            for level in sorted(bands or {}, reverse=True):  # the widest band first, palest
+                lo, hi = bands[level][2 * row], bands[level][2 * row + 1]  # type: ignore[index]
+                ax.fill_between(
+                    time,
+                    lo[:, j],
+                    hi[:, j],
+                    color="C0",
+                    alpha=0.15 if level == max(bands) else 0.3,  # type: ignore[arg-type]
+                    lw=0,
+                    label=f"{round(100 * level)} % band",
+                    zorder=1,
+                )
             for i, (label, (om, th)) in enumerate(predictions.items()):
                 y = om if row == 0 else th
                 # the first (primary) model on top of the baselines, under the reference
@@ -75,6 +93,18 @@ def plot_cbe(
                 ax.set_ylim(lo - pad, hi + pad)
             if warmup > 0:
                 ax.axvspan(time[0], time[min(warmup, len(time) - 1)], color="0.9", lw=0)
+            if ood is not None and ood.any():
+                # flagged steps: a red strip along the bottom of the panel
+                ax.fill_between(
+                    time,
+                    0,
+                    0.04,
+                    where=ood,
+                    color="red",
+                    lw=0,
+                    transform=ax.get_xaxis_transform(),
+                    label="out of distribution",
+                )
             if row == 0:
                 ax.set_title(name)
             else:

@@ -17,11 +17,17 @@ window, rollout mode, end stops, play features and velocity feature.
 
 :func:`~.rollout.rollout_reference` with a list of members is the plain loop (members
 stepped one by one, omega averaged in NumPy) that the merged network is tested against.
+
+:class:`MemberHead` gives every member's own omega back from a merged network (the spread
+of the members is the ensemble's uncertainty, :mod:`.uncertainty`): the network runs as
+always, a hook records the head's hidden layer, and the last layer is applied per member
+block (``merge`` stores each member's output bias in ``metrics["ensemble"]["member_bias"]``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -105,6 +111,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
     b1 = np.zeros(f_tot)
     w2 = np.zeros((n_joint, f_tot))
     b2 = np.zeros(n_joint)
+    member_bias = []  # member m's share of b2, times n_member (MemberHead splits the head back)
     for m, s in enumerate(surs):
         rnn, lin1, lin2 = s.net.rnn, s.net.head[0], s.net.head[2]
         norm = s.norm.to("cpu", torch.float32)
@@ -138,6 +145,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         # residual: omega = mean_m ys_m (W2_m a_m + b2_m) + w = ys0 y + w, so no ym terms
         w2[:, f_lo:f_hi] = _np(lin2.weight) * (ys / (n_member * ys0))[:, None]
         b2 += (ys * _np(lin2.bias) + (0.0 if residual else ym)) / (n_member * ys0)
+        member_bias.append((ys * _np(lin2.bias) + (0.0 if residual else ym - ym0)) / ys0)
     if not residual:
         b2 -= ym0 / ys0
 
@@ -171,6 +179,7 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         "n_member": n_member,
         "hidden": hid,
         "head_hidden": head,
+        "member_bias": [[float(v) for v in b] for b in member_bias],
         "members": [
             {
                 "name": s.name,
@@ -198,3 +207,71 @@ def n_member(sur: Surrogate) -> int:
     """Number of members a surrogate was merged from (1 for a single network)."""
     ens = (sur.metrics or {}).get("ensemble")
     return int(ens["n_member"]) if isinstance(ens, dict) and "n_member" in ens else 1
+
+
+class MemberHead:
+    """The merged output layer split back into its members' (see :func:`member_head`).
+
+    The merged head is ``y = W2 a + b2`` with ``a = relu(W1 h + b1)``, ``a`` the members'
+    head activations side by side; member ``m``'s own normalised output (in member 0's
+    output normalisation) is ``y_m = M W2[:, block_m] a[block_m] + beta_m``, and
+    ``mean_m y_m = y`` exactly (up to rounding).
+    """
+
+    def __init__(self, sur: Surrogate) -> None:
+        info = sur.metrics["ensemble"]
+        self.n_member = m = int(info["n_member"])
+        self.residual = bool(sur.model_cfg.residual)
+        self.n_joint = sur.spec.n_joint
+        net = sur.net
+        self._act = net.head[1]
+        w2 = net.head[2].weight.detach()  # (n_joint, f_tot)
+        off = np.concatenate([[0], np.cumsum(info["head_hidden"])]).astype(int)
+        mask = torch.zeros(m, 1, w2.shape[1], dtype=w2.dtype, device=w2.device)
+        for i in range(m):
+            mask[i, :, off[i] : off[i + 1]] = 1.0
+        self.w2 = (m * w2.unsqueeze(0) * mask).contiguous()  # (M, n_joint, f_tot)
+        self.bias = torch.tensor(info["member_bias"], dtype=w2.dtype, device=w2.device)
+        self.a: torch.Tensor | None = None
+        """The head activations ``(..., f_tot)`` of the last captured network call."""
+
+    @contextmanager
+    def capture(self) -> Iterator[MemberHead]:
+        """Record the head's hidden activations of the network calls inside the block."""
+
+        def hook(_mod: Any, _inp: Any, out: torch.Tensor) -> None:
+            self.a = out
+
+        handle = self._act.register_forward_hook(hook)
+        try:
+            yield self
+        finally:
+            handle.remove()
+
+    def outputs(self, x: torch.Tensor) -> torch.Tensor:
+        """Every member's normalised output for the captured call on inputs ``x``.
+
+        Args:
+            x: (n_batch, n_feature) normalised features of the sample the call predicted from
+                (the velocity feature of a residual head is read from it).
+
+        Returns:
+            (M, n_batch, n_joint) normalised omega per member (member 0's normalisation).
+        """
+        if self.a is None:
+            raise RuntimeError("MemberHead.outputs() needs a network call inside capture()")
+        y = torch.einsum("nf,mjf->mnj", self.a, self.w2) + self.bias[:, None, :]
+        if self.residual:
+            y = y + x[..., -self.n_joint :]
+        return y
+
+
+def member_head(sur: Surrogate) -> MemberHead | None:
+    """The :class:`MemberHead` of a merged ensemble, or ``None``: a single network, or a
+    checkpoint merged before ``merge`` recorded the members' output biases (re-merge it)."""
+    info = (sur.metrics or {}).get("ensemble")
+    if n_member(sur) < 2 or not isinstance(info, dict) or "member_bias" not in info:
+        return None
+    if not hasattr(sur.net, "head"):
+        return None
+    return MemberHead(sur)

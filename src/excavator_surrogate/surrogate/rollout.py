@@ -19,6 +19,7 @@ are used.  Outputs for ``k < W`` are the recorded angles and NaN velocities.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass
 from typing import Literal
 
@@ -27,7 +28,7 @@ import torch
 
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
-from .ensemble import check_members
+from .ensemble import check_members, member_head
 from .features import Normalization, integrate, integrate_np, omega_in_np, omega_target
 from .model import State, Surrogate
 
@@ -81,9 +82,13 @@ class ClosedLoop:
     """Batched closed-loop runner: ``reset`` with a recorded history, then ``step`` with commands.
 
     Runs without gradients.  Tensors are on the surrogate's device/dtype; inputs may be NumPy.
+
+    With ``members=True`` (a merged seed ensemble, :func:`.ensemble.member_head`) every step
+    also sets :attr:`omega_members`, each member's own velocity from the same network call,
+    and :attr:`follow` lets a row integrate one member's velocity instead of the mean.
     """
 
-    def __init__(self, sur: Surrogate, *, mode: Mode | None = None) -> None:
+    def __init__(self, sur: Surrogate, *, mode: Mode | None = None, members: bool = False) -> None:
         self.sur = sur
         self.mode: Mode = mode or sur.mode
         if self.mode not in ("windowed", "stateful"):
@@ -104,6 +109,18 @@ class ClosedLoop:
         """Velocity feature of the current sample ``(n_batch, n_joint)`` [rad/s]: measured
         (history) or the last integrated prediction."""
         self._limits = sur.limits()
+        self._head = member_head(sur) if members else None
+        if members and self._head is None:
+            raise ConfigError(
+                f"model '{sur.name}' has no ensemble members to report (a single network, or "
+                "merged by an older exsur: merge its members again with 'exsur merge')"
+            )
+        self.follow: torch.Tensor | None = None
+        """With ``members``: ``(n_batch,)`` long, the member whose velocity row ``b``
+        integrates (``-1``: the ensemble mean, i.e. the merged network; None: all rows)."""
+        self.omega_members: torch.Tensor | None = None
+        """With ``members``: ``(M, n_batch, n_joint)`` [rad/s], each member's predicted
+        ``omega[k+1]`` at the last step (before the speed bound and end stops)."""
 
     def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
         return torch.as_tensor(a, device=self.sur.device, dtype=self.sur.dtype)
@@ -159,15 +176,23 @@ class ClosedLoop:
         u = self._t(u)
         self.z = self.norm.play_update(self.z, u)
         row = self.norm.encode(self.theta, u, self.z, self.omega)
-        if self.mode == "windowed":
-            x = torch.cat([self._rows, row.unsqueeze(1)], dim=1)
-            if x.shape[1] < self.sur.window:  # short history: repeat its first sample
-                pad = x[:, :1].expand(x.shape[0], self.sur.window - x.shape[1], x.shape[2])
-                x = torch.cat([pad, x], dim=1)
-            y = self.sur.net(x)
-            self._rows = x[:, 1:]
-        else:
-            y, self._state = self.sur.net.step(row, self._state)
+        with self._head.capture() if self._head is not None else nullcontext():
+            if self.mode == "windowed":
+                x = torch.cat([self._rows, row.unsqueeze(1)], dim=1)
+                if x.shape[1] < self.sur.window:  # short history: repeat its first sample
+                    pad = x[:, :1].expand(x.shape[0], self.sur.window - x.shape[1], x.shape[2])
+                    x = torch.cat([pad, x], dim=1)
+                y = self.sur.net(x)
+                self._rows = x[:, 1:]
+            else:
+                y, self._state = self.sur.net.step(row, self._state)
+        if self._head is not None:
+            y_m = self._head.outputs(row)  # (M, n_batch, n_joint), mean over M = y
+            self.omega_members = self.norm.omega(y_m)
+            if self.follow is not None:
+                rows = torch.arange(y.shape[0], device=y.device)
+                picked = y_m[self.follow.clamp(min=0), rows]
+                y = torch.where((self.follow >= 0)[:, None], picked, y)
         self.theta, self.omega = integrate(
             self.theta, self.norm.omega(y), dt=self.dt, limits=self._limits
         )

@@ -10,6 +10,7 @@ from typing import Any
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
 from ..errors import ConfigError
+from .calibration import calibrate_best
 from .config import TrainConfig
 from .ensembles import train_ensemble
 from .jobs import TrainJob, run_jobs
@@ -36,7 +37,9 @@ def train(
 
     Writes into ``out``: ``best.pt`` (best validation free-run), ``last.pt`` (latest, for
     resuming), ``log.csv`` (one row per epoch), ``config.toml`` and ``tb/`` (TensorBoard).
-    With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`).
+    With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`).  Then
+    ``best.pt`` gets the training data's coverage record and, for an ensemble, its
+    uncertainty bands calibrated on the validation free runs (:mod:`.calibration`).
 
     Args:
         cfg: training options.
@@ -71,18 +74,22 @@ def train(
                     f"[train] members = {cfg.members}: {what} works per member; train each member "
                     "as a single network (members = 1) and merge them with 'exsur merge'"
                 )
-        return train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
-    return train_network(
-        cfg,
-        dataset,
-        out=out,
-        resume=resume,
-        show_progress=show_progress,
-        on_epoch=on_epoch,
-        par=dist,
-        loss=loss,
-        notes=notes,
-    )
+        best = train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
+    else:
+        best = train_network(
+            cfg,
+            dataset,
+            out=out,
+            resume=resume,
+            show_progress=show_progress,
+            on_epoch=on_epoch,
+            par=dist,
+            loss=loss,
+            notes=notes,
+        )
+    if dist is None or dist.is_main:  # best.pt is final: coverage record and ensemble bands
+        calibrate_best(cfg, dataset, best)
+    return best
 
 
 def _train_job(job: TrainJob, show_progress: bool | None) -> Path:

@@ -1,0 +1,66 @@
+"""``exsur calibrate CKPT DATASET``: store the training coverage and the ensemble's bands."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``calibrate`` subcommand."""
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate an ensemble's uncertainty bands and record the training data's coverage",
+        description="Add to CKPT (rewritten in place, atomically) what 'exsur train' adds at the "
+        "end of training: the record of what DATASET's training split covered (command, angle "
+        "and speed ranges, angle/command occupancy: the out-of-distribution flag) and, for a "
+        "merged seed ensemble, the 50 %% and 90 %% band scales fitted on the validation split's "
+        "free runs. Use it after 'exsur merge', or to re-calibrate on other data of the same "
+        "machine.",
+    )
+    p.add_argument("ckpt", type=Path, help="checkpoint (best.pt), rewritten in place")
+    p.add_argument("dataset", type=Path, help="dataset folder (its train and val splits)")
+    p.add_argument(
+        "--design",
+        choices=("independent", "shared"),
+        default="independent",
+        help="members integrate their own angles (independent, default) or share the mean's",
+    )
+    p.add_argument(
+        "--max-steps",
+        type=int,
+        default=0,
+        help="truncate validation episodes to this many samples (0: whole episodes)",
+    )
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Calibrate and print one summary line."""
+    from ..data.dataset import load_dataset
+    from ..errors import ConfigError, DataError
+    from ..surrogate.bands import calibrate_checkpoint
+    from ..surrogate.checkpoint import check_compatible, load_checkpoint
+
+    if args.max_steps < 0:
+        raise ConfigError(f"--max-steps must be >= 0, got {args.max_steps}")
+    sur = load_checkpoint(args.ckpt)
+    ds = load_dataset(args.dataset)
+    check_compatible(sur.spec, ds.spec, ckpt=args.ckpt, data_name=args.dataset)
+    if not ds.train:
+        raise DataError(args.dataset, "has no training episodes", fix="give the training dataset")
+    val = ds.val or ds.train
+    cal, cov = calibrate_checkpoint(
+        args.ckpt, val, ds.train, design=args.design, max_steps=args.max_steps or None
+    )
+    what = f"coverage of {cov.n_sample} training samples"
+    if cal is None:
+        print(f"{args.ckpt}: {what} (single network: no uncertainty bands)")
+    else:
+        k = ", ".join(f"{v:.3g}" for v in cal.theta[-1])
+        src = "validation" if ds.val else "training (no val split)"
+        print(
+            f"{args.ckpt}: {what}; bands calibrated on {cal.n_step} {src} steps "
+            f"({args.design}; angle 90 % band = {k} x spread per joint)"
+        )
+    return 0

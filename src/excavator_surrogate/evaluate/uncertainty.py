@@ -1,0 +1,123 @@
+"""The uncertainty part of a CBE evaluation: band coverage and width, out-of-distribution share.
+
+``metrics.json`` gets ``"uncertainty"``::
+
+    {"available": bool, "notes": [...], "levels": [0.5, 0.9],
+     "theta": {"<joint>": {"coverage_50", "width_50", "coverage_90", "width_90", "spread"}},
+     "omega": {...},
+     "ood": {"<joint>": share of flagged steps, "any": share} | null}
+
+Coverage is the share of scored steps whose reference lies inside the band (a calibrated
+band covers about its level); width is the mean full width [rad, rad/s].  A single network
+has ``available: false`` and a note: it has no uncertainty to report.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
+
+from ..data.episode import Episode
+from ..surrogate.bands import EpisodePrediction, band_scores, predict_episodes
+from ..surrogate.coverage import ood_flags
+from ..surrogate.ensemble import member_head, n_member
+from ..surrogate.model import Surrogate
+from ..surrogate.rollout import EpisodeRollout
+from ..surrogate.uncertainty import NO_MEMBERS, UncertainPrediction, stored_coverage
+
+
+def uncertainty_runs(
+    sur: Surrogate,
+    episodes: Sequence[Episode],
+    runs: Sequence[EpisodeRollout],
+    *,
+    reference: Literal["measured", "true"] = "measured",
+    max_steps: int | None = None,
+) -> list[EpisodePrediction]:
+    """Spread, bands and flags of ``sur`` on ``episodes``.
+
+    ``runs`` are ``sur``'s ordinary free runs of the same episodes: a single network (or an
+    ensemble without member outputs) reuses them for the flags instead of running again.
+    """
+    if member_head(sur) is not None:
+        return predict_episodes(sur, episodes, reference=reference, max_steps=max_steps)
+    cov = stored_coverage(sur)
+    out = []
+    for r, ep in zip(runs, episodes):
+        n = len(r.time)
+        pred = UncertainPrediction(r.theta_hat[None], r.omega_hat[None], r.warmup)
+        pred.notes = [
+            NO_MEMBERS
+            if n_member(sur) < 2
+            else "ensemble merged by an older exsur: no member outputs (merge it again)"
+        ]
+        if cov is None:
+            pred.notes.append("no training coverage record: no out-of-distribution flags")
+        else:
+            pred.ood = ood_flags(cov, sur.spec, pred.theta, pred.omega, ep.u[None, :n])
+        pred.theta, pred.omega = pred.theta[0], pred.omega[0]
+        pred.ood = None if pred.ood is None else pred.ood[0]
+        out.append(EpisodePrediction(r.name, r.time, pred, r.theta_ref, r.omega_ref))
+    return out
+
+
+def uncertainty_metrics(sur: Surrogate, preds: Sequence[EpisodePrediction]) -> dict[str, Any]:
+    """The ``"uncertainty"`` entry of ``metrics.json`` (see the module docstring)."""
+    return band_scores(preds, sur.spec.names, [j.periodic for j in sur.spec.joints])
+
+
+def _pct(v: float | None) -> str:
+    return "—" if v is None else f"{100 * v:.0f} %"
+
+
+def _num(v: float | None) -> str:
+    return "—" if v is None else f"{v:.4f}"
+
+
+def uncertainty_markdown(unc: Mapping[str, Any], names: Sequence[str]) -> str:
+    """Markdown lines: per joint the bands' coverage and width and the flagged share."""
+    lines = ["## Uncertainty and out-of-distribution", ""]
+    for note in unc.get("notes") or []:
+        lines.append(f"Note: {note}.")
+    if unc.get("notes"):
+        lines.append("")
+    if unc.get("available"):
+        tags = [f"{round(100 * lv)}" for lv in unc["levels"]]
+        head = ["Type", "Joint"]
+        for t in tags:
+            head += [f"{t} % band coverage", f"{t} % width"]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for q, sym in (("theta", "θ [rad]"), ("omega", "ω [rad/s]")):
+            for n in names:
+                d = unc[q][n]
+                cells = [sym, n]
+                for t in tags:
+                    cells += [_pct(d[f"coverage_{t}"]), _num(d[f"width_{t}"])]
+                lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    ood = unc.get("ood")
+    if ood is not None:
+        lines += [
+            "Steps flagged out of distribution (outside the training data's range, or an "
+            "angle/command pair it never came near): "
+            + ", ".join(f"{n} {_pct(ood[n])}" for n in names)
+            + f"; any joint {_pct(ood['any'])}.",
+            "",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def figure_bands(
+    pred: UncertainPrediction,
+) -> tuple[dict[float, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None, Any]:
+    """``(bands, ood)`` of one episode for :func:`~excavator_surrogate.plotting.cbe.plot_cbe`:
+    level -> (omega_lo, omega_hi, theta_lo, theta_hi), and the (n_step,) any-joint flag."""
+    bands = None
+    if pred.bands is not None:
+        bands = {
+            lv: (*d["omega"], *d["theta"])  # type: ignore[misc]
+            for lv, d in pred.bands.items()
+        }
+    return bands, (None if pred.ood is None else pred.ood.any(-1))

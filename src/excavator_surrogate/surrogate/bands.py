@@ -1,0 +1,301 @@
+"""Calibrating and scoring the ensemble's bands on episodes; the checkpoint records.
+
+- :func:`fit_scale`: per-joint band scales, the level-quantile of ``|error| / spread`` (a
+  split-conformal scale on normalised residuals), with a spread floor (:data:`FLOOR`).
+- :func:`predict_episodes`: :func:`.uncertainty.predict_with_uncertainty` over episodes of
+  different lengths, with their references; :func:`band_scores` scores it (coverage, width,
+  flagged share per joint).
+- :func:`calibrate` fits the scales on validation free runs and records the training data's
+  coverage; :func:`calibrate_checkpoint` adds both to a checkpoint file (training calls it on
+  ``best.pt``; ``exsur calibrate`` on any checkpoint).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from ..data.episode import Episode
+from ..errors import DataError
+from ..io_utils import atomic_path
+from .checkpoint import read_checkpoint, surrogate_from_dict
+from .coverage import CoverageRecord, fit_coverage
+from .ensemble import member_head
+from .features import omega_target
+from .model import Surrogate
+from .rollout import reference_theta
+from .uncertainty import LEVELS, Calibration, Design, UncertainPrediction, predict_with_uncertainty
+
+FLOOR = 0.1
+"""Spread floor of a band, as a fraction of the median spread on the calibration runs."""
+
+
+def fit_scale(
+    err: np.ndarray,
+    spread: np.ndarray,
+    levels: Sequence[float] = LEVELS,
+    floor: np.ndarray | None = None,
+) -> np.ndarray:
+    """Per-joint band scales: the ``level``-quantile of ``|err| / max(spread, floor)``.
+
+    Args:
+        err: (n_sample, n_joint) prediction error (NaN samples are skipped).
+        spread: (n_sample, n_joint) member spread.
+        levels: nominal coverages.
+        floor: (n_joint,) smallest spread used (default 0).
+
+    Returns:
+        (n_level, n_joint): with half-width ``scale x spread`` the band covers ``level`` of
+        the samples it was fitted on (a split-conformal scale on normalised residuals).
+    """
+    tiny = np.finfo(np.float64).tiny
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.abs(err) / np.maximum(spread, np.maximum(tiny, 0.0 if floor is None else floor))
+    out = np.full((len(levels), err.shape[-1]), np.nan)
+    for j in range(err.shape[-1]):
+        rj = r[:, j][np.isfinite(r[:, j])]
+        if rj.size:
+            out[:, j] = np.quantile(rj, levels, method="higher")
+    return out
+
+
+def _error(
+    pred: np.ndarray, ref: np.ndarray, spec_periodic: np.ndarray, *, angle: bool
+) -> np.ndarray:
+    err = pred - ref
+    if angle and spec_periodic.any():  # periodic joints: the shorter way round
+        wrapped = (err + np.pi) % (2 * np.pi) - np.pi
+        err = np.where(spec_periodic, wrapped, err)
+    return err
+
+
+@dataclass
+class EpisodePrediction:
+    """One episode's :class:`UncertainPrediction` (batch axis dropped) and its reference."""
+
+    name: str
+    time: np.ndarray
+    """(n_step,) [s]."""
+    pred: UncertainPrediction
+    theta_ref: np.ndarray
+    """(n_step, n_joint) [rad]."""
+    omega_ref: np.ndarray
+    """(n_step, n_joint) [rad/s]."""
+
+
+def predict_episodes(
+    sur: Surrogate,
+    episodes: Sequence[Episode],
+    *,
+    reference: Literal["measured", "true"] = "measured",
+    max_steps: int | None = None,
+    design: Design | None = None,
+    calibration: Calibration | None = None,
+    coverage: CoverageRecord | None = None,
+) -> list[EpisodePrediction]:
+    """:func:`predict_with_uncertainty` over episodes of different lengths in one batch
+    (shorter ones padded with their last command; causal, so padding changes nothing before)."""
+    if not episodes:
+        return []
+    warmup = sur.window
+    thetas = [reference_theta(ep, reference)[:max_steps] for ep in episodes]
+    us = [ep.u[:max_steps] for ep in episodes]
+    lengths = [len(u) for u in us]
+    for ep, n in zip(episodes, lengths):
+        if n <= warmup:
+            raise DataError(
+                ep.name,
+                f"has {n} samples, not more than the warm-up of {warmup}",
+                fix="use longer episodes or a shorter window",
+            )
+    n_max = max(lengths)
+    u = np.stack([np.pad(a, ((0, n_max - len(a)), (0, 0)), mode="edge") for a in us])
+    th0 = np.stack([t[:warmup] for t in thetas])
+    full = predict_with_uncertainty(
+        sur, th0, u, warmup=warmup, design=design, calibration=calibration, coverage=coverage
+    )
+    out = []
+    for i, ep in enumerate(episodes):
+        n = lengths[i]
+
+        def cut(a: np.ndarray | None, axis: int = 0, i: int = i, n: int = n) -> Any:
+            if a is None:
+                return None
+            return a[:, i, :n] if axis == 1 else a[i, :n]
+
+        p = UncertainPrediction(
+            theta=cut(full.theta),
+            omega=cut(full.omega),
+            warmup=warmup,
+            theta_members=cut(full.theta_members, 1),
+            omega_members=cut(full.omega_members, 1),
+            theta_spread=cut(full.theta_spread),
+            omega_spread=cut(full.omega_spread),
+            bands=None
+            if full.bands is None
+            else {
+                lv: {q: (cut(lo), cut(hi)) for q, (lo, hi) in d.items()}
+                for lv, d in full.bands.items()
+            },
+            ood=cut(full.ood),
+            notes=list(full.notes),
+        )
+        out.append(
+            EpisodePrediction(ep.name, ep.time[:n], p, thetas[i], omega_target(thetas[i], sur.spec))
+        )
+    return out
+
+
+def _pooled(
+    runs: Sequence[EpisodePrediction], periodic: np.ndarray
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Scored steps of every run: quantity -> (error, spread), each (n_sample, n_joint)."""
+    out: dict[str, tuple[list[np.ndarray], list[np.ndarray]]] = {
+        "theta": ([], []),
+        "omega": ([], []),
+    }
+    for r in runs:
+        p, w = r.pred, r.pred.warmup
+        assert p.theta_spread is not None and p.omega_spread is not None
+        for q, c, ref, s in (
+            ("theta", p.theta, r.theta_ref, p.theta_spread),
+            ("omega", p.omega, r.omega_ref, p.omega_spread),
+        ):
+            out[q][0].append(_error(c[w:], ref[w:], periodic, angle=q == "theta"))
+            out[q][1].append(s[w:])
+    return {q: (np.concatenate(e), np.concatenate(s)) for q, (e, s) in out.items()}
+
+
+def band_scores(
+    runs: Sequence[EpisodePrediction], names: Sequence[str], periodic: Sequence[bool]
+) -> dict[str, Any]:
+    """Per joint: coverage and mean width of every band, mean spread, share of flagged steps.
+
+    Returns ``{"available", "notes", "levels", "theta": {joint: {"coverage_50", "width_50",
+    ..., "spread"}}, "omega": {...}, "ood": {joint: share, "any": share} | None}``
+    (scored steps only: after the warm-up).
+    """
+    first = runs[0].pred
+    per = np.asarray(periodic, dtype=bool)
+    res: dict[str, Any] = {"available": first.bands is not None, "notes": list(first.notes)}
+    if first.bands is not None:
+        levels = sorted(first.bands)
+        res["levels"] = levels
+        pooled = _pooled(runs, per)
+        for q in ("theta", "omega"):
+            err, spread = pooled[q]
+            d: dict[str, dict[str, float | None]] = {n: {} for n in names}
+            for lv in levels:
+                tag = f"{round(100 * lv)}"
+                half = np.concatenate(
+                    [
+                        (r.pred.bands[lv][q][1] - r.pred.bands[lv][q][0])[r.pred.warmup :] / 2  # type: ignore[index]
+                        for r in runs
+                    ]
+                )
+                with np.errstate(invalid="ignore"):
+                    inside = np.abs(err) <= half
+                ok = np.isfinite(err) & np.isfinite(half)
+                for j, n in enumerate(names):
+                    m = ok[:, j]
+                    d[n][f"coverage_{tag}"] = float(inside[m, j].mean()) if m.any() else None
+                    d[n][f"width_{tag}"] = float(2 * half[m, j].mean()) if m.any() else None
+            for j, n in enumerate(names):
+                s = spread[:, j][np.isfinite(spread[:, j])]
+                d[n]["spread"] = float(s.mean()) if s.size else None
+            res[q] = d
+    if first.ood is None:
+        res["ood"] = None
+    else:
+        flags = np.concatenate([r.pred.ood[r.pred.warmup :] for r in runs])  # type: ignore[index]
+        res["ood"] = {n: float(flags[:, j].mean()) for j, n in enumerate(names)}
+        res["ood"]["any"] = float(flags.any(-1).mean())
+    return res
+
+
+def calibrate(
+    sur: Surrogate,
+    val: Sequence[Episode],
+    train: Sequence[Episode],
+    *,
+    design: Design = "independent",
+    levels: Sequence[float] = LEVELS,
+    max_steps: int | None = None,
+) -> tuple[Calibration | None, CoverageRecord]:
+    """Fit the band scales on ``val`` free runs and record what ``train`` covered.
+
+    Args:
+        sur: the surrogate (without members: no calibration, only the coverage record).
+        val: validation episodes (measured angles are the reference).
+        train: training episodes.
+        design: how the members run.
+        levels: band levels.
+        max_steps: truncate validation episodes (None: whole episodes, the long horizon the
+            bands are for).
+
+    Returns:
+        ``(calibration or None, coverage record)``.
+    """
+    coverage = fit_coverage(train, sur.spec)
+    if member_head(sur) is None or not val:
+        return None, coverage
+    runs = predict_episodes(
+        sur, val, max_steps=max_steps, design=design, calibration=None, coverage=coverage
+    )
+    per = np.array([j.periodic for j in sur.spec.joints])
+    pooled = _pooled(runs, per)
+    floors = {q: FLOOR * _median_spread(s) for q, (_, s) in pooled.items()}
+    cal = Calibration(
+        levels=tuple(float(v) for v in levels),
+        theta=fit_scale(*pooled["theta"], levels, floors["theta"]),
+        omega=fit_scale(*pooled["omega"], levels, floors["omega"]),
+        n_step=int(pooled["theta"][0].shape[0]),
+        design=design,
+        theta_floor=floors["theta"],
+        omega_floor=floors["omega"],
+    )
+    return cal, coverage
+
+
+def _median_spread(spread: np.ndarray) -> np.ndarray:
+    """(n_joint,) median of the positive finite spreads per joint (0 if none)."""
+    out = np.zeros(spread.shape[-1])
+    for j in range(spread.shape[-1]):
+        s = spread[:, j][np.isfinite(spread[:, j]) & (spread[:, j] > 0)]
+        out[j] = float(np.median(s)) if s.size else 0.0
+    return out
+
+
+def calibrate_checkpoint(
+    path: str | Path,
+    val: Sequence[Episode],
+    train: Sequence[Episode],
+    *,
+    design: Design = "independent",
+    max_steps: int | None = None,
+) -> tuple[Calibration | None, CoverageRecord]:
+    """Add the calibration and the coverage record to the checkpoint at ``path`` (in its
+    ``metrics``; everything else in the file is kept), rewritten atomically.
+
+    Raises:
+        CheckpointError: unreadable checkpoint.  DataError: no training episodes.
+    """
+    path = Path(path)
+    ckpt = read_checkpoint(path)
+    sur = surrogate_from_dict(ckpt, where=str(path))
+    cal, cov = calibrate(sur, val, train, design=design, max_steps=max_steps)
+    metrics = dict(ckpt.get("metrics") or {})
+    metrics["coverage"] = cov.to_dict()
+    if cal is None:
+        metrics.pop("uncertainty", None)
+    else:
+        metrics["uncertainty"] = cal.to_dict()
+    ckpt["metrics"] = metrics
+    with atomic_path(path) as tmp:
+        torch.save(ckpt, tmp)
+    return cal, cov

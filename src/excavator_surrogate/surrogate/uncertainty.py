@@ -1,0 +1,282 @@
+"""How sure the surrogate is: ensemble spread, calibrated bands and out-of-distribution flags.
+
+A merged seed ensemble (:func:`.ensemble.merge`) computes every member at every step; the
+members' disagreement is its uncertainty.  :func:`predict_with_uncertainty` free-runs a
+command sequence and returns, per joint and step:
+
+- the central prediction: the merged network's own free run (what every runtime -- env,
+  ONNX, ``rollout`` -- computes);
+- the spread: the standard deviation over the members (ddof 1).  By default
+  (``design="independent"``) each member integrates its own angle, as the merged network
+  does with the mean: one batch of ``(M + 1) n_batch`` rows, row ``(m, b)`` following member
+  ``m``'s velocity (``ClosedLoop.follow``), so the angle spread grows with the horizon.
+  ``design="shared"`` runs only the central rows and integrates each member's velocity
+  deviation from the mean along them (docs/design.md compares the two);
+- bands ``central +/- k_{level, j} spread`` for the calibrated levels (50 % and 90 %), with
+  ``k`` fitted per joint on the validation free runs (:func:`.bands.fit_scale`: the
+  level-quantile of ``|error| / spread``, so the nominal band covers that share there) and
+  stored in the checkpoint (``metrics["uncertainty"]``);
+- out-of-distribution flags from the training data's :class:`~.coverage.CoverageRecord`
+  (``metrics["coverage"]``).
+
+A single network has no members: its spread and bands are ``None`` with a one-line ``note``;
+nothing is faked.  :mod:`.bands` builds both records on episodes and scores bands.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import torch
+
+from ..errors import CheckpointError, ConfigError
+from .coverage import CoverageRecord, ood_flags
+from .ensemble import member_head, n_member
+from .model import Surrogate
+from .rollout import ClosedLoop, rollout
+
+Design = Literal["independent", "shared"]
+LEVELS = (0.5, 0.9)
+"""Band levels calibrated by default (nominal coverage)."""
+NO_MEMBERS = "single network: no uncertainty (train a seed ensemble, members >= 2, for bands)"
+"""The note of a surrogate without ensemble members."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Band half-widths per unit of spread, fitted on validation free runs."""
+
+    levels: tuple[float, ...]
+    """Nominal coverages of the bands, e.g. ``(0.5, 0.9)``."""
+    theta: np.ndarray
+    """(n_level, n_joint) angle band half-width / angle spread."""
+    omega: np.ndarray
+    """(n_level, n_joint) velocity band half-width / velocity spread."""
+    n_step: int
+    """Scored (post-warm-up) steps the scales were fitted on."""
+    design: str = "independent"
+    """How the members ran (``independent`` or ``shared``)."""
+    theta_floor: np.ndarray | None = None
+    """(n_joint,) smallest angle spread a band uses [rad] (:data:`.bands.FLOOR` x the
+    median spread):
+    members that agree exactly (e.g. all resting on an end stop) are not certain."""
+    omega_floor: np.ndarray | None = None
+    """(n_joint,) smallest velocity spread a band uses [rad/s]."""
+
+    def floor(self, quantity: str) -> np.ndarray:
+        """The spread floor of ``theta`` or ``omega`` (zeros if none was stored)."""
+        f = self.theta_floor if quantity == "theta" else self.omega_floor
+        return np.zeros(self.theta.shape[1]) if f is None else f
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for the checkpoint."""
+        return {
+            "levels": list(self.levels),
+            "theta": self.theta.tolist(),
+            "omega": self.omega.tolist(),
+            "n_step": int(self.n_step),
+            "design": self.design,
+            "theta_floor": self.floor("theta").tolist(),
+            "omega_floor": self.floor("omega").tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Calibration:
+        """Inverse of :meth:`to_dict` (:class:`CheckpointError` on a malformed record)."""
+        try:
+            cal = cls(
+                levels=tuple(float(v) for v in d["levels"]),
+                theta=np.asarray(d["theta"], dtype=np.float64),
+                omega=np.asarray(d["omega"], dtype=np.float64),
+                n_step=int(d["n_step"]),
+                design=str(d.get("design", "independent")),
+                theta_floor=np.asarray(d.get("theta_floor", np.zeros(len(d["theta"][0])))),
+                omega_floor=np.asarray(d.get("omega_floor", np.zeros(len(d["omega"][0])))),
+            )
+        except (KeyError, TypeError, ValueError) as e:
+            raise CheckpointError(
+                f"malformed uncertainty calibration ({e}); calibrate again"
+            ) from e
+        if cal.theta.shape != cal.omega.shape or cal.theta.shape[0] != len(cal.levels):
+            raise CheckpointError("malformed uncertainty calibration (sizes); calibrate again")
+        return cal
+
+
+def stored_calibration(sur: Surrogate) -> Calibration | None:
+    """The calibration stored in ``sur``'s checkpoint, if any."""
+    d = (sur.metrics or {}).get("uncertainty")
+    return Calibration.from_dict(d) if isinstance(d, dict) else None
+
+
+def stored_coverage(sur: Surrogate) -> CoverageRecord | None:
+    """The training data's coverage record stored in ``sur``'s checkpoint, if any."""
+    d = (sur.metrics or {}).get("coverage")
+    return CoverageRecord.from_dict(d) if isinstance(d, dict) else None
+
+
+@dataclass
+class UncertainPrediction:
+    """A free run with its spread, bands and flags (arrays ``(n_batch, n_step, n_joint)``;
+    steps before ``warmup`` hold the recorded angles, NaN velocities and zero spread)."""
+
+    theta: np.ndarray
+    """Central angle [rad]: the merged network's free run."""
+    omega: np.ndarray
+    """Central velocity [rad/s] (NaN during the warm-up)."""
+    warmup: int
+    """Recorded samples the run started from."""
+    theta_members: np.ndarray | None = None
+    """(M, n_batch, n_step, n_joint) each member's angle [rad] (None: single network)."""
+    omega_members: np.ndarray | None = None
+    """(M, n_batch, n_step, n_joint) each member's velocity [rad/s]."""
+    theta_spread: np.ndarray | None = None
+    """Std of the members' angles [rad] (None: no members, no uncertainty)."""
+    omega_spread: np.ndarray | None = None
+    """Std of the members' velocities [rad/s]."""
+    bands: dict[float, dict[str, tuple[np.ndarray, np.ndarray]]] | None = None
+    """level -> {"theta": (lo, hi), "omega": (lo, hi)} (None: no spread or no calibration)."""
+    ood: np.ndarray | None = None
+    """(n_batch, n_step, n_joint) bool: outside what training covered (None: no record)."""
+    notes: list[str] = field(default_factory=list)
+    """One line per missing piece (no members, not calibrated, no coverage record)."""
+
+    @property
+    def ood_any(self) -> np.ndarray | None:
+        """(n_batch, n_step) bool: any joint flagged."""
+        return None if self.ood is None else self.ood.any(-1)
+
+
+@torch.no_grad()
+def member_runs(
+    sur: Surrogate,
+    theta: np.ndarray,
+    u: np.ndarray,
+    *,
+    warmup: int | None = None,
+    design: Design = "independent",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Free-run a merged ensemble and each of its members (see the module docstring).
+
+    Args:
+        sur: a merged ensemble with member outputs (:func:`.ensemble.member_head`).
+        theta: (n_batch, >= warmup, n_joint) recorded angles [rad].
+        u: (n_batch, n_step, n_u) commands.
+        warmup: recorded samples to start from (default ``sur.window``).
+        design: ``independent`` (each member integrates its own angle) or ``shared``.
+
+    Returns:
+        ``theta``, ``omega`` (n_batch, n_step, n_joint) of the merged network and
+        ``theta_m``, ``omega_m`` (M, n_batch, n_step, n_joint) of the members.
+    """
+    if design not in ("independent", "shared"):
+        raise ConfigError(f"design must be 'independent' or 'shared', got {design!r}")
+    warmup = sur.window if warmup is None else int(warmup)
+    theta = np.asarray(theta, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    n_batch, n_step, _ = u.shape
+    if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
+        raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
+    loop = ClosedLoop(sur, members=True)
+    m = n_member(sur)
+    rep = m + 1 if design == "independent" else 1
+    th0 = np.concatenate([theta[:, :warmup]] * rep)
+    loop.reset(th0, np.concatenate([u[:, : warmup - 1]] * rep))
+    if design == "independent":  # rows: the merged run, then member 0's, member 1's, ...
+        follow = np.repeat(np.arange(-1, m), n_batch)
+        loop.follow = torch.as_tensor(follow, device=sur.device, dtype=torch.long)
+    u_t = loop._t(np.concatenate([u] * rep))
+    n_row, n_joint = rep * n_batch, sur.spec.n_joint
+    th = np.empty((n_row, n_step, n_joint))
+    om = np.full_like(th, np.nan)
+    th[:, :warmup] = th0
+    om_m = np.full((m, n_batch, n_step, n_joint), np.nan)
+    for k in range(warmup - 1, n_step - 1):
+        t_k, o_k = loop.step(u_t[:, k])
+        th[:, k + 1], om[:, k + 1] = t_k.double().cpu().numpy(), o_k.double().cpu().numpy()
+        if design == "shared":
+            om_m[:, :, k + 1] = loop.omega_members.double().cpu().numpy()
+    th_c, om_c = th[:n_batch], om[:n_batch]
+    if design == "independent":
+        th_m = th[n_batch:].reshape(m, n_batch, n_step, n_joint)
+        om_m = om[n_batch:].reshape(m, n_batch, n_step, n_joint)
+    else:  # each member's velocity along the shared run, its deviation integrated
+        dev = np.nan_to_num(om_m - om_c[None]) * sur.spec.dt
+        th_m = th_c[None] + np.cumsum(dev, axis=2)
+    return th_c, om_c, th_m, om_m
+
+
+def _std(a: np.ndarray) -> np.ndarray:
+    """Std over the member axis 0 (ddof 1), NaN kept where the members are NaN."""
+    return np.std(a, axis=0, ddof=1)
+
+
+def predict_with_uncertainty(
+    sur: Surrogate,
+    theta: np.ndarray,
+    u: np.ndarray,
+    *,
+    warmup: int | None = None,
+    design: Design | None = None,
+    calibration: Calibration | None = None,
+    coverage: CoverageRecord | None = None,
+) -> UncertainPrediction:
+    """Free-run ``u`` with the central prediction, member spread, bands and OOD flags.
+
+    Args:
+        sur: the surrogate (a merged seed ensemble for spread and bands).
+        theta: (n_batch, >= warmup, n_joint) recorded angles to start from [rad].
+        u: (n_batch, n_step, n_u) commands [command units] (joints', then exogenous inputs').
+        warmup: recorded samples to start from (default ``sur.window``).
+        design: how the members run (default: the calibration's, else ``independent``).
+        calibration: band scales (default: the checkpoint's, :func:`stored_calibration`).
+        coverage: training coverage (default: the checkpoint's, :func:`stored_coverage`).
+
+    Returns:
+        :class:`UncertainPrediction`; a single network gives ``theta_spread is None`` and a note.
+    """
+    warmup = sur.window if warmup is None else int(warmup)
+    calibration = calibration if calibration is not None else stored_calibration(sur)
+    coverage = coverage if coverage is not None else stored_coverage(sur)
+    design = design or (calibration.design if calibration is not None else "independent")  # type: ignore[assignment]
+    notes: list[str] = []
+    if member_head(sur) is not None:
+        th, om, th_m, om_m = member_runs(sur, theta, u, warmup=warmup, design=design)
+        pred = UncertainPrediction(th, om, warmup, th_m, om_m, _std(th_m), _std(om_m))
+        if calibration is None:
+            notes.append("ensemble not calibrated: spread only, no bands (run 'exsur calibrate')")
+        else:
+            pred.bands = bands(pred, calibration)
+    else:
+        th, om = rollout(sur, theta, u, warmup=warmup)
+        pred = UncertainPrediction(th, om, warmup)
+        notes.append(
+            NO_MEMBERS
+            if n_member(sur) < 2
+            else "ensemble merged by an older exsur: no member outputs (merge it again)"
+        )
+    if coverage is None:
+        notes.append("no training coverage record: no out-of-distribution flags")
+    else:
+        pred.ood = ood_flags(coverage, sur.spec, pred.theta, pred.omega, np.asarray(u))
+    pred.notes = notes
+    return pred
+
+
+def bands(
+    pred: UncertainPrediction, cal: Calibration
+) -> dict[float, dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """``level -> {"theta": (lo, hi), "omega": (lo, hi)}``: central +/- scale x spread."""
+    assert pred.theta_spread is not None and pred.omega_spread is not None
+    out: dict[float, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    for i, level in enumerate(cal.levels):
+        d = {}
+        for q, c, s, k in (
+            ("theta", pred.theta, pred.theta_spread, cal.theta[i]),
+            ("omega", pred.omega, pred.omega_spread, cal.omega[i]),
+        ):
+            half = k * np.maximum(s, cal.floor(q))
+            d[q] = (c - half, c + half)
+        out[level] = d
+    return out

@@ -1,0 +1,80 @@
+"""exsur evaluate reports the ensemble's bands (coverage, width) and the out-of-distribution share."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from excavator_surrogate.data import write_dataset
+from excavator_surrogate.data.dataset import load_dataset
+from excavator_surrogate.evaluate import evaluate_checkpoint
+from excavator_surrogate.evaluate.uncertainty import uncertainty_markdown
+from excavator_surrogate.surrogate.bands import calibrate_checkpoint
+from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.synthetic import synthetic_spec, synthetic_split
+from excavator_surrogate.surrogate.uncertainty import NO_MEMBERS
+from tests.helpers.surrogates import make_surrogate
+
+
+@pytest.fixture(scope="module")
+def dataset_dir(tmp_path_factory):
+    spec = synthetic_spec(2)
+    items = synthetic_split(spec, n_train=2, n_val=2, n_test=2, n_step=120, noise=0.001)
+    return write_dataset(tmp_path_factory.mktemp("ds") / "data", items)
+
+
+def _checkpoint(path, ds, *, members: int):
+    kw = dict(mode="stateful", window=5)
+    surs = [make_surrogate(ds.spec, ds.train, seed=s, hidden=8, **kw) for s in range(members)]
+    sur = merge(surs) if members > 1 else surs[0]
+    save_checkpoint(path, sur)
+    calibrate_checkpoint(path, ds.val, ds.train)
+    return path
+
+
+def test_evaluate_reports_band_coverage_width_and_flags(tmp_path, dataset_dir):
+    ds = load_dataset(dataset_dir)
+    ckpt = _checkpoint(tmp_path / "ens.pt", ds, members=2)
+    res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", arx=False, max_figures=1)
+    unc = json.loads((tmp_path / "ev" / "metrics.json").read_text())["uncertainty"]
+    assert unc == json.loads(json.dumps(res["uncertainty"]))
+    assert unc["available"] and unc["levels"] == [0.5, 0.9] and not unc["notes"]
+    for q in ("theta", "omega"):
+        for n in ds.spec.names:
+            d = unc[q][n]
+            assert 0.0 <= d["coverage_50"] <= d["coverage_90"] <= 1.0
+            assert 0.0 < d["width_50"] <= d["width_90"]
+    assert set(unc["ood"]) == {*ds.spec.names, "any"}
+    table = (tmp_path / "ev" / "table.md").read_text()
+    assert "## Uncertainty and out-of-distribution" in table and "90 % band coverage" in table
+    assert (tmp_path / "ev" / "cbe.png").stat().st_size > 0
+
+
+def test_evaluate_says_a_single_network_has_no_uncertainty(tmp_path, dataset_dir):
+    ds = load_dataset(dataset_dir)
+    ckpt = _checkpoint(tmp_path / "one.pt", ds, members=1)
+    res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", arx=False, figure=False)
+    unc = res["uncertainty"]
+    assert not unc["available"] and unc["notes"] == [NO_MEMBERS]
+    assert "theta" not in unc and unc["ood"] is not None  # the flags need no members
+    assert NO_MEMBERS in (tmp_path / "ev" / "table.md").read_text()
+
+
+def test_uncertainty_table_lists_every_joint_and_band():
+    unc = {
+        "available": True,
+        "notes": [],
+        "levels": [0.5, 0.9],
+        "theta": {"a": {"coverage_50": 0.5, "width_50": 0.1, "coverage_90": 0.9, "width_90": 0.3}},
+        "omega": {"a": {"coverage_50": 0.4, "width_50": 0.2, "coverage_90": 0.8, "width_90": 0.5}},
+        "ood": {"a": 0.02, "any": 0.02},
+    }
+    md = uncertainty_markdown(unc, ["a"])
+    rows = [r for r in md.splitlines() if r.startswith("| θ") or r.startswith("| ω")]
+    assert rows == [
+        "| θ [rad] | a | 50 % | 0.1000 | 90 % | 0.3000 |",
+        "| ω [rad/s] | a | 40 % | 0.2000 | 80 % | 0.5000 |",
+    ]
+    assert "any joint 2 %" in md

@@ -1,0 +1,216 @@
+"""Ensemble uncertainty: member outputs of a merged network, calibration, coverage flags."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.surrogate import rollout, rollout_reference
+from excavator_surrogate.surrogate.bands import (
+    band_scores,
+    calibrate_checkpoint,
+    fit_scale,
+    predict_episodes,
+)
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
+from excavator_surrogate.surrogate.coverage import (
+    CoverageRecord,
+    channel_names,
+    fit_coverage,
+    ood_flags,
+)
+from excavator_surrogate.surrogate.ensemble import member_head, merge
+from excavator_surrogate.surrogate.features import omega_target
+from excavator_surrogate.surrogate.rollout import ClosedLoop
+from excavator_surrogate.surrogate.synthetic import synthetic_spec
+from excavator_surrogate.surrogate.uncertainty import (
+    NO_MEMBERS,
+    Calibration,
+    member_runs,
+    predict_with_uncertainty,
+    stored_calibration,
+    stored_coverage,
+)
+from tests.helpers.surrogates import make_surrogate
+
+PLAY = (0.05,)
+
+
+def _members(spec, episodes, *, cell="lstm", mode="stateful", residual=False):
+    kw = dict(cell=cell, mode=mode, window=5, play=PLAY, end_stops=True, drive=3.0)
+    kw |= dict(omega_in=residual, residual=residual)
+    return [
+        make_surrogate(spec, episodes[:2], seed=0, hidden=10, **kw),
+        make_surrogate(spec, episodes[1:], seed=1, hidden=6, **kw),
+    ]
+
+
+def _batch(episodes, n):
+    return np.stack([e.theta[:n] for e in episodes]), np.stack([e.u[:n] for e in episodes])
+
+
+@pytest.mark.parametrize(
+    ("cell", "mode", "residual"),
+    [("lstm", "stateful", False), ("gru", "windowed", False), ("lstm", "stateful", True)],
+)
+def test_member_rows_of_the_merged_network_equal_each_member_run_alone(
+    spec, episodes, cell, mode, residual
+):
+    members = _members(spec, episodes, cell=cell, mode=mode, residual=residual)
+    ens = merge(members)
+    theta, u = _batch(episodes, 60)
+    th_c, om_c, th_m, om_m = member_runs(ens, theta, u)
+    # the central rows are the merged network's ordinary free run
+    th_e, om_e = rollout(ens, theta, u)
+    np.testing.assert_allclose(th_c, th_e, atol=1e-5)
+    np.testing.assert_allclose(om_c, om_e, atol=1e-4)
+    # float32 nets: the member rows and the plain loop differ by rounding only, which grows
+    # with the step count and the angle (float32 eps 1.2e-7 x 60 steps < 1e-5 relative)
+    for m, sur in enumerate(members):
+        for i in range(len(episodes)):
+            th_r, om_r = rollout_reference(sur, theta[i], u[i])
+            np.testing.assert_allclose(th_m[m, i], th_r, atol=1e-5, rtol=1e-5)
+            np.testing.assert_allclose(om_m[m, i], om_r, atol=1e-4)
+    # the test can fail: the members run apart from each other and from the mean
+    assert np.abs(th_m[0] - th_m[1]).max() > 1e-3
+    assert np.abs(th_m[0] - th_c).max() > 1e-4
+
+
+def test_member_velocities_average_to_the_merged_one(spec, episodes):
+    members = [
+        make_surrogate(spec, episodes[:2], mode="stateful", window=5, seed=0, hidden=10),
+        make_surrogate(spec, episodes[1:], mode="stateful", window=5, seed=1, hidden=6),
+    ]
+    ens = merge(members)  # no end stops: the loop's omega is the network's
+    theta, u = _batch(episodes, 30)
+    loop = ClosedLoop(ens, members=True)
+    loop.reset(theta[:, :5], u[:, :4])
+    for k in range(4, 20):
+        _, omega = loop.step(u[:, k])
+        torch.testing.assert_close(loop.omega_members.mean(0), omega, atol=1e-6, rtol=1e-4)
+    assert (loop.omega_members[0] - loop.omega_members[1]).abs().max() > 1e-4
+
+
+def test_shared_design_spreads_the_members_along_one_run(spec, episodes):
+    ens = merge(_members(spec, episodes))
+    theta, u = _batch(episodes, 50)
+    th_c, _, th_m, om_m = member_runs(ens, theta, u, design="shared")
+    np.testing.assert_allclose(th_c, rollout(ens, theta, u)[0], atol=1e-5)
+    assert np.isfinite(om_m[:, :, 5:]).all() and np.abs(th_m[0] - th_m[1]).max() > 0
+
+
+def test_fit_scale_recovers_a_known_scale(rng):
+    n = 40_000
+    c = np.array([0.5, 2.0, 7.0])  # errors are c_j x spread x N(0, 1)
+    spread = rng.uniform(0.2, 3.0, size=(n, 3))
+    err = c * spread * rng.normal(size=(n, 3))
+    k = fit_scale(err, spread, (0.5, 0.9))
+    z = np.array([[0.6745], [1.6449]])  # N(0, 1) two-sided 50 % / 90 % quantiles
+    # quantile of |N(0,1)| from n samples: relative standard error << 3 %
+    np.testing.assert_allclose(k / z, np.broadcast_to(c, (2, 3)), rtol=0.03)
+    # and the bands cover what they say on fresh samples
+    err2 = c * spread * rng.normal(size=(n, 3))
+    cover = (np.abs(err2)[None] <= k[:, None] * spread[None]).mean(1)
+    np.testing.assert_allclose(cover, [[0.5] * 3, [0.9] * 3], atol=0.015)
+
+
+def test_a_single_network_reports_no_uncertainty(spec, episodes):
+    sur = make_surrogate(spec, episodes, mode="stateful", window=5)
+    theta, u = _batch(episodes, 40)
+    pred = predict_with_uncertainty(sur, theta, u)
+    assert pred.theta_spread is None and pred.omega_spread is None and pred.bands is None
+    assert NO_MEMBERS in pred.notes
+    np.testing.assert_allclose(pred.theta, rollout(sur, theta, u)[0])
+    with pytest.raises(ConfigError, match="no ensemble members"):
+        ClosedLoop(sur, members=True)
+
+
+def test_an_ensemble_merged_before_member_biases_has_no_member_outputs(spec, episodes):
+    ens = merge(_members(spec, episodes))
+    del ens.metrics["ensemble"]["member_bias"]
+    assert member_head(ens) is None
+    theta, u = _batch(episodes, 40)
+    pred = predict_with_uncertainty(ens, theta, u)
+    assert pred.theta_spread is None and "merge it again" in " ".join(pred.notes)
+
+
+def test_ood_flag_fires_beyond_the_training_range_and_not_inside(spec, episodes):
+    rec = fit_coverage(episodes, spec)
+    ep = episodes[0]
+    omega = omega_target(ep.theta, spec)
+    inside = ood_flags(rec, spec, ep.theta, omega, ep.u)
+    # the training data itself: only its rarest samples (outside the 0.5/99.5 % box) flag
+    assert inside.shape == ep.theta.shape and inside.any(-1).mean() <= 0.05
+    # commands twice as large: every step whose command leaves the box is flagged
+    u2 = 2.0 * ep.u
+    flags = ood_flags(rec, spec, ep.theta, omega, u2)
+    iu = np.arange(spec.n_joint)
+    beyond = (u2[:, iu] > rec.hi[iu]) | (u2[:, iu] < rec.lo[iu])
+    assert beyond.sum() > 10 and flags[beyond].all()
+
+
+def test_ood_grid_flags_a_pose_and_command_never_seen_together():
+    spec = synthetic_spec(1)
+    n = spec.n_u  # channels: u_0, theta_0, omega_0
+    grid = np.zeros((1, 8, 8), dtype=np.int64)
+    grid[0, :4, :4] = 5  # low angles with low commands only
+    grid[0, 1, 1] = 0  # a hole between seen cells
+    rec = CoverageRecord(
+        channel_names(spec), np.array([-1.0, 0.0, -9.0]), np.array([1.0, 8.0, 9.0]), grid, 80
+    )
+    assert len(rec.channels) == n + 2
+    theta = np.array([[0.5], [1.5], [7.5], [7.5]])  # bins 0, 1, 7, 7
+    u = np.array([[-0.9], [-0.6], [0.9], [-0.9]])  # bins 0, 1, 7, 0
+    flags = ood_flags(rec, spec, theta, np.zeros_like(theta), u)[:, 0]
+    # seen cell, hole next to seen cells, far corner never seen, high angle with low command
+    assert flags.tolist() == [False, False, True, True]
+
+
+def test_coverage_record_round_trips(spec, episodes):
+    rec = fit_coverage(episodes, spec, n_bin=6)
+    back = CoverageRecord.from_dict(rec.to_dict())
+    assert back.channels == rec.channels and back.n_bin == 6
+    np.testing.assert_array_equal(back.grid, rec.grid)
+    np.testing.assert_allclose(back.lo, rec.lo)
+
+
+def test_checkpoints_round_trip_calibration_and_coverage(spec, episodes, tmp_path: Path):
+    ens = merge(_members(spec, episodes))
+    path = save_checkpoint(tmp_path / "best.pt", ens, history=[{"member": "ensemble"}])
+    old = load_checkpoint(path)  # a checkpoint without the records loads as before
+    assert stored_calibration(old) is None and stored_coverage(old) is None
+    cal, cov = calibrate_checkpoint(path, episodes[2:], episodes[:2])
+    assert cal is not None and cal.theta.shape == (2, spec.n_joint)
+    assert np.isfinite(cal.theta).all() and (cal.theta[1] >= cal.theta[0]).all()
+    back = load_checkpoint(path)
+    cal2, cov2 = stored_calibration(back), stored_coverage(back)
+    assert cal2 is not None and cov2 is not None
+    np.testing.assert_allclose(cal2.theta, cal.theta)
+    np.testing.assert_array_equal(cov2.grid, cov.grid)
+    assert torch.load(path, weights_only=True)["history"] == [{"member": "ensemble"}]
+    assert Calibration.from_dict(cal.to_dict()).levels == (0.5, 0.9)
+    # the stored calibration gives bands: on the data it was fitted on, they cover as fitted
+    runs = predict_episodes(back, episodes[2:])
+    scores = band_scores(runs, spec.names, [j.periodic for j in spec.joints])
+    assert scores["available"]
+    for n in spec.names:
+        assert scores["theta"][n]["coverage_90"] >= 0.9 - 1e-9
+        assert scores["omega"][n]["coverage_50"] >= 0.5 - 1e-9
+        assert scores["theta"][n]["width_90"] >= scores["theta"][n]["width_50"]
+    assert 0.0 <= scores["ood"]["any"] <= 1.0
+
+
+def test_calibrating_a_single_network_records_coverage_only(spec, episodes, tmp_path: Path):
+    sur = make_surrogate(spec, episodes, mode="stateful", window=5)
+    path = save_checkpoint(tmp_path / "best.pt", sur)
+    cal, _ = calibrate_checkpoint(path, episodes[2:], episodes[:2])
+    back = load_checkpoint(path)
+    assert cal is None and stored_calibration(back) is None and stored_coverage(back) is not None
+    runs = predict_episodes(back, episodes)
+    scores = band_scores(runs, spec.names, [j.periodic for j in spec.joints])
+    assert not scores["available"] and NO_MEMBERS in scores["notes"]
+    assert scores["ood"] is not None
