@@ -78,3 +78,19 @@ def test_uncertainty_table_lists_every_joint_and_band():
         "| ω [rad/s] | a | 40 % | 0.2000 | 80 % | 0.5000 |",
     ]
     assert "any joint 2 %" in md
+
+
+def test_run_report_shows_the_uncertainty_section_only_when_scored():
+    from excavator_surrogate.evaluate.run_report import ReportContext, render_run_report
+
+    base = {
+        "theta": {"a": {"rmse": 0.1, "mae": 0.1, "r2": 0.9}},
+        "omega": {"a": {"rmse": 0.1, "mae": 0.1, "r2": 0.8}},
+        "run": {"split": "test"},
+    }
+    ctx = ReportContext(name="tiny", spec_names=("a",), table_md="")
+    assert "Uncertainty" not in render_run_report(base, ctx)
+    unc = {"available": False, "notes": [NO_MEMBERS], "ood": {"a": 0.25, "any": 0.25}}
+    text = render_run_report({**base, "uncertainty": unc}, ctx)
+    assert "## Uncertainty and out-of-distribution" in text and NO_MEMBERS in text
+    assert "any joint 25 %" in text

@@ -14,6 +14,7 @@ from typing import Any
 
 from .metrics import min_r2
 from .report import PAPER_TABLE_III
+from .uncertainty import uncertainty_markdown
 
 
 @dataclass(frozen=True)
@@ -178,6 +179,14 @@ def _ensemble_members(metrics: Mapping[str, Any], ctx: ReportContext) -> list[st
     return lines
 
 
+def _uncertainty(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The ensemble's bands (coverage, width) and the share of steps flagged out of distribution."""
+    unc = metrics.get("uncertainty")
+    if not unc:
+        return []
+    return uncertainty_markdown(unc, ctx.spec_names).splitlines()
+
+
 def _cbe_table(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """The CBE table (paper layout, baselines)."""
     lines: list[str] = []
@@ -210,6 +219,7 @@ SECTIONS: tuple[Section, ...] = (
     _against_cleaned,
     _cleaning_effect,
     _ensemble_members,
+    _uncertainty,
     _cbe_table,
     _files,
 )
