@@ -14,9 +14,14 @@ The recipe, and the measurement behind each choice, is documented in ``docs/real
   samples (on the real logs it beat free-run feedback and the windowed one-step loss, and
   costs about one recurrent step per sample); the sub-sequence length follows the episode
   lengths so that no short run is dropped;
-- a wall-time budget (the cosine learning-rate schedule ends with it) and an exponential
-  moving average of the weights, so the selected checkpoint does not depend on one lucky
-  epoch; selection by the whole-episode validation free run;
+- a planned amount of training, fixed before it starts from the data and the budget: about
+  :data:`TARGET_PASSES` sub-sequence passes (at least :data:`MIN_EPOCHS` epochs), no more
+  than fits :data:`PLAN_SHARE` of each member's budget at the reference machine's speed
+  (:func:`epoch_cost_s`); the cosine schedule runs over those epochs, and the wall-time budget
+  is only a cap that stops a much slower or busier computer early (and says so).  So the
+  same data, seed and machine give the same model on an idle or a busy computer;
+- an exponential moving average of the weights, so the selected checkpoint does not depend on
+  one lucky epoch; selection by the whole-episode validation free run;
 - a seed ensemble of ``members`` networks trained side by side, one per core;
 - the envelope (end stops and speed bounds) from the spec, else from the training data.
 
@@ -26,6 +31,7 @@ the command line ``exsur train DATA --members 1``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -34,7 +40,7 @@ import numpy as np
 from ..config import from_dict, to_dict
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
-from ..errors import DataError
+from ..errors import ConfigError, DataError
 from .config import TrainConfig
 
 TRAIN_BUDGET_S = 540.0
@@ -45,10 +51,25 @@ MIN_WINDOW = 8
 """Smallest window the recipe shrinks to for very short episodes [samples]."""
 MAX_SEQ_LEN = 150
 """Longest training sub-sequence including the burn-in [samples]."""
-EPOCHS = 40
-"""Epochs of the cosine schedule (the wall-time budget ends it earlier on a slow machine)."""
+MIN_EPOCHS = 40
+"""Fewest planned epochs (what the recipe trained on h1-dev's ~500 sub-sequences per epoch)."""
+MAX_EPOCHS = 400
+"""Most planned epochs (a single short log: its validation free run dominates the cost)."""
+TARGET_PASSES = 18_000
+"""Sub-sequence passes the recipe aims for (40 epochs of h1-dev's training runs)."""
+PLAN_SHARE = 0.6
+"""Share of each member's wall-time budget the planned epochs fill on the reference machine
+(the rest is headroom: only a computer this much slower, or busier, hits the cap)."""
+STEP_S = 4.5e-4
+"""Reference machine: one training step of a batch of 16 sub-sequences through the 2 x 128
+LSTM, forward and backward, one core [s] (measured on h1-dev: 2.0 s for 32 batches of 109
+steps with the other core busy)."""
+VAL_STEP_S = 3.0e-4
+"""Reference machine: one step of the validation free run over all validation episodes [s]."""
 MEMBERS = 4
 """Seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
+SEQ_BATCH = 16
+"""Sub-sequences per batch."""
 
 
 def auto_config(
@@ -92,12 +113,31 @@ def auto_config(
         f"burn-in: the episodes hold {lengths.min()}-{lengths.max()} samples"
         + (f" ({n_drop} shorter ones are left out)" if n_drop else " (none is left out)")
     )
-    members = MEMBERS if cpus >= 2 else MEMBERS // 2
+    overrides = dict(overrides or {})
+    capped = True
+    if overrides.get("max_train_seconds") is not None:  # --max-seconds: the whole training's
+        given = float(overrides.pop("max_train_seconds"))
+        if not (math.isfinite(given) and given >= 0):
+            raise ConfigError(
+                f"[train] max_train_seconds = {given:g}: give the training's wall-time "
+                "budget in seconds (> 0; 0 = no cap, planned for the default budget)"
+            )
+        capped = given > 0
+        budget_s = given if capped else budget_s
+    members = int(overrides.get("members") or (MEMBERS if cpus >= 2 else MEMBERS // 2))
     workers = min(members, cpus)
     per_member = budget_s * workers / members
     why.append(
-        f"seed ensemble of {members} member(s), {workers} in parallel, {per_member:.0f} s each "
-        f"({budget_s:.0f} s of training in all on {cpus} CPU(s))"
+        f"seed ensemble of {members} member(s), {workers} in parallel, at most {per_member:.0f} s "
+        f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s))"
+    )
+    n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
+    val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
+    cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
+    epochs, limit = plan_epochs(n_seq, cost, budget_s=per_member)
+    why.append(
+        f"{epochs} epochs planned: {n_seq} sub-sequences per epoch, about {epochs * cost:.0f} s "
+        f"per member on the reference machine ({limit}); the budget only caps it"
     )
     why.append("envelope: end stops and speed bounds from the spec, else from the training data")
     cfg = TrainConfig(
@@ -110,23 +150,58 @@ def auto_config(
         seq_len=seq_len,
         burn_in=window,
         tbptt=10,
-        seq_batch=16,
+        seq_batch=SEQ_BATCH,
         lr=1e-3,
         lr_schedule="cosine",
         min_lr=1e-5,
-        epochs=EPOCHS,
-        patience=EPOCHS,
+        epochs=epochs,
+        patience=epochs,
         ema_decay=0.999,
         members=members,
         member_workers=workers,
-        max_train_seconds=per_member,
+        max_train_seconds=per_member if capped else 0.0,
         end_stops=True,
     )
     if overrides:
-        merged = {**to_dict(cfg), **dict(overrides)}
+        if "epochs" in overrides and "patience" not in overrides:
+            overrides["patience"] = overrides["epochs"]
+        merged = {**to_dict(cfg), **overrides}
         cfg = from_dict(TrainConfig, merged, where="[train]")
         why.append("overridden: " + ", ".join(f"{k} = {v!r}" for k, v in overrides.items()))
     return cfg, why
+
+
+def count_sequences(lengths: np.ndarray, *, seq_len: int, burn_in: int) -> int:
+    """Sub-sequences one epoch draws from episodes of ``lengths`` samples (as
+    :func:`~.batches.sequence_starts` tiles them, with its random offset at zero)."""
+    stride = seq_len - burn_in + 1
+    last = lengths - 1 - seq_len
+    return int(np.sum(np.where(last >= 0, last // stride + 1, 0)))
+
+
+def epoch_cost_s(n_seq: int, *, seq_len: int, seq_batch: int, val_steps: int) -> float:
+    """Estimated wall time of one epoch on the reference machine [s]:
+
+      n_batch * seq_len * STEP_S          training (one recurrent step per sample of a batch)
+    + 2 * val_steps * VAL_STEP_S          free-run validation of the raw and averaged weights
+    """
+    n_batch = math.ceil(max(n_seq, 1) / seq_batch)
+    return n_batch * seq_len * STEP_S + 2 * val_steps * VAL_STEP_S
+
+
+def plan_epochs(n_seq: int, cost_s: float, *, budget_s: float) -> tuple[int, str]:
+    """Planned epochs and what limited them: :data:`TARGET_PASSES` sub-sequence passes, within
+    ``[MIN_EPOCHS, MAX_EPOCHS]``, and at most :data:`PLAN_SHARE` of ``budget_s`` (one member's
+    wall-time budget) at ``cost_s`` per epoch (never fewer than 1)."""
+    want = min(MAX_EPOCHS, max(MIN_EPOCHS, math.ceil(TARGET_PASSES / max(n_seq, 1))))
+    fits = max(1, int(PLAN_SHARE * budget_s / cost_s))
+    if fits < want:
+        return fits, f"{PLAN_SHARE:.0%} of the {budget_s:.0f}-s member budget"
+    if want == MIN_EPOCHS:
+        return want, f"at least {MIN_EPOCHS} epochs"
+    if want == MAX_EPOCHS:
+        return want, f"at most {MAX_EPOCHS} epochs"
+    return want, f"about {TARGET_PASSES} sub-sequence passes"
 
 
 def recipe_table(why: list[str]) -> dict[str, Any]:

@@ -104,13 +104,25 @@ def train_ensemble(
         "val_error": val["val_error"],
         "val": val,
         "best_val_error": val["val_error"],
-        "train_s": round(time.monotonic() - t0, 1),
+        "training": ensemble_training([m.metrics.get("training") for m in members]),
     }
-    best = save_checkpoint(out / "best.pt", sur, history=rows)
+    best = save_checkpoint(out / "best.pt", sur, history=rows)  # no wall-clock entries
+    train_s = time.monotonic() - t0
     write_log(out / "log.csv", rows, fields=list(rows[0]))
     member_vals = ", ".join(f"{r['val_error']:.4g}" for r in rows[:-1])
     _log.info(
         f"seed ensemble: members' val_error {member_vals}; merged {val['val_error']:.4g} "
-        f"(min theta R2 {min(val['theta_r2']):.3f}) -> {best}"
+        f"(min theta R2 {min(val['theta_r2']):.3f}) -> {best} ({train_s:.0f} s)"
     )
     return best
+
+
+def ensemble_training(members: list[dict[str, Any] | None]) -> dict[str, Any]:
+    """The ``training`` summary of a merged ensemble from its members' (``budget_cut`` if the
+    wall-time cap cut any member; ``members`` keeps each one's)."""
+    known = [m for m in members if m]
+    return {
+        "budget_cut": any(m.get("budget_cut", False) for m in known),
+        "epochs_planned": max((int(m.get("epochs_planned", 0)) for m in known), default=0),
+        "members": known,
+    }

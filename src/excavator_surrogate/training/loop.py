@@ -32,8 +32,20 @@ from .config import TrainConfig
 from .loss import LossFn, default_loss
 from .modes import Mode, make_mode
 from .optim import Optimisation, cosine_lr
-from .parallel import LrAt, Parallel, SingleProcess, rank0_deadline, rank0_lr
-from .records import epoch_row, tb_epoch, tb_writer, write_config, write_log
+from .parallel import LrAt, Parallel, SingleProcess, rank0_deadline
+from .records import (
+    budget_cut_message,
+    budget_note,
+    epoch_row,
+    record_training,
+    tb_epoch,
+    tb_writer,
+    training_summary,
+    untimed,
+    untimed_state,
+    write_config,
+    write_log,
+)
 from .resume import start
 from .selection import choose, is_better
 
@@ -155,16 +167,14 @@ def train_network(
         per = cfg.batch_size if cfg.mode == "windowed" else cfg.seq_batch
         say(f"data parallel: {par.world_size} ranks x batch {per} = global {per * par.world_size}")
     cands = [("raw", sur)] + ([("ema", optim.ema_sur)] if optim.ema_sur is not None else [])
+    done, stopped = st.epoch, "planned"
+    say(f"planned: {cfg.epochs} epochs{budget_note(budget)}")
     try:
         for epoch in range(st.epoch, cfg.epochs):
             rng = np.random.default_rng([cfg.seed, epoch])
             net.train()
             t0 = time.monotonic()
-            lr_at = rank0_lr(
-                par,
-                cosine_lr(cfg, epoch, t_start, budget),
-                timed=math.isfinite(budget) and cfg.lr_schedule == "cosine",
-            )
+            lr_at = cosine_lr(cfg, epoch)
             loss, n = run_epoch(
                 mode,
                 dnet,
@@ -218,9 +228,14 @@ def train_network(
                 "train_loss": loss,
             }
             if main:
-                if improved:
+                if improved:  # no wall-clock entries: same data and seed, same bytes
                     choice.chosen.metrics = sur.metrics
-                    save_checkpoint(best_path, choice.chosen, history=history, train_state=state)
+                    save_checkpoint(
+                        best_path,
+                        choice.chosen,
+                        history=untimed(history),
+                        train_state=untimed_state(state),
+                    )
                 save_checkpoint(last_path, sur, history=history, train_state=state)
                 write_log(out / "log.csv", history)
             tb_epoch(tb, epoch, loss=loss, val=val, lr=lr, names=spec.names)
@@ -234,19 +249,29 @@ def train_network(
             over = time.monotonic() > t_start + budget
             if par.world_size > 1:  # rank 0 decides for everyone
                 stop_req, over = par.broadcast((stop_req, over))
+            done = epoch + 1
             if stop_req:
+                stopped = "requested"
                 say(f"stopping: requested after epoch {epoch}")
                 break
             if bad >= cfg.patience:
+                stopped = "early-stop"
                 say(f"early stop: no improvement for {bad} epochs")
                 break
-            if over:
-                say(f"stopping: training budget of {budget:g} s used")
+            if over and done < cfg.epochs:
+                stopped = "budget"
+                if main:
+                    _log.warning(budget_cut_message(budget, done, cfg.epochs))
                 break
     finally:
         if tb is not None:
             tb.close()
     if main and not best_path.exists():  # every epoch diverged: keep the last one
-        save_checkpoint(best_path, sur, history=history, train_state=None)
+        save_checkpoint(best_path, sur, history=untimed(history), train_state=None)
+    if main:
+        record_training(
+            best_path,
+            training_summary(cfg, epochs_done=done, stopped=stopped, budget=budget),
+        )
     par.barrier()  # best.pt is complete before any rank returns its path
     return best_path

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -69,19 +68,17 @@ class Optimisation:
         return float(self.opt.param_groups[0]["lr"])
 
 
-def cosine_lr(cfg: TrainConfig, epoch: int, t_start: float, budget: float) -> LrAt:
-    """Per-step learning rate of the cosine schedule (None: leave it to ReduceLROnPlateau).
+def cosine_lr(cfg: TrainConfig, epoch: int) -> LrAt:
+    """Learning rate of the cosine schedule for ``epoch`` (None: leave it to ReduceLROnPlateau).
 
-    Progress = max(epoch / epochs, elapsed / budget), clipped to 1.
+    The schedule depends on the planned epochs only, never on the wall clock, so the same data
+    and seed train the same model on a fast, slow or busy computer:
+
+        progress = epoch / epochs
+        lr = min_lr + (lr_0 - min_lr) * (1 + cos(pi * progress)) / 2
     """
     if cfg.lr_schedule != "cosine":
         return lambda: None
-
-    def lr() -> float:
-        progress = epoch / cfg.epochs
-        if math.isfinite(budget):
-            progress = max(progress, (time.monotonic() - t_start) / budget)
-        progress = min(progress, 1.0)
-        return cfg.min_lr + 0.5 * (cfg.lr - cfg.min_lr) * (1.0 + math.cos(math.pi * progress))
-
-    return lr
+    progress = min(epoch / cfg.epochs, 1.0)
+    value = cfg.min_lr + 0.5 * (cfg.lr - cfg.min_lr) * (1.0 + math.cos(math.pi * progress))
+    return lambda: value

@@ -172,10 +172,3 @@ def rank0_deadline(par: Parallel, deadline: float) -> Callable[[], bool]:
     if par.world_size == 1:
         return lambda: time.monotonic() > deadline
     return lambda: bool(par.broadcast_float(float(time.monotonic() > deadline)))
-
-
-def rank0_lr(par: Parallel, lr_at: LrAt, *, timed: bool) -> LrAt:
-    """``lr_at`` evaluated on rank 0 and broadcast when it depends on wall time (``timed``)."""
-    if par.world_size == 1 or not timed:
-        return lr_at
-    return lambda: par.broadcast_float(lr_at())

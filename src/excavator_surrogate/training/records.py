@@ -5,12 +5,14 @@ from __future__ import annotations
 import csv
 import io
 import logging
+import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from ..config import dumps_toml, to_dict
 from ..io_utils import write_text
+from ..surrogate.checkpoint import read_checkpoint, write_checkpoint_dict
 from .config import TrainConfig
 from .selection import Choice
 
@@ -114,3 +116,56 @@ def tb_epoch(
     for name, r2 in zip(names, val["theta_r2"]):
         tb.add_scalar(f"val_theta_r2/{name}", max(r2, -10.0), epoch)
     tb.flush()
+
+
+TIMING_FIELDS = ("time_s", "epoch_s", "val_s")
+"""``log.csv`` columns that read the wall clock: kept in ``log.csv`` and ``last.pt``, never in
+``best.pt``, so the same data and seed give a bit-identical ``best.pt`` on any load."""
+
+
+def untimed(history: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """``history`` without its wall-clock columns (:data:`TIMING_FIELDS`)."""
+    return [{k: v for k, v in row.items() if k not in TIMING_FIELDS} for row in history]
+
+
+def untimed_state(state: Mapping[str, Any]) -> dict[str, Any]:
+    """A ``train_state`` without ``elapsed_s`` (a resume from ``best.pt`` restarts the budget)."""
+    return {k: v for k, v in state.items() if k != "elapsed_s"}
+
+
+def budget_note(budget: float) -> str:
+    """``", capped at 200 s of wall time"`` (empty without a budget)."""
+    return f", capped at {budget:g} s of wall time" if math.isfinite(budget) else ""
+
+
+def budget_cut_message(budget: float, done: int, planned: int) -> str:
+    """The one line a run logs when its wall-clock cap ends it before the planned epochs."""
+    return (
+        f"the wall-time cap of {budget:g} s stopped training after {done} of "
+        f"{planned} planned epochs: this model depends on this computer's speed and load; "
+        "raise --max-seconds (or train.max_train_seconds) to train the planned model"
+    )
+
+
+def training_summary(
+    cfg: TrainConfig, *, epochs_done: int, stopped: str, budget: float
+) -> dict[str, Any]:
+    """What the run did against its plan (stored in ``best.pt`` metrics as ``training``).
+
+    ``stopped``: ``planned`` (all epochs), ``early-stop`` (patience), ``budget`` (the wall-time
+    cap cut it: ``budget_cut`` is True) or ``requested`` (a callback).
+    """
+    return {
+        "epochs_planned": int(cfg.epochs),
+        "epochs_done": int(epochs_done),
+        "stopped": stopped,
+        "budget_cut": stopped == "budget",
+        "max_train_seconds": float(budget) if math.isfinite(budget) else 0.0,
+    }
+
+
+def record_training(best: Path, summary: Mapping[str, Any]) -> None:
+    """Add ``summary`` to the ``training`` entry of checkpoint ``best``'s metrics, atomically."""
+    ck = read_checkpoint(best)
+    ck["metrics"] = {**(ck.get("metrics") or {}), "training": dict(summary)}
+    write_checkpoint_dict(best, ck)
