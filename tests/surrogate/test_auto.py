@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from excavator_surrogate.data import Dataset
@@ -76,3 +77,51 @@ def test_recipe_reasons_are_written_next_to_the_config_once(tmp_path):
     written = tomllib.loads((tmp_path / "config.toml").read_text())
     assert written["train"]["hidden"] == 8 and written["train"]["seq_len"] == cfg.seq_len
     assert written["recipe"] == recipe_table(why) and written["recipe"]
+
+
+def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
+    from excavator_surrogate.training.auto import (
+        MIN_EPOCHS,
+        PLAN_SHARE,
+        count_sequences,
+        epoch_cost_s,
+    )
+
+    many = _dataset([600] * 150)  # many runs (600 sub-sequences): the floor of epochs
+    cfg, why = auto_config(many, cpus=2)
+    assert cfg.epochs == cfg.patience == MIN_EPOCHS
+    assert any("epochs planned" in w for w in why)
+    one = _dataset([8000])  # one continuous log: more passes, within the budget
+    cfg1, _ = auto_config(one, cpus=2)
+    assert cfg1.epochs > MIN_EPOCHS
+    lengths = np.array([8000])
+    n_seq = count_sequences(lengths, seq_len=cfg1.seq_len, burn_in=cfg1.burn_in)
+    cost = epoch_cost_s(n_seq, seq_len=cfg1.seq_len, seq_batch=cfg1.seq_batch, val_steps=200)
+    assert cfg1.epochs * cost <= PLAN_SHARE * cfg1.max_train_seconds + cost
+    small, _ = auto_config(one, cpus=2, overrides={"max_train_seconds": 60})
+    assert (
+        small.epochs < cfg1.epochs and small.max_train_seconds == 30
+    )  # 60 s for 4 members, 2 at a time
+    assert auto_config(one, cpus=2)[0] == cfg1  # planned from the data: the same every time
+
+
+def test_max_seconds_zero_plans_for_the_default_budget_without_a_cap():
+    cfg, _ = auto_config(_dataset([300, 300]), cpus=2, overrides={"max_train_seconds": 0})
+    assert cfg.max_train_seconds == 0 and cfg.epochs >= 1
+    with pytest.raises(ConfigError, match="max_train_seconds"):
+        auto_config(_dataset([300, 300]), cpus=2, overrides={"max_train_seconds": -1})
+
+
+def test_sequences_are_counted_as_the_epoch_tiles_them():
+    from excavator_surrogate.training.auto import count_sequences
+    from excavator_surrogate.training.batches import sequence_starts
+
+    class _Data:
+        starts = np.array([0, 500, 700])
+        lengths = np.array([500, 200, 60])
+
+    n = count_sequences(_Data.lengths, seq_len=50, burn_in=10)
+    rng = np.random.default_rng(0)
+    assert len(sequence_starts(_Data, 50, 10, rng)) <= n
+    zero_offset = sum(max(0, (int(L) - 1 - 50) // 41 + 1) for L in _Data.lengths)
+    assert n == zero_offset
