@@ -94,3 +94,25 @@ def test_run_report_shows_the_uncertainty_section_only_when_scored():
     text = render_run_report({**base, "uncertainty": unc}, ctx)
     assert "## Uncertainty and out-of-distribution" in text and NO_MEMBERS in text
     assert "any joint 25 %" in text
+
+
+def test_exsur_calibrate_stores_the_records_and_refuses_other_machines(
+    tmp_path, dataset_dir, capsys
+):
+    from excavator_surrogate.cli import main
+    from excavator_surrogate.surrogate.checkpoint import load_checkpoint
+    from excavator_surrogate.surrogate.uncertainty import stored_calibration, stored_coverage
+
+    ds = load_dataset(dataset_dir)
+    surs = [make_surrogate(ds.spec, ds.train, mode="stateful", window=5, seed=s) for s in (0, 1)]
+    ckpt = save_checkpoint(tmp_path / "ens.pt", merge(surs))
+    assert main(["calibrate", str(ckpt), str(dataset_dir), "--design", "independent"]) == 0
+    assert "bands calibrated on" in capsys.readouterr().out
+    back = load_checkpoint(ckpt)
+    assert stored_calibration(back).design == "independent" and stored_coverage(back) is not None
+    other = write_dataset(
+        tmp_path / "other", synthetic_split(synthetic_spec(3), n_train=1, n_val=1, n_test=1)
+    )
+    assert main(["calibrate", str(ckpt), str(other)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("exsur: error:") and "Traceback" not in err

@@ -22,9 +22,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("dataset", type=Path, help="dataset folder (its train and val splits)")
     p.add_argument(
         "--design",
-        choices=("independent", "shared"),
-        default="independent",
-        help="members integrate their own angles (independent, default) or share the mean's",
+        choices=("shared", "independent"),
+        default="shared",
+        help="members' velocity deviations integrated along the merged run (shared, default) "
+        "or each member integrating its own angle (independent)",
     )
     p.add_argument(
         "--max-steps",

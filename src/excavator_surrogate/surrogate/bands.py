@@ -223,7 +223,7 @@ def calibrate(
     val: Sequence[Episode],
     train: Sequence[Episode],
     *,
-    design: Design = "independent",
+    design: Design = "shared",
     levels: Sequence[float] = LEVELS,
     max_steps: int | None = None,
 ) -> tuple[Calibration | None, CoverageRecord]:
@@ -276,7 +276,7 @@ def calibrate_checkpoint(
     val: Sequence[Episode],
     train: Sequence[Episode],
     *,
-    design: Design = "independent",
+    design: Design = "shared",
     max_steps: int | None = None,
 ) -> tuple[Calibration | None, CoverageRecord]:
     """Add the calibration and the coverage record to the checkpoint at ``path`` (in its

@@ -7,11 +7,12 @@ command sequence and returns, per joint and step:
 - the central prediction: the merged network's own free run (what every runtime -- env,
   ONNX, ``rollout`` -- computes);
 - the spread: the standard deviation over the members (ddof 1).  By default
-  (``design="independent"``) each member integrates its own angle, as the merged network
-  does with the mean: one batch of ``(M + 1) n_batch`` rows, row ``(m, b)`` following member
-  ``m``'s velocity (``ClosedLoop.follow``), so the angle spread grows with the horizon.
-  ``design="shared"`` runs only the central rows and integrates each member's velocity
-  deviation from the mean along them (docs/design.md compares the two);
+  (``design="shared"``) the members' velocities come from the merged network's own run (one
+  network call per step, nothing extra to run), and member ``m``'s angle is the central angle
+  plus its integrated velocity deviation from the mean, so the angle spread grows with the
+  horizon.  ``design="independent"`` lets each member integrate its own angle, as the merged
+  network does with the mean: one batch of ``(M + 1) n_batch`` rows, row ``(m, b)``
+  following member ``m``'s velocity (``ClosedLoop.follow``).  docs/design.md compares the two;
 - bands ``central +/- k_{level, j} spread`` for the calibrated levels (50 % and 90 %), with
   ``k`` fitted per joint on the validation free runs (:func:`.bands.fit_scale`: the
   level-quantile of ``|error| / spread``, so the nominal band covers that share there) and
@@ -56,7 +57,7 @@ class Calibration:
     """(n_level, n_joint) velocity band half-width / velocity spread."""
     n_step: int
     """Scored (post-warm-up) steps the scales were fitted on."""
-    design: str = "independent"
+    design: str = "shared"
     """How the members ran (``independent`` or ``shared``)."""
     theta_floor: np.ndarray | None = None
     """(n_joint,) smallest angle spread a band uses [rad] (:data:`.bands.FLOOR` x the
@@ -91,7 +92,7 @@ class Calibration:
                 theta=np.asarray(d["theta"], dtype=np.float64),
                 omega=np.asarray(d["omega"], dtype=np.float64),
                 n_step=int(d["n_step"]),
-                design=str(d.get("design", "independent")),
+                design=str(d.get("design", "shared")),
                 theta_floor=np.asarray(d.get("theta_floor", np.zeros(len(d["theta"][0])))),
                 omega_floor=np.asarray(d.get("omega_floor", np.zeros(len(d["omega"][0])))),
             )
@@ -155,7 +156,7 @@ def member_runs(
     u: np.ndarray,
     *,
     warmup: int | None = None,
-    design: Design = "independent",
+    design: Design = "shared",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Free-run a merged ensemble and each of its members (see the module docstring).
 
@@ -164,7 +165,8 @@ def member_runs(
         theta: (n_batch, >= warmup, n_joint) recorded angles [rad].
         u: (n_batch, n_step, n_u) commands.
         warmup: recorded samples to start from (default ``sur.window``).
-        design: ``independent`` (each member integrates its own angle) or ``shared``.
+        design: ``shared`` (members' velocity deviations integrated along the merged run) or
+            ``independent`` (each member integrates its own angle).
 
     Returns:
         ``theta``, ``omega`` (n_batch, n_step, n_joint) of the merged network and
@@ -229,7 +231,7 @@ def predict_with_uncertainty(
         theta: (n_batch, >= warmup, n_joint) recorded angles to start from [rad].
         u: (n_batch, n_step, n_u) commands [command units] (joints', then exogenous inputs').
         warmup: recorded samples to start from (default ``sur.window``).
-        design: how the members run (default: the calibration's, else ``independent``).
+        design: how the members run (default: the calibration's, else ``shared``).
         calibration: band scales (default: the checkpoint's, :func:`stored_calibration`).
         coverage: training coverage (default: the checkpoint's, :func:`stored_coverage`).
 
@@ -239,7 +241,7 @@ def predict_with_uncertainty(
     warmup = sur.window if warmup is None else int(warmup)
     calibration = calibration if calibration is not None else stored_calibration(sur)
     coverage = coverage if coverage is not None else stored_coverage(sur)
-    design = design or (calibration.design if calibration is not None else "independent")  # type: ignore[assignment]
+    design = design or (calibration.design if calibration is not None else "shared")  # type: ignore[assignment]
     notes: list[str] = []
     if member_head(sur) is not None:
         th, om, th_m, om_m = member_runs(sur, theta, u, warmup=warmup, design=design)
