@@ -100,3 +100,10 @@ def test_from_preset_reads_the_table_and_overrides() -> None:
     assert TrainConfig.from_preset("tiny", epochs=1).hidden == 16
     with pytest.raises(ConfigError, match="no-such-preset"):
         SimulateConfig.from_preset("no-such-preset")
+
+
+def test_an_unknown_key_names_its_close_match() -> None:
+    with pytest.raises(
+        ConfigError, match=r"unknown key\(s\) \['nmes'\] for Cfg \(did you mean 'names'\?\)"
+    ):
+        from_dict(Cfg, {"nmes": ["b"]}, where="t")

@@ -18,12 +18,13 @@ every output folder can record the config that produced it (``config.toml``).
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import itertools
 import math
 import tomllib
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib import resources
 from pathlib import Path
 from typing import Any, TypeVar
@@ -41,11 +42,17 @@ def preset_names() -> list[str]:
     return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
 
 
-def load_preset(name_or_path: str | Path) -> dict[str, Any]:
+PresetCheck = Callable[[Mapping[str, Any], str], None]
+"""``check(tables, where)``: raises :class:`ConfigError` on an unknown table or key of one file."""
+
+
+def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -> dict[str, Any]:
     """Load a preset by name (shipped) or by path to a TOML file.
 
     Returns the raw nested dict (one table per stage).  A preset may ``extends = "other"``
-    another preset; tables are merged key by key.
+    another preset; tables are merged key by key.  ``check`` is applied to every file's own
+    tables (the preset and each one it extends), so an error names the file with the typo
+    (:func:`excavator_surrogate.stages.load_preset` checks every table and key).
     """
     p = Path(str(name_or_path))
     if p.suffix == ".toml" or p.is_file():
@@ -67,12 +74,14 @@ def load_preset(name_or_path: str | Path) -> dict[str, Any]:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{where}: invalid TOML ({e})") from e
+    if check is not None:
+        check(data, where)
     base = data.pop("extends", None)
     own_name = data.get(
         "name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path)
     )
     if base is not None:
-        merged = load_preset(base)
+        merged = load_preset(base, check=check)
         for k, v in data.items():
             if isinstance(v, dict) and isinstance(merged.get(k), dict):
                 merged[k] = {**merged[k], **v}
@@ -156,8 +165,11 @@ def from_dict(cls: type[C], data: dict[str, Any] | None, *, where: str = "config
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     unknown = sorted(set(data) - set(fields))
     if unknown:
+        close = difflib.get_close_matches(unknown[0], list(fields), n=1)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
         raise ConfigError(
-            f"{where}: unknown key(s) {unknown} for {cls.__name__}; valid keys: {sorted(fields)}"
+            f"{where}: unknown key(s) {unknown} for {cls.__name__}{hint}; "
+            f"valid keys: {sorted(fields)}"
         )
     kwargs = {k: _coerce(hints[k], v, f"{where}.{k}", k in INF_OK) for k, v in data.items()}
     return cls(**kwargs)

@@ -29,7 +29,7 @@ from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
 from .evaluate.run_report import ReportContext, render_run_report
 from .io_utils import atomic_dir, write_json, write_text
-from .stages import RunConfig, build_configs
+from .stages import RunConfig, build_configs, check_preset
 
 _log = logging.getLogger(__name__)
 
@@ -85,7 +85,7 @@ def run_pipeline(
         raise ConfigError("--logs and --mapping go together: give both, or neither")
     if logs is not None and data is not None:
         raise ConfigError("give either --logs (with --mapping) or --data, not both")
-    raw_preset = load_preset(preset)
+    raw_preset = load_preset(preset, check=check_preset)
     name = str(raw_preset.get("name", preset))
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")

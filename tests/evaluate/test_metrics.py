@@ -104,3 +104,15 @@ def test_plot_cbe_writes_png(tmp_path):
         title="t",
     )
     assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_r2_of_a_reference_constant_up_to_rounding_is_undefined_not_minus_1e11():
+    """Issue 25: a constant truth whose mean is off by rounding gave SS_tot ~ 1e-29 > 0 and an
+    R^2 of -4.8e11; it is undefined (NaN, None in JSON) like an exactly constant one."""
+    n = 1001
+    ref = np.column_stack([np.full(n, 0.1), np.linspace(-1.0, 1.0, n)])
+    assert np.sum((ref[:, 0] - ref[:, 0].mean()) ** 2) > 0  # the rounding noise of the issue
+    pred = ref + 0.01
+    r2 = regression_metrics(pred, ref)["r2"]
+    assert np.isnan(r2[0])
+    assert r2[1] > 0.99  # a moving column keeps its R^2

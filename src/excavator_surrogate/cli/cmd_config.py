@@ -39,8 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur config show``: prints the tables, returns 0."""
-    from ..config import load_preset
-    from ..stages import STAGE_NAMES, show_configs
+    from ..stages import STAGE_NAMES, load_preset, show_configs
 
     sections = args.section or list(STAGE_NAMES)
     if args.preset:

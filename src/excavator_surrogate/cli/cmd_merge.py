@@ -30,14 +30,23 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Load every member (``weights_only``), merge, write atomically, print a summary."""
+    from ..errors import CheckpointError
     from ..outdir import check_out_file
     from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
-    from ..surrogate.ensemble import merge
+    from ..surrogate.ensemble import merge, non_finite_weight
 
     check_out_file(
         args.out, inputs=args.ckpts, example="ensemble.pt", overwrite=args.overwrite
     )
+    _check_distinct(args.ckpts)
     members = [load_checkpoint(p) for p in args.ckpts]
+    for p, m in zip(args.ckpts, members):
+        bad = non_finite_weight(m)
+        if bad is not None:
+            raise CheckpointError(
+                f"{p}: non-finite weights ({bad}): its training diverged; re-train it (lower "
+                "train.lr) or leave it out of the merge"
+            )
     sur = merge(members, name=args.name)
     sur.metrics["ensemble"]["sources"] = [str(p) for p in args.ckpts]
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -47,3 +56,18 @@ def run(args: argparse.Namespace) -> int:
         f"{sur.model_cfg.n_layer} x {sur.model_cfg.hidden} ({sur.mode})"
     )
     return 0
+
+
+def _check_distinct(paths: list[Path]) -> None:
+    """Refuse the same checkpoint given twice (also through another path or a link)."""
+    from ..errors import ConfigError
+
+    seen: dict[Path, Path] = {}
+    for p in paths:
+        key = p.resolve()
+        if key in seen:
+            raise ConfigError(
+                f"{p}: given twice (also as {seen[key]}); the same model twice is no ensemble: "
+                "give each member once"
+            )
+        seen[key] = p

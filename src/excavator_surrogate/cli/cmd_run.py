@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from .common import add_overwrite
-from .knobs import add_set_option, overrides
+from .knobs import add_set_option, configs, overrides, positive_seconds
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -62,10 +62,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--max-train-seconds",
-        type=float,
+        type=positive_seconds("--max-train-seconds"),
         default=None,
         metavar="S",
-        help="wall-time budget per trained model",
+        help="wall-time budget per trained model [s], > 0 (default: the preset's)",
     )
     p.add_argument("--epochs", type=int, default=None, metavar="N", help="maximum epochs per model")
     p.add_argument(
@@ -94,10 +94,10 @@ def checked_run(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
-    from ..evaluate.metrics import min_r2
     from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS, run_pipeline
 
     preset = args.preset or ("real" if args.logs else DEFAULT_PRESET)
+    _check_request(args, preset)
     metrics = run_pipeline(
         out=args.out,
         preset=preset,
@@ -112,7 +112,39 @@ def run(args: argparse.Namespace) -> int:
         sets=overrides(args, RUN_SECTIONS),
     )
     print(
-        f"{args.out}: worst-joint angle R² {min_r2(metrics, 'theta'):.4f}, "
-        f"worst-joint ω R² {min_r2(metrics, 'omega'):.4f} (report: {args.out / 'report.md'})"
+        f"{args.out}: worst-joint angle R² {_r2_text(metrics, 'theta')}, "
+        f"worst-joint ω R² {_r2_text(metrics, 'omega')} (report: {args.out / 'report.md'})"
     )
     return 0
+
+
+def _r2_text(metrics: dict, key: str) -> str:
+    """The worst defined R² of ``metrics[key]``, with the joints whose R² is undefined named."""
+    from ..evaluate.metrics import undefined_r2
+
+    bad = undefined_r2(metrics, key)
+    vals = [v["r2"] for j, v in metrics[key].items() if j not in bad]
+    text = f"{min(vals):.4f}" if vals else "undefined"
+    if bad:
+        text += f" (undefined for {', '.join(bad)}: constant reference or non-finite prediction)"
+    return text
+
+
+def _check_request(args: argparse.Namespace, preset: str) -> None:
+    """Before anything runs: refuse ``--set`` knobs this run will not read, and a dataset to
+    simulate that cannot fit in memory or on disk."""
+    from ..config import parse_sets
+    from ..pipeline import RUN_SECTIONS
+    from ..stages import check_dataset_size, check_sets_read
+
+    sets = parse_sets(args.sets or [], sections=RUN_SECTIONS)
+    cfgs = configs(args, RUN_SECTIONS, preset=preset)
+    skipped = {}
+    if not cfgs["run"].clean:
+        skipped["clean"] = "this run does not clean (run.clean = false; add --set run.clean=true)"
+    if args.data is not None or args.logs is not None:
+        given = "--data" if args.data is not None else "--logs"
+        skipped["simulate"] = f"this run trains on {given} and simulates nothing"
+    check_sets_read(sets, cfgs, skipped=skipped)
+    if "simulate" not in skipped:
+        check_dataset_size(cfgs["simulate"], out=args.out)

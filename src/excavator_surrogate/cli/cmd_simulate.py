@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..config import load_preset
+from ..config import parse_sets
 from ..errors import ConfigError
 from ..outdir import out_dir, preset_files
+from ..stages import check_dataset_size, check_sets_read, load_preset
 from .common import add_out
 from .knobs import add_set_option, configs
 
@@ -60,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     named = {"simulate": {"seed": args.seed, "workers": args.workers}}
     cfg: SimulateConfig = configs(args, ("simulate",), named)["simulate"]
+    check_sets_read(parse_sets(args.sets, sections=("simulate",)), {"simulate": cfg})
+    check_dataset_size(cfg, out=args.out)
     with out_dir(args.out, overwrite=args.overwrite, inputs=preset_files(args.preset)):
         path = simulate_dataset(
             cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}

@@ -52,10 +52,11 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
-    from ..config import load_preset, merge_tables
+    from ..config import merge_tables
     from ..data.dataset import read_manifest
     from ..outdir import check_out_dir
     from ..scale.sweep import SweepConfig, run_sweep
+    from ..stages import load_preset
     from ..training import TrainConfig
 
     check_out_dir(args.out, overwrite=args.overwrite, lock=True)

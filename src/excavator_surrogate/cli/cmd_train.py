@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from .common import add_overwrite
-from .knobs import add_set_option, configs, overrides
+from .knobs import add_set_option, configs, overrides, positive_seconds
 
 
 def register(subparsers: Any) -> None:
@@ -36,10 +36,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--epochs", type=int, default=None, help="maximum epochs")
     p.add_argument(
         "--max-seconds",
-        type=float,
+        type=positive_seconds("--max-seconds"),
         default=None,
         dest="max_train_seconds",
-        help="wall-time budget for training [s]",
+        help="wall-time budget for training [s], > 0 (default: the preset's; none: no budget)",
     )
     p.add_argument("--seed", type=int, default=None, help="random seed")
     p.add_argument(

@@ -11,10 +11,12 @@ naming the table and the valid keys.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Mapping, Sequence
+import math
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
-from ..config import load_preset, merge_tables, parse_sets
+from ..config import merge_tables, parse_sets
+from ..errors import ConfigError
 
 
 def add_set_option(p: argparse.ArgumentParser, sections: Sequence[str]) -> None:
@@ -29,6 +31,29 @@ def add_set_option(p: argparse.ArgumentParser, sections: Sequence[str]) -> None:
         f"{sections[0]}.KEY=VALUE (repeatable; TOML values; named flags win; see "
         "'exsur config show PRESET')",
     )
+
+
+def positive_seconds(option: str) -> Callable[[str], float]:
+    """argparse ``type`` of the wall-time budget ``option`` (e.g. ``--max-seconds``): a finite
+    number > 0 [s], else a one-line :class:`ConfigError`.
+
+    0 and negatives are refused: the config field's ``0 = unlimited`` is not what
+    ``--max-seconds 0`` reads as (leave the option out for no budget).
+    """
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid float: {text!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(
+                f"{option} {text}: give a finite number > 0 [s] (leave the option out for no "
+                "time budget)"
+            )
+        return value
+
+    return parse
 
 
 def overrides(
@@ -50,7 +75,7 @@ def configs(
     preset: str | None = None,
 ) -> dict[str, Any]:
     """The configs of ``sections`` from ``--preset`` (or ``preset``), ``--set`` and ``named``."""
-    from ..stages import build_configs
+    from ..stages import build_configs, load_preset
 
     name = preset if preset is not None else getattr(args, "preset", None)
     table = load_preset(name) if name else {}

@@ -21,6 +21,7 @@ import torch
 from ..errors import ExsurError
 from ..io_utils import worker_log_config
 from ..surrogate.model import Surrogate
+from ..training.orphans import die_with_parent, parent_args
 
 
 @torch.inference_mode()
@@ -40,11 +41,20 @@ def rollout(engine: Any, state: dict[str, Any], u: np.ndarray) -> np.ndarray:
 
 
 def _serve(
-    conn: Any, sur: Surrogate, n_batch: int, mode: str | None, log_config: tuple[int, bool]
+    conn: Any,
+    sur: Surrogate,
+    n_batch: int,
+    mode: str | None,
+    log_config: tuple[int, bool],
+    parent: tuple[int, bool] | None = None,
 ) -> None:
-    """Worker process: build the engine, then answer ``(state, u)`` requests until ``None``."""
+    """Worker process: build the engine, then answer ``(state, u)`` requests until ``None``;
+    leaves within about a second of the death of ``parent`` (:func:`~..training.orphans.parent_args`)."""
     from ..env.engine import SurrogateEngine
     from ..io_utils import init_worker_logging
+
+    if parent is not None:
+        die_with_parent(*parent)
 
     init_worker_logging(log_config, tag="exsur-rollout")  # the parent's level
 
@@ -86,7 +96,7 @@ class RolloutWorker:
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
             target=_serve,
-            args=(child, sur, int(n_batch), mode, worker_log_config()),
+            args=(child, sur, int(n_batch), mode, worker_log_config(), parent_args()),
             daemon=True,
             name="exsur-rollout",
         )

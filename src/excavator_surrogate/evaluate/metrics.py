@@ -3,7 +3,8 @@
 Samples of every episode's warm-up (the first ``W`` recorded samples that start the rollout)
 are excluded; the remaining samples of all episodes are pooled.  Angles of periodic joints are
 compared unwrapped (the rollout integrates continuously).  ``R^2 = 1 - SS_res / SS_tot`` about
-the reference's mean; it is ``None`` in JSON when the reference is constant.
+the reference's mean; it is ``None`` in JSON when the reference is constant (up to rounding,
+:data:`CONSTANT`): a joint that never moves has no variance to explain.
 """
 
 from __future__ import annotations
@@ -28,6 +29,11 @@ class RunLike(Protocol):
     warmup: int
 
 
+CONSTANT = 1e-9
+"""A reference column whose range (max - min) is at most this times ``max(1, max |ref|)`` is
+constant: its R^2 is undefined (NaN, ``None`` in JSON), not ``1 - SS_res / rounding noise``."""
+
+
 def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
 
@@ -40,7 +46,8 @@ def regression_metrics(pred: np.ndarray, ref: np.ndarray) -> dict[str, np.ndarra
         ref: (n_sample, n_joint) reference.
 
     Returns:
-        ``{"rmse", "mae", "r2"}``, each (n_joint,); ``r2`` is NaN where ``ref`` is constant and
+        ``{"rmse", "mae", "r2"}``, each (n_joint,); ``r2`` is NaN where ``ref`` is constant (up
+        to rounding: its range is at most :data:`CONSTANT` times its magnitude) and
         every metric is NaN/inf if ``pred`` is not finite.
     """
     pred = np.asarray(pred, dtype=np.float64)
@@ -51,7 +58,12 @@ def regression_metrics(pred: np.ndarray, ref: np.ndarray) -> dict[str, np.ndarra
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         ss_res = np.sum(err**2, axis=0)
         ss_tot = np.sum((ref - ref.mean(axis=0)) ** 2, axis=0)
-        r2 = np.where(ss_tot > 0, 1.0 - ss_res / np.where(ss_tot > 0, ss_tot, 1.0), np.nan)
+        # constant up to rounding (range <= CONSTANT x magnitude): SS_tot is rounding noise
+        # and 1 - SS_res / SS_tot a meaningless -1e11, so R^2 is undefined (NaN)
+        scale = np.maximum(1.0, np.max(np.abs(ref), axis=0, initial=0.0))
+        moves = np.ptp(ref, axis=0) > CONSTANT * scale if len(ref) else np.zeros(ref.shape[1], bool)
+        ok = moves & (ss_tot > 0)
+        r2 = np.where(ok, 1.0 - ss_res / np.where(ok, ss_tot, 1.0), np.nan)
         return {
             "rmse": np.sqrt(np.mean(err**2, axis=0)),
             "mae": np.mean(np.abs(err), axis=0),
@@ -86,6 +98,12 @@ def cbe_metrics(runs: Sequence[RunLike], spec: MachineSpec) -> dict[str, Any]:
             for j, name in enumerate(spec.names)
         }
     return out
+
+
+def undefined_r2(metrics: dict[str, Any], key: str = "theta") -> list[str]:
+    """Joints of ``metrics[key]`` whose R^2 is undefined (constant reference, or a non-finite
+    prediction)."""
+    return [j for j, v in metrics[key].items() if v.get("r2") is None]
 
 
 def min_r2(metrics: dict[str, Any], key: str = "theta") -> float:

@@ -37,6 +37,7 @@ from ..spec import MachineSpec
 from ..version import __version__
 from .features import Normalization
 from .model import ModelConfig, Surrogate, build_net
+from .sizes import check_fits, n_param
 
 FORMAT = "exsur-surrogate"
 FORMAT_VERSION = 1
@@ -158,6 +159,13 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
     mode = ckpt["mode"]
     if mode not in ("windowed", "stateful"):
         raise CheckpointError(f"{where}: unknown mode {mode!r} (windowed or stateful)")
+    n = n_param(mcfg)  # before allocating: a crafted or corrupt size must not exhaust memory
+    check_fits(
+        4 * n,
+        what=f"{where}: the stored network (hidden = {mcfg.hidden}, {n:.3g} parameters x 4 B)",
+        fix="this is not a checkpoint exsur wrote for this machine; re-train or copy it again",
+        error=CheckpointError,
+    )
     net = build_net(mcfg)
     try:
         net.load_state_dict(ckpt["state_dict"])

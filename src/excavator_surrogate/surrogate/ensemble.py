@@ -46,6 +46,13 @@ def check_members(surs: Sequence[Surrogate]) -> None:
     ref = surs[0]
     if ref.model_cfg.cell not in _GATES:
         raise ConfigError(f"only LSTM/GRU surrogates can be ensembled, not '{ref.model_cfg.cell}'")
+    for i, s in enumerate(surs):
+        bad = non_finite_weight(s)
+        if bad is not None:
+            raise ConfigError(
+                f"ensemble member {i} ({s.name}) has non-finite weights ({bad}): its training "
+                "diverged; re-train it (lower train.lr) or leave it out"
+            )
     for i, s in enumerate(surs[1:], start=1):
         checks = [
             (s.spec.to_dict() == ref.spec.to_dict(), "machine spec (joints, rate, limits)"),
@@ -65,6 +72,36 @@ def check_members(surs: Sequence[Surrogate]) -> None:
                     f"ensemble member {i} ({s.name}) differs from member 0 in its {what}; "
                     "merge surrogates trained on the same machine with the same architecture"
                 )
+    for i, s in enumerate(surs):
+        for k, t in enumerate(surs[:i]):
+            if _same_weights(s, t):
+                raise ConfigError(
+                    f"ensemble member {i} ({s.name}) has the same weights as member {k}: the "
+                    "same model twice is no ensemble; give each member once"
+                )
+
+
+def non_finite_weight(sur: Surrogate) -> str | None:
+    """Name of the first NaN/inf parameter of ``sur``'s network (None: all finite)."""
+    for name, p in sur.net.named_parameters():
+        if not bool(torch.isfinite(p).all()):
+            return name
+    return None
+
+
+def _same_weights(a: Surrogate, b: Surrogate) -> bool:
+    """Same network weights and normalisation: the same model (e.g. one file given twice)."""
+
+    def same(sa: dict[str, Any], sb: dict[str, Any]) -> bool:
+        return sa.keys() == sb.keys() and all(
+            not isinstance(sa[k], torch.Tensor)
+            or (sa[k].shape == sb[k].shape and torch.equal(sa[k].cpu(), sb[k].cpu()))
+            for k in sa
+        )
+
+    return same(a.net.state_dict(), b.net.state_dict()) and same(
+        a.norm.state_dict(), b.norm.state_dict()
+    )
 
 
 def _np(t: torch.Tensor) -> np.ndarray:

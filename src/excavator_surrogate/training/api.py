@@ -13,6 +13,7 @@ from ..errors import ConfigError
 from .calibration import calibrate_best
 from .config import TrainConfig
 from .ensembles import train_ensemble
+from .guards import check_excitation
 from .jobs import TrainJob, run_jobs
 from .loop import EpochCallback, train_network
 from .loss import LossFn
@@ -60,8 +61,10 @@ def train(
         Path of ``best.pt``.
 
     Raises:
-        DataError: no usable training episodes.  CheckpointError: bad ``resume`` file.
+        DataError: no usable training episodes, or no joint moves in them.
+        CheckpointError: bad ``resume`` file.
     """
+    check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
     if cfg.members > 1:
         for given, what in (
             (resume, "resume"),

@@ -133,7 +133,12 @@ class TrainConfig(PresetConfig, table="train"):
             (self.horizon >= 1, "horizon must be >= 1"),
             (all(0 < b <= 1 for b in self.play), "play widths must be in (0, 1]"),
             (self.lambda_bias >= 0, "lambda_bias must be >= 0"),
-            (self.lr > 0, "lr must be > 0"),
+            (0 < self.lr <= 1, f"lr = {self.lr!r} must be in (0, 1] (typical: 1e-4 to 1e-2)"),
+            (self.seed >= 0, f"seed = {self.seed} must be >= 0 (numpy seeds are non-negative)"),
+            (
+                self.max_train_seconds >= 0,
+                f"max_train_seconds = {self.max_train_seconds!r} must be >= 0 (0 = unlimited)",
+            ),
             (self.batch_size >= 1 and self.seq_batch >= 1, "batch sizes must be >= 1"),
             (self.epochs >= 1, "epochs must be >= 1"),
             (self.burn_in >= 1, "burn_in must be >= 1"),
@@ -153,6 +158,7 @@ class TrainConfig(PresetConfig, table="train"):
         for ok, msg in checks:
             if not ok:
                 raise ConfigError(f"[train] {msg}")
+        self._check_size()
         defaults = {f.name: f.default for f in fields(self)}
         for other, names in MODE_FIELDS.items():
             if other == self.mode:
@@ -163,6 +169,22 @@ class TrainConfig(PresetConfig, table="train"):
                         f"[train] {name} = {getattr(self, name)!r} is read only by mode = "
                         f'"{other}" (this config trains mode = "{self.mode}"): remove it'
                     )
+
+    def _check_size(self) -> None:
+        """Refuse a network whose training state cannot fit in memory, before any allocation:
+        parameters x 16 B (weights, gradients, Adam's two moments), counted with one input
+        feature and one joint (a lower bound: the data only adds to it)."""
+        from ..surrogate.sizes import check_fits, n_param
+
+        n = n_param(self.model_config(1, 1)) * max(1, self.members)
+        check_fits(
+            16 * n,
+            what=f"[train] hidden = {self.hidden}, layers = {self.layers}, head_hidden = "
+            f"{self.head_hidden}"
+            + (f", members = {self.members}" if self.members > 1 else "")
+            + f": {n:.3g} parameters x 16 B (weights, gradients, Adam state)",
+            fix="lower train.hidden / train.head_hidden",
+        )
 
     @classmethod
     def adapt_table(cls, table: dict[str, Any], *, changed: set[str]) -> dict[str, Any]:

@@ -6,8 +6,9 @@ independent jobs.  The small networks of this package do not scale past one or t
 per process, so two jobs on two cores finish in about the time of one: the quick Stage II
 demos train their LSTM and its raw-data baseline at once this way.
 
-Workers are spawned (never forked from a process that holds torch threads); a user error in a
-job crosses the process boundary as its one-line message, prefixed with the job's tag.
+Workers are spawned (never forked from a process that holds torch threads) and die with their
+parent (:mod:`.orphans`); a user error in a job crosses the process boundary as its one-line
+message, prefixed with the job's tag.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 from ..data.dataset import Dataset
 from ..errors import ExsurError
 from .config import TrainConfig
+from .orphans import die_with_parent, parent_args
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,12 @@ def run_jobs(
 
     ctx = multiprocessing.get_context("spawn")  # no fork of a process holding torch threads
     try:
-        with ProcessPoolExecutor(min(workers, len(jobs)), mp_context=ctx) as pool:
+        with ProcessPoolExecutor(
+            min(workers, len(jobs)),
+            mp_context=ctx,
+            initializer=die_with_parent,  # a killed parent leaves no worker training on
+            initargs=parent_args(),
+        ) as pool:
             log_config = worker_log_config()
             futures = [pool.submit(_in_worker, fn, job, log_config) for job in jobs]
             results = [f.result() for f in futures]
