@@ -37,7 +37,7 @@ from ..surrogate.features import unwrap_periodic
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .metrics import cbe_metrics
-from .report import report_markdown
+from .report import report_markdown, training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
 _log = logging.getLogger(__name__)
@@ -206,6 +206,7 @@ def evaluate_checkpoint(
         "seconds": round(time.monotonic() - t0, 3),
     }
     result: dict[str, Any] = {**metrics[primary], "run": run_info}
+    result["training"] = (sur.metrics or {}).get("training")  # did the wall-time cap cut it?
     unc_runs = uncertainty_runs(
         sur, episodes, main_runs, reference=reference, max_steps=max_steps or None
     )
@@ -218,6 +219,7 @@ def evaluate_checkpoint(
         write_text(
             tmp / "table.md",
             report_markdown(metrics, primary=primary, run=run_info, paper=paper)
+            + training_markdown(result["training"])
             + "\n"
             + uncertainty_markdown(result["uncertainty"], sur.spec.names),
         )

@@ -139,3 +139,32 @@ def report_markdown(
     if len(by_model) > 1:
         parts += ["## Comparison", "", comparison_table(by_model)]
     return "\n".join(parts)
+
+
+def training_markdown(training: Mapping[str, Any] | None) -> str:
+    """One paragraph on how the model's training ended against its plan (``best.pt`` metrics
+    ``training``; empty for checkpoints that do not record it).
+
+    A model the wall-time cap cut short depends on the computer's speed and load: the report
+    says so, so nobody takes it for the planned (reproducible) model.
+    """
+    if not training:
+        return ""
+    members = list(training.get("members") or [training])
+    cut = [m for m in members if m.get("budget_cut")]
+    planned = training.get("epochs_planned") or max(
+        (int(m.get("epochs_planned", 0)) for m in members), default=0
+    )
+    if not cut:
+        done = ", ".join(str(m.get("epochs_done", "?")) for m in members)
+        return (
+            f"\nTraining: the planned {planned} epochs ran"
+            + (f" (epochs done per member: {done}; fewer: early stop)" if len(members) > 1 else "")
+            + "; the same data and seed give the same model on any load.\n"
+        )
+    which = ", ".join(f"{m.get('epochs_done', '?')} of {m.get('epochs_planned', '?')}" for m in cut)
+    return (
+        f"\n**Warning: the wall-time cap cut training short** ({len(cut)} of {len(members)} "
+        f"network(s): {which} planned epochs). This model depends on the computer's speed and "
+        "load; rerun with a larger `--max-seconds` for the planned, reproducible model.\n"
+    )

@@ -1,0 +1,36 @@
+"""The evaluation says whether the wall-time cap cut the model's training short."""
+
+from __future__ import annotations
+
+import json
+
+from excavator_surrogate.evaluate.cbe import evaluate_checkpoint
+from excavator_surrogate.evaluate.report import training_markdown
+from excavator_surrogate.training import train
+from tests.helpers.training import tiny_dataset, tiny_train_config
+
+
+def test_a_cut_run_is_reported_in_metrics_json_and_the_table(tmp_path):
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    cut = train(tiny_train_config(epochs=50, max_train_seconds=1e-3), ds, out=tmp_path / "cut")
+    res = evaluate_checkpoint(cut, ds, out=tmp_path / "ev_cut", arx=False, figure=False)
+    assert res["training"]["budget_cut"] is True
+    saved = json.loads((tmp_path / "ev_cut" / "metrics.json").read_text())
+    assert saved["training"]["epochs_done"] == 1 and saved["training"]["epochs_planned"] == 50
+    table = (tmp_path / "ev_cut" / "table.md").read_text()
+    assert "wall-time cap cut training short" in table and "1 of 50" in table
+
+    full = train(tiny_train_config(epochs=2), ds, out=tmp_path / "full")
+    res = evaluate_checkpoint(full, ds, out=tmp_path / "ev_full", arx=False, figure=False)
+    assert res["training"]["budget_cut"] is False
+    assert "planned 2 epochs ran" in (tmp_path / "ev_full" / "table.md").read_text()
+
+
+def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing():
+    members = [
+        {"epochs_planned": 30, "epochs_done": 30, "budget_cut": False},
+        {"epochs_planned": 30, "epochs_done": 12, "budget_cut": True},
+    ]
+    text = training_markdown({"budget_cut": True, "epochs_planned": 30, "members": members})
+    assert "1 of 2 network(s): 12 of 30 planned epochs" in text
+    assert training_markdown(None) == ""
