@@ -128,7 +128,8 @@ def _convert_all(
             if not quiet:
                 n_out = sum(e.n_step for e in res.episodes)
                 _log.info(
-                    f"{p}: {res.entry['rows']} rows -> {len(res.episodes)} episode(s), {n_out} samples"
+                    f"{p}: {res.entry['rows']} rows -> {len(res.episodes)} episode(s), "
+                    f"{n_out} samples"
                 )
         except DataError as e:
             if options.on_error != "skip":

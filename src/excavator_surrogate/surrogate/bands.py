@@ -18,12 +18,10 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import torch
 
 from ..data.episode import Episode
 from ..errors import DataError
-from ..io_utils import atomic_path
-from .checkpoint import read_checkpoint, surrogate_from_dict
+from .checkpoint import read_checkpoint, surrogate_from_dict, write_checkpoint_dict
 from .coverage import CoverageRecord, fit_coverage
 from .ensemble import member_head
 from .features import omega_target
@@ -296,6 +294,5 @@ def calibrate_checkpoint(
     else:
         metrics["uncertainty"] = cal.to_dict()
     ckpt["metrics"] = metrics
-    with atomic_path(path) as tmp:
-        torch.save(ckpt, tmp)
+    write_checkpoint_dict(path, ckpt)  # same dict, same bytes
     return cal, cov

@@ -76,10 +76,21 @@ def save_checkpoint(
     train_state: dict[str, Any] | None = None,
 ) -> Path:
     """Write ``sur`` (and optional training state for resuming) to ``path`` atomically."""
+    return write_checkpoint_dict(
+        path, checkpoint_dict(sur, history=history, train_state=train_state)
+    )
+
+
+def write_checkpoint_dict(path: str | Path, ckpt: dict[str, Any]) -> Path:
+    """Write a checkpoint dict to ``path`` atomically, and byte-for-byte reproducibly.
+
+    ``torch.save`` to a *file name* records that name inside the zip archive, and the atomic
+    write's temporary name holds a pid and a random suffix; saved through an open file the
+    archive's folder is always ``archive``, so the same dict gives the same bytes.
+    """
     path = Path(path)
-    ckpt = checkpoint_dict(sur, history=history, train_state=train_state)
-    with _write_errors(path), atomic_path(path) as tmp:
-        torch.save(ckpt, tmp)
+    with _write_errors(path), atomic_path(path) as tmp, open(tmp, "wb") as f:
+        torch.save(ckpt, f)
     return path
 
 

@@ -48,7 +48,8 @@ class TrainConfig(PresetConfig, table="train"):
     batch_size: int = 256
     """Windowed: windows per batch; per process with DDP (global batch = batch_size x world size)."""
     epochs: int = 50
-    """Maximum number of epochs."""
+    """Planned epochs: the amount of training, fixed before it starts (early stopping by
+    ``patience`` may end it sooner; the cosine schedule runs over it)."""
     patience: int = 25
     """Early stopping: epochs without a better validation free-run error."""
     min_delta: float = 0.0
@@ -61,7 +62,7 @@ class TrainConfig(PresetConfig, table="train"):
     """Lower bound of the learning rate."""
     lr_schedule: Literal["plateau", "cosine"] = "plateau"
     """``plateau``: ReduceLROnPlateau on the validation error (paper); ``cosine``: decay from ``lr``
-    to ``min_lr`` over the run (progress = max(epoch / epochs, elapsed / max_train_seconds))."""
+    to ``min_lr`` over the planned epochs (progress = epoch / epochs; never the wall clock)."""
     grad_clip: float = 1.0
     """Clip the gradient norm to this value (0 disables)."""
     seed: int = 0
@@ -83,7 +84,9 @@ class TrainConfig(PresetConfig, table="train"):
     val_steps: int = 0
     """Truncate validation episodes to this many samples for the free-run (0 = full length)."""
     max_train_seconds: float = 0.0
-    """Wall-time budget for training incl. validation [s] (0 = unlimited)."""
+    """Wall-time cap for training incl. validation [s] (0 = none): it only stops a slow or busy
+    computer before the planned ``epochs``, and the run then says so (log, ``best.pt`` metrics
+    ``training.budget_cut``, reports); it never changes what the planned epochs compute."""
     device: str = "cpu"
     """Torch device: ``cpu``, ``cuda``, ``cuda:N`` or ``auto`` (CUDA if available, else CPU)."""
     num_threads: int = 1
