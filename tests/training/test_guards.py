@@ -93,3 +93,29 @@ def test_the_size_check_names_the_estimate_and_the_memory(monkeypatch):
     msg = str(e.value)
     assert "parameters x 16 B" in msg and "but 10 MB of memory is available" in msg
     assert np.isfinite(float(msg.split("needs about ")[1].split()[0]))
+
+
+def test_training_stops_in_one_line_when_the_weights_turn_non_finite(tmp_path, monkeypatch):
+    import excavator_surrogate.training.loop as loop_mod
+
+    nets = []
+
+    def spy(net, **kw):  # the loop's check, recording the net it watches
+        nets.append(net)
+        return check_finite(net, **kw)
+
+    def corrupt(epoch, row):  # after epoch 0: one weight becomes NaN (as an overflow would)
+        if epoch == 0:
+            with torch.no_grad():
+                next(nets[0].parameters()).view(-1)[0] = float("nan")
+        return False
+
+    monkeypatch.setattr(loop_mod, "check_finite", spy)
+    with pytest.raises(ConfigError, match="epoch 1"):
+        train(
+            tiny_train_config(epochs=3),
+            tiny_dataset(2, n_train=2, n_step=120),
+            out=tmp_path / "m",
+            on_epoch=corrupt,
+            show_progress=False,
+        )

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from excavator_surrogate.training.orphans import ORPHAN_EXIT, parent_args
+from excavator_surrogate.orphans import ORPHAN_EXIT, parent_args
 
 pytestmark = pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc (Linux)")
 
@@ -143,7 +143,7 @@ def test_die_with_parent_exits_at_once_when_the_parent_is_already_gone(tmp_path)
     """The race of a parent that died before the worker armed its watch: a child told that
     its parent is another pid exits with ORPHAN_EXIT right away."""
     code = (
-        "from excavator_surrogate.training.orphans import die_with_parent\n"
+        "from excavator_surrogate.orphans import die_with_parent\n"
         "import os, time\n"
         "die_with_parent(os.getppid() + 100000, True)\n"
         "time.sleep(60)\n"

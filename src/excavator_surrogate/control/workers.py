@@ -21,7 +21,7 @@ import torch
 from ..errors import ExsurError
 from ..io_utils import worker_log_config
 from ..surrogate.model import Surrogate
-from ..training.orphans import die_with_parent, parent_args
+from ..orphans import die_with_parent, parent_args
 
 
 @torch.inference_mode()
@@ -49,7 +49,7 @@ def _serve(
     parent: tuple[int, bool] | None = None,
 ) -> None:
     """Worker process: build the engine, then answer ``(state, u)`` requests until ``None``;
-    leaves within about a second of the death of ``parent`` (:func:`~..training.orphans.parent_args`)."""
+    leaves within about a second of the death of ``parent`` (:func:`~excavator_surrogate.orphans.parent_args`)."""
     from ..env.engine import SurrogateEngine
     from ..io_utils import init_worker_logging
 

@@ -36,6 +36,7 @@ from .. import config as config_mod
 from ..data import Episode, write_dataset
 from ..errors import ConfigError
 from ..io_utils import init_worker_logging, progress, worker_log_config
+from ..orphans import die_with_parent, parent_args
 from ..spec import EXCAVATOR, MachineSpec
 from .excitation import (
     CLOSED_LOOP,
@@ -366,6 +367,12 @@ def simulate_episode(
     }
 
 
+def _init_worker(log_config: Any, parent: tuple[int, bool]) -> None:
+    """Simulation pool initializer: log at the parent's level, and exit when it dies."""
+    init_worker_logging(log_config)
+    die_with_parent(*parent)
+
+
 def _worker(args: tuple[EpisodeJob, SimulateConfig, MachineSpec]) -> dict[str, Any]:
     job, cfg, spec = args
     return simulate_episode(job, cfg, spec=spec)
@@ -412,8 +419,8 @@ def simulate_dataset(
         with ProcessPoolExecutor(
             max_workers=n_workers,
             mp_context=ctx,
-            initializer=init_worker_logging,  # the workers log at this process's level
-            initargs=(worker_log_config(),),
+            initializer=_init_worker,  # this process's log level; die with this process
+            initargs=(worker_log_config(), parent_args()),
         ) as pool:
             results = list(progress(pool.map(_worker, args), total=len(args), desc="simulate"))
     cfg_dict = config_mod.to_dict(cfg)

@@ -21,7 +21,7 @@ from typing import Any
 from ..data.dataset import Dataset
 from ..errors import ExsurError
 from .config import TrainConfig
-from .orphans import die_with_parent, parent_args
+from ..orphans import die_with_parent, parent_args
 
 
 @dataclass(frozen=True)

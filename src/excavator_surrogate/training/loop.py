@@ -29,6 +29,7 @@ from ..surrogate.checkpoint import save_checkpoint
 from ..surrogate.model import Surrogate
 from .batches import make_data, split_episodes
 from .config import TrainConfig
+from .guards import check_finite
 from .loss import LossFn, default_loss
 from .modes import Mode, make_mode
 from .optim import Optimisation, cosine_lr
@@ -189,6 +190,7 @@ def train_network(
                 show=show,
             )
             t1 = time.monotonic()
+            check_finite(net, epoch=epoch, lr=optim.lr)  # one line, before anything is saved
             loss, n = par.global_loss(loss, n)
             choice = choose(cands, val_eps, par, max_steps=val_steps)
             val = choice.val
