@@ -63,7 +63,7 @@ test: $(VENV)/.stamp-dev
 # The documentation site, when mkdocs.yml exists (built into $(DOCS_SITE), warnings are errors).
 docs: $(VENV)/.stamp-dev
 	@if [ -f mkdocs.yml ]; then \
-		$(BIN)/mkdocs build --strict --site-dir $(DOCS_SITE); \
+		NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir $(DOCS_SITE); \
 	else \
 		echo "docs: no mkdocs.yml, site build skipped"; \
 	fi
