@@ -44,6 +44,7 @@ from .resample import (
     interval_mean,
     resample_smooth,
 )
+from .run_inputs import run_input_value
 from .sources import RawLog
 
 
@@ -65,7 +66,8 @@ class _Signals:
     omega: list[np.ndarray | None]
     """Per joint: measured velocity [rad/s], or None (derived from the angle)."""
     u: list[np.ndarray]
-    """Per command column (joints, then inputs): command in its range."""
+    """Per command column (joints, then inputs): command in its range; a 0-d array for a
+    per-run constant input (``from_name`` / ``from_metadata``)."""
 
 
 def convert_log(
@@ -230,7 +232,16 @@ def _to_units(
             omega.append(None)
             entry["velocity"][j.name] = options.velocity
         u.append(command(j))
-    u += [command(inp) for inp in mapping.inputs]  # exogenous inputs: after the joints'
+    for inp in mapping.inputs:  # exogenous inputs: after the joints'
+        if inp.run is None:
+            u.append(command(inp))
+            continue
+        rng = (float(inp.command.range[0]), float(inp.command.range[1]))
+        value, note = run_input_value(
+            path, log_stem(path), raw.meta, inp.name, inp.run, rng, where=where
+        )
+        entry.setdefault("run_inputs", {})[inp.name] = {"value": value, "from": note}
+        u.append(np.asarray(value, dtype=np.float64))
     return _Signals(theta=theta, omega=omega, u=u)
 
 
@@ -357,6 +368,7 @@ def _cut_episodes(
                     "filled": dict(entry["filled"]),
                     "clipped": dict(entry["clipped"]),
                     "outliers": dict(entry["outliers"]),
+                    **({"run_inputs": dict(entry["run_inputs"])} if "run_inputs" in entry else {}),
                 }
             },
         )
@@ -426,6 +438,9 @@ def _resample_segment(
                 vch.label,
             )
     for i, src in enumerate(mapping.u_sources()):
+        if sig.u[i].ndim == 0:  # a per-run constant input
+            u[:, i] = sig.u[i]
+            continue
         cname = mapping.command_channels(src)[0].series
         cs = rows[cname]
         u[:, i] = interval_mean(raw.series[cname].time[cs], sig.u[i][cs], edges)

@@ -163,6 +163,29 @@ def parse_header(path: Path, data: bytes) -> tuple[list[Trace], int, str, int | 
     return traces, start, delim, int(size) if size.isdigit() else None
 
 
+def metadata(data: bytes) -> dict[str, str]:
+    """The ``descriptions`` rows before the traces: ``{"General/Description": "...", ...}``.
+
+    Each row is ``<label or empty>,<section>,<key>,<value>``; the first reads
+    ``descriptions``, the next ones leave the label empty.  Text in a local code page is
+    decoded with replacement characters.
+    """
+    m = _VALUES.search(data)
+    head = data[: m.start()] if m is not None else data[:65536]
+    delim = m.group(1).decode() if m is not None else ","
+    text = head.decode("utf-8", errors="replace")
+    out: dict[str, str] = {}
+    inside = False
+    for row in csv.reader(io.StringIO(text, newline=""), delimiter=delim):
+        label = row[0].strip() if row else ""
+        if label:  # a labelled row starts (descriptions) or ends the metadata
+            inside = label == "descriptions"
+        if inside and len(row) >= 3 and row[2].strip():
+            key = f"{row[1].strip()}/{row[2].strip()}" if row[1].strip() else row[2].strip()
+            out.setdefault(key, ",".join(row[3:]).strip())
+    return out
+
+
 def resolve(path: Path, traces: list[Trace], name: str, mapping: Mapping) -> Trace:
     """The one trace a mapping ``name`` refers to.
 
@@ -260,6 +283,7 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
         series={TABLE: Series(TABLE, time_s, values, tlabel)},
         origin=origin,
         columns=[t.short for t in traces if t.short],
+        meta=metadata(data[:start]),
     )
 
 

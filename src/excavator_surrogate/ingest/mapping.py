@@ -39,6 +39,7 @@ from typing import Any, Literal
 from ..config import from_dict
 from ..errors import ConfigError
 from ..spec import InputSpec, JointSpec, MachineSpec
+from .run_inputs import RunInputMap, is_run_input, parse_run_input
 
 TABLE = "table"
 """Series name of the single time base of a CSV/Parquet log."""
@@ -151,6 +152,9 @@ class InputMap:
     command: CommandMap
     unit: str = "physical"
     """Unit name stored in the spec (``physical_unit``, ``%`` or ``raw``)."""
+    run: RunInputMap | None = None
+    """A per-run constant (``from_name`` / ``from_metadata``, :mod:`.run_inputs`): no
+    channel; ``command`` then only holds the range."""
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,8 @@ class Mapping:
     def command_channels(self, j: JointMap | InputMap) -> tuple[Channel, ...]:
         """``(signed,)`` or ``(up, down)`` channels of joint (or input) ``j``."""
         c = j.command
+        if isinstance(j, InputMap) and j.run is not None:
+            return ()  # a per-run constant reads no channel
         if c.two_channel:
             series = c.topic or TABLE
             return (Channel(series, str(c.up)), Channel(series, str(c.down)))
@@ -424,6 +430,7 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
     if not isinstance(raw_inputs, list):
         raise ConfigError(f"{where}: 'inputs' must be a list of tables ([[inputs]])")
     inputs = tuple(_parse_input(i, k, where) for k, i in enumerate(raw_inputs))
+    _check_input_names(joints, inputs, where)
     m = Mapping(
         machine=machine,
         inputs=inputs,
@@ -443,6 +450,20 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
     _check_shared_channels(m, where)
     m.spec()  # checks names and ranges
     return m
+
+
+def _check_input_names(
+    joints: tuple[JointMap, ...], inputs: tuple[InputMap, ...], where: str
+) -> None:
+    """An input's column ``u_<name>`` must not clash with a joint's or another input's."""
+    seen = {j.name: "a joint" for j in joints}
+    for i in inputs:
+        if i.name in seen:
+            raise ConfigError(
+                f"{where}: input '{i.name}': the name is already used by {seen[i.name]} "
+                f"(columns u_<name> must be unique); rename the input"
+            )
+        seen[i.name] = "another input"
 
 
 def _check_shared_channels(m: Mapping, where: str) -> None:
@@ -512,6 +533,10 @@ def _parse_input(raw: Any, k: int, where: str) -> InputMap:
     if not isinstance(raw, dict) or not isinstance(raw.get("name"), str):
         raise ConfigError(f"{where}: inputs[{k}] must be a table with a name")
     iw = f"{where}: input '{raw['name']}'"
+    if is_run_input(raw):
+        run, rng, unit = parse_run_input(raw, iw)
+        c = CommandMap(unit="physical", range=rng, physical_unit=unit)
+        return InputMap(name=raw["name"], command=c, unit=unit, run=run)
     body = {key: v for key, v in raw.items() if key != "name"}
     if "range" not in body:
         raise ConfigError(f"{iw}: range = [lo, hi] is required (the input's valid values)")

@@ -25,6 +25,7 @@ from contextlib import contextmanager
 from datetime import timedelta
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -128,10 +129,56 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
                     fix="the file may be truncated; record or export it again",
                 ) from e
             start = mdf.header.start_time
+            meta = header_metadata(mdf.header)
             columns = sorted(k for k in mdf.channels_db if k != "time")
         finally:
             mdf.close()
-        return _one_table(path, sigs, where, start, columns)
+        raw = _one_table(path, sigs, where, start, columns)
+        raw.meta = meta
+        return raw
+
+
+def header_metadata(header: Any) -> dict[str, str]:
+    """The file header's properties: ``{"Engine/Mode": "H", "author": ..., "comment": ...}``.
+
+    MDF4 keeps them in the header comment's ``<common_properties>`` (``<e name=...>`` elements,
+    ``<tree name=...>`` for groups, joined with ``/``), next to ``<TX>`` (``comment``); MDF 3
+    has a plain-text comment and the author/project/subject fields.
+    """
+    out: dict[str, str] = {}
+    text = str(getattr(header, "comment", "") or "")
+    try:
+        root = ElementTree.fromstring(text) if text.lstrip().startswith("<") else None
+    except ElementTree.ParseError:
+        root = None
+    if root is None:
+        if text.strip():
+            out["comment"] = text.strip()
+    else:
+        tx = root.find("TX")
+        if tx is not None and (tx.text or "").strip():
+            out["comment"] = (tx.text or "").strip()
+        props = root.find("common_properties")
+        if props is not None:
+            out.update(_properties(props, ""))
+    for key in ("author", "department", "project", "subject"):
+        value = str(getattr(header, key, "") or "").strip()
+        if value:
+            out.setdefault(key, value)
+    return out
+
+
+def _properties(node: Any, prefix: str) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for child in node:
+        name = child.get("name")
+        if not name:
+            continue
+        if child.tag == "tree":
+            out.update(_properties(child, f"{prefix}{name}/"))
+        elif child.tag == "e":
+            out[f"{prefix}{name}"] = (child.text or "").strip()
+    return out
 
 
 def _one_table(

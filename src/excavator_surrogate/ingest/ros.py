@@ -236,7 +236,49 @@ def _read_ros(path: Path, kind: str, mapping: Mapping) -> RawLog:
             label,
         )
     origin = datetime.fromtimestamp(origin_ns / 1e9, tz=UTC).isoformat() if origin_ns > 0 else "0"
-    return RawLog(path=path, kind=kind, series=series, origin=origin, columns=sorted(by_topic))
+    return RawLog(
+        path=path,
+        kind=kind,
+        series=series,
+        origin=origin,
+        columns=sorted(by_topic),
+        meta=ros_metadata(path, kind),
+    )
+
+
+def ros_metadata(path: Path, kind: str) -> dict[str, str]:
+    """A bag's user metadata: rosbag2 ``custom_data`` (``metadata.yaml``, ROS 2 Iron and
+    later; ``ros2 bag record --custom-data KEY=VALUE``) and, in MCAP files, the metadata
+    records as ``<record name>/<key>``.  Empty when there is none (ROS 1 bags)."""
+    out: dict[str, str] = {}
+    folder = path if path.is_dir() else path.parent
+    yml = folder / "metadata.yaml"
+    if kind == "rosbag2" and yml.is_file():
+        from ruamel.yaml import YAML
+
+        try:
+            doc = YAML(typ="safe", pure=True).load(yml.read_text(encoding="utf-8"))
+        except Exception:  # the bag reader reports a broken metadata.yaml
+            doc = None
+        info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
+        custom = info.get("custom_data") if isinstance(info, dict) else None
+        if isinstance(custom, dict):
+            out.update({str(k): str(v) for k, v in custom.items() if v is not None})
+    files = sorted(folder.glob("*.mcap")) if kind == "rosbag2" else [path]
+    if kind in ("rosbag2", "mcap"):
+        from mcap.reader import make_reader
+
+        for f in files:
+            if not f.is_file() or f.suffix.lower() != ".mcap":
+                continue
+            try:
+                with open(f, "rb") as fh:
+                    for rec in make_reader(fh).iter_metadata():
+                        for k, v in rec.metadata.items():
+                            out.setdefault(f"{rec.name}/{k}", str(v))
+            except Exception:  # the message reader reports a damaged file
+                continue
+    return out
 
 
 # --------------------------------------------------------------------------------------

@@ -63,6 +63,10 @@ class RawLog:
     """The absolute time of t = 0 as found in the log (number in its unit, or ISO string)."""
     columns: list[str] = field(default_factory=list)
     """All column names (tables) or topics (bags) of the file."""
+    meta: dict[str, str] = field(default_factory=dict)
+    """The log's metadata, key -> text (``Section/Key``): MDF4 header properties, dSPACE
+    ``descriptions`` rows, rosbag2 ``custom_data``, MCAP metadata, Parquet key-value
+    metadata; empty for CSV.  Read by per-run inputs (``from_metadata``)."""
 
     @property
     def n_rows(self) -> int:
@@ -223,12 +227,14 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     tcol = str(tm.column)
     value_cols = [c.key for c in mapping.channels()]
     needed = [tcol, *[c for c in value_cols if c != tcol]]
+    meta: dict[str, str] = {}
     if kind == "csv":
         names = _csv_header(path, mapping.csv)
         _check_columns(path, names, needed, mapping)
         table = _read_csv(path, mapping, needed, value_cols, names=names)
     else:
         table, names = _read_parquet(path, needed, mapping)
+        meta = _parquet_meta(table.schema.metadata)
     n = table.num_rows
     if n == 0:
         raise DataError(path, "the log has no data rows", fix="remove the file or record data")
@@ -242,7 +248,19 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
         series={TABLE: Series(TABLE, time_s, values, tcol)},
         origin=origin,
         columns=list(names),
+        meta=meta,
     )
+
+
+def _parquet_meta(raw: dict[bytes, bytes] | None) -> dict[str, str]:
+    """A Parquet file's key-value metadata as text (pandas/arrow schema blobs left out)."""
+    skip = {"pandas", "ARROW:schema"}
+    out = {}
+    for k, v in (raw or {}).items():
+        key = k.decode("utf-8", errors="replace")
+        if key not in skip:
+            out[key] = v.decode("utf-8", errors="replace")
+    return out
 
 
 def _read_csv(
