@@ -49,6 +49,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="velocity-bias correction of the surrogate's predictions (0: off; default 0.1)",
     )
     p.add_argument(
+        "--risk",
+        type=float,
+        default=0.0,
+        metavar="R",
+        help="weight of the surrogate's uncertainty in the MPPI cost: the ensemble members' "
+        "spread and out-of-distribution steps (needs a merged seed ensemble; 0: off, default)",
+    )
+    p.add_argument(
         "--time-scale",
         type=float,
         default=1.0,
@@ -114,19 +122,31 @@ def run(args: argparse.Namespace) -> int:
     from ..io_utils import log
     from ..outdir import check_out_dir, replace_allowed
     from ..surrogate.checkpoint import load_checkpoint
+    from ..surrogate.ensemble import member_head
 
     out_dir = check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.ckpt], lock=True)
     torch.set_num_threads(1)
     cpus = min(usable_cpus(), 4) if args.cpus is None else args.cpus
     if not 1 <= cpus <= args.samples:
         raise ConfigError(f"--cpus must be in [1, --samples = {args.samples}], got {cpus}")
+    if not args.risk >= 0:
+        raise ConfigError(f"--risk must be >= 0, got {args.risk}")
     if args.mppi_seeds < 1:
         raise ConfigError(f"--mppi-seeds must be >= 1, got {args.mppi_seeds}")
     sur = load_checkpoint(args.ckpt)
+    if args.risk > 0 and member_head(sur) is None:
+        raise ConfigError(
+            f"--risk {args.risk:g} needs the spread of a merged seed ensemble; {args.ckpt} is "
+            "a single network (train with members >= 2, or use --risk 0)"
+        )
     # the machine check, before any run: another machine or plant is refused in one line
     plant = checkpoint_plant(sur.spec, args.plant, ckpt=args.ckpt, default="hydraulic")
     mppi = MPPIConfig(
-        n_sample=args.samples, n_horizon=args.horizon, replan=args.replan, seed=args.seed
+        n_sample=args.samples,
+        n_horizon=args.horizon,
+        replan=args.replan,
+        seed=args.seed,
+        risk=args.risk,
     )
     rl = RLConfig(
         total_steps=args.rl_steps,

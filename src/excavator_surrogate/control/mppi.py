@@ -12,6 +12,15 @@ in units of each joint's half range)::
 
     S = Σ_n Σ_j w_j e[n, j]² / N  +  smooth · Σ_n Σ_j (ũ[n, j] - ũ[n-1, j])² / N
 
+With a risk weight ``r > 0`` (a merged seed ensemble, :meth:`~.predict.SurrogatePredictor.predict_risk`)
+the cost adds what the surrogate does not know, from the same batched rollout (``σ`` the
+members' angle spread, ``f[n]`` = 1 where step ``n`` is flagged out of distribution)::
+
+    S += r · ( Σ_n Σ_j w_j σ[n, j]² / N  +  ood_penalty · Σ_n f[n] / N )
+
+``σ²`` is in the units of the squared tracking error, so ``r = 1`` prices the members'
+disagreement like an error of that size.  ``r = 0`` (default) is the plain planner.
+
 Weights ``exp(-(S - S_min) / λ)`` with the temperature relative to the batch's spread,
 ``λ = temperature · (mean(S) - S_min)``: the update then does not depend on the units of
 the cost.
@@ -55,6 +64,10 @@ class MPPIConfig:
     """Per-joint weights ``w_j`` of the squared angle error; empty = 1 for every joint."""
     seed: int = 0
     """Seed of the noise generator."""
+    risk: float = 0.0
+    """Weight of the surrogate's uncertainty in the cost (member spread and out-of-distribution steps); 0: off."""
+    ood_penalty: float = 1.0
+    """Cost per unit risk of a candidate flagged out of distribution on every step [rad², as the squared error]."""
 
     def __post_init__(self) -> None:
         if self.n_sample < 2 or self.n_horizon < 1 or not 1 <= self.replan <= self.n_horizon:
@@ -66,6 +79,10 @@ class MPPIConfig:
             raise ConfigError(
                 f"mppi: need sigma > 0, 0 <= beta < 1, temperature > 0, got {self.sigma}, {self.beta}, {self.temperature}"
             )
+        if not (self.risk >= 0 and math.isfinite(self.risk)) or not self.ood_penalty >= 0:
+            raise ConfigError(
+                f"mppi: need risk >= 0 and ood_penalty >= 0, got {self.risk}, {self.ood_penalty}"
+            )
 
 
 @dataclass
@@ -76,6 +93,8 @@ class PlanStats:
     """Wall time of each control step (sampling, batched rollout, update) [s]."""
     cost: list[float] = field(default_factory=list)
     """Lowest candidate cost of each control step."""
+    ood: list[float] = field(default_factory=list)
+    """With ``risk > 0``: share of out-of-distribution steps in the weighted candidates."""
 
 
 class MPPI:
@@ -92,6 +111,11 @@ class MPPI:
     def __init__(self, predictor: Predictor, config: MPPIConfig | None = None) -> None:
         self.cfg = cfg = config or MPPIConfig()
         self.predictor = predictor
+        if cfg.risk > 0 and getattr(predictor, "head", None) is None:
+            raise ConfigError(
+                f"mppi.risk = {cfg.risk:g} needs the surrogate's spread: plan through a merged "
+                "seed ensemble (members >= 2); this predictor has none (use risk = 0)"
+            )
         spec: MachineSpec = predictor.spec
         self.spec = spec
         n = spec.n_joint
@@ -151,6 +175,14 @@ class MPPI:
         )
         return track + self.cfg.smooth * (dv * dv).sum(axis=(1, 2)) / v.shape[1]
 
+    def risk_cost(self, spread: np.ndarray, ood: np.ndarray | None) -> np.ndarray:
+        """Uncertainty costs (n_sample,) per unit risk of the members' angle spread
+        ``spread`` (n_sample, N, n_joint) [rad] and the flags ``ood`` (n_sample, N) (None: none)."""
+        s = np.einsum("knj,j->k", spread * spread, self.w) / spread.shape[1]
+        if ood is not None:
+            s = s + self.cfg.ood_penalty * ood.mean(axis=1)
+        return s
+
     def plan(self, theta_ref: np.ndarray) -> np.ndarray:
         """One control step: returns the next ``replan`` commands (replan, n_joint) [command
         units] for the reference ``theta_ref`` (n_horizon, n_joint) of samples k+1..k+N."""
@@ -159,14 +191,22 @@ class MPPI:
         lo = (self.u_min - self.u_center) / self.u_scale
         hi = (self.u_max - self.u_center) / self.u_scale
         v = np.clip(self.mean[None] + self.noise(), lo, hi)  # (K, N, J) half ranges
-        theta = self.predictor.predict(v * self.u_scale + self.u_center)
-        s = self.cost(theta, theta_ref, v)
+        u = v * self.u_scale + self.u_center
+        ood = None
+        if cfg.risk > 0:
+            theta, spread, ood = self.predictor.predict_risk(u)  # type: ignore[attr-defined]
+            s = self.cost(theta, theta_ref, v) + cfg.risk * self.risk_cost(spread, ood)
+        else:
+            theta = self.predictor.predict(u)
+            s = self.cost(theta, theta_ref, v)
         s = np.where(np.isfinite(s), s, np.inf)
         s_min = float(s.min())
         spread = float(np.mean(s[np.isfinite(s)]) - s_min)
         lam = cfg.temperature * max(spread, 1e-12)
         wts = np.exp(-(s - s_min) / lam)
         wts /= wts.sum()
+        if ood is not None:
+            self.stats.ood.append(float(wts @ ood.mean(axis=1)))
         self.mean = np.einsum("k,knj->nj", wts, v)
         out = self.mean[: cfg.replan].copy()
         self.u_prev = out[-1].copy()

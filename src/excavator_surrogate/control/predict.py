@@ -9,7 +9,9 @@ out from the machine's current state in ONE batched call (``predict``):
   (teacher forcing: each step is fed the measured angle), so its recurrent state is synced
   to the machine; ``predict`` forks that state into an ``n_batch``-env engine and steps the
   candidates together, ``n_step`` batched steps (with ``workers > 1``, split over helper
-  processes, :mod:`.workers`).
+  processes, :mod:`.workers`).  For a merged seed ensemble, :meth:`~SurrogatePredictor.predict_risk`
+  also returns every candidate's member spread and out-of-distribution flags from the same
+  batched calls (:func:`.workers.member_omega`), which MPPI's ``risk`` weight adds to the cost.
 - :class:`PlantPredictor`: the oracle.  It reads the full physics state of the plant (and
   the hydraulic transform's command history) and continues it with ``mujoco.rollout`` on a
   copy of the plant, i.e. planning through the plant model itself.
@@ -29,7 +31,10 @@ from ..env.engine import OneThread
 from ..errors import ConfigError
 from ..simulate.plant import MujocoExcavator
 from ..spec import MachineSpec
+from ..surrogate.coverage import CoverageRecord, ood_flags
+from ..surrogate.ensemble import member_head
 from ..surrogate.model import Surrogate
+from ..surrogate.uncertainty import stored_coverage
 from .workers import RolloutWorker, rollout
 
 
@@ -49,6 +54,16 @@ class Predictor(Protocol):
     def predict(self, u: np.ndarray) -> np.ndarray:
         """Angles ``theta[k+1..k+n_step]`` (n_batch, n_step, n_joint) [rad] after the commands
         ``u`` (n_batch, n_step, n_joint) applied from the current sample ``k``."""
+        ...
+
+
+class RiskPredictor(Predictor, Protocol):
+    """A :class:`Predictor` that also says how sure it is (MPPI with ``risk > 0``)."""
+
+    def predict_risk(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``(theta, theta_spread, ood)`` of the commands ``u`` (n_batch, n_step, n_joint):
+        angles and the members' angle spread (n_batch, n_step, n_joint) [rad], and the
+        out-of-distribution flags (n_batch, n_step) bool (any joint; None: no record)."""
         ...
 
 
@@ -103,6 +118,10 @@ class SurrogatePredictor:
         self.bias_gain = float(bias_gain)
         self.bias = np.zeros(sur.spec.n_joint)
         """Velocity-bias estimate (n_joint,) [rad/s] (zero unless ``bias_gain > 0``)."""
+        self.head = member_head(self.batch.sur)
+        """The members' output layer (None: a single network, no spread)."""
+        self.coverage: CoverageRecord | None = stored_coverage(sur)
+        """The training data's coverage record (None: no out-of-distribution flags)."""
 
     def reset(self, theta0: np.ndarray) -> None:
         """At rest at ``theta0`` (n_joint,): the engine's at-rest warm-up."""
@@ -119,34 +138,63 @@ class SurrogatePredictor:
             self.bias += self.bias_gain * (err - self.bias)
         self.sync.observe(theta[None])
 
-    @torch.inference_mode()
-    def predict(self, u: np.ndarray) -> np.ndarray:
-        """See :meth:`Predictor.predict`; ``u`` must have ``n_batch`` rows."""
+    def _check(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=np.float32)
-        n_batch, n_step, n_joint = u.shape
-        if n_batch != self.n_batch or n_joint != self.spec.n_joint:
+        if u.ndim != 3 or u.shape[0] != self.n_batch or u.shape[2] != self.spec.n_joint:
             raise ConfigError(
                 f"SurrogatePredictor: u must have shape ({self.n_batch}, n_step, {self.spec.n_joint}), got {u.shape}"
             )
+        return u
+
+    @torch.inference_mode()
+    def _run(self, u: np.ndarray, members: bool) -> np.ndarray:
+        """The candidates' rollouts, split over the processes (see :func:`.workers.rollout`)."""
         state = self.sync.export_row(0)
         if self.workers:  # numpy, not tensors: no shared-memory files per call
             state = {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state.items()}
         e = self._edges
+        head = self.head if members else None
         try:
             for w, a, b in zip(self.workers, e[1:-1], e[2:]):
-                w.submit(state, u[a:b])
+                w.submit(state, u[a:b], members=members)
             # one torch thread per process, this one too: they share the cores
             with OneThread() if self.workers else nullcontext():
-                parts = [rollout(self.batch, state, u[: e[1]])]
+                parts = [rollout(self.batch, state, u[: e[1]], head)]
             parts += [w.result() for w in self.workers]
         except BaseException:
             self.close()  # no worker is left with an unread answer; later calls run here
             raise
-        out = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        if self.bias_gain:
-            ramp = np.arange(1, n_step + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
-            return out + ramp * self.bias
-        return out
+        return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-3)
+
+    def _debias(self, theta: np.ndarray) -> np.ndarray:
+        if not self.bias_gain:
+            return theta
+        ramp = np.arange(1, theta.shape[1] + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
+        return theta + ramp * self.bias
+
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        """See :meth:`Predictor.predict`; ``u`` must have ``n_batch`` rows."""
+        return self._debias(self._run(self._check(u), members=False))
+
+    def predict_risk(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """See :meth:`RiskPredictor.predict_risk`: the angles of :meth:`predict`, the members'
+        angle spread (std over the members, ddof 1, of their velocities integrated along the
+        merged run, as :func:`~excavator_surrogate.surrogate.uncertainty.member_runs` with
+        ``design="shared"``) and the flags of
+        :func:`~excavator_surrogate.surrogate.coverage.ood_flags` on the predicted angles,
+        velocities and the commands.  Needs a merged seed ensemble (:class:`ConfigError`)."""
+        if self.head is None:
+            raise ConfigError(
+                "SurrogatePredictor: a risk weight needs the spread of a merged seed ensemble "
+                "(train with members >= 2, or 'exsur merge' the members again); this surrogate "
+                "has no member outputs"
+            )
+        u = self._check(u)
+        theta, omega, spread = self._run(u, members=True)
+        ood = None
+        if self.coverage is not None:
+            ood = ood_flags(self.coverage, self.spec, theta, omega, u).any(-1)
+        return self._debias(theta), spread, ood
 
     def close(self) -> None:
         """End the worker processes (if any); the predictor then runs in this process only."""

@@ -202,7 +202,12 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
         f"MPPI: K = {metrics['mppi_config']['n_sample']} candidates, N = "
         f"{metrics['mppi_config']['n_horizon']} samples, a plan every "
         f"{metrics['mppi_config']['replan']} samples; surrogate predictor bias gain "
-        f"{metrics['bias_gain']:g}.",
+        f"{metrics['bias_gain']:g}; risk weight {metrics['mppi_config'].get('risk', 0.0):g}"
+        + (
+            " (the surrogate's member spread and out-of-distribution steps priced in the cost)."
+            if metrics["mppi_config"].get("risk", 0.0) > 0
+            else " (off)."
+        ),
         "",
         _surrogate_line(metrics.get("surrogate", {})),
         "",

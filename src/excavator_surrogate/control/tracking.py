@@ -274,7 +274,8 @@ def compare_tracking(
         ]
         if oracle:
             plant_pred = PlantPredictor(env.plant, n_threads=cpus)
-            ctrls.append(("mppi_oracle", MPPIController(MPPI(plant_pred, cfg))))
+            # the plant model knows itself: no risk weight (it has no spread)
+            ctrls.append(("mppi_oracle", MPPIController(MPPI(plant_pred, replace(cfg, risk=0.0)))))
         ctrls.append(("pi", PIController(pi)))
         for name, ctrl in ctrls:
             res = track(env, ctrl, theta_ref, name=name)
@@ -287,6 +288,9 @@ def compare_tracking(
                         "p95": np.percentile(err, 95, axis=0).tolist(),
                         "n_horizon": cfg.n_horizon,
                     }
+            if name == "mppi_surrogate" and cfg.risk > 0:
+                st = ctrl.mppi.stats  # type: ignore[attr-defined]
+                res.extra["ood_share"] = float(np.mean(st.ood)) if st.ood else 0.0
             runs[name] = res
             say(
                 f"{name}: RMSE {np.array2string(res.rmse, precision=4)} rad, "
@@ -297,7 +301,14 @@ def compare_tracking(
         for seed in range(cfg.seed + 1, cfg.seed + n_seeds):
             cfg_s = replace(cfg, seed=seed)
             seed_runs[seed] = {
-                name: track(env, MPPIController(MPPI(pred, cfg_s)), theta_ref, name=name)
+                name: track(
+                    env,
+                    MPPIController(
+                        MPPI(pred, cfg_s if name == "mppi_surrogate" else replace(cfg_s, risk=0.0))
+                    ),
+                    theta_ref,
+                    name=name,
+                )
                 for name, pred in preds
             }
             say(

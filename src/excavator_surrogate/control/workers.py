@@ -20,24 +20,53 @@ import torch
 
 from ..errors import ExsurError
 from ..io_utils import worker_log_config
-from ..surrogate.model import Surrogate
 from ..orphans import die_with_parent, parent_args
+from ..surrogate.ensemble import member_head
+from ..surrogate.model import Surrogate
 
 
 @torch.inference_mode()
-def rollout(engine: Any, state: dict[str, Any], u: np.ndarray) -> np.ndarray:
+def rollout(engine: Any, state: dict[str, Any], u: np.ndarray, head: Any = None) -> np.ndarray:
     """Fork ``engine`` from ``state`` and step the commands ``u`` (n_batch, n_step, n_u).
 
     Returns the angles ``theta[k+1..k+n_step]`` (n_batch, n_step, n_joint) [rad], float64.
+    With ``head`` (the :class:`~excavator_surrogate.surrogate.ensemble.MemberHead` of the
+    engine's merged ensemble): ``(3, n_batch, n_step, n_joint)``, the angles, the velocities
+    [rad/s] and the members' angle spread [rad] (:func:`member_omega`), from the same calls.
     """
     engine.fork_state(state)
     u_t = torch.from_numpy(np.ascontiguousarray(u, dtype=np.float32))
     n_batch, n_step, _ = u.shape
-    out = torch.empty(n_batch, n_step, engine.spec.n_joint, dtype=torch.float64)
+    n_out = 1 if head is None else 3
+    out = torch.empty(n_out, n_batch, n_step, engine.spec.n_joint, dtype=torch.float64)
+    cum = None  # (M, n_batch, n_joint) each member's integrated velocity [rad]
     for k in range(n_step):
-        theta, _ = engine.step(u_t[:, k])
-        out[:, k] = theta
-    return out.numpy()
+        if head is None:
+            theta, _ = engine.step(u_t[:, k])
+            out[0, :, k] = theta
+            continue
+        with head.capture():
+            theta, omega = engine.step(u_t[:, k])
+        out[0, :, k], out[1, :, k] = theta, omega
+        step = member_omega(engine, head).double() * engine.dt
+        cum = step if cum is None else cum + step
+        out[2, :, k] = cum.std(dim=0) if cum.shape[0] > 1 else 0.0
+    return out[0].numpy() if head is None else out.numpy()
+
+
+def member_omega(engine: Any, head: Any) -> torch.Tensor:
+    """Each member's velocity (M, n_envs, n_joint) [rad/s] at the engine's last step, up to
+    one offset common to all members (a residual head's velocity feature; it cancels in the
+    spread), from that step's own network call: the recurrent output of the top layer
+    (stateful) or the head activations captured during the call (windowed) through the
+    members' blocks of the merged output layer.  ``head`` must have captured the step."""
+    if engine.mode == "stateful":
+        h_top = engine.dense_state()[0][-1]  # (n_envs, hidden)
+        net_head = engine.sur.net.head
+        head.a = net_head[1](net_head[0](h_top))
+    assert head.a is not None
+    zero = head.a.new_zeros(head.a.shape[0], head.n_joint)
+    return engine.norm.omega(head.outputs(zero))
 
 
 def _serve(
@@ -61,6 +90,7 @@ def _serve(
     torch.set_num_threads(1)
     try:
         engine = SurrogateEngine(sur, n_envs=n_batch, mode=mode)  # type: ignore[arg-type]
+        head = member_head(engine.sur)
         conn.send(("ready", engine.impl))
     except Exception as e:  # reported to the parent, which raises it
         conn.send(("error", f"{type(e).__name__}: {e}"))
@@ -73,7 +103,8 @@ def _serve(
         if msg is None:
             return
         try:
-            conn.send(("ok", rollout(engine, *msg)))
+            state, u, members = msg
+            conn.send(("ok", rollout(engine, state, u, head if members else None)))
         except Exception as e:
             conn.send(("error", f"{type(e).__name__}: {e}"))
 
@@ -115,15 +146,17 @@ class RolloutWorker:
             raise ExsurError(f"rollout worker: {value}")
         return value
 
-    def submit(self, state: dict[str, Any], u: np.ndarray) -> None:
-        """Send the synced ``state`` and the commands ``u`` (n_batch, n_step, n_u)."""
+    def submit(self, state: dict[str, Any], u: np.ndarray, *, members: bool = False) -> None:
+        """Send the synced ``state`` and the commands ``u`` (n_batch, n_step, n_u); with
+        ``members``, :meth:`result` also holds velocities and spread (see :func:`rollout`)."""
         try:
-            self._conn.send((state, np.ascontiguousarray(u, dtype=np.float32)))
+            self._conn.send((state, np.ascontiguousarray(u, dtype=np.float32), bool(members)))
         except OSError as e:  # BrokenPipeError: the process is gone
             raise ExsurError(_DIED) from e
 
     def result(self) -> np.ndarray:
-        """The angles (n_batch, n_step, n_joint) [rad] of the last :meth:`submit`."""
+        """The angles (n_batch, n_step, n_joint) [rad] of the last :meth:`submit` (with
+        ``members``: (3, n_batch, n_step, n_joint), see :func:`rollout`)."""
         return np.asarray(self._receive())
 
     def close(self) -> None:
