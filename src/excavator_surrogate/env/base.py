@@ -192,6 +192,10 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
     def _dyn_step(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
+    def _dyn_info(self) -> dict[str, Any]:
+        """Extra step ``info`` entries of the dynamics (the surrogate's uncertainty)."""
+        return {}
+
     def _scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The MJCF model and the data posed at the current state, for rendering."""
         raise NotImplementedError
@@ -292,6 +296,7 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
             "limit_violation": violation[0],
             "u": u,
             "theta": np.array(theta, dtype=np.float64),
+            **self._dyn_info(),
         }
         truncated = c != GUARD_OK
         finite = bool(np.isfinite(theta).all() and np.isfinite(omega).all())

@@ -32,6 +32,7 @@ from ..surrogate.features import integrate
 from ..surrogate.model import Surrogate, step_layers
 from .fused import FusedStep, play_and_features, rest_command
 from .members import MemberLSTM, from_dense, to_dense
+from .uncertainty import StepUncertainty
 
 Mode = Literal["windowed", "stateful"]
 Impl = Literal["auto", "cell", "module", "members"]
@@ -91,6 +92,9 @@ class SurrogateEngine:
             matmul, :mod:`.members`) or ``"auto"`` (members from :data:`MEMBERS_MIN_BATCH`
             envs on when the surrogate is such an ensemble, else module from
             :data:`MODULE_MIN_BATCH` envs on, else cell).
+        uncertainty: also track the members' spread and the out-of-distribution flags
+            (:class:`~.uncertainty.StepUncertainty`, in :attr:`unc`): the members' velocities
+            come from the same network call, their angle deviations are per-env state.
 
     State: ``theta`` (n_envs, n_joint) float64 [rad]; ``h``, ``c`` (n_layer, n_envs, hidden)
     (stateful; ``impl="members"``: (n_layer, M, n_envs, hidden / M), see
@@ -109,6 +113,7 @@ class SurrogateEngine:
         device: str | torch.device = "cpu",
         mode: Mode | None = None,
         impl: Impl = "auto",
+        uncertainty: bool = False,
     ) -> None:
         if n_envs < 1:
             raise ConfigError(f"n_envs must be >= 1, got {n_envs}")
@@ -164,6 +169,12 @@ class SurrogateEngine:
             w = self.window
             self._ring = torch.zeros(self.n_envs, 2 * w, self.norm.n_feature, device=self.device)
             self._pos = 0
+        self.unc: StepUncertainty | None = None
+        """With ``uncertainty``: the members' spread and the OOD flags of the last step."""
+        if uncertainty:
+            self.unc = StepUncertainty(
+                self.sur, n_envs=self.n_envs, residual=bool(sur.model_cfg.residual)
+            )
 
     def _play_step(
         self, z: torch.Tensor, u: torch.Tensor
@@ -249,6 +260,8 @@ class SurrogateEngine:
             idx = torch.as_tensor(np.flatnonzero(mask), device=self.device)
             if idx.numel() == 0:
                 return
+        if self.unc is not None:
+            self.unc.reset(idx)
         th = theta0.index_select(0, idx)
         self.theta.index_copy_(0, idx, th)
         m = idx.numel()
@@ -333,6 +346,8 @@ class SurrogateEngine:
         if ("h" in state) != (self.mode == "stateful"):
             raise ConfigError("fork: both engines must run the same surrogate in the same mode")
         dev = self.device
+        if self.unc is not None:  # the spread restarts from the forked state (no deviation)
+            self.unc.reset(torch.arange(self.n_envs, device=dev))
         self.theta.copy_(torch.as_tensor(state["theta"], device=dev).expand_as(self.theta))
         self.z = torch.as_tensor(state["z"], device=dev).expand_as(self.z).clone()
         for k in ("theta_prev", "w"):
@@ -379,6 +394,9 @@ class SurrogateEngine:
             if self.omega_in:
                 self.theta_prev.copy_(theta)
             self.z, p_t = self._play_step(self.z, u_t)
+            unc, om_m = self.unc, None
+            if unc is not None:
+                unc.flag(theta, u_t)
             if self.mode == "stateful":
                 f = self.fused
                 r = f.features(theta.float(), u_t, p_t, w_t)
@@ -387,7 +405,10 @@ class SurrogateEngine:
                 else:
                     out, self.h, self.c = self._rnn_cells(r, self.h, self.c)
                 w1, b1, w2, b2 = self._head
-                omega = torch.addmm(b2, torch.relu(torch.addmm(b1, out, w1.t())), w2.t())
+                a = torch.relu(torch.addmm(b1, out, w1.t()))
+                omega = torch.addmm(b2, a, w2.t())
+                if unc is not None and unc.n_member:  # the same call's activations, per member
+                    om_m = unc.members_from_activations(a, w_t)
                 if f.residual:
                     omega = omega + w_t  # omega[k+1] = omega[k] + change
                 omega = omega.double()
@@ -396,7 +417,12 @@ class SurrogateEngine:
                 row = self.norm.encode(theta.float(), u_t, self.z, w_t)
                 self._ring[:, p] = row
                 self._ring[:, p + w] = row
-                y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
+                if unc is not None and unc.head is not None:
+                    with unc.head.capture():
+                        y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
+                    om_m = self.norm.omega(unc.head.outputs(row))
+                else:
+                    y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
                 self._pos = (p + 1) % w
                 omega = self.norm.omega(y).double()
             if self._limits is None:
@@ -406,6 +432,8 @@ class SurrogateEngine:
                 theta.copy_(theta_next)
             if self.omega_in:
                 self.w.copy_(omega)
+            if unc is not None:
+                unc.advance(om_m, omega)
         return theta, omega
 
 

@@ -18,6 +18,7 @@ from .engine import Impl, Mode, SurrogateEngine
 from .render import RENDER_SIZE, PoseScene
 from .safety import ActionMode, ActionScale, GuardConfig
 from .tasks import Task
+from .uncertainty import notes, step_info, wanted
 
 
 def load_surrogate(
@@ -109,7 +110,11 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     ## Info
     ``guard`` (str, "" when fine), ``limit_violation`` (bool per joint, outside the limits),
     ``u`` (applied command, command units), ``theta`` (unwrapped angles, on reset and step),
-    and the task's entries: the keys of :class:`~.vector.SurrogateVectorEnv`'s ``info``.
+    the surrogate's uncertainty on every step (:func:`~.uncertainty.step_info`:
+    ``uncertainty``, ``band_calibrated``, ``theta_band`` / ``omega_band`` (n_joint,) [rad],
+    [rad/s], ``ood`` (n_joint,) bool, ``ood_any``, ``ood_checked``; ``env.uncertainty_note``
+    says what is missing) and the task's entries: the keys of
+    :class:`~.vector.SurrogateVectorEnv`'s ``info``.
 
     ## Rendering
     ``render_mode="rgb_array"``: the predicted pose drawn on the built-in excavator's MJCF
@@ -133,6 +138,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | `action_scale` | **str**                 | `"raw"`   | ``raw`` commands or ``normalized`` ``[-1, 1]``          |
     | `render_mode`  | **str / None**          | `None`    | ``rgb_array`` or ``human`` (the predicted pose, :mod:`.render`) |
     | `render_size`  | **tuple**               | `(480, 360)` | ``(width, height)`` of ``rgb_array`` frames          |
+    | `uncertainty`  | **bool / None**         | `None`    | track bands and OOD flags; None: when the checkpoint has members or a coverage record |
     """
 
     env_id = "ExcavatorSurrogate-v0"
@@ -154,6 +160,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         action_scale: ActionScale = "raw",
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        uncertainty: bool | None = None,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         self.ckpt = str(ckpt) if not isinstance(ckpt, Surrogate) else None
@@ -170,9 +177,16 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
             render_size=render_size,
         )
         self._pose: PoseScene | None = None
-        self.engine = SurrogateEngine(sur, n_envs=1, device=device, mode=mode, impl=impl)
+        on = wanted(sur, uncertainty)
+        self.engine = SurrogateEngine(
+            sur, n_envs=1, device=device, mode=mode, impl=impl, uncertainty=on
+        )
         self.engine.u_rest = self.layout.rest()
         self.surrogate = sur
+        self.uncertainty_note = (
+            "; ".join(notes(sur)) if uncertainty is not False else "uncertainty=False: not tracked"
+        )
+        """What the step ``info``'s uncertainty lacks ("": bands and flags)."""
 
     def _scene(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
         """The built-in excavator's MJCF at the surrogate's predicted pose."""
@@ -187,6 +201,10 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     def _dyn_reset(self, theta0: np.ndarray) -> None:
         self.engine.reset(theta0[None])
+
+    def _dyn_info(self) -> dict[str, Any]:
+        info = step_info(self.engine.unc, 1, self.machine.n_joint)
+        return {k: None if v is None else v[0] for k, v in info.items()}
 
     def _dyn_step(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         theta, omega = self.engine.step(u[None])

@@ -20,7 +20,11 @@ Observations (n_envs, 2·n_joint) float32 and actions (n_envs, n_joint) follow t
 ``limit_violation`` (n_envs, n_joint) bool, ``u`` (n_envs, n_u) the applied commands
 [command units], ``theta`` (n_envs, n_joint) unwrapped angles [rad] and the task's
 entries, each with gymnasium's ``_key`` mask: the keys of the single environments' step
-``info`` (whose ``guard`` is the name, ``safety.GUARD_NAMES[code]``).
+``info`` (whose ``guard`` is the name, ``safety.GUARD_NAMES[code]``), including the
+surrogate's uncertainty (:func:`~.uncertainty.step_info`: ``theta_band`` / ``omega_band``
+(n_envs, n_joint), ``ood`` (n_envs, n_joint) bool, ``uncertainty``, ``band_calibrated``,
+``ood_any``, ``ood_checked`` (n_envs,) bool; on a NEXT_STEP autoreset step their mask is
+False for the envs that were reset).
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ from .safety import (
 )
 from .surrogate_env import load_surrogate
 from .tasks import Task, start_pose
+from .uncertainty import INFO_KEYS, notes, step_info, wanted
 
 
 class SurrogateVectorEnv(VectorEnv):
@@ -78,6 +83,8 @@ class SurrogateVectorEnv(VectorEnv):
             action; the others are action entries after the joints' (:mod:`.inputs`).
         action_scale: ``"raw"`` (command units) or ``"normalized"`` (``[-1, 1]`` per column,
             mapped linearly onto the command range), as for the single environments.
+        uncertainty: track the members' bands and the OOD flags in ``info`` (None: when the
+            checkpoint has ensemble members or a training coverage record).
     """
 
     env_id = "ExcavatorSurrogate-v0 (vector)"
@@ -100,10 +107,18 @@ class SurrogateVectorEnv(VectorEnv):
         spec: MachineSpec | None = None,
         inputs: dict[str, float] | None = None,
         action_scale: ActionScale = "raw",
+        uncertainty: bool | None = None,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
-        self.engine = SurrogateEngine(sur, n_envs=n_envs, device=device, mode=mode, impl=impl)
+        on = wanted(sur, uncertainty)
+        self.engine = SurrogateEngine(
+            sur, n_envs=n_envs, device=device, mode=mode, impl=impl, uncertainty=on
+        )
         self.surrogate = sur
+        self.uncertainty_note = (
+            "; ".join(notes(sur)) if uncertainty is not False else "uncertainty=False: not tracked"
+        )
+        """What the step ``info``'s uncertainty lacks ("": bands and flags)."""
         self.machine = sur.spec
         """The machine (joints, command ranges, rate)."""
         spec = sur.spec
@@ -292,6 +307,7 @@ class SurrogateVectorEnv(VectorEnv):
         reward = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
         info: dict[str, Any] = {"guard": code, "limit_violation": violation, "u": u.copy()}
+        info.update(step_info(self.engine.unc, self.num_envs, self.machine.n_joint))
         if self.task is not None:
             r, done, extra = self.task.evaluate(theta, omega, u[:, : self.machine.n_joint])
             reward = np.where(nan, 0.0, r)
@@ -311,6 +327,8 @@ class SurrogateVectorEnv(VectorEnv):
                 code[was_done] = GUARD_OK
                 violation[was_done] = False
                 info["theta"][was_done] = self.engine.theta.cpu().numpy()[was_done]
+                for k in INFO_KEYS:  # a reset, not a step: as a single env's reset info
+                    info[f"_{k}"] = ~was_done
                 for k, v in extra.items():
                     info[k], info[f"_{k}"] = v, self._ones
             self._autoreset = terminated | truncated

@@ -1,0 +1,220 @@
+"""Per-step uncertainty and out-of-distribution flags inside :class:`~.engine.SurrogateEngine`.
+
+The batched counterpart of :func:`~excavator_surrogate.surrogate.uncertainty.predict_with_uncertainty`
+(design ``shared``), for the environments:
+
+- the members' velocities come from the SAME network call as the central one: the engine's
+  head activations ``a = relu(W1 out + b1)`` (stateful) or a hook on the network's head
+  (windowed) go through each member's block of the output layer
+  (:class:`~excavator_surrogate.surrogate.ensemble.MemberHead`), nothing runs twice;
+- member ``m``'s angle is the central angle plus its integrated velocity deviation
+  ``dev_m += T_s (omega_m - omega)``, a per-env state zeroed by (masked) resets;
+- the band is the calibrated 90 % half-width ``k_90 max(std, floor)`` per joint when the
+  checkpoint is calibrated (``metrics["uncertainty"]``), else the raw std over the members;
+- the OOD flag of a step checks the sample the network predicted from (``theta[k]``,
+  ``omega[k]``, ``u[k]``) against the training coverage record (``metrics["coverage"]``),
+  as :func:`~excavator_surrogate.surrogate.coverage.ood_flags` does, in torch.
+
+A single network has no members: its bands are None and ``has_spread`` is False (never zeros).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..surrogate.coverage import channel_names, seen_cells
+from ..surrogate.ensemble import MemberHead, member_head
+from ..surrogate.model import Surrogate
+from ..surrogate.uncertainty import NO_MEMBERS, stored_calibration, stored_coverage
+
+LEVEL = 0.9
+"""Nominal coverage of the band the environments report."""
+
+
+INFO_KEYS = (
+    "uncertainty",
+    "band_calibrated",
+    "theta_band",
+    "omega_band",
+    "ood",
+    "ood_any",
+    "ood_checked",
+)
+"""The step ``info`` keys of the surrogate environments (see :func:`step_info`)."""
+
+
+def wanted(sur: Surrogate, uncertainty: bool | None) -> bool:
+    """Whether an env tracks uncertainty: ``uncertainty`` if given, else when ``sur`` has
+    something to report (ensemble members or a training coverage record)."""
+    if uncertainty is not None:
+        return bool(uncertainty)
+    return member_head(sur) is not None or stored_coverage(sur) is not None
+
+
+def step_info(
+    unc: StepUncertainty | None, n_envs: int, n_joint: int
+) -> dict[str, np.ndarray | None]:
+    """The uncertainty entries of a step's ``info`` for ``n_envs`` rows (NumPy copies):
+
+    - ``uncertainty`` (n_envs,) bool: the bands are the ensemble members' spread (False: a
+      single network or tracking off; the bands are then None, never zeros);
+    - ``band_calibrated`` (n_envs,) bool: the bands are the calibrated 90 % half-widths (False:
+      the raw member std);
+    - ``theta_band`` (n_envs, n_joint) [rad], ``omega_band`` (n_envs, n_joint) [rad/s], or
+      None without members;
+    - ``ood`` (n_envs, n_joint) bool: the step's sample (theta, omega, u) left what training
+      covered; ``ood_any`` (n_envs,) bool: any joint;
+    - ``ood_checked`` (n_envs,) bool: a coverage record was checked (False: ``ood`` is all
+      False because nothing could be checked).
+    """
+    if unc is None:
+        no = np.zeros(n_envs, dtype=bool)
+        flags = np.zeros((n_envs, n_joint), dtype=bool)
+        return dict(zip(INFO_KEYS, (no, no.copy(), None, None, flags, no.copy(), no.copy())))
+    th, om = unc.bands() if unc.n_member else (None, None)
+    ood = unc.ood.cpu().numpy().copy()
+    return {
+        "uncertainty": np.full(n_envs, unc.has_spread),
+        "band_calibrated": np.full(n_envs, unc.calibrated),
+        "theta_band": None if th is None else th.cpu().numpy(),
+        "omega_band": None if om is None else om.cpu().numpy(),
+        "ood": ood,
+        "ood_any": ood.any(-1),
+        "ood_checked": np.full(n_envs, unc.checked),
+    }
+
+
+def notes(sur: Surrogate) -> list[str]:
+    """One line per missing piece of ``sur``'s uncertainty (empty: bands and flags)."""
+    out = []
+    if member_head(sur) is None:
+        out.append(NO_MEMBERS)
+    elif stored_calibration(sur) is None:
+        out.append("ensemble not calibrated: bands are the raw member std (run 'exsur calibrate')")
+    if stored_coverage(sur) is None:
+        out.append("no training coverage record: no out-of-distribution flags")
+    return out
+
+
+class StepUncertainty:
+    """Member deviations, bands and OOD flags of ``n_envs`` engine rows.
+
+    Args:
+        sur: the engine's surrogate (on the engine's device, float32).
+        n_envs: batch size.
+        residual: the head adds the velocity feature.
+
+    State: ``dev`` (M, n_envs, n_joint) float64 [rad], ``omega`` (n_envs, n_joint) float64
+    [rad/s] (the velocity of the current sample, 0 at rest), ``omega_members`` (M, n_envs,
+    n_joint) [rad/s] and ``ood`` (n_envs, n_joint) bool of the last step.
+    """
+
+    def __init__(
+        self,
+        sur: Surrogate,
+        *,
+        n_envs: int,
+        residual: bool = False,
+    ) -> None:
+        dev = sur.device
+        n_joint = sur.spec.n_joint
+        self.spec = sur.spec
+        self.dt = float(sur.spec.dt)
+        self.head: MemberHead | None = member_head(sur)
+        self.has_spread = self.head is not None
+        self.n_member = self.head.n_member if self.head is not None else 0
+        self.residual = residual
+        self.omega = torch.zeros(n_envs, n_joint, dtype=torch.float64, device=dev)
+        self.dev = torch.zeros(self.n_member, n_envs, n_joint, dtype=torch.float64, device=dev)
+        self.omega_members = torch.full_like(self.dev, float("nan"))
+        self.ood = torch.zeros(n_envs, n_joint, dtype=torch.bool, device=dev)
+        if self.head is not None:
+            # member m: omega_m = M W2[:, block_m] a_m + y_std beta_m (+ y_mean | + w)
+            h = self.head
+            norm = sur.norm
+            y_std, y_mean = norm.y_std.float(), norm.y_mean.float()
+            self.w2m = (h.w2 * y_std[None, :, None]).transpose(1, 2).contiguous()  # (M, f, J)
+            self.b2m = (h.bias * y_std + (0.0 if residual else y_mean))[:, None, :]  # (M, 1, J)
+        cal = stored_calibration(sur)
+        self.calibrated = cal is not None and self.has_spread
+        if cal is not None:
+            i = int(np.argmin(np.abs(np.asarray(cal.levels) - LEVEL)))
+            self.level = float(cal.levels[i])
+            t = lambda a: torch.as_tensor(a, dtype=torch.float64, device=dev)  # noqa: E731
+            self.k = (t(cal.theta[i]), t(cal.omega[i]))
+            self.floor = (t(cal.floor("theta")), t(cal.floor("omega")))
+        rec = stored_coverage(sur)
+        self.checked = rec is not None and rec.channels == channel_names(sur.spec)
+        if rec is not None and self.checked:
+            self.lo = torch.as_tensor(rec.lo, dtype=torch.float64, device=dev)
+            self.hi = torch.as_tensor(rec.hi, dtype=torch.float64, device=dev)
+            self.n_bin = rec.n_bin
+            self.seen = torch.as_tensor(seen_cells(rec.grid), device=dev).reshape(-1)
+            n_u = sur.spec.n_u
+            self._iu = torch.arange(n_joint, device=dev)
+            self._it = n_u + self._iu
+            self._iw = n_u + n_joint + self._iu
+            self._cell0 = self._iu * self.n_bin * self.n_bin
+        self.notes = notes(sur)
+
+    def reset(self, idx: torch.Tensor) -> None:
+        """Rows ``idx`` start at rest: no deviation, zero velocity, no flag."""
+        self.omega.index_fill_(0, idx, 0.0)
+        self.ood.index_fill_(0, idx, False)
+        if self.n_member:
+            self.dev.index_fill_(1, idx, 0.0)
+            self.omega_members.index_fill_(1, idx, float("nan"))
+
+    def flag(self, theta: torch.Tensor, u: torch.Tensor) -> None:
+        """OOD flags of the sample ``theta[k]`` (n_envs, n_joint), ``omega[k]`` (the state),
+        ``u[k]`` (n_envs, n_u) before the step (see :func:`~...coverage.ood_flags`)."""
+        if not self.checked:
+            return
+        n_joint, n_u = self.spec.n_joint, self.spec.n_u
+        x = torch.cat([u.double(), theta, self.omega], dim=-1)
+        out = torch.isfinite(x) & ((x < self.lo) | (x > self.hi))
+        flag = out[:, :n_joint] | out[:, n_u : n_u + n_joint] | out[:, n_u + n_joint :]
+        if n_u > n_joint:
+            flag |= out[:, n_joint:n_u].any(-1, keepdim=True)
+        th, uu = x[:, n_u : n_u + n_joint], x[:, :n_joint]
+        t_lo, t_hi = self.lo[self._it], self.hi[self._it]
+        u_lo, u_hi = self.lo[self._iu], self.hi[self._iu]
+        inside = (th >= t_lo) & (th <= t_hi) & (uu >= u_lo) & (uu <= u_hi)
+        nb = self.n_bin
+        bt = torch.floor((th - t_lo) / torch.clamp(t_hi - t_lo, min=1e-12) * nb)
+        bu = torch.floor((uu - u_lo) / torch.clamp(u_hi - u_lo, min=1e-12) * nb)
+        bt = torch.nan_to_num(bt).clamp_(0, nb - 1).long()
+        bu = torch.nan_to_num(bu).clamp_(0, nb - 1).long()
+        seen = self.seen[self._cell0 + bt * nb + bu]
+        torch.logical_or(flag, inside & ~seen, out=self.ood)
+
+    def members_from_activations(self, a: torch.Tensor, w: torch.Tensor | None) -> torch.Tensor:
+        """Each member's omega (M, n_envs, n_joint) float32 [rad/s] from the engine's head
+        activations ``a`` (n_envs, f_tot) and velocity feature ``w`` (residual head)."""
+        om = torch.baddbmm(self.b2m, a.unsqueeze(0).expand(self.n_member, -1, -1), self.w2m)
+        return om + w if self.residual and w is not None else om
+
+    def advance(self, omega_members: torch.Tensor | None, omega: torch.Tensor) -> None:
+        """After a step: members' ``omega_members`` (M, n_envs, n_joint) [rad/s] (None
+        without members) and the integrated central ``omega[k+1]`` (n_envs, n_joint) float64."""
+        if omega_members is not None:
+            om_m = omega_members.double()
+            self.omega_members = om_m
+            self.dev.add_(torch.nan_to_num(om_m - omega), alpha=self.dt)
+        self.omega.copy_(omega)
+
+    def bands(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``theta_band``, ``omega_band`` (n_envs, n_joint) float64 [rad], [rad/s]: the
+        calibrated half-width at :attr:`level` or the raw member std; NaN without members."""
+        if not self.n_member:
+            nan = torch.full_like(self.omega, float("nan"))
+            return nan, nan.clone()
+        s_t = torch.std(self.dev, dim=0)  # = std of theta_m = theta + dev_m (ddof 1)
+        s_w = torch.std(self.omega_members, dim=0)
+        if not self.calibrated:
+            return s_t, s_w
+        return (
+            self.k[0] * torch.maximum(s_t, self.floor[0]),
+            self.k[1] * torch.maximum(s_w, self.floor[1]),
+        )

@@ -1,0 +1,173 @@
+"""The surrogate's bands and out-of-distribution flags in the environments' step ``info``."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode
+
+from excavator_surrogate.env import ExcavatorSurrogateEnv, SurrogateVectorEnv
+from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.env.uncertainty import INFO_KEYS
+from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names, ood_flags
+from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.uncertainty import Calibration, member_runs
+
+KW = dict(end_stops=True, play=(0.05, 0.2), omega_in=True)
+EPS32 = float(np.finfo(np.float32).eps)
+
+
+def _record(rng: np.random.Generator) -> CoverageRecord:
+    """A coverage record whose boxes cut through the commands and angles the tests drive
+    (so flags fire and stay off), with a grid holding some empty cells."""
+    spec = EXCAVATOR
+    n_j = spec.n_joint
+    lo = np.concatenate([np.full(n_j, -600.0), [0.0, 0.3, 1.2, 0.2], np.full(n_j, -5.0)])
+    hi = np.concatenate([np.full(n_j, 600.0), [6.0, 0.9, 2.4, 1.4], np.full(n_j, 5.0)])
+    lo[n_j] = -7.0  # swing angle: never out of its box
+    grid = (rng.uniform(size=(n_j, 10, 10)) > 0.7).astype(np.int64)
+    return CoverageRecord(channel_names(spec), lo, hi, grid, n_sample=1000)
+
+
+@pytest.fixture(scope="module")
+def ens(make_surrogate):
+    """A merged 3-member stateful ensemble with a coverage record (not calibrated)."""
+    sur = merge([make_surrogate(seed=s, hidden=16, mode="stateful", **KW) for s in range(3)])
+    sur.metrics["coverage"] = _record(np.random.default_rng(0)).to_dict()
+    return sur
+
+
+def _drive(rng: np.random.Generator, n: int, n_step: int):
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.4, 1.6, 0.6])
+    u = rng.uniform(-1000, 1000, (n, n_step, 4))
+    return theta0, u
+
+
+def _plain(sur, theta0: np.ndarray, u: np.ndarray, design: str = "shared"):
+    """The plain loop (``member_runs``) from the environments' at-rest warm-up."""
+    w = sur.window
+    n, _, n_u = u.shape
+    u_full = np.concatenate([np.zeros((n, w - 1, n_u)), u, np.zeros((n, 1, n_u))], axis=1)
+    th_hist = np.repeat(theta0[:, None], w, axis=1)
+    return member_runs(sur, th_hist, u_full, warmup=w, design=design), u_full
+
+
+@pytest.mark.parametrize(
+    "mode,impl",
+    [("stateful", "members"), ("stateful", "cell"), ("stateful", "module"), ("windowed", "auto")],
+)
+def test_engine_bands_and_flags_equal_the_plain_loop(ens, make_surrogate, mode, impl) -> None:
+    """The engine's members' omega (from the same network call), integrated deviations and
+    OOD flags equal ``member_runs`` (design shared) and ``ood_flags`` on its run."""
+    sur = ens
+    if mode == "windowed":
+        sur = merge([make_surrogate(seed=s, hidden=16, mode="windowed", **KW) for s in range(2)])
+        sur.metrics["coverage"] = ens.metrics["coverage"]
+    rng = np.random.default_rng(1)
+    n, n_step, w = 5, 25, sur.window
+    theta0, u = _drive(rng, n, n_step)
+    eng = SurrogateEngine(sur, n_envs=n, mode=mode, impl=impl, uncertainty=True)
+    assert eng.unc is not None and eng.unc.n_member == len(sur.metrics["ensemble"]["members"])
+    eng.reset(theta0)
+    th_band, om_band, flags, om = [], [], [], []
+    for k in range(n_step):
+        _, o = eng.step(u[:, k])
+        om.append(o.numpy().copy())
+        t_b, o_b = eng.unc.bands()
+        th_band.append(t_b.numpy().copy())
+        om_band.append(o_b.numpy().copy())
+        flags.append(eng.unc.ood.numpy().copy())
+    (th_c, om_c, th_m, om_m), u_full = _plain(sur, theta0, u)
+    sl = slice(w, w + n_step)  # engine step k predicts sample w - 1 + k + 1
+    th_ref, om_ref = np.std(th_m, axis=0, ddof=1)[:, sl], np.std(om_m, axis=0, ddof=1)[:, sl]
+    # float32 network, float64 integration: a few ulp of the largest velocity per step,
+    # accumulated over the run for the angles
+    scale = 1.0 + np.nanmax(np.abs(om_m))
+    tol_w = 1e3 * EPS32 * scale
+    tol_t = tol_w * n_step * sur.spec.dt
+    np.testing.assert_allclose(np.stack(om, 1), om_c[:, sl], atol=tol_w, rtol=0)
+    np.testing.assert_allclose(np.stack(om_band, 1), om_ref, atol=tol_w, rtol=0)
+    np.testing.assert_allclose(np.stack(th_band, 1), th_ref, atol=tol_t, rtol=0)
+    assert np.stack(th_band, 1)[:, -1].min() > 10 * tol_t  # the members do disagree
+    # flags of step k: the sample it predicted from (theta[k], omega[k], u[k]); at rest
+    # before the first step (omega 0 where the plain loop has NaN)
+    om_in = om_c.copy()
+    om_in[:, w - 1] = 0.0
+    ref = ood_flags(
+        CoverageRecord.from_dict(sur.metrics["coverage"]), sur.spec, th_c, om_in, u_full
+    )[:, w - 1 : w - 1 + n_step]
+    got = np.stack(flags, 1)
+    # a sample on a cell or box edge may fall either way within rounding: allow a few
+    assert (got != ref).mean() < 0.01
+    assert 0.05 < ref.mean() < 0.95  # the record cuts through the run: the test can fail
+
+
+def test_calibrated_band_and_masked_resets(ens) -> None:
+    """A calibrated checkpoint reports k_90 max(std, floor); a masked reset zeroes the angle
+    band of the reset envs only; the vector env's keys are the single env's, batched."""
+    sur = copy.deepcopy(ens)
+    k90 = np.array([[1.0, 1.0, 1.0, 1.0], [30.0, 40.0, 50.0, 60.0]])
+    floor = np.full(4, 1e-4)
+    sur.metrics["uncertainty"] = Calibration(
+        levels=(0.5, 0.9),
+        theta=k90,
+        omega=2 * k90,
+        n_step=10,
+        theta_floor=floor,
+        omega_floor=floor,
+    ).to_dict()
+    rng = np.random.default_rng(2)
+    n = 4
+    theta0, u = _drive(rng, n, 12)
+    venv = SurrogateVectorEnv(sur, n, max_episode_steps=None, autoreset_mode=AutoresetMode.DISABLED)
+    raw = SurrogateEngine(sur, n_envs=n, impl=venv.engine.impl, uncertainty=True)
+    raw.unc.calibrated = False
+    venv.reset(options={"theta0": theta0})
+    raw.reset(theta0)
+    for k in range(12):
+        _, _, _, _, info = venv.step(u[:, k].astype(np.float32))
+        raw.step(np.clip(u[:, k].astype(np.float32), -1000, 1000))
+    s_t, s_w = (b.numpy() for b in raw.unc.bands())
+    assert info["uncertainty"].all() and info["band_calibrated"].all()
+    np.testing.assert_allclose(info["theta_band"], k90[1] * np.maximum(s_t, floor), rtol=1e-9)
+    np.testing.assert_allclose(info["omega_band"], 2 * k90[1] * np.maximum(s_w, floor), rtol=1e-9)
+    assert info["theta_band"].shape == (n, 4) and info["ood"].shape == (n, 4)
+    mask = np.array([True, False, True, False])
+    venv.reset(options={"theta0": theta0, "reset_mask": mask})
+    _, _, _, _, info2 = venv.step(np.zeros((n, 4), dtype=np.float32))
+    # one step after the reset: deviation of one step only, far below the continued envs'
+    assert info2["theta_band"][mask].max() < info["theta_band"][~mask].min()
+    single = ExcavatorSurrogateEnv(sur)
+    single.reset(seed=0)
+    _, _, _, _, one = single.step(np.zeros(4, dtype=np.float32))
+    assert set(INFO_KEYS) <= set(one) and set(INFO_KEYS) <= set(info)
+    for k in INFO_KEYS:
+        assert np.shape(one[k]) == np.shape(info[k])[1:], k
+    assert single.uncertainty_note == ""
+
+
+def test_single_network_says_it_has_no_uncertainty(make_surrogate) -> None:
+    """A single network: no bands (None, never zeros) and ``uncertainty`` False, with a note;
+    its coverage record still flags; without a record the flags say they were not checked."""
+    sur = make_surrogate(seed=0, hidden=16, mode="stateful", **KW)
+    env = ExcavatorSurrogateEnv(sur)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.zeros(4, dtype=np.float32))
+    assert not info["uncertainty"]
+    assert info["theta_band"] is None and info["omega_band"] is None
+    assert not info["ood_checked"] and "single network" in env.uncertainty_note
+    assert "coverage" in env.uncertainty_note
+    sur.metrics = dict(sur.metrics or {}, coverage=_record(np.random.default_rng(0)).to_dict())
+    venv = SurrogateVectorEnv(sur, 3, max_episode_steps=None)
+    venv.reset(seed=0)
+    u = np.full((3, 4), 900.0, dtype=np.float32)  # beyond the record's +-600 box
+    _, _, _, _, info = venv.step(u)
+    assert info["ood_checked"].all() and info["ood"].all() and info["ood_any"].all()
+    assert not info["uncertainty"].any() and info["theta_band"] is None
+    off = SurrogateVectorEnv(sur, 3, max_episode_steps=None, uncertainty=False)
+    off.reset(seed=0)
+    _, _, _, _, info = off.step(u)
+    assert not info["ood_checked"].any() and "not tracked" in off.uncertainty_note
