@@ -37,6 +37,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="torch exporter: dynamo (torch.export), torchscript (legacy, fast) or auto "
         "(dynamo, falling back to torchscript)",
     )
+    p.add_argument(
+        "--uncertainty",
+        action="store_true",
+        help="add the output omega_members (M, batch, joints): each ensemble member's omega "
+        "from the same call, whose spread is the uncertainty (a merged seed ensemble, "
+        "stateful graph); the band calibration and coverage record go into the metadata",
+    )
     p.add_argument("--no-verify", action="store_true", help="skip the onnxruntime check")
     p.set_defaults(func=run)
 
@@ -51,12 +58,17 @@ def run(args: argparse.Namespace) -> int:
     from ..env.tasks import sample_pose
     from ..outdir import check_out_file
 
-    check_out_file(
-        args.out, inputs=[args.ckpt], example="model.onnx", overwrite=args.overwrite
-    )
+    check_out_file(args.out, inputs=[args.ckpt], example="model.onnx", overwrite=args.overwrite)
     sur = load_surrogate(args.ckpt)
     mode = args.mode or sur.mode
-    out = export_onnx(sur, args.out, mode=mode, opset=args.opset, exporter=args.exporter)
+    out = export_onnx(
+        sur,
+        args.out,
+        mode=mode,
+        opset=args.opset,
+        exporter=args.exporter,
+        uncertainty=args.uncertainty,
+    )
     msg = f"{out}: exported {sur.name} ({mode}, {sur.spec.n_joint} joints, W={sur.window})"
     if not args.no_verify:
         rng = np.random.default_rng(0)
@@ -64,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         lo = np.array([c.u_min for c in sur.spec.u_specs])
         hi = np.array([c.u_max for c in sur.spec.u_specs])
         stepper = OnnxStepper(out)
-        engine = SurrogateEngine(sur, n_envs=4, mode=mode)
+        engine = SurrogateEngine(sur, n_envs=4, mode=mode, uncertainty=args.uncertainty)
         stepper.reset(theta0)
         engine.reset(theta0)
         err = 0.0
@@ -74,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
             th_t, om_t = engine.step(u)
             err = max(err, float(np.abs(om - om_t.cpu().numpy()).max()))
             err = max(err, float(np.abs(th - th_t.cpu().numpy()).max()))
+            if args.uncertainty and engine.unc is not None:
+                om_m = engine.unc.omega_members.cpu().numpy()
+                err = max(err, float(np.abs(stepper.omega_members - om_m).max()))
         msg += f"; max |torch - onnxruntime| over 50 steps = {err:.2e}"
     print(msg)
     return 0

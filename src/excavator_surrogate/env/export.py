@@ -25,6 +25,14 @@ velocity feature (``TrainConfig.velocity_input``) has one more input after those
 (n_batch, n_joint) [rad/s]: the ``omega`` of the previous step (zeros at rest), or the
 measured ``wrap(θ[k] - θ[k-1]) / T_s`` when synced to a machine.
 
+With ``uncertainty=True`` (``exsur export --uncertainty``; a merged seed ensemble, stateful
+export) the graph has one more output, last: ``omega_members`` (M, n_batch, n_joint) float32,
+each member's ω̂[k+1] [rad/s] from the same network call (their std over M, ddof 1, is the
+velocity spread; member m's angle is θ plus its integrated deviation from ``omega``, as in
+the environments, :mod:`.uncertainty`).  The band calibration and the training coverage
+record (for the out-of-distribution flags) travel as JSON metadata ``exsur_uncertainty`` and
+``exsur_coverage`` (the checkpoint's ``metrics`` records, ``{}`` if it has none).
+
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
 of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
 n_joint), the play states after each of them, with play features; ``w``, (n_batch, W,
@@ -34,7 +42,8 @@ n_joint), their velocity features, with a velocity feature); outputs ``omega`` a
 The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON machine
 spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``,
 ``exsur_play`` (JSON list of play half-widths, empty without play features),
-``exsur_omega_in`` (``1`` with a velocity feature).
+``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_members`` (M with the
+``omega_members`` output, else ``0``).
 :class:`OnnxStepper` runs the exported file with the same warm-up convention as the
 environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 """
@@ -56,7 +65,7 @@ from ..spec import MachineSpec
 from ..surrogate.features import integrate, play_features, play_np, scale_commands_np
 from ..surrogate.model import Surrogate
 from .engine import Mode
-from .fused import FusedStep, add_end_stops, end_stops, rest_command
+from .fused import FusedMembersStep, FusedStep, add_end_stops, end_stops, rest_command
 from .surrogate_env import load_surrogate
 
 OPSET = 18
@@ -148,6 +157,7 @@ def export_onnx(
     mode: Mode | None = None,
     opset: int = OPSET,
     exporter: Exporter = "auto",
+    uncertainty: bool = False,
 ) -> Path:
     """Export a checkpoint to ONNX (atomically).
 
@@ -160,9 +170,14 @@ def export_onnx(
         exporter: ``dynamo`` (``torch.export``-based, the supported exporter, ~3 s),
             ``torchscript`` (legacy, deprecated by torch but ~0.1 s) or ``auto`` (dynamo,
             falling back to torchscript if it fails).
+        uncertainty: add the ``omega_members`` output (a merged seed ensemble, stateful
+            export; see the module docstring).
 
     Returns:
         The written path.
+
+    Raises:
+        ConfigError: ``uncertainty`` for a single network or a windowed export.
     """
     sur = load_surrogate(ckpt, device="cpu")
     sur.to("cpu", torch.float32).eval()
@@ -172,8 +187,13 @@ def export_onnx(
     n_play = sur.norm.n_play
     omega_in = sur.norm.omega_in
     n_b = 2
+    if uncertainty and mode != "stateful":
+        raise ConfigError(
+            "export --uncertainty needs the stateful graph (--mode stateful): the member "
+            "outputs come from the folded step"
+        )
     if mode == "stateful":
-        module: nn.Module = FusedStep(sur).eval()
+        module: nn.Module = (FusedMembersStep(sur) if uncertainty else FusedStep(sur)).eval()
         cfg = sur.model_cfg
         args: tuple[torch.Tensor, ...] = (
             torch.zeros(n_b, n_joint),
@@ -197,6 +217,9 @@ def export_onnx(
             axes["w"] = {0: "batch"}
             if not n_play:
                 module = _StatefulVelocityOnly(module).eval()
+        if uncertainty:
+            outputs.append("omega_members")
+            axes["omega_members"] = {1: "batch"}
     elif mode == "windowed":
         module = WindowStep(sur).eval()
         w = sur.window
@@ -233,8 +256,14 @@ def export_onnx(
                 _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
         else:
             _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
-        _add_metadata(tmp, sur, mode)
+        _add_metadata(tmp, sur, mode, n_member=module_members(module))
     return out
+
+
+def module_members(module: nn.Module) -> int:
+    """M of an exported step with the ``omega_members`` output, else 0."""
+    inner = getattr(module, "step", module)
+    return int(inner.n_member) if isinstance(inner, FusedMembersStep) else 0
 
 
 def _export_dynamo(
@@ -301,7 +330,7 @@ def _export_torchscript(
         )
 
 
-def _add_metadata(path: Path, sur: Surrogate, mode: str) -> None:
+def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -> None:
     import onnx
 
     model = onnx.load(str(path))
@@ -315,6 +344,9 @@ def _add_metadata(path: Path, sur: Surrogate, mode: str) -> None:
         "exsur_name": sur.name,
         "exsur_play": json.dumps(list(sur.norm.play_widths)),
         "exsur_omega_in": str(int(sur.norm.omega_in)),
+        "exsur_members": str(int(n_member)),
+        "exsur_uncertainty": json.dumps((sur.metrics or {}).get("uncertainty") or {}),
+        "exsur_coverage": json.dumps((sur.metrics or {}).get("coverage") or {}),
     }
     for k, v in meta.items():
         p = model.metadata_props.add()
@@ -363,6 +395,10 @@ class OnnxStepper:
         """(Q,) play half-widths (empty: no play features)."""
         self.omega_in = meta.get("exsur_omega_in", "0") == "1"
         """Whether the graph takes a velocity feature ``w``."""
+        self.n_member = int(meta.get("exsur_members", "0"))
+        """M of the ``omega_members`` output (0: none)."""
+        self.omega_members: np.ndarray | None = None
+        """(M, n_batch, n_joint) each member's omega of the last step [rad/s] (with M > 0)."""
         n_joint = self.spec.n_joint
         self.w = np.zeros((0, n_joint), dtype=np.float32)
         """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
@@ -418,9 +454,12 @@ class OnnxStepper:
                 feed["w"] = self.w
             if len(self.play):
                 feed["z"] = self.z
-                omega, theta, self.h, self.c, self.z = self.session.run(None, feed)
-            else:
-                omega, theta, self.h, self.c = self.session.run(None, feed)
+            outs = self.session.run(None, feed)
+            omega, theta, self.h, self.c = outs[:4]
+            if len(self.play):
+                self.z = outs[4]
+            if self.n_member:
+                self.omega_members = outs[-1]
         else:
             self.z = self._play_update(self.z, u)
             self._theta_win[:, -1] = self.theta

@@ -15,6 +15,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
+from ..surrogate.ensemble import member_head
 from ..surrogate.features import Normalization, integrate, play_features, play_step
 from ..surrogate.model import Surrogate
 from .inputs import ActionLayout
@@ -256,3 +257,48 @@ class FusedStep(nn.Module):
         if z is not None:
             return omega, theta_next, torch.stack(hs), torch.stack(cs), z
         return omega, theta_next, torch.stack(hs), torch.stack(cs)
+
+
+class FusedMembersStep(FusedStep):
+    """:class:`FusedStep` of a merged seed ensemble with one more output, last:
+    ``omega_members`` (M, n_batch, n_joint) [rad/s], each member's velocity from the head
+    activations of the same call (:class:`~excavator_surrogate.surrogate.ensemble.MemberHead`
+    folded with the output scale)."""
+
+    def __init__(self, sur: Surrogate) -> None:
+        super().__init__(sur)
+        head = member_head(sur)
+        if head is None:
+            raise ConfigError(
+                f"model '{sur.name}' has no ensemble members: a single network has no "
+                "uncertainty to export (train a seed ensemble, or export without it)"
+            )
+        y_std, y_mean = sur.norm.y_std.float().cpu(), sur.norm.y_mean.float().cpu()
+        w2m = (head.w2.float().cpu() * y_std[None, :, None]).transpose(1, 2).contiguous()
+        b2m = head.bias.float().cpu() * y_std + (0.0 if self.residual else y_mean)
+        self.n_member = head.n_member
+        self.register_buffer("w2m", w2m)  # (M, f_tot, n_joint)
+        self.register_buffer("b2m", b2m[:, None, :])  # (M, 1, n_joint)
+        self._a: torch.Tensor | None = None
+
+    def head(self, out: torch.Tensor) -> torch.Tensor:
+        """As :meth:`FusedStep.head`, keeping the activations for the members."""
+        self._a = torch.relu(torch.nn.functional.linear(out, self.w1, self.b1))
+        return torch.nn.functional.linear(self._a, self.w2, self.b2)
+
+    def forward(
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        h: torch.Tensor,
+        c: torch.Tensor,
+        z: torch.Tensor | None = None,
+        w: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, ...]:
+        """:class:`FusedStep`'s outputs, then ``omega_members``."""
+        outs = super().forward(theta, u, h, c, z, w)
+        assert self._a is not None
+        om_m = torch.matmul(self._a.unsqueeze(0), self.w2m) + self.b2m
+        if self.residual:
+            om_m = om_m + w
+        return (*outs, om_m)

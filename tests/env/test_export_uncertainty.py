@@ -1,0 +1,84 @@
+"""The optional ``omega_members`` output of the ONNX export (``exsur export --uncertainty``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+
+from excavator_surrogate.cli import main
+from excavator_surrogate.env import OnnxStepper, export_onnx
+from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from excavator_surrogate.surrogate.ensemble import merge
+
+EPS32 = float(np.finfo(np.float32).eps)
+
+
+@pytest.mark.parametrize(
+    ("exporter", "kw"),
+    [
+        ("torchscript", dict(play=(0.05, 0.2), omega_in=True)),
+        ("dynamo", dict(omega_in=True, residual=True)),
+    ],
+    ids=["play-velocity", "residual"],
+)
+def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, exporter, kw) -> None:
+    """onnxruntime's ``omega_members`` equal the engine's members (same network call) every
+    step, their mean is the central omega, and the metadata carries M."""
+    sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful", **kw) for s in range(3)])
+    path = export_onnx(sur, tmp_path / "ens.onnx", exporter=exporter, uncertainty=True)
+    names = [o.name for o in onnx.load(str(path)).graph.output]
+    assert names[-1] == "omega_members"
+    stepper = OnnxStepper(path)
+    assert stepper.n_member == 3
+    n = 4
+    engine = SurrogateEngine(sur, n_envs=n, uncertainty=True)
+    rng = np.random.default_rng(3)
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    stepper.reset(theta0)
+    engine.reset(theta0)
+    for _ in range(20):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        _, om = stepper.step(u)
+        engine.step(u)
+        om_m = engine.unc.omega_members.numpy()
+        tol = 1e3 * EPS32 * (1.0 + np.abs(om_m).max())  # float32 graph vs float32 torch
+        assert stepper.omega_members.shape == (3, n, 4)
+        np.testing.assert_allclose(stepper.omega_members, om_m, atol=tol, rtol=0)
+        # the members' mean is the central velocity (before any speed bound: none here)
+        np.testing.assert_allclose(stepper.omega_members.mean(0), om, atol=tol, rtol=0)
+    assert np.std(stepper.omega_members, axis=0).min() > 10 * tol  # members disagree
+
+
+def test_uncertainty_export_refuses_what_has_none(make_surrogate, tmp_path: Path, capsys) -> None:
+    single = make_surrogate(seed=0, hidden=8, mode="stateful")
+    with pytest.raises(ConfigError, match="no ensemble members"):
+        export_onnx(single, tmp_path / "a.onnx", exporter="torchscript", uncertainty=True)
+    ens = merge([make_surrogate(seed=s, hidden=8, mode="stateful") for s in range(2)])
+    with pytest.raises(ConfigError, match="stateful"):
+        export_onnx(ens, tmp_path / "b.onnx", mode="windowed", uncertainty=True)
+    assert not list(tmp_path.glob("*.onnx"))
+    # the CLI: verified against torch, members included; the records in the metadata
+    ens.metrics["uncertainty"] = {
+        "levels": [0.9],
+        "theta": [[2.0] * 4],
+        "omega": [[3.0] * 4],
+        "n_step": 5,
+    }
+    ckpt = save_checkpoint(tmp_path / "ens.pt", ens)
+    out = tmp_path / "ens.onnx"
+    argv = ["export", str(ckpt), "--out", str(out), "--uncertainty", "--exporter", "torchscript"]
+    assert main(argv) == 0
+    assert "max |torch - onnxruntime|" in capsys.readouterr().out
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert meta["exsur_members"] == "2" and json.loads(meta["exsur_coverage"]) == {}
+    assert json.loads(meta["exsur_uncertainty"])["theta"] == [[2.0] * 4]
+    single_ckpt = save_checkpoint(tmp_path / "single.pt", single)
+    argv = ["export", str(single_ckpt), "--out", str(tmp_path / "s.onnx"), "--uncertainty"]
+    assert main(argv) == 2
+    assert "no ensemble members" in capsys.readouterr().err
