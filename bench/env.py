@@ -7,7 +7,11 @@ Measures env-steps per second (one env-step = one 50 ms control step of one mach
 - ``surrogate_windowed_n{1,1024}``: the windowed fallback (re-runs the W = 30 window);
 - ``surrogate_single``: ``ExcavatorSurrogate-v0`` (one env, Python loop);
 - ``mujoco_env``: ``ExcavatorMujoco-v0`` (one env, Python loop, 25 physics steps per step);
-- ``mujoco_rollout_2t``: :meth:`MujocoExcavator.rollout` (``mujoco.rollout``) on 2 threads.
+- ``mujoco_rollout_2t``: :meth:`MujocoExcavator.rollout` (``mujoco.rollout``) on 2 threads;
+- ``ensemble_n1024_plain`` / ``ensemble_n1024_uncertainty``: the vector env at 1024 envs on a
+  merged 2-member ensemble of the same total size (2 x 64 members, calibrated, with a coverage
+  record) without and with the uncertainty ``info`` (bands and OOD flags), measured in
+  alternation, best of ``--repeats`` each; goal: the uncertainty costs <= 20 %.
 
 The benchmark model is an UNTRAINED LSTM of the paper's size (2 x 128, head 128, W = 30):
 throughput does not depend on training.  Goals on the 2-core dev machine: >= 100k steps/s at
@@ -36,19 +40,27 @@ from excavator_surrogate.env import ExcavatorMujocoEnv, ExcavatorSurrogateEnv, S
 from excavator_surrogate.simulate.plant import MujocoExcavator, PlantConfig
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names
+from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
 
 GOAL_N1024 = 100_000.0
 GOAL_N1 = 1_000.0
+GOAL_UNCERTAINTY_COST = 0.2
 
 
-def paper_size_checkpoint(path: Path, *, mode: str) -> Path:
-    """An untrained 2 x 128 LSTM checkpoint (W = 30) for the default excavator."""
-    torch.manual_seed(0)
+def untrained(*, mode: str, hidden: int = 128, seed: int = 0) -> Surrogate:
+    """An untrained 2-layer LSTM (W = 30, head as wide as the layers) of the default excavator."""
+    torch.manual_seed(seed)
     spec = EXCAVATOR
     cfg = ModelConfig(
-        n_feature=spec.n_feature, n_joint=spec.n_joint, window=30, hidden=128, n_layer=2
+        n_feature=spec.n_feature,
+        n_joint=spec.n_joint,
+        window=30,
+        hidden=hidden,
+        n_layer=2,
+        head_hidden=hidden,
     )
     norm = Normalization.from_arrays(
         x_mean=np.zeros(spec.n_feature),
@@ -57,8 +69,34 @@ def paper_size_checkpoint(path: Path, *, mode: str) -> Path:
         y_std=np.full(spec.n_joint, 0.05),
         spec=spec,
     )
-    sur = Surrogate(net=build_net(cfg).eval(), spec=spec, norm=norm, model_cfg=cfg, mode=mode)
-    return save_checkpoint(path, sur)
+    return Surrogate(net=build_net(cfg).eval(), spec=spec, norm=norm, model_cfg=cfg, mode=mode)
+
+
+def paper_size_checkpoint(path: Path, *, mode: str) -> Path:
+    """An untrained 2 x 128 LSTM checkpoint (W = 30) for the default excavator."""
+    return save_checkpoint(path, untrained(mode=mode))
+
+
+def ensemble_checkpoint(path: Path) -> Path:
+    """Two untrained 2 x 64 stateful members merged (2 x 128 in all), with a band calibration
+    and a coverage record (the command box covers half the range: some steps flag)."""
+    ens = merge([untrained(mode="stateful", hidden=64, seed=s) for s in range(2)])
+    spec = EXCAVATOR
+    n = spec.n_joint
+    lo = np.concatenate([np.full(n, -500.0), np.full(n, -3.0), np.full(n, -2.0)])
+    grid = np.ones((n, 10, 10), dtype=np.int64)
+    grid[:, :3, :3] = 0
+    rec = CoverageRecord(channel_names(spec), lo, -lo, grid, n_sample=1)
+    k = np.ones((2, n))
+    ens.metrics["coverage"] = rec.to_dict()
+    ens.metrics["uncertainty"] = {
+        "levels": [0.5, 0.9],
+        "theta": k.tolist(),
+        "omega": (2 * k).tolist(),
+        "n_step": 1,
+        "design": "shared",
+    }
+    return save_checkpoint(path, ens)
 
 
 def rate(step: Callable[[int], None], n_per_call: int, seconds: float, *, warmup: int = 5) -> float:
@@ -74,8 +112,17 @@ def rate(step: Callable[[int], None], n_per_call: int, seconds: float, *, warmup
             return n * n_per_call / dt
 
 
-def bench_vector(ckpt: Path, n_envs: int, seconds: float, *, mode: str | None = None) -> float:
-    env = SurrogateVectorEnv(ckpt, n_envs, mode=mode, max_episode_steps=None)
+def bench_vector(
+    ckpt: Path,
+    n_envs: int,
+    seconds: float,
+    *,
+    mode: str | None = None,
+    uncertainty: bool | None = None,
+) -> float:
+    env = SurrogateVectorEnv(
+        ckpt, n_envs, mode=mode, max_episode_steps=None, uncertainty=uncertainty
+    )
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1000, 1000, (16, n_envs, EXCAVATOR.n_joint)).astype(np.float32)
@@ -111,6 +158,12 @@ def main() -> None:
     )
     ap.add_argument("--rollout-threads", type=int, default=2, help="mujoco.rollout threads")
     ap.add_argument("--seconds", type=float, default=1.0, help="time per measurement [s]")
+    ap.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="alternating measurements with and without the uncertainty info (default 3)",
+    )
     args = ap.parse_args()
     threads = [int(t) for t in str(args.threads).split(",")]
     res: dict[str, float] = {}
@@ -136,6 +189,18 @@ def main() -> None:
                 f"surrogate vector env, windowed, n_envs={n:5d}, {min(threads)} thread(s): {res[key]:12,.0f} steps/s",
                 flush=True,
             )
+        ensemble = ensemble_checkpoint(Path(tmp) / "ensemble.pt")
+        plain, unc = [], []
+        for _ in range(max(1, args.repeats)):  # alternate: the machine's load hits both alike
+            plain.append(bench_vector(ensemble, 1024, args.seconds, uncertainty=False))
+            unc.append(bench_vector(ensemble, 1024, args.seconds, uncertainty=True))
+        res["ensemble_n1024_plain"], res["ensemble_n1024_uncertainty"] = max(plain), max(unc)
+        print(
+            f"2-member ensemble, n_envs= 1024, {min(threads)} thread(s): "
+            f"{res['ensemble_n1024_plain']:12,.0f} steps/s plain, "
+            f"{res['ensemble_n1024_uncertainty']:12,.0f} with uncertainty info",
+            flush=True,
+        )
         res["surrogate_single"] = bench_single(ExcavatorSurrogateEnv(stateful), args.seconds)
         print(
             f"ExcavatorSurrogate-v0, single env loop:               {res['surrogate_single']:12,.0f} steps/s",
@@ -158,12 +223,16 @@ def main() -> None:
         "vec1_over_mujoco_env": res["surrogate_vec_n1"] / res["mujoco_env"],
         "stateful_over_windowed_n1024": res["surrogate_vec_n1024"]
         / res["surrogate_windowed_n1024"],
+        "uncertainty_over_plain_n1024": res["ensemble_n1024_uncertainty"]
+        / res["ensemble_n1024_plain"],
     }
     for k, v in ratios.items():
         print(f"ratio {k}: {v:.2f}x")
     goals = {
         "n1024_ge_100k": res["surrogate_vec_n1024"] >= GOAL_N1024,
         "n1_ge_1000": res["surrogate_vec_n1"] >= GOAL_N1,
+        "uncertainty_cost_le_20pct": ratios["uncertainty_over_plain_n1024"]
+        >= 1.0 - GOAL_UNCERTAINTY_COST,
     }
     out = {
         "bench": "env",
