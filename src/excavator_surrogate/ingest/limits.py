@@ -9,10 +9,10 @@ import starts); the decompressed text of a log is counted while it streams.
 from __future__ import annotations
 
 import io
-import os
 from pathlib import Path
 from typing import IO
 
+from ..devices import available_memory
 from ..errors import DataError
 
 MEMORY_SHARE = 0.25
@@ -22,26 +22,11 @@ FALLBACK_BYTES = 2 * 1024**3
 MB = 1024**2
 
 
-def available_memory() -> int:
-    """Memory available to new allocations [bytes] (Linux ``MemAvailable``, else free pages)."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return FALLBACK_BYTES
-
-
 def memory_limit(max_memory_mb: float | None) -> int:
     """The bound [bytes]: ``max_memory_mb``, or :data:`MEMORY_SHARE` of the available memory."""
     if max_memory_mb is not None:
         return int(max_memory_mb * MB)
-    return int(MEMORY_SHARE * available_memory())
+    return int(MEMORY_SHARE * (available_memory() or FALLBACK_BYTES))
 
 
 def too_big(path: Path, what: str, n_bytes: float, limit: int, *, more: bool = False) -> DataError:

@@ -9,9 +9,7 @@ naming the knob.
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
+from ..devices import available_memory
 from ..errors import ConfigError, ExsurError
 from .model import ModelConfig
 
@@ -32,21 +30,6 @@ def n_param(cfg: ModelConfig) -> int:
         n_in = int(cfg.n_feature) if k == 0 else h
         n += gates * h * (n_in + h + 2)
     return n + f * (h + 1) + cfg.n_joint * (f + 1)
-
-
-def available_memory() -> int | None:
-    """Memory this process may still allocate [bytes]: ``MemAvailable`` of ``/proc/meminfo``
-    (Linux), else the free physical pages (``os.sysconf``); None when neither is known."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def human_bytes(n: float) -> str:
