@@ -20,13 +20,12 @@ from typing import Any, Literal
 import numpy as np
 
 from ..data.episode import Episode
-from ..errors import DataError
 from .checkpoint import read_checkpoint, surrogate_from_dict, write_checkpoint_dict
 from .coverage import CoverageRecord, fit_coverage
 from .ensemble import member_head
 from .features import omega_target
 from .model import Surrogate
-from .rollout import reference_theta
+from .rollout import batch_episodes
 from .uncertainty import LEVELS, Calibration, Design, UncertainPrediction, predict_with_uncertainty
 
 FLOOR = 0.1
@@ -101,19 +100,9 @@ def predict_episodes(
     if not episodes:
         return []
     warmup = sur.window
-    thetas = [reference_theta(ep, reference)[:max_steps] for ep in episodes]
-    us = [ep.u[:max_steps] for ep in episodes]
-    lengths = [len(u) for u in us]
-    for ep, n in zip(episodes, lengths):
-        if n <= warmup:
-            raise DataError(
-                ep.name,
-                f"has {n} samples, not more than the warm-up of {warmup}",
-                fix="use longer episodes or a shorter window",
-            )
-    n_max = max(lengths)
-    u = np.stack([np.pad(a, ((0, n_max - len(a)), (0, 0)), mode="edge") for a in us])
-    th0 = np.stack([t[:warmup] for t in thetas])
+    thetas, lengths, th0, u = batch_episodes(
+        episodes, reference=reference, warmup=warmup, max_steps=max_steps
+    )
     full = predict_with_uncertainty(
         sur, th0, u, warmup=warmup, design=design, calibration=calibration, coverage=coverage
     )

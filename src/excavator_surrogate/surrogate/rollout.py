@@ -273,6 +273,40 @@ def reference_theta(ep: Episode, reference: Literal["measured", "true"]) -> np.n
     raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
 
 
+def batch_episodes(
+    episodes: Sequence[Episode],
+    *,
+    reference: Literal["measured", "true"],
+    warmup: int,
+    max_steps: int | None,
+) -> tuple[list[np.ndarray], list[int], np.ndarray, np.ndarray]:
+    """Episodes of different lengths as one free-run batch.
+
+    Returns:
+        ``thetas`` (each episode's reference angles, cut to ``max_steps``), ``lengths``,
+        ``theta0: (n_batch, warmup, n_joint)`` the warm-up angles and
+        ``u: (n_batch, n_max, n_u)`` the commands, shorter episodes padded with their last
+        command (a causal model's output before the padding does not depend on it).
+
+    Raises:
+        DataError: an episode not longer than the warm-up.
+    """
+    thetas = [reference_theta(ep, reference)[:max_steps] for ep in episodes]
+    us = [ep.u[:max_steps] for ep in episodes]
+    lengths = [len(u) for u in us]
+    for ep, n in zip(episodes, lengths):
+        if n <= warmup:
+            raise DataError(
+                ep.name,
+                f"has {n} samples, not more than the warm-up of {warmup}",
+                fix="use longer episodes or a shorter window",
+            )
+    n_max = max(lengths)
+    pad_u = np.stack([np.pad(u, ((0, n_max - len(u)), (0, 0)), mode="edge") for u in us])
+    th0 = np.stack([t[:warmup] for t in thetas])
+    return thetas, lengths, th0, pad_u
+
+
 def rollout_episodes(
     sur: Surrogate,
     episodes: Sequence[Episode],
@@ -290,22 +324,9 @@ def rollout_episodes(
     if not episodes:
         return []
     warmup = sur.window if warmup is None else int(warmup)
-    thetas = [reference_theta(ep, reference) for ep in episodes]
-    us = [ep.u for ep in episodes]
-    if max_steps is not None:
-        thetas = [t[:max_steps] for t in thetas]
-        us = [u[:max_steps] for u in us]
-    lengths = [u.shape[0] for u in us]
-    for ep, n in zip(episodes, lengths):
-        if n <= warmup:
-            raise DataError(
-                ep.name,
-                f"has {n} samples, not more than the warm-up of {warmup}",
-                fix="use longer test episodes or a shorter window",
-            )
-    n_max = max(lengths)
-    pad_u = np.stack([np.pad(u, ((0, n_max - len(u)), (0, 0)), mode="edge") for u in us])
-    th0 = np.stack([t[:warmup] for t in thetas])
+    thetas, lengths, th0, pad_u = batch_episodes(
+        episodes, reference=reference, warmup=warmup, max_steps=max_steps
+    )
     th_hat, om_hat = rollout(sur, th0, pad_u, warmup=warmup, mode=mode)
     out = []
     for i, ep in enumerate(episodes):
