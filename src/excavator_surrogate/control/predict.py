@@ -60,6 +60,9 @@ class Predictor(Protocol):
 class RiskPredictor(Predictor, Protocol):
     """A :class:`Predictor` that also says how sure it is (MPPI with ``risk > 0``)."""
 
+    head: object | None
+    """The ensemble members' output layer (None: a single network, no spread: refused)."""
+
     def predict_risk(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """``(theta, theta_spread, ood)`` of the commands ``u`` (n_batch, n_step, n_joint):
         angles and the members' angle spread (n_batch, n_step, n_joint) [rad], and the
