@@ -48,26 +48,31 @@ def _synced(pred: SurrogatePredictor, theta: np.ndarray, u_hist: np.ndarray) -> 
 
 
 @pytest.mark.parametrize(
-    "kw",
+    ("kw", "n_batch", "impl"),
     [
-        dict(mode="stateful", cell="lstm"),
-        dict(mode="stateful", cell="gru", play=(0.05,)),
-        dict(mode="windowed", cell="lstm", window=5),
-        dict(mode="stateful", cell="lstm", omega_in=True, residual=True),
+        (dict(mode="stateful", cell="lstm"), K, "cell"),
+        (dict(mode="stateful", cell="lstm"), 64, "members"),  # the member kernel's layout
+        (dict(mode="stateful", cell="gru", play=(0.05,)), K, "cell"),
+        (dict(mode="windowed", cell="lstm", window=5), K, "window"),
+        (dict(mode="stateful", cell="lstm", omega_in=True, residual=True), K, "cell"),
     ],
 )
-def test_spread_and_flags_match_a_plain_loop_of_member_closed_loops(kw: dict) -> None:
+def test_spread_and_flags_match_a_plain_loop_of_member_closed_loops(
+    kw: dict, n_batch: int, impl: str
+) -> None:
     """The batched spread equals, candidate by candidate, the std over the members of their
     velocities (ClosedLoop(members=True) on the same history) integrated along the run;
     the flags equal ood_flags on that run; the angles equal predict()."""
     sur = _ensemble(**kw)
     rng = np.random.default_rng(0)
     theta, u_hist = _history(rng)
-    pred = SurrogatePredictor(sur, n_batch=K)
+    pred = SurrogatePredictor(sur, n_batch=n_batch)
+    assert pred.batch.impl == impl
     _synced(pred, theta, u_hist)
-    u = rng.uniform(-400, 400, (K, N, 4))  # some steps within the +/- 300 box on every joint
+    u = rng.uniform(-400, 400, (n_batch, N, 4))  # some steps within the +/- 300 box per joint
     th, spread, ood = pred.predict_risk(u)
-    assert th.shape == spread.shape == (K, N, 4) and ood is not None and ood.shape == (K, N)
+    assert th.shape == spread.shape == (n_batch, N, 4)
+    assert ood is not None and ood.shape == (n_batch, N)
     np.testing.assert_array_equal(th, pred.predict(u))
     w = sur.window
     th_hist = np.concatenate([np.repeat(theta[:1], w - 1, axis=0), theta])
@@ -89,8 +94,8 @@ def test_spread_and_flags_match_a_plain_loop_of_member_closed_loops(kw: dict) ->
         np.testing.assert_allclose(th[i], th_ref, atol=2e-5)
         flags = ood_flags(_coverage(), sur.spec, th_ref, om_ref, u[i]).any(-1)
         np.testing.assert_array_equal(ood[i], flags)
-    assert spread[:, -1].min() > 0  # two different members disagree
-    assert ood.any() and not ood.all()
+    assert spread[:K, -1].min() > 0  # two different members disagree
+    assert ood[:K].any() and not ood[:K].all()
 
 
 def test_worker_processes_give_the_same_spread() -> None:
