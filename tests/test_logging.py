@@ -98,17 +98,21 @@ def test_the_commands_cover_every_module():
     assert "exsur config" not in progs  # a group: its commands take the options
 
 
-def test_quiet_simulate_and_validate_print_only_their_result(tmp_path, capsys):
+def test_quiet_simulate_and_validate_print_nothing(tmp_path, capsys):
     out = tmp_path / "ds"
     assert main(["simulate", "--preset", "tiny", "--out", str(out), "-q"]) == 0
     cap = capsys.readouterr()
-    assert cap.err == "" and cap.out.strip() == str(out)  # the result: the dataset path
+    assert cap.err == "" and cap.out == ""  # the result is in --out
     # main() restored the logger: no level, no handler but the library's NullHandler
     assert PKG.level == logging.NOTSET
     assert all(isinstance(h, logging.NullHandler) for h in PKG.handlers)
     assert main(["validate", str(out), "-q"]) == 0
     cap = capsys.readouterr()
-    assert cap.err == "" and cap.out.startswith(f"{out}: ok")
+    assert cap.err == "" and cap.out == ""
+    assert main(["config", "show", "tiny", "-q"]) == 0  # asked to show: it shows
+    assert "[train]" in capsys.readouterr().out
+    assert main(["validate", str(out)]) == 0
+    assert capsys.readouterr().out.startswith(f"{out}: ok")  # the control
     # the control: without -q the same command tells what it does; -v adds debug lines
     assert main(["simulate", "--preset", "tiny", "--out", str(tmp_path / "b"), "-v"]) == 0
     err = capsys.readouterr().err

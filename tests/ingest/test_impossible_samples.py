@@ -69,7 +69,7 @@ def test_bursts_are_dropped_and_reported(cli, work, short_cols, policy) -> None:
     log = write_lines(work / "a.csv", short_cols, poison)
     out = work / policy
     m = _no_limits(work, f'outliers = "{policy}"')
-    rc, stdout, err = cli("import", log, "--mapping", m, "--out", out, "--quiet")
+    rc, stdout, err = cli("import", log, "--mapping", m, "--out", out)
     assert rc == 0, err
     counts = json.loads((out / "import_report.json").read_text())["files"][0]["outliers"]
     assert counts == {

@@ -111,9 +111,7 @@ def test_dspace_import_matches_plain_csv(cli, dsp, arm3_dir):
     assert log_kind(logs / "run01.dspace.csv.gz") == "dspace"
     assert log_kind(logs / "run02.csv") == "dspace"
     assert log_kind(arm3_dir / "logs" / "run01.csv") == "csv"
-    rc, text, err = cli(
-        "import", logs, "--mapping", dsp / "dspace.toml", "--out", dsp / "ds", "--quiet"
-    )
+    rc, text, err = cli("import", logs, "--mapping", dsp / "dspace.toml", "--out", dsp / "ds")
     assert rc == 0, err
     assert "run01.dspace.csv.gz" in text
     eps = {e.name: e for e in _episodes(dsp / "ds")}

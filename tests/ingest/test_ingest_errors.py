@@ -140,7 +140,6 @@ def test_command_out_of_range_and_clip(cli, work, short_cols):
         "--out",
         work / "ds",
         "--clip-commands",
-        "--quiet",
     )
     assert rc == 0, err
     rep = json.loads((work / "ds" / "import_report.json").read_text())
@@ -172,7 +171,6 @@ def test_short_file_dropped_with_reason(cli, work, short_cols, arm3_dir):
         work / "arm3.toml",
         "--out",
         work / "ds",
-        "--quiet",
     )
     assert rc == 0, err
     rep = json.loads((work / "ds" / "import_report.json").read_text())

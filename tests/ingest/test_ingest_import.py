@@ -25,7 +25,7 @@ def _truth(cols: dict[str, np.ndarray], joint: str, t: np.ndarray) -> np.ndarray
 def test_round_trip_arm3(cli, arm3_dir, tmp_path):
     out = tmp_path / "ds"
     rc, text, err = cli(
-        "import", arm3_dir / "logs", "--mapping", arm3_dir / "arm3.toml", "--out", out, "--quiet"
+        "import", arm3_dir / "logs", "--mapping", arm3_dir / "arm3.toml", "--out", out
     )
     assert rc == 0, err
     assert "# exsur import: arm3" in text and "run04.csv.gz" in text
@@ -68,7 +68,6 @@ def test_round_trip_arm3(cli, arm3_dir, tmp_path):
         arm3_dir / "arm3.toml",
         "--out",
         out,
-        "--quiet",
     )
     assert rc == 0, err
     assert len(read_manifest(out)["episodes"]) == 1
@@ -101,7 +100,6 @@ def test_gap_splits_episode_same_split(cli, work, arm3_dir):
         work / "arm3.toml",
         "--out",
         out,
-        "--quiet",
         "--fractions",
         "0.25,0.25,0.5",
     )

@@ -73,7 +73,7 @@ def test_b1_drop_and_clip_policies_are_reported(cli, work, short_cols) -> None:
         else:
             m, flag = work / "arm3.toml", ["--outliers", "clip"]
         out = work / policy
-        rc, stdout, err = cli("import", log, "--mapping", m, "--out", out, "--quiet", *flag)
+        rc, stdout, err = cli("import", log, "--mapping", m, "--out", out, *flag)
         assert rc == 0, err
         report = json.loads((out / "import_report.json").read_text())
         counts = report["files"][0]["outliers"]

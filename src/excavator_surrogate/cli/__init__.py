@@ -20,6 +20,7 @@ import errno
 import importlib
 import logging
 import math
+import os
 import pkgutil
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -118,6 +119,16 @@ def _logging(level: int) -> Iterator[None]:
         pkg.setLevel(before)
 
 
+@contextlib.contextmanager
+def _muted_stdout(mute: bool) -> Iterator[None]:
+    """Drop what the command prints on stdout while ``mute`` (``-q``)."""
+    if not mute:
+        yield
+        return
+    with open(os.devnull, "w") as null, contextlib.redirect_stdout(null):
+        yield
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``exsur`` console script; returns the exit code."""
     parser = build_parser()
@@ -126,7 +137,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
-        with _logging(log_level(args)):
+        # -q: nothing but warnings and errors; only a command whose purpose is to show
+        # something (``exsur config show``, a ``--dry-run``) still prints it
+        shows = getattr(args, "shows", False) or getattr(args, "dry_run", False)
+        mute = getattr(args, "quiet", False) and not shows
+        with _logging(log_level(args)), _muted_stdout(mute):
             return int(args.func(args) or 0)
     except ExsurError as e:
         print(f"exsur: error: {e}", file=sys.stderr)

@@ -34,7 +34,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="only this table (repeatable; default: all)",
     )
     add_set_option(s, STAGE_NAMES)
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, shows=True)  # -q does not mute what it was asked to show
 
 
 def run(args: argparse.Namespace) -> int:

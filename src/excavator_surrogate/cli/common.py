@@ -43,13 +43,18 @@ def add_overwrite(p: argparse.ArgumentParser, *, replaced: bool) -> None:
 def add_log_options(p: argparse.ArgumentParser) -> None:
     """``-q/--quiet`` and ``-v/--verbose``: how much of the ``[exsur] ...`` chatter is shown.
 
-    ``-q`` shows warnings and errors only (no progress lines or bars), ``-v`` adds debug lines.
-    The command's result on stdout (a table, a report, a path) is printed either way.
+    ``-q`` shows warnings and errors only: no progress lines or bars, and nothing on stdout
+    (the command's result is in its ``--out``; ``exsur config show`` and a ``--dry-run`` still
+    show theirs); ``-v``
+    adds debug lines.
     """
     g = p.add_argument_group("output")
     x = g.add_mutually_exclusive_group()
     x.add_argument(
-        "-q", "--quiet", action="store_true", help="warnings and errors only (no progress)"
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="warnings and errors only (no progress, no result on stdout)",
     )
     x.add_argument("-v", "--verbose", action="store_true", help="also debug lines")
 
