@@ -125,6 +125,10 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         CheckpointError: missing file, unreadable/corrupt file, or another format/version.
     """
     path = Path(path)
+    if path.is_dir():
+        raise CheckpointError(
+            f"{path}: is a folder, not a checkpoint file; give the file in it, e.g. {path / 'best.pt'}"
+        )
     if not path.is_file():
         raise CheckpointError(
             f"{path}: checkpoint not found (train one with 'exsur train DATASET --out DIR')"
@@ -183,6 +187,7 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
     except (RuntimeError, TypeError, AttributeError) as e:
         msg = _first_line(e, 160)
         raise CheckpointError(f"{where}: weights do not fit the stored architecture ({msg})") from e
+    _check_finite(net, norm, where)
     net.eval()
     return Surrogate(
         net=net,
@@ -195,6 +200,25 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
         name=str(ckpt.get("name", mcfg.cell)),
         end_stops=bool(ckpt.get("end_stops", False)),
     )
+
+
+def _check_finite(net: torch.nn.Module, norm: Normalization, where: str) -> None:
+    """Refuse NaN/inf weights and a normalisation no training writes (non-finite, std <= 0):
+    such a network predicts NaN, which would be scored and exported as if it were a model."""
+    stored = [(k, getattr(norm, k)) for k in ("x_mean", "x_std", "y_mean", "y_std", "play")]
+    for kind, items in (("weights", net.state_dict().items()), ("normalisation", stored)):
+        for name, t in items:
+            if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+                raise CheckpointError(
+                    f"{where}: non-finite {kind} ({name}): its training diverged or the file "
+                    "was altered; re-train it (lower train.lr) or use another checkpoint"
+                )
+    for name in ("x_std", "y_std"):
+        if not bool((getattr(norm, name) > 0).all()):
+            raise CheckpointError(
+                f"{where}: normalisation {name!r} is not positive (no training writes that); "
+                "re-train or copy the file again"
+            )
 
 
 def check_compatible(
