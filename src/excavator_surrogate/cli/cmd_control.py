@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 from pathlib import Path
+from typing import Any
 
 from .common import add_overwrite
 
@@ -131,9 +132,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--cpus must be in [1, --samples = {args.samples}], got {cpus}")
     if not args.risk >= 0:
         raise ConfigError(f"--risk must be >= 0, got {args.risk}")
+    if args.seed >= 2**32:  # PPO seeds torch, which takes no seed past 2**64; keep 32 bits
+        raise ConfigError(f"--seed {args.seed}: must be < 2**32 (a 32-bit seed)")
     if args.mppi_seeds < 1:
         raise ConfigError(f"--mppi-seeds must be >= 1, got {args.mppi_seeds}")
     sur = load_checkpoint(args.ckpt)
+    _check_mppi_memory(args, sur)
     if args.risk > 0 and member_head(sur) is None:
         raise ConfigError(
             f"--risk {args.risk:g} needs the spread of a merged seed ensemble; {args.ckpt} is "
@@ -174,3 +178,18 @@ def run(args: argparse.Namespace) -> int:
         )
     print((args.out / "report.md").read_text(), end="")
     return 0
+
+
+def _check_mppi_memory(args: argparse.Namespace, sur: Any) -> None:
+    """Refuse --samples x --horizon whose MPPI rollouts cannot fit in memory (one line, before
+    any run: 10^9 candidates used to end in the kernel's OOM killer)."""
+    from ..surrogate.sizes import check_fits
+
+    cfg = sur.model_cfg
+    per_step = sur.spec.n_u + 4 * sur.spec.n_joint + 2 * cfg.n_layer * cfg.hidden + cfg.n_feature
+    n_bytes = 8 * 4 * max(args.samples, 1) * max(args.horizon, 1) * per_step  # float64, ~4 copies
+    check_fits(
+        n_bytes,
+        what=f"--samples {args.samples} x --horizon {args.horizon} MPPI rollouts",
+        fix="lower --samples or --horizon",
+    )

@@ -27,7 +27,7 @@ measured ``wrap(θ[k] - θ[k-1]) / T_s`` when synced to a machine.
 
 With ``uncertainty=True`` (``exsur export --uncertainty``; a merged seed ensemble, stateful
 export) the graph has one more output, last: ``omega_members`` (M, n_batch, n_joint) float32,
-each member's ω̂[k+1] [rad/s] from the same network call (their std over M, ddof 1, is the
+each member's ω̂[k+1] (rad/s) from the same network call (their std over M, ddof 1, is the
 velocity spread; member m's angle is θ plus its integrated deviation from ``omega``, as in
 the environments, :mod:`.uncertainty`).  The band calibration and the training coverage
 record (for the out-of-distribution flags) travel as JSON metadata ``exsur_uncertainty`` and
@@ -256,7 +256,12 @@ def export_onnx(
                 _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
         else:
             _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
-        _add_metadata(tmp, sur, mode, n_member=module_members(module))
+        got = _add_metadata(tmp, sur, mode, n_member=module_members(module))
+        if got != opset:  # the exporter falls back to its own opset with only a logged warning
+            raise ConfigError(
+                f"{out}: the ONNX exporter cannot write opset {opset} for this graph (it wrote "
+                f"opset {got}); use --opset {got} or leave the option out (default {OPSET})"
+            )
     return out
 
 
@@ -330,7 +335,8 @@ def _export_torchscript(
         )
 
 
-def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -> None:
+def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -> int | None:
+    """Add the exsur metadata to the ONNX file at ``path``; return its default-domain opset."""
     import onnx
 
     model = onnx.load(str(path))
@@ -353,6 +359,7 @@ def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -
         p.key, p.value = k, v
     model.producer_name = "exsur"
     onnx.save(model, str(path))
+    return next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
 
 
 class OnnxStepper:
