@@ -60,7 +60,10 @@ def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -
             raise ConfigError(
                 f"{p}: preset file not found (give a shipped name: {', '.join(preset_names())})"
             )
-        text = p.read_text()
+        try:
+            text = p.read_text(encoding="utf-8")
+        except UnicodeDecodeError as e:  # a Parquet episode or checkpoint given as --preset
+            raise ConfigError(f"{p}: not a TOML text file (not UTF-8: {e.reason})") from e
         where = str(p)
     else:
         res = resources.files("excavator_surrogate") / "presets" / f"{name_or_path}.toml"

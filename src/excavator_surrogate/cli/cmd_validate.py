@@ -30,6 +30,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Validate each path; raise :class:`DataError` on the first violation."""
+    if args.min_steps < 1:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"--min-steps must be >= 1 (samples per episode), got {args.min_steps}")
     for path in args.paths:
         if path.is_dir():
             ds = load_dataset(path, min_steps=args.min_steps)

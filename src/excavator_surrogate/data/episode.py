@@ -268,18 +268,19 @@ def read_episode(
             f"joints {list(file_spec.names)} do not match the expected {list(spec.names)}",
             fix="use a dataset recorded for the same machine",
         )
+    names = pq.read_schema(path).names  # before reading: pyarrow fails on them with its schema
+    dup = sorted({c for c in names if names.count(c) > 1})
+    if dup:
+        raise DataError(path, "duplicated column", column=dup[0], fix="each column may appear once")
     try:
         table = pq.read_table(path)
     except Exception as e:
         raise DataError(
             path,
-            f"cannot read Parquet data ({type(e).__name__}: {e})",
+            f"cannot read Parquet data ({type(e).__name__}: {str(e).splitlines()[0][:160]})",
             fix="the file is corrupt; regenerate or re-import it",
         ) from e
     names = table.column_names
-    dup = sorted({c for c in names if names.count(c) > 1})
-    if dup:
-        raise DataError(path, "duplicated column", column=dup[0], fix="each column may appear once")
     cols = columns_for(file_spec)
     required = ["time", *cols["u"], *cols["theta"], *cols["omega"]]
     for c in required:
@@ -418,7 +419,7 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
             row = int(np.flatnonzero(nonmono)[0]) + 1
             raise DataError(
                 where,
-                f"time is not strictly increasing ({float(ep.time[row - 1])!r} -> {float(ep.time[row])!r})",
+                f"time is not strictly increasing ({float(ep.time[row - 1]):.12g} -> {float(ep.time[row]):.12g})",
                 column="time",
                 row=row,
                 fix="sort by time and drop duplicate timestamps",

@@ -164,7 +164,7 @@ def evaluate_checkpoint(
         raise DataError(
             dataset.root,
             f"split '{split}' has no episodes",
-            fix=f"choose a split with episodes: {[s for s, e in dataset.episodes.items() if e]}",
+            fix=f"choose a split with episodes: {_splits_with_episodes(dataset)}",
         )
     primary = sur.name.upper()
     models: dict[str, Surrogate] = {primary: sur}
@@ -256,3 +256,10 @@ def _json_safe(o: Any) -> Any:
     if isinstance(o, float) and not math.isfinite(o):
         return None
     return o
+
+
+def _splits_with_episodes(dataset: Dataset) -> list[str]:
+    """The splits of ``dataset``'s manifest that hold episodes (loaded or not)."""
+    listed = [e.get("split") for e in (dataset.manifest or {}).get("episodes", [])]
+    loaded = [s for s, e in dataset.episodes.items() if e]
+    return [s for s in ("train", "val", "test") if s in listed or s in loaded]

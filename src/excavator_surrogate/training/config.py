@@ -138,6 +138,7 @@ class TrainConfig(PresetConfig, table="train"):
             (self.lambda_bias >= 0, "lambda_bias must be >= 0"),
             (0 < self.lr <= 1, f"lr = {self.lr!r} must be in (0, 1] (typical: 1e-4 to 1e-2)"),
             (self.seed >= 0, f"seed = {self.seed} must be >= 0 (numpy seeds are non-negative)"),
+            (self.seed < 2**32, f"seed = {self.seed} must be < 2**32 (a 32-bit seed)"),
             (
                 self.max_train_seconds >= 0,
                 f"max_train_seconds = {self.max_train_seconds!r} must be >= 0 (0 = unlimited)",
