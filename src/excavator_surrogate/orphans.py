@@ -47,12 +47,20 @@ def die_with_parent(parent_pid: int, main_thread: bool = True, poll_s: float = 1
     """
     if main_thread and sys.platform.startswith("linux"):
         _arm_pdeathsig()
+    if threading.current_thread() is threading.main_thread():
+        # Ctrl-C reaches the whole process group: the parent says 'exsur: interrupted' and
+        # its workers leave quietly instead of printing one KeyboardInterrupt traceback each
+        signal.signal(signal.SIGINT, _leave_quietly)
     if os.getppid() != parent_pid:  # the parent died before the signal was armed
         os._exit(ORPHAN_EXIT)
     watch = threading.Thread(
         target=_watch, args=(parent_pid, poll_s), name="exsur-parent-watch", daemon=True
     )
     watch.start()
+
+
+def _leave_quietly(signum: int, frame: object) -> None:
+    os._exit(128 + signum)
 
 
 def _arm_pdeathsig() -> None:
