@@ -79,3 +79,21 @@ def test_a_model_folder_given_as_the_checkpoint_is_named_as_such(
     line = _fails(capsys, "evaluate", model3, data_dir / "ds3", "--out", tmp_path / "ev")
     assert f"{model3}: is a folder, not a checkpoint file" in line
     assert str(model3 / "best.pt") in line
+
+
+def test_no_checkpoint_path_is_a_config_error() -> None:
+    from excavator_surrogate.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="a checkpoint path is needed .* got NoneType"):
+        load_checkpoint(None)  # e.g. gym.make("ExcavatorSurrogate-v0", ckpt=None)
+
+
+def test_a_max_steps_below_the_warm_up_says_so(
+    model3: Path, data_dir: Path, tmp_path: Path, capsys
+) -> None:
+    out = tmp_path / "ev"
+    argv = ["evaluate", model3 / "best.pt", data_dir / "ds3", "--max-steps", 2, "--out", out]
+    line = _fails(capsys, *argv)
+    assert line.startswith("exsur: error: episode '") and "has 2 samples after max_steps" in line
+    assert "or a larger max_steps" in line
+    assert not out.exists()

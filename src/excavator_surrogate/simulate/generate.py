@@ -406,7 +406,7 @@ def simulate_dataset(
     n_samples = sum(j.n_step for j in jobs)
     _log.info(
         f"simulate: {len(jobs)} episodes, {n_samples} samples at {cfg.rate_hz:g} Hz, "
-        f"{workers} worker(s)"
+        f"{min(workers, len(jobs))} worker(s)"  # at most one per episode
     )
     t0 = time.perf_counter()
     _plant(cfg, spec)  # fail early (bad MJCF / rate / hydraulics) in the parent, one-line error

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -124,6 +125,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     Raises:
         CheckpointError: missing file, unreadable/corrupt file, or another format/version.
     """
+    if not isinstance(path, str | os.PathLike):
+        raise ConfigError(f"a checkpoint path is needed (a .pt file), got {type(path).__name__}")
     path = Path(path)
     if path.is_dir():
         raise CheckpointError(

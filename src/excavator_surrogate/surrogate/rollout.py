@@ -296,10 +296,12 @@ def batch_episodes(
     lengths = [len(u) for u in us]
     for ep, n in zip(episodes, lengths):
         if n <= warmup:
+            cut = " after max_steps" if n < len(ep.u) else ""
             raise DataError(
-                ep.name,
-                f"has {n} samples, not more than the warm-up of {warmup}",
-                fix="use longer episodes or a shorter window",
+                f"episode '{ep.name}'",
+                f"has {n} samples{cut}, not more than the warm-up of {warmup}",
+                fix="use longer episodes or a shorter window"
+                + (", or a larger max_steps" if cut else ""),
             )
     n_max = max(lengths)
     pad_u = np.stack([np.pad(u, ((0, n_max - len(u)), (0, 0)), mode="edge") for u in us])
