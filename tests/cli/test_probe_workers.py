@@ -4,7 +4,6 @@ and its log line now says so (it said ``1000000 worker(s)``)."""
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import ClassVar
 
@@ -13,14 +12,23 @@ import pytest
 from excavator_surrogate.simulate import generate
 
 
-class _Pool(ThreadPoolExecutor):
-    """Stands in for the spawn pool (no processes in a unit test); records its size."""
+class _Pool:
+    """Stands in for the spawn pool: records its size, runs the jobs inline one by one (no
+    processes or threads in a unit test; the MuJoCo rollouts are not run concurrently)."""
 
     sizes: ClassVar[list[int]] = []
 
     def __init__(self, max_workers: int, mp_context=None, initializer=None, initargs=()) -> None:
         _Pool.sizes.append(max_workers)
-        super().__init__(max_workers=max_workers)
+
+    def __enter__(self) -> _Pool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def map(self, fn, items):
+        return map(fn, items)
 
 
 def test_the_log_names_the_workers_that_run(
