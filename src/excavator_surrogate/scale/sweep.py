@@ -106,6 +106,11 @@ class SweepConfig(PresetConfig, table="sweep"):
             )
         if self.epochs < 1 or self.top < 1:
             raise ConfigError("[sweep] epochs and top must be >= 1")
+        if not self.max_train_seconds >= 0:  # every trial would fail, and the sweep exit 0
+            raise ConfigError(
+                f"[sweep] max_train_seconds = {self.max_train_seconds!r} must be >= 0 "
+                "(0 = unlimited; --trial-seconds)"
+            )
         if self.pruner_startup < 0 or self.pruner_warmup < 0 or self.sampler_startup < 0:
             raise ConfigError("[sweep] pruner_startup, pruner_warmup, sampler_startup must be >= 0")
 
