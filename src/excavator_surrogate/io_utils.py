@@ -93,6 +93,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     On any exception the temporary file is removed and ``path`` is left untouched.
     """
     path = Path(path)
+    if path.is_dir():  # os.replace would fail at the end, naming the temporary file
+        from .errors import ConfigError
+
+        raise ConfigError(f"{path}: is a folder; give a file name inside it or another path")
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path)
     fd, tmp = tempfile.mkstemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent)

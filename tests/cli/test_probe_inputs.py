@@ -102,3 +102,12 @@ def test_time_going_backwards_is_shown_in_short_numbers(data_dir: Path, tmp_path
     pq.write_table(table.set_column(i, "time", pa.array(t)), bad)
     line = _fails(capsys, "validate", bad)
     assert "column 'time', row 1: time is not strictly increasing (1 -> 0.3)" in line
+
+
+def test_an_episode_file_given_as_the_dataset_is_named_a_file(
+    data_dir: Path, tmp_path: Path, capsys
+) -> None:
+    ep = _episode(data_dir)
+    line = _fails(capsys, "train", ep, "--preset", data_dir / "tiny.toml", "--out", tmp_path / "m")
+    assert line.startswith(f"exsur: error: {ep}: is a file, not a dataset folder")
+    assert not (tmp_path / "m").exists()

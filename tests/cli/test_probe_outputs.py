@@ -62,3 +62,18 @@ def test_control_refuses_a_seed_ppo_cannot_take(model3: Path, tmp_path: Path, ca
     line = _fails(capsys, "control", model3 / "best.pt", "--seed", 10**23, "--out", out)
     assert f"--seed {10**23}: must be < 2**32" in line
     assert not out.exists()
+
+
+def test_the_api_refuses_a_folder_as_a_file_output(model3: Path, tmp_path: Path) -> None:
+    """export_onnx(ckpt, folder) raised IsADirectoryError naming its temporary file."""
+    pytest.importorskip("onnx")
+    from excavator_surrogate.env.export import export_onnx
+    from excavator_surrogate.errors import ConfigError
+
+    folder = tmp_path / "exports"
+    folder.mkdir()
+    with pytest.raises(ConfigError, match=f"{folder}: is a folder; give a file name"):
+        export_onnx(model3 / "best.pt", folder)
+    assert list(folder.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == [
+        "exports"
+    ]

@@ -136,6 +136,12 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
     """Read and check ``root/manifest.json``."""
     root = Path(root)
     mpath = root / MANIFEST
+    if root.is_file():
+        raise DataError(
+            root,
+            "is a file, not a dataset folder",
+            fix="give the folder that holds manifest.json; 'exsur validate' checks single episodes",
+        )
     if not root.is_dir():
         raise DataError(
             root, "dataset folder not found", fix="run 'exsur simulate' or 'exsur import' first"
