@@ -96,10 +96,8 @@ def tb_writer(out: Path, enabled: bool) -> Any:
         return None
     try:
         from torch.utils.tensorboard import SummaryWriter
-    except Exception:  # tensorboard not installed
-        _log.warning(
-            "tensorboard is not installed; skipping TensorBoard logs (pip install tensorboard)"
-        )
+    except Exception:  # tensorboard not installed: an optional extra, log.csv has the same
+        _log.info("no TensorBoard logs (pip install 'excavator-surrogate[tensorboard]'): log.csv")
         return None
     return SummaryWriter(log_dir=str(out / "tb"))
 
