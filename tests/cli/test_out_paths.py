@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from tests.helpers.cli import fails
 
 from excavator_surrogate.cli import main
 from excavator_surrogate.outdir import MARKER, is_exsur_output, read_marker
@@ -20,17 +21,6 @@ HOLD = (  # what a running exsur writer holds: an flock on .NAME.lock next to it
     "f = open(p.parent / f'.{p.name}.lock', 'w'); fcntl.flock(f, fcntl.LOCK_EX); "
     "f.write(str(os.getpid())); f.flush(); print('locked', flush=True); sys.stdin.read()"
 )
-
-
-def fails(capsys: pytest.CaptureFixture[str], *argv: object) -> str:
-    """Run exsur; assert exit code 2 and a one-line error after the progress lines; return it."""
-    rc = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert rc == 2, err
-    assert "Traceback" not in err, err
-    last = err.rstrip("\n").split("\n")[-1]
-    assert last.startswith("exsur: error: ") and err.count("exsur: error:") == 1, err
-    return last
 
 
 def _leftovers(out: Path) -> list[str]:

@@ -11,20 +11,10 @@ from pathlib import Path
 
 import pytest
 import torch
+from tests.helpers.cli import fails as _fails
 
-from excavator_surrogate.cli import main
 from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
-
-
-def _fails(capsys: pytest.CaptureFixture[str], *argv: object) -> str:
-    rc = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert rc == 2, err
-    assert "Traceback" not in err, err
-    last = err.rstrip("\n").split("\n")[-1]
-    assert last.startswith("exsur: error: ") and err.count("exsur: error:") == 1, err
-    return last
 
 
 def _altered(model3: Path, tmp_path: Path, name: str, change) -> Path:

@@ -12,22 +12,12 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from tests.helpers.cli import fails as _fails
 
-from excavator_surrogate.cli import main
 from excavator_surrogate.config import from_dict
 from excavator_surrogate.data.episode import read_episode
 from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.training import TrainConfig
-
-
-def _fails(capsys: pytest.CaptureFixture[str], *argv: object) -> str:
-    rc = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert rc == 2, err
-    assert "Traceback" not in err, err
-    last = err.rstrip("\n").split("\n")[-1]
-    assert last.startswith("exsur: error: ") and err.count("exsur: error:") == 1, err
-    return last
 
 
 def _episode(data_dir: Path) -> Path:

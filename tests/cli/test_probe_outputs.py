@@ -10,17 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from tests.helpers.cli import fails as _fails
 
 from excavator_surrogate.cli import main
-
-
-def _fails(capsys: pytest.CaptureFixture[str], *argv: object) -> str:
-    rc = main([str(a) for a in argv])
-    err = capsys.readouterr().err
-    assert rc == 2, err
-    last = err.rstrip("\n").split("\n")[-1]
-    assert last.startswith("exsur: error: ") and err.count("exsur: error:") == 1, err
-    return last
 
 
 @pytest.mark.parametrize("opset", [3, 999])

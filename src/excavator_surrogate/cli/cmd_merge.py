@@ -35,9 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
     from ..surrogate.ensemble import merge, non_finite_weight
 
-    check_out_file(
-        args.out, inputs=args.ckpts, example="ensemble.pt", overwrite=args.overwrite
-    )
+    check_out_file(args.out, inputs=args.ckpts, example="ensemble.pt", overwrite=args.overwrite)
     _check_distinct(args.ckpts)
     members = [load_checkpoint(p) for p in args.ckpts]
     for p, m in zip(args.ckpts, members):

@@ -20,8 +20,8 @@ from typing import Any
 
 from ..data.dataset import Dataset
 from ..errors import ExsurError
-from .config import TrainConfig
 from ..orphans import die_with_parent, parent_args
+from .config import TrainConfig
 
 
 @dataclass(frozen=True)
