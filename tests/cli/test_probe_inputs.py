@@ -101,3 +101,20 @@ def test_an_episode_file_given_as_the_dataset_is_named_a_file(
     line = _fails(capsys, "train", ep, "--preset", data_dir / "tiny.toml", "--out", tmp_path / "m")
     assert line.startswith(f"exsur: error: {ep}: is a file, not a dataset folder")
     assert not (tmp_path / "m").exists()
+
+
+def test_a_huge_ensemble_and_a_text_start_pose_are_one_line(capsys, tmp_path):
+    import gymnasium as gym
+
+    import excavator_surrogate  # noqa: F401  (registers the envs)
+
+    with pytest.raises(ConfigError, match=r"members = 100000 must be in \[1, 64\]"):
+        TrainConfig(members=100000)
+    env = gym.make("ExcavatorMujoco-v0")
+    try:
+        with pytest.raises(ConfigError, match="theta0 must be 4 finite angles"):
+            env.reset(options={"theta0": "x"})
+        with pytest.raises(ConfigError, match="theta0 must be 4 finite angles"):
+            env.reset(options={"theta0": [0.0, None, [1], 0.0]})
+    finally:
+        env.close()

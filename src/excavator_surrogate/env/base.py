@@ -90,11 +90,14 @@ def observation_space(
 
 def check_theta0(spec: MachineSpec, theta0: Any, *, where: str) -> np.ndarray:
     """Validate a start pose: (n_joint,) finite, limited joints inside their limits."""
-    th = np.asarray(theta0, dtype=np.float64).reshape(-1)
+    try:
+        th = np.asarray(theta0, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):  # text, ragged lists, None entries
+        th = np.full(0, np.nan)
     if th.shape != (spec.n_joint,) or not np.isfinite(th).all():
         raise ConfigError(
             f"{where}: theta0 must be {spec.n_joint} finite angles in rad for joints "
-            f"{list(spec.names)}, got {np.asarray(theta0).tolist()}"
+            f"{list(spec.names)}, got {theta0!r:.200}"
         )
     for k, j in enumerate(spec.joints):
         if j.periodic:

@@ -21,6 +21,9 @@ MODE_FIELDS: dict[str, tuple[str, ...]] = {
 }
 """Fields read by one training mode only (every other field is read by both)."""
 
+MAX_MEMBERS = 64
+"""Most seed-ensemble members (each one is a full training run)."""
+
 
 @dataclass(frozen=True)
 class TrainConfig(PresetConfig, table="train"):
@@ -149,7 +152,11 @@ class TrainConfig(PresetConfig, table="train"):
             (self.seq_len > self.burn_in, "seq_len must exceed burn_in"),
             (self.tbptt >= 1, "tbptt must be >= 1"),
             (self.velocity_input or not self.residual, "residual needs velocity_input = true"),
-            (self.members >= 1, "members must be >= 1"),
+            (
+                1 <= self.members <= MAX_MEMBERS,
+                f"members = {self.members} must be in [1, {MAX_MEMBERS}] (4 already average "
+                "out the seed; each member is a full training)",
+            ),
             (math.isfinite(self.limit_margin), "limit_margin must be finite"),
             (math.isfinite(self.speed_margin), "speed_margin must be finite"),
             (self.member_workers >= 0, "member_workers must be >= 0"),
