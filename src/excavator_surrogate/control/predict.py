@@ -11,7 +11,8 @@ out from the machine's current state in ONE batched call (``predict``):
   candidates together, ``n_step`` batched steps (with ``workers > 1``, split over helper
   processes, :mod:`.workers`).  For a merged seed ensemble, :meth:`~SurrogatePredictor.predict_risk`
   also returns every candidate's member spread and out-of-distribution flags from the same
-  batched calls (:func:`.workers.member_omega`), which MPPI's ``risk`` weight adds to the cost.
+  batched calls (an engine that tracks the members, :func:`.workers.rollout`), which MPPI's
+  ``risk`` weight adds to the cost.
 - :class:`PlantPredictor`: the oracle.  It reads the full physics state of the plant (and
   the hydraulic transform's command history) and continues it with ``mujoco.rollout`` on a
   copy of the plant, i.e. planning through the plant model itself.
@@ -22,7 +23,7 @@ from __future__ import annotations
 from contextlib import nullcontext
 from functools import partial
 from itertools import pairwise
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import torch
@@ -123,6 +124,7 @@ class SurrogatePredictor:
         """Velocity-bias estimate (n_joint,) [rad/s] (zero unless ``bias_gain > 0``)."""
         self.head = member_head(self.batch.sur)
         """The members' output layer (None: a single network, no spread)."""
+        self._risk_batch: Any = None  # this process's engine that tracks the members (lazy)
         self.coverage: CoverageRecord | None = stored_coverage(sur)
         """The training data's coverage record (None: no out-of-distribution flags)."""
 
@@ -156,13 +158,17 @@ class SurrogatePredictor:
         if self.workers:  # numpy, not tensors: no shared-memory files per call
             state = {k: v.numpy() if isinstance(v, torch.Tensor) else v for k, v in state.items()}
         e = self._edges
-        head = self.head if members else None
+        engine = self.batch
+        if members:
+            if self._risk_batch is None:
+                self._risk_batch = self._engine(n_envs=e[1], uncertainty=True)
+            engine = self._risk_batch
         try:
             for w, a, b in zip(self.workers, e[1:-1], e[2:]):
                 w.submit(state, u[a:b], members=members)
             # one torch thread per process, this one too: they share the cores
             with OneThread() if self.workers else nullcontext():
-                parts = [rollout(self.batch, state, u[: e[1]], head)]
+                parts = [rollout(engine, state, u[: e[1]], members)]
             parts += [w.result() for w in self.workers]
         except BaseException:
             self.close()  # no worker is left with an unread answer; later calls run here

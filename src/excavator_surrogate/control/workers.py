@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import weakref
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -21,52 +22,34 @@ import torch
 from ..errors import ExsurError
 from ..io_utils import worker_log_config
 from ..orphans import die_with_parent, parent_args
-from ..surrogate.ensemble import member_head
 from ..surrogate.model import Surrogate
 
 
 @torch.inference_mode()
-def rollout(engine: Any, state: dict[str, Any], u: np.ndarray, head: Any = None) -> np.ndarray:
+def rollout(engine: Any, state: dict[str, Any], u: np.ndarray, members: bool = False) -> np.ndarray:
     """Fork ``engine`` from ``state`` and step the commands ``u`` (n_batch, n_step, n_u).
 
     Returns the angles ``theta[k+1..k+n_step]`` (n_batch, n_step, n_joint) [rad], float64.
-    With ``head`` (the :class:`~excavator_surrogate.surrogate.ensemble.MemberHead` of the
-    engine's merged ensemble): ``(3, n_batch, n_step, n_joint)``, the angles, the velocities
-    [rad/s] and the members' angle spread [rad] (:func:`member_omega`), from the same calls.
+    With ``members`` (``engine`` built with ``uncertainty=True`` on a merged ensemble):
+    ``(3, n_batch, n_step, n_joint)``, the angles, the velocities [rad/s] and the members'
+    angle spread [rad], the std over the members of the engine's own member deviations
+    (:class:`~excavator_surrogate.env.uncertainty.StepUncertainty`, design ``shared``), from
+    the same calls.
     """
-    engine.fork_state(state)
+    engine.fork_state(state)  # also restarts the members' deviations at zero
     u_t = torch.from_numpy(np.ascontiguousarray(u, dtype=np.float32))
     n_batch, n_step, _ = u.shape
-    n_out = 1 if head is None else 3
-    out = torch.empty(n_out, n_batch, n_step, engine.spec.n_joint, dtype=torch.float64)
-    cum = None  # (M, n_batch, n_joint) each member's integrated velocity [rad]
+    out = torch.empty(
+        3 if members else 1, n_batch, n_step, engine.spec.n_joint, dtype=torch.float64
+    )
     for k in range(n_step):
-        if head is None:
-            theta, _ = engine.step(u_t[:, k])
-            out[0, :, k] = theta
-            continue
-        with head.capture():
-            theta, omega = engine.step(u_t[:, k])
-        out[0, :, k], out[1, :, k] = theta, omega
-        step = member_omega(engine, head).double() * engine.dt
-        cum = step if cum is None else cum + step
-        out[2, :, k] = cum.std(dim=0) if cum.shape[0] > 1 else 0.0
-    return out[0].numpy() if head is None else out.numpy()
-
-
-def member_omega(engine: Any, head: Any) -> torch.Tensor:
-    """Each member's velocity (M, n_envs, n_joint) [rad/s] at the engine's last step, up to
-    one offset common to all members (a residual head's velocity feature; it cancels in the
-    spread), from that step's own network call: the recurrent output of the top layer
-    (stateful) or the head activations captured during the call (windowed) through the
-    members' blocks of the merged output layer.  ``head`` must have captured the step."""
-    if engine.mode == "stateful":
-        h_top = engine.dense_state()[0][-1]  # (n_envs, hidden)
-        net_head = engine.sur.net.head
-        head.a = net_head[1](net_head[0](h_top))
-    assert head.a is not None
-    zero = head.a.new_zeros(head.a.shape[0], head.n_joint)
-    return engine.norm.omega(head.outputs(zero))
+        theta, omega = engine.step(u_t[:, k])
+        out[0, :, k] = theta
+        if members:
+            dev = engine.unc.dev  # (M, n_batch, n_joint) [rad]
+            out[1, :, k] = omega
+            out[2, :, k] = dev.std(dim=0) if dev.shape[0] > 1 else 0.0
+    return out.numpy() if members else out[0].numpy()
 
 
 def _serve(
@@ -88,10 +71,10 @@ def _serve(
     init_worker_logging(log_config, tag="exsur-rollout")  # the parent's level
 
     torch.set_num_threads(1)
+    make = partial(SurrogateEngine, sur, n_envs=n_batch, mode=mode)
     try:
-        engine = SurrogateEngine(sur, n_envs=n_batch, mode=mode)  # type: ignore[arg-type]
-        head = member_head(engine.sur)
-        conn.send(("ready", engine.impl))
+        engines = {False: make()}  # with members: a second engine, built on first use
+        conn.send(("ready", engines[False].impl))
     except Exception as e:  # reported to the parent, which raises it
         conn.send(("error", f"{type(e).__name__}: {e}"))
         return
@@ -104,7 +87,9 @@ def _serve(
             return
         try:
             state, u, members = msg
-            conn.send(("ok", rollout(engine, state, u, head if members else None)))
+            if members not in engines:
+                engines[members] = make(uncertainty=True)
+            conn.send(("ok", rollout(engines[members], state, u, members)))
         except Exception as e:
             conn.send(("error", f"{type(e).__name__}: {e}"))
 
