@@ -14,6 +14,7 @@ from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names, ood_flags
 from excavator_surrogate.surrogate.ensemble import merge
 
 EPS32 = float(np.finfo(np.float32).eps)
@@ -82,3 +83,85 @@ def test_uncertainty_export_refuses_what_has_none(make_surrogate, tmp_path: Path
     argv = ["export", str(single_ckpt), "--out", str(tmp_path / "s.onnx"), "--uncertainty"]
     assert main(argv) == 2
     assert "no ensemble members" in capsys.readouterr().err
+
+
+def _record(spec, rng: np.random.Generator) -> CoverageRecord:
+    """A coverage record whose boxes cut through what the test drives (flags fire and stay
+    off), with a grid holding empty cells."""
+    n_j = spec.n_joint
+    lo = np.concatenate([np.full(n_j, -600.0), [-7.0, 0.3, 1.2, 0.2], np.full(n_j, -0.5)])
+    hi = np.concatenate([np.full(n_j, 600.0), [7.0, 0.9, 2.4, 1.4], np.full(n_j, 0.5)])
+    grid = (rng.uniform(size=(n_j, 10, 10)) > 0.6).astype(np.int64)
+    return CoverageRecord(channel_names(spec), lo, hi, grid, n_sample=1000)
+
+
+@pytest.mark.parametrize(
+    ("exporter", "kw"),
+    [
+        ("torchscript", dict(play=(0.05, 0.2))),
+        ("dynamo", dict(omega_in=True, residual=True)),
+    ],
+    ids=["omega_prev-input", "velocity-feature"],
+)
+def test_ood_output_equals_the_python_flags(make_surrogate, tmp_path: Path, exporter, kw) -> None:
+    """The graph's ``ood`` output is ``ood_flags`` of the sample each step predicts from
+    (theta[k], omega[k], u[k]) and the engine's flag, step by step; without a velocity
+    feature omega[k] enters as ``omega_prev``."""
+    sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful", **kw) for s in range(2)])
+    rec = _record(sur.spec, np.random.default_rng(1))
+    sur.metrics["coverage"] = rec.to_dict()
+    path = export_onnx(sur, tmp_path / "ens.onnx", exporter=exporter, uncertainty=True)
+    model = onnx.load(str(path))
+    assert [o.name for o in model.graph.output][-2:] == ["omega_members", "ood"]
+    has_prev = "omega_prev" in [i.name for i in model.graph.input]
+    assert has_prev == (not kw.get("omega_in", False))
+    assert {p.key: p.value for p in model.metadata_props}["exsur_ood"] == "1"
+    stepper = OnnxStepper(path)
+    n = 6
+    engine = SurrogateEngine(sur, n_envs=n, uncertainty=True)
+    rng = np.random.default_rng(4)
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.6, 1.8, 0.8])
+    stepper.reset(theta0)
+    engine.reset(theta0)
+    fired, n_flag = [], 0
+    for _ in range(30):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        theta_k, omega_k = stepper.theta.astype(np.float64), stepper.w.astype(np.float64)
+        stepper.step(u)
+        engine.step(u)
+        u32 = u.astype(np.float32).astype(np.float64)  # what the graph saw
+        want = ood_flags(rec, sur.spec, theta_k, omega_k, u32)
+        assert stepper.ood is not None and stepper.ood.dtype == bool
+        np.testing.assert_array_equal(stepper.ood, want)
+        np.testing.assert_array_equal(stepper.ood, engine.unc.ood.numpy())
+        fired.append(want)
+        n_flag += int(want.sum())
+    share = n_flag / np.size(fired)
+    assert 0.05 < share < 0.95  # both outcomes are exercised
+
+
+def test_no_coverage_record_no_ood_output(make_surrogate, tmp_path: Path) -> None:
+    sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful") for s in range(2)])
+    path = export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript", uncertainty=True)
+    model = onnx.load(str(path))
+    assert [o.name for o in model.graph.output][-1] == "omega_members"
+    assert "omega_prev" not in [i.name for i in model.graph.input]
+    assert {p.key: p.value for p in model.metadata_props}["exsur_ood"] == "0"
+    stepper = OnnxStepper(path)
+    stepper.reset(np.array([[0.0, 0.6, 1.8, 0.8]]))
+    stepper.step(np.zeros((1, 4)))
+    assert stepper.ood is None
+
+
+def test_cli_checks_the_ood_output(make_surrogate, tmp_path: Path, capsys) -> None:
+    """``exsur export --uncertainty`` steps the graph beside the engine and counts the flags
+    that differ (none)."""
+    sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful") for s in range(2)])
+    sur.metrics["coverage"] = _record(sur.spec, np.random.default_rng(2)).to_dict()
+    ckpt = save_checkpoint(tmp_path / "ens.pt", sur)
+    out = tmp_path / "ens.onnx"
+    argv = ["export", str(ckpt), "--out", str(out), "--uncertainty", "--exporter", "torchscript"]
+    assert main(argv) == 0
+    msg = capsys.readouterr().out
+    assert "OOD flags:" in msg and ", 0 differ in onnxruntime" in msg
+    assert "OOD flags: 0 raised" not in msg

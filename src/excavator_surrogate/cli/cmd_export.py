@@ -42,7 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="add the output omega_members (M, batch, joints): each ensemble member's omega "
         "from the same call, whose spread is the uncertainty (a merged seed ensemble, "
-        "stateful graph); the band calibration and coverage record go into the metadata",
+        "stateful graph) and, with a training coverage record, the output ood (batch, joints): "
+        "the per-joint out-of-distribution flag; the band calibration and coverage record go "
+        "into the metadata",
     )
     p.add_argument("--no-verify", action="store_true", help="skip the onnxruntime check")
     p.set_defaults(func=run)
@@ -79,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         engine = SurrogateEngine(sur, n_envs=4, mode=mode, uncertainty=args.uncertainty)
         stepper.reset(theta0)
         engine.reset(theta0)
-        err = 0.0
+        err, n_flag, n_differ = 0.0, 0, 0
         for _ in range(50):
             u = rng.uniform(lo, hi, (4, sur.spec.n_u))
             th, om = stepper.step(u)
@@ -89,6 +91,12 @@ def run(args: argparse.Namespace) -> int:
             if args.uncertainty and engine.unc is not None:
                 om_m = engine.unc.omega_members.cpu().numpy()
                 err = max(err, float(np.abs(stepper.omega_members - om_m).max()))
+            if stepper.ood is not None and engine.unc is not None:
+                ood_t = engine.unc.ood.cpu().numpy()
+                n_flag += int(ood_t.sum())
+                n_differ += int((stepper.ood != ood_t).sum())
         msg += f"; max |torch - onnxruntime| over 50 steps = {err:.2e}"
+        if stepper.ood is not None:
+            msg += f"; OOD flags: {n_flag} raised by torch, {n_differ} differ in onnxruntime"
     print(msg)
     return 0

@@ -30,8 +30,14 @@ export) the graph has one more output, last: ``omega_members`` (M, n_batch, n_jo
 each member's ω̂[k+1] (rad/s) from the same network call (their std over M, ddof 1, is the
 velocity spread; member m's angle is θ plus its integrated deviation from ``omega``, as in
 the environments, :mod:`.uncertainty`).  The band calibration and the training coverage
-record (for the out-of-distribution flags) travel as JSON metadata ``exsur_uncertainty`` and
-``exsur_coverage`` (the checkpoint's ``metrics`` records, ``{}`` if it has none).
+record travel as JSON metadata ``exsur_uncertainty`` and ``exsur_coverage`` (the checkpoint's
+``metrics`` records, ``{}`` if it has none).  When the checkpoint has a coverage record, the
+out-of-distribution flag is in the graph too: output ``ood`` (n_batch, n_joint) bool, after
+``omega_members``, the whole test of
+:func:`~excavator_surrogate.surrogate.coverage.ood_flags` (command, angle and velocity boxes,
+the (angle, command) occupancy grid) on the sample the step predicts from: ``theta``, ``u``
+and ω[k], which is the input ``w`` with a velocity feature, else one more input, last,
+``omega_prev`` (n_batch, n_joint) [rad/s]: the previous step's ``omega`` (zeros at rest).
 
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
 of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
@@ -43,7 +49,9 @@ The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON 
 spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``,
 ``exsur_play`` (JSON list of play half-widths, empty without play features),
 ``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_members`` (M with the
-``omega_members`` output, else ``0``).
+``omega_members`` output, else ``0``), ``exsur_ood`` (``1`` with the ``ood`` output),
+``exsur_units`` (JSON, per joint: ``theta``/``omega`` in rad or, for a linear joint, m, and
+the ``display`` unit its mapping gave with the ``factor`` into it, :func:`units_metadata`).
 :class:`OnnxStepper` runs the exported file with the same warm-up convention as the
 environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 """
@@ -62,11 +70,14 @@ from torch import nn
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
+from ..surrogate.coverage import channel_names
 from ..surrogate.features import integrate, play_features, play_np, scale_commands_np
 from ..surrogate.model import Surrogate
+from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode
 from .fused import FusedMembersStep, FusedStep, add_end_stops, end_stops, rest_command
 from .surrogate_env import load_surrogate
+from .uncertainty import OodFlags
 
 OPSET = 18
 Exporter = Literal["auto", "dynamo", "torchscript"]
@@ -120,6 +131,35 @@ class WindowStep(nn.Module):
         return omega, theta_next
 
 
+class _StatefulOod(nn.Module):
+    """A stateful members step (:class:`~.fused.FusedMembersStep`) with the ``ood`` output
+    last (:class:`~.uncertainty.OodFlags` on ``theta``, ``u`` and ω[k]).  The inputs after
+    ``h``, ``c`` are, in order and when present: ``z``, ``w``, ``omega_prev`` (ω[k] when
+    there is no ``w``)."""
+
+    def __init__(self, step: FusedMembersStep, box: OodFlags, *, play: bool, omega_in: bool):
+        super().__init__()
+        self.step, self.box = step, box
+        self.play, self.omega_in = play, omega_in
+
+    def forward(
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        h: torch.Tensor,
+        c: torch.Tensor,
+        e1: torch.Tensor | None = None,
+        e2: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, ...]:
+        """The step's outputs, then ``ood``."""
+        rest = [e for e in (e1, e2) if e is not None]
+        z = rest.pop(0) if self.play else None
+        w = rest.pop(0) if self.omega_in else None
+        omega_k = w if w is not None else rest.pop(0)
+        outs = self.step(theta, u, h, c, z, w)
+        return (*outs, self.box(theta, u, omega_k))
+
+
 class _VelocityOnly(nn.Module):
     """``forward(theta, u, [h, c,] w)`` of a step without play features: the velocity
     feature is the graph's last input (no ``z`` input in between)."""
@@ -171,7 +211,8 @@ def export_onnx(
             ``torchscript`` (legacy, deprecated by torch but ~0.1 s) or ``auto`` (dynamo,
             falling back to torchscript if it fails).
         uncertainty: add the ``omega_members`` output (a merged seed ensemble, stateful
-            export; see the module docstring).
+            export) and, with a coverage record in the checkpoint, the ``ood`` output (see the
+            module docstring).
 
     Returns:
         The written path.
@@ -220,6 +261,17 @@ def export_onnx(
         if uncertainty:
             outputs.append("omega_members")
             axes["omega_members"] = {1: "batch"}
+            rec = stored_coverage(sur)
+            if rec is not None and rec.channels == channel_names(spec):
+                box = OodFlags(rec, spec, dtype=torch.float32)
+                inner = getattr(module, "step", module)
+                module = _StatefulOod(inner, box, play=bool(n_play), omega_in=omega_in).eval()
+                if not omega_in:
+                    args = (*args, torch.zeros(n_b, n_joint))
+                    inputs.append("omega_prev")
+                    axes["omega_prev"] = {0: "batch"}
+                outputs.append("ood")
+                axes["ood"] = {0: "batch"}
     elif mode == "windowed":
         module = WindowStep(sur).eval()
         w = sur.window
@@ -256,7 +308,9 @@ def export_onnx(
                 _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
         else:
             _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
-        got = _add_metadata(tmp, sur, mode, n_member=module_members(module))
+        got = _add_metadata(
+            tmp, sur, mode, n_member=module_members(module), ood=isinstance(module, _StatefulOod)
+        )
         if got != opset:  # the exporter falls back to its own opset with only a logged warning
             raise ConfigError(
                 f"{out}: the ONNX exporter cannot write opset {opset} for this graph (it wrote "
@@ -286,7 +340,7 @@ def _export_dynamo(
     from torch.export import Dim
 
     batch = Dim("batch", min=1)
-    shapes = {name: {ax: batch for ax in axes[name]} for name in inputs}
+    shapes = tuple({ax: batch for ax in axes[name]} for name in inputs)  # positional
     loggers = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "torch._dynamo")]
     levels = [lg.level for lg in loggers]
     try:
@@ -335,7 +389,9 @@ def _export_torchscript(
         )
 
 
-def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -> int | None:
+def _add_metadata(
+    path: Path, sur: Surrogate, mode: str, *, n_member: int = 0, ood: bool = False
+) -> int | None:
     """Add the exsur metadata to the ONNX file at ``path``; return its default-domain opset."""
     import onnx
 
@@ -351,8 +407,10 @@ def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -
         "exsur_play": json.dumps(list(sur.norm.play_widths)),
         "exsur_omega_in": str(int(sur.norm.omega_in)),
         "exsur_members": str(int(n_member)),
+        "exsur_ood": str(int(ood)),
         "exsur_uncertainty": json.dumps((sur.metrics or {}).get("uncertainty") or {}),
         "exsur_coverage": json.dumps((sur.metrics or {}).get("coverage") or {}),
+        "exsur_units": json.dumps(units_metadata(sur.spec)),
     }
     for k, v in meta.items():
         p = model.metadata_props.add()
@@ -360,6 +418,21 @@ def _add_metadata(path: Path, sur: Surrogate, mode: str, *, n_member: int = 0) -
     model.producer_name = "exsur"
     onnx.save(model, str(path))
     return next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
+
+
+def units_metadata(spec: MachineSpec) -> dict[str, dict[str, str]]:
+    """Per joint, the units of the graph's ``theta`` / ``omega`` (stored SI: rad or m, rad/s
+    or m/s) and the unit the user's mapping gave (``display``: ``rad``, ``mm`` ...; values x
+    ``factor`` are in it): the ``exsur_units`` metadata."""
+    return {
+        j.name: {
+            "theta": "m" if j.linear else "rad",
+            "omega": "m/s" if j.linear else "rad/s",
+            "display": j.display_unit,
+            "factor": repr(j.display_factor),
+        }
+        for j in spec.joints
+    }
 
 
 class OnnxStepper:
@@ -406,6 +479,11 @@ class OnnxStepper:
         """M of the ``omega_members`` output (0: none)."""
         self.omega_members: np.ndarray | None = None
         """(M, n_batch, n_joint) each member's omega of the last step [rad/s] (with M > 0)."""
+        self._outputs = [o.name for o in self.session.get_outputs()]
+        self._omega_prev = "omega_prev" in {i.name for i in self.session.get_inputs()}
+        self.ood: np.ndarray | None = None
+        """(n_batch, n_joint) bool: the last step's sample left the training coverage (graphs
+        with the ``ood`` output; None otherwise)."""
         n_joint = self.spec.n_joint
         self.w = np.zeros((0, n_joint), dtype=np.float32)
         """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
@@ -436,6 +514,8 @@ class OnnxStepper:
                     feed["z"] = z_rest
                 if self.omega_in:
                     feed["w"] = self.w
+                if self._omega_prev:
+                    feed["omega_prev"] = self.w
                 _, _, self.h, self.c, *_ = self.session.run(None, feed)
         else:
             self._theta_win = np.repeat(theta0[:, None], self.window, axis=1)
@@ -461,12 +541,15 @@ class OnnxStepper:
                 feed["w"] = self.w
             if len(self.play):
                 feed["z"] = self.z
-            outs = self.session.run(None, feed)
-            omega, theta, self.h, self.c = outs[:4]
-            if len(self.play):
-                self.z = outs[4]
-            if self.n_member:
-                self.omega_members = outs[-1]
+            if self._omega_prev:
+                feed["omega_prev"] = self.w  # the previous step's omega
+            outs = dict(zip(self._outputs, self.session.run(None, feed)))
+            omega, theta, self.h, self.c = (
+                outs[k] for k in ("omega", "theta_next", "h_out", "c_out")
+            )
+            self.z = outs.get("z_out", self.z)
+            self.omega_members = outs.get("omega_members")
+            self.ood = outs.get("ood")
         else:
             self.z = self._play_update(self.z, u)
             self._theta_win[:, -1] = self.theta

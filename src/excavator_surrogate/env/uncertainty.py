@@ -23,7 +23,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..surrogate.coverage import channel_names, seen_cells
+from ..spec import MachineSpec
+from ..surrogate.coverage import CoverageRecord, channel_names, seen_cells
 from ..surrogate.ensemble import MemberHead, member_head
 from ..surrogate.model import Surrogate
 from ..surrogate.uncertainty import NO_MEMBERS, stored_calibration, stored_coverage
@@ -97,6 +98,56 @@ def notes(sur: Surrogate) -> list[str]:
     return out
 
 
+class OodFlags(torch.nn.Module):
+    """:func:`~excavator_surrogate.surrogate.coverage.ood_flags` of one step in torch tensor
+    ops (box test on command, angle and velocity, the (angle, command) occupancy grid with its
+    one-cell tolerance): the engine's flags and the ONNX ``ood`` output.
+
+    ``forward(theta, u, omega)``: ``theta`` (n, n_joint) [rad], ``u`` (n, n_u), ``omega``
+    (n, n_joint) [rad/s] of one sample (NaN values are not checked) -> (n, n_joint) bool.
+
+    Args:
+        rec: the training data's coverage record (channels in ``spec``'s order).
+        spec: the machine.
+        dtype: of the record's bounds (the inputs are compared in it).
+    """
+
+    def __init__(self, rec: CoverageRecord, spec: MachineSpec, *, dtype: torch.dtype) -> None:
+        super().__init__()
+        n_joint, n_u = spec.n_joint, spec.n_u
+        self.n_joint, self.n_u, self.n_bin = n_joint, n_u, rec.n_bin
+        t = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype)  # noqa: E731
+        iu, it = np.arange(n_joint), n_u + np.arange(n_joint)
+        self.register_buffer("lo", t(rec.lo))
+        self.register_buffer("hi", t(rec.hi))
+        self.register_buffer("t_lo", t(rec.lo[it]))
+        self.register_buffer("t_hi", t(rec.hi[it]))
+        self.register_buffer("t_span", t(np.maximum(rec.hi[it] - rec.lo[it], 1e-12)))
+        self.register_buffer("u_lo", t(rec.lo[iu]))
+        self.register_buffer("u_hi", t(rec.hi[iu]))
+        self.register_buffer("u_span", t(np.maximum(rec.hi[iu] - rec.lo[iu], 1e-12)))
+        self.register_buffer("seen", torch.as_tensor(seen_cells(rec.grid).reshape(-1)))
+        cell0 = np.arange(n_joint) * rec.n_bin * rec.n_bin
+        self.register_buffer("cell0", torch.as_tensor(cell0, dtype=torch.long))
+
+    def forward(self, theta: torch.Tensor, u: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
+        """See the class docstring."""
+        n_joint, n_u, nb = self.n_joint, self.n_u, self.n_bin
+        x = torch.cat([u, theta, omega], dim=-1).to(self.lo.dtype)
+        out = torch.isfinite(x) & ((x < self.lo) | (x > self.hi))
+        flag = out[:, :n_joint] | out[:, n_u : n_u + n_joint] | out[:, n_u + n_joint :]
+        if n_u > n_joint:  # an exogenous input outside its box flags every joint
+            flag = flag | out[:, n_joint:n_u].any(-1, keepdim=True)
+        th, uu = x[:, n_u : n_u + n_joint], x[:, :n_joint]
+        inside = (th >= self.t_lo) & (th <= self.t_hi) & (uu >= self.u_lo) & (uu <= self.u_hi)
+        bt = torch.floor((th - self.t_lo) / self.t_span * nb)
+        bu = torch.floor((uu - self.u_lo) / self.u_span * nb)
+        bt = torch.nan_to_num(bt).clamp(0, nb - 1).long()
+        bu = torch.nan_to_num(bu).clamp(0, nb - 1).long()
+        seen = self.seen[self.cell0 + bt * nb + bu]
+        return flag | (inside & ~seen)
+
+
 class StepUncertainty:
     """Member deviations, bands and OOD flags of ``n_envs`` engine rows.
 
@@ -146,16 +197,9 @@ class StepUncertainty:
             self.floor = (t(cal.floor("theta")), t(cal.floor("omega")))
         rec = stored_coverage(sur)
         self.checked = rec is not None and rec.channels == channel_names(sur.spec)
+        self.box: OodFlags | None = None
         if rec is not None and self.checked:
-            self.lo = torch.as_tensor(rec.lo, dtype=torch.float64, device=dev)
-            self.hi = torch.as_tensor(rec.hi, dtype=torch.float64, device=dev)
-            self.n_bin = rec.n_bin
-            self.seen = torch.as_tensor(seen_cells(rec.grid), device=dev).reshape(-1)
-            n_u = sur.spec.n_u
-            self._iu = torch.arange(n_joint, device=dev)
-            self._it = n_u + self._iu
-            self._iw = n_u + n_joint + self._iu
-            self._cell0 = self._iu * self.n_bin * self.n_bin
+            self.box = OodFlags(rec, sur.spec, dtype=torch.float64).to(dev)
         self.notes = notes(sur)
 
     def reset(self, idx: torch.Tensor) -> None:
@@ -169,25 +213,8 @@ class StepUncertainty:
     def flag(self, theta: torch.Tensor, u: torch.Tensor) -> None:
         """OOD flags of the sample ``theta[k]`` (n_envs, n_joint), ``omega[k]`` (the state),
         ``u[k]`` (n_envs, n_u) before the step (see :func:`~...coverage.ood_flags`)."""
-        if not self.checked:
-            return
-        n_joint, n_u = self.spec.n_joint, self.spec.n_u
-        x = torch.cat([u.double(), theta, self.omega], dim=-1)
-        out = torch.isfinite(x) & ((x < self.lo) | (x > self.hi))
-        flag = out[:, :n_joint] | out[:, n_u : n_u + n_joint] | out[:, n_u + n_joint :]
-        if n_u > n_joint:
-            flag |= out[:, n_joint:n_u].any(-1, keepdim=True)
-        th, uu = x[:, n_u : n_u + n_joint], x[:, :n_joint]
-        t_lo, t_hi = self.lo[self._it], self.hi[self._it]
-        u_lo, u_hi = self.lo[self._iu], self.hi[self._iu]
-        inside = (th >= t_lo) & (th <= t_hi) & (uu >= u_lo) & (uu <= u_hi)
-        nb = self.n_bin
-        bt = torch.floor((th - t_lo) / torch.clamp(t_hi - t_lo, min=1e-12) * nb)
-        bu = torch.floor((uu - u_lo) / torch.clamp(u_hi - u_lo, min=1e-12) * nb)
-        bt = torch.nan_to_num(bt).clamp_(0, nb - 1).long()
-        bu = torch.nan_to_num(bu).clamp_(0, nb - 1).long()
-        seen = self.seen[self._cell0 + bt * nb + bu]
-        torch.logical_or(flag, inside & ~seen, out=self.ood)
+        if self.box is not None:
+            self.ood.copy_(self.box(theta, u.double(), self.omega))
 
     def members_from_activations(self, a: torch.Tensor, w: torch.Tensor | None) -> torch.Tensor:
         """Each member's omega (M, n_envs, n_joint) float32 [rad/s] from the engine's head
