@@ -3,6 +3,10 @@
 Everything downstream reads joint names and counts from a :class:`MachineSpec`; nothing
 hard-codes four joints.  The default :data:`EXCAVATOR` is the paper's machine: swing
 (periodic), boom, arm, bucket, with commands in [-1000, 1000] sampled at 20 Hz.
+
+A joint is ``revolute`` (an angle, stored in rad) or ``linear`` (a cylinder stroke, stored
+in m); every array holds SI values, and ``JointSpec.unit`` is only how a linear joint's
+values are printed (``m``, ``cm``, ``mm``: :attr:`JointSpec.display_factor`).
 """
 
 from __future__ import annotations
@@ -10,11 +14,58 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import asdict, dataclass, field, replace
-from typing import Any
+from typing import Any, Literal
 
 from .errors import ConfigError
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
+
+LINEAR_UNITS: dict[str, float] = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
+"""Display units of a linear joint -> how many of them make one metre (the stored unit)."""
+
+
+@dataclass(frozen=True)
+class Linkage:
+    """The triangle that turns a cylinder's stroke into its joint's angle.
+
+    The cylinder runs between two pivots at distances ``a`` and ``b`` from the joint axis;
+    its pin-to-pin length is ``L = l0 + stroke = sqrt(a² + b² - 2ab cos(θ + phi))``.
+    """
+
+    a: float
+    """Joint axis to the first cylinder pivot [m]."""
+    b: float
+    """Joint axis to the second cylinder pivot [m]."""
+    phi: float = 0.0
+    """Angle added to the joint angle to give the triangle's angle at the joint [rad]."""
+    l0: float = 0.0
+    """Pin-to-pin length of the cylinder at stroke 0 [m]."""
+
+    def __post_init__(self) -> None:
+        for key in ("a", "b", "phi", "l0"):
+            v = getattr(self, key)
+            if not (isinstance(v, int | float) and math.isfinite(v)):
+                raise ConfigError(f"linkage {key} must be a finite number, got {v!r}")
+        if not (self.a > 0 and self.b > 0):
+            raise ConfigError(f"linkage a ({self.a}) and b ({self.b}) must be positive")
+        if self.l0 < 0:
+            raise ConfigError(f"linkage l0 ({self.l0}) must be >= 0")
+
+    def stroke(self, theta: Any) -> Any:
+        """Stroke [m] of joint angle(s) ``theta`` [rad] (scalar or array)."""
+        import numpy as np
+
+        c = np.cos(np.asarray(theta, dtype=np.float64) + self.phi)
+        return np.sqrt(self.a**2 + self.b**2 - 2.0 * self.a * self.b * c) - self.l0
+
+    def angle(self, stroke: Any) -> Any:
+        """Joint angle(s) [rad] of stroke(s) ``stroke`` [m]: the inverse of :meth:`stroke` on
+        ``θ + phi`` in [0, π] (lengths the triangle cannot reach give the nearest end)."""
+        import numpy as np
+
+        length = np.asarray(stroke, dtype=np.float64) + self.l0
+        c = (self.a**2 + self.b**2 - length**2) / (2.0 * self.a * self.b)
+        return np.arccos(np.clip(c, -1.0, 1.0)) - self.phi
 
 
 @dataclass(frozen=True)
@@ -38,12 +89,21 @@ class JointSpec:
     omega_max: float | None = None
     """Largest angular speed the joint reaches [rad/s], or None if unknown; free runs clip the
     predicted velocity to ``[-omega_max, omega_max]``."""
+    kind: Literal["revolute", "linear"] = "revolute"
+    """``revolute``: θ is an angle [rad]; ``linear``: θ is a stroke [m] (ω in m/s, the
+    limits and ``omega_max`` in m and m/s)."""
+    unit: str = "rad"
+    """How θ is printed: ``rad`` for a revolute joint; ``m``, ``cm`` or ``mm`` for a linear one
+    (values are stored in m whatever the unit)."""
+    linkage: Linkage | None = None
+    """A linear joint's cylinder geometry, to report its angle as well (None: unknown)."""
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name):
             raise ConfigError(
                 f"joint name '{self.name}' is invalid: use lower-case letters, digits and '_'"
             )
+        self._check_kind()
         if self.omega_max is not None and not self.omega_max > 0:
             raise ConfigError(
                 f"joint '{self.name}': omega_max ({self.omega_max}) must be positive or None"
@@ -60,6 +120,71 @@ class JointSpec:
             v = getattr(self, key)
             if v is not None and not math.isfinite(v):
                 raise ConfigError(f"joint '{self.name}': {key} must be a finite number, got {v}")
+
+    def _check_kind(self) -> None:
+        """A linear joint has a length unit and no periodicity; a revolute one is in rad."""
+        if self.kind == "linear":
+            if self.periodic:
+                raise ConfigError(
+                    f"joint '{self.name}': a linear joint (a stroke) cannot be periodic; "
+                    "set periodic = false"
+                )
+            if self.unit not in LINEAR_UNITS:
+                raise ConfigError(
+                    f"joint '{self.name}': unit '{self.unit}' is not a length; "
+                    f"use one of {', '.join(LINEAR_UNITS)}"
+                )
+        elif self.kind == "revolute":
+            if self.unit != "rad":
+                raise ConfigError(
+                    f"joint '{self.name}': a revolute joint is stored in rad, got unit "
+                    f"'{self.unit}'; lengths need kind = \"linear\""
+                )
+            if self.linkage is not None:
+                raise ConfigError(f"joint '{self.name}': only a linear joint has a linkage")
+        else:
+            raise ConfigError(
+                f"joint '{self.name}': kind '{self.kind}' is unknown; use revolute or linear"
+            )
+
+    @property
+    def linear(self) -> bool:
+        """True for a linear joint (a stroke in m)."""
+        return self.kind == "linear"
+
+    @property
+    def display_factor(self) -> float:
+        """Stored value x this = value in :attr:`display_unit` (1 for rad and m, 1000 for mm)."""
+        return LINEAR_UNITS[self.unit] if self.linear else 1.0
+
+    @property
+    def display_unit(self) -> str:
+        """θ's printed unit (``rad``, ``m``, ``cm``, ``mm``)."""
+        return self.unit
+
+    @property
+    def rate_unit(self) -> str:
+        """ω's printed unit (``rad/s``, ``mm/s`` ...)."""
+        return f"{self.unit}/s"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form; ``kind``, ``unit`` and ``linkage`` only when not the revolute default,
+        so specs written before linear joints read (and hash) the same."""
+        d = asdict(self)
+        if not self.linear:
+            for key in ("kind", "unit", "linkage"):
+                d.pop(key)
+        elif self.linkage is None:
+            d.pop("linkage")
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> JointSpec:
+        """Inverse of :meth:`to_dict` (a dict without ``kind`` is a revolute joint)."""
+        d = dict(d)
+        if isinstance(d.get("linkage"), dict):
+            d["linkage"] = Linkage(**d["linkage"])
+        return cls(**d)
 
     @property
     def u_scale(self) -> float:
@@ -173,8 +298,13 @@ class MachineSpec:
         ``n_u`` commands (joints' and inputs')."""
         return sum(2 if j.periodic else 1 for j in self.joints) + self.n_u
 
+    @property
+    def any_linear(self) -> bool:
+        """True if some joint is linear (its θ a stroke in m)."""
+        return any(j.linear for j in self.joints)
+
     def mismatch(self, other: MachineSpec) -> str | None:
-        """How ``other`` differs from this machine (joints, periodic flags, command ranges, rate,
+        """How ``other`` differs from this machine (joints, periodic flags, kinds, command ranges, rate,
         exogenous inputs),
         as a short phrase such as ``"joints ['boom', 'arm'] vs ['swing', ...]"``; None if it fits."""
         if self.names != other.names:
@@ -184,6 +314,8 @@ class MachineSpec:
         for a, b in zip(self.joints, other.joints):
             if a.periodic != b.periodic:
                 return f"joint '{a.name}' periodic {a.periodic} vs {b.periodic}"
+            if a.kind != b.kind:
+                return f"joint '{a.name}' {a.kind} vs {b.kind}"
             if not (math.isclose(a.u_min, b.u_min) and math.isclose(a.u_max, b.u_max)):
                 return (
                     f"joint '{a.name}' command range [{a.u_min:g}, {a.u_max:g}] vs "
@@ -204,7 +336,7 @@ class MachineSpec:
         d = {
             "name": self.name,
             "rate_hz": self.rate_hz,
-            "joints": [asdict(j) for j in self.joints],
+            "joints": [j.to_dict() for j in self.joints],
             "meta": dict(self.meta),
         }
         if self.inputs:  # absent without inputs: specs written before inputs read the same
@@ -215,7 +347,7 @@ class MachineSpec:
     def from_dict(cls, d: dict[str, Any]) -> MachineSpec:
         """Inverse of :meth:`to_dict`."""
         try:
-            joints = tuple(JointSpec(**j) for j in d["joints"])
+            joints = tuple(JointSpec.from_dict(j) for j in d["joints"])
             return cls(
                 joints=joints,
                 rate_hz=float(d["rate_hz"]),

@@ -213,7 +213,7 @@ def test_mapping_errors(cli, work, short_cols):
         "unit": (
             'angle = { column = "boom_deg", unit = "deg" }',
             'angle = { column = "boom_deg", unit = "grad" }',
-            "angle.unit: must be one of ['deg', 'rad']",
+            "angle.unit: must be one of ['deg', 'rad', 'm', 'cm', 'mm']",
         ),
         "raw": (
             'unit = "%", range = [-1000.0, 1000.0] }\n\n[[joints]]\nname = "arm"',

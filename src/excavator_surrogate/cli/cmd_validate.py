@@ -64,9 +64,12 @@ def _check_limits(ep: Episode, where: Path) -> None:
         return
     row, k, value, lo, hi, n_bad = hit
     name = ep.spec.names[k]
+    j = ep.spec.joints[k]  # a linear joint's stroke prints in its own unit (mm ...)
+    f, unit, what = j.display_factor, j.display_unit, "stroke" if j.linear else "angle"
     raise DataError(
         where,
-        f"joint '{name}': angle {value:.6g} rad is outside the limits [{lo:.6g}, {hi:.6g}] rad "
+        f"joint '{name}': {what} {value * f:.6g} {unit} is outside the limits "
+        f"[{lo * f:.6g}, {hi * f:.6g}] {unit} "
         f"(+{LIMIT_MARGIN:.0%} of the range) in {n_bad} sample(s)",
         column=f"theta_{name}",
         row=row,

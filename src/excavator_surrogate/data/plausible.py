@@ -5,6 +5,9 @@ joint's angle more than one turn outside the range it keeps between the
 :data:`LEVEL_QUANTILE` quantiles, a velocity of more than :data:`MAX_TURNS` turns per sample
 step.  :func:`~.episode.validate_episode` runs :func:`check_plausible`; the import uses the
 same turn bounds on raw logs (``ingest/bursts.py``).
+
+A linear joint's values are stored in m and get the same numbers in m (a "turn" is 2π m):
+no cylinder strokes 63 m or moves 63 m in one step, and messages print its own unit.
 """
 
 from __future__ import annotations
@@ -53,6 +56,11 @@ def check_plausible(
         DataError: naming ``where``, the column and the first offending row.
     """
     turn = 2.0 * np.pi
+
+    def show(x: float, k: int) -> str:  # a value of joint k in its printed unit
+        j = spec.joints[k]
+        return f"{x * j.display_factor:.6g} {j.display_unit}"
+
     for role in ("theta", "theta_true"):
         arr = arrays.get(role)
         if arr is None or arr.shape[0] == 0:
@@ -63,18 +71,22 @@ def check_plausible(
             bad = np.abs(x) > turns * turn
             which = "joint" if j.periodic else "joint with end stops"
             why = f"beyond ±{turns:g} turns, which no {which} reaches"
+            if j.linear:
+                why = f"beyond ±{show(turns * turn, k)}, which no cylinder reaches"
             if not bad.any() and not j.periodic:
                 lo, hi = np.quantile(x, [LEVEL_QUANTILE, 1.0 - LEVEL_QUANTILE])
                 bad = (x < lo - turn) | (x > hi + turn)
+                span = show(turn, k) if j.linear else "one turn"
                 why = (
-                    f"more than one turn outside [{lo:.6g}, {hi:.6g}] rad, where the joint "
+                    f"more than {span} outside [{show(lo, k)}, {show(hi, k)}], where the joint "
                     f"stays {1 - 2 * LEVEL_QUANTILE:.0%} of the time"
                 )
             if bad.any():
                 row = int(np.flatnonzero(bad)[0])
+                what = "stroke" if j.linear else "angle"
                 raise DataError(
                     where,
-                    f"joint '{j.name}': angle {x[row]:.6g} rad is impossible ({why}) "
+                    f"joint '{j.name}': {what} {show(x[row], k)} is impossible ({why}) "
                     f"in {int(bad.sum())} sample(s)",
                     column=columns[role][k],
                     row=row,
@@ -88,9 +100,11 @@ def check_plausible(
         bad = np.abs(arr) > max_speed
         if bad.any():
             row, k = (int(x) for x in np.argwhere(bad)[0])
+            j = spec.joints[k]
+            far = show(MAX_TURNS * turn, k) if j.linear else f"{MAX_TURNS:g} turns"
             raise DataError(
                 where,
-                f"velocity {arr[row, k]:.6g} rad/s is impossible (more than {MAX_TURNS:g} turns "
+                f"velocity {show(arr[row, k], k)}/s is impossible (more than {far} "
                 f"in one {spec.dt:.6g} s step) in {int(bad[:, k].sum())} sample(s)",
                 column=columns[role][k],
                 row=row,

@@ -243,7 +243,8 @@ def command_of(
 def check_velocity_unit(
     path: Path, omega_m: np.ndarray, omega_d: np.ndarray, j: JointMap, label: str, where: str
 ) -> None:
-    """Measured velocity vs the angle's rate of change: catches deg/s vs rad/s and sign errors."""
+    """Measured velocity vs the angle's rate of change: catches deg/s vs rad/s (m/s vs cm/s
+    or mm/s for a linear joint) and sign errors."""
     nd = float(np.dot(omega_d, omega_d))
     nm = float(np.dot(omega_m, omega_m))
     if omega_d.shape[0] < 10 or nd / omega_d.shape[0] < 1e-4 or nm == 0:
@@ -257,6 +258,19 @@ def check_velocity_unit(
             column=label,
             fix=f"set scale = -1 in the velocity of joint '{j.name}' in {where}",
         )
+    if j.linear:  # no degrees here: a length unit off by 10, 100 or 1000
+        if corr > 0.8 and not 0.5 < ratio < 2.0:
+            off = [10.0**k for k in (-3, -2, -1, 1, 2, 3) if 0.5 < ratio / 10.0**k < 2.0]
+            if off:
+                raise DataError(
+                    path,
+                    f"measured velocity is {ratio:.3g}x the position's rate of change: its "
+                    "length unit looks wrong",
+                    column=label,
+                    fix=f"set the velocity unit (m/s, cm/s or mm/s) of joint '{j.name}' in "
+                    f"{where} to the position's unit per second",
+                )
+        return
     if corr > 0.8 and 0.5 / DEG < ratio < 2.0 / DEG:
         raise DataError(
             path,

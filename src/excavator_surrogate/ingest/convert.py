@@ -34,7 +34,7 @@ from .checks import (
     command_of,
 )
 from .limits import memory_limit, too_big
-from .mapping import DEG, Channel, ImportOptions, InputMap, JointMap, Mapping
+from .mapping import Channel, ImportOptions, InputMap, JointMap, Mapping
 from .outliers import screen_angles
 from .readers import log_stem, read_log
 from .resample import (
@@ -46,6 +46,7 @@ from .resample import (
 )
 from .run_inputs import run_input_value
 from .sources import RawLog
+from .units import to_si
 
 
 @dataclass
@@ -221,12 +222,12 @@ def _to_units(
         t = raw.series[ach.series].time
         th = vals[ach] * j.angle.scale + j.angle.offset
         check_angle_unit(path, t, th, j, ach.label, where)
-        th = th * DEG if j.angle.unit == "deg" else th
+        th = th * to_si(j.angle.unit)  # rad, or m for a linear joint
         theta.append(np.unwrap(th) if j.periodic else th)
         vch = mapping.velocity_channel(j)
         if vch is not None and j.velocity is not None:
             v = vals[vch] * j.velocity.scale + j.velocity.offset
-            omega.append(v * DEG if j.velocity.unit == "deg/s" else v)
+            omega.append(v * to_si(j.velocity.unit))
             entry["velocity"][j.name] = "measured"
         else:
             omega.append(None)

@@ -9,6 +9,8 @@ Layout (see ``docs/import.md`` for the full reference)::
     periodic = false
     angle    = { column = "boom_deg", unit = "deg", scale = 1.0, offset = 0.0 }
     velocity = { column = "boom_rate", unit = "deg/s" }                  # optional
+    # a stroke instead: position = { column = "boom_mm", unit = "mm" } (m | cm | mm), speeds
+    # in mm/s, limits in mm, optional linkage = { a, b, l0, phi } (ingest/units.py)
     command  = { up = "boom_up", down = "boom_down", unit = "%", range = [-1000, 1000] }
     [[inputs]]               # optional exogenous inputs (engine speed, gear ...), in order
     name = "engine_rpm"
@@ -30,7 +32,6 @@ and the key.
 from __future__ import annotations
 
 import dataclasses
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,13 +39,14 @@ from typing import Any, Literal
 
 from ..config import from_dict
 from ..errors import ConfigError
-from ..spec import InputSpec, JointSpec, MachineSpec
+from ..spec import InputSpec, JointSpec, Linkage, MachineSpec
+from .options import CsvOptions, ImportOptions, SplitOptions
 from .run_inputs import RunInputMap, is_run_input, parse_run_input
+from .units import DEG as DEG  # re-exported: the checks' degree factor
+from .units import POSITION_UNITS, check_units, is_length, parse_linkage, to_si
 
 TABLE = "table"
 """Series name of the single time base of a CSV/Parquet log."""
-
-DEG = math.pi / 180.0
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,8 @@ class Channel:
 
 @dataclass(frozen=True)
 class AngleMap:
-    """Where a joint angle comes from and how to convert it to rad."""
+    """Where a joint's position (an angle, or a linear joint's stroke: the ``position`` table)
+    comes from and how to convert it to SI (rad or m)."""
 
     column: str | None = None
     """CSV/Parquet column."""
@@ -72,8 +75,8 @@ class AngleMap:
     """ROS topic (instead of ``column``)."""
     field: str | None = None
     """Field path in the topic's message, e.g. ``position[1]`` or ``position[boom_joint]``."""
-    unit: Literal["deg", "rad"] | None = None
-    """Unit of ``value * scale + offset`` (required)."""
+    unit: Literal["deg", "rad", "m", "cm", "mm"] | None = None
+    """Unit of ``value * scale + offset`` (required); a length makes the joint linear."""
     scale: float = 1.0
     """Multiplier applied to the raw value first."""
     offset: float = 0.0
@@ -82,12 +85,12 @@ class AngleMap:
 
 @dataclass(frozen=True)
 class VelocityMap:
-    """Where a measured joint velocity comes from (optional) and how to convert it to rad/s."""
+    """Where a measured joint velocity comes from (optional) and how to convert it to SI."""
 
     column: str | None = None
     topic: str | None = None
     field: str | None = None
-    unit: Literal["deg/s", "rad/s"] | None = None
+    unit: Literal["deg/s", "rad/s", "m/s", "cm/s", "mm/s"] | None = None
     """Unit of ``value * scale + offset`` (required)."""
     scale: float = 1.0
     offset: float = 0.0
@@ -134,10 +137,17 @@ class JointMap:
     periodic: bool = False
     """No end stops (swing): angle unwrapped before resampling."""
     limits: tuple[float, float] | None = None
-    """Joint limits in the angle's ``unit`` (stored in the spec in rad)."""
+    """Joint limits in the position's ``unit`` (stored in the spec in rad or m)."""
     angle: AngleMap = field(default_factory=AngleMap)
     velocity: VelocityMap | None = None
     command: CommandMap = field(default_factory=CommandMap)
+    linkage: Linkage | None = None
+    """A linear joint's cylinder triangle, in SI (``linkage`` table, :mod:`.units`)."""
+
+    @property
+    def linear(self) -> bool:
+        """True when the position is a length (the joint is linear)."""
+        return is_length(self.angle.unit)
 
 
 @dataclass(frozen=True)
@@ -180,93 +190,6 @@ class TimeMap:
     """Numeric unit, or ``datetime`` for ISO-8601 strings / timestamp columns."""
     stamp: Literal["auto", "header", "log"] = "auto"
     """ROS: use ``header.stamp`` or the bag's log time (``auto``: header when present)."""
-
-
-@dataclass(frozen=True)
-class CsvOptions:
-    """``[csv]``: how to parse CSV files."""
-
-    delimiter: str = ","
-    skip_rows: int = 0
-    """Lines before the header line to skip (logger preambles)."""
-    format: Literal["auto", "plain", "dspace"] = "auto"
-    """``dspace``: read .csv files as dSPACE ControlDesk exports; ``plain``: never; ``auto``:
-    by content (first cell ``descriptions`` or a ``trace_...`` row) or a ``.dspace.csv`` name."""
-
-
-@dataclass(frozen=True)
-class ImportOptions:
-    """``[import]``: options of the import (CLI flags override them)."""
-
-    rate_hz: float | None = None
-    """Target rate [Hz]; None: ``[machine] rate_hz``."""
-    nan: Literal["fail", "fill"] = "fail"
-    """Missing/non-finite values: ``fail``, or ``fill`` runs of up to ``max_fill`` samples."""
-    max_fill: int = 5
-    """Longest run of missing samples (input rows) that ``nan = "fill"`` interpolates."""
-    max_gap_s: float | None = None
-    """Time gaps longer than this split the episode [s]; None: max(5 input steps, 2 output steps)."""
-    min_steps: int = 50
-    """Episodes (after resampling) shorter than this are dropped; use the model window."""
-    velocity: Literal["diff", "kalman"] = "diff"
-    """How to derive velocities that the log does not contain."""
-    lowpass: float = 0.8
-    """Anti-alias cutoff as a fraction of the output Nyquist rate; 0 disables the filter."""
-    clip_commands: bool = False
-    """Clip commands outside the range instead of failing (clipped samples are reported)."""
-    on_error: Literal["fail", "skip"] = "fail"
-    """A file that fails validation stops the import (``fail``) or is skipped and reported."""
-    outliers: Literal["fail", "drop", "clip"] = "fail"
-    """Angle spikes, impossible samples and angles beyond the joint limits: ``fail``, ``drop``
-    the rows, or ``clip`` to the limits (spikes and impossible samples are dropped); found
-    before resampling (docs/import.md)."""
-    max_upsample: float = 10.0
-    """The target rate may be at most this multiple of a log's own rate (higher is refused)."""
-    max_memory_mb: float | None = None
-    """Bound on a log's decompressed text and its resampled output [MB]; None: a quarter of
-    the memory available when the import starts."""
-
-    def __post_init__(self) -> None:
-        if self.rate_hz is not None and not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
-            raise ConfigError(f"rate_hz must be positive and finite, got {self.rate_hz:.6g}")
-        if not (self.max_upsample >= 1 and math.isfinite(self.max_upsample)):
-            raise ConfigError(f"max_upsample must be >= 1 and finite, got {self.max_upsample:.6g}")
-        if self.max_memory_mb is not None and not (
-            self.max_memory_mb > 0 and math.isfinite(self.max_memory_mb)
-        ):
-            raise ConfigError(f"max_memory_mb must be positive, got {self.max_memory_mb:.6g}")
-        if self.max_fill < 0:
-            raise ConfigError(f"max_fill must be >= 0, got {self.max_fill}")
-        if self.max_gap_s is not None and not self.max_gap_s > 0:
-            raise ConfigError(f"max_gap_s must be positive, got {self.max_gap_s}")
-        if self.min_steps < 2:
-            raise ConfigError(f"min_steps must be >= 2, got {self.min_steps}")
-        if not 0.0 <= self.lowpass < 1.0:
-            raise ConfigError(
-                f"lowpass must be in [0, 1) (fraction of the output Nyquist), got {self.lowpass}"
-            )
-
-
-@dataclass(frozen=True)
-class SplitOptions:
-    """``[split]``: how episodes are assigned to train/val/test (always by source file)."""
-
-    by: Literal["fraction", "glob", "file"] = "fraction"
-    fractions: tuple[float, float, float] = (0.7, 0.15, 0.15)
-    """train/val/test shares of the samples (``by = "fraction"``)."""
-    seed: int = 0
-    """Shuffle seed for ``by = "fraction"``."""
-    train: tuple[str, ...] = ()
-    """Glob patterns (``glob``) or file names (``file``) of training files."""
-    val: tuple[str, ...] = ()
-    test: tuple[str, ...] = ()
-
-    def __post_init__(self) -> None:
-        if self.seed < 0:
-            raise ConfigError(f"split seed must be >= 0, got {self.seed}")
-        f = self.fractions
-        if any(x < 0 for x in f) or not math.isclose(sum(f), 1.0, abs_tol=1e-6):
-            raise ConfigError(f"split fractions {list(f)} must be >= 0 and sum to 1")
 
 
 @dataclass(frozen=True)
@@ -338,7 +261,7 @@ class Mapping:
             c = j.command
             lim = (None, None)
             if j.limits is not None:
-                f = DEG if j.angle.unit == "deg" else 1.0
+                f = to_si(j.angle.unit)
                 lim = (j.limits[0] * f, j.limits[1] * f)
             try:
                 joints.append(
@@ -350,6 +273,9 @@ class Mapping:
                         theta_min=lim[0],
                         theta_max=lim[1],
                         u_unit=c.physical_unit if c.unit == "physical" else "command",
+                        kind="linear" if j.linear else "revolute",
+                        unit=str(j.angle.unit) if j.linear else "rad",
+                        linkage=j.linkage,
                     )
                 )
             except ConfigError as e:
@@ -499,12 +425,16 @@ def _parse_joint(raw: Any, i: int, where: str) -> JointMap:
     jw = f"{where}: joint '{name}'" if isinstance(name, str) else f"{where}: joints[{i}]"
     if not isinstance(name, str):
         raise ConfigError(f"{jw}: 'name' is required (lower-case letters, digits, '_')")
+    if "position" in raw:  # a linear joint's stroke reads better as its position
+        if "angle" in raw:
+            raise ConfigError(f"{jw}: give either angle or position (the same table), not both")
+        raw = {("angle" if k == "position" else k): v for k, v in raw.items()}
     for key in ("angle", "command"):
         if not isinstance(raw.get(key), dict):
             raise ConfigError(
                 f'{jw}: \'{key}\' table is required, e.g. {key} = {{ column = "...", unit = "..." }}'
             )
-    body = {k: v for k, v in raw.items() if k not in ("angle", "velocity", "command")}
+    body = {k: v for k, v in raw.items() if k not in ("angle", "velocity", "command", "linkage")}
     try:
         base = from_dict(JointMap, body, where=jw)
     except TypeError as e:  # pragma: no cover - required fields are checked above
@@ -518,15 +448,26 @@ def _parse_joint(raw: Any, i: int, where: str) -> JointMap:
     command = from_dict(CommandMap, raw["command"], where=f"{jw}: command")
     _check_source(angle.column, angle.topic, angle.field, f"{jw}: angle")
     if angle.unit is None:
-        raise ConfigError(f'{jw}: angle.unit is required: "deg" or "rad"')
+        units = ", ".join(f'"{u}"' for u in POSITION_UNITS)
+        raise ConfigError(f"{jw}: angle.unit (or position.unit) is required: one of {units}")
     if velocity is not None:
         _check_source(velocity.column, velocity.topic, velocity.field, f"{jw}: velocity")
         if velocity.unit is None:
-            raise ConfigError(f'{jw}: velocity.unit is required: "deg/s" or "rad/s"')
+            want = "m/s, cm/s or mm/s" if is_length(angle.unit) else '"deg/s" or "rad/s"'
+            raise ConfigError(f"{jw}: velocity.unit is required: {want}")
+        check_units(angle.unit, velocity.unit, jw)
+    if is_length(angle.unit) and base.periodic:
+        raise ConfigError(
+            f"{jw}: a linear joint (position in {angle.unit}) cannot be periodic; "
+            "set periodic = false"
+        )
+    linkage = parse_linkage(raw.get("linkage"), angle.unit, jw)
     _check_command(command, f"{jw}: command")
     if base.limits is not None and not base.limits[1] > base.limits[0]:
         raise ConfigError(f"{jw}: limits {list(base.limits)} must be [low, high] with high > low")
-    return dataclasses.replace(base, angle=angle, velocity=velocity, command=command)
+    return dataclasses.replace(
+        base, angle=angle, velocity=velocity, command=command, linkage=linkage
+    )
 
 
 def _parse_input(raw: Any, k: int, where: str) -> InputMap:

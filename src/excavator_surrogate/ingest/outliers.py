@@ -27,15 +27,17 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ..errors import DataError
 from ..spec import JointSpec
 from .bursts import MAX_TURNS, MAX_TURNS_PERIODIC, Burst, find_impossible
-from .mapping import DEG, Channel, JointMap, Mapping
+from .mapping import Channel, JointMap, Mapping
 from .sources import RawLog, Series
+from .units import to_si
 
 SPIKE_HALF_WINDOW = 3
 """A spike is at most this many samples long (Hampel window of 2k+1 samples)."""
 SPIKE_MAD = 8.0
 """A sample further than this many robust standard deviations from its window's median ..."""
 SPIKE_SPEED = 10.0
-"""... and further than this speed [rad/s] times k sample steps is a spike."""
+"""... and further than this speed [rad/s] times k sample steps is a spike (m/s for a
+linear joint, whose values are stored in m: no cylinder moves at 10 m/s either)."""
 LIMIT_MARGIN = 0.05
 """Input angles may exceed the declared limits by this fraction of the joint range."""
 
@@ -72,10 +74,11 @@ def find_spikes(x: np.ndarray, dt_in: float) -> np.ndarray:
 
 
 def _angle(vals: np.ndarray, j: JointMap, *, unwrap: bool = True) -> np.ndarray:
-    """Raw channel -> angle [rad] (periodic joints unwrapped unless ``unwrap`` is False)."""
+    """Raw channel -> angle [rad] or a linear joint's stroke [m] (periodic joints unwrapped
+    unless ``unwrap`` is False)."""
     with np.errstate(over="ignore", invalid="ignore"):
         th = vals * j.angle.scale + j.angle.offset
-        th = th * DEG if j.angle.unit == "deg" else th
+        th = th * to_si(j.angle.unit)
         return np.unwrap(th) if j.periodic and unwrap else th
 
 
@@ -91,7 +94,7 @@ def _impossible_velocity(
     """(n,) bool: measured velocities no sensor reads (not finite, or more than ``MAX_TURNS``
     turns in one input step); an error under ``policy = "fail"``."""
     assert j.velocity is not None
-    f = DEG if j.velocity.unit == "deg/s" else 1.0
+    f = to_si(j.velocity.unit)
     with np.errstate(over="ignore", invalid="ignore"):
         v = raw_vals * j.velocity.scale + j.velocity.offset
         bad = ~(np.abs(v * f) <= 2 * np.pi * MAX_TURNS / dt_in)
@@ -102,7 +105,8 @@ def _impossible_velocity(
         raise DataError(
             path,
             f"joint '{j.name}': velocity {v[row]:.6g} {j.velocity.unit} is impossible{rows}: no "
-            f"sensor reads it (not finite, or more than {MAX_TURNS:g} turns in one "
+            f"sensor reads it (not finite, or more than "
+            f"{_in_unit(2 * np.pi * MAX_TURNS, j) if j.linear else f'{MAX_TURNS:g} turns'} in one "
             f"{dt_in:.3g} s input step)",
             column=ch.label,
             row=row,
@@ -128,9 +132,10 @@ def _impossible_error(
     rows = f" (rows {b.start}-{b.stop - 1}, {n} samples)" if n > 1 else ""
     if b.reason == "magnitude":
         turns = MAX_TURNS_PERIODIC if j.periodic else MAX_TURNS
-        why = f"no sensor reads it (not finite, or beyond ±{turns:g} turns)"
+        bound = f"±{turns:g} turns" if not j.linear else "±" + _in_unit(turns * 2 * np.pi, j)
+        why = f"no sensor reads it (not finite, or beyond {bound})"
     else:
-        f = 1.0 / DEG if unit == "deg" else 1.0
+        f = 1.0 / to_si(unit)
         why = (
             f"it is entered or left at {b.speed * f:.3g} {unit}/s, far above the log's own "
             f"speeds (99th percentile {b.scale * f:.3g} {unit}/s)"
@@ -146,7 +151,7 @@ def _impossible_error(
 
 def _in_unit(x: float, j: JointMap) -> str:
     unit = j.angle.unit or "rad"
-    return f"{x / DEG if unit == 'deg' else x:.6g} {unit}"
+    return f"{x / to_si(unit):.6g} {unit}"
 
 
 def screen_angles(
@@ -235,7 +240,7 @@ def screen_angles(
             counts["impossible_dropped"] = int(impossible.sum())
         if out.any() and policy == "clip":
             counts["clipped"] = int(out.sum())
-            clipped = np.clip(th, lo, hi) / (DEG if j.angle.unit == "deg" else 1.0)
+            clipped = np.clip(th, lo, hi) / to_si(j.angle.unit)
             vals[ch] = np.where(out, (clipped - j.angle.offset) / j.angle.scale, vals[ch])
             out = np.zeros_like(out)
         elif out.any():

@@ -10,7 +10,12 @@ def render_markdown(report: dict[str, Any]) -> str:
     spec = report["spec"]
     joints = spec["joints"]
     tot = report["totals"]
-    names = ", ".join(j["name"] + (" (periodic)" if j["periodic"] else "") for j in joints)
+    names = ", ".join(
+        j["name"]
+        + (" (periodic)" if j["periodic"] else "")
+        + (f" (linear, {j.get('unit')})" if j.get("kind") == "linear" else "")
+        for j in joints
+    )
     lines = [
         f"# exsur import: {spec['name']}",
         "",

@@ -1,0 +1,99 @@
+"""The option tables of an import mapping: ``[csv]``, ``[import]`` and ``[split]``.
+
+Re-exported by :mod:`.mapping`, which parses them with the rest of the file.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True)
+class CsvOptions:
+    """``[csv]``: how to parse CSV files."""
+
+    delimiter: str = ","
+    skip_rows: int = 0
+    """Lines before the header line to skip (logger preambles)."""
+    format: Literal["auto", "plain", "dspace"] = "auto"
+    """``dspace``: read .csv files as dSPACE ControlDesk exports; ``plain``: never; ``auto``:
+    by content (first cell ``descriptions`` or a ``trace_...`` row) or a ``.dspace.csv`` name."""
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """``[import]``: options of the import (CLI flags override them)."""
+
+    rate_hz: float | None = None
+    """Target rate [Hz]; None: ``[machine] rate_hz``."""
+    nan: Literal["fail", "fill"] = "fail"
+    """Missing/non-finite values: ``fail``, or ``fill`` runs of up to ``max_fill`` samples."""
+    max_fill: int = 5
+    """Longest run of missing samples (input rows) that ``nan = "fill"`` interpolates."""
+    max_gap_s: float | None = None
+    """Time gaps longer than this split the episode [s]; None: max(5 input steps, 2 output steps)."""
+    min_steps: int = 50
+    """Episodes (after resampling) shorter than this are dropped; use the model window."""
+    velocity: Literal["diff", "kalman"] = "diff"
+    """How to derive velocities that the log does not contain."""
+    lowpass: float = 0.8
+    """Anti-alias cutoff as a fraction of the output Nyquist rate; 0 disables the filter."""
+    clip_commands: bool = False
+    """Clip commands outside the range instead of failing (clipped samples are reported)."""
+    on_error: Literal["fail", "skip"] = "fail"
+    """A file that fails validation stops the import (``fail``) or is skipped and reported."""
+    outliers: Literal["fail", "drop", "clip"] = "fail"
+    """Angle spikes, impossible samples and angles beyond the joint limits: ``fail``, ``drop``
+    the rows, or ``clip`` to the limits (spikes and impossible samples are dropped); found
+    before resampling (docs/import.md)."""
+    max_upsample: float = 10.0
+    """The target rate may be at most this multiple of a log's own rate (higher is refused)."""
+    max_memory_mb: float | None = None
+    """Bound on a log's decompressed text and its resampled output [MB]; None: a quarter of
+    the memory available when the import starts."""
+
+    def __post_init__(self) -> None:
+        if self.rate_hz is not None and not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
+            raise ConfigError(f"rate_hz must be positive and finite, got {self.rate_hz:.6g}")
+        if not (self.max_upsample >= 1 and math.isfinite(self.max_upsample)):
+            raise ConfigError(f"max_upsample must be >= 1 and finite, got {self.max_upsample:.6g}")
+        if self.max_memory_mb is not None and not (
+            self.max_memory_mb > 0 and math.isfinite(self.max_memory_mb)
+        ):
+            raise ConfigError(f"max_memory_mb must be positive, got {self.max_memory_mb:.6g}")
+        if self.max_fill < 0:
+            raise ConfigError(f"max_fill must be >= 0, got {self.max_fill}")
+        if self.max_gap_s is not None and not self.max_gap_s > 0:
+            raise ConfigError(f"max_gap_s must be positive, got {self.max_gap_s}")
+        if self.min_steps < 2:
+            raise ConfigError(f"min_steps must be >= 2, got {self.min_steps}")
+        if not 0.0 <= self.lowpass < 1.0:
+            raise ConfigError(
+                f"lowpass must be in [0, 1) (fraction of the output Nyquist), got {self.lowpass}"
+            )
+
+
+@dataclass(frozen=True)
+class SplitOptions:
+    """``[split]``: how episodes are assigned to train/val/test (always by source file)."""
+
+    by: Literal["fraction", "glob", "file"] = "fraction"
+    fractions: tuple[float, float, float] = (0.7, 0.15, 0.15)
+    """train/val/test shares of the samples (``by = "fraction"``)."""
+    seed: int = 0
+    """Shuffle seed for ``by = "fraction"``."""
+    train: tuple[str, ...] = ()
+    """Glob patterns (``glob``) or file names (``file``) of training files."""
+    val: tuple[str, ...] = ()
+    test: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ConfigError(f"split seed must be >= 0, got {self.seed}")
+        f = self.fractions
+        if any(x < 0 for x in f) or not math.isclose(sum(f), 1.0, abs_tol=1e-6):
+            raise ConfigError(f"split fractions {list(f)} must be >= 0 and sum to 1")
