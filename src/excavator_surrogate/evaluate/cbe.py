@@ -11,6 +11,7 @@
     {"omega": {"<joint>": {"rmse", "mae", "r2"}}, "theta": {...},
      "run": {checkpoint, dataset, split, reference, mode, model, n_episode, n_step_scored, warmup, episodes, ...},
      "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines
+     "linkage": {"<joint>": {"rmse", "mae", "r2"}},  # linear joints with a linkage: angles [rad]
      "uncertainty": {...}}   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
 """
 
@@ -24,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import torch
 
 from ..config import PresetConfig
@@ -31,12 +33,13 @@ from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, recorded_path, write_json, write_text
+from ..spec import MachineSpec
 from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.features import unwrap_periodic
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
-from .metrics import cbe_metrics
+from .metrics import cbe_metrics, regression_metrics
 from .report import report_markdown, training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
@@ -205,7 +208,15 @@ def evaluate_checkpoint(
         "episodes": [{"name": r.name, "n_step": len(r.time)} for r in main_runs],
         "seconds": round(time.monotonic() - t0, 3),
     }
+    if sur.spec.any_linear:  # metrics.json is in stored units (rad, m): say which
+        run_info["units"] = {
+            j.name: {"theta": "m" if j.linear else "rad", "display": j.display_unit}
+            for j in sur.spec.joints
+        }
     result: dict[str, Any] = {**metrics[primary], "run": run_info}
+    link = linkage_metrics(main_runs, sur.spec)
+    if link:
+        result["linkage"] = link
     result["training"] = (sur.metrics or {}).get("training")  # did the wall-time cap cut it?
     unc_runs = uncertainty_runs(
         sur, episodes, main_runs, reference=reference, max_steps=max_steps or None
@@ -218,7 +229,9 @@ def evaluate_checkpoint(
         write_json(tmp / "metrics.json", _json_safe(result))
         write_text(
             tmp / "table.md",
-            report_markdown(metrics, primary=primary, run=run_info, paper=paper)
+            report_markdown(
+                metrics, primary=primary, run=run_info, paper=paper, spec=sur.spec, linkage=link
+            )
             + training_markdown(result["training"])
             + "\n"
             + uncertainty_markdown(result["uncertainty"], sur.spec.names),
@@ -228,15 +241,18 @@ def evaluate_checkpoint(
 
             for i, r in enumerate(main_runs[:max_figures]):
                 name = "cbe.png" if i == 0 else f"cbe_{r.name}.png"
+                f = np.array([j.display_factor for j in sur.spec.joints])  # mm for a stroke in mm
                 preds = {
-                    label: (runs[label][i].omega_hat, runs[label][i].theta_hat) for label in models
+                    label: (runs[label][i].omega_hat * f, runs[label][i].theta_hat * f)
+                    for label in models
                 }
                 bands, ood = figure_bands(unc_runs[i].pred)
+                bands = {k: tuple(b * f for b in v) for k, v in bands.items()} if bands else bands
                 plot_cbe(
                     tmp / name,
                     time=r.time,
-                    omega_ref=r.omega_ref,
-                    theta_ref=unwrap_periodic(r.theta_ref, sur.spec),
+                    omega_ref=r.omega_ref * f,
+                    theta_ref=unwrap_periodic(r.theta_ref, sur.spec) * f,
                     predictions=preds,
                     names=sur.spec.names,
                     warmup=r.warmup,
@@ -244,8 +260,34 @@ def evaluate_checkpoint(
                     ref_label=reference,
                     bands=bands,
                     ood=ood,
+                    units=_plot_units(sur.spec),
                 )
     return result
+
+
+def _plot_units(spec: MachineSpec) -> list[tuple[str, str]] | None:
+    """Per joint (ω unit, θ unit) for the figure's axes; None keeps the rad labels."""
+    if not spec.any_linear:
+        return None
+    return [(j.rate_unit, j.display_unit) for j in spec.joints]
+
+
+def linkage_metrics(runs: Sequence[EpisodeRollout], spec: MachineSpec) -> dict[str, Any]:
+    """RMSE, MAE and R² of the joint angles [rad] that the linear joints with a linkage give
+    (the free-run and reference strokes turned into angles, warm-up excluded, episodes
+    pooled); empty when no joint has a linkage."""
+    out: dict[str, Any] = {}
+    for k, j in enumerate(spec.joints):
+        if j.linkage is None:
+            continue
+        pred = np.concatenate([j.linkage.angle(r.theta_hat[r.warmup :, k]) for r in runs])
+        ref = np.concatenate([j.linkage.angle(r.theta_ref[r.warmup :, k]) for r in runs])
+        m = regression_metrics(pred[:, None], ref[:, None])
+        out[j.name] = {
+            key: (float(m[key][0]) if math.isfinite(m[key][0]) else None)
+            for key in ("rmse", "mae", "r2")
+        }
+    return out
 
 
 def _json_safe(o: Any) -> Any:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from ..spec import MachineSpec
+
 PAPER_TABLE_II: dict[str, dict[str, tuple[float, float, float]]] = {
     "omega": {
         "swing": (0.0074, 0.0052, 0.9940),
@@ -54,10 +56,26 @@ PAPER_TABLE_III: dict[str, dict[str, dict[str, tuple[float, float, float]]]] = {
 """Paper Table III (Stage II, real excavator): (RMSE, MAE, R^2) per condition and joint."""
 
 _TYPE = {"omega": "Angular velocity ω [rad/s]", "theta": "Angle trajectory θ [rad]"}
+_TYPE_MIXED = {"omega": "Velocity ω", "theta": "Position θ"}
+"""Type labels of a machine with linear joints: each joint row then names its own unit."""
 
 
-def _fmt(v: float | None) -> str:
-    return "—" if v is None else f"{v:.4f}"
+def _fmt(v: float | None, f: float = 1.0) -> str:
+    return "—" if v is None else f"{v * f:.4f}"
+
+
+def _row_label(spec: MachineSpec | None, key: str, joint: str) -> tuple[str, float]:
+    """The joint cell and the RMSE/MAE factor of one row: ``Boom`` and 1 for revolute-only
+    machines (the Type column gives rad), ``Boom [mm]`` and 1000 for a linear joint in mm."""
+    if spec is None or not spec.any_linear or joint not in spec.names:
+        return joint.capitalize(), 1.0
+    j = spec.joints[spec.names.index(joint)]
+    unit = j.rate_unit if key == "omega" else j.display_unit
+    return f"{joint.capitalize()} [{unit}]", j.display_factor
+
+
+def _type_label(spec: MachineSpec | None, key: str) -> str:
+    return _TYPE_MIXED[key] if spec is not None and spec.any_linear else _TYPE[key]
 
 
 def paper_applies(names: tuple[str, ...] | list[str]) -> bool:
@@ -65,12 +83,17 @@ def paper_applies(names: tuple[str, ...] | list[str]) -> bool:
     return list(names) == list(PAPER_TABLE_II["omega"])
 
 
-def markdown_table(metrics: Mapping[str, Any], *, paper: bool = False) -> str:
+def markdown_table(
+    metrics: Mapping[str, Any], *, paper: bool = False, spec: MachineSpec | None = None
+) -> str:
     """One model's metrics as the paper's table; with ``paper`` adds Table II columns.
 
     Args:
-        metrics: ``{"omega": {joint: {rmse, mae, r2}}, "theta": {...}}``.
+        metrics: ``{"omega": {joint: {rmse, mae, r2}}, "theta": {...}}`` in stored units
+            (rad, m for a linear joint).
         paper: add the paper's values for joints it reports (swing, boom, arm, bucket).
+        spec: the machine; with linear joints every row names its joint's unit and RMSE/MAE
+            are printed in it (e.g. mm).
     """
     head = "| Type | Joint | RMSE | MAE | R² |"
     rule = "|---|---|---:|---:|---:|"
@@ -80,8 +103,9 @@ def markdown_table(metrics: Mapping[str, Any], *, paper: bool = False) -> str:
     lines = [head, rule]
     for key in ("omega", "theta"):
         for i, (joint, m) in enumerate(metrics[key].items()):
-            typ = _TYPE[key] if i == 0 else ""
-            row = f"| {typ} | {joint.capitalize()} | {_fmt(m['rmse'])} | {_fmt(m['mae'])} | {_fmt(m['r2'])} |"
+            typ = _type_label(spec, key) if i == 0 else ""
+            label, f = _row_label(spec, key, joint)
+            row = f"| {typ} | {label} | {_fmt(m['rmse'], f)} | {_fmt(m['mae'], f)} | {_fmt(m['r2'])} |"
             if paper:
                 p = PAPER_TABLE_II[key].get(joint)
                 row += (" " + " | ".join(_fmt(x) for x in p) + " |") if p else " — | — | — |"
@@ -89,8 +113,11 @@ def markdown_table(metrics: Mapping[str, Any], *, paper: bool = False) -> str:
     return "\n".join(lines) + "\n"
 
 
-def comparison_table(by_model: Mapping[str, Mapping[str, Any]]) -> str:
-    """Several models side by side: Type | Joint | then RMSE / R² per model."""
+def comparison_table(
+    by_model: Mapping[str, Mapping[str, Any]], *, spec: MachineSpec | None = None
+) -> str:
+    """Several models side by side: Type | Joint | then RMSE / R² per model (``spec``: as
+    in :func:`markdown_table`)."""
     models = list(by_model)
     head = "| Type | Joint | " + " | ".join(f"{m} RMSE | {m} MAE | {m} R²" for m in models) + " |"
     rule = "|---|---|" + "---:|---:|---:|" * len(models)
@@ -98,12 +125,13 @@ def comparison_table(by_model: Mapping[str, Mapping[str, Any]]) -> str:
     first = by_model[models[0]]
     for key in ("omega", "theta"):
         for i, joint in enumerate(first[key]):
+            label, f = _row_label(spec, key, joint)
             cells = []
             for m in models:
                 v = by_model[m][key].get(joint, {"rmse": None, "mae": None, "r2": None})
-                cells += [_fmt(v["rmse"]), _fmt(v["mae"]), _fmt(v["r2"])]
-            typ = _TYPE[key] if i == 0 else ""
-            lines.append(f"| {typ} | {joint.capitalize()} | " + " | ".join(cells) + " |")
+                cells += [_fmt(v["rmse"], f), _fmt(v["mae"], f), _fmt(v["r2"])]
+            typ = _type_label(spec, key) if i == 0 else ""
+            lines.append(f"| {typ} | {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -113,10 +141,16 @@ def report_markdown(
     primary: str,
     run: Mapping[str, Any] | None = None,
     paper: bool = True,
+    spec: MachineSpec | None = None,
+    linkage: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> str:
-    """The ``table.md`` text: run summary, the primary model in the paper's layout, then a comparison."""
+    """The ``table.md`` text: run summary, the primary model in the paper's layout, then a
+    comparison; ``spec`` prints linear joints in their own unit, ``linkage`` (joint ->
+    ``{rmse, mae, r2}`` in rad, :func:`~.cbe.linkage_metrics`) adds their angles through the
+    linkage."""
     names = list(by_model[primary]["omega"])
-    show_paper = paper and paper_applies(names)
+    # the paper's joints are angles: a machine that senses strokes is not its machine
+    show_paper = paper and paper_applies(names) and not (spec is not None and spec.any_linear)
     parts = ["# Closed-loop behavioural equivalence (CBE)", ""]
     if run:
         keys = (
@@ -134,11 +168,29 @@ def report_markdown(
     parts += [
         f"## {primary}" + (" (paper Table II alongside)" if show_paper else ""),
         "",
-        markdown_table(by_model[primary], paper=show_paper),
+        markdown_table(by_model[primary], paper=show_paper, spec=spec),
     ]
+    if linkage:
+        parts += [linkage_markdown(linkage)]
     if len(by_model) > 1:
-        parts += ["## Comparison", "", comparison_table(by_model)]
+        parts += ["## Comparison", "", comparison_table(by_model, spec=spec)]
     return "\n".join(parts)
+
+
+def linkage_markdown(linkage: Mapping[str, Mapping[str, Any]]) -> str:
+    """The linear joints' angles through their linkage: one row per joint, in rad (as the
+    revolute joints' rows)."""
+    lines = [
+        "Joint angles through the linkage (the strokes turned into angles):",
+        "",
+        "| Joint | angle RMSE [rad] | angle MAE [rad] | angle R² |",
+        "|---|---:|---:|---:|",
+    ]
+    for joint, m in linkage.items():
+        lines.append(
+            f"| {joint.capitalize()} | {_fmt(m['rmse'])} | {_fmt(m['mae'])} | {_fmt(m['r2'])} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def training_markdown(training: Mapping[str, Any] | None) -> str:

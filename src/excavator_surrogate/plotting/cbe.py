@@ -23,6 +23,7 @@ def plot_cbe(
     ref_label: str = "reference",
     bands: Mapping[float, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
     ood: np.ndarray | None = None,
+    units: Sequence[tuple[str, str]] | None = None,
 ) -> Path:
     """Write a PNG comparing surrogate free-runs with the reference.
 
@@ -40,6 +41,8 @@ def plot_cbe(
             omega_hi, theta_lo, theta_hi)``, each (n_step, n_joint); shaded, widest palest.
         ood: (n_step,) bool, steps flagged out of distribution: marked as a red strip at the
             bottom of every panel.
+        units: per joint ``(ω unit, θ unit)`` of the values given (e.g. ``("mm/s", "mm")``
+            for a linear joint); every panel then names its own; None: rad/s and rad.
     """
     import matplotlib
 
@@ -109,7 +112,9 @@ def plot_cbe(
                 ax.set_title(name)
             else:
                 ax.set_xlabel("time [s]")
-            if j == 0:
+            if units is not None:
+                ax.set_ylabel(f"{sym} [{units[j][row]}]")
+            elif j == 0:
                 ax.set_ylabel(f"{sym} [{unit}]")
             ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7, loc="best")

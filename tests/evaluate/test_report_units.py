@@ -1,0 +1,68 @@
+"""The CBE tables print each linear joint in its own unit (mm ...), revolute ones as before."""
+
+from __future__ import annotations
+
+import pytest
+
+from excavator_surrogate.evaluate.report import markdown_table, report_markdown
+from excavator_surrogate.spec import EXCAVATOR, JointSpec, MachineSpec
+
+STROKES = MachineSpec(
+    (
+        JointSpec("swing", periodic=True),
+        JointSpec("boom", kind="linear", unit="mm"),
+        JointSpec("arm", kind="linear", unit="cm"),
+        JointSpec("bucket", kind="linear", unit="m"),
+    )
+)
+
+
+def _metrics(names: tuple[str, ...]) -> dict:
+    one = {"rmse": 0.0125, "mae": 0.01, "r2": 0.95}
+    return {"omega": {n: dict(one) for n in names}, "theta": {n: dict(one) for n in names}}
+
+
+def _row(text: str, label: str) -> list[str]:
+    line = next(ln for ln in text.splitlines() if f"| {label} |" in ln)
+    return [c.strip() for c in line.strip("|").split("|")]
+
+
+def test_linear_rows_name_their_unit_and_scale_rmse() -> None:
+    text = markdown_table(_metrics(STROKES.names), spec=STROKES)
+    assert _row(text, "Boom [mm]")[2:5] == ["12.5000", "10.0000", "0.9500"]  # m -> mm, R² as is
+    assert _row(text, "Arm [cm]")[2:4] == ["1.2500", "1.0000"]
+    assert _row(text, "Bucket [m/s]")[2] == "0.0125"
+    assert _row(text, "Swing [rad]")[2] == "0.0125"
+    assert "Angle trajectory θ [rad]" not in text and "deg" not in text
+
+
+def test_revolute_machines_print_as_before() -> None:
+    m = _metrics(EXCAVATOR.names)
+    assert markdown_table(m, spec=EXCAVATOR) == markdown_table(m)
+    assert "Angle trajectory θ [rad]" in markdown_table(m)
+
+
+def test_the_paper_is_not_shown_for_a_stroke_machine() -> None:
+    """Same joint names as the paper's machine, but strokes: its Table II does not apply."""
+    m = _metrics(STROKES.names)
+    assert "Paper RMSE" in report_markdown({"LSTM": m}, primary="LSTM")
+    assert "Paper RMSE" not in report_markdown({"LSTM": m}, primary="LSTM", spec=STROKES)
+
+
+def test_linkage_angles_are_listed() -> None:
+    m = _metrics(STROKES.names)
+    link = {"boom": {"rmse": 0.02, "mae": 0.015, "r2": 0.99}}
+    text = report_markdown({"LSTM": m, "ARX": m}, primary="LSTM", spec=STROKES, linkage=link)
+    assert _row(text, "Boom")[1:4] == ["0.0200", "0.0150", "0.9900"]
+    assert "angle RMSE [rad]" in text
+    # the comparison table scales too
+    comp = text.split("## Comparison")[1]
+    assert _row(comp, "Boom [mm]")[2] == "12.5000" and _row(comp, "Boom [mm]")[5] == "12.5000"
+
+
+@pytest.mark.parametrize("unit", ["mm", "cm", "m"])
+def test_factor_matches_the_unit(unit: str) -> None:
+    spec = MachineSpec((JointSpec("boom", kind="linear", unit=unit),))
+    text = markdown_table(_metrics(spec.names), spec=spec)
+    expect = {"mm": "12.5000", "cm": "1.2500", "m": "0.0125"}[unit]
+    assert _row(text, f"Boom [{unit}]")[2] == expect
