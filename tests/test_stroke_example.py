@@ -123,3 +123,13 @@ def test_the_shipped_mapping_is_the_generated_one() -> None:
     """examples/stroke_excavator.toml (for reading) is what make_logs writes at 20 Hz."""
     shipped = EXAMPLE.with_name("stroke_excavator.toml").read_text()
     assert shipped == _example().mapping_toml(20.0)
+
+
+def test_clean_prints_the_strokes_in_mm(
+    run: dict[str, Path], capsys: pytest.CaptureFixture
+) -> None:
+    out = run["work"] / "cleaned"
+    assert main(["clean", str(run["dataset"]), "--out", str(out)]) == 0
+    lines = {ln.split(":")[0].strip(): ln for ln in capsys.readouterr().out.splitlines()}
+    assert lines["boom"].endswith(" mm") and lines["swing"].endswith(" rad"), lines
+    assert load_dataset(out).spec.joints[1].unit == "mm"  # cleaning keeps the spec

@@ -66,3 +66,30 @@ def test_factor_matches_the_unit(unit: str) -> None:
     text = markdown_table(_metrics(spec.names), spec=spec)
     expect = {"mm": "12.5000", "cm": "1.2500", "m": "0.0125"}[unit]
     assert _row(text, f"Boom [{unit}]")[2] == expect
+
+
+def _run_metrics(units: dict | None) -> dict:
+    m = _metrics(STROKES.names)
+    m["run"] = {"split": "test", "n_step_scored": 10, "reference": "true"}
+    if units is not None:
+        m["run"]["units"] = units
+    m["cleaning"] = {
+        n: {"rmse_raw": 0.002, "rmse_fused": 0.001, "rmse_ratio": 0.5} for n in STROKES.names
+    }
+    return m
+
+
+def test_run_report_prints_linear_joints_in_their_unit() -> None:
+    from excavator_surrogate.evaluate.run_report import ReportContext, render_run_report
+
+    ctx = ReportContext(name="x", spec_names=STROKES.names, table_md="", paper_table="III-compound")
+    units = {
+        j.name: {"theta": "m" if j.linear else "rad", "display": j.unit} for j in STROKES.joints
+    }
+    text = render_run_report(_run_metrics(units), ctx)
+    assert "| boom [mm] | 2.0000 | 1.0000 | 0.5000 |" in text
+    assert "| swing [rad] | 0.0020 | 0.0010 |" in text
+    assert "worst-joint position R²" in text and "Table III" not in text
+    before = render_run_report(_run_metrics(None), ctx)  # a revolute machine: as before
+    assert "raw angle RMSE [rad]" in before and "| boom | 0.0020 |" in before
+    assert "worst-joint angle R²" in before and "Table III" in before

@@ -68,13 +68,18 @@ def run(args: argparse.Namespace) -> int:
     manifest = read_manifest(out)
     summary = manifest.get("cleaning", {})
     print(f"cleaned dataset: {out}  (method {cfg.method})")
+    from ..spec import MachineSpec
+
+    joints = {j.name: j for j in MachineSpec.from_dict(manifest["spec"]).joints}
     for joint, m in summary.items():
+        js = joints.get(joint)  # a linear joint prints in its own unit (mm ...)
+        f, unit = (js.display_factor, js.display_unit) if js is not None else (1.0, "rad")
         line = (
             f"  {joint:>10s}: untrusted {100 * m['untrusted_frac']:5.2f} %, "
-            f"rms(fused - raw) {m['rms_fused_minus_raw']:.4f} rad"
+            f"rms(fused - raw) {f * m['rms_fused_minus_raw']:.4f} {unit}"
         )
         if m.get("rmse_raw") is not None:
-            line += f", rmse raw {m['rmse_raw']:.4f} -> fused {m['rmse_fused']:.4f} rad"
+            line += f", rmse raw {f * m['rmse_raw']:.4f} -> fused {f * m['rmse_fused']:.4f} {unit}"
         if m.get("jump_recall") is not None:
             prec = m.get("jump_precision")
             line += f", jumps P {prec if prec is None else round(prec, 3)} R {m['jump_recall']:.3f}"

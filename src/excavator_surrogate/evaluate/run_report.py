@@ -12,6 +12,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ..spec import LINEAR_UNITS
 from .metrics import min_r2
 from .report import PAPER_TABLE_III
 from .uncertainty import uncertainty_markdown
@@ -31,8 +32,15 @@ class ReportContext:
     """Which of the paper's tables to show: ``II``, ``III-noload``, ``III-compound``, ``none``."""
 
 
-def _fmt(v: Any) -> str:
-    return "n/a" if v is None else f"{v:.4f}"
+def _fmt(v: Any, f: float = 1.0) -> str:
+    return "n/a" if v is None else f"{v * f:.4f}"
+
+
+def _unit(metrics: Mapping[str, Any], joint: str) -> tuple[float, str]:
+    """``(factor, unit)`` a joint's stored values print in: ``(1, "rad")``, or for a linear
+    joint its mapping's unit (``run.units`` of ``metrics.json``, e.g. ``(1000, "mm")``)."""
+    u = (metrics.get("run", {}).get("units") or {}).get(joint, {}).get("display", "rad")
+    return LINEAR_UNITS.get(u, 1.0), u
 
 
 def _summary(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
@@ -41,12 +49,13 @@ def _summary(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     th = metrics["theta"]
     om = metrics["omega"]
     lines = [f"# exsur run: preset `{ctx.name}`", ""]
+    what = "position" if run.get("units") else "angle"  # strokes of linear joints too
     worst_theta = min(v["r2"] for v in th.values() if v.get("r2") is not None)
     worst_omega = min(v["r2"] for v in om.values() if v.get("r2") is not None)
     lines += [
         f"Closed-loop free run on the {run.get('split', 'test')} split "
         f"({run.get('n_step_scored', '?')} scored steps, "
-        f"reference: {run.get('reference', '?')}): **worst-joint angle R² {worst_theta:.4f}, "
+        f"reference: {run.get('reference', '?')}): **worst-joint {what} R² {worst_theta:.4f}, "
         f"worst-joint ω R² {worst_omega:.4f}**.",
         "",
         *(
@@ -70,7 +79,8 @@ def _paper_table_iii(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str
     """The paper's Table III next to ours (Stage II presets of the 4-joint excavator)."""
     lines: list[str] = []
     paper_key = {"III-noload": "noload", "III-compound": "compound"}.get(ctx.paper_table)
-    if paper_key and set(ctx.spec_names) == {"swing", "boom", "arm", "bucket"}:
+    strokes = bool(metrics.get("run", {}).get("units"))  # the paper's machine senses angles
+    if paper_key and set(ctx.spec_names) == {"swing", "boom", "arm", "bucket"} and not strokes:
         ref = PAPER_TABLE_III[paper_key]
         lines += [
             f"## Against the paper's Table III ({paper_key})",
@@ -94,17 +104,21 @@ def _cleaning(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """Kalman cleaning against the ground truth."""
     lines: list[str] = []
     if metrics.get("cleaning"):
+        mixed = bool(metrics.get("run", {}).get("units"))  # linear joints: units per row
+        unit = "" if mixed else " [rad]"
         lines += [
             "## Cleaning (adaptive Kalman filter) against the ground truth",
             "",
-            "| Joint | raw angle RMSE [rad] | fused angle RMSE [rad] | ratio | jump precision | jump recall |",
+            f"| Joint | raw angle RMSE{unit} | fused angle RMSE{unit} | ratio | jump precision | jump recall |",
             "|---|---|---|---|---|---|",
         ]
         for j, c in metrics["cleaning"].items():
             if not isinstance(c, dict):
                 continue
+            f, u = _unit(metrics, j)
             lines.append(
-                f"| {j} | {_fmt(c.get('rmse_raw'))} | {_fmt(c.get('rmse_fused'))} | {_fmt(c.get('rmse_ratio'))} "
+                f"| {j}{f' [{u}]' if mixed else ''} | {_fmt(c.get('rmse_raw'), f)} "
+                f"| {_fmt(c.get('rmse_fused'), f)} | {_fmt(c.get('rmse_ratio'))} "
                 f"| {_fmt(c.get('jump_precision'))} | {_fmt(c.get('jump_recall'))} |"
             )
         lines += [""] + [f"![fusion {j}](fusion_{j}.png)" for j in ctx.spec_names] + [""]
