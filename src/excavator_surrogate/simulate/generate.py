@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import multiprocessing as mp
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -34,10 +35,11 @@ import numpy as np
 
 from .. import config as config_mod
 from ..data import Episode, write_dataset
+from ..data.timesplit import split_in_time
 from ..errors import ConfigError
 from ..io_utils import init_worker_logging, progress, worker_log_config
 from ..orphans import die_with_parent, parent_args
-from ..spec import EXCAVATOR, MachineSpec
+from ..spec import EXCAVATOR, InputSpec, MachineSpec
 from .excitation import (
     CLOSED_LOOP,
     SIGNALS,
@@ -49,6 +51,7 @@ from .excitation import (
 from .hydraulics import HydraulicConfig, HydraulicTransform, ReliefAntiWindup
 from .plant import MujocoExcavator, PlantConfig
 from .sensors import SensorConfig, apply_sensors_episode
+from .session import SessionOperator
 from .soil import ChainHook, SoilConfig, SoilHook
 
 _log = logging.getLogger(__name__)
@@ -57,6 +60,10 @@ SOURCE = "mujoco-ideal"
 """``source`` metadata of episodes from the ideal Stage I plant."""
 SOURCES: dict[str, str] = {"ideal": "mujoco-ideal", "hydraulic": "mujoco-hydraulic"}
 """``source`` metadata per plant kind."""
+INPUTS: dict[str, InputSpec] = {
+    "throttle": InputSpec("throttle", u_min=0.0, u_max=1.0, unit="fraction of full throttle")
+}
+"""Exogenous inputs a simulation can record (``SimulateConfig.inputs``)."""
 
 
 @dataclass(frozen=True)
@@ -111,6 +118,14 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
     """Apply the sensor-fault model: theta/omega become measurements, truth in *_true columns."""
     sensor: SensorConfig = field(default_factory=SensorConfig)
     """Sensor noise and fault magnitudes (``[simulate.sensor]``)."""
+    inputs: tuple[str, ...] = ()
+    """Exogenous inputs to record as command columns ``u_<name>``: ``throttle`` (the engine
+    throttle of the ``dig_session`` operator, a fraction of full; 1 for other kinds)."""
+    val_s: float = 0.0
+    """Split in time: cut this much of each training episode's end, before ``test_s``, into a
+    validation episode [s] (0: none; docs/real.md, "One long log")."""
+    test_s: float = 0.0
+    """Split in time: cut this much of each training episode's end into a test episode [s]."""
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -137,6 +152,14 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
             raise ConfigError(f"simulate.workers must be >= 1, got {self.workers}")
         if not 0 <= self.pose_margin < 0.5:
             raise ConfigError(f"simulate.pose_margin must be in [0, 0.5), got {self.pose_margin}")
+        bad_in = sorted(set(self.inputs) - set(INPUTS))
+        if bad_in:
+            raise ConfigError(
+                f"simulate.inputs: unknown input(s) {bad_in}; choose from {', '.join(INPUTS)}"
+            )
+        for name in ("val_s", "test_s"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ConfigError(f"simulate.{name} must be >= 0 [s], got {getattr(self, name)}")
         if self.plant not in SOURCES:
             raise ConfigError(
                 f"simulate.plant must be one of {', '.join(SOURCES)}, got {self.plant!r}"
@@ -243,7 +266,7 @@ def _run_loop(
     n_step: int,
     *,
     u: np.ndarray | None = None,
-    operator: DigOperator | None = None,
+    operator: DigOperator | SessionOperator | None = None,
     tip_site: str = "tip",
 ) -> dict[str, Any]:
     """Python-loop episode with open-loop commands ``u: (n_step, n_joint)`` or a closed-loop
@@ -263,6 +286,7 @@ def _run_loop(
         operator.reset(theta0)
     cap = soil.config.capacity_m3 if soil is not None else 1.0
     payload = np.zeros(n_step)
+    throttle = np.ones(n_step)
     for k in range(n_step):
         if operator is not None:
             fill = soil.volume / cap if soil is not None and cap > 0 else 0.0
@@ -274,6 +298,10 @@ def _run_loop(
             cmds[k] = u[k]
         if soil is not None:
             payload[k] = soil.payload_kg
+        if isinstance(operator, SessionOperator):  # the engine throttle scales the pump
+            throttle[k] = operator.throttle
+            if isinstance(plant.transform, HydraulicTransform):
+                plant.transform.pump_scale = throttle[k]
         if k < n_step - 1:
             theta[k + 1], omega[k + 1] = plant.step(cmds[k])
     info: dict[str, Any] = {}
@@ -289,7 +317,13 @@ def _run_loop(
             "cycles": operator.cycles,
             "phases": [[k, ph] for k, ph in operator.phase_log],
         }
-    return {"u": cmds, "theta": theta, "omega": omega, "info": info}
+    return {
+        "u": cmds,
+        "theta": theta,
+        "omega": omega,
+        "info": info,
+        "inputs": {"throttle": throttle},
+    }
 
 
 def simulate_episode(
@@ -324,9 +358,19 @@ def simulate_episode(
         velocity_map = plant.transform.nominal_model(omega_max=plant.omega_max)
 
     if closed:
-        operator = DigOperator(
-            plant.spec, rng=rng, params=cfg.excitation.dig_cycle, ground_z=cfg.soil.ground_z
-        )
+        operator: DigOperator | SessionOperator
+        if job.kind == "dig_session":
+            operator = SessionOperator(
+                plant.spec,
+                rng=rng,
+                params=cfg.excitation.dig_session,
+                dig=cfg.excitation.dig_cycle,
+                ground_z=cfg.soil.ground_z,
+            )
+        else:
+            operator = DigOperator(
+                plant.spec, rng=rng, params=cfg.excitation.dig_cycle, ground_z=cfg.soil.ground_z
+            )
         res = _run_loop(plant, theta0, job.n_step, operator=operator, tip_site=cfg.soil.tip_site)
         info.update(res["info"])
         return {
@@ -335,6 +379,7 @@ def simulate_episode(
             "theta": res["theta"],
             "omega": res["omega"],
             "info": info,
+            "inputs": res["inputs"],
         }
     u = generate(
         job.kind,
@@ -402,6 +447,9 @@ def simulate_dataset(
     if workers < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
     spec = spec.with_rate(cfg.rate_hz) if spec.rate_hz != cfg.rate_hz else spec
+    plant_spec = spec
+    if cfg.inputs:
+        spec = dataclasses.replace(spec, inputs=tuple(INPUTS[n] for n in cfg.inputs))
     jobs = plan_episodes(cfg)
     n_samples = sum(j.n_step for j in jobs)
     _log.info(
@@ -409,8 +457,8 @@ def simulate_dataset(
         f"{min(workers, len(jobs))} worker(s)"  # at most one per episode
     )
     t0 = time.perf_counter()
-    _plant(cfg, spec)  # fail early (bad MJCF / rate / hydraulics) in the parent, one-line error
-    args = [(j, cfg, spec) for j in jobs]
+    _plant(cfg, plant_spec)  # fail early (bad MJCF / rate / hydraulics) in the parent, one line
+    args = [(j, cfg, plant_spec) for j in jobs]
     n_workers = min(workers, len(jobs))
     if n_workers <= 1:
         results = [_worker(a) for a in progress(args, total=len(args), desc="simulate")]
@@ -427,10 +475,15 @@ def simulate_dataset(
     items = []
     for job, res in zip(jobs, results):
         n = job.n_step
+        u = res["u"]
+        if cfg.inputs:  # exogenous inputs after the joints' commands (1 = full throttle)
+            ins = res.get("inputs", {})
+            cols = [np.asarray(ins.get(name, np.ones(n)), dtype=np.float64) for name in cfg.inputs]
+            u = np.concatenate([u, np.stack(cols, axis=1)], axis=1)
         ep = Episode(
             spec=spec,
             time=np.arange(n) * spec.dt,
-            u=res["u"],
+            u=u,
             theta=res["theta"],
             omega=res["omega"],
             theta_true=res["theta"].copy() if cfg.record_truth else None,
@@ -453,7 +506,10 @@ def simulate_dataset(
             ep = apply_sensors_episode(
                 ep, config=cfg.sensor, rng=np.random.default_rng([job.seed, 1])
             )
-        items.append((ep, job.split))
+        if job.split == "train" and (cfg.val_s > 0 or cfg.test_s > 0):
+            items += split_in_time(ep, val_s=cfg.val_s, test_s=cfg.test_s)
+        else:
+            items.append((ep, job.split))
     path = write_dataset(out, items, config={"simulate": cfg_dict}, extra=extra)
     _log.info(f"simulate: wrote {path} in {time.perf_counter() - t0:.1f} s")
     return path

@@ -299,6 +299,9 @@ class HydraulicTransform:
         self.timestep = float(timestep)
         self.dt = self.substeps * self.timestep
         self.k = 0  # control steps processed since reset (drift clock)
+        self.pump_scale = 1.0
+        """Engine throttle: the pump's largest flow is ``pump_scale * pump_max_lpm`` (set per step
+        by a closed-loop operator that changes the throttle, :mod:`.session`)."""
         self._play = np.zeros((n_batch, n))
         self._rate = np.zeros((n_batch, n))
         self.n_delay = (
@@ -344,7 +347,8 @@ class HydraulicTransform:
             demand = aq[..., 0] * p.flow[0]  # (n_batch, n_step) L/min; fixed summation order
             for j in range(1, n_joint):  # (a matmul's order depends on the chunk shape)
                 demand = demand + aq[..., j] * p.flow[j]
-            scale = np.minimum(1.0, c.pump_max_lpm / np.maximum(demand, 1e-12))
+            pump = c.pump_max_lpm * self.pump_scale
+            scale = np.minimum(1.0, pump / np.maximum(demand, 1e-12))
             q = q * scale[:, :, None]
         self.k += n_step
         # 5. acceleration limit at the physics rate, closed form within each control step:

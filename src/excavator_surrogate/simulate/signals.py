@@ -41,6 +41,7 @@ from .commands import (
     resolve_defaults,
 )
 from .dig_operator import DigCycleParams
+from .session import SessionParams
 
 
 @dataclass(frozen=True)
@@ -436,6 +437,11 @@ REGISTRY: dict[str, SignalKind] = {
     ),
     "dig_cycle": SignalKind(
         DigCycleParams, None, "closed-loop digging operator (DigOperator, compound operation)"
+    ),
+    "dig_session": SignalKind(
+        SessionParams,
+        None,
+        "closed-loop operator shift: digging cycles, free moves, pauses, throttle (SessionOperator)",
     ),
 }
 """Every signal kind by name, in the order of ``[simulate.excitation]``."""
