@@ -1,4 +1,5 @@
-"""Baselines for the CBE table: linear ARX by least squares (the GRU is ``TrainConfig(cell="gru")``).
+"""Baselines for the CBE table: linear ARX by least squares (the GRU is ``TrainConfig(cell="gru")``)
+and the structured per-joint model (dead zone, gain, delay, end stops; :mod:`.structured`).
 
 The ARX model uses exactly the surrogate's inputs: the normalised feature window of ``W``
 samples (angles or sin/cos, scaled commands) -> normalised ``omega[t+1]``, i.e.
@@ -20,6 +21,9 @@ from ..errors import DataError
 from ..spec import MachineSpec
 from .features import Normalization, omega_in_np, omega_target
 from .model import ARXNet, ModelConfig, Surrogate
+from .structured import fit_structured
+
+__all__ = ["DEFAULT_RIDGE", "RIDGES", "fit_arx", "fit_structured"]
 
 RIDGES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
 """Candidate relative ridge weights searched on the validation split."""
