@@ -11,7 +11,11 @@ import torch
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.bands import (
+    RULE,
+    _evenly,
+    _pooled,
     band_scores,
+    calibrate,
     calibrate_checkpoint,
     fit_scale,
     predict_episodes,
@@ -214,3 +218,46 @@ def test_calibrating_a_single_network_records_coverage_only(spec, episodes, tmp_
     scores = band_scores(runs, spec.names, [j.periodic for j in spec.joints])
     assert not scores["available"] and NO_MEMBERS in scores["notes"]
     assert scores["ood"] is not None
+
+
+def test_scales_are_the_larger_of_the_validation_and_training_runs(spec, episodes, tmp_path):
+    """:data:`RULE`: per level and joint the larger of the scale fitted on the validation runs
+    alone and on the training runs alone (validation can only widen the band); the record
+    says which runs it came from, and a checkpoint calibrated before the rule loads with the
+    same bands."""
+    ens = merge(_members(spec, episodes))
+    val, train = episodes[2:], episodes[:2]
+    both, _ = calibrate(ens, val, train)
+    only_val, _ = calibrate(ens, val, train, train_runs=0)
+    only_train, _ = calibrate(ens, [], train)
+    assert both is not None and only_val is not None and only_train is not None
+    assert (both.rule, both.n_run, both.n_train_run) == (RULE, 1, 2)
+    assert (only_val.rule, only_train.rule) == ("val", "train")
+    # each group's scale with the joint floor (the floor is 0.1 x the median spread of all)
+    runs_v = predict_episodes(ens, val, calibration=None)
+    runs_t = predict_episodes(ens, train, calibration=None)
+    per = np.array([j.periodic for j in spec.joints])
+    for q, fl in (("theta", both.floor("theta")), ("omega", both.floor("omega"))):
+        k_v = fit_scale(*_pooled(runs_v, per)[q], both.levels, fl)
+        k_t = fit_scale(*_pooled(runs_t, per)[q], both.levels, fl)
+        np.testing.assert_allclose(getattr(both, q), np.fmax(k_v, k_t), rtol=1e-12)
+        assert not np.allclose(k_v, k_t)  # the two groups disagree: the max is a real choice
+    # a calibration stored before the rule: no rule fields, read as "val", same bands
+    old = {k: v for k, v in both.to_dict().items() if k not in ("rule", "n_run", "n_train_run")}
+    back = Calibration.from_dict(old)
+    assert (back.rule, back.n_run, back.n_train_run) == ("val", 0, 0)
+    theta, u = _batch(episodes, 40)
+    a = predict_with_uncertainty(ens, theta, u, calibration=both).bands
+    b = predict_with_uncertainty(ens, theta, u, calibration=back).bands
+    assert a is not None and b is not None
+    for lv in both.levels:
+        for q in ("theta", "omega"):
+            np.testing.assert_array_equal(a[lv][q][0], b[lv][q][0])
+
+
+def test_few_training_runs_are_picked_evenly(spec, episodes):
+    many = [episodes[i % 3] for i in range(10)]
+    assert _evenly(many, 32) == many
+    assert _evenly(many, 0) == []
+    picked = _evenly(list(range(10)), 4)  # type: ignore[arg-type]
+    assert picked == [0, 3, 6, 9]

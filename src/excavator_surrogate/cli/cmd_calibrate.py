@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+TRAIN_RUNS = 32
+"""Default of ``--train-runs`` (:data:`excavator_surrogate.surrogate.bands.TRAIN_RUNS`)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``calibrate`` subcommand."""
@@ -14,8 +17,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Add to CKPT (rewritten in place, atomically) what 'exsur train' adds at the "
         "end of training: the record of what DATASET's training split covered (command, angle "
         "and speed ranges, angle/command occupancy: the out-of-distribution flag) and, for a "
-        "merged seed ensemble, the 50 %% and 90 %% band scales fitted on the validation split's "
-        "free runs. Use it after 'exsur merge', or to re-calibrate on other data of the same "
+        "merged seed ensemble, the 50 %% and 90 %% band scales fitted on free runs (per joint, "
+        "the larger of the scales fitted on the validation runs and on up to --train-runs "
+        "training runs). Use it after 'exsur merge', or to re-calibrate on other data of the same "
         "machine.",
     )
     p.add_argument("ckpt", type=Path, help="checkpoint (best.pt), rewritten in place")
@@ -31,7 +35,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--max-steps",
         type=int,
         default=0,
-        help="truncate validation episodes to this many samples (0: whole episodes)",
+        help="truncate the free-run episodes to this many samples (0: whole episodes)",
+    )
+    p.add_argument(
+        "--train-runs",
+        type=int,
+        default=TRAIN_RUNS,
+        help=f"training episodes free-run for the band scales, evenly spread over the split "
+        f"(default {TRAIN_RUNS}; 0: the validation runs alone)",
     )
     p.set_defaults(func=run)
 
@@ -45,23 +56,32 @@ def run(args: argparse.Namespace) -> int:
 
     if args.max_steps < 0:
         raise ConfigError(f"--max-steps must be >= 0, got {args.max_steps}")
+    if args.train_runs < 0:
+        raise ConfigError(f"--train-runs must be >= 0, got {args.train_runs}")
     sur = load_checkpoint(args.ckpt)
     ds = load_dataset(args.dataset)
     check_compatible(sur.spec, ds.spec, ckpt=args.ckpt, data_name=args.dataset)
     if not ds.train:
         raise DataError(args.dataset, "has no training episodes", fix="give the training dataset")
-    val = ds.val or ds.train
+    val = ds.val or ([] if args.train_runs else ds.train)
     cal, cov = calibrate_checkpoint(
-        args.ckpt, val, ds.train, design=args.design, max_steps=args.max_steps or None
+        args.ckpt,
+        val,
+        ds.train,
+        design=args.design,
+        max_steps=args.max_steps or None,
+        train_runs=args.train_runs,
     )
     what = f"coverage of {cov.n_sample} training samples"
     if cal is None:
         print(f"{args.ckpt}: {what} (single network: no uncertainty bands)")
     else:
         k = ", ".join(f"{v:.3g}" for v in cal.theta[-1])
-        src = "validation" if ds.val else "training (no val split)"
+        src = f"{cal.n_run} validation and {cal.n_train_run} training runs"
+        if not ds.val and not args.train_runs:
+            src = f"{cal.n_run} training runs (no val split)"
         print(
-            f"{args.ckpt}: {what}; bands calibrated on {cal.n_step} {src} steps "
-            f"({args.design}; angle 90 % band = {k} x spread per joint)"
+            f"{args.ckpt}: {what}; bands calibrated on {cal.n_step} steps of {src} "
+            f"({args.design}, {cal.rule}; angle 90 % band = {k} x spread per joint)"
         )
     return 0

@@ -5,8 +5,9 @@
 - :func:`predict_episodes`: :func:`.uncertainty.predict_with_uncertainty` over episodes of
   different lengths, with their references; :func:`band_scores` scores it (coverage, width,
   flagged share per joint).
-- :func:`calibrate` fits the scales on validation free runs and records the training data's
-  coverage; :func:`calibrate_checkpoint` adds both to a checkpoint file (training calls it on
+- :func:`calibrate` fits the scales on free runs (:data:`RULE`: the larger of the scales fitted
+  on the validation runs and on up to :data:`TRAIN_RUNS` training runs) and records the
+  training data's coverage; :func:`calibrate_checkpoint` adds both to a checkpoint file (training calls it on
   ``best.pt``; ``exsur calibrate`` on any checkpoint).
 """
 
@@ -30,6 +31,15 @@ from .uncertainty import LEVELS, Calibration, Design, UncertainPrediction, predi
 
 FLOOR = 0.1
 """Spread floor of a band, as a fraction of the median spread on the calibration runs."""
+TRAIN_RUNS = 32
+"""Most training episodes whose free runs join the calibration (evenly spread over the split)."""
+RULE = "max(train, val)"
+"""The calibration rule (stored with the scales): per level and joint, the larger of the scale
+fitted on the validation runs and the one fitted on the training runs.  The error/spread ratio
+varies a lot from run to run, so a scale fitted on the few validation runs a dataset has (2 in
+the presets) is a noisy, optimistic estimate for new runs; the many training runs give a
+stable one, and the validation runs can only widen it (a model that fits its training runs
+better than new ones is caught there).  docs/design.md has the measurements."""
 
 
 def fit_scale(
@@ -213,40 +223,73 @@ def calibrate(
     design: Design = "shared",
     levels: Sequence[float] = LEVELS,
     max_steps: int | None = None,
+    train_runs: int = TRAIN_RUNS,
 ) -> tuple[Calibration | None, CoverageRecord]:
-    """Fit the band scales on ``val`` free runs and record what ``train`` covered.
+    """Fit the band scales on free runs (:data:`RULE`) and record what ``train`` covered.
 
     Args:
         sur: the surrogate (without members: no calibration, only the coverage record).
         val: validation episodes (measured angles are the reference).
-        train: training episodes.
+        train: training episodes (the coverage record; up to ``train_runs`` of them, evenly
+            spread over the list, are free-run for the scales too).
         design: how the members run.
         levels: band levels.
-        max_steps: truncate validation episodes (None: whole episodes, the long horizon the
-            bands are for).
+        max_steps: truncate the episodes (None: whole episodes, the long horizon the bands
+            are for).
+        train_runs: most training episodes free-run for the scales (0: validation only, the
+            rule of checkpoints calibrated before the rule existed).
 
     Returns:
         ``(calibration or None, coverage record)``.
     """
     coverage = fit_coverage(train, sur.spec)
-    if member_head(sur) is None or not val:
+    picked = _evenly(train, train_runs)
+    if member_head(sur) is None or not (val or picked):
         return None, coverage
-    runs = predict_episodes(
-        sur, val, max_steps=max_steps, design=design, calibration=None, coverage=coverage
-    )
     per = np.array([j.periodic for j in sur.spec.joints])
-    pooled = _pooled(runs, per)
-    floors = {q: FLOOR * _median_spread(s) for q, (_, s) in pooled.items()}
+    groups = {
+        g: _pooled(
+            predict_episodes(
+                sur, eps, max_steps=max_steps, design=design, calibration=None, coverage=coverage
+            ),
+            per,
+        )
+        for g, eps in (("val", val), ("train", picked))
+        if eps
+    }
+    floors = {
+        q: FLOOR * _median_spread(np.concatenate([p[q][1] for p in groups.values()]))
+        for q in ("theta", "omega")
+    }
+    scales = {
+        q: np.fmax.reduce(
+            [fit_scale(*p[q], levels, floors[q]) for p in groups.values()]  # NaN-aware max
+        )
+        for q in ("theta", "omega")
+    }
     cal = Calibration(
         levels=tuple(float(v) for v in levels),
-        theta=fit_scale(*pooled["theta"], levels, floors["theta"]),
-        omega=fit_scale(*pooled["omega"], levels, floors["omega"]),
-        n_step=int(pooled["theta"][0].shape[0]),
+        theta=scales["theta"],
+        omega=scales["omega"],
+        n_step=sum(int(p["theta"][0].shape[0]) for p in groups.values()),
         design=design,
         theta_floor=floors["theta"],
         omega_floor=floors["omega"],
+        rule=RULE if len(groups) == 2 else next(iter(groups)),
+        n_run=len(val),
+        n_train_run=len(picked),
     )
     return cal, coverage
+
+
+def _evenly(episodes: Sequence[Episode], n: int) -> list[Episode]:
+    """At most ``n`` of ``episodes``, evenly spread over the list (all if fewer)."""
+    if len(episodes) <= n:
+        return list(episodes)
+    if n <= 0:
+        return []
+    idx = np.unique(np.linspace(0, len(episodes) - 1, n).round().astype(int))
+    return [episodes[i] for i in idx]
 
 
 def _median_spread(spread: np.ndarray) -> np.ndarray:
@@ -265,6 +308,7 @@ def calibrate_checkpoint(
     *,
     design: Design = "shared",
     max_steps: int | None = None,
+    train_runs: int = TRAIN_RUNS,
 ) -> tuple[Calibration | None, CoverageRecord]:
     """Add the calibration and the coverage record to the checkpoint at ``path`` (in its
     ``metrics``; everything else in the file is kept), rewritten atomically.
@@ -275,7 +319,7 @@ def calibrate_checkpoint(
     path = Path(path)
     ckpt = read_checkpoint(path)
     sur = surrogate_from_dict(ckpt, where=str(path))
-    cal, cov = calibrate(sur, val, train, design=design, max_steps=max_steps)
+    cal, cov = calibrate(sur, val, train, design=design, max_steps=max_steps, train_runs=train_runs)
     metrics = dict(ckpt.get("metrics") or {})
     metrics["coverage"] = cov.to_dict()
     if cal is None:

@@ -14,9 +14,10 @@ command sequence and returns, per joint and step:
   network does with the mean: one batch of ``(M + 1) n_batch`` rows, row ``(m, b)``
   following member ``m``'s velocity (``ClosedLoop.follow``).  docs/design.md compares the two;
 - bands ``central +/- k_{level, j} spread`` for the calibrated levels (50 % and 90 %), with
-  ``k`` fitted per joint on the validation free runs (:func:`.bands.fit_scale`: the
-  level-quantile of ``|error| / spread``, so the nominal band covers that share there) and
-  stored in the checkpoint (``metrics["uncertainty"]``);
+  ``k`` fitted per joint on free runs (:func:`.bands.fit_scale`: the level-quantile of
+  ``|error| / spread``; :func:`.bands.calibrate`: the larger of the scales of the validation
+  runs and of the training runs, :data:`.bands.RULE`) and stored in the checkpoint
+  (``metrics["uncertainty"]``);
 - out-of-distribution flags from the training data's :class:`~.coverage.CoverageRecord`
   (``metrics["coverage"]``).
 
@@ -65,6 +66,13 @@ class Calibration:
     members that agree exactly (e.g. all resting on an end stop) are not certain."""
     omega_floor: np.ndarray | None = None
     """(n_joint,) smallest velocity spread a band uses [rad/s]."""
+    rule: str = "val"
+    """Which free runs the scales come from (:data:`.bands.RULE`; ``val``: the validation runs
+    alone, the rule of calibrations stored before it)."""
+    n_run: int = 0
+    """Validation runs the scales were fitted on (0: not recorded)."""
+    n_train_run: int = 0
+    """Training runs the scales were fitted on."""
 
     def floor(self, quantity: str) -> np.ndarray:
         """The spread floor of ``theta`` or ``omega`` (zeros if none was stored)."""
@@ -81,6 +89,9 @@ class Calibration:
             "design": self.design,
             "theta_floor": self.floor("theta").tolist(),
             "omega_floor": self.floor("omega").tolist(),
+            "rule": self.rule,
+            "n_run": int(self.n_run),
+            "n_train_run": int(self.n_train_run),
         }
 
     @classmethod
@@ -95,6 +106,9 @@ class Calibration:
                 design=str(d.get("design", "shared")),
                 theta_floor=np.asarray(d.get("theta_floor", np.zeros(len(d["theta"][0])))),
                 omega_floor=np.asarray(d.get("omega_floor", np.zeros(len(d["omega"][0])))),
+                rule=str(d.get("rule", "val")),
+                n_run=int(d.get("n_run", 0)),
+                n_train_run=int(d.get("n_train_run", 0)),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(

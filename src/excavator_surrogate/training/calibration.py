@@ -21,8 +21,9 @@ _log = logging.getLogger(__name__)
 def calibrate_best(cfg: TrainConfig, dataset: Dataset, best: str | Path) -> None:
     """Add the coverage record and (ensembles) the band calibration to ``best`` in place.
 
-    The bands are fitted on whole validation episodes (the long free runs they are for); the
-    coverage record on the training episodes ``cfg`` trains on.
+    The bands are fitted on whole episodes (the long free runs they are for), validation and
+    training ones (:data:`~excavator_surrogate.surrogate.bands.RULE`); the coverage record on
+    the training episodes ``cfg`` trains on.
     """
     train_eps, val_eps = split_episodes(cfg, dataset)
     cal, _ = calibrate_checkpoint(best, val_eps, train_eps)
@@ -31,6 +32,7 @@ def calibrate_best(cfg: TrainConfig, dataset: Dataset, best: str | Path) -> None
     else:
         k90 = ", ".join(f"{v:.2g}" for v in cal.theta[-1])
         _log.info(
-            f"{best}: ensemble bands calibrated on {cal.n_step} validation steps "
+            f"{best}: ensemble bands calibrated on {cal.n_step} steps of {cal.n_run} validation "
+            f"and {cal.n_train_run} training runs "
             f"(angle {round(100 * cal.levels[-1])} % scale per joint: {k90}) and coverage stored"
         )
