@@ -14,7 +14,12 @@ from excavator_surrogate.env.uncertainty import INFO_KEYS
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names, ood_flags
 from excavator_surrogate.surrogate.ensemble import merge
-from excavator_surrogate.surrogate.uncertainty import Calibration, member_runs
+from excavator_surrogate.surrogate.uncertainty import (
+    Calibration,
+    UncertainPrediction,
+    bands,
+    member_runs,
+)
 
 KW = dict(end_stops=True, play=(0.05, 0.2), omega_in=True)
 EPS32 = float(np.finfo(np.float32).eps)
@@ -171,3 +176,48 @@ def test_single_network_says_it_has_no_uncertainty(make_surrogate) -> None:
     off.reset(seed=0)
     _, _, _, _, info = off.step(u)
     assert not info["ood_checked"].any() and "not tracked" in off.uncertainty_note
+
+
+def test_angle_band_follows_the_horizon_bins_like_the_plain_loop(ens) -> None:
+    """With an angle scale per horizon bin, the env's band at each step is the Python band
+    (``uncertainty.bands`` on the plain loop) of the same free-run sample: the bin of the
+    steps since the reset, restarted by a reset."""
+    sur = copy.deepcopy(ens)
+    k90 = np.array([[1.0] * 4, [30.0, 40.0, 50.0, 60.0]])
+    k_h = np.stack([np.ones((3, 4)), k90[1] * np.array([[1.0], [3.0], [9.0]])])  # (2, 3, 4)
+    cal = Calibration(
+        levels=(0.5, 0.9),
+        theta=k90,
+        omega=2 * k90,
+        n_step=10,
+        theta_floor=np.full(4, 1e-6),
+        omega_floor=np.full(4, 1e-6),
+        horizon_edges=np.array([0, 3, 7]),
+        theta_horizon=k_h,
+    )
+    sur.metrics["uncertainty"] = cal.to_dict()
+    rng = np.random.default_rng(5)
+    n, n_step, w = 3, 12, sur.window
+    theta0, u = _drive(rng, n, n_step)
+    eng = SurrogateEngine(sur, n_envs=n, uncertainty=True)
+    eng.reset(theta0)
+    got = []
+    for k in range(n_step):
+        eng.step(u[:, k])
+        got.append(eng.unc.bands()[0].numpy().copy())
+    (th_c, om_c, th_m, om_m), _ = _plain(sur, theta0, u)
+    pred = UncertainPrediction(
+        th_c, om_c, w, th_m, om_m, np.std(th_m, 0, ddof=1), np.std(om_m, 0, ddof=1)
+    )
+    lo, hi = bands(pred, cal)[0.9]["theta"]
+    ref = ((hi - lo) / 2)[:, w : w + n_step]
+    tol = 1e3 * EPS32 * (1.0 + np.nanmax(np.abs(om_m))) * n_step * sur.spec.dt * k_h.max()
+    np.testing.assert_allclose(np.stack(got, 1), ref, atol=tol, rtol=0)
+    # the bins matter: step 8 (horizon 7) uses 9x the first bin's scale
+    s_t = np.std(th_m, 0, ddof=1)[:, w + 7]
+    np.testing.assert_allclose(got[7], 9 * k90[1] * np.maximum(s_t, 1e-6), atol=tol, rtol=0)
+    assert (got[7] > 3 * k90[1] * s_t + tol).all()  # not the second bin's scale
+    # a reset restarts the horizon: the next band uses the first bin again
+    eng.reset(theta0)
+    eng.step(u[:, 0])
+    np.testing.assert_allclose(eng.unc.bands()[0].numpy(), ref[:, 0], atol=tol, rtol=0)

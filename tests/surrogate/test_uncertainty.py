@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.bands import (
     RULE,
@@ -17,7 +17,9 @@ from excavator_surrogate.surrogate.bands import (
     band_scores,
     calibrate,
     calibrate_checkpoint,
+    fit_horizon_scale,
     fit_scale,
+    monotone_bins,
     predict_episodes,
 )
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
@@ -261,3 +263,57 @@ def test_few_training_runs_are_picked_evenly(spec, episodes):
     assert _evenly(many, 0) == []
     picked = _evenly(list(range(10)), 4)  # type: ignore[arg-type]
     assert picked == [0, 3, 6, 9]
+
+
+def test_horizon_scale_keeps_coverage_flat_when_error_outgrows_the_spread(rng):
+    """Errors that grow like sqrt(horizon) x the spread: one scale over-covers the short
+    horizons and under-covers the long ones; the per-bin scales cover ~90 % in every bin."""
+    n_run, n_h = 60, 800
+    h = np.tile(np.arange(n_h), n_run)
+    spread = rng.uniform(0.5, 2.0, size=(h.size, 2))
+    err = spread * np.sqrt(1.0 + h)[:, None] * rng.normal(size=(h.size, 2))
+    edges = (0, 25, 50, 100, 200, 400)
+    k_one = fit_scale(err, spread, (0.9,))
+    k_bin = monotone_bins(*fit_horizon_scale(err, spread, h, (0.9,), edges=edges))
+    assert k_bin.shape == (1, len(edges), 2)
+    assert (np.diff(k_bin, axis=1) >= 0).all()
+    err2 = spread * np.sqrt(1.0 + h)[:, None] * rng.normal(size=(h.size, 2))  # fresh runs
+    b = np.searchsorted(edges, h, side="right") - 1
+    inside_bin = np.abs(err2) <= k_bin[0][b] * spread
+    inside_one = np.abs(err2) <= k_one[0] * spread
+    # binomial standard error of a bin's coverage <= sqrt(0.09 / 1500) ~ 0.008
+    for i in range(len(edges)):
+        m = b == i
+        np.testing.assert_allclose(inside_bin[m].mean(0), 0.9, atol=0.03)
+    assert (inside_one[b == 0].mean(0) > 0.99).all() and (inside_one[b == 5].mean(0) < 0.85).all()
+
+
+def test_monotone_bins_fill_empty_bins_and_never_decrease():
+    """Isotonic fit of the fitted bins (weighted by their samples), empty bins filled."""
+    k = np.array([[[np.nan, 1.0], [2.0, np.nan], [1.0, 3.0], [np.nan, 2.0]]])  # (1, 4, 2)
+    counts = np.array([[0, 10], [10, 0], [30, 10], [0, 30]])
+    out = monotone_bins(k, counts)
+    np.testing.assert_allclose(out[0, :, 0], [1.25] * 4)  # (2 x 10 + 1 x 30) / 40
+    np.testing.assert_allclose(out[0, :, 1], [1.0, 1.0, 2.25, 2.25])  # (3 x 10 + 2 x 30) / 40
+
+
+def test_calibration_with_horizon_bins_round_trips_and_bands_use_them(spec, episodes):
+    ens = merge(_members(spec, episodes))
+    cal, _ = calibrate(ens, episodes[2:], episodes[:2])
+    assert cal is not None and cal.theta_horizon is not None and cal.horizon_edges is not None
+    n_bin = len(cal.horizon_edges)
+    k_h = np.stack([np.outer(np.arange(1, n_bin + 1), np.ones(spec.n_joint))] * 2)
+    cal = Calibration(**{**cal.__dict__, "theta_horizon": k_h})
+    back = Calibration.from_dict(cal.to_dict())
+    np.testing.assert_array_equal(back.theta_horizon, k_h)
+    np.testing.assert_array_equal(back.horizon_edges, cal.horizon_edges)
+    theta, u = _batch(episodes, 60)
+    pred = predict_with_uncertainty(ens, theta, u, calibration=back)
+    lo, hi = pred.bands[0.9]["theta"]  # type: ignore[index]
+    w = pred.warmup
+    s = np.maximum(pred.theta_spread, back.floor("theta"))  # type: ignore[arg-type]
+    t = w + back.horizon_edges[1]  # the first sample of the second bin
+    np.testing.assert_allclose((hi - lo)[:, t] / 2, 2.0 * s[:, t], rtol=1e-12)
+    np.testing.assert_allclose((hi - lo)[:, w] / 2, 1.0 * s[:, w], rtol=1e-12)
+    with pytest.raises(CheckpointError, match="sizes"):
+        Calibration.from_dict({**cal.to_dict(), "theta_horizon": k_h[:, :2].tolist()})

@@ -10,7 +10,9 @@ The batched counterpart of :func:`~excavator_surrogate.surrogate.uncertainty.pre
 - member ``m``'s angle is the central angle plus its integrated velocity deviation
   ``dev_m += T_s (omega_m - omega)``, a per-env state zeroed by (masked) resets;
 - the band is the calibrated 90 % half-width ``k_90 max(std, floor)`` per joint when the
-  checkpoint is calibrated (``metrics["uncertainty"]``), else the raw std over the members;
+  checkpoint is calibrated (``metrics["uncertainty"]``; the angle's ``k_90`` of the horizon
+  bin of the steps since the env's reset, when the calibration has bins), else the raw std
+  over the members;
 - the OOD flag of a step checks the sample the network predicted from (``theta[k]``,
   ``omega[k]``, ``u[k]``) against the training coverage record (``metrics["coverage"]``),
   as :func:`~excavator_surrogate.surrogate.coverage.ood_flags` does, in torch.
@@ -195,6 +197,15 @@ class StepUncertainty:
             t = lambda a: torch.as_tensor(a, dtype=torch.float64, device=dev)  # noqa: E731
             self.k = (t(cal.theta[i]), t(cal.omega[i]))
             self.floor = (t(cal.floor("theta")), t(cal.floor("omega")))
+            # the angle scale per horizon bin (n_bin, n_joint) and the bins' first steps
+            self.k_horizon = None if cal.theta_horizon is None else t(cal.theta_horizon[i])
+            self.edges = (
+                None
+                if cal.horizon_edges is None
+                else torch.as_tensor(cal.horizon_edges, dtype=torch.long, device=dev)
+            )
+        self.steps = torch.zeros(n_envs, dtype=torch.long, device=dev)
+        """(n_envs,) steps since each env's reset."""
         rec = stored_coverage(sur)
         self.checked = rec is not None and rec.channels == channel_names(sur.spec)
         self.box: OodFlags | None = None
@@ -206,6 +217,7 @@ class StepUncertainty:
         """Rows ``idx`` start at rest: no deviation, zero velocity, no flag."""
         self.omega.index_fill_(0, idx, 0.0)
         self.ood.index_fill_(0, idx, False)
+        self.steps.index_fill_(0, idx, 0)
         if self.n_member:
             self.dev.index_fill_(1, idx, 0.0)
             self.omega_members.index_fill_(1, idx, float("nan"))
@@ -230,6 +242,7 @@ class StepUncertainty:
             self.omega_members = om_m
             self.dev.add_(torch.nan_to_num(om_m - omega), alpha=self.dt)
         self.omega.copy_(omega)
+        self.steps.add_(1)
 
     def bands(self) -> tuple[torch.Tensor, torch.Tensor]:
         """``theta_band``, ``omega_band`` (n_envs, n_joint) float64 [rad], [rad/s]: the
@@ -241,7 +254,12 @@ class StepUncertainty:
         s_w = torch.std(self.omega_members, dim=0)
         if not self.calibrated:
             return s_t, s_w
+        k_t = self.k[0]
+        if self.k_horizon is not None and self.edges is not None:
+            # the last step predicted sample k = steps - 1 of the free run (0: the first)
+            b = torch.bucketize(self.steps - 1, self.edges, right=True) - 1
+            k_t = self.k_horizon[b.clamp_(0, len(self.edges) - 1)]
         return (
-            self.k[0] * torch.maximum(s_t, self.floor[0]),
+            k_t * torch.maximum(s_t, self.floor[0]),
             self.k[1] * torch.maximum(s_w, self.floor[1]),
         )

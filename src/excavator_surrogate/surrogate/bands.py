@@ -33,6 +33,11 @@ FLOOR = 0.1
 """Spread floor of a band, as a fraction of the median spread on the calibration runs."""
 TRAIN_RUNS = 32
 """Most training episodes whose free runs join the calibration (evenly spread over the split)."""
+HORIZON_EDGES = (0, 25, 50, 100, 200, 400, 800, 1600, 3200)
+"""First free-run step of each horizon bin of the angle scale [samples]."""
+MIN_BIN = 100
+"""Fewest samples (per joint, pooled over the runs of a group) a horizon bin is fitted on;
+a bin with fewer takes the previous bin's scale."""
 RULE = "max(train, val)"
 """The calibration rule (stored with the scales): per level and joint, the larger of the scale
 fitted on the validation runs and the one fitted on the training runs.  The error/spread ratio
@@ -68,6 +73,65 @@ def fit_scale(
         rj = r[:, j][np.isfinite(r[:, j])]
         if rj.size:
             out[:, j] = np.quantile(rj, levels, method="higher")
+    return out
+
+
+def fit_horizon_scale(
+    err: np.ndarray,
+    spread: np.ndarray,
+    horizon: np.ndarray,
+    levels: Sequence[float] = LEVELS,
+    floor: np.ndarray | None = None,
+    edges: Sequence[int] = HORIZON_EDGES,
+    min_bin: int = MIN_BIN,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_scale` per horizon bin.
+
+    Args:
+        err, spread: (n_sample, n_joint) as in :func:`fit_scale`.
+        horizon: (n_sample,) int, samples since the free run began.
+        levels, floor: as in :func:`fit_scale`.
+        edges: (n_bin,) first horizon of each bin (increasing, from 0).
+        min_bin: fewest finite samples a bin is fitted on (else NaN).
+
+    Returns:
+        ``(scales, counts)``: (n_level, n_bin, n_joint) scales, NaN where a bin has fewer
+        than ``min_bin`` samples, and (n_bin, n_joint) the samples of each bin.
+    """
+    e = np.asarray(edges)
+    b = np.searchsorted(e, horizon, side="right") - 1
+    out = np.full((len(levels), len(e), err.shape[-1]), np.nan)
+    counts = np.zeros((len(e), err.shape[-1]), dtype=np.int64)
+    for i in range(len(e)):
+        m = b == i
+        if not m.any():
+            continue
+        k = fit_scale(err[m], spread[m], levels, floor)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            counts[i] = np.isfinite(np.abs(err[m]) / spread[m]).sum(0)
+        out[:, i] = np.where(counts[i] >= min_bin, k, np.nan)
+    return out, counts
+
+
+def monotone_bins(k: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
+    """(n_level, n_bin, n_joint) scales made non-decreasing along the horizon: the isotonic
+    (least-squares, weighted by ``counts`` (n_bin, n_joint)) fit of the fitted bins, empty
+    (NaN) bins taking the nearest fitted bin before them (or, leading, after them)."""
+    from scipy.optimize import isotonic_regression
+
+    out = np.full_like(k, np.nan)
+    w = np.ones(k.shape[1:]) if counts is None else np.maximum(counts, 1).astype(np.float64)
+    for lv in range(k.shape[0]):
+        for j in range(k.shape[2]):
+            m = np.isfinite(k[lv, :, j])
+            if not m.any():
+                continue
+            out[lv, m, j] = isotonic_regression(k[lv, m, j], weights=w[m, j]).x
+            idx = np.flatnonzero(m)
+            fill = idx[
+                np.clip(np.searchsorted(idx, np.arange(k.shape[1]), side="right") - 1, 0, None)
+            ]
+            out[lv, :, j] = out[lv, fill, j]
     return out
 
 
@@ -168,6 +232,11 @@ def _pooled(
     return {q: (np.concatenate(e), np.concatenate(s)) for q, (e, s) in out.items()}
 
 
+def _horizons(runs: Sequence[EpisodePrediction]) -> np.ndarray:
+    """(n_sample,) samples since the free run began, in :func:`_pooled`'s order."""
+    return np.concatenate([np.arange(len(r.time) - r.pred.warmup) for r in runs])
+
+
 def band_scores(
     runs: Sequence[EpisodePrediction], names: Sequence[str], periodic: Sequence[bool]
 ) -> dict[str, Any]:
@@ -247,26 +316,28 @@ def calibrate(
     if member_head(sur) is None or not (val or picked):
         return None, coverage
     per = np.array([j.periodic for j in sur.spec.joints])
-    groups = {
-        g: _pooled(
-            predict_episodes(
-                sur, eps, max_steps=max_steps, design=design, calibration=None, coverage=coverage
-            ),
-            per,
+    runs = {
+        g: predict_episodes(
+            sur, eps, max_steps=max_steps, design=design, calibration=None, coverage=coverage
         )
         for g, eps in (("val", val), ("train", picked))
         if eps
     }
+    groups = {g: _pooled(r, per) for g, r in runs.items()}
     floors = {
         q: FLOOR * _median_spread(np.concatenate([p[q][1] for p in groups.values()]))
         for q in ("theta", "omega")
     }
-    scales = {
-        q: np.fmax.reduce(
-            [fit_scale(*p[q], levels, floors[q]) for p in groups.values()]  # NaN-aware max
-        )
+    scales = {  # per level and joint the larger of the groups' (NaN-aware)
+        q: np.fmax.reduce([fit_scale(*p[q], levels, floors[q]) for p in groups.values()])
         for q in ("theta", "omega")
     }
+    fits = [
+        fit_horizon_scale(*groups[g]["theta"], _horizons(runs[g]), levels, floors["theta"])
+        for g in groups
+    ]
+    by_horizon = np.fmax.reduce([k for k, _ in fits])  # per bin the larger of the groups'
+    counts = np.maximum.reduce([c for _, c in fits])
     cal = Calibration(
         levels=tuple(float(v) for v in levels),
         theta=scales["theta"],
@@ -278,6 +349,10 @@ def calibrate(
         rule=RULE if len(groups) == 2 else next(iter(groups)),
         n_run=len(val),
         n_train_run=len(picked),
+        horizon_edges=np.asarray(HORIZON_EDGES, dtype=np.int64),
+        theta_horizon=np.where(  # a joint without a fitted bin (tiny data): one scale
+            np.isnan(h := monotone_bins(by_horizon, counts)), scales["theta"][:, None, :], h
+        ),
     )
     return cal, coverage
 

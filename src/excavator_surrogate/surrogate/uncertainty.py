@@ -73,6 +73,22 @@ class Calibration:
     """Validation runs the scales were fitted on (0: not recorded)."""
     n_train_run: int = 0
     """Training runs the scales were fitted on."""
+    horizon_edges: np.ndarray | None = None
+    """(n_bin,) int, first step of each horizon bin [samples since the free run began: 0 is
+    the first predicted sample] (None: one angle scale at every horizon, ``theta``)."""
+    theta_horizon: np.ndarray | None = None
+    """(n_level, n_bin, n_joint) angle band half-width / angle spread per horizon bin, not
+    decreasing with the horizon (the angle error accumulates faster than the members' angle
+    spread grows); the bands use it instead of ``theta`` when present."""
+
+    def theta_scale(self, i: int, horizon: np.ndarray) -> np.ndarray:
+        """Angle scale of level ``i`` at ``horizon`` (any shape, samples since the free run
+        began; negative: the warm-up, scale of the first bin): ``horizon.shape + (n_joint,)``."""
+        h = np.asarray(horizon)
+        if self.theta_horizon is None or self.horizon_edges is None:
+            return np.broadcast_to(self.theta[i], (*h.shape, self.theta.shape[1]))
+        b = np.searchsorted(self.horizon_edges, h, side="right") - 1
+        return self.theta_horizon[i][np.clip(b, 0, len(self.horizon_edges) - 1)]
 
     def floor(self, quantity: str) -> np.ndarray:
         """The spread floor of ``theta`` or ``omega`` (zeros if none was stored)."""
@@ -92,6 +108,14 @@ class Calibration:
             "rule": self.rule,
             "n_run": int(self.n_run),
             "n_train_run": int(self.n_train_run),
+            **(
+                {}
+                if self.theta_horizon is None or self.horizon_edges is None
+                else {
+                    "horizon_edges": [int(v) for v in self.horizon_edges],
+                    "theta_horizon": self.theta_horizon.tolist(),
+                }
+            ),
         }
 
     @classmethod
@@ -109,12 +133,23 @@ class Calibration:
                 rule=str(d.get("rule", "val")),
                 n_run=int(d.get("n_run", 0)),
                 n_train_run=int(d.get("n_train_run", 0)),
+                horizon_edges=None
+                if d.get("horizon_edges") is None
+                else np.asarray(d["horizon_edges"], dtype=np.int64),
+                theta_horizon=None
+                if d.get("theta_horizon") is None
+                else np.asarray(d["theta_horizon"], dtype=np.float64),
             )
         except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(
                 f"malformed uncertainty calibration ({e}); calibrate again"
             ) from e
-        if cal.theta.shape != cal.omega.shape or cal.theta.shape[0] != len(cal.levels):
+        bad = cal.theta.shape != cal.omega.shape or cal.theta.shape[0] != len(cal.levels)
+        if cal.theta_horizon is not None and cal.horizon_edges is not None:
+            n_bin = len(cal.horizon_edges)
+            bad |= cal.theta_horizon.shape != (len(cal.levels), n_bin, cal.theta.shape[1])
+            bad |= n_bin < 1 or bool(np.any(np.diff(cal.horizon_edges) <= 0))
+        if bad:
             raise CheckpointError("malformed uncertainty calibration (sizes); calibrate again")
         return cal
 
@@ -283,13 +318,15 @@ def predict_with_uncertainty(
 def bands(
     pred: UncertainPrediction, cal: Calibration
 ) -> dict[float, dict[str, tuple[np.ndarray, np.ndarray]]]:
-    """``level -> {"theta": (lo, hi), "omega": (lo, hi)}``: central +/- scale x spread."""
+    """``level -> {"theta": (lo, hi), "omega": (lo, hi)}``: central +/- scale x spread (the
+    angle scale per horizon bin when the calibration has them, :meth:`Calibration.theta_scale`)."""
     assert pred.theta_spread is not None and pred.omega_spread is not None
     out: dict[float, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    horizon = np.arange(pred.theta.shape[-2]) - pred.warmup  # (n_step,)
     for i, level in enumerate(cal.levels):
         d = {}
         for q, c, s, k in (
-            ("theta", pred.theta, pred.theta_spread, cal.theta[i]),
+            ("theta", pred.theta, pred.theta_spread, cal.theta_scale(i, horizon)),
             ("omega", pred.omega, pred.omega_spread, cal.omega[i]),
         ):
             half = k * np.maximum(s, cal.floor(q))
