@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +28,14 @@ from .ensemble import member_head
 from .features import omega_target
 from .model import Surrogate
 from .rollout import batch_episodes
-from .uncertainty import LEVELS, Calibration, Design, UncertainPrediction, predict_with_uncertainty
+from .uncertainty import (
+    LEVELS,
+    Calibration,
+    Design,
+    UncertainPrediction,
+    bands,
+    predict_with_uncertainty,
+)
 
 FLOOR = 0.1
 """Spread floor of a band, as a fraction of the median spread on the calibration runs."""
@@ -316,13 +324,37 @@ def calibrate(
     if member_head(sur) is None or not (val or picked):
         return None, coverage
     per = np.array([j.periodic for j in sur.spec.joints])
-    runs = {
-        g: predict_episodes(
+    runs = [
+        predict_episodes(
             sur, eps, max_steps=max_steps, design=design, calibration=None, coverage=coverage
         )
-        for g, eps in (("val", val), ("train", picked))
-        if eps
-    }
+        for eps in (val, picked)
+    ]
+    cal = fit_calibration(*runs, per, levels=levels, design=design)
+    return cal, coverage
+
+
+def fit_calibration(
+    val: Sequence[EpisodePrediction],
+    train: Sequence[EpisodePrediction],
+    periodic: Sequence[bool],
+    *,
+    levels: Sequence[float] = LEVELS,
+    design: Design = "shared",
+) -> Calibration:
+    """The band scales of :data:`RULE` from free runs already made (no bands needed).
+
+    Args:
+        val: validation free runs (:func:`predict_episodes`); may be empty.
+        train: training free runs; may be empty (not both).
+        periodic: (n_joint,) which joints wrap.
+        levels: band levels.
+        design: how the members ran (recorded).
+    """
+    per = np.asarray(periodic, dtype=bool)
+    runs = {g: r for g, r in (("val", val), ("train", train)) if r}
+    if not runs:
+        raise ValueError("fit_calibration needs validation or training free runs")
     groups = {g: _pooled(r, per) for g, r in runs.items()}
     floors = {
         q: FLOOR * _median_spread(np.concatenate([p[q][1] for p in groups.values()]))
@@ -338,7 +370,7 @@ def calibrate(
     ]
     by_horizon = np.fmax.reduce([k for k, _ in fits])  # per bin the larger of the groups'
     counts = np.maximum.reduce([c for _, c in fits])
-    cal = Calibration(
+    return Calibration(
         levels=tuple(float(v) for v in levels),
         theta=scales["theta"],
         omega=scales["omega"],
@@ -348,13 +380,23 @@ def calibrate(
         omega_floor=floors["omega"],
         rule=RULE if len(groups) == 2 else next(iter(groups)),
         n_run=len(val),
-        n_train_run=len(picked),
+        n_train_run=len(train),
         horizon_edges=np.asarray(HORIZON_EDGES, dtype=np.int64),
         theta_horizon=np.where(  # a joint without a fitted bin (tiny data): one scale
             np.isnan(h := monotone_bins(by_horizon, counts)), scales["theta"][:, None, :], h
         ),
     )
-    return cal, coverage
+
+
+def with_bands(runs: Sequence[EpisodePrediction], cal: Calibration) -> list[EpisodePrediction]:
+    """``runs`` with their bands recomputed for ``cal`` (copies; no network run)."""
+    out = []
+    for r in runs:
+        p = copy.copy(r.pred)
+        p.bands = bands(p, cal)
+        out.append(copy.copy(r))
+        out[-1].pred = p
+    return out
 
 
 def _evenly(episodes: Sequence[Episode], n: int) -> list[Episode]:
