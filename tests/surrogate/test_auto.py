@@ -125,3 +125,44 @@ def test_sequences_are_counted_as_the_epoch_tiles_them():
     assert len(sequence_starts(_Data, 50, 10, rng)) <= n
     zero_offset = sum(max(0, (int(L) - 1 - 50) // 41 + 1) for L in _Data.lengths)
     assert n == zero_offset
+
+
+def test_selection_is_sound_on_a_short_validation_split_and_unchanged_on_many_runs():
+    from excavator_surrogate.training.auto import SELECT_AFTER, SELECT_SMOOTH, SHORT_VAL_EPISODES
+
+    one_segment = _dataset([8000])  # a continuous log: one validation segment
+    cfg, why = auto_config(one_segment, cpus=2)
+    assert (cfg.select_after, cfg.select_smooth) == (SELECT_AFTER, SELECT_SMOOTH)
+    assert any("(short)" in w for w in why)
+    many = _dataset([600] * 20)  # the h1 shape: many validation runs
+    many.episodes["val"] = [
+        synthetic_episode(many.spec, kind="step", n_step=200, seed=90 + i)
+        for i in range(SHORT_VAL_EPISODES)
+    ]
+    cfg, why = auto_config(many, cpus=2)
+    assert (cfg.select_after, cfg.select_smooth) == (0.0, 0)  # as before
+    assert not any("(short)" in w for w in why)
+
+
+def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
+    from dataclasses import replace
+
+    from excavator_surrogate.spec import InputSpec
+
+    plain = _dataset([8000])
+    without, _ = auto_config(plain, cpus=2)
+    assert without.exogenous == "use"  # nothing to choose
+    spec = replace(plain.spec, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
+    ds = Dataset(spec=spec)
+    for split, eps in plain.episodes.items():
+        ds.episodes[split] = [
+            e.replace(spec=spec, u=np.concatenate([e.u, np.zeros((e.n_step, 1))], axis=1))
+            for e in eps
+        ]
+    cfg, why = auto_config(ds, cpus=2)
+    assert cfg.exogenous == "choose" and cfg.members == without.members == 4
+    # 4 members + 2 that ignore the inputs share the budget: 540 s x 2 workers / 6 trainings
+    assert cfg.max_train_seconds == pytest.approx(180) and cfg.epochs < without.epochs
+    assert any("must not hurt" in w for w in why)
+    forced, _ = auto_config(ds, cpus=2, overrides={"exogenous": "use"})
+    assert forced.exogenous == "use" and forced.max_train_seconds == without.max_train_seconds

@@ -18,6 +18,7 @@ from .jobs import TrainJob, run_jobs
 from .loop import EpochCallback, train_network
 from .loss import LossFn
 from .parallel import Parallel
+from .variants import train_choosing_inputs
 
 _log = logging.getLogger(__name__)
 
@@ -38,7 +39,9 @@ def train(
 
     Writes into ``out``: ``best.pt`` (best validation free-run), ``last.pt`` (latest, for
     resuming), ``log.csv`` (one row per epoch), ``config.toml`` and ``tb/`` (TensorBoard).
-    With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`).  Then
+    With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`); with
+    ``cfg.exogenous = "choose"`` and exogenous inputs in the data: members that use them and
+    members that ignore them, the better way kept (:func:`~.variants.train_choosing_inputs`).  Then
     ``best.pt`` gets the training data's coverage record and, for an ensemble, its
     uncertainty bands calibrated on the validation free runs (:mod:`.calibration`).
 
@@ -65,7 +68,8 @@ def train(
         CheckpointError: bad ``resume`` file.
     """
     check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
-    if cfg.members > 1:
+    choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
+    if cfg.members > 1 or choosing:
         for given, what in (
             (resume, "resume"),
             (dist, "data-parallel training"),
@@ -74,9 +78,18 @@ def train(
         ):
             if given is not None:
                 raise ConfigError(
-                    f"[train] members = {cfg.members}: {what} works per member; train each member "
-                    "as a single network (members = 1) and merge them with 'exsur merge'"
+                    f"[train] members = {cfg.members}"
+                    + (', exogenous = "choose"' if choosing else "")
+                    + f": {what} works per member; train each member as a single network "
+                    "(members = 1"
+                    + (', exogenous = "use" or "ignore"' if choosing else "")
+                    + ") and merge them with 'exsur merge'"
                 )
+    if choosing:
+        best = train_choosing_inputs(
+            cfg, dataset, out=out, show_progress=show_progress, notes=notes
+        )
+    elif cfg.members > 1:
         best = train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
     else:
         best = train_network(

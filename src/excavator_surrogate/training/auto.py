@@ -70,6 +70,13 @@ MEMBERS = 4
 """Seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
 SEQ_BATCH = 16
 """Sub-sequences per batch."""
+SHORT_VAL_EPISODES = 4
+"""Validation with fewer episodes than this is short (one or two segments of a continuous
+log): a single free run whose error jumps between epochs by more than the epochs differ."""
+SELECT_AFTER = 0.5
+"""On short validation: share of the planned epochs before which no epoch competes."""
+SELECT_SMOOTH = 4
+"""On short validation: an epoch's score also needs the median of the last 5 to be low."""
 
 
 def auto_config(
@@ -126,11 +133,34 @@ def auto_config(
         budget_s = given if capped else budget_s
     members = int(overrides.get("members") or (MEMBERS if cpus >= 2 else MEMBERS // 2))
     workers = min(members, cpus)
-    per_member = budget_s * workers / members
+    inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
+    exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
+    n_train = members + max(1, members // 2) if inputs and exogenous == "choose" else members
+    per_member = budget_s * workers / n_train
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {per_member:.0f} s "
         f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s))"
     )
+    if inputs and exogenous == "choose":
+        half = max(1, members // 2)
+        why.append(
+            f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
+            f"ignore them (same seeds); they are kept only if better on validation, overall "
+            f"and on every joint, and the other {members - half} member(s) train the chosen "
+            f"way ({n_train} trainings in the budget)"
+        )
+    n_val = len(dataset.val)
+    short_val = n_val < SHORT_VAL_EPISODES
+    if short_val:
+        why.append(
+            f"selection on {n_val or 'no'} validation episode(s) (short): only epochs after "
+            f"{SELECT_AFTER:.0%} of the plan compete, each scored by the larger of its own "
+            f"validation error and the median of the last {SELECT_SMOOTH + 1}"
+        )
+    else:
+        why.append(
+            f"selection: the epoch with the lowest free-run error on {n_val} validation episodes"
+        )
     n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
     val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
@@ -161,6 +191,9 @@ def auto_config(
         member_workers=workers,
         max_train_seconds=per_member if capped else 0.0,
         end_stops=True,
+        select_after=SELECT_AFTER if short_val else 0.0,
+        select_smooth=SELECT_SMOOTH if short_val else 0,
+        exogenous="choose" if inputs else "use",
     )
     if overrides:
         if "epochs" in overrides and "patience" not in overrides:

@@ -86,6 +86,18 @@ class TrainConfig(PresetConfig, table="train"):
     """Cap on target samples per epoch (0 = every training sample once)."""
     val_steps: int = 0
     """Truncate validation episodes to this many samples for the free-run (0 = full length)."""
+    select_after: float = 0.0
+    """Share of the planned ``epochs`` before which no epoch competes for ``best.pt`` (0 = every
+    epoch; the recipe sets 0.5 when validation is one or a few episodes)."""
+    select_smooth: int = 0
+    """Score an epoch by the larger of its validation error and the median of the last
+    ``select_smooth + 1`` epochs' (0 = its own error): on a short validation split one lucky
+    epoch in a noisy stretch cannot win."""
+    exogenous: Literal["use", "ignore", "choose"] = "use"
+    """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
+    are held at zero, so the model cannot depend on them); or ``choose``: train half the
+    members each way, keep the way whose merged members score better on validation (``use``
+    only if better by :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
     max_train_seconds: float = 0.0
     """Wall-time cap for training incl. validation [s] (0 = none): it only stops a slow or busy
     computer before the planned ``epochs``, and the run then says so (log, ``best.pt`` metrics
@@ -165,6 +177,15 @@ class TrainConfig(PresetConfig, table="train"):
             (self.mode in ("windowed", "stateful"), "mode must be windowed or stateful"),
             (self.lr_schedule in ("plateau", "cosine"), "lr_schedule must be plateau or cosine"),
             (self.feedback in ("free", "teacher"), "feedback must be free or teacher"),
+            (
+                0 <= self.select_after < 1,
+                f"select_after = {self.select_after!r} must be in [0, 1) (a share of epochs)",
+            ),
+            (self.select_smooth >= 0, f"select_smooth = {self.select_smooth} must be >= 0"),
+            (
+                self.exogenous in ("use", "ignore", "choose"),
+                f"exogenous = {self.exogenous!r} must be use, ignore or choose",
+            ),
         ]
         for ok, msg in checks:
             if not ok:

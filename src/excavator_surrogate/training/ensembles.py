@@ -12,6 +12,7 @@ from typing import Any
 
 from ..config import to_dict
 from ..data.dataset import Dataset
+from ..data.episode import Episode
 from ..devices import usable_cpus
 from ..io_utils import mark_output
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
@@ -74,6 +75,22 @@ def train_ensemble(
         for i, (c, d) in enumerate(zip(cfgs, dirs))
     ]
     bests = run_jobs(_train_member, jobs, workers=workers, show_progress=show_progress)
+    return merge_members(cfg, cfgs, bests, val_eps, out=out, t0=t0)
+
+
+def merge_members(
+    cfg: TrainConfig,
+    cfgs: list[TrainConfig],
+    bests: list[Path],
+    val_eps: list[Episode],
+    *,
+    out: Path,
+    t0: float,
+    training: Mapping[str, Any] | None = None,
+) -> Path:
+    """Merge the members' ``bests`` (trained with ``cfgs``) into ``out/best.pt``, score its
+    validation free run and write ``out/log.csv`` (one row per member, one for the ensemble);
+    ``training`` entries are added to the merged metrics' ``training`` summary."""
     members = [load_checkpoint(b) for b in bests]
     sur = merge(members)
     sur.train_config = to_dict(cfg)
@@ -90,6 +107,8 @@ def train_ensemble(
                 "val_theta_r2_min": min((mm.get("val") or {}).get("theta_r2") or [math.nan]),
             }
         )
+        if training and "exogenous" in training:
+            rows[-1]["exogenous"] = cfgs[i].exogenous
     rows.append(
         {
             "member": "ensemble",
@@ -99,12 +118,17 @@ def train_ensemble(
             "val_theta_r2_min": min(val["theta_r2"]),
         }
     )
+    if training and "exogenous" in training:
+        rows[-1]["exogenous"] = cfg.exogenous
     sur.metrics = {
         **(sur.metrics or {}),
         "val_error": val["val_error"],
         "val": val,
         "best_val_error": val["val_error"],
-        "training": ensemble_training([m.metrics.get("training") for m in members]),
+        "training": {
+            **ensemble_training([m.metrics.get("training") for m in members]),
+            **(training or {}),
+        },
     }
     best = save_checkpoint(out / "best.pt", sur, history=rows)  # no wall-clock entries
     train_s = time.monotonic() - t0

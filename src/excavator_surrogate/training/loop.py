@@ -48,7 +48,7 @@ from .records import (
     write_log,
 )
 from .resume import start
-from .selection import choose, is_better
+from .selection import choose, first_eligible, is_better, selection_score
 
 _log = logging.getLogger(__name__)
 
@@ -130,6 +130,9 @@ def train_network(
     net, history = st.net, st.history
     for line in st.derived:
         say(line)
+    if cfg.exogenous == "ignore" and spec.n_input:  # before the EMA copy is made
+        blind_inputs(net, spec.n_feature - spec.n_input, spec.n_feature)
+        say(f"ignoring the exogenous inputs {list(spec.u_names[spec.n_joint :])}")
     net.to(par.device).train()
     sur = Surrogate(
         net=net,
@@ -199,7 +202,11 @@ def train_network(
             lr = optim.lr
             if cfg.lr_schedule == "plateau":
                 optim.sched.step(val["val_error"] if math.isfinite(val["val_error"]) else 1e30)
-            improved = is_better(val["val_error"], best_val, min_delta=cfg.min_delta)
+            score = selection_score(
+                [r["val_error"] for r in history] + [val["val_error"]], smooth=cfg.select_smooth
+            )
+            eligible = epoch >= first_eligible(cfg.epochs, cfg.select_after)
+            improved = eligible and is_better(score, best_val, min_delta=cfg.min_delta)
             row = epoch_row(
                 epoch,
                 times=(t_start, t0, t1, t2),
@@ -210,10 +217,12 @@ def train_network(
                 improved=improved,
                 with_ema=optim.ema_sur is not None,
             )
+            if cfg.select_smooth or cfg.select_after:
+                row["select_score"] = score if eligible else math.nan
             history.append(row)
             if improved:
-                best_val, bad = val["val_error"], 0
-            else:
+                best_val, bad = score, 0
+            elif eligible:
                 bad += 1
             state = {
                 "epoch": epoch,
@@ -277,3 +286,15 @@ def train_network(
         )
     par.barrier()  # best.pt is complete before any rank returns its path
     return best_path
+
+
+def blind_inputs(net: torch.nn.Module, lo: int, hi: int) -> None:
+    """Make ``net`` ignore its input features ``lo:hi`` (the exogenous inputs): their columns
+    of the first recurrent layer's input weights are zeroed and their gradient too, so Adam
+    (no weight decay) and the weight average keep them at exactly zero."""
+    w = net.rnn.weight_ih_l0
+    keep = torch.ones_like(w)
+    keep[:, lo:hi] = 0.0
+    with torch.no_grad():
+        w.mul_(keep)
+    w.register_hook(lambda g: g * keep)

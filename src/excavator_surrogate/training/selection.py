@@ -3,7 +3,10 @@
 After every epoch the candidates (the raw weights, and the weight average with ``ema_decay``)
 are rolled out in closed loop on the validation episodes on the main rank
 (:func:`~excavator_surrogate.surrogate.validation.free_run_error`); the better one competes for
-``best.pt``.  The result is broadcast, so every rank keeps the same bookkeeping.
+``best.pt``.  The result is broadcast, so every rank keeps the same bookkeeping.  When the
+validation split is short (one or two segments), the recipe makes the competition sound:
+only epochs after ``select_after`` of the plan compete, each scored with its recent
+neighbours (:func:`selection_score`).
 """
 
 from __future__ import annotations
@@ -11,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from ..data.episode import Episode
 from ..surrogate.model import Surrogate
@@ -61,3 +66,25 @@ def choose(
 def is_better(val_error: float, best: float, *, min_delta: float) -> bool:
     """A validation error that counts as an improvement over ``best``."""
     return val_error < best * (1.0 - min_delta)
+
+
+def first_eligible(epochs: int, select_after: float) -> int:
+    """First epoch that may compete for ``best.pt``: ``floor(select_after * epochs)``."""
+    return math.floor(select_after * epochs)
+
+
+def selection_score(recent: list[float], *, smooth: int) -> float:
+    """Score of the latest epoch from the validation errors of the epochs so far, oldest
+    first (``recent[-1]`` is the latest): its own error, or with ``smooth > 0`` the larger of
+    it and the median of the last ``smooth + 1`` (a diverged epoch counts as +inf).
+
+    On one short validation segment the error of neighbouring epochs jumps by more than the
+    real differences between them; the minimum over many epochs then picks a lucky draw.  The
+    median asks the whole recent stretch to be good, and the maximum that the saved weights
+    themselves are.
+    """
+    own = finite_or_inf(recent[-1])
+    if smooth <= 0:
+        return own
+    window = [finite_or_inf(v) for v in recent[-(smooth + 1) :]]
+    return max(own, float(np.median(window)))

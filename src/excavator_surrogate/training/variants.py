@@ -1,0 +1,166 @@
+"""Exogenous inputs that must not hurt: ``[train] exogenous = "choose"``.
+
+A throttle, a gear or a run condition (``spec.inputs``) may help one joint and hurt
+another on held-out data.  With ``choose`` the ensemble's members are trained in two ways
+on the same seeds: half of them use the inputs, half ignore them (their input weights held
+at zero, :func:`~.loop.blind_inputs`).  Each half is merged and scored by its validation
+free run; the inputs are kept only if that half is better by :data:`INPUT_MARGIN` overall
+and no joint's angle RMSE is worse by more than it.  The remaining members are then trained
+the chosen way and merged with the winning half, so the result is an ensemble of
+``members`` networks, as without inputs (the recipe plans the epochs for the
+``members + members // 2`` trainings within the same budget).
+
+Layout: ``OUT/member_*`` (the ensemble's members, as for any ensemble: the winning half,
+then the rest), ``OUT/use/member_*`` or ``OUT/ignore/member_*`` (the losing half),
+``OUT/best.pt`` (the merged ensemble, ``metrics.training.exogenous`` says what was chosen and
+why), ``OUT/config.toml`` (``[exogenous]``: the same).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Mapping
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from ..data.dataset import Dataset
+from ..devices import usable_cpus
+from ..io_utils import mark_output
+from ..surrogate.checkpoint import load_checkpoint
+from ..surrogate.ensemble import merge
+from ..surrogate.validation import free_run_error
+from .batches import split_episodes
+from .config import TrainConfig
+from .ensembles import merge_members
+from .jobs import TrainJob, run_jobs
+from .loop import train_network
+from .records import write_config
+
+_log = logging.getLogger(__name__)
+
+INPUT_MARGIN = 0.05
+"""Relative margin by which the members that use the exogenous inputs must beat those that
+ignore them on validation (overall, and no joint worse by more): a tie keeps the model that
+cannot depend on them."""
+
+
+def choose_inputs(use: Mapping[str, Any], ignore: Mapping[str, Any]) -> tuple[bool, str]:
+    """Keep the inputs? From the two halves' validation free runs
+    (:func:`~excavator_surrogate.surrogate.validation.free_run_error` results).
+
+    Returns:
+        ``(keep, reason)``, the reason one line with both scores.
+    """
+    m = INPUT_MARGIN
+    worse = [
+        j
+        for j, (a, b) in enumerate(zip(use["theta_rmse"], ignore["theta_rmse"]))
+        if not a <= (1 + m) * b  # NaN: worse
+    ]
+    better = use["val_error"] < (1 - m) * ignore["val_error"]
+    keep = bool(better and not worse)
+    why = (
+        f"validation error {use['val_error']:.4g} with the inputs, {ignore['val_error']:.4g} "
+        f"without: {'kept' if keep else 'ignored'}"
+    )
+    if not keep:
+        why += (
+            f" (joint(s) {worse} worse by more than {m:.0%})"
+            if worse
+            else f" (not better by {m:.0%})"
+        )
+    return keep, why
+
+
+def _train_member(job: TrainJob, show_progress: bool | None) -> Path:
+    return train_network(job.cfg, job.dataset, out=job.out, show_progress=show_progress)
+
+
+def train_choosing_inputs(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    out: str | Path,
+    show_progress: bool | None = None,
+    notes: Mapping[str, Any] | None = None,
+) -> Path:
+    """Train ``cfg.members`` networks with the exogenous inputs used or ignored, whichever
+    validates better (see the module docstring); returns ``OUT/best.pt``."""
+    _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
+    out = mark_output(out, "model")
+    half = max(1, cfg.members // 2)
+    names = list(dataset.spec.u_names[dataset.spec.n_joint :])
+    write_config(out, cfg, notes=notes)
+    workers = min(cfg.member_workers or usable_cpus(), 2 * half)
+    _log.info(
+        f"exogenous inputs {names}: {half} member(s) use them, {half} ignore them "
+        f"(same seeds), {workers} in parallel; the better way trains the rest"
+    )
+    t0 = time.monotonic()
+    ways = ("use", "ignore")
+    cfgs = {
+        w: [
+            replace(cfg, members=1, member_workers=0, exogenous=w, seed=cfg.seed + i)
+            for i in range(half)
+        ]
+        for w in ways
+    }
+    jobs = [
+        TrainJob(cfg=c, dataset=dataset, out=out / w / f"member_{i}", tag=f"exsur {w} {i}")
+        for w in ways
+        for i, c in enumerate(cfgs[w])
+    ]
+    paths = run_jobs(_train_member, jobs, workers=workers, show_progress=show_progress)
+    bests = {"use": paths[:half], "ignore": paths[half:]}
+    vals = {
+        w: free_run_error(
+            merge([load_checkpoint(p) for p in bests[w]]), val_eps, max_steps=cfg.val_steps or None
+        )
+        for w in ways
+    }
+    keep, why = choose_inputs(vals["use"], vals["ignore"])
+    way = "use" if keep else "ignore"
+    _log.info(f"exogenous inputs {names}: {why}")
+    for i in range(half):  # the winning half becomes the ensemble's first members
+        os.replace(out / way / f"member_{i}", out / f"member_{i}")
+    (out / way).rmdir()
+    bests[way] = [out / f"member_{i}" / "best.pt" for i in range(half)]
+    rest = [
+        replace(cfg, members=1, member_workers=0, exogenous=way, seed=cfg.seed + i)
+        for i in range(half, cfg.members)
+    ]
+    rest_jobs = [
+        TrainJob(cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {i}")
+        for i, c in enumerate(rest)
+    ]
+    more = run_jobs(
+        _train_member,
+        rest_jobs,
+        workers=min(workers, max(1, len(rest))),
+        show_progress=show_progress,
+    )
+    record = {
+        "inputs": names,
+        "kept": keep,
+        "why": why,
+        "val_error_use": vals["use"]["val_error"],
+        "val_error_ignore": vals["ignore"]["val_error"],
+        "theta_rmse_use": vals["use"]["theta_rmse"],
+        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
+        "members_per_way": half,
+    }
+    final_cfg = replace(cfg, exogenous=way)
+    best = merge_members(
+        final_cfg,
+        cfgs[way] + rest,
+        bests[way] + more,
+        val_eps,
+        out=out,
+        t0=t0,
+        training={"exogenous": record},
+    )
+    write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
+    return best

@@ -1,0 +1,58 @@
+"""Selection that stays sound on a short validation split (``select_after``, ``select_smooth``)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.surrogate.checkpoint import read_checkpoint
+from excavator_surrogate.training import train
+from excavator_surrogate.training.selection import first_eligible, selection_score
+from tests.helpers.training import tiny_dataset, tiny_train_config
+
+
+def test_a_lucky_epoch_in_a_noisy_stretch_does_not_win():
+    noisy = [1.0, 0.4, 1.1, 0.9]  # epoch 1 is a lucky draw among bad neighbours
+    calm = [0.6, 0.6, 0.6, 0.6]
+    assert selection_score(noisy[:2], smooth=0) == 0.4  # the old rule: its own error
+    best_noisy = min(selection_score(noisy[: k + 1], smooth=2) for k in range(len(noisy)))
+    best_calm = min(selection_score(calm[: k + 1], smooth=2) for k in range(len(calm)))
+    assert best_calm < best_noisy
+    # the saved weights must be good themselves, not only their neighbours
+    assert selection_score([0.5, 0.5, 0.5, 2.0], smooth=3) == 2.0
+    # a diverged epoch counts as +inf, and the score is finite again once it leaves the window
+    assert selection_score([0.5, math.nan, 0.5], smooth=2) == 0.5
+    assert selection_score([math.nan, math.nan, 0.5], smooth=2) == math.inf
+
+
+def test_first_eligible_epoch():
+    assert first_eligible(110, 0.0) == 0
+    assert first_eligible(110, 0.5) == 55
+    assert first_eligible(3, 0.5) == 1
+
+
+def test_only_epochs_after_select_after_compete(tmp_path):
+    cfg = tiny_train_config(epochs=4, select_after=0.5, select_smooth=1)
+    best = train(
+        cfg, tiny_dataset(2, n_train=2, n_step=120), out=tmp_path / "s", show_progress=False
+    )
+    ck = read_checkpoint(best)
+    assert ck["metrics"]["epoch"] >= 2
+    rows = ck["history"]
+    assert [math.isnan(r["select_score"]) for r in rows[:2]] == [True, True]
+    assert all(r["best"] == 0 for r in rows[:2])
+    # the score of an eligible epoch is the larger of its error and the recent median
+    for k in (2, 3):
+        recent = sorted(r["val_error"] for r in rows[k - 1 : k + 1])
+        want = max(rows[k]["val_error"], sum(recent) / 2)
+        assert rows[k]["select_score"] == pytest.approx(want, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    "bad", [{"select_after": 1.0}, {"select_after": float("nan")}, {"select_smooth": -1}]
+)
+def test_bad_selection_options_are_one_line(bad):
+    with pytest.raises(ConfigError, match=next(iter(bad))):
+        tiny_train_config(**bad)
