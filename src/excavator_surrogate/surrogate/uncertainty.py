@@ -15,8 +15,9 @@ command sequence and returns, per joint and step:
   following member ``m``'s velocity (``ClosedLoop.follow``).  docs/design.md compares the two;
 - bands ``central +/- k_{level, j} spread`` for the calibrated levels (50 % and 90 %), with
   ``k`` fitted per joint on free runs (:func:`.bands.fit_scale`: the level-quantile of
-  ``|error| / spread``; :func:`.bands.calibrate`: the larger of the scales of the validation
-  runs and of the training runs, :data:`.bands.RULE`) and stored in the checkpoint
+  ``|error| / spread``, per horizon bin for the angle; :func:`.bands.calibrate`: fitted on
+  training runs, raised where the validation runs need more, :data:`.bands.RULE`) and stored
+  in the checkpoint
   (``metrics["uncertainty"]``);
 - out-of-distribution flags from the training data's :class:`~.coverage.CoverageRecord`
   (``metrics["coverage"]``).
