@@ -11,6 +11,7 @@ import torch
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.bands import (
+    PRIOR_RUNS,
     RULE,
     _evenly,
     _pooled,
@@ -21,7 +22,6 @@ from excavator_surrogate.surrogate.bands import (
     fit_scale,
     monotone_bins,
     predict_episodes,
-    val_excess,
 )
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.coverage import (
@@ -200,16 +200,20 @@ def test_checkpoints_round_trip_calibration_and_coverage(spec, episodes, tmp_pat
     np.testing.assert_array_equal(cov2.grid, cov.grid)
     assert torch.load(path, weights_only=True)["history"] == [{"member": "ensemble"}]
     assert Calibration.from_dict(cal.to_dict()).levels == (0.5, 0.9)
-    # the stored calibration gives bands: on the runs it was fitted on (the training runs;
-    # validation only raises the scales), they cover as fitted
-    runs = predict_episodes(back, episodes[:2])
-    scores = band_scores(runs, spec.names, [j.periodic for j in spec.joints])
+    # the stored calibration gives bands: on the runs it was fitted on, weighed as in the
+    # fit, they cover as fitted (the sample at the quantile itself may fall either side of
+    # |err| <= k x spread by rounding: one sample of slack per group)
+    w = 1 / (1 + PRIOR_RUNS)
+    per = [j.periodic for j in spec.joints]
+    fitted = [predict_episodes(back, eps) for eps in (episodes[2:], episodes[:2])]
+    sc = [band_scores(r, spec.names, per) for r in fitted]
+    one = [1.0 / sum(len(r.time) - r.pred.warmup for r in runs) for runs in fitted]
+    scores = sc[0]
     assert scores["available"]
-    # the sample at the quantile itself may fall either side of |err| <= k x spread by rounding
-    one = 1.0 / sum(len(r.time) - r.pred.warmup for r in runs)
     for n in spec.names:
-        assert scores["theta"][n]["coverage_90"] >= 0.9 - one - 1e-9
-        assert scores["omega"][n]["coverage_50"] >= 0.5 - one - 1e-9
+        for q, lv in (("theta", "90"), ("omega", "50")):
+            got = w * sc[0][q][n][f"coverage_{lv}"] + (1 - w) * sc[1][q][n][f"coverage_{lv}"]
+            assert got >= int(lv) / 100 - w * one[0] - (1 - w) * one[1] - 1e-9
         assert scores["theta"][n]["width_90"] >= scores["theta"][n]["width_50"]
     assert 0.0 <= scores["ood"]["any"] <= 1.0
 
@@ -226,10 +230,10 @@ def test_calibrating_a_single_network_records_coverage_only(spec, episodes, tmp_
     assert scores["ood"] is not None
 
 
-def test_scales_come_from_the_training_runs_raised_by_validation(spec, episodes):
-    """:data:`RULE`: the scales are the training runs' (unbinned and per horizon bin), raised
-    by the validation runs' excess (:func:`val_excess`); the record says which runs they came
-    from, and a calibration stored before the rule loads with the same bands."""
+def test_scales_are_the_weighted_mixture_of_validation_and_training_runs(spec, episodes):
+    """:data:`RULE`: the quantile of the validation and training runs' ratios together, the
+    validation runs weighing n_val / (n_val + PRIOR_RUNS); the record says which runs they
+    came from, and a calibration stored before the rule loads with the same bands."""
     ens = merge(_members(spec, episodes))
     val, train = episodes[2:], episodes[:2]
     both, _ = calibrate(ens, val, train)
@@ -238,13 +242,17 @@ def test_scales_come_from_the_training_runs_raised_by_validation(spec, episodes)
     assert both is not None and only_val is not None and only_train is not None
     assert (both.rule, both.n_run, both.n_train_run) == (RULE, 1, 2)
     assert (only_val.rule, only_train.rule) == ("val", "train")
-    runs_t = predict_episodes(ens, train, calibration=None)
     per = np.array([j.periodic for j in spec.joints])
+    runs = [predict_episodes(ens, eps, calibration=None) for eps in (val, train)]
+    w = 1 / (1 + PRIOR_RUNS)
     for q in ("theta", "omega"):
-        k_t = fit_scale(*_pooled(runs_t, per)[q], both.levels, both.floor(q))
-        ratio = getattr(both, q) / k_t
-        assert (ratio >= 1 - 1e-12).all()  # validation only raises
-    # too few samples per horizon bin here: every bin takes the one (raised) angle scale
+        err, spread = (np.concatenate([_pooled(r, per)[q][i] for r in runs]) for i in (0, 1))
+        n_v = len(_pooled(runs[0], per)[q][0])
+        group = (np.arange(len(err)) >= n_v).astype(int)
+        want = fit_scale(err, spread, both.levels, both.floor(q), group, (w, 1 - w))
+        np.testing.assert_allclose(getattr(both, q), want, rtol=1e-12)
+        assert not np.allclose(want, fit_scale(err, spread, both.levels, both.floor(q)))
+    # too few samples per horizon bin here: every bin takes the one angle scale
     np.testing.assert_allclose(
         both.theta_horizon, np.broadcast_to(both.theta[:, None, :], both.theta_horizon.shape)
     )
@@ -261,21 +269,18 @@ def test_scales_come_from_the_training_runs_raised_by_validation(spec, episodes)
             np.testing.assert_array_equal(a[lv][q][0], b[lv][q][0])
 
 
-def test_validation_raises_the_scales_only_beyond_one_standard_error(rng):
-    """Per run log factors: training runs ~ N(0, 1); validation runs shifted by d.  The
-    factor is exp(d - se) when d exceeds its standard error, else 1; one value per run, so
-    a single extreme run moves it by 1 / n_val of its excess only."""
-    n_t, n_v = 400, 25
-    train = rng.normal(size=(n_t, 1, 1))
-    train = (train - train.mean()) / train.std(ddof=1)  # mean 0, sd 1 exactly
-    se = np.sqrt(1 / n_v + 1 / n_t)
-    for d in (0.0, 0.5 * se, 3 * se, 1.0):
-        val = np.full((n_v, 1, 1), d)
-        np.testing.assert_allclose(val_excess(train, val), np.exp(max(0.0, d - se)), rtol=1e-12)
-    val = np.zeros((n_v, 1, 1))
-    val[0] = 50.0  # one extreme run
-    np.testing.assert_allclose(val_excess(train, val), np.exp(50.0 / n_v - se), rtol=1e-12)
-    assert val_excess(train, np.full((n_v, 1, 1), np.nan)) == 1.0  # no validation samples
+def test_fit_scale_weighs_groups_by_their_share_not_their_size():
+    """10 validation samples at ratio 1 and 990 training samples at ratio 10: with shares
+    (0.5, 0.5) the 40 % quantile is 1 and the 60 % one 10 (unweighted: 10 and 10)."""
+    err = np.concatenate([np.full(10, 1.0), np.full(990, 10.0)])[:, None]
+    spread = np.ones_like(err)
+    group = np.concatenate([np.zeros(10, int), np.ones(990, int)])
+    k = fit_scale(err, spread, (0.4, 0.6), group=group, share=(0.5, 0.5))
+    np.testing.assert_array_equal(k[:, 0], [1.0, 10.0])
+    np.testing.assert_array_equal(fit_scale(err, spread, (0.4, 0.6))[:, 0], [10.0, 10.0])
+    # an empty group gives its share to the others
+    k1 = fit_scale(err[10:], spread[10:], (0.4,), group=group[10:], share=(0.5, 0.5))
+    assert k1[0, 0] == 10.0
 
 
 def test_few_training_runs_are_picked_evenly(spec, episodes):
