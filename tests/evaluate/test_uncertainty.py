@@ -107,9 +107,17 @@ def test_exsur_calibrate_stores_the_records_and_refuses_other_machines(
     surs = [make_surrogate(ds.spec, ds.train, mode="stateful", window=5, seed=s) for s in (0, 1)]
     ckpt = save_checkpoint(tmp_path / "ens.pt", merge(surs))
     assert main(["calibrate", str(ckpt), str(dataset_dir), "--design", "independent"]) == 0
-    assert "bands calibrated on" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "bands calibrated on" in out and f"{len(ds.val)} validation and " in out
     back = load_checkpoint(ckpt)
     assert stored_calibration(back).design == "independent" and stored_coverage(back) is not None
+    assert stored_calibration(back).n_train_run == len(ds.train)
+    # --train-runs 0: the validation runs alone (the first rule); a negative count is one line
+    assert main(["calibrate", str(ckpt), str(dataset_dir), "--train-runs", "0"]) == 0
+    assert "0 training runs" in capsys.readouterr().out
+    assert stored_calibration(load_checkpoint(ckpt)).rule == "val"
+    assert main(["calibrate", str(ckpt), str(dataset_dir), "--train-runs", "-1"]) == 2
+    assert "--train-runs must be >= 0" in capsys.readouterr().err
     other = write_dataset(
         tmp_path / "other", synthetic_split(synthetic_spec(3), n_train=1, n_val=1, n_test=1)
     )
