@@ -27,7 +27,8 @@ calibrated on the validation free runs, coverage record of the training data):
 Goals: coverage of the 90 % band within [85 %, 95 %] on every joint (h1-dev validation runs;
 stand-in test runs); rank correlation >= 0.5 on every joint (h1-dev validation runs, else the
 stand-in test runs); the flag fires on >= 90 % of the steps beyond the training range and on
-<= 5 % of the in-distribution test steps.  ``--quick`` trains a smaller budget (fewer and
+<= 5 % of the in-distribution test steps; the env's uncertainty costs <= 20 % of its steps/s
+(a throughput taken under whatever load the machine has: ``load_avg_1min``).  ``--quick`` trains a smaller budget (fewer and
 shorter runs, few epochs, 120 s on h1-dev) -- a smoke run whose numbers are not the
 recipe's.  Ends with ONE JSON line.  Usage::
 
@@ -382,6 +383,8 @@ def main() -> None:
         ),
         "flag_hits_ge_90pct_beyond": hr is not None and hr >= 0.9,
         "flag_false_alarms_le_5pct": fa is not None and fa <= 0.05,
+        # steps/s under the machine's load at the time: see load_avg_1min
+        "env_cost_le_20pct": None if env is None else env["ratio"] >= 0.8,
     }
     out = {
         "bench": "trust",
