@@ -115,11 +115,9 @@ def train_choosing_inputs(
     ]
     paths = run_jobs(_train_member, jobs, workers=workers, show_progress=show_progress)
     bests = {"use": paths[:half], "ignore": paths[half:]}
+    halves = {w: [load_checkpoint(p) for p in bests[w]] for w in ways}
     vals = {
-        w: free_run_error(
-            merge([load_checkpoint(p) for p in bests[w]]), val_eps, max_steps=cfg.val_steps or None
-        )
-        for w in ways
+        w: free_run_error(merge(halves[w]), val_eps, max_steps=cfg.val_steps or None) for w in ways
     }
     keep, why = choose_inputs(vals["use"], vals["ignore"])
     way = "use" if keep else "ignore"
@@ -133,7 +131,9 @@ def train_choosing_inputs(
         for i in range(half, cfg.members)
     ]
     rest_jobs = [
-        TrainJob(cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {i}")
+        TrainJob(
+            cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {half + i}"
+        )
         for i, c in enumerate(rest)
     ]
     more = run_jobs(
@@ -152,6 +152,10 @@ def train_choosing_inputs(
         "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
         "members_per_way": half,
     }
+    training: dict[str, Any] = {"exogenous": record}
+    lost = "ignore" if keep else "use"
+    if any((m.metrics or {}).get("training", {}).get("budget_cut") for m in halves[lost]):
+        training["budget_cut"] = True  # the choice itself depended on the clock: say so
     final_cfg = replace(cfg, exogenous=way)
     best = merge_members(
         final_cfg,
@@ -160,7 +164,7 @@ def train_choosing_inputs(
         val_eps,
         out=out,
         t0=t0,
-        training={"exogenous": record},
+        training=training,
     )
     write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
     return best
