@@ -199,8 +199,9 @@ def plain_lstm_config(epochs: int, seed: int) -> TrainConfig:
 
 
 def training_log(out: Path) -> dict:
-    """What the training logs of a recipe run say: per member, epochs run, best epoch and the
-    validation error at the first, best and last epoch."""
+    """What the training logs of a recipe run say: per member, epochs run, best epoch, the
+    validation error at the first, best and last epoch, and the worst joint's validation
+    angle R^2 at the best epoch (against the test's: how optimistic the selection is)."""
     members = []
     for path in sorted(out.rglob("log.csv")):
         with path.open() as f:
@@ -214,6 +215,9 @@ def training_log(out: Path) -> dict:
                 "epochs_run": len(rows),
                 "best_epoch": best + 1,
                 "val_first_best_last": [round(err[0], 4), round(err[best], 4), round(err[-1], 4)],
+                "val_theta_r2_min_at_best": round(
+                    float(rows[best].get("val_theta_r2_min", "nan")), 4
+                ),
             }
         )
     return {"members": members}
