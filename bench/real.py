@@ -46,7 +46,9 @@ only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training 
 cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
 the end, and ``timings_under_load`` when either is above 1.5.
 
-Takes about 40 min for h1 and 25 min for the continuous case on the 2-core reference machine.
+Takes about 40 min for h1 on the 2-core reference machine; the continuous case plans about
+11 min of recipe training per seed there (4 members of 162 s, two at a time), twice that
+with ``--condition`` (estimates from the recipe's plan: measured only under load so far).
 """
 
 from __future__ import annotations
@@ -199,11 +201,13 @@ def plain_lstm_config(epochs: int, seed: int) -> TrainConfig:
 
 
 def training_log(out: Path) -> dict:
-    """What the training logs of a recipe run say: per member, epochs run, best epoch, the
-    validation error at the first, best and last epoch, and the worst joint's validation
-    angle R^2 at the best epoch (against the test's: how optimistic the selection is)."""
+    """What the training logs of a recipe run say: per member, epochs run, the epoch of the
+    lowest validation error (the selected one unless the recipe smooths its selection), the
+    validation error at the first, that and the last epoch, and the worst joint's validation
+    angle R^2 there (against the test's: how optimistic the selection is)."""
     members = []
-    for path in sorted(out.rglob("log.csv")):
+    logs = sorted(out.rglob("member_*/log.csv")) or sorted(out.rglob("log.csv"))
+    for path in logs:
         with path.open() as f:
             rows = [r for r in csv.DictReader(f) if r.get("val_error")]
         if not rows:
@@ -213,7 +217,7 @@ def training_log(out: Path) -> dict:
         members.append(
             {
                 "epochs_run": len(rows),
-                "best_epoch": best + 1,
+                "lowest_val_epoch": best + 1,
                 "val_first_best_last": [round(err[0], 4), round(err[best], 4), round(err[-1], 4)],
                 "val_theta_r2_min_at_best": round(
                     float(rows[best].get("val_theta_r2_min", "nan")), 4
