@@ -131,9 +131,12 @@ def within(cov: dict[str, float | None]) -> bool:
     return all(v is not None and lo <= v <= hi for v in cov.values())
 
 
-def stand_in(work: Path, quick: bool, reuse: bool = False) -> dict[str, Any]:
+def stand_in(
+    work: Path, quick: bool, reuse: bool = False, members: int | None = None
+) -> dict[str, Any]:
     """Coverage, flags and spread-error correlation on the Stage II stand-in (``reuse``: keep
-    the data and model already in ``work``, calibrate the model again)."""
+    the data and model already in ``work``, calibrate the model again; ``members``: the
+    ensemble size, default the preset's)."""
     n_train, n_test, epochs = (16, 6, 8) if quick else (100, 12, None)
     if not (reuse and (work / "sim").is_dir()):
         simulate(
@@ -158,6 +161,8 @@ def stand_in(work: Path, quick: bool, reuse: bool = False) -> dict[str, Any]:
             str(best.parent),
         ]
         argv += ["-q", "--set", "train.tensorboard=false"]
+        if members is not None:
+            argv += ["--members", str(members)]
         if epochs is not None:
             argv += ["--epochs", str(epochs), "--set", "train.teacher_epochs=2"]
         else:  # the planned epochs on any load (the cap only matters on a busy machine)
@@ -322,6 +327,12 @@ def main() -> None:
         action="store_true",
         help="with --work: keep the data and models already there (calibrated again)",
     )
+    ap.add_argument(
+        "--members",
+        type=int,
+        default=None,
+        help="ensemble size of the stand-in model (default: quick-hydraulic's 2)",
+    )
     args = ap.parse_args()
     import torch
 
@@ -329,7 +340,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="exsur-bench-trust-") as tmp_name:
         work = args.work or Path(tmp_name)
         work.mkdir(parents=True, exist_ok=True)
-        sim = stand_in(work, args.quick, args.reuse)
+        sim = stand_in(work, args.quick, args.reuse, args.members)
         h1 = None if args.no_real else real(work, args.data, args.quick, args.reuse)
     env = env_cost(0.5 if args.quick else 1.0, 2 if args.quick else 3)
 
