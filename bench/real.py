@@ -1,6 +1,6 @@
 """Real-machine fidelity: the default recipe on two data shapes, next to its baselines.
 
-Two cases (:data:`CASES`, a dict of case builders; add a shape by adding a builder):
+Three cases (:data:`CASES`, a dict of case builders; add a shape by adding a builder):
 
 - ``h1``: the h1-dev development set (``../shared/real/h1-dev``: 143 valve-duty step runs of a
   production hydraulic excavator, third-party data that is never shipped with exsur; see its
@@ -11,6 +11,10 @@ Two cases (:data:`CASES`, a dict of case builders; add a shape by adding a build
   simulated on the fly into a temporary folder and split in time: 340 s train, the next
   100 s validate, the last 160 s test; scored on the test.  Imported as a user's log would
   be: the spec declares no end stops or speed bounds.
+- ``stroke``: linear joints.  ``quick-hydraulic``'s runs written by
+  ``examples/stroke_make_logs.py`` as a stroke-sensing machine's CSV logs (the swing an
+  encoder in deg; boom, arm and bucket cylinder strokes in mm through a made-up linkage) and
+  imported with the mapping it writes; scored on its test runs, in mm.
 
 For each shape, in one run on the same data:
 
@@ -24,7 +28,8 @@ For each shape, in one run on the same data:
 - the structured per-joint baseline (dead zone, gain per direction, delay, end stops at the
   training range; :func:`excavator_surrogate.surrogate.structured.fit_structured`);
 - scores: free run from a 30-sample warm-up over each whole scored episode at the data's
-  rate, angle RMSE [deg] and R^2 per joint, pooled over episodes.
+  rate, position RMSE and R^2 per joint, pooled over episodes (deg for an angle, the
+  mapping's unit for a stroke).
 
 ``--condition`` also trains the recipe on the shape's run-condition variant: h1's H/L run
 condition as a per-run input (``examples/real_excavator_condition.toml``); the continuous
@@ -37,7 +42,7 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 <= 600 s; every free run stays inside the observed envelope.  A shape whose data is missing
 (h1 without ``../shared``) is reported as skipped.  Usage::
 
-    python bench/real.py [--shape h1|continuous|all] [--seeds 0,10,20] [--plain-epochs 30]
+    python bench/real.py [--shape h1|continuous|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
 
 ``--smoke``: one seed, one member, 2 epochs, 2 plain-LSTM epochs (a minute: the plumbing
@@ -82,6 +87,8 @@ DEFAULT_DATA = REPO.parent / "shared" / "real" / "h1-dev"
 MAPPING = REPO / "examples" / "real_excavator.toml"
 MAPPING_CONDITION = REPO / "examples" / "real_excavator_condition.toml"
 """The same mapping plus the run names' H/L condition as a per-run input."""
+STROKE_EXAMPLE = REPO / "examples" / "stroke_make_logs.py"
+"""Writes the stroke-sensing machine's logs and mapping (``make_logs``)."""
 WARMUP = 30
 """The warm-up of every free run [samples] (the h1 protocol's)."""
 TRAIN_GOAL_S = 600.0
@@ -161,24 +168,56 @@ def _continuous(work: Path, args: argparse.Namespace) -> Case:
     )
 
 
+def _stroke(work: Path, args: argparse.Namespace) -> Case:
+    import importlib.util
+
+    from excavator_surrogate.ingest import import_logs
+    from excavator_surrogate.ingest.mapping import load_mapping
+
+    spec = importlib.util.spec_from_file_location("stroke_make_logs", STROKE_EXAMPLE)
+    assert spec is not None and spec.loader is not None
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    mapping = example.make_logs(work / "stroke_logs", seed=args.sim_seed, preset="quick-hydraulic")
+    import_logs(
+        [work / "stroke_logs" / "logs"], load_mapping(mapping), out=work / "stroke", quiet=True
+    )
+    return Case(
+        load_dataset(work / "stroke"),
+        "test",
+        "quick-hydraulic's runs as a stroke-sensing machine's CSV logs (swing in deg; boom, "
+        "arm, bucket cylinder strokes in mm): its own train / val / test (scored)",
+    )
+
+
 CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
     "h1": _h1,
     "continuous": _continuous,
+    "stroke": _stroke,
 }
 """Data shapes by name: ``builder(work_dir, args) -> Case`` (or a reason to skip it)."""
 
 
+def shown(spec) -> tuple[np.ndarray, list[str]]:
+    """Per joint: stored value x factor = shown value, and the shown unit (deg for an angle in
+    rad, the mapping's ``m`` / ``cm`` / ``mm`` for a stroke stored in m)."""
+    factors = [j.display_factor if j.linear else math.degrees(1.0) for j in spec.joints]
+    return np.array(factors), [j.display_unit if j.linear else "deg" for j in spec.joints]
+
+
 def score(sur, episodes) -> dict[str, list[float]]:
-    """Free-run angle RMSE [deg] and R^2 per joint, pooled over ``episodes`` after the warm-up."""
+    """Free-run position RMSE and R^2 per joint, pooled over ``episodes`` after the warm-up,
+    in each joint's shown unit (:func:`shown`: deg for an angle, the mapping's unit for a
+    stroke)."""
     metrics, runs = evaluate_models({"m": sur}, episodes)
     th = metrics["m"]["theta"]
     lo = np.min([r.theta_hat[r.warmup :].min(axis=0) for r in runs["m"]], axis=0)
     hi = np.max([r.theta_hat[r.warmup :].max(axis=0) for r in runs["m"]], axis=0)
     return {
-        "rmse_deg": [math.degrees(th[j]["rmse"]) for j in sur.spec.names],
+        "rmse": [f * th[j]["rmse"] for f, j in zip(shown(sur.spec)[0], sur.spec.names)],
         "r2": [th[j]["r2"] for j in sur.spec.names],
-        "theta_min_deg": np.degrees(lo).tolist(),
-        "theta_max_deg": np.degrees(hi).tolist(),
+        "theta_min": (shown(sur.spec)[0] * lo).tolist(),
+        "theta_max": (shown(sur.spec)[0] * hi).tolist(),
     }
 
 
@@ -262,11 +301,9 @@ def run_recipe(
         }
         results.append(res)
         rows[f"default recipe{label}, seed {seed}"] = res
-        partial = {k: {"rmse_deg": v["rmse_deg"], "r2": v["r2"]} for k, v in rows.items()}
+        partial = {k: {"rmse": v["rmse"], "r2": v["r2"]} for k, v in rows.items()}
         (work / f"{tag}_partial.json").write_text(json.dumps({"rows": partial, "seeds": results}))
-        log(
-            f"bench/real: {tag}, seed {seed}: {np.round(res['rmse_deg'], 2)} deg in {train_s:.0f} s"
-        )
+        log(f"bench/real: {tag}, seed {seed}: RMSE {np.round(res['rmse'], 2)} in {train_s:.0f} s")
     return results
 
 
@@ -327,36 +364,39 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
             f" with {case.condition_name}",
         )
 
-    rmse = np.array([r["rmse_deg"] for r in recipe])
+    rmse = np.array([r["rmse"] for r in recipe])
     median, worst = np.median(rmse, axis=0), rmse.max(axis=0)
     th_all = np.concatenate([e.theta for e in ds.train + ds.val])
-    span_lo, span_hi = np.degrees(th_all.min(axis=0)), np.degrees(th_all.max(axis=0))
+    factor, units = shown(ds.spec)
+    span_lo, span_hi = factor * th_all.min(axis=0), factor * th_all.max(axis=0)
     margin = 0.05 * (span_hi - span_lo)
     periodic = np.array(ds.spec.periodic)
     inside = all(
-        np.all(periodic | (np.array(r["theta_min_deg"]) >= span_lo - margin))
-        and np.all(periodic | (np.array(r["theta_max_deg"]) <= span_hi + margin))
+        np.all(periodic | (np.array(r["theta_min"]) >= span_lo - margin))
+        and np.all(periodic | (np.array(r["theta_max"]) <= span_hi + margin))
         for r in recipe
     )
 
     print()
-    print(f"[{name}] free-run angle RMSE [deg] (R^2) on {split}, {WARMUP}-sample warm-up")
-    print(f"| model | {' | '.join(names)} | train [s] |")
+    print(f"[{name}] free-run position RMSE (R^2) on {split}, {WARMUP}-sample warm-up")
+    print(f"| model | {' | '.join(f'{n} [{u}]' for n, u in zip(names, units))} | train [s] |")
     print("|---|" + "---|" * (len(names) + 1))
     for label, r in rows.items():
-        cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(r["rmse_deg"], r["r2"]))
+        cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(r["rmse"], r["r2"]))
         print(f"| {label} | {cells} | {r.get('train_s', '-')} |")
     print(
         f"| default recipe, median of {len(recipe)} | {' | '.join(f'{v:.2f}' for v in median)} | |"
     )
     print(
-        "seed spread (min-max) [deg]: "
-        + ", ".join(f"{n} {a:.2f}-{b:.2f}" for n, a, b in zip(names, rmse.min(0), rmse.max(0)))
+        "seed spread (min-max): "
+        + ", ".join(
+            f"{n} {a:.2f}-{b:.2f} {u}" for n, a, b, u in zip(names, rmse.min(0), rmse.max(0), units)
+        )
     )
 
     def beats(label: str) -> bool | None:
         row = rows.get(label)
-        return None if row is None else bool(np.all(median < np.array(row["rmse_deg"])))
+        return None if row is None else bool(np.all(median < np.array(row["rmse"])))
 
     goals = {
         "median_beats_plain_lstm_every_joint": beats("plain 2x128 LSTM, one-step loss"),
@@ -371,7 +411,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
     out = {
         "split": case.split,
         "joints": names,
-        "recipe_median_rmse_deg": [round(float(v), 3) for v in median],
+        "recipe_median_rmse": [round(float(v), 3) for v in median],
         "recipe_worst_over_median": [round(float(a / b), 3) for a, b in zip(worst, median)],
         "recipe_median_r2": [round(v, 4) for v in np.median([r["r2"] for r in recipe], axis=0)],
         "recipe_train_s": [r["train_s"] for r in recipe],
@@ -379,13 +419,13 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "recipe_budget_cut": [r["budget_cut"] for r in recipe],
         "recipe_training_log": {r["seed"]: r["members"] for r in recipe},
         "median_over": {
-            k: [round(float(a / b), 3) for a, b in zip(median, rows[k]["rmse_deg"])]
+            k: [round(float(a / b), 3) for a, b in zip(median, rows[k]["rmse"])]
             for k in rows
             if not k.startswith("default recipe")
         },
         "models": {
             k: {
-                "rmse_deg": [round(v, 3) for v in r["rmse_deg"]],
+                "rmse": [round(v, 3) for v in r["rmse"]],
                 "r2": [round(v, 4) for v in r["r2"]],
             }
             for k, r in rows.items()
@@ -394,7 +434,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "goals": goals,
     }
     if with_cond:
-        cond_median = np.median(np.array([r["rmse_deg"] for r in with_cond]), axis=0)
+        cond_median = np.median(np.array([r["rmse"] for r in with_cond]), axis=0)
         print(
             f"| recipe with {case.condition_name}, median of {len(with_cond)} | "
             f"{' | '.join(f'{v:.2f}' for v in cond_median)} | |"
@@ -402,8 +442,8 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         goals["condition_does_not_hurt"] = bool(np.all(cond_median <= median))
         out["condition"] = {
             "input": case.condition_name,
-            "median_rmse_deg_without": [round(float(v), 3) for v in median],
-            "median_rmse_deg_with": [round(float(v), 3) for v in cond_median],
+            "median_rmse_without": [round(float(v), 3) for v in median],
+            "median_rmse_with": [round(float(v), 3) for v in cond_median],
             "with_over_without": [round(float(a / b), 3) for a, b in zip(cond_median, median)],
         }
     return out
