@@ -34,8 +34,8 @@ def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
     ]
 
 
-def _train_member(job: TrainJob, show_progress: bool | None) -> Path:
-    """One member, trained exactly as a single network."""
+def train_member(job: TrainJob, show_progress: bool | None) -> Path:
+    """One member, trained exactly as a single network (a :func:`~.jobs.run_jobs` job)."""
     return train_network(job.cfg, job.dataset, out=job.out, show_progress=show_progress)
 
 
@@ -74,7 +74,7 @@ def train_ensemble(
         TrainJob(cfg=c, dataset=dataset, out=d, tag=f"exsur member {i}")
         for i, (c, d) in enumerate(zip(cfgs, dirs))
     ]
-    bests = run_jobs(_train_member, jobs, workers=workers, show_progress=show_progress)
+    bests = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
     return merge_members(cfg, cfgs, bests, val_eps, out=out, t0=t0)
 
 

@@ -34,9 +34,8 @@ from ..surrogate.ensemble import merge
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
-from .ensembles import merge_members
+from .ensembles import member_configs, merge_members, train_member
 from .jobs import TrainJob, run_jobs
-from .loop import train_network
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -75,10 +74,6 @@ def choose_inputs(use: Mapping[str, Any], ignore: Mapping[str, Any]) -> tuple[bo
     return keep, why
 
 
-def _train_member(job: TrainJob, show_progress: bool | None) -> Path:
-    return train_network(job.cfg, job.dataset, out=job.out, show_progress=show_progress)
-
-
 def train_choosing_inputs(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -101,19 +96,13 @@ def train_choosing_inputs(
     )
     t0 = time.monotonic()
     ways = ("use", "ignore")
-    cfgs = {
-        w: [
-            replace(cfg, members=1, member_workers=0, exogenous=w, seed=cfg.seed + i)
-            for i in range(half)
-        ]
-        for w in ways
-    }
+    cfgs = {w: member_configs(replace(cfg, exogenous=w))[:half] for w in ways}
     jobs = [
         TrainJob(cfg=c, dataset=dataset, out=out / w / f"member_{i}", tag=f"exsur {w} {i}")
         for w in ways
         for i, c in enumerate(cfgs[w])
     ]
-    paths = run_jobs(_train_member, jobs, workers=workers, show_progress=show_progress)
+    paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
     bests = {"use": paths[:half], "ignore": paths[half:]}
     halves = {w: [load_checkpoint(p) for p in bests[w]] for w in ways}
     vals = {
@@ -126,10 +115,7 @@ def train_choosing_inputs(
         os.replace(out / way / f"member_{i}", out / f"member_{i}")
     (out / way).rmdir()
     bests[way] = [out / f"member_{i}" / "best.pt" for i in range(half)]
-    rest = [
-        replace(cfg, members=1, member_workers=0, exogenous=way, seed=cfg.seed + i)
-        for i in range(half, cfg.members)
-    ]
+    rest = member_configs(replace(cfg, exogenous=way))[half:]
     rest_jobs = [
         TrainJob(
             cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {half + i}"
@@ -137,7 +123,7 @@ def train_choosing_inputs(
         for i, c in enumerate(rest)
     ]
     more = run_jobs(
-        _train_member,
+        train_member,
         rest_jobs,
         workers=min(workers, max(1, len(rest))),
         show_progress=show_progress,
