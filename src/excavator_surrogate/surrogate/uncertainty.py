@@ -15,9 +15,9 @@ command sequence and returns, per joint and step:
   following member ``m``'s velocity (``ClosedLoop.follow``).  docs/design.md compares the two;
 - bands ``central +/- k_{level, j} spread`` for the calibrated levels (50 % and 90 %), with
   ``k`` fitted per joint on free runs (:func:`.bands.fit_scale`: the level-quantile of
-  ``|error| / spread``, per horizon bin for the angle; :func:`.bands.calibrate`: fitted on
-  training runs, raised where the validation runs need more, :data:`.bands.RULE`) and stored
-  in the checkpoint
+  ``|error| / spread``, per horizon bin for the angle; :func:`.bands.calibrate`: over the
+  validation and training runs' free runs together, the validation runs weighing
+  ``n_val / (n_val + 6)``, :data:`.bands.RULE`) and stored in the checkpoint
   (``metrics["uncertainty"]``);
 - out-of-distribution flags from the training data's :class:`~.coverage.CoverageRecord`
   (``metrics["coverage"]``).
