@@ -55,6 +55,7 @@ def _synced(pred: SurrogatePredictor, theta: np.ndarray, u_hist: np.ndarray) -> 
         (dict(mode="stateful", cell="gru", play=(0.05,)), K, "cell"),
         (dict(mode="windowed", cell="lstm", window=5), K, "window"),
         (dict(mode="stateful", cell="lstm", omega_in=True, residual=True), K, "cell"),
+        (dict(mode="stateful", cell="lstm", prior=True), K, "cell"),
     ],
 )
 def test_spread_and_flags_match_a_plain_loop_of_member_closed_loops(

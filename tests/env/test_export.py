@@ -45,9 +45,15 @@ def _step_side_by_side(
     ],
 )
 @pytest.mark.parametrize(
-    ("end_stops", "play", "omega_in"),
-    [(False, (), False), (True, (), False), (False, (0.05, 0.2), False), (True, (), True)],
-    ids=["free", "stops", "play", "velocity"],
+    ("end_stops", "play", "omega_in", "prior"),
+    [
+        (False, (), False, False),
+        (True, (), False, False),
+        (False, (0.05, 0.2), False, False),
+        (True, (), True, False),
+        (True, (), False, True),
+    ],
+    ids=["free", "stops", "play", "velocity", "prior"],
 )
 def test_onnx_stepper_matches_torch(
     mode: str,
@@ -56,9 +62,12 @@ def test_onnx_stepper_matches_torch(
     end_stops: bool,
     play: tuple[float, ...],
     omega_in: bool,
+    prior: bool,
     tmp_path: Path,
 ) -> None:
-    sur = variant_surrogate(mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in)
+    sur = variant_surrogate(
+        mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in, prior=prior
+    )
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)

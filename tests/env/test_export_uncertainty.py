@@ -25,8 +25,9 @@ EPS32 = float(np.finfo(np.float32).eps)
     [
         ("torchscript", dict(play=(0.05, 0.2), omega_in=True)),
         ("dynamo", dict(omega_in=True, residual=True)),
+        ("torchscript", dict(prior=True)),
     ],
-    ids=["play-velocity", "residual"],
+    ids=["play-velocity", "residual", "prior"],
 )
 def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, exporter, kw) -> None:
     """onnxruntime's ``omega_members`` equal the engine's members (same network call) every

@@ -97,9 +97,15 @@ def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("end_stops", "play", "omega_in"),
-    [(False, (), False), (True, (), False), (False, (0.05, 0.2), False), (True, (0.05,), True)],
-    ids=["free", "stops", "play", "velocity"],
+    ("end_stops", "play", "omega_in", "prior"),
+    [
+        (False, (), False, False),
+        (True, (), False, False),
+        (False, (0.05, 0.2), False, False),
+        (True, (0.05,), True, False),
+        (True, (), False, True),
+    ],
+    ids=["free", "stops", "play", "velocity", "prior"],
 )
 @pytest.mark.parametrize(
     ("mode", "cell"),
@@ -111,12 +117,15 @@ def test_engine_matches_closed_loop_reference(
     end_stops: bool,
     play: tuple[float, ...],
     omega_in: bool,
+    prior: bool,
 ) -> None:
     """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
     (with end stops: driven into them, and both stop at the same place; with command play
     features: the engine carries the same play states; with the velocity feature: the same
     fed-back velocities, clipped at the stops)."""
-    sur = variant_surrogate(mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in)
+    sur = variant_surrogate(
+        mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in, prior=prior
+    )
     rng = np.random.default_rng(2)
     n, w = 3, sur.window
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])

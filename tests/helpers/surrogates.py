@@ -38,6 +38,7 @@ def tiny_surrogate(
     play: tuple[float, ...] = (),
     omega_in: bool = False,
     residual: bool = False,
+    prior: bool = False,
 ) -> Surrogate:
     """An untrained 2-layer surrogate of ``spec`` (weights from ``torch.manual_seed(seed)``).
 
@@ -45,7 +46,8 @@ def tiny_surrogate(
     feature statistics, slow bounded output: omega std 0.05 rad/s).  ``play``: half-widths of
     command play features (inputs widen by ``len(play) * n_joint``); ``omega_in``: the
     velocity feature (inputs widen by ``n_joint``); ``residual``: the head adds it (needs
-    ``omega_in``).  ``drive`` adds
+    ``omega_in``); ``prior``: a speed prior, the same map for every ``seed`` (so members
+    merge) with dead zones and gains drawn from a fixed generator.  ``drive`` adds
     +/- ``drive`` (alternating by joint, normalised units) to the output bias so that free runs
     reach the joint limits (end-stop tests).
     """
@@ -60,6 +62,7 @@ def tiny_surrogate(
         cell=cell,
         head_hidden=hidden,
         residual=residual,
+        prior=prior,
     )
     if episodes is not None:
         norm = Normalization.fit(
@@ -77,6 +80,18 @@ def tiny_surrogate(
             omega_in=omega_in,
         )
     net = build_net(cfg).eval()
+    if prior:
+        rng = np.random.default_rng(1234)  # one map for every seed: members merge
+        u_max = np.array([j.u_max for j in spec.joints])
+        n_angle = sum(2 if j.periodic else 1 for j in spec.joints)
+        net.prior.load_fit(
+            cols=[n_angle + j for j in range(spec.n_joint)],
+            a_pos=rng.uniform(0.0, 0.3, spec.n_joint) * u_max,
+            a_neg=-rng.uniform(0.0, 0.3, spec.n_joint) * u_max,
+            k_pos=rng.uniform(0.1, 0.5, spec.n_joint) / u_max,
+            k_neg=rng.uniform(0.1, 0.5, spec.n_joint) / u_max,
+            norm=norm,
+        )
     drive_into_stops(net, drive, spec.n_joint)
     return Surrogate(
         net=net, spec=spec, norm=norm, model_cfg=cfg, mode=mode, name=cell, end_stops=end_stops
@@ -98,10 +113,17 @@ def make_surrogate(
 
 
 def variant_surrogate(
-    *, mode: str, cell: str, end_stops: bool, play: tuple[float, ...], omega_in: bool
+    *,
+    mode: str,
+    cell: str,
+    end_stops: bool,
+    play: tuple[float, ...],
+    omega_in: bool,
+    prior: bool = False,
 ) -> Surrogate:
     """:func:`tiny_surrogate` for the runtime-equivalence tests: with end stops it is driven
-    into them, and a velocity feature comes with the residual head (where the cell has one)."""
+    into them, a velocity feature comes with the residual head, and ``prior`` gives a speed
+    prior (both where the cell has a head: not ARX, which then runs without them)."""
     return tiny_surrogate(
         mode=mode,
         cell=cell,
@@ -109,5 +131,6 @@ def variant_surrogate(
         drive=20.0 if end_stops else 0.0,
         play=play,
         omega_in=omega_in,
-        residual=omega_in and cell != "arx",
+        residual=omega_in and cell != "arx" and not prior,
+        prior=prior and cell != "arx",
     )

@@ -47,9 +47,9 @@ from tests.helpers.surrogates import make_surrogate
 PLAY = (0.05,)
 
 
-def _members(spec, episodes, *, cell="lstm", mode="stateful", residual=False):
+def _members(spec, episodes, *, cell="lstm", mode="stateful", residual=False, prior=False):
     kw = dict(cell=cell, mode=mode, window=5, play=PLAY, end_stops=True, drive=3.0)
-    kw |= dict(omega_in=residual, residual=residual)
+    kw |= dict(omega_in=residual, residual=residual, prior=prior)
     return [
         make_surrogate(spec, episodes[:2], seed=0, hidden=10, **kw),
         make_surrogate(spec, episodes[1:], seed=1, hidden=6, **kw),
@@ -61,13 +61,18 @@ def _batch(episodes, n):
 
 
 @pytest.mark.parametrize(
-    ("cell", "mode", "residual"),
-    [("lstm", "stateful", False), ("gru", "windowed", False), ("lstm", "stateful", True)],
+    ("cell", "mode", "residual", "prior"),
+    [
+        ("lstm", "stateful", False, False),
+        ("gru", "windowed", False, False),
+        ("lstm", "stateful", True, False),
+        ("lstm", "stateful", False, True),
+    ],
 )
 def test_member_rows_of_the_merged_network_equal_each_member_run_alone(
-    spec, episodes, cell, mode, residual
+    spec, episodes, cell, mode, residual, prior
 ):
-    members = _members(spec, episodes, cell=cell, mode=mode, residual=residual)
+    members = _members(spec, episodes, cell=cell, mode=mode, residual=residual, prior=prior)
     ens = merge(members)
     theta, u = _batch(episodes, 60)
     th_c, om_c, th_m, om_m = member_runs(ens, theta, u, design="independent")

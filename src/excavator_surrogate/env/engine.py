@@ -173,7 +173,9 @@ class SurrogateEngine:
         """With ``uncertainty``: the members' spread and the OOD flags of the last step."""
         if uncertainty:
             self.unc = StepUncertainty(
-                self.sur, n_envs=self.n_envs, residual=bool(sur.model_cfg.residual)
+                self.sur,
+                n_envs=self.n_envs,
+                additive=bool(sur.model_cfg.residual or sur.model_cfg.prior),
             )
 
     def _play_step(
@@ -407,10 +409,11 @@ class SurrogateEngine:
                 w1, b1, w2, b2 = self._head
                 a = torch.relu(torch.addmm(b1, out, w1.t()))
                 omega = torch.addmm(b2, a, w2.t())
+                base = f.base(u_t, w_t)  # omega[k] (residual) or s(u[k]) (prior), else None
                 if unc is not None and unc.n_member:  # the same call's activations, per member
-                    om_m = unc.members_from_activations(a, w_t)
-                if f.residual:
-                    omega = omega + w_t  # omega[k+1] = omega[k] + change
+                    om_m = unc.members_from_activations(a, base)
+                if base is not None:
+                    omega = omega + base  # omega[k+1] = base + change
                 omega = omega.double()
             else:
                 w, p = self.window, self._pos

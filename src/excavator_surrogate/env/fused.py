@@ -127,7 +127,8 @@ class FusedStep(nn.Module):
 
     Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
     [rad] (clipped to the end stops if the surrogate has them), the new ``h``, ``c`` and,
-    with play features, the new ``z``.  (``omega`` is the next step's ``w``.)  Only LSTM/GRU surrogates can be fused.
+    with play features, the new ``z``.  With a speed prior (``ModelConfig.prior``) the head's
+    output is added to the prior's speed of ``u`` (:meth:`prior_speed`).  (``omega`` is the next step's ``w``.)  Only LSTM/GRU surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:
@@ -176,9 +177,19 @@ class FusedStep(nn.Module):
         y_std = sur.norm.y_std.double().cpu().numpy()
         y_mean = sur.norm.y_mean.double().cpu().numpy()
         w2 = lin2.weight.detach().double().cpu().numpy() * y_std[:, None]
-        # omega = y_std y + y_mean; residual: y_std head + w (the velocity feature, raw)
+        # omega = y_std y + y_mean; residual: y_std head + w (the velocity feature, raw);
+        # prior: y_std head + s(u) (the speed prior of the raw commands)
         self.residual = bool(sur.model_cfg.residual)
-        b2 = lin2.bias.detach().double().cpu().numpy() * y_std + (0.0 if self.residual else y_mean)
+        self.additive = self.residual or bool(sur.model_cfg.prior)
+        """The head's output is added to a base (velocity feature or speed prior): no y_mean."""
+        b2 = lin2.bias.detach().double().cpu().numpy() * y_std + (0.0 if self.additive else y_mean)
+        self.prior_map: nn.ParameterList | None = None
+        prior = getattr(net, "prior", None)
+        if prior is not None:  # s(u) = k_pos relu(u - a_pos) - k_neg relu(a_neg - u), raw u
+            self.prior_map = nn.ParameterList(
+                nn.Parameter(getattr(prior, n).detach().float().cpu().clone(), requires_grad=False)
+                for n in ("a_pos", "a_neg", "k_pos", "k_neg")
+            )
         self.w1 = nn.Parameter(lin1.weight.detach().float().clone(), requires_grad=False)
         self.b1 = nn.Parameter(lin1.bias.detach().float().clone(), requires_grad=False)
         self.w2 = nn.Parameter(torch.tensor(w2, dtype=f32), requires_grad=False)
@@ -205,9 +216,26 @@ class FusedStep(nn.Module):
             return torch.cat([theta, torch.sin(tp), torch.cos(tp), *tail], dim=-1)
         return torch.cat([theta, *tail], dim=-1)
 
+    def prior_speed(self, u: torch.Tensor) -> torch.Tensor | None:
+        """The speed prior's ``s(u)`` (n_batch, n_joint) [rad/s] of the commands ``u``
+        (n_batch, n_u) [command units]; None without a prior."""
+        if self.prior_map is None:
+            return None
+        a_pos, a_neg, k_pos, k_neg = self.prior_map
+        uj = u[..., : self.n_joint]
+        # s_j(u) = k_pos,j max(u_j - a_pos,j, 0) - k_neg,j max(a_neg,j - u_j, 0)
+        return k_pos * torch.relu(uj - a_pos) - k_neg * torch.relu(a_neg - uj)
+
+    def base(self, u: torch.Tensor, w: torch.Tensor | None) -> torch.Tensor | None:
+        """What the head's output is added to: the velocity feature ``w`` (residual head),
+        the prior's speed of ``u`` (speed prior), else None."""
+        if self.residual:
+            return w
+        return self.prior_speed(u)
+
     def head(self, out: torch.Tensor) -> torch.Tensor:
         """Angular velocity [rad/s] from the last layer's output (n_batch, hidden) (with a
-        residual head: its change, to be added to the velocity feature)."""
+        residual head or a speed prior: the part to be added to :meth:`base`)."""
         z = torch.relu(torch.nn.functional.linear(out, self.w1, self.b1))
         return torch.nn.functional.linear(z, self.w2, self.b2)
 
@@ -251,8 +279,9 @@ class FusedStep(nn.Module):
             cs.append(c_l)
             inp = h_l
         omega = self.head(inp)
-        if self.residual:
-            omega = omega + w
+        base = self.base(u, w)
+        if base is not None:
+            omega = omega + base
         theta_next, omega = integrate(theta, omega, dt=self.dt, limits=end_stops(self))
         if z is not None:
             return omega, theta_next, torch.stack(hs), torch.stack(cs), z
@@ -275,7 +304,7 @@ class FusedMembersStep(FusedStep):
             )
         y_std, y_mean = sur.norm.y_std.float().cpu(), sur.norm.y_mean.float().cpu()
         w2m = (head.w2.float().cpu() * y_std[None, :, None]).transpose(1, 2).contiguous()
-        b2m = head.bias.float().cpu() * y_std + (0.0 if self.residual else y_mean)
+        b2m = head.bias.float().cpu() * y_std + (0.0 if self.additive else y_mean)
         self.n_member = head.n_member
         self.register_buffer("w2m", w2m)  # (M, f_tot, n_joint)
         self.register_buffer("b2m", b2m[:, None, :])  # (M, 1, n_joint)
@@ -299,6 +328,7 @@ class FusedMembersStep(FusedStep):
         outs = super().forward(theta, u, h, c, z, w)
         assert self._a is not None
         om_m = torch.matmul(self._a.unsqueeze(0), self.w2m) + self.b2m
-        if self.residual:
-            om_m = om_m + w
+        base = self.base(u, w)
+        if base is not None:
+            om_m = om_m + base
         return (*outs, om_m)

@@ -156,7 +156,8 @@ class StepUncertainty:
     Args:
         sur: the engine's surrogate (on the engine's device, float32).
         n_envs: batch size.
-        residual: the head adds the velocity feature.
+        additive: the head's output is added to a base (the velocity feature of a residual
+            head, or a speed prior's speed), so it carries no ``y_mean``.
 
     State: ``dev`` (M, n_envs, n_joint) float64 [rad], ``omega`` (n_envs, n_joint) float64
     [rad/s] (the velocity of the current sample, 0 at rest), ``omega_members`` (M, n_envs,
@@ -168,7 +169,7 @@ class StepUncertainty:
         sur: Surrogate,
         *,
         n_envs: int,
-        residual: bool = False,
+        additive: bool = False,
     ) -> None:
         dev = sur.device
         n_joint = sur.spec.n_joint
@@ -177,18 +178,18 @@ class StepUncertainty:
         self.head: MemberHead | None = member_head(sur)
         self.has_spread = self.head is not None
         self.n_member = self.head.n_member if self.head is not None else 0
-        self.residual = residual
+        self.additive = additive
         self.omega = torch.zeros(n_envs, n_joint, dtype=torch.float64, device=dev)
         self.dev = torch.zeros(self.n_member, n_envs, n_joint, dtype=torch.float64, device=dev)
         self.omega_members = torch.full_like(self.dev, float("nan"))
         self.ood = torch.zeros(n_envs, n_joint, dtype=torch.bool, device=dev)
         if self.head is not None:
-            # member m: omega_m = M W2[:, block_m] a_m + y_std beta_m (+ y_mean | + w)
+            # member m: omega_m = M W2[:, block_m] a_m + y_std beta_m (+ y_mean | + base)
             h = self.head
             norm = sur.norm
             y_std, y_mean = norm.y_std.float(), norm.y_mean.float()
             self.w2m = (h.w2 * y_std[None, :, None]).transpose(1, 2).contiguous()  # (M, f, J)
-            self.b2m = (h.bias * y_std + (0.0 if residual else y_mean))[:, None, :]  # (M, 1, J)
+            self.b2m = (h.bias * y_std + (0.0 if additive else y_mean))[:, None, :]  # (M, 1, J)
         cal = stored_calibration(sur)
         self.calibrated = cal is not None and self.has_spread
         if cal is not None:
@@ -228,11 +229,12 @@ class StepUncertainty:
         if self.box is not None:
             self.ood.copy_(self.box(theta, u.double(), self.omega))
 
-    def members_from_activations(self, a: torch.Tensor, w: torch.Tensor | None) -> torch.Tensor:
+    def members_from_activations(self, a: torch.Tensor, base: torch.Tensor | None) -> torch.Tensor:
         """Each member's omega (M, n_envs, n_joint) float32 [rad/s] from the engine's head
-        activations ``a`` (n_envs, f_tot) and velocity feature ``w`` (residual head)."""
+        activations ``a`` (n_envs, f_tot) and the ``base`` the head adds to (n_envs, n_joint)
+        [rad/s] (velocity feature or speed prior; None: none)."""
         om = torch.baddbmm(self.b2m, a.unsqueeze(0).expand(self.n_member, -1, -1), self.w2m)
-        return om + w if self.residual and w is not None else om
+        return om + base if self.additive and base is not None else om
 
     def advance(self, omega_members: torch.Tensor | None, omega: torch.Tensor) -> None:
         """After a step: members' ``omega_members`` (M, n_envs, n_joint) [rad/s] (None

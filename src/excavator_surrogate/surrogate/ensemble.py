@@ -35,6 +35,7 @@ import torch
 
 from ..errors import ConfigError
 from .model import ModelConfig, Surrogate, SurrogateNet
+from .prior import PRIOR_MAP
 
 _GATES = {"lstm": 4, "gru": 3}
 
@@ -64,6 +65,7 @@ def check_members(surs: Sequence[Surrogate]) -> None:
             (torch.equal(s.norm.play.cpu(), ref.norm.play.cpu()), "play widths"),
             (s.norm.omega_in == ref.norm.omega_in, "velocity feature"),
             (s.model_cfg.residual == ref.model_cfg.residual, "residual head"),
+            (_same_prior(s, ref), "speed prior (fitted on other training data)"),
             (s.model_cfg.n_feature == ref.model_cfg.n_feature, "input features"),
         ]
         for ok, what in checks:
@@ -79,6 +81,14 @@ def check_members(surs: Sequence[Surrogate]) -> None:
                     f"ensemble member {i} ({s.name}) has the same weights as member {k}: the "
                     "same model twice is no ensemble; give each member once"
                 )
+
+
+def _same_prior(a: Surrogate, b: Surrogate) -> bool:
+    """Both without a speed prior, or both with the same map (the same training data)."""
+    pa, pb = getattr(a.net, "prior", None), getattr(b.net, "prior", None)
+    if pa is None or pb is None:
+        return pa is None and pb is None
+    return all(torch.equal(getattr(pa, n).cpu(), getattr(pb, n).cpu()) for n in PRIOR_MAP)
 
 
 def non_finite_weight(sur: Surrogate) -> str | None:
@@ -136,6 +146,8 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
     f_off = np.concatenate([[0], np.cumsum(head)])
     h_tot, f_tot = int(h_off[-1]), int(f_off[-1])
     residual = ref.model_cfg.residual
+    prior = ref.model_cfg.prior
+    no_ym = residual or prior  # omega = mean_m ys_m head_m + (w or s(u)): no y_mean terms
     norm0 = ref.norm.to("cpu", torch.float32)
     xm0, xs0 = _np(norm0.x_mean), _np(norm0.x_std)
     ym0, ys0 = _np(norm0.y_mean), _np(norm0.y_std)
@@ -179,11 +191,12 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         w1[f_lo:f_hi, lo:hi] = _np(lin1.weight)
         b1[f_lo:f_hi] = _np(lin1.bias)
         # y = (mean_m (ys_m (W2_m a_m + b2_m) + ym_m) - ym0) / ys0   (member 0's output scale)
-        # residual: omega = mean_m ys_m (W2_m a_m + b2_m) + w = ys0 y + w, so no ym terms
+        # residual: omega = mean_m ys_m (W2_m a_m + b2_m) + w = ys0 y + w, so no ym terms;
+        # prior: the same with s(u) for w (every member has the same map)
         w2[:, f_lo:f_hi] = _np(lin2.weight) * (ys / (n_member * ys0))[:, None]
-        b2 += (ys * _np(lin2.bias) + (0.0 if residual else ym)) / (n_member * ys0)
-        member_bias.append((ys * _np(lin2.bias) + (0.0 if residual else ym - ym0)) / ys0)
-    if not residual:
+        b2 += (ys * _np(lin2.bias) + (0.0 if no_ym else ym)) / (n_member * ys0)
+        member_bias.append((ys * _np(lin2.bias) + (0.0 if no_ym else ym - ym0)) / ys0)
+    if not no_ym:
         b2 -= ym0 / ys0
 
     mcfg = ModelConfig(
@@ -195,8 +208,12 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         cell=cell,
         head_hidden=f_tot,
         residual=residual,
+        prior=prior,
     )
     net = SurrogateNet(mcfg)
+    if net.prior is not None:  # member 0's map, reading the shared features of norm0
+        p0 = ref.net.prior
+        net.prior.load_fit(**{k: getattr(p0, k).cpu().tolist() for k in PRIOR_MAP}, norm=norm0)
     f32 = torch.float32
     with torch.no_grad():
         for k in range(n_layer):
@@ -261,6 +278,7 @@ class MemberHead:
         self.residual = bool(sur.model_cfg.residual)
         self.n_joint = sur.spec.n_joint
         net = sur.net
+        self.prior = getattr(net, "prior", None)
         self._act = net.head[1]
         w2 = net.head[2].weight.detach()  # (n_joint, f_tot)
         off = np.concatenate([[0], np.cumsum(info["head_hidden"])]).astype(int)
@@ -290,7 +308,8 @@ class MemberHead:
 
         Args:
             x: (n_batch, n_feature) normalised features of the sample the call predicted from
-                (the velocity feature of a residual head is read from it).
+                (the velocity feature of a residual head, or the commands of a speed prior,
+                are read from it).
 
         Returns:
             (M, n_batch, n_joint) normalised omega per member (member 0's normalisation).
@@ -300,6 +319,8 @@ class MemberHead:
         y = torch.einsum("nf,mjf->mnj", self.a, self.w2) + self.bias[:, None, :]
         if self.residual:
             y = y + x[..., -self.n_joint :]
+        if self.prior is not None:
+            y = y + self.prior(x)
         return y
 
 

@@ -28,6 +28,7 @@ from torch import nn
 from ..errors import CheckpointError
 from ..spec import MachineSpec
 from .features import Normalization, envelope
+from .prior import SpeedPrior
 
 State = tuple[torch.Tensor, torch.Tensor]
 """Recurrent state ``(h, c)``, each ``(n_layer, n_batch, hidden)``."""
@@ -57,6 +58,9 @@ class ModelConfig:
     """The head predicts the change of the velocity: ``y = head(h) + x[..., -n_joint:]``, the
     last ``n_joint`` inputs being the velocity feature, normalised like the target
     (:attr:`~.features.Normalization.omega_in`); LSTM/GRU only."""
+    prior: bool = False
+    """The head corrects a static per-joint valve map of the command (:mod:`.prior`):
+    ``omega[k+1] = s(u[k]) + y_std * head``; LSTM/GRU only."""
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict."""
@@ -73,6 +77,8 @@ class ModelConfig:
             raise CheckpointError(f"unknown cell '{cfg.cell}' (this exsur knows lstm, gru, arx)")
         if cfg.residual and (cfg.cell == "arx" or cfg.n_feature <= cfg.n_joint):
             raise CheckpointError("a residual head needs an LSTM/GRU with a velocity feature")
+        if cfg.prior and (cfg.cell == "arx" or cfg.residual):
+            raise CheckpointError("a speed prior needs an LSTM/GRU without a residual head")
         return cfg
 
 
@@ -132,6 +138,7 @@ class SurrogateNet(nn.Module):
             nn.ReLU(),
             nn.Linear(cfg.head_hidden, cfg.n_joint),
         )
+        self.prior = SpeedPrior(cfg.n_joint) if cfg.prior else None
 
     def init_state(self, n_batch: int) -> State:
         """Zero state ``(h, c)``, each ``(n_layer, n_batch, hidden)`` on the net's device/dtype."""
@@ -163,11 +170,15 @@ class SurrogateNet(nn.Module):
 
     def _out(self, out: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """Head of the recurrent output ``out`` (..., hidden) for the inputs ``x`` (...,
-        n_feature) of the same samples: ``head(out)`` (+ the velocity feature if residual)."""
+        n_feature) of the same samples: ``head(out)`` (+ the velocity feature if residual, + the
+        speed prior's normalised speed if prior)."""
         y = self.head(out)
         if self.cfg.residual:
             # omega[k+1] = omega[k] + change, in the target's normalisation
             y = y + x[..., -self.cfg.n_joint :]
+        if self.prior is not None:
+            # omega[k+1] = s(u[k]) + y_std head  (the prior carries the -y_mean / y_std)
+            y = y + self.prior(x)
         return y
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

@@ -24,8 +24,8 @@ baseline, not a checkpoint: it is not saved.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -232,4 +232,109 @@ def fit_structured(
         metrics={"joints": joints},
         name="structured",
         end_stops=end_stops,
+    )
+
+
+def fit_prior(episodes: Sequence[Episode], spec: MachineSpec) -> dict[str, list[float]]:
+    """Least-squares static map per joint on ``episodes`` (delay 0): dead-zone edges
+    ``a_pos >= 0 >= a_neg`` [command units] and gains ``k_pos, k_neg >= 0`` [rad/s per command
+    unit], plus ``cols`` the command's column in the features (the spec fixes the layout) and
+    each joint's one-step ``rmse`` [rad/s] (keyword arguments of :meth:`SpeedPrior.load_fit`,
+    without ``norm``, and ``rmse``)."""
+    n_angle = sum(2 if j.periodic else 1 for j in spec.joints)
+    omegas = [omega_target(e.theta, spec) for e in episodes]
+    fits = [
+        fit_joint(
+            [e.u[:, j] for e in episodes],
+            [om[:, j] for om in omegas],
+            u_min=js.u_min,
+            u_max=js.u_max,
+            max_delay=0,
+        )
+        for j, js in enumerate(spec.joints)
+    ]
+    return {
+        "cols": [n_angle + j for j in range(spec.n_joint)],
+        "a_pos": [f.a_pos for f in fits],
+        "a_neg": [f.a_neg for f in fits],
+        "k_pos": [f.k_pos for f in fits],
+        "k_neg": [f.k_neg for f in fits],
+        "rmse": [float(f.rmse) for f in fits],
+    }
+
+
+def with_map_joints(
+    sur: Surrogate,
+    fit: Mapping[str, Sequence[float]],
+    joints: Sequence[bool],
+) -> Surrogate:
+    """A copy of ``sur`` whose ``joints`` move by the static map ``fit`` alone (the network's
+    output for them is dropped) while the other joints keep the network's output exactly.
+
+    Built with a :class:`SpeedPrior` whose gains are ``fit``'s on ``joints`` and zero
+    elsewhere, the head's output rows of ``joints`` zeroed, and ``y_mean / y_std`` added to the
+    other rows' bias (the prior subtracts it from every joint)::
+
+        map joint j:    omega_j = y_std (0) + s_j(u)                 = s_j(u)
+        other joint j:  omega_j = y_std (head_j + y_mean_j / y_std_j) = the network's omega_j
+
+    A merged ensemble's member biases are moved alike, so its members agree exactly on the map
+    joints (no spread there).  The other joints still read the map joints' angles, now the
+    map's.
+
+    Args:
+        sur: an LSTM/GRU surrogate without a prior or residual head.
+        fit: :func:`.structured.fit_prior`'s map (``cols``, ``a_pos``, ``a_neg``, ``k_pos``,
+            ``k_neg``; per joint).
+        joints: (n_joint,) which joints follow the map.
+
+    Returns:
+        A new surrogate (``model_cfg.prior`` set; ``metrics["map_joints"]`` names the joints).
+    """
+    if sur.model_cfg.prior or sur.model_cfg.residual or sur.model_cfg.cell == "arx":
+        raise ValueError("with_map_joints needs an LSTM/GRU without a prior or residual head")
+    pick = torch.tensor([bool(j) for j in joints])
+    cfg = replace(sur.model_cfg, prior=True)
+    net = type(sur.net)(cfg)
+    state = {k: v.detach().clone() for k, v in sur.net.state_dict().items()}
+    missing = net.load_state_dict(state, strict=False).missing_keys
+    assert all(k.startswith("prior.") for k in missing), missing
+    zero = [0.0] * len(pick)
+
+    def on(name: str) -> list[float]:
+        return [float(v) if p else 0.0 for v, p in zip(fit[name], pick.tolist())]
+
+    norm = sur.norm
+    net.prior.load_fit(
+        cols=list(fit["cols"]),
+        a_pos=on("a_pos"),
+        a_neg=on("a_neg"),
+        k_pos=on("k_pos") if pick.any() else zero,
+        k_neg=on("k_neg") if pick.any() else zero,
+        norm=norm,
+    )
+    shift = (norm.y_mean / norm.y_std).detach().float().cpu()  # (n_joint,)
+    last = net.head[2]
+    with torch.no_grad():
+        last.weight[pick] = 0.0
+        last.bias[pick] = 0.0
+        last.bias[~pick] += shift.to(last.bias)[~pick]
+    metrics = dict(sur.metrics or {})
+    ens = metrics.get("ensemble")
+    if isinstance(ens, dict) and "member_bias" in ens:
+        mb = torch.tensor(ens["member_bias"], dtype=torch.float64)  # (M, n_joint)
+        mb[:, pick] = 0.0
+        mb[:, ~pick] += shift.double()[~pick]
+        metrics["ensemble"] = {**ens, "member_bias": mb.tolist()}
+    metrics["map_joints"] = [n for n, p in zip(sur.spec.names, pick.tolist()) if p]
+    return Surrogate(
+        net=net.eval() if not sur.net.training else net,
+        spec=sur.spec,
+        norm=norm,
+        model_cfg=cfg,
+        mode=sur.mode,
+        train_config=dict(sur.train_config or {}),
+        metrics=metrics,
+        name=sur.name,
+        end_stops=sur.end_stops,
     )

@@ -13,6 +13,7 @@ from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
 from ..surrogate.model import ModelConfig, SurrogateNet
+from ..surrogate.structured import fit_prior
 from .config import TrainConfig
 
 SOURCE_META = "data_source"
@@ -101,7 +102,19 @@ def start(
             play=cfg.play,
             omega_in=cfg.velocity_input,
         )
-        return Start(net=SurrogateNet(mcfg), norm=norm, spec=spec, derived=derived)
+        net = SurrogateNet(mcfg)
+        if net.prior is not None:
+            fit = fit_prior(train_eps, spec)
+            rmse = fit.pop("rmse")
+            net.prior.load_fit(**fit, norm=norm)
+            derived += [
+                f"{js.name}: speed prior dead zone [{a_n:.4g}, {a_p:.4g}], gains {k_p:.3g} / "
+                f"{k_n:.3g} rad/s per command unit (one-step RMSE {e:.3g} rad/s)"
+                for js, a_n, a_p, k_p, k_n, e in zip(
+                    spec.joints, fit["a_neg"], fit["a_pos"], fit["k_pos"], fit["k_neg"], rmse
+                )
+            ]
+        return Start(net=net, norm=norm, spec=spec, derived=derived)
     ck = read_checkpoint(resume)
     old = surrogate_from_dict(ck, where=str(resume))
     if old.model_cfg != mcfg:
