@@ -34,3 +34,10 @@ def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing(
     text = training_markdown({"budget_cut": True, "epochs_planned": 30, "members": members})
     assert "1 of 2 network(s): 12 of 30 planned epochs" in text
     assert training_markdown(None) == ""
+
+
+def test_joints_on_the_static_map_are_named():
+    rec = {"chosen": ["swing"], "why": "swing follow(s) the static map: validation error 0.19"}
+    text = training_markdown({"epochs_planned": 30, "static_map": rec})
+    assert "Static valve map: swing" in text and "no ensemble spread" in text
+    assert "Static valve map" not in training_markdown({"static_map": {"chosen": []}, "x": 1})

@@ -166,3 +166,27 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
     assert any("must not hurt" in w for w in why)
     forced, _ = auto_config(ds, cpus=2, overrides={"exogenous": "use"})
     assert forced.exogenous == "use" and forced.max_train_seconds == without.max_train_seconds
+
+
+def test_periodic_joints_are_turned_and_the_static_map_competes():
+    """A swing (periodic joint) gets random offsets in training; without one nothing turns;
+    the static map is a candidate either way."""
+
+    def data(periodic: bool) -> Dataset:
+        spec = synthetic_spec(3, periodic_first=periodic)
+        ds = Dataset(spec=spec)
+        ds.episodes["train"] += [
+            synthetic_episode(spec, kind="step", n_step=300, seed=i) for i in (0, 1)
+        ]
+        ds.episodes["val"].append(synthetic_episode(spec, kind="step", n_step=200, seed=9))
+        return ds
+
+    cfg, why = auto_config(data(False), cpus=2)
+    assert not cfg.periodic_offsets and cfg.static_map
+    assert not any("random offset" in w for w in why)
+    ds = data(True)
+    cfg, why = auto_config(ds, cpus=2)
+    assert cfg.periodic_offsets and cfg.static_map
+    assert any("random offset" in w for w in why) and any("static valve map" in w for w in why)
+    off, _ = auto_config(ds, cpus=2, overrides={"periodic_offsets": False, "static_map": False})
+    assert not off.periodic_offsets and not off.static_map

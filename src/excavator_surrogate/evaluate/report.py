@@ -202,6 +202,22 @@ def training_markdown(training: Mapping[str, Any] | None) -> str:
     """
     if not training:
         return ""
+    return _budget_markdown(training) + _map_markdown(training.get("static_map"))
+
+
+def _map_markdown(record: Mapping[str, Any] | None) -> str:
+    """One line on the joints that follow the static valve map (``training.static_map``)."""
+    if not isinstance(record, Mapping) or not record.get("chosen"):
+        return ""
+    return (
+        f"\nStatic valve map: {', '.join(record['chosen'])} follow(s) the map (dead zone, gain "
+        "per direction) instead of the network, chosen on the validation free run "
+        f"({record.get('why', '')}); such a joint has no ensemble spread.\n"
+    )
+
+
+def _budget_markdown(training: Mapping[str, Any]) -> str:
+    """How training ended against its plan (see :func:`training_markdown`)."""
     members = list(training.get("members") or [training])
     cut = [m for m in members if m.get("budget_cut")]
     planned = training.get("epochs_planned") or max(

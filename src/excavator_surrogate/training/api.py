@@ -10,6 +10,7 @@ from typing import Any
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
 from ..errors import ConfigError
+from .batches import split_episodes
 from .calibration import calibrate_best
 from .config import TrainConfig
 from .ensembles import train_ensemble
@@ -17,6 +18,7 @@ from .guards import check_excitation
 from .jobs import TrainJob, run_jobs
 from .loop import EpochCallback, train_network
 from .loss import LossFn
+from .map_joints import apply_map_choice
 from .parallel import Parallel
 from .variants import train_choosing_inputs
 
@@ -41,8 +43,9 @@ def train(
     resuming), ``log.csv`` (one row per epoch), ``config.toml`` and ``tb/`` (TensorBoard).
     With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`); with
     ``cfg.exogenous = "choose"`` and exogenous inputs in the data: members that use them and
-    members that ignore them, the better way kept (:func:`~.variants.train_choosing_inputs`).  Then
-    ``best.pt`` gets the training data's coverage record and, for an ensemble, its
+    members that ignore them, the better way kept (:func:`~.variants.train_choosing_inputs`).  With
+    ``cfg.static_map``, joints that the static valve map drives better on validation follow it
+    (:mod:`.map_joints`).  Then ``best.pt`` gets the training data's coverage record and, for an ensemble, its
     uncertainty bands calibrated on the validation free runs (:mod:`.calibration`).
 
     Args:
@@ -103,8 +106,11 @@ def train(
             loss=loss,
             notes=notes,
         )
-    if dist is None or dist.is_main:  # best.pt is final: coverage record and ensemble bands
-        calibrate_best(cfg, dataset, best)
+    if dist is None or dist.is_main:
+        if cfg.static_map:  # joints on the static valve map, if validation says so
+            train_eps, val_eps = split_episodes(cfg, dataset)
+            apply_map_choice(best, train_eps, val_eps, max_steps=cfg.val_steps or None)
+        calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
     return best
 
 

@@ -17,7 +17,15 @@ from ..surrogate.model import ModelConfig
 
 MODE_FIELDS: dict[str, tuple[str, ...]] = {
     "windowed": ("horizon", "batch_size"),
-    "stateful": ("seq_len", "burn_in", "tbptt", "seq_batch", "feedback", "teacher_epochs"),
+    "stateful": (
+        "seq_len",
+        "burn_in",
+        "tbptt",
+        "seq_batch",
+        "feedback",
+        "teacher_epochs",
+        "periodic_offsets",
+    ),
 }
 """Fields read by one training mode only (every other field is read by both)."""
 
@@ -120,6 +128,19 @@ class TrainConfig(PresetConfig, table="train"):
     residual: bool = False
     """With ``velocity_input``: the net predicts the change of the velocity, added to the
     velocity feature (``omega[k+1] = omega[k] + net``; ours, not the paper's)."""
+    periodic_offsets: bool = False
+    """Stateful mode: each training sub-sequence sees the angles of its periodic joints (the
+    swing) turned by its own random offset, so the network cannot tie the dynamics to where
+    the machine points (a machine on level ground moves alike in every direction; ours, not
+    the paper's; the data-driven recipe turns it on)."""
+    static_map: bool = False
+    """After training, a joint whose validation free run the static valve map (dead zone, gain
+    per direction, fitted on the training split) beats by 10 % may follow the map instead of
+    the network (:mod:`.map_joints`; ours; the data-driven recipe turns it on)."""
+    prior: bool = False
+    """The head corrects a static per-joint valve map (dead zone, gain per direction) fitted on
+    the training split by least squares: ``omega[k+1] = s(u[k]) + net`` (ours, not the paper's;
+    the data-driven recipe turns it on)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is
@@ -164,6 +185,11 @@ class TrainConfig(PresetConfig, table="train"):
             (self.seq_len > self.burn_in, "seq_len must exceed burn_in"),
             (self.tbptt >= 1, "tbptt must be >= 1"),
             (self.velocity_input or not self.residual, "residual needs velocity_input = true"),
+            (not (self.prior and self.residual), "prior and residual exclude each other"),
+            (
+                not (self.static_map and (self.prior or self.residual)),
+                "static_map needs a network without prior or residual head",
+            ),
             (
                 1 <= self.members <= MAX_MEMBERS,
                 f"members = {self.members} must be in [1, {MAX_MEMBERS}] (4 already average "
@@ -266,4 +292,5 @@ class TrainConfig(PresetConfig, table="train"):
             cell=self.cell,
             head_hidden=self.head_hidden,
             residual=self.residual,
+            prior=self.prior,
         )

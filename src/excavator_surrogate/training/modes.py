@@ -111,6 +111,35 @@ class Stateful:
 
     def __post_init__(self) -> None:
         self._limits = self.sur.limits()
+        spec = self.sur.spec
+        # the (sin, cos) feature columns of each periodic joint, in the feature layout
+        cols, k = [], 0
+        for j, p in enumerate(spec.periodic):
+            if p:
+                cols.append((j, k, k + 1))
+            k += 2 if p else 1
+        self._turn = cols if self.cfg.periodic_offsets else []
+
+    def _turned(
+        self, x: torch.Tensor, theta: torch.Tensor, index: np.ndarray, epoch: int
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``x`` (n_batch, n_step, n_feature) and ``theta`` (n_batch, n_step, n_joint) with each
+        sub-sequence's periodic joints turned by an offset phi ~ U[0, 2 pi), drawn from the
+        seed, the epoch and the sub-sequence's start (the same on every machine)."""
+        if not self._turn:
+            return x, theta
+        norm = self.sur.norm
+        rng = np.random.default_rng([self.cfg.seed, epoch, *(int(i) for i in index[:1])])
+        phi = rng.uniform(0.0, 2.0 * np.pi, (len(index), len(self._turn)))
+        phi_t = torch.as_tensor(phi, dtype=theta.dtype, device=theta.device)[:, None, :]
+        x, theta = x.clone(), theta.clone()
+        for n, (j, cs, cc) in enumerate(self._turn):
+            th = theta[..., j] + phi_t[..., n]
+            theta[..., j] = th
+            # x = (raw - x_mean) / x_std, raw = sin(theta + phi), cos(theta + phi)
+            x[..., cs] = (torch.sin(th) - norm.x_mean[cs]) / norm.x_std[cs]
+            x[..., cc] = (torch.cos(th) - norm.x_mean[cc]) / norm.x_std[cc]
+        return x, theta
 
     def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
         """Shuffled sub-sequence starts, capped at ``epoch_samples``, ``seq_batch * world`` per batch."""
@@ -129,6 +158,7 @@ class Stateful:
         s = torch.as_tensor(index, device=data.x.device)
         g = s[:, None] + torch.arange(cfg.seq_len, device=data.x.device)
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
+        x_seq, th_seq = self._turned(x_seq, th_seq, index, epoch)
         z_seq, w_seq = data.z[g], data.w[g]
         state = net.init_state(len(s))
         b0 = cfg.burn_in - 1  # first step whose output is in the loss

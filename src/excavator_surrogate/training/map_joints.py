@@ -1,0 +1,175 @@
+"""Joints that follow the static valve map: ``[train] static_map = true``.
+
+A network trained on a few minutes of one machine can fit them better than any simple model
+and still generalise worse: on a test that drives the machine harder, or on another day, a
+joint's free run drifts where the structured model's does not (``docs/real.md``).  So after
+training (and merging), the recipe puts a simple model next to the network as a candidate
+per joint, chosen on the validation free run like an epoch is:
+
+1. fit the static valve map (dead zone, gain per direction, delay 0:
+   :func:`~excavator_surrogate.surrogate.structured.fit_prior`) on the training split;
+2. free-run the validation episodes with every joint on the map; the joints whose angle RMSE
+   the map beats the network's by :data:`MAP_MARGIN` are the candidates;
+3. try them together, then each alone (:func:`~excavator_surrogate.surrogate.structured.with_map_joints`:
+   those joints follow the map, the others keep the network's output exactly);
+4. keep the best set whose validation error beats the network's by :data:`SET_MARGIN`
+   overall with no joint worse by more than it; else the network stays as it was.
+
+The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
+in the log and in ``metrics.json``.  A joint on the map has no ensemble spread: its bands
+come from the calibration's floor.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..data.episode import Episode
+from ..surrogate.checkpoint import (
+    checkpoint_dict,
+    read_checkpoint,
+    surrogate_from_dict,
+    write_checkpoint_dict,
+)
+from ..surrogate.model import Surrogate
+from ..surrogate.structured import fit_prior, with_map_joints
+from ..surrogate.validation import free_run_error
+
+_log = logging.getLogger(__name__)
+
+MAP_MARGIN = 0.10
+"""A joint is a candidate when the map's validation angle RMSE is below the network's by
+this share (a near tie keeps the network, which also carries the ensemble's spread)."""
+SET_MARGIN = 0.05
+"""A set of map joints is kept when it beats the network's validation error by this share and
+no joint's angle RMSE is worse by more (the other joints now read the map joints' angles)."""
+
+
+def choose_map_joints(
+    sur: Surrogate,
+    train: Sequence[Episode],
+    val: Sequence[Episode],
+    *,
+    max_steps: int | None = None,
+) -> tuple[Surrogate | None, dict[str, Any]]:
+    """The surrogate with the chosen joints on the static map, or None to keep ``sur``.
+
+    Args:
+        sur: the trained network or merged ensemble (LSTM/GRU, no prior, no residual head).
+        train: the training episodes (the map is fitted on them).
+        val: the validation episodes (the choice is made on their free run).
+        max_steps: validation free-run length cap (as the epoch selection's).
+
+    Returns:
+        ``(new or None, record)``; ``record`` holds the map, both validation scores, the
+        candidates, the sets tried and what was chosen, with a one-line ``why``.
+    """
+    spec = sur.spec
+    names = list(spec.names)
+    fit = fit_prior(train, spec)
+    net = free_run_error(sur, list(val), max_steps=max_steps)
+    all_map = free_run_error(
+        with_map_joints(sur, fit, [True] * spec.n_joint), list(val), max_steps=max_steps
+    )
+    cand = [
+        bool(m < (1 - MAP_MARGIN) * e) for m, e in zip(all_map["theta_rmse"], net["theta_rmse"])
+    ]
+    record: dict[str, Any] = {
+        "map": {k: fit[k] for k in ("a_pos", "a_neg", "k_pos", "k_neg")},
+        "val_theta_rmse_network": net["theta_rmse"],
+        "val_theta_rmse_map": all_map["theta_rmse"],
+        "candidates": [n for n, c in zip(names, cand) if c],
+        "tried": [],
+        "chosen": [],
+    }
+    if not any(cand):
+        record["why"] = (
+            f"the network beats the static map on every joint's validation free run (by "
+            f"{MAP_MARGIN:.0%} or less for the map): no joint follows the map"
+        )
+        return None, record
+    sets = [cand]
+    if sum(cand) > 1:
+        sets += [[k == j for k in range(spec.n_joint)] for j, c in enumerate(cand) if c]
+    best: tuple[float, Surrogate, dict[str, Any], list[bool]] | None = None
+    for joints in sets:
+        hyb = with_map_joints(sur, fit, joints)
+        got = free_run_error(hyb, list(val), max_steps=max_steps)
+        worse = [
+            names[j]
+            for j, (a, b) in enumerate(zip(got["theta_rmse"], net["theta_rmse"]))
+            if not a <= (1 + SET_MARGIN) * b
+        ]
+        ok = got["val_error"] < (1 - SET_MARGIN) * net["val_error"] and not worse
+        record["tried"].append(
+            {
+                "joints": [n for n, p in zip(names, joints) if p],
+                "val_error": got["val_error"],
+                "val_theta_rmse": got["theta_rmse"],
+                "kept": bool(ok),
+            }
+        )
+        if ok and (best is None or got["val_error"] < best[0]):
+            best = (got["val_error"], hyb, got, joints)
+    if best is None:
+        record["why"] = (
+            f"no set of map joints beats the network's validation error "
+            f"{net['val_error']:.4g} by {SET_MARGIN:.0%} without a joint worse by more: "
+            "the network stays"
+        )
+        return None, record
+    _, hyb, got, joints = best
+    record["chosen"] = [n for n, p in zip(names, joints) if p]
+    record["why"] = (
+        f"{', '.join(record['chosen'])} follow(s) the static map: validation error "
+        f"{got['val_error']:.4g} against the network's {net['val_error']:.4g}"
+    )
+    hyb.metrics = {
+        **(hyb.metrics or {}),
+        "val_error": got["val_error"],
+        "val": got,
+        "best_val_error": got["val_error"],
+    }
+    return hyb, record
+
+
+def apply_map_choice(
+    best: str | Path,
+    train: Sequence[Episode],
+    val: Sequence[Episode],
+    *,
+    max_steps: int | None = None,
+) -> dict[str, Any]:
+    """Run :func:`choose_map_joints` on the checkpoint ``best`` and rewrite it atomically (the
+    chosen model, or the same model; either way ``metrics.training.static_map`` records the
+    choice).  Returns the record."""
+    path = Path(best)
+    ckpt = read_checkpoint(path)
+    sur = surrogate_from_dict(ckpt, where=str(path))
+    new, record = choose_map_joints(sur, train, val, max_steps=max_steps)
+    if new is not None:
+        ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it
+    metrics = dict(ckpt.get("metrics") or {})
+    training = dict(metrics.get("training") or {})
+    training["static_map"] = _plain(record)
+    metrics["training"] = training
+    ckpt["metrics"] = metrics
+    write_checkpoint_dict(path, ckpt)
+    _log.info(f"{path}: static map: {record['why']}")
+    return record
+
+
+def _plain(x: Any) -> Any:
+    """``x`` with numpy scalars as Python numbers (checkpoint metrics are plain data)."""
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    return x

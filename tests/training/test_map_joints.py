@@ -1,0 +1,91 @@
+"""Joints on the static valve map: chosen on validation, exact where chosen, recorded."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
+from excavator_surrogate.surrogate.ensemble import member_head, merge
+from excavator_surrogate.surrogate.rollout import rollout
+from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.training.map_joints import apply_map_choice, choose_map_joints
+from tests.helpers.surrogates import make_surrogate, tiny_surrogate
+from tests.surrogate.test_prior import _static_episode
+from tests.surrogate.test_structured import SPEC
+
+
+def _scaled(ep, gain: float):
+    """``ep`` from a plant ``gain`` times as fast (same commands)."""
+    theta = ep.theta[:1] + gain * (ep.theta - ep.theta[:1])
+    return dataclasses.replace(ep, theta=theta, omega=gain * ep.omega)
+
+
+def _net():
+    """An untrained network: it barely moves (omega std 0.05 rad/s, small outputs)."""
+    return tiny_surrogate(SPEC, mode="stateful", window=6, seed=3)
+
+
+def test_a_map_that_drives_validation_better_is_chosen_and_recorded(tmp_path: Path) -> None:
+    train = [_static_episode(s) for s in range(3)]
+    val = [_static_episode(s) for s in (7, 8)]
+    new, rec = choose_map_joints(_net(), train, val)
+    assert new is not None and rec["chosen"] == ["a", "b"] and rec["candidates"] == ["a", "b"]
+    assert new.metrics["map_joints"] == ["a", "b"] and new.model_cfg.prior
+    assert new.metrics["val_error"] < 1e-3  # the plant is the map
+    assert "follow(s) the static map" in rec["why"]
+    # through the checkpoint: rewritten in place, the record in metrics.training
+    path = save_checkpoint(tmp_path / "best.pt", _net())
+    apply_map_choice(path, train, val)
+    back = load_checkpoint(path)
+    assert back.model_cfg.prior
+    assert back.metrics["training"]["static_map"]["chosen"] == ["a", "b"]
+
+
+def test_a_map_worse_than_the_network_on_validation_is_not_chosen(tmp_path: Path) -> None:
+    """Fitted on a machine 3x as fast as the validation's, the map misses by twice the motion,
+    the still network by the motion once: the network stays, and the file says why."""
+    train = [_scaled(_static_episode(s), 3.0) for s in range(3)]
+    val = [_static_episode(s) for s in (7, 8)]
+    new, rec = choose_map_joints(_net(), train, val)
+    assert new is None and rec["chosen"] == [] and rec["candidates"] == []
+    path = save_checkpoint(tmp_path / "best.pt", _net())
+    before = load_checkpoint(path).net.state_dict()
+    apply_map_choice(path, train, val)
+    back = load_checkpoint(path)
+    assert not back.model_cfg.prior
+    assert all(torch.equal(v, back.net.state_dict()[k]) for k, v in before.items())
+    assert "network beats the static map" in back.metrics["training"]["static_map"]["why"]
+
+
+def test_map_joints_follow_the_map_and_the_others_keep_the_network(spec, episodes) -> None:
+    """Free runs of the hybrid: a map joint's velocity is s(u) exactly; with no map joint the
+    hybrid is the network; a merged ensemble's members agree on the map joints."""
+    members = [make_surrogate(spec, episodes, mode="stateful", seed=s) for s in range(2)]
+    ens = merge(members)
+    fit = fit_prior(episodes, spec)
+    theta = np.stack([e.theta[:50] for e in episodes[:2]])
+    u = np.stack([e.u[:50] for e in episodes[:2]])
+    th0, _ = rollout(ens, theta, u)
+    same = with_map_joints(ens, fit, [False] * spec.n_joint)
+    th1, _ = rollout(same, theta, u)
+    np.testing.assert_allclose(th1, th0, atol=1e-5)
+    pick = [j == 0 for j in range(spec.n_joint)]
+    hyb = with_map_joints(ens, fit, pick)
+    _, om = rollout(hyb, theta, u)
+    w = hyb.window
+    s = hyb.net.prior.speed(torch.tensor(u[..., : spec.n_joint], dtype=torch.float32))
+    # omega[k+1] = s(u[k]) for the map joint, after the warm-up
+    np.testing.assert_allclose(om[:, w:, 0], s[:, w - 1 : -1, 0].numpy(), atol=1e-5)
+    head = member_head(hyb)
+    assert head is not None
+    x = hyb.norm.encode(torch.tensor(theta[:, 5]).float(), torch.tensor(u[:, 5]).float())
+    with torch.no_grad(), head.capture():
+        y, _ = hyb.net.step(x, hyb.net.init_state(x.shape[0]))
+    with torch.no_grad():
+        y_m = head.outputs(x)
+    torch.testing.assert_close(y_m.mean(0), y, atol=1e-5, rtol=0)
+    assert float(y_m[:, :, 0].std(0).max()) < 1e-6  # no spread on the map joint
