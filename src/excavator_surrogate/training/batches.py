@@ -2,8 +2,9 @@
 
 :class:`TrainData` holds the training episodes concatenated on the device (one global sample
 index); :func:`windowed_indices` and :func:`sequence_starts` list the samples each mode draws
-its batches from; :func:`split_episodes` picks the training and validation episodes long
-enough for a config.
+its batches from, each episode as many times as :func:`bootstrap_counts` says when a member
+trains on a bootstrap resample; :func:`split_episodes` picks the training and validation
+episodes long enough for a config.
 """
 
 from __future__ import annotations
@@ -70,23 +71,54 @@ def make_data(episodes: list[Episode], norm: Normalization, device: torch.device
     )
 
 
-def windowed_indices(data: TrainData, window: int, horizon: int) -> np.ndarray:
-    """Global indices t of window ends with targets t+1..t+H inside the episode."""
+BOOTSTRAP_STREAM = 0xB007
+"""Second word of a bootstrap draw's seed ``(seed, BOOTSTRAP_STREAM)``: a stream of its own,
+apart from the epochs' ``(seed, epoch)``."""
+
+
+def bootstrap_counts(n_episode: int, seed: int) -> np.ndarray:
+    """(n_episode,) how many times each training episode is in the bootstrap resample of the
+    member with ``seed``: ``n_episode`` episodes drawn with replacement (a multinomial draw,
+    about 37 % of the episodes left out, some twice or more), from ``seed`` alone, so the same
+    on every run, machine and epoch, and different for every member (seeds ``seed + i``)."""
+    rng = np.random.default_rng([seed, BOOTSTRAP_STREAM])
+    return rng.multinomial(n_episode, np.full(n_episode, 1.0 / n_episode))
+
+
+def _copies(data: TrainData, counts: np.ndarray | None) -> list[tuple[int, int]]:
+    """``(start, length)`` of each episode, repeated ``counts`` times (None: once each)."""
+    pairs = list(zip(data.starts.tolist(), data.lengths.tolist()))
+    if counts is None:
+        return pairs
+    return [p for p, k in zip(pairs, counts.tolist()) for _ in range(k)]
+
+
+def windowed_indices(
+    data: TrainData, window: int, horizon: int, counts: np.ndarray | None = None
+) -> np.ndarray:
+    """Global indices t of window ends with targets t+1..t+H inside the episode (episode i's
+    ``counts[i]`` times: a bootstrap resample; None: once each)."""
     idx = [
         s + np.arange(window - 1, n - horizon)
-        for s, n in zip(data.starts, data.lengths)
+        for s, n in _copies(data, counts)
         if n - horizon > window - 1
     ]
     return np.concatenate(idx) if idx else np.zeros(0, dtype=np.int64)
 
 
 def sequence_starts(
-    data: TrainData, seq_len: int, burn_in: int, rng: np.random.Generator
+    data: TrainData,
+    seq_len: int,
+    burn_in: int,
+    rng: np.random.Generator,
+    counts: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Global starts s of sub-sequences (steps s..s+L-1, targets up to s+L) tiling each episode."""
+    """Global starts s of sub-sequences (steps s..s+L-1, targets up to s+L) tiling each episode
+    (episode i's ``counts[i]`` times, each copy from its own random offset: a bootstrap
+    resample; None: once each)."""
     stride = seq_len - burn_in + 1
     out = []
-    for s0, n in zip(data.starts, data.lengths):
+    for s0, n in _copies(data, counts):
         last = n - 1 - seq_len  # local start must satisfy s + L <= n - 1
         if last < 0:
             continue

@@ -145,6 +145,10 @@ class TrainConfig(PresetConfig, table="train"):
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is
     the members' mean (``OUT/member_<i>/``; ours, not the paper's).  1 = a single network."""
+    bootstrap: bool = False
+    """Each network trains on its own bootstrap resample of the training episodes (as many
+    drawn with replacement, from its seed): ensemble members differ by their data, not only by
+    their seed (bagging; ours, not the paper's)."""
     member_workers: int = 0
     """Members trained in parallel processes, each with ``num_threads`` threads (0 = one
     process per member, up to the CPU count; 1 = one after the other in this process, and so
@@ -194,6 +198,10 @@ class TrainConfig(PresetConfig, table="train"):
                 1 <= self.members <= MAX_MEMBERS,
                 f"members = {self.members} must be in [1, {MAX_MEMBERS}] (4 already average "
                 "out the seed; each member is a full training)",
+            ),
+            (
+                isinstance(self.bootstrap, bool),
+                f"bootstrap = {self.bootstrap!r} must be true or false",
             ),
             (math.isfinite(self.limit_margin), "limit_margin must be finite"),
             (math.isfinite(self.speed_margin), "speed_margin must be finite"),

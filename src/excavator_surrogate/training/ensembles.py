@@ -28,7 +28,8 @@ _log = logging.getLogger(__name__)
 
 
 def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
-    """The single-network configs of ``cfg``'s ensemble members (seeds ``seed + i``)."""
+    """The single-network configs of ``cfg``'s ensemble members (seeds ``seed + i``; with
+    ``bootstrap`` each seed also draws the member's own resample of the training episodes)."""
     return [
         replace(cfg, members=1, member_workers=0, seed=cfg.seed + i) for i in range(cfg.members)
     ]
@@ -66,7 +67,9 @@ def train_ensemble(
     workers = min(cfg.member_workers or usable_cpus(), cfg.members)
     write_config(out, cfg, notes=notes)
     _log.info(
-        f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}), "
+        f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}"
+        + ("; each on its own bootstrap resample of the training episodes" if cfg.bootstrap else "")
+        + "), "
         f"{workers} in parallel, into {out}/member_*"
     )
     t0 = time.monotonic()

@@ -20,6 +20,10 @@ either teacher-forced (recorded angles, one fused recurrent call) or free-run (i
 angles fed back), with truncated BPTT: every ``tbptt`` steps the loss is back-propagated, the
 optimiser steps and state/angle are detached.  Cost per epoch ~ ``n_sample`` recurrent steps.
 
+With ``bootstrap`` both modes draw from the network's own bootstrap resample of the training
+episodes (:func:`~.batches.bootstrap_counts`, fixed by its seed): seed-ensemble members then
+differ by their data as well as by their seed (bagging).
+
 Adding a mode: a class here with these two methods, registered in :data:`MODES` (its name and
 its own knobs go into :class:`~.config.TrainConfig` and ``MODE_FIELDS``).
 """
@@ -36,7 +40,13 @@ import torch
 from ..surrogate.features import integrate
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import window_rollout
-from .batches import TrainData, global_batches, sequence_starts, windowed_indices
+from .batches import (
+    TrainData,
+    bootstrap_counts,
+    global_batches,
+    sequence_starts,
+    windowed_indices,
+)
 from .config import TrainConfig
 
 Piece = tuple[torch.Tensor, torch.Tensor, int]
@@ -64,8 +74,10 @@ class Windowed:
     sur: Surrogate
     _ar: dict[str, torch.Tensor] = field(init=False, repr=False)
     _limits: Any = field(init=False, repr=False)
+    _counts: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        self._counts = _bootstrap(self.cfg, self.data)
         dev, w, h = self.data.x.device, self.cfg.window, self.cfg.horizon
         self._ar = {
             "w": torch.arange(-w + 1, 1, device=dev),
@@ -76,7 +88,7 @@ class Windowed:
 
     def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
         """Shuffled window ends, capped at ``epoch_samples``, ``batch_size * world`` per batch."""
-        idx = windowed_indices(self.data, self.cfg.window, self.cfg.horizon)
+        idx = windowed_indices(self.data, self.cfg.window, self.cfg.horizon, self._counts)
         rng.shuffle(idx)
         if self.cfg.epoch_samples > 0:
             idx = idx[: self.cfg.epoch_samples]
@@ -108,8 +120,10 @@ class Stateful:
     data: TrainData
     sur: Surrogate
     _limits: Any = field(init=False, repr=False)
+    _counts: np.ndarray | None = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        self._counts = _bootstrap(self.cfg, self.data)
         self._limits = self.sur.limits()
         spec = self.sur.spec
         # the (sin, cos) feature columns of each periodic joint, in the feature layout
@@ -144,7 +158,7 @@ class Stateful:
     def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
         """Shuffled sub-sequence starts, capped at ``epoch_samples``, ``seq_batch * world`` per batch."""
         cfg = self.cfg
-        starts = sequence_starts(self.data, cfg.seq_len, cfg.burn_in, rng)
+        starts = sequence_starts(self.data, cfg.seq_len, cfg.burn_in, rng, self._counts)
         rng.shuffle(starts)
         if cfg.epoch_samples > 0:
             starts = starts[: max(1, cfg.epoch_samples // (cfg.seq_len - cfg.burn_in + 1))]
@@ -181,6 +195,12 @@ class Stateful:
             yield y_hat, y_seq[:, j0:j1], y_hat.shape[1]
             state = (state[0].detach(), state[1].detach())
             theta, omega = theta.detach(), omega.detach()
+
+
+def _bootstrap(cfg: TrainConfig, data: TrainData) -> np.ndarray | None:
+    """(n_episode,) copies of each training episode in this network's bootstrap resample
+    (``cfg.bootstrap``, drawn from ``cfg.seed``), or None: every episode once."""
+    return bootstrap_counts(len(data.starts), cfg.seed) if cfg.bootstrap else None
 
 
 MODES: dict[str, type[Windowed] | type[Stateful]] = {"windowed": Windowed, "stateful": Stateful}
