@@ -105,17 +105,26 @@ def simulate(out: Path, *, n_train: int, n_val: int, n_test: int, seed: int, lv:
 
 def per_run(runs: list[Any], names: list[str]) -> dict[str, Any]:
     """Spearman's rank correlation per joint between a run's mean angle spread and its
-    free-run angle RMSE (scored steps after the warm-up), across ``runs``."""
+    free-run angle RMSE (scored steps after the warm-up), across ``runs``; and the free-run
+    angle RMSE per joint over all their scored steps (``rmse_deg``, the accuracy)."""
     spread = np.array([np.nanmean(r.pred.theta_spread[r.pred.warmup :], axis=0) for r in runs])
     err = []
     for r in runs:
         e = r.pred.theta[r.pred.warmup :] - r.theta_ref[r.pred.warmup :]
         err.append(np.sqrt(np.nanmean(e * e, axis=0)))
     err_a = np.array(err)
+    sq = np.concatenate(
+        [(r.pred.theta - r.theta_ref)[r.pred.warmup :] ** 2 for r in runs]
+    )  # (n_scored, n_joint)
+    rmse = np.degrees(np.sqrt(np.nanmean(sq, axis=0)))
     rho = {}
     for j, n in enumerate(names):
         rho[n] = float(spearmanr(spread[:, j], err_a[:, j]).statistic) if len(runs) >= 3 else None
-    return {"n_run": len(runs), "spearman": rho}
+    return {
+        "n_run": len(runs),
+        "spearman": rho,
+        "rmse_deg": {n: float(rmse[j]) for j, n in enumerate(names)},
+    }
 
 
 def coverage90(scores: dict[str, Any], names: list[str]) -> dict[str, float | None]:
@@ -132,11 +141,16 @@ def within(cov: dict[str, float | None]) -> bool:
 
 
 def stand_in(
-    work: Path, quick: bool, reuse: bool = False, members: int | None = None
+    work: Path,
+    quick: bool,
+    reuse: bool = False,
+    members: int | None = None,
+    bootstrap: bool = False,
 ) -> dict[str, Any]:
     """Coverage, flags and spread-error correlation on the Stage II stand-in (``reuse``: keep
     the data and model already in ``work``, calibrate the model again; ``members``: the
-    ensemble size, default the preset's)."""
+    ensemble size, default the preset's; ``bootstrap``: each member trains on its own
+    bootstrap resample of the training episodes, ``[train] bootstrap``)."""
     n_train, n_test, epochs = (16, 6, 8) if quick else (100, 12, None)
     if not (reuse and (work / "sim").is_dir()):
         simulate(
@@ -163,6 +177,8 @@ def stand_in(
         argv += ["-q", "--set", "train.tensorboard=false"]
         if members is not None:
             argv += ["--members", str(members)]
+        if bootstrap:
+            argv += ["--set", "train.bootstrap=true"]
         if epochs is not None:
             argv += ["--epochs", str(epochs), "--set", "train.teacher_epochs=2"]
         else:  # the planned epochs on any load (the cap only matters on a busy machine)
@@ -333,6 +349,12 @@ def main() -> None:
         default=None,
         help="ensemble size of the stand-in model (default: quick-hydraulic's 2)",
     )
+    ap.add_argument(
+        "--bootstrap",
+        action="store_true",
+        help="the stand-in's members train on bootstrap resamples of the training episodes",
+    )
+    ap.add_argument("--no-env", action="store_true", help="skip the env cost (a timing)")
     args = ap.parse_args()
     import torch
 
@@ -340,9 +362,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="exsur-bench-trust-") as tmp_name:
         work = args.work or Path(tmp_name)
         work.mkdir(parents=True, exist_ok=True)
-        sim = stand_in(work, args.quick, args.reuse, args.members)
+        sim = stand_in(work, args.quick, args.reuse, args.members, args.bootstrap)
         h1 = None if args.no_real else real(work, args.data, args.quick, args.reuse)
-    env = env_cost(0.5 if args.quick else 1.0, 2 if args.quick else 3)
+    env = None if args.no_env else env_cost(0.5 if args.quick else 1.0, 2 if args.quick else 3)
 
     def fmt(d: dict[str, Any] | None) -> str:
         if not d:
@@ -359,6 +381,7 @@ def main() -> None:
         f"({sim['n_steps_beyond']} steps)"
     )
     print(f"  spread-error rank correlation: {fmt(sim['rank']['spearman'])}")
+    print(f"  free-run angle RMSE [deg]: {fmt(sim['rank']['rmse_deg'])}")
     if h1 is not None:
         print(
             f"h1-dev validation runs ({h1['n_val_runs']}), {h1['members']} members, {h1['train_s']} s:"
