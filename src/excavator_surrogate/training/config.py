@@ -134,9 +134,9 @@ class TrainConfig(PresetConfig, table="train"):
     the machine points (a machine on level ground moves alike in every direction; ours, not
     the paper's; the data-driven recipe turns it on)."""
     static_map: bool = False
-    """After training, a joint whose validation free run the static valve map (dead zone, gain
-    per direction, fitted on the training split) beats by 10 % may follow the map instead of
-    the network (:mod:`.map_joints`; ours; the data-driven recipe turns it on)."""
+    """After training, a joint that the static valve map (dead zone, gain per direction, fitted
+    on the training split) drives within 5 % of the network on validation may follow the map
+    (:mod:`.map_joints`: a near tie goes to the simpler model; ours; the recipe turns it on)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction) fitted on
     the training split by least squares: ``omega[k+1] = s(u[k]) + net`` (ours, not the paper's;
