@@ -33,6 +33,7 @@ shorter runs, few epochs, 120 s on h1-dev) -- a smoke run whose numbers are not 
 recipe's.  Ends with ONE JSON line.  Usage::
 
     python bench/trust.py [--quick] [--data ../shared/real/h1-dev] [--work DIR]
+        [--members N] [--bootstrap] [--no-env]
 """
 
 from __future__ import annotations
