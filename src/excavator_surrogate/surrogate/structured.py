@@ -140,6 +140,21 @@ def fit_joint(
     return best
 
 
+def fit_joints(episodes: Sequence[Episode], spec: MachineSpec, *, max_delay: int) -> list[JointFit]:
+    """:func:`fit_joint` for every joint of ``spec`` on ``episodes`` (speeds from the angles)."""
+    omegas = [omega_target(e.theta, spec) for e in episodes]
+    return [
+        fit_joint(
+            [e.u[:, j] for e in episodes],
+            [om[:, j] for om in omegas],
+            u_min=js.u_min,
+            u_max=js.u_max,
+            max_delay=max_delay,
+        )
+        for j, js in enumerate(spec.joints)
+    ]
+
+
 class StructuredNet(nn.Module):
     """Windowed network of the structured model: ``(n_batch, W, n_feature)`` normalised feature
     window -> ``(n_batch, n_joint)`` normalised ``omega[t+1]``.  It reads each joint's own command
@@ -207,17 +222,7 @@ def fit_structured(
     rate = spec.rate_hz
     max_delay = int(max(0, min(window - 1, round(max_delay_s * rate))))
     norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec)
-    omegas = [omega_target(e.theta, spec) for e in episodes]
-    fits = [
-        fit_joint(
-            [e.u[:, j] for e in episodes],
-            [om[:, j] for om in omegas],
-            u_min=js.u_min,
-            u_max=js.u_max,
-            max_delay=max_delay,
-        )
-        for j, js in enumerate(spec.joints)
-    ]
+    fits = fit_joints(episodes, spec, max_delay=max_delay)
     run_spec = training_range_spec(spec, episodes) if end_stops else spec
     cfg = ModelConfig(n_feature=norm.n_feature, n_joint=spec.n_joint, window=window, cell="arx")
     net = StructuredNet(fits, spec, norm).eval()
@@ -242,17 +247,7 @@ def fit_prior(episodes: Sequence[Episode], spec: MachineSpec) -> dict[str, list[
     each joint's one-step ``rmse`` [rad/s] (keyword arguments of :meth:`SpeedPrior.load_fit`,
     without ``norm``, and ``rmse``)."""
     n_angle = sum(2 if j.periodic else 1 for j in spec.joints)
-    omegas = [omega_target(e.theta, spec) for e in episodes]
-    fits = [
-        fit_joint(
-            [e.u[:, j] for e in episodes],
-            [om[:, j] for om in omegas],
-            u_min=js.u_min,
-            u_max=js.u_max,
-            max_delay=0,
-        )
-        for j, js in enumerate(spec.joints)
-    ]
+    fits = fit_joints(episodes, spec, max_delay=0)
     return {
         "cols": [n_angle + j for j in range(spec.n_joint)],
         "a_pos": [f.a_pos for f in fits],
