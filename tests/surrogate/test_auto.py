@@ -190,3 +190,6 @@ def test_periodic_joints_are_turned_and_the_static_map_competes():
     assert any("random offset" in w for w in why) and any("static valve map" in w for w in why)
     off, _ = auto_config(ds, cpus=2, overrides={"periodic_offsets": False, "static_map": False})
     assert not off.periodic_offsets and not off.static_map
+    # another mode drops the recipe's stateful knobs instead of refusing them
+    win, _ = auto_config(ds, cpus=2, overrides={"mode": "windowed"})
+    assert win.mode == "windowed" and not win.periodic_offsets and win.static_map

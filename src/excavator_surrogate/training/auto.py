@@ -215,6 +215,8 @@ def auto_config(
         static_map=True,
     )
     if overrides:
+        if overrides.get("mode") in ("windowed", "stateful") and overrides["mode"] != cfg.mode:
+            cfg = cfg.for_mode(str(overrides["mode"]))  # the other mode's knobs: defaults
         if "epochs" in overrides and "patience" not in overrides:
             overrides["patience"] = overrides["epochs"]
         merged = {**to_dict(cfg), **overrides}
