@@ -89,3 +89,24 @@ def test_map_joints_follow_the_map_and_the_others_keep_the_network(spec, episode
         y_m = head.outputs(x)
     torch.testing.assert_close(y_m.mean(0), y, atol=1e-5, rtol=0)
     assert float(y_m[:, :, 0].std(0).max()) < 1e-6  # no spread on the map joint
+
+
+def test_a_map_joint_gets_a_band_from_its_error_not_zero_width(spec, episodes) -> None:
+    """Members agree exactly on a map joint: its floor is one unit, so its calibrated band is
+    the error's own quantile (finite scale, positive width) and the predictions say why."""
+    from excavator_surrogate.surrogate.bands import NO_SPREAD_FLOOR, calibrate
+    from excavator_surrogate.surrogate.uncertainty import predict_with_uncertainty
+
+    members = [make_surrogate(spec, episodes, mode="stateful", seed=s) for s in range(2)]
+    pick = [j == 0 for j in range(spec.n_joint)]
+    hyb = with_map_joints(merge(members), fit_prior(episodes, spec), pick)
+    cal, _ = calibrate(hyb, episodes[:1], episodes[1:])
+    assert cal is not None
+    assert cal.theta_floor[0] == NO_SPREAD_FLOOR and cal.theta_floor[1] < NO_SPREAD_FLOOR
+    assert np.isfinite(cal.theta).all() and float(cal.theta[-1, 0]) < 1e6
+    ep = episodes[2]
+    pred = predict_with_uncertainty(hyb, ep.theta[None], ep.u[None], calibration=cal)
+    lo, hi = pred.bands[0.9]["theta"]
+    w = pred.warmup
+    assert float(np.min(hi[0, w:, 0] - lo[0, w:, 0])) > 0.0
+    assert any("static valve map" in n for n in pred.notes)

@@ -29,7 +29,7 @@ from ..spec import MachineSpec
 from ..surrogate.coverage import CoverageRecord, channel_names, seen_cells
 from ..surrogate.ensemble import MemberHead, member_head
 from ..surrogate.model import Surrogate
-from ..surrogate.uncertainty import NO_MEMBERS, stored_calibration, stored_coverage
+from ..surrogate.uncertainty import NO_MEMBERS, map_note, stored_calibration, stored_coverage
 
 LEVEL = 0.9
 """Nominal coverage of the band the environments report."""
@@ -97,6 +97,8 @@ def notes(sur: Surrogate) -> list[str]:
         out.append("ensemble not calibrated: bands are the raw member std (run 'exsur calibrate')")
     if stored_coverage(sur) is None:
         out.append("no training coverage record: no out-of-distribution flags")
+    if (note := map_note(sur)) is not None:
+        out.append(note)
     return out
 
 

@@ -39,6 +39,9 @@ from .uncertainty import (
 
 FLOOR = 0.1
 """Spread floor of a band, as a fraction of the median spread on the calibration runs."""
+NO_SPREAD_FLOOR = 1.0
+"""Spread floor of a joint whose members never disagree [one unit: rad, rad/s, m, m/s]: with
+it the band's scale is the error's own quantile (a band, not a claim of certainty)."""
 TRAIN_RUNS = 32
 """Most training episodes whose free runs join the calibration (evenly spread over the split)."""
 HORIZON_EDGES = (0, 25, 50, 100, 200, 400, 800, 1600, 3200)
@@ -383,7 +386,7 @@ def fit_calibration(
         raise ValueError("fit_calibration needs validation or training free runs")
     pooled = {g: _pooled(r, per) for g, r in groups.items()}
     floors = {
-        q: FLOOR * _median_spread(np.concatenate([p[q][1] for p in pooled.values()]))
+        q: spread_floor(np.concatenate([p[q][1] for p in pooled.values()]))
         for q in ("theta", "omega")
     }
     # validation (group 0) weighs n_val / (n_val + PRIOR_RUNS), training (group 1) the rest
@@ -438,6 +441,15 @@ def _evenly(episodes: Sequence[Episode], n: int) -> list[Episode]:
         return []
     idx = np.unique(np.linspace(0, len(episodes) - 1, n).round().astype(int))
     return [episodes[i] for i in idx]
+
+
+def spread_floor(spread: np.ndarray) -> np.ndarray:
+    """(n_joint,) the floor of each joint's spread in a band: :data:`FLOOR` x its median
+    positive spread; :data:`NO_SPREAD_FLOOR` for a joint whose members never disagree (it
+    follows the static valve map), so its band is the quantile of its error itself (per
+    horizon bin for angles) instead of zero width."""
+    med = _median_spread(spread)
+    return np.where(med > 0, FLOOR * med, NO_SPREAD_FLOOR)
 
 
 def _median_spread(spread: np.ndarray) -> np.ndarray:

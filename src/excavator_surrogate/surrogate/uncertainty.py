@@ -44,6 +44,20 @@ Design = Literal["independent", "shared"]
 LEVELS = (0.5, 0.9)
 """Band levels calibrated by default (nominal coverage)."""
 NO_MEMBERS = "single network: no uncertainty (train a seed ensemble, members >= 2, for bands)"
+
+
+def map_note(sur: Surrogate) -> str | None:
+    """The note of an ensemble whose joints follow the static valve map (``metrics
+    ["map_joints"]``: no member spread there), or None."""
+    on_map = (sur.metrics or {}).get("map_joints") or []
+    if not on_map or member_head(sur) is None:
+        return None
+    return (
+        f"{', '.join(on_map)} follow(s) the static valve map: no member spread there; the "
+        "band is the calibrated error quantile by horizon"
+    )
+
+
 """The note of a surrogate without ensemble members."""
 
 
@@ -300,6 +314,8 @@ def predict_with_uncertainty(
             notes.append("ensemble not calibrated: spread only, no bands (run 'exsur calibrate')")
         else:
             pred.bands = bands(pred, calibration)
+        if (note := map_note(sur)) is not None:
+            notes.append(note)
     else:
         th, om = rollout(sur, theta, u, warmup=warmup)
         pred = UncertainPrediction(th, om, warmup)

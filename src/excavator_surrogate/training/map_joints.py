@@ -17,8 +17,8 @@ per joint, chosen on the validation free run like an epoch is:
    network's, overall and on every joint; else the network stays as it was.
 
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
-in the log and in ``metrics.json``.  A joint on the map has no ensemble spread: its bands
-come from the calibration's floor.
+in the log and in ``metrics.json``.  A joint on the map has no ensemble spread: its band is
+its own calibrated error quantile (:data:`~excavator_surrogate.surrogate.bands.NO_SPREAD_FLOOR`).
 """
 
 from __future__ import annotations
