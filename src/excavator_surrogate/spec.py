@@ -293,10 +293,16 @@ class MachineSpec:
         return tuple(c.name for c in self.u_specs)
 
     @property
+    def n_angle_feature(self) -> int:
+        """Angle columns at the start of the surrogate input: 2 per periodic joint (sin, cos),
+        1 per other joint; the commands follow them."""
+        return sum(2 if j.periodic else 1 for j in self.joints)
+
+    @property
     def n_feature(self) -> int:
-        """Width of the surrogate input: 2 per periodic joint, 1 per other joint, plus the
+        """Width of the surrogate input: the angle columns (:attr:`n_angle_feature`) plus the
         ``n_u`` commands (joints' and inputs')."""
-        return sum(2 if j.periodic else 1 for j in self.joints) + self.n_u
+        return self.n_angle_feature + self.n_u
 
     @property
     def any_linear(self) -> bool:

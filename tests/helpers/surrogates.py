@@ -83,9 +83,8 @@ def tiny_surrogate(
     if prior:
         rng = np.random.default_rng(1234)  # one map for every seed: members merge
         u_max = np.array([j.u_max for j in spec.joints])
-        n_angle = sum(2 if j.periodic else 1 for j in spec.joints)
         net.prior.load_fit(
-            cols=[n_angle + j for j in range(spec.n_joint)],
+            cols=[spec.n_angle_feature + j for j in range(spec.n_joint)],
             a_pos=rng.uniform(0.0, 0.3, spec.n_joint) * u_max,
             a_neg=-rng.uniform(0.0, 0.3, spec.n_joint) * u_max,
             k_pos=rng.uniform(0.1, 0.5, spec.n_joint) / u_max,

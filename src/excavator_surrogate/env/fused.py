@@ -9,6 +9,8 @@ matmuls and pointwise ops, so it exports to ONNX as is (see :mod:`.export`), and
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import torch
 from torch import nn
@@ -18,6 +20,7 @@ from ..spec import MachineSpec
 from ..surrogate.ensemble import member_head
 from ..surrogate.features import Normalization, integrate, play_features, play_step
 from ..surrogate.model import Surrogate
+from ..surrogate.prior import SpeedPrior
 from .inputs import ActionLayout
 
 
@@ -183,13 +186,11 @@ class FusedStep(nn.Module):
         self.additive = self.residual or bool(sur.model_cfg.prior)
         """The head's output is added to a base (velocity feature or speed prior): no y_mean."""
         b2 = lin2.bias.detach().double().cpu().numpy() * y_std + (0.0 if self.additive else y_mean)
-        self.prior_map: nn.ParameterList | None = None
         prior = getattr(net, "prior", None)
-        if prior is not None:  # s(u) = k_pos relu(u - a_pos) - k_neg relu(a_neg - u), raw u
-            self.prior_map = nn.ParameterList(
-                nn.Parameter(getattr(prior, n).detach().float().cpu().clone(), requires_grad=False)
-                for n in ("a_pos", "a_neg", "k_pos", "k_neg")
-            )
+        self.prior: SpeedPrior | None = (
+            None if prior is None else copy.deepcopy(prior).float().cpu()
+        )
+        """The network's speed prior (its map reads the raw commands here: :meth:`prior_speed`)."""
         self.w1 = nn.Parameter(lin1.weight.detach().float().clone(), requires_grad=False)
         self.b1 = nn.Parameter(lin1.bias.detach().float().clone(), requires_grad=False)
         self.w2 = nn.Parameter(torch.tensor(w2, dtype=f32), requires_grad=False)
@@ -219,12 +220,9 @@ class FusedStep(nn.Module):
     def prior_speed(self, u: torch.Tensor) -> torch.Tensor | None:
         """The speed prior's ``s(u)`` (n_batch, n_joint) [rad/s] of the commands ``u``
         (n_batch, n_u) [command units]; None without a prior."""
-        if self.prior_map is None:
+        if self.prior is None:
             return None
-        a_pos, a_neg, k_pos, k_neg = self.prior_map
-        uj = u[..., : self.n_joint]
-        # s_j(u) = k_pos,j max(u_j - a_pos,j, 0) - k_neg,j max(a_neg,j - u_j, 0)
-        return k_pos * torch.relu(uj - a_pos) - k_neg * torch.relu(a_neg - uj)
+        return self.prior.speed(u[..., : self.n_joint])
 
     def base(self, u: torch.Tensor, w: torch.Tensor | None) -> torch.Tensor | None:
         """What the head's output is added to: the velocity feature ``w`` (residual head),

@@ -164,8 +164,7 @@ class StructuredNet(nn.Module):
 
     def __init__(self, fits: Sequence[JointFit], spec: MachineSpec, norm: Normalization) -> None:
         super().__init__()
-        n_angle = sum(2 if j.periodic else 1 for j in spec.joints)
-        self.cols = [n_angle + j for j in range(spec.n_joint)]
+        self.cols = [spec.n_angle_feature + j for j in range(spec.n_joint)]
         self.delays = [f.delay for f in fits]
         f32 = torch.float32
 
@@ -246,10 +245,9 @@ def fit_prior(episodes: Sequence[Episode], spec: MachineSpec) -> dict[str, list[
     unit], plus ``cols`` the command's column in the features (the spec fixes the layout) and
     each joint's one-step ``rmse`` [rad/s] (keyword arguments of :meth:`SpeedPrior.load_fit`,
     without ``norm``, and ``rmse``)."""
-    n_angle = sum(2 if j.periodic else 1 for j in spec.joints)
     fits = fit_joints(episodes, spec, max_delay=0)
     return {
-        "cols": [n_angle + j for j in range(spec.n_joint)],
+        "cols": [spec.n_angle_feature + j for j in range(spec.n_joint)],
         "a_pos": [f.a_pos for f in fits],
         "a_neg": [f.a_neg for f in fits],
         "k_pos": [f.k_pos for f in fits],
@@ -294,7 +292,6 @@ def with_map_joints(
     state = {k: v.detach().clone() for k, v in sur.net.state_dict().items()}
     missing = net.load_state_dict(state, strict=False).missing_keys
     assert all(k.startswith("prior.") for k in missing), missing
-    zero = [0.0] * len(pick)
 
     def on(name: str) -> list[float]:
         return [float(v) if p else 0.0 for v, p in zip(fit[name], pick.tolist())]
@@ -304,8 +301,8 @@ def with_map_joints(
         cols=list(fit["cols"]),
         a_pos=on("a_pos"),
         a_neg=on("a_neg"),
-        k_pos=on("k_pos") if pick.any() else zero,
-        k_neg=on("k_neg") if pick.any() else zero,
+        k_pos=on("k_pos"),
+        k_neg=on("k_neg"),
         norm=norm,
     )
     shift = (norm.y_mean / norm.y_std).detach().float().cpu()  # (n_joint,)
@@ -323,7 +320,7 @@ def with_map_joints(
         metrics["ensemble"] = {**ens, "member_bias": mb.tolist()}
     metrics["map_joints"] = [n for n, p in zip(sur.spec.names, pick.tolist()) if p]
     return Surrogate(
-        net=net.eval() if not sur.net.training else net,
+        net=net.train(sur.net.training),
         spec=sur.spec,
         norm=norm,
         model_cfg=cfg,

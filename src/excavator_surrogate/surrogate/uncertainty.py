@@ -44,6 +44,7 @@ Design = Literal["independent", "shared"]
 LEVELS = (0.5, 0.9)
 """Band levels calibrated by default (nominal coverage)."""
 NO_MEMBERS = "single network: no uncertainty (train a seed ensemble, members >= 2, for bands)"
+"""The note of a surrogate without ensemble members."""
 
 
 def map_note(sur: Surrogate) -> str | None:
@@ -56,9 +57,6 @@ def map_note(sur: Surrogate) -> str | None:
         f"{', '.join(on_map)} follow(s) the static valve map: no member spread there; the "
         "band is the calibrated error quantile by horizon"
     )
-
-
-"""The note of a surrogate without ensemble members."""
 
 
 @dataclass(frozen=True)

@@ -140,7 +140,7 @@ class TrainConfig(PresetConfig, table="train"):
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction) fitted on
     the training split by least squares: ``omega[k+1] = s(u[k]) + net`` (ours, not the paper's;
-    the data-driven recipe turns it on)."""
+    an option: on the continuous case it generalised worse, docs/real.md)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is

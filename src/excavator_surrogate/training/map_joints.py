@@ -28,8 +28,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..data.episode import Episode
 from ..surrogate.checkpoint import (
     checkpoint_dict,
@@ -156,20 +154,9 @@ def apply_map_choice(
         ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it
     metrics = dict(ckpt.get("metrics") or {})
     training = dict(metrics.get("training") or {})
-    training["static_map"] = _plain(record)
+    training["static_map"] = record
     metrics["training"] = training
     ckpt["metrics"] = metrics
     write_checkpoint_dict(path, ckpt)
     _log.info(f"{path}: static map: {record['why']}")
     return record
-
-
-def _plain(x: Any) -> Any:
-    """``x`` with numpy scalars as Python numbers (checkpoint metrics are plain data)."""
-    if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
