@@ -109,15 +109,9 @@ def per_run(runs: list[Any], names: list[str]) -> dict[str, Any]:
     free-run angle RMSE (scored steps after the warm-up), across ``runs``; and the free-run
     angle RMSE per joint over all their scored steps (``rmse_deg``, the accuracy)."""
     spread = np.array([np.nanmean(r.pred.theta_spread[r.pred.warmup :], axis=0) for r in runs])
-    err = []
-    for r in runs:
-        e = r.pred.theta[r.pred.warmup :] - r.theta_ref[r.pred.warmup :]
-        err.append(np.sqrt(np.nanmean(e * e, axis=0)))
-    err_a = np.array(err)
-    sq = np.concatenate(
-        [(r.pred.theta - r.theta_ref)[r.pred.warmup :] ** 2 for r in runs]
-    )  # (n_scored, n_joint)
-    rmse = np.degrees(np.sqrt(np.nanmean(sq, axis=0)))
+    errs = [r.pred.theta[r.pred.warmup :] - r.theta_ref[r.pred.warmup :] for r in runs]
+    err_a = np.array([np.sqrt(np.nanmean(e * e, axis=0)) for e in errs])  # (n_run, n_joint)
+    rmse = np.degrees(np.sqrt(np.nanmean(np.concatenate(errs) ** 2, axis=0)))
     rho = {}
     for j, n in enumerate(names):
         rho[n] = float(spearmanr(spread[:, j], err_a[:, j]).statistic) if len(runs) >= 3 else None
