@@ -14,6 +14,7 @@ from excavator_surrogate.env.uncertainty import INFO_KEYS
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names, ood_flags
 from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.structured import with_map_joints
 from excavator_surrogate.surrogate.uncertainty import (
     Calibration,
     UncertainPrediction,
@@ -60,17 +61,47 @@ def _plain(sur, theta0: np.ndarray, u: np.ndarray, design: str = "shared"):
     return member_runs(sur, th_hist, u_full, warmup=w, design=design), u_full
 
 
+def _on_map(sur):
+    """``sur`` with the swing and the bucket on a static map with a gain spread (members
+    drive them with gains 1 + sigma z_m)."""
+    spec = sur.spec
+    n_j = spec.n_joint
+    fit = {
+        "cols": [spec.n_angle_feature + j for j in range(n_j)],
+        "a_pos": [50.0] * n_j,
+        "a_neg": [-80.0] * n_j,
+        "k_pos": [1e-3] * n_j,
+        "k_neg": [8e-4] * n_j,
+        "gain_spread": [0.2, 0.1, 0.1, 0.3],
+    }
+    return with_map_joints(sur, fit, [True, False, False, True])
+
+
 @pytest.mark.parametrize(
-    "mode,impl",
-    [("stateful", "members"), ("stateful", "cell"), ("stateful", "module"), ("windowed", "auto")],
+    "mode,impl,on_map",
+    [
+        ("stateful", "members", False),
+        ("stateful", "cell", False),
+        ("stateful", "module", False),
+        ("windowed", "auto", False),
+        ("stateful", "cell", True),
+        ("windowed", "auto", True),
+    ],
 )
-def test_engine_bands_and_flags_equal_the_plain_loop(ens, make_surrogate, mode, impl) -> None:
+def test_engine_bands_and_flags_equal_the_plain_loop(
+    ens, make_surrogate, mode, impl, on_map
+) -> None:
     """The engine's members' omega (from the same network call), integrated deviations and
-    OOD flags equal ``member_runs`` (design shared) and ``ood_flags`` on its run."""
+    OOD flags equal ``member_runs`` (design shared) and ``ood_flags`` on its run; also with
+    joints on the static map, whose members drive it with their own gains."""
     sur = ens
-    if mode == "windowed":
-        sur = merge([make_surrogate(seed=s, hidden=16, mode="windowed", **KW) for s in range(2)])
+    if mode == "windowed" or on_map:
+        kw = dict(KW, omega_in=False) if on_map else KW
+        sur = merge([make_surrogate(seed=s, hidden=16, mode=mode, **kw) for s in range(3)])
         sur.metrics["coverage"] = ens.metrics["coverage"]
+    if on_map:
+        sur = _on_map(sur)
+        assert sur.metrics["ensemble"]["map_gain_dev"][0][0] < 0
     rng = np.random.default_rng(1)
     n, n_step, w = 5, 25, sur.window
     theta0, u = _drive(rng, n, n_step)
@@ -96,7 +127,15 @@ def test_engine_bands_and_flags_equal_the_plain_loop(ens, make_surrogate, mode, 
     np.testing.assert_allclose(np.stack(om, 1), om_c[:, sl], atol=tol_w, rtol=0)
     np.testing.assert_allclose(np.stack(om_band, 1), om_ref, atol=tol_w, rtol=0)
     np.testing.assert_allclose(np.stack(th_band, 1), th_ref, atol=tol_t, rtol=0)
-    assert np.stack(th_band, 1)[:, -1].min() > 10 * tol_t  # the members do disagree
+    # the members do disagree (a map joint by its gain spread x the distance moved, which
+    # random commands may leave near 0 in one env)
+    last = np.stack(th_band, 1)[:, -1]
+    assert (np.median(last, axis=0) if on_map else last.min()).min() > 10 * tol_t
+    if on_map:  # angle spread = sigma_j |theta_k - theta_start| on the map joints
+        moved = np.abs(th_c[:, sl] - th_c[:, w - 1 : w])[..., [0, 3]]
+        np.testing.assert_allclose(
+            np.stack(th_band, 1)[..., [0, 3]], moved * np.array([0.2, 0.3]), atol=tol_t, rtol=1e-3
+        )
     # flags of step k: the sample it predicted from (theta[k], omega[k], u[k]); at rest
     # before the first step (omega 0 where the plain loop has NaN)
     om_in = om_c.copy()

@@ -63,7 +63,8 @@ def test_a_map_worse_than_the_network_on_validation_is_not_chosen(tmp_path: Path
 
 def test_map_joints_follow_the_map_and_the_others_keep_the_network(spec, episodes) -> None:
     """Free runs of the hybrid: a map joint's velocity is s(u) exactly; with no map joint the
-    hybrid is the network; a merged ensemble's members agree on the map joints."""
+    hybrid is the network; a merged ensemble's members drive a map joint with gains around
+    the map's (mean: the map exactly; spread: gain_spread x |s(u)|)."""
     members = [make_surrogate(spec, episodes, mode="stateful", seed=s) for s in range(2)]
     ens = merge(members)
     fit = fit_prior(episodes, spec)
@@ -88,18 +89,27 @@ def test_map_joints_follow_the_map_and_the_others_keep_the_network(spec, episode
     with torch.no_grad():
         y_m = head.outputs(x)
     torch.testing.assert_close(y_m.mean(0), y, atol=1e-5, rtol=0)
-    assert float(y_m[:, :, 0].std(0).max()) < 1e-6  # no spread on the map joint
+    # the map joint: members' spread sigma |s(u)| [rad/s] (ddof 1), the others' untouched
+    spread = y_m[:, :, 0].std(0) * hyb.norm.y_std[0]
+    s_now = hyb.net.prior.raw(x)[:, 0]
+    sigma = fit["gain_spread"][0]
+    assert sigma > 0 and float(s_now.abs().max()) > 0
+    torch.testing.assert_close(spread, sigma * s_now.abs(), atol=1e-5, rtol=1e-4)
+    dev = torch.tensor(hyb.metrics["ensemble"]["map_gain_dev"])
+    assert float(dev[:, 1:].abs().max()) == 0.0
 
 
 def test_a_map_joint_gets_a_band_from_its_error_not_zero_width(spec, episodes) -> None:
-    """Members agree exactly on a map joint: its floor is one unit, so its calibrated band is
-    the error's own quantile (finite scale, positive width) and the predictions say why."""
+    """Merged before the members' map gains were recorded, members agree exactly on a map
+    joint: its floor is one unit, so its calibrated band is the error's own quantile (finite
+    scale, positive width) and the predictions say why."""
     from excavator_surrogate.surrogate.bands import NO_SPREAD_FLOOR, calibrate
     from excavator_surrogate.surrogate.uncertainty import predict_with_uncertainty
 
     members = [make_surrogate(spec, episodes, mode="stateful", seed=s) for s in range(2)]
     pick = [j == 0 for j in range(spec.n_joint)]
-    hyb = with_map_joints(merge(members), fit_prior(episodes, spec), pick)
+    fit = {k: v for k, v in fit_prior(episodes, spec).items() if k != "gain_spread"}
+    hyb = with_map_joints(merge(members), fit, pick)
     cal, _ = calibrate(hyb, episodes[:1], episodes[1:])
     assert cal is not None
     assert cal.theta_floor[0] == NO_SPREAD_FLOOR and cal.theta_floor[1] < NO_SPREAD_FLOOR
@@ -109,4 +119,27 @@ def test_a_map_joint_gets_a_band_from_its_error_not_zero_width(spec, episodes) -
     lo, hi = pred.bands[0.9]["theta"]
     w = pred.warmup
     assert float(np.min(hi[0, w:, 0] - lo[0, w:, 0])) > 0.0
-    assert any("static valve map" in n for n in pred.notes)
+    assert any("no member spread there" in n for n in pred.notes)
+
+
+def test_a_map_joints_spread_grows_with_the_distance_the_map_moved_it(spec, episodes) -> None:
+    """With the map's gain spread, a map joint's angle spread is gain_spread x |theta_k -
+    theta_0| (the members integrate gains 1 + sigma z_m), its floor an ordinary one."""
+    from excavator_surrogate.surrogate.bands import NO_SPREAD_FLOOR, calibrate
+    from excavator_surrogate.surrogate.uncertainty import predict_with_uncertainty
+
+    members = [make_surrogate(spec, episodes, mode="stateful", seed=s) for s in range(3)]
+    pick = [j == 0 for j in range(spec.n_joint)]
+    fit = fit_prior(episodes, spec)
+    hyb = with_map_joints(merge(members), fit, pick)
+    cal, _ = calibrate(hyb, episodes[:1], episodes[1:])
+    assert cal is not None and cal.theta_floor[0] < NO_SPREAD_FLOOR
+    ep = episodes[2]
+    pred = predict_with_uncertainty(hyb, ep.theta[None], ep.u[None], calibration=cal)
+    w = pred.warmup
+    moved = np.abs(pred.theta[0, w:, 0] - pred.theta[0, w - 1, 0])
+    assert float(moved.max()) > 0.01
+    np.testing.assert_allclose(
+        pred.theta_spread[0, w:, 0], fit["gain_spread"][0] * moved, rtol=1e-3, atol=1e-6
+    )
+    assert any("gain spread" in n for n in pred.notes)

@@ -185,6 +185,7 @@ class StepUncertainty:
         self.dev = torch.zeros(self.n_member, n_envs, n_joint, dtype=torch.float64, device=dev)
         self.omega_members = torch.full_like(self.dev, float("nan"))
         self.ood = torch.zeros(n_envs, n_joint, dtype=torch.bool, device=dev)
+        self.map_dev: torch.Tensor | None = None
         if self.head is not None:
             # member m: omega_m = M W2[:, block_m] a_m + y_std beta_m (+ y_mean | + base)
             h = self.head
@@ -192,6 +193,8 @@ class StepUncertainty:
             y_std, y_mean = norm.y_std.float(), norm.y_mean.float()
             self.w2m = (h.w2 * y_std[None, :, None]).transpose(1, 2).contiguous()  # (M, f, J)
             self.b2m = (h.bias * y_std + (0.0 if additive else y_mean))[:, None, :]  # (M, 1, J)
+            # a static-map joint: member m's base is (1 + map_dev[m]) s(u)
+            self.map_dev = None if h.map_dev is None else h.map_dev.float()[:, None, :]
         cal = stored_calibration(sur)
         self.calibrated = cal is not None and self.has_spread
         if cal is not None:
@@ -236,7 +239,11 @@ class StepUncertainty:
         activations ``a`` (n_envs, f_tot) and the ``base`` the head adds to (n_envs, n_joint)
         [rad/s] (velocity feature or speed prior; None: none)."""
         om = torch.baddbmm(self.b2m, a.unsqueeze(0).expand(self.n_member, -1, -1), self.w2m)
-        return om + base if self.additive and base is not None else om
+        if not self.additive or base is None:
+            return om
+        if self.map_dev is not None:  # the base is the speed prior's s(u)
+            return om + base + self.map_dev * base
+        return om + base
 
     def advance(self, omega_members: torch.Tensor | None, omega: torch.Tensor) -> None:
         """After a step: members' ``omega_members`` (M, n_envs, n_joint) [rad/s] (None

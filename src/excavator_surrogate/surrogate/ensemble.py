@@ -287,6 +287,12 @@ class MemberHead:
             mask[i, :, off[i] : off[i + 1]] = 1.0
         self.w2 = (m * w2.unsqueeze(0) * mask).contiguous()  # (M, n_joint, f_tot)
         self.bias = torch.tensor(info["member_bias"], dtype=w2.dtype, device=w2.device)
+        dev = info.get("map_gain_dev") if self.prior is not None else None
+        self.map_dev = (
+            None if dev is None else torch.tensor(dev, dtype=w2.dtype, device=w2.device)
+        )
+        """(M, n_joint) member ``m`` drives a static-map joint with gain ``1 + map_dev[m]``
+        (:func:`.structured.with_map_joints`), or None."""
         self.a: torch.Tensor | None = None
         """The head activations ``(..., f_tot)`` of the last captured network call."""
 
@@ -321,6 +327,8 @@ class MemberHead:
             y = y + x[..., -self.n_joint :]
         if self.prior is not None:
             y = y + self.prior(x)
+            if self.map_dev is not None:  # + dev_m s(u), in the output normalisation
+                y = y + self.map_dev[:, None, :] * (self.prior.raw(x) / self.prior.y_std)
         return y
 
 

@@ -96,10 +96,14 @@ class SpeedPrior(nn.Module):
         """The map's speed [rad/s] of raw joint commands ``u: (..., n_joint)``."""
         return self.k_pos * torch.relu(u - self.a_pos) - self.k_neg * torch.relu(self.a_neg - u)
 
+    def raw(self, x: torch.Tensor) -> torch.Tensor:
+        """``x: (..., n_feature)`` normalised features -> ``(..., n_joint)`` the map's speed
+        [rad/s]."""
+        return self.speed(x[..., self.cols] * self.u_gain + self.u_offset)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """``x: (..., n_feature)`` -> ``(..., n_joint)`` normalised prior speed."""
-        u = x[..., self.cols] * self.u_gain + self.u_offset
-        return (self.speed(u) - self.y_mean) / self.y_std
+        return (self.raw(x) - self.y_mean) / self.y_std
 
     def as_dict(self) -> dict[str, list[float]]:
         """The map per joint as plain numbers (for ``metrics.json`` and reports)."""

@@ -242,10 +242,12 @@ def fit_structured(
 def fit_prior(episodes: Sequence[Episode], spec: MachineSpec) -> dict[str, list[float]]:
     """Least-squares static map per joint on ``episodes`` (delay 0): dead-zone edges
     ``a_pos >= 0 >= a_neg`` [command units] and gains ``k_pos, k_neg >= 0`` [rad/s per command
-    unit], plus ``cols`` the command's column in the features (the spec fixes the layout) and
-    each joint's one-step ``rmse`` [rad/s] (keyword arguments of :meth:`SpeedPrior.load_fit`,
-    without ``norm``, and ``rmse``)."""
+    unit], plus ``cols`` the command's column in the features (the spec fixes the layout),
+    each joint's one-step ``rmse`` [rad/s] and ``gain_spread`` (:func:`gain_spread`) (keyword
+    arguments of :meth:`SpeedPrior.load_fit`, without ``norm``, and ``rmse``,
+    ``gain_spread``)."""
     fits = fit_joints(episodes, spec, max_delay=0)
+    omegas = [omega_target(e.theta, spec) for e in episodes]
     return {
         "cols": [spec.n_angle_feature + j for j in range(spec.n_joint)],
         "a_pos": [f.a_pos for f in fits],
@@ -253,7 +255,69 @@ def fit_prior(episodes: Sequence[Episode], spec: MachineSpec) -> dict[str, list[
         "k_pos": [f.k_pos for f in fits],
         "k_neg": [f.k_neg for f in fits],
         "rmse": [float(f.rmse) for f in fits],
+        "gain_spread": [
+            gain_spread(f, [e.u[:, j] for e in episodes], [om[:, j] for om in omegas], spec.rate_hz)
+            for j, f in enumerate(fits)
+        ],
     }
+
+
+CHUNK_S = 10.0
+"""Length of the stretches of log whose own gain :func:`gain_spread` compares [s]."""
+MIN_GAIN_SPREAD = 0.01
+"""Smallest relative gain spread of a map (a map is never exact)."""
+
+
+def gain_spread(
+    fit: JointFit, u: Sequence[np.ndarray], w: Sequence[np.ndarray], rate: float
+) -> float:
+    """How much the joint's speed strays from the static map from one stretch of log to the
+    next: the relative standard deviation of the stretch-wise least-squares gain.
+
+    The episodes are cut into stretches of :data:`CHUNK_S`; in each stretch ``c`` the gain
+    the map would need is ``rho_c = sum_t w[t] s(u[t-1]) / sum_t s(u[t-1])^2`` (1 where the
+    map is right); the result is the spread of ``rho`` around 1, each stretch weighted by its
+    ``sum s^2`` (how much the map moves the joint there)::
+
+        sigma = sqrt( sum_c S_c (rho_c - 1)^2 / sum_c S_c ),   S_c = sum_t s(u[t-1])^2
+
+    at least :data:`MIN_GAIN_SPREAD`; with fewer than two moving stretches, the one-step
+    RMSE relative to the map's RMS speed.  A map joint's ensemble members drive it with gains
+    ``1 + sigma z_m`` (:func:`with_map_joints`), so its spread grows with the distance the map
+    has moved it: the error of a gain off by a few percent does.
+
+    Args:
+        fit: the joint's map (its delay is used).
+        u: per episode, the joint's commands ``(n_step,)`` [command units].
+        w: per episode, the joint's speeds ``(n_step,)`` [rad/s] (``w[t]`` reached at ``t``).
+        rate: sample rate [Hz].
+    """
+    n = max(2, int(round(CHUNK_S * rate)))
+    num, den = [], []
+    for ui, wi in zip(u, w):
+        s = fit.speed(ui[: len(ui) - 1 - fit.delay])
+        wt = wi[1 + fit.delay :]
+        ok = np.isfinite(s) & np.isfinite(wt)
+        s, wt = np.where(ok, s, 0.0), np.where(ok, wt, 0.0)
+        for a in range(0, len(s), n):
+            num.append(float(np.dot(wt[a : a + n], s[a : a + n])))
+            den.append(float(np.dot(s[a : a + n], s[a : a + n])))
+    sc, nu = np.asarray(den), np.asarray(num)
+    moving = sc > 0
+    if int(moving.sum()) >= 2:
+        rho = nu[moving] / sc[moving]
+        sigma = float(np.sqrt(np.sum(sc[moving] * (rho - 1.0) ** 2) / sc[moving].sum()))
+    else:
+        rms = float(np.sqrt(sc.sum() / max(1, sum(len(ui) for ui in u))))
+        sigma = fit.rmse / rms if rms > 0 else 1.0
+    return max(MIN_GAIN_SPREAD, sigma)
+
+
+def member_offsets(n_member: int) -> torch.Tensor:
+    """(n_member,) float64 fixed offsets, evenly spaced, mean 0 and standard deviation 1
+    (ddof 1): the members' places in a map joint's gain spread (:func:`with_map_joints`)."""
+    z = torch.linspace(-1.0, 1.0, n_member, dtype=torch.float64)
+    return z / z.std() if n_member > 1 else z * 0.0
 
 
 def with_map_joints(
@@ -271,9 +335,12 @@ def with_map_joints(
         map joint j:    omega_j = y_std (0) + s_j(u)                 = s_j(u)
         other joint j:  omega_j = y_std (head_j + y_mean_j / y_std_j) = the network's omega_j
 
-    A merged ensemble's member biases are moved alike, so its members agree exactly on the map
-    joints (no spread there).  The other joints still read the map joints' angles, now the
-    map's.
+    A merged ensemble's member biases are moved alike, and member ``m`` drives a map joint
+    with the gain ``1 + sigma_j z_m`` (``metrics["ensemble"]["map_gain_dev"]``, (M, n_joint),
+    ``sigma_j`` the map's ``gain_spread``, ``z`` fixed, mean 0 and standard deviation 1 over
+    the members): the merged network's own output (their mean) is the map exactly, and the
+    members' spread on a map joint is ``sigma_j |s_j(u)|``, integrated in the angle.  The other
+    joints still read the map joints' angles, now the map's.
 
     Args:
         sur: an LSTM/GRU surrogate without a prior or residual head.
@@ -318,6 +385,10 @@ def with_map_joints(
         mb[:, pick] = 0.0
         mb[:, ~pick] += shift.double()[~pick]
         metrics["ensemble"] = {**ens, "member_bias": mb.tolist()}
+        if "gain_spread" in fit:  # (M, n_joint) each member's gain deviation on the map joints
+            sigma = torch.tensor(on("gain_spread"), dtype=torch.float64)
+            dev = member_offsets(mb.shape[0])[:, None] * sigma[None, :]
+            metrics["ensemble"]["map_gain_dev"] = dev.tolist()
     metrics["map_joints"] = [n for n, p in zip(sur.spec.names, pick.tolist()) if p]
     return Surrogate(
         net=net.train(sur.net.training),

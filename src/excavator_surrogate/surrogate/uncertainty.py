@@ -49,13 +49,19 @@ NO_MEMBERS = "single network: no uncertainty (train a seed ensemble, members >= 
 
 def map_note(sur: Surrogate) -> str | None:
     """The note of an ensemble whose joints follow the static valve map (``metrics
-    ["map_joints"]``: no member spread there), or None."""
+    ["map_joints"]``), or None."""
     on_map = (sur.metrics or {}).get("map_joints") or []
-    if not on_map or member_head(sur) is None:
+    head = member_head(sur)
+    if not on_map or head is None:
         return None
+    if head.map_dev is None:  # merged before the members' map gains were recorded
+        return (
+            f"{', '.join(on_map)} follow(s) the static valve map: no member spread there; "
+            "the band is the calibrated error quantile by horizon"
+        )
     return (
-        f"{', '.join(on_map)} follow(s) the static valve map: no member spread there; the "
-        "band is the calibrated error quantile by horizon"
+        f"{', '.join(on_map)} follow(s) the static valve map: the members' spread there is "
+        "the map's gain spread over the training log, times the distance the map moved it"
     )
 
 

@@ -17,8 +17,10 @@ per joint, chosen on the validation free run like an epoch is:
    network's, overall and on every joint; else the network stays as it was.
 
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
-in the log and in ``metrics.json``.  A joint on the map has no ensemble spread: its band is
-its own calibrated error quantile (:data:`~excavator_surrogate.surrogate.bands.NO_SPREAD_FLOOR`).
+in the log and in ``metrics.json``.  On a joint on the map, the ensemble's members drive it
+with gains spread like the map's stretch-wise gain over the training log
+(:func:`~excavator_surrogate.surrogate.structured.gain_spread`), so its band grows with the
+distance the map moved it.
 """
 
 from __future__ import annotations
