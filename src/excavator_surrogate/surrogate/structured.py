@@ -292,7 +292,7 @@ def gain_spread(
         w: per episode, the joint's speeds ``(n_step,)`` [rad/s] (``w[t]`` reached at ``t``).
         rate: sample rate [Hz].
     """
-    n = max(2, int(round(CHUNK_S * rate)))
+    n = max(2, round(CHUNK_S * rate))
     num, den = [], []
     for ui, wi in zip(u, w):
         s = fit.speed(ui[: len(ui) - 1 - fit.delay])
