@@ -288,9 +288,7 @@ class MemberHead:
         self.w2 = (m * w2.unsqueeze(0) * mask).contiguous()  # (M, n_joint, f_tot)
         self.bias = torch.tensor(info["member_bias"], dtype=w2.dtype, device=w2.device)
         dev = info.get("map_gain_dev") if self.prior is not None else None
-        self.map_dev = (
-            None if dev is None else torch.tensor(dev, dtype=w2.dtype, device=w2.device)
-        )
+        self.map_dev = None if dev is None else torch.tensor(dev, dtype=w2.dtype, device=w2.device)
         """(M, n_joint) member ``m`` drives a static-map joint with gain ``1 + map_dev[m]``
         (:func:`.structured.with_map_joints`), or None."""
         self.a: torch.Tensor | None = None
