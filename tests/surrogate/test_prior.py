@@ -55,6 +55,27 @@ def test_fit_prior_recovers_a_static_map() -> None:
     assert max(fit["rmse"]) < 1e-6  # rad/s: the map is exact (up to rounding)
 
 
+def test_gain_spread_is_the_stretch_wise_gain_spread_around_the_map() -> None:
+    """An exact map strays by nothing (the floor); a plant whose speed is 1.2x or 0.8x the
+    map's in alternate 10-s stretches strays by 0.2."""
+    from excavator_surrogate.surrogate.structured import (
+        CHUNK_S,
+        MIN_GAIN_SPREAD,
+        JointFit,
+        gain_spread,
+    )
+
+    fit = JointFit(delay=0, a_pos=100.0, a_neg=-100.0, k_pos=1e-3, k_neg=2e-3, rmse=0.0)
+    rate = 20.0
+    n = int(CHUNK_S * rate)
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-1000, 1000, 8 * n)
+    w = np.concatenate([[0.0], fit.speed(u[:-1])])  # w[t] = s(u[t-1])
+    assert gain_spread(fit, [u], [w], rate) == MIN_GAIN_SPREAD
+    gain = np.where((np.arange(8 * n) - 1) // n % 2 == 0, 1.2, 0.8)
+    assert gain_spread(fit, [u], [w * gain], rate) == pytest.approx(0.2, rel=1e-3)
+
+
 def test_a_silent_head_is_the_map_and_the_head_adds_to_it(spec, episodes) -> None:
     """omega = s(u) + y_std * head: with the last layer zeroed the network is the map exactly
     (whatever the angles and the recurrent state); the head's output adds in y_std units."""
