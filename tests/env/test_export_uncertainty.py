@@ -16,6 +16,7 @@ from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
 from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names, ood_flags
 from excavator_surrogate.surrogate.ensemble import merge
+from tests.helpers.surrogates import on_static_map
 
 EPS32 = float(np.finfo(np.float32).eps)
 
@@ -26,13 +27,19 @@ EPS32 = float(np.finfo(np.float32).eps)
         ("torchscript", dict(play=(0.05, 0.2), omega_in=True)),
         ("dynamo", dict(omega_in=True, residual=True)),
         ("torchscript", dict(prior=True)),
+        ("torchscript", dict(map_joints=True)),
+        ("dynamo", dict(map_joints=True)),
     ],
-    ids=["play-velocity", "residual", "prior"],
+    ids=["play-velocity", "residual", "prior", "map-torchscript", "map-dynamo"],
 )
 def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, exporter, kw) -> None:
     """onnxruntime's ``omega_members`` equal the engine's members (same network call) every
-    step, their mean is the central omega, and the metadata carries M."""
+    step, their mean is the central omega, and the metadata carries M; also with joints on
+    the static map, which each member drives with its own gain."""
+    on_map = kw.pop("map_joints", False)
     sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful", **kw) for s in range(3)])
+    if on_map:
+        sur = on_static_map(sur)
     path = export_onnx(sur, tmp_path / "ens.onnx", exporter=exporter, uncertainty=True)
     names = [o.name for o in onnx.load(str(path)).graph.output]
     assert names[-1] == "omega_members"

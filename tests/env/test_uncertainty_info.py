@@ -14,13 +14,13 @@ from excavator_surrogate.env.uncertainty import INFO_KEYS
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names, ood_flags
 from excavator_surrogate.surrogate.ensemble import merge
-from excavator_surrogate.surrogate.structured import with_map_joints
 from excavator_surrogate.surrogate.uncertainty import (
     Calibration,
     UncertainPrediction,
     bands,
     member_runs,
 )
+from tests.helpers.surrogates import on_static_map
 
 KW = dict(end_stops=True, play=(0.05, 0.2), omega_in=True)
 EPS32 = float(np.finfo(np.float32).eps)
@@ -61,22 +61,6 @@ def _plain(sur, theta0: np.ndarray, u: np.ndarray, design: str = "shared"):
     return member_runs(sur, th_hist, u_full, warmup=w, design=design), u_full
 
 
-def _on_map(sur):
-    """``sur`` with the swing and the bucket on a static map with a gain spread (members
-    drive them with gains 1 + sigma z_m)."""
-    spec = sur.spec
-    n_j = spec.n_joint
-    fit = {
-        "cols": [spec.n_angle_feature + j for j in range(n_j)],
-        "a_pos": [50.0] * n_j,
-        "a_neg": [-80.0] * n_j,
-        "k_pos": [1e-3] * n_j,
-        "k_neg": [8e-4] * n_j,
-        "gain_spread": [0.2, 0.1, 0.1, 0.3],
-    }
-    return with_map_joints(sur, fit, [True, False, False, True])
-
-
 @pytest.mark.parametrize(
     "mode,impl,on_map",
     [
@@ -100,7 +84,7 @@ def test_engine_bands_and_flags_equal_the_plain_loop(
         sur = merge([make_surrogate(seed=s, hidden=16, mode=mode, **kw) for s in range(3)])
         sur.metrics["coverage"] = ens.metrics["coverage"]
     if on_map:
-        sur = _on_map(sur)
+        sur = on_static_map(sur)
         assert sur.metrics["ensemble"]["map_gain_dev"][0][0] < 0
     rng = np.random.default_rng(1)
     n, n_step, w = 5, 25, sur.window

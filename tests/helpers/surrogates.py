@@ -133,3 +133,21 @@ def variant_surrogate(
         residual=omega_in and cell != "arx" and not prior,
         prior=prior and cell != "arx",
     )
+
+
+def on_static_map(sur):
+    """``sur`` with the swing and the bucket on a static map with a gain spread (members
+    drive them with gains 1 + sigma z_m)."""
+    spec = sur.spec
+    n_j = spec.n_joint
+    fit = {
+        "cols": [spec.n_angle_feature + j for j in range(n_j)],
+        "a_pos": [50.0] * n_j,
+        "a_neg": [-80.0] * n_j,
+        "k_pos": [1e-3] * n_j,
+        "k_neg": [8e-4] * n_j,
+        "gain_spread": [0.2, 0.1, 0.1, 0.3],
+    }
+    from excavator_surrogate.surrogate.structured import with_map_joints
+
+    return with_map_joints(sur, fit, [True, False, False, True])

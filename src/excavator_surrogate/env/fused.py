@@ -306,6 +306,12 @@ class FusedMembersStep(FusedStep):
         self.n_member = head.n_member
         self.register_buffer("w2m", w2m)  # (M, f_tot, n_joint)
         self.register_buffer("b2m", b2m[:, None, :])  # (M, 1, n_joint)
+        # a static-map joint: member m's base is (1 + map_dev[m]) s(u) (None: no such joint)
+        self.map_dev: torch.Tensor | None
+        if head.map_dev is None:
+            self.map_dev = None
+        else:
+            self.register_buffer("map_dev", head.map_dev.float().cpu()[:, None, :])
         self._a: torch.Tensor | None = None
 
     def head(self, out: torch.Tensor) -> torch.Tensor:
@@ -329,4 +335,6 @@ class FusedMembersStep(FusedStep):
         base = self.base(u, w)
         if base is not None:
             om_m = om_m + base
+            if self.map_dev is not None:  # the base is the speed prior's s(u)
+                om_m = om_m + self.map_dev * base
         return (*outs, om_m)
