@@ -77,6 +77,7 @@ SIGNALS = ("multisine", "steps", "prbs")
 """The stand-in's signal kinds, drawn in turn by the training, validation and test runs alike
 (the calibration's premise: validation runs drawn like the runs the bands are for)."""
 N_VAL = 3
+"""The stand-in's validation runs: one of each signal kind (the preset has 2, of two kinds)."""
 N_TEST = 36
 """In-distribution stand-in test runs.  A run's own 90 % coverage ranges from 0.1 to 1.0 (the
 spread of a 2-member ensemble hardly ranks the error there), so the pooled coverage of 12
@@ -84,7 +85,6 @@ runs scatters by about +-0.07: the first, second and third 12 of these 36 gave 0
 and 0.89 on the bucket with the same model and calibration (0.87 over the 36)."""
 BLOCK = 12
 """Runs per block of the per-block coverage (how much a 12-run test would scatter)."""
-"""The stand-in's validation runs: one of each signal kind (the preset has 2, of two kinds)."""
 N_SPLIT = 20
 """Random halves of the h1-dev validation runs the cross-fitted coverage is measured over."""
 COVERAGE_BAND = (0.85, 0.95)
@@ -155,15 +155,16 @@ def stand_in(
     ensemble size, default the preset's; ``bootstrap``: each member trains on its own
     bootstrap resample of the training episodes, ``[train] bootstrap``)."""
     n_train, n_test, epochs = (16, 6, 8) if quick else (100, N_TEST, None)
-    have = reuse and (work / "sim").is_dir() and len(load_dataset(work / "sim").test) == n_test
-    if not have:  # the same training and validation runs for any n_test (per-split seeds)
-        simulate(
+    ds = load_dataset(work / "sim") if reuse and (work / "sim").is_dir() else None
+    if ds is None or len(ds.test) != n_test:  # the same training and validation runs for any
+        simulate(  # n_test (each split draws its episodes from its own seeds)
             work / "sim", n_train=n_train, n_val=N_VAL, n_test=n_test, seed=0, lv=levels(0.3, LEVEL)
         )
+        ds = load_dataset(work / "sim")
     n_beyond = max(6, n_test // 6)
     if not (reuse and (work / "beyond").is_dir()):
         simulate(work / "beyond", n_train=1, n_val=1, n_test=n_beyond, seed=1, lv=levels(0.8, 1.0))
-    ds, beyond = load_dataset(work / "sim"), load_dataset(work / "beyond")
+    beyond = load_dataset(work / "beyond")
     best = work / "model" / "best.pt"
     train_s = None
     if reuse and best.is_file():
