@@ -300,18 +300,16 @@ class FusedMembersStep(FusedStep):
                 f"model '{sur.name}' has no ensemble members: a single network has no "
                 "uncertainty to export (train a seed ensemble, or export without it)"
             )
-        y_std, y_mean = sur.norm.y_std.float().cpu(), sur.norm.y_mean.float().cpu()
-        w2m = (head.w2.float().cpu() * y_std[None, :, None]).transpose(1, 2).contiguous()
-        b2m = head.bias.float().cpu() * y_std + (0.0 if self.additive else y_mean)
+        w2m, b2m, map_dev = head.folded(sur.norm, additive=self.additive)
         self.n_member = head.n_member
-        self.register_buffer("w2m", w2m)  # (M, f_tot, n_joint)
-        self.register_buffer("b2m", b2m[:, None, :])  # (M, 1, n_joint)
+        self.register_buffer("w2m", w2m.cpu())  # (M, f_tot, n_joint)
+        self.register_buffer("b2m", b2m.cpu())  # (M, 1, n_joint)
         # a static-map joint: member m's base is (1 + map_dev[m]) s(u) (None: no such joint)
         self.map_dev: torch.Tensor | None
-        if head.map_dev is None:
+        if map_dev is None:
             self.map_dev = None
         else:
-            self.register_buffer("map_dev", head.map_dev.float().cpu()[:, None, :])
+            self.register_buffer("map_dev", map_dev.cpu())
         self._a: torch.Tensor | None = None
 
     def head(self, out: torch.Tensor) -> torch.Tensor:

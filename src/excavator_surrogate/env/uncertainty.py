@@ -204,13 +204,8 @@ class StepUncertainty:
         self.map_dev: torch.Tensor | None = None
         if self.head is not None:
             # member m: omega_m = M W2[:, block_m] a_m + y_std beta_m (+ y_mean | + base)
-            h = self.head
-            norm = sur.norm
-            y_std, y_mean = norm.y_std.float(), norm.y_mean.float()
-            self.w2m = (h.w2 * y_std[None, :, None]).transpose(1, 2).contiguous()  # (M, f, J)
-            self.b2m = (h.bias * y_std + (0.0 if additive else y_mean))[:, None, :]  # (M, 1, J)
             # a static-map joint: member m's base is (1 + map_dev[m]) s(u)
-            self.map_dev = None if h.map_dev is None else h.map_dev.float()[:, None, :]
+            self.w2m, self.b2m, self.map_dev = self.head.folded(sur.norm, additive=additive)
         cal = stored_calibration(sur)
         self.calibrated = cal is not None and self.has_spread
         if cal is not None:

@@ -294,6 +294,29 @@ class MemberHead:
         self.a: torch.Tensor | None = None
         """The head activations ``(..., f_tot)`` of the last captured network call."""
 
+    def folded(
+        self, norm: Any, *, additive: bool
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """The members' output layer in physical units, float32, for runtimes that take the
+        head activations ``a`` (n_batch, f_tot) themselves::
+
+            omega_m = a @ w2m[m] + b2m[m] (+ (1 + map_dev[m]) base)
+
+        Args:
+            norm: the surrogate's normalisation (``y_std``, ``y_mean``).
+            additive: the head's output is added to a base (residual head or speed prior), so
+                it carries no ``y_mean``.
+
+        Returns:
+            ``w2m`` (M, f_tot, n_joint), ``b2m`` (M, 1, n_joint) and ``map_dev`` (M, 1,
+            n_joint) or None (no static-map joint).
+        """
+        y_std, y_mean = norm.y_std.float(), norm.y_mean.float()
+        w2m = (self.w2 * y_std[None, :, None]).transpose(1, 2).contiguous()
+        b2m = (self.bias * y_std + (0.0 if additive else y_mean))[:, None, :]
+        map_dev = None if self.map_dev is None else self.map_dev.float()[:, None, :]
+        return w2m, b2m, map_dev
+
     @contextmanager
     def capture(self) -> Iterator[MemberHead]:
         """Record the head's hidden activations of the network calls inside the block."""
