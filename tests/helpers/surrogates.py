@@ -12,6 +12,7 @@ from excavator_surrogate.data import Episode
 from excavator_surrogate.spec import EXCAVATOR, MachineSpec
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+from excavator_surrogate.surrogate.structured import with_map_joints
 
 
 def drive_into_stops(net: nn.Module, drive: float, n_joint: int) -> None:
@@ -148,6 +149,4 @@ def on_static_map(sur):
         "k_neg": [8e-4] * n_j,
         "gain_spread": [0.2, 0.1, 0.1, 0.3],
     }
-    from excavator_surrogate.surrogate.structured import with_map_joints
-
     return with_map_joints(sur, fit, [True, False, False, True])
