@@ -42,11 +42,38 @@ def test_long_episodes_use_the_longest_sequence_and_very_short_ones_shrink_the_w
 
 
 def test_members_and_budget_follow_the_cpus():
-    ds = _dataset([300, 300])
+    ds = _dataset([8000])  # one long log: its planned epochs fill the fewest members' budget
     two, _ = auto_config(ds, cpus=2, budget_s=600)
     one, _ = auto_config(ds, cpus=1, budget_s=600)
     assert (two.members, two.member_workers, two.max_train_seconds) == (4, 2, 300)
     assert (one.members, one.member_workers, one.max_train_seconds) == (2, 1, 300)
+
+
+def test_cheap_epochs_buy_more_members_within_the_budget():
+    from excavator_surrogate.training.auto import (
+        MAX_MEMBERS,
+        MEMBERS,
+        PLAN_SHARE,
+        count_sequences,
+        epoch_cost_s,
+    )
+
+    many = _dataset([600] * 100)  # the h1 shape: many short runs, cheap epochs
+    cfg, why = auto_config(many, cpus=2, budget_s=600)
+    assert (cfg.members, cfg.member_workers) == (MAX_MEMBERS, 2)
+    assert cfg.max_train_seconds == 600 * 2 / MAX_MEMBERS
+    n_seq = count_sequences(np.array([600] * 100), seq_len=cfg.seq_len, burn_in=cfg.burn_in)
+    cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=200)
+    assert cfg.epochs * cost <= PLAN_SHARE * cfg.max_train_seconds  # the plan still fits
+    assert any("as many members as the budget fits" in w for w in why)
+    one, _ = auto_config(many, cpus=1, budget_s=600)
+    assert one.members == MAX_MEMBERS // 2
+    # a smaller budget fits fewer members at the same planned epochs, never fewer than MEMBERS
+    tight, _ = auto_config(many, cpus=2, budget_s=cfg.epochs * cost / PLAN_SHARE * 3)
+    assert MEMBERS <= tight.members < MAX_MEMBERS and tight.epochs == cfg.epochs
+    assert auto_config(many, cpus=2, budget_s=10)[0].members == MEMBERS
+    given, why = auto_config(many, cpus=2, overrides={"members": 3})
+    assert given.members == 3 and not any("as many members" in w for w in why)
 
 
 def test_overrides_are_strict():

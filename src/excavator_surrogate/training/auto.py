@@ -22,7 +22,8 @@ The recipe, and the measurement behind each choice, is documented in ``docs/real
   same data, seed and machine give the same model on an idle or a busy computer;
 - an exponential moving average of the weights, so the selected checkpoint does not depend on
   one lucky epoch; selection by the whole-episode validation free run;
-- a seed ensemble of ``members`` networks trained side by side, one per core;
+- a seed ensemble of ``members`` networks trained side by side, one per core: 4, or up to 8
+  when the planned epochs are cheap enough that the budget fits more (:func:`plan_members`);
 - the envelope (end stops and speed bounds) from the spec, else from the training data;
 - periodic joints (the swing) turned by a random offset per training sub-sequence, so the
   network does not tie the dynamics to where the machine points (it did: on the continuous
@@ -72,7 +73,12 @@ steps with the other core busy)."""
 VAL_STEP_S = 3.0e-4
 """Reference machine: one step of the validation free run over all validation episodes [s]."""
 MEMBERS = 4
-"""Seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
+"""Fewest seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
+MAX_MEMBERS = 8
+"""Most seed-ensemble members the recipe trains (half as many on one CPU): when the planned
+epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
+varies less from seed to seed and from one CPU to another (h1-dev validation, bucket: single
+members 11-23 deg, 4-member ensembles 14.0-16.5, 8-member ensembles 12.8-14.0; docs/real.md)."""
 SEQ_BATCH = 16
 """Sub-sequences per batch."""
 SHORT_VAL_EPISODES = 4
@@ -136,17 +142,32 @@ def auto_config(
             )
         capped = given > 0
         budget_s = given if capped else budget_s
-    members = int(overrides.get("members") or (MEMBERS if cpus >= 2 else MEMBERS // 2))
-    workers = min(members, cpus)
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
-    n_train = members + max(1, members // 2) if inputs and exogenous == "choose" else members
+    choose = bool(inputs) and exogenous == "choose"
+    n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
+    val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
+    cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
+    asked = overrides.get("members")
+    members = (
+        int(asked)
+        if asked
+        else plan_members(cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=choose)
+    )
+    workers = min(members, cpus)
+    n_train = trainings(members, choose=choose)
     per_member = budget_s * workers / n_train
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {per_member:.0f} s "
         f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s))"
+        + (
+            ""
+            if asked
+            else "; as many members as the budget fits at the planned epochs, "
+            f"{min_members(cpus)}-{max_members(cpus)}"
+        )
     )
-    if inputs and exogenous == "choose":
+    if choose:
         half = max(1, members // 2)
         why.append(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
@@ -166,9 +187,6 @@ def auto_config(
         why.append(
             f"selection: the epoch with the lowest free-run error on {n_val} validation episodes"
         )
-    n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
-    val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
-    cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
     epochs, limit = plan_epochs(n_seq, cost, budget_s=per_member)
     why.append(
         f"{epochs} epochs planned: {n_seq} sub-sequences per epoch, about {epochs * cost:.0f} s "
@@ -243,11 +261,48 @@ def epoch_cost_s(n_seq: int, *, seq_len: int, seq_batch: int, val_steps: int) ->
     return n_batch * seq_len * STEP_S + 2 * val_steps * VAL_STEP_S
 
 
+def want_epochs(n_seq: int) -> int:
+    """Epochs the recipe wants for ``n_seq`` sub-sequences per epoch, before the budget:
+    :data:`TARGET_PASSES` passes, within ``[MIN_EPOCHS, MAX_EPOCHS]``."""
+    return min(MAX_EPOCHS, max(MIN_EPOCHS, math.ceil(TARGET_PASSES / max(n_seq, 1))))
+
+
+def min_members(cpus: int) -> int:
+    """Fewest members the recipe trains on ``cpus`` CPUs."""
+    return MEMBERS if cpus >= 2 else MEMBERS // 2
+
+
+def max_members(cpus: int) -> int:
+    """Most members the recipe trains on ``cpus`` CPUs."""
+    return MAX_MEMBERS if cpus >= 2 else MAX_MEMBERS // 2
+
+
+def trainings(members: int, *, choose: bool) -> int:
+    """Trainings an ensemble of ``members`` costs: one per member, plus half as many again
+    when an exogenous input is chosen (the members that ignore it)."""
+    return members + max(1, members // 2) if choose else members
+
+
+def plan_members(member_s: float, budget_s: float, *, cpus: int, choose: bool) -> int:
+    """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
+    steps of the parallel workers, whose planned training (``member_s`` each on the reference
+    machine) still fits :data:`PLAN_SHARE` of each member's share of ``budget_s``."""
+    members = min_members(cpus)
+    step = min(cpus, members)
+    while members + step <= max_members(cpus):
+        n = members + step
+        per_member = budget_s * min(n, cpus) / trainings(n, choose=choose)
+        if member_s > PLAN_SHARE * per_member:
+            break
+        members = n
+    return members
+
+
 def plan_epochs(n_seq: int, cost_s: float, *, budget_s: float) -> tuple[int, str]:
-    """Planned epochs and what limited them: :data:`TARGET_PASSES` sub-sequence passes, within
-    ``[MIN_EPOCHS, MAX_EPOCHS]``, and at most :data:`PLAN_SHARE` of ``budget_s`` (one member's
-    wall-time budget) at ``cost_s`` per epoch (never fewer than 1)."""
-    want = min(MAX_EPOCHS, max(MIN_EPOCHS, math.ceil(TARGET_PASSES / max(n_seq, 1))))
+    """Planned epochs and what limited them: :func:`want_epochs`, and at most
+    :data:`PLAN_SHARE` of ``budget_s`` (one member's wall-time budget) at ``cost_s`` per epoch
+    (never fewer than 1)."""
+    want = want_epochs(n_seq)
     fits = max(1, int(PLAN_SHARE * budget_s / cost_s))
     if fits < want:
         return fits, f"{PLAN_SHARE:.0%} of the {budget_s:.0f}-s member budget"
