@@ -77,8 +77,9 @@ MEMBERS = 4
 MAX_MEMBERS = 8
 """Most seed-ensemble members the recipe trains (half as many on one CPU): when the planned
 epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
-varies less from seed to seed and from one CPU to another (h1-dev validation, bucket: single
-members 11-23 deg, 4-member ensembles 14.0-16.5, 8-member ensembles 12.8-14.0; docs/real.md)."""
+varies less from seed to seed, and another CPU's kernels act like another draw of the seeds
+(docs/design.md). On h1-dev's validation runs the bucket's error was 11-23 deg for single
+members, 14.0-16.5 for 4-member ensembles and 12.8-14.0 for 8-member ones (docs/real.md)."""
 SEQ_BATCH = 16
 """Sub-sequences per batch."""
 SHORT_VAL_EPISODES = 4
