@@ -12,10 +12,14 @@ from __future__ import annotations
 
 import logging
 
-from . import env as _env  # noqa: F401  (registers the Gymnasium environments)
-from .errors import CheckpointError, ConfigError, DataError, ExsurError
-from .spec import EXCAVATOR, InputSpec, JointSpec, MachineSpec, excavator_spec
-from .version import __version__
+from . import numerics as _numerics
+
+_numerics.prepare_environment()  # EXSUR_NUMERICS=portable reaches torch before torch loads
+
+from . import env as _env  # noqa: E402, F401  (registers the Gymnasium environments)
+from .errors import CheckpointError, ConfigError, DataError, ExsurError  # noqa: E402
+from .spec import EXCAVATOR, InputSpec, JointSpec, MachineSpec, excavator_spec  # noqa: E402
+from .version import __version__  # noqa: E402
 
 # a library logs, the application decides what is shown (the CLI: io_utils.setup_logging)
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -83,6 +83,7 @@ def test_a_run_that_completes_its_plan_is_not_cut(tmp_path):
         "stopped": "planned",
         "budget_cut": False,
         "max_train_seconds": 0.0,
+        "numerics": "native",
     }
 
 

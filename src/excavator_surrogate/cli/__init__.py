@@ -26,7 +26,7 @@ import sys
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from .. import __version__
+from .. import __version__, numerics
 from ..errors import ConfigError, ExsurError
 from ..io_utils import LOGGER_NAME, remove_logging, setup_logging
 from .common import add_log_options, leaf_parsers, log_level
@@ -134,6 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
+        numerics.apply()  # EXSUR_NUMERICS=portable: no oneDNN in this process either
         if not getattr(args, "func", None):
             parser.print_help()
             return 2

@@ -7,6 +7,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from .. import numerics
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
 from ..errors import ConfigError
@@ -70,6 +71,7 @@ def train(
         DataError: no usable training episodes, or no joint moves in them.
         CheckpointError: bad ``resume`` file.
     """
+    numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
     check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
     choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
     if cfg.members > 1 or choosing:

@@ -151,5 +151,6 @@ def ensemble_training(members: list[dict[str, Any] | None]) -> dict[str, Any]:
     return {
         "budget_cut": any(m.get("budget_cut", False) for m in known),
         "epochs_planned": max((int(m.get("epochs_planned", 0)) for m in known), default=0),
+        "numerics": "/".join(sorted({str(m.get("numerics", "native")) for m in known})) or "native",
         "members": known,
     }

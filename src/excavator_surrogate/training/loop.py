@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from .. import numerics
 from ..config import to_dict
 from ..data.dataset import Dataset
 from ..devices import resolve_device
@@ -108,6 +109,7 @@ def train_network(
     notes: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train one network (see :func:`~excavator_surrogate.training.api.train`); returns ``best.pt``."""
+    numerics_mode = numerics.check()  # portable: no oneDNN, pinned MKL and ATen kernels
     out = mark_output(out, "model")  # before the first file: the folder is exsur's
     if par is None:
         try:
@@ -282,7 +284,9 @@ def train_network(
     if main:
         record_training(
             best_path,
-            training_summary(cfg, epochs_done=done, stopped=stopped, budget=budget),
+            training_summary(
+                cfg, epochs_done=done, stopped=stopped, budget=budget, numerics=numerics_mode
+            ),
         )
     par.barrier()  # best.pt is complete before any rank returns its path
     return best_path

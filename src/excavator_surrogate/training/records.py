@@ -146,12 +146,13 @@ def budget_cut_message(budget: float, done: int, planned: int) -> str:
 
 
 def training_summary(
-    cfg: TrainConfig, *, epochs_done: int, stopped: str, budget: float
+    cfg: TrainConfig, *, epochs_done: int, stopped: str, budget: float, numerics: str = "native"
 ) -> dict[str, Any]:
     """What the run did against its plan (stored in ``best.pt`` metrics as ``training``).
 
     ``stopped``: ``planned`` (all epochs), ``early-stop`` (patience), ``budget`` (the wall-time
-    cap cut it: ``budget_cut`` is True) or ``requested`` (a callback).
+    cap cut it: ``budget_cut`` is True) or ``requested`` (a callback). ``numerics``: the
+    kernels it trained with (:mod:`excavator_surrogate.numerics`).
     """
     return {
         "epochs_planned": int(cfg.epochs),
@@ -159,6 +160,7 @@ def training_summary(
         "stopped": stopped,
         "budget_cut": stopped == "budget",
         "max_train_seconds": float(budget) if math.isfinite(budget) else 0.0,
+        "numerics": numerics,
     }
 
 
