@@ -3,20 +3,22 @@
 Training is bit-identical on one computer (``tests/training/test_reproducible.py``), not
 across CPUs: torch's CPU kernels pick their code by instruction set, round differently, and a
 free-run training grows the difference into other networks (docs/design.md, "Across CPUs").
-Three kernel families differ between an AVX2 and an AVX-512 CPU, measured under an emulated
-AVX2-only CPU:
+Four kernel families differ between an AVX2 and an AVX-512 CPU, measured under an emulated
+AVX2-only CPU or by turning the AVX-512 code off:
 
 - MKL's matrix products: pinned by ``MKL_CBWR=AVX2,STRICT`` (MKL's conditional numerical
   reproducibility: the AVX2 code path on every CPU that has it);
 - ATen's vectorised element-wise functions (``tanh``, ``exp``): pinned by
   ``ATEN_CPU_CAPABILITY=avx2``;
+- NumPy's AVX-512 loops (``sin``, ``exp`` in the simulator's data: the last bit of the
+  simulated angles changed): turned off by ``NPY_DISABLE_CPU_FEATURES``;
 - oneDNN's LSTM, which ``nn.LSTM`` uses on the CPU: not pinnable
   (``ONEDNN_MAX_CPU_ISA=AVX2`` still gave other bits), so portable numerics turn oneDNN off
   and ``nn.LSTM`` runs torch's own kernels (MKL products, ATen functions).
 
-``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all three. The
-package's ``__init__`` sets the two variables (unless already set) before anything imports
-torch, and :func:`apply` turns oneDNN off where a network is built. Spawned training workers
+``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all four. The
+package's ``__init__`` sets the variables (unless already set) before it imports NumPy or
+torch, and :func:`apply` turns oneDNN off where a network is trained or run. Spawned training workers
 inherit both. The price is training speed on an AVX-512 computer (1.3-1.9x the time there);
 ``bench/portable.py`` measures it and checks the bits under an emulated AVX2 CPU. The default, ``native``, leaves torch as it is.
 """
@@ -31,8 +33,18 @@ ENV = "EXSUR_NUMERICS"
 """Environment variable that chooses the numerics: ``native`` (default) or ``portable``."""
 MODES = ("native", "portable")
 """Accepted values of :data:`ENV`."""
-PINS = {"MKL_CBWR": "AVX2,STRICT", "ATEN_CPU_CAPABILITY": "avx2"}
-"""Environment settings of portable numerics (read by MKL and ATen when torch loads)."""
+NUMPY_AVX512 = (
+    "X86_V4 AVX512_ICL AVX512_SPR "  # NumPy >= 2.4's dispatch targets
+    "AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL"  # older NumPy's
+)
+"""NumPy's AVX-512 dispatch targets (names it does not know are ignored with an ImportWarning,
+which Python hides by default)."""
+PINS = {
+    "MKL_CBWR": "AVX2,STRICT",
+    "ATEN_CPU_CAPABILITY": "avx2",
+    "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512,
+}
+"""Environment settings of portable numerics (read by MKL, ATen and NumPy when they load)."""
 PORTABLE_CAPABILITIES = ("AVX2", "DEFAULT", "NO AVX")
 """ATen CPU capabilities whose element-wise kernels are the portable ones (or plainer)."""
 
@@ -84,8 +96,8 @@ def check() -> str:
     """:func:`apply`, then check that the portable pins reached torch; returns the mode.
 
     Raises:
-        ConfigError: portable numerics asked for, but ATen already runs wider kernels (torch
-            was imported before the package set ``ATEN_CPU_CAPABILITY``) or a pin was
+        ConfigError: portable numerics asked for, but ATen or NumPy already run wider
+            kernels (they were imported before the package set the pins) or a pin was
             overridden with another value.
     """
     chosen = apply()
@@ -95,11 +107,28 @@ def check() -> str:
 
     capability = torch.backends.cpu.get_cpu_capability()
     wrong = {k: os.environ.get(k) for k, v in PINS.items() if os.environ.get(k) != v}
-    if capability not in PORTABLE_CAPABILITIES or wrong:
-        found = f"ATen runs {capability} kernels" if not wrong else f"found {wrong}"
+    wide = numpy_avx512()
+    if capability not in PORTABLE_CAPABILITIES or wide or wrong:
+        found = (
+            f"found {wrong}"
+            if wrong
+            else f"ATen runs {capability} kernels"
+            if capability not in PORTABLE_CAPABILITIES
+            else f"NumPy runs {', '.join(wide)} loops"
+        )
         raise ConfigError(
-            f"{ENV}=portable: {found}; set {ENV}=portable in the shell before Python "
-            f"starts (it must reach torch before torch loads), and leave "
-            f"{', '.join(f'{k}={v}' for k, v in PINS.items())} as they are"
+            f"{ENV}=portable: {found}; set {ENV}=portable in the shell before Python starts "
+            f"(it must reach NumPy and torch before they load), and leave "
+            f"{', '.join(PINS)} unset (exsur sets them)"
         )
     return chosen
+
+
+def numpy_avx512() -> list[str]:
+    """NumPy's AVX-512 dispatch targets in use in this process (empty when unknown)."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
+    except ImportError:  # NumPy 1.x keeps them elsewhere; the pin is checked by the setting
+        return []
+    off = set(NUMPY_AVX512.split())
+    return [f for f in __cpu_dispatch__ if f in off and __cpu_features__.get(f)]

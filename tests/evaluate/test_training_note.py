@@ -39,5 +39,14 @@ def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing(
 def test_joints_on_the_static_map_are_named():
     rec = {"chosen": ["swing"], "why": "swing follow(s) the static map: validation error 0.19"}
     text = training_markdown({"epochs_planned": 30, "static_map": rec})
-    assert "Static valve map: swing" in text and "no ensemble spread" in text
+    assert "Static valve map: swing" in text and "gain spread over the training log" in text
     assert "Static valve map" not in training_markdown({"static_map": {"chosen": []}, "x": 1})
+
+
+def test_the_note_says_whether_the_bits_hold_on_another_cpu():
+    native = training_markdown({"epochs_planned": 3, "epochs_done": 3, "numerics": "native"})
+    assert "of this computer" in native and "EXSUR_NUMERICS=portable" in native
+    portable = training_markdown({"epochs_planned": 3, "epochs_done": 3, "numerics": "portable"})
+    assert "any x86-64 CPU with AVX2" in portable and "of this computer" not in portable
+    old = training_markdown({"epochs_planned": 3, "epochs_done": 3})  # before numerics existed
+    assert "of this computer" in old

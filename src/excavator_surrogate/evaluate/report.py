@@ -212,7 +212,8 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
     return (
         f"\nStatic valve map: {', '.join(record['chosen'])} follow(s) the map (dead zone, gain "
         "per direction) instead of the network, chosen on the validation free run "
-        f"({record.get('why', '')}); such a joint has no ensemble spread.\n"
+        f"({record.get('why', '')}); its band comes from the map's gain spread over the "
+        "training log, not from the members.\n"
     )
 
 
@@ -228,7 +229,13 @@ def _budget_markdown(training: Mapping[str, Any]) -> str:
         return (
             f"\nTraining: the planned {planned} epochs ran"
             + (f" (epochs done per member: {done}; fewer: early stop)" if len(members) > 1 else "")
-            + "; the same data and seed give the same model on any load.\n"
+            + "; the same data and seed give the same model on any load"
+            + (
+                " and on any x86-64 CPU with AVX2 (portable numerics).\n"
+                if training.get("numerics") == "portable"
+                else " of this computer (another CPU's kernels train another one; "
+                "`EXSUR_NUMERICS=portable` gives the same bits on any x86-64 CPU with AVX2).\n"
+            )
         )
     which = ", ".join(f"{m.get('epochs_done', '?')} of {m.get('epochs_planned', '?')}" for m in cut)
     return (
