@@ -18,9 +18,10 @@ AVX2-only CPU or by turning the AVX-512 code off:
 
 ``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all four. The
 package's ``__init__`` sets the variables (unless already set) before it imports NumPy or
-torch, and :func:`apply` turns oneDNN off where a network is trained or run. Spawned training workers
-inherit both. The price is training speed on an AVX-512 computer (1.3-1.9x the time there);
-``bench/portable.py`` measures it and checks the bits under an emulated AVX2 CPU. The default, ``native``, leaves torch as it is.
+torch, and :func:`apply` turns oneDNN off where a network is trained or run. Spawned
+training workers inherit all of it. The price is training speed on an AVX-512 computer
+(1.05-1.9x the time there); ``bench/portable.py`` measures it and checks the bits under an
+emulated AVX2 CPU. The default, ``native``, leaves NumPy and torch as they are.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ ENV = "EXSUR_NUMERICS"
 MODES = ("native", "portable")
 """Accepted values of :data:`ENV`."""
 NUMPY_AVX512 = (
-    "X86_V4 AVX512_ICL AVX512_SPR "  # NumPy >= 2.4's dispatch targets
+    "X86_V4 AVX512_ICL AVX512_SPR "  # recent NumPy's dispatch targets (2.4 here)
     "AVX512F AVX512CD AVX512_KNL AVX512_KNM AVX512_SKX AVX512_CLX AVX512_CNL"  # older NumPy's
 )
 """NumPy's AVX-512 dispatch targets (names it does not know are ignored with an ImportWarning,
