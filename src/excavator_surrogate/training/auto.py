@@ -156,8 +156,7 @@ def auto_config(
         else plan_members(cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=choose)
     )
     workers = min(members, cpus)
-    n_train = trainings(members, choose=choose)
-    per_member = budget_s * workers / n_train
+    per_member = member_budget_s(members, budget_s, cpus=cpus, choose=choose)
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {per_member:.0f} s "
         f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s))"
@@ -174,7 +173,7 @@ def auto_config(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
             f"ignore them (same seeds); they are kept only if better on validation, overall "
             f"and on every joint, and the other {members - half} member(s) train the chosen "
-            f"way ({n_train} trainings in the budget)"
+            f"way ({trainings(members, choose=True)} trainings in the budget)"
         )
     n_val = len(dataset.val)
     short_val = n_val < SHORT_VAL_EPISODES
@@ -284,6 +283,12 @@ def trainings(members: int, *, choose: bool) -> int:
     return members + max(1, members // 2) if choose else members
 
 
+def member_budget_s(members: int, budget_s: float, *, cpus: int, choose: bool) -> float:
+    """Each training's share of the whole ``budget_s`` [s]: the trainings
+    (:func:`trainings`) run ``min(members, cpus)`` at a time."""
+    return budget_s * min(members, cpus) / trainings(members, choose=choose)
+
+
 def plan_members(member_s: float, budget_s: float, *, cpus: int, choose: bool) -> int:
     """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
     steps of the parallel workers, whose planned training (``member_s`` each on the reference
@@ -292,8 +297,7 @@ def plan_members(member_s: float, budget_s: float, *, cpus: int, choose: bool) -
     step = min(cpus, members)
     while members + step <= max_members(cpus):
         n = members + step
-        per_member = budget_s * min(n, cpus) / trainings(n, choose=choose)
-        if member_s > PLAN_SHARE * per_member:
+        if member_s > PLAN_SHARE * member_budget_s(n, budget_s, cpus=cpus, choose=choose):
             break
         members = n
     return members
