@@ -108,18 +108,15 @@ def check() -> str:
 
     capability = torch.backends.cpu.get_cpu_capability()
     wrong = {k: os.environ.get(k) for k, v in PINS.items() if os.environ.get(k) != v}
-    wide = numpy_avx512()
-    if capability not in PORTABLE_CAPABILITIES or wide or wrong:
-        found = (
-            f"found {wrong}"
-            if wrong
-            else f"ATen runs {capability} kernels"
-            if capability not in PORTABLE_CAPABILITIES
-            else f"NumPy runs {', '.join(wide)} loops"
-        )
+    found = [f"found {wrong}"] if wrong else []
+    if capability not in PORTABLE_CAPABILITIES:
+        found.append(f"ATen runs {capability} kernels")
+    if wide := numpy_avx512():
+        found.append(f"NumPy runs {', '.join(wide)} loops")
+    if found:
         raise ConfigError(
-            f"{ENV}=portable: {found}; set {ENV}=portable in the shell before Python starts "
-            f"(it must reach NumPy and torch before they load), and leave "
+            f"{ENV}=portable: {'; '.join(found)}; set {ENV}=portable in the shell before Python "
+            f"starts (it must reach NumPy and torch before they load), and leave "
             f"{', '.join(PINS)} unset (exsur sets them)"
         )
     return chosen
