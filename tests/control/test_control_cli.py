@@ -10,7 +10,13 @@ import pytest
 from excavator_surrogate.cli import main
 
 
-def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsys) -> None:
+def test_control_writes_the_report_folder(
+    tiny_ckpt: Path, tmp_path: Path, capsys, monkeypatch
+) -> None:
+    scratch = tmp_path / "scratch"  # the process's temp directory
+    scratch.mkdir()
+    monkeypatch.setattr("tempfile.tempdir", str(scratch))
+    monkeypatch.delenv("SB3_LOGDIR", raising=False)
     out = tmp_path / "ctl"
     argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "4", "--horizon", "3"]
     argv += ["--time-scale", "0.1", "--rl-steps", "64", "--rl-envs", "2", "--rl-eval", "2"]
@@ -24,6 +30,7 @@ def test_control_writes_the_report_folder(tiny_ckpt: Path, tmp_path: Path, capsy
         "learning_curve.png",
         "trajectories.npz",
     }
+    assert list(scratch.glob("SB3-*")) == []  # SB3's default logger made one per PPO run
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["mppi"]["runs"]) == {"mppi_surrogate", "mppi_oracle", "pi"}
     assert m["mppi"]["runs"]["mppi_surrogate"]["n_control_steps"] > 10

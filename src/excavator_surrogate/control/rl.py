@@ -189,6 +189,7 @@ def train(
     require_sb3()
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import Logger
 
     from .sb3_vec import GymnasiumVecEnv
 
@@ -242,6 +243,9 @@ def train(
         device="cpu",
         verbose=0,
     )
+    # SB3's default logger makes an empty ``SB3-<date>`` folder in the temp directory on every
+    # learn(), even with verbose=0: a logger with no outputs writes nothing anywhere.
+    model.set_logger(Logger(folder=None, output_formats=[]))
     vec.seed(cfg.seed)
     t0 = time.perf_counter()
     model.learn(total_timesteps=n_update * per_update, callback=Curve())
