@@ -5,11 +5,16 @@ from __future__ import annotations
 import math
 
 import pytest
+import torch
 
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.checkpoint import read_checkpoint
-from excavator_surrogate.training import train
-from excavator_surrogate.training.selection import first_eligible, selection_score
+from excavator_surrogate.training import loop, train
+from excavator_surrogate.training.selection import (
+    first_eligible,
+    first_validated,
+    selection_score,
+)
 from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
@@ -31,6 +36,34 @@ def test_first_eligible_epoch():
     assert first_eligible(110, 0.0) == 0
     assert first_eligible(110, 0.5) == 55
     assert first_eligible(3, 0.5) == 1
+
+
+def test_first_validated_epoch():
+    # the first competitor's score reads the `smooth` epochs before it, no earlier one
+    assert first_validated(110, 0.5, smooth=4, plateau=False) == 51
+    assert first_validated(110, 0.0, smooth=4, plateau=False) == 0
+    assert first_validated(4, 0.5, smooth=4, plateau=False) == 0
+    # the plateau schedule steps on every epoch's validation error
+    assert first_validated(110, 0.5, smooth=4, plateau=True) == 0
+
+
+def test_skipping_early_validation_changes_no_weight_and_no_score(tmp_path, monkeypatch):
+    cfg = tiny_train_config(epochs=6, select_after=0.5, select_smooth=1, lr_schedule="cosine")
+    data = tiny_dataset(2, n_train=2, n_step=120)
+    fast = read_checkpoint(train(cfg, data, out=tmp_path / "fast", show_progress=False))
+    rows = fast["history"]
+    assert [r["validated"] for r in rows] == [0, 0, 1, 1, 1, 1]  # eligible from 3, smooth 1
+    assert all(math.isnan(r["val_error"]) for r in rows[:2])
+    # the reference: every epoch validated
+    monkeypatch.setattr(loop, "first_validated", lambda *a, **k: 0)
+    ref = read_checkpoint(train(cfg, data, out=tmp_path / "ref", show_progress=False))
+    assert all(r["validated"] == 1 for r in ref["history"])
+    assert fast["metrics"]["epoch"] == ref["metrics"]["epoch"]
+    for a, b in zip(rows[2:], ref["history"][2:]):  # NaN: not eligible yet
+        assert a["val_error"] == b["val_error"]
+        assert a["select_score"] == b["select_score"] or math.isnan(b["select_score"])
+    for k, v in ref["state_dict"].items():
+        assert torch.equal(fast["state_dict"][k], v), k
 
 
 def test_only_epochs_after_select_after_compete(tmp_path):

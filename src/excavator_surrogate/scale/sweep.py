@@ -278,6 +278,8 @@ class _Objective:
         state = {"pruned_at": None}
 
         def on_epoch(epoch: int, row: Mapping[str, Any]) -> bool:
+            if not row.get("validated", 1):  # before select_after: nothing to report yet
+                return False
             v = float(row["val_error"])
             trial.report(v if math.isfinite(v) else _CAP, epoch)
             if trial.should_prune():

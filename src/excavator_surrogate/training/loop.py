@@ -49,7 +49,14 @@ from .records import (
     write_log,
 )
 from .resume import start
-from .selection import choose, first_eligible, is_better, selection_score
+from .selection import (
+    choose,
+    first_eligible,
+    first_validated,
+    is_better,
+    not_validated,
+    selection_score,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -175,6 +182,14 @@ def train_network(
     cands = [("raw", sur)] + ([("ema", optim.ema_sur)] if optim.ema_sur is not None else [])
     done, stopped = st.epoch, "planned"
     say(f"planned: {cfg.epochs} epochs{budget_note(budget)}")
+    validate_from = first_validated(
+        cfg.epochs, cfg.select_after, smooth=cfg.select_smooth, plateau=cfg.lr_schedule == "plateau"
+    )
+    if validate_from > st.epoch:
+        say(
+            f"validating from epoch {validate_from} on: no earlier epoch competes for best.pt "
+            f"(select_after {cfg.select_after:g}, select_smooth {cfg.select_smooth})"
+        )
     try:
         for epoch in range(st.epoch, cfg.epochs):
             rng = np.random.default_rng([cfg.seed, epoch])
@@ -197,7 +212,11 @@ def train_network(
             t1 = time.monotonic()
             check_finite(net, epoch=epoch, lr=optim.lr)  # one line, before anything is saved
             loss, n = par.global_loss(loss, n)
-            choice = choose(cands, val_eps, par, max_steps=val_steps)
+            validated = epoch >= validate_from
+            if validated:
+                choice = choose(cands, val_eps, par, max_steps=val_steps)
+            else:
+                choice = not_validated(cands, spec.n_joint)
             val = choice.val
             t2 = time.monotonic()
             net.train()
@@ -221,6 +240,7 @@ def train_network(
             )
             if cfg.select_smooth or cfg.select_after:
                 row["select_score"] = score if eligible else math.nan
+                row["validated"] = int(validated)
             history.append(row)
             if improved:
                 best_val, bad = score, 0
@@ -251,11 +271,17 @@ def train_network(
                     )
                 save_checkpoint(last_path, sur, history=history, train_state=state)
                 write_log(out / "log.csv", history)
-            tb_epoch(tb, epoch, loss=loss, val=val, lr=lr, names=spec.names)
+            if validated:
+                tb_epoch(tb, epoch, loss=loss, val=val, lr=lr, names=spec.names)
+            scores = (
+                f"val_error {val['val_error']:.4g}, min theta R2 {min(val['theta_r2']):.3f}"
+                if validated
+                else "not validated"
+            )
+            picked = choice.pick if validated and optim.ema_sur is not None else ""
             say(
-                f"epoch {epoch}: loss {loss:.4g}, val_error {val['val_error']:.4g}, "
-                f"min theta R2 {min(val['theta_r2']):.3f}, lr {lr:.2g}, "
-                f"{'(' + choice.pick + ' weights) ' if optim.ema_sur is not None else ''}"
+                f"epoch {epoch}: loss {loss:.4g}, {scores}, lr {lr:.2g}, "
+                f"{'(' + picked + ' weights) ' if picked else ''}"
                 f"{t1 - t0:.1f}+{t2 - t1:.1f} s{' *' if improved else ''}"
             )
             stop_req = bool(on_epoch(epoch, dict(row))) if on_epoch is not None and main else False

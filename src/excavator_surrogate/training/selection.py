@@ -6,7 +6,9 @@ are rolled out in closed loop on the validation episodes on the main rank
 ``best.pt``.  The result is broadcast, so every rank keeps the same bookkeeping.  When the
 validation split is short (one or two segments), the recipe makes the competition sound:
 only epochs after ``select_after`` of the plan compete, each scored with its recent
-neighbours (:func:`selection_score`).
+neighbours (:func:`selection_score`).  The epochs before them are not validated at all
+(:func:`first_validated`), except the few whose errors the first competitors' scores read:
+on a continuous log the validation free run costs several times the epoch's training.
 """
 
 from __future__ import annotations
@@ -71,6 +73,27 @@ def is_better(val_error: float, best: float, *, min_delta: float) -> bool:
 def first_eligible(epochs: int, select_after: float) -> int:
     """First epoch that may compete for ``best.pt``: ``floor(select_after * epochs)``."""
     return math.floor(select_after * epochs)
+
+
+def first_validated(epochs: int, select_after: float, *, smooth: int, plateau: bool) -> int:
+    """First epoch that is validated: the first that may compete (:func:`first_eligible`)
+    less the ``smooth`` before it whose errors its score reads (:func:`selection_score`), so
+    skipping the others changes no score; 0 for the ``plateau`` schedule, which steps on
+    every epoch's validation error."""
+    if plateau:
+        return 0
+    return max(0, first_eligible(epochs, select_after) - smooth)
+
+
+def not_validated(cands: list[tuple[str, Surrogate]], n_joint: int) -> Choice:
+    """The :class:`Choice` of an epoch before :func:`first_validated`: every score NaN, the
+    raw weights picked (it competes for nothing)."""
+    nan = [math.nan] * n_joint
+    vals = {
+        label: {"val_error": math.nan, "theta_rmse": nan, "theta_r2": nan, "omega_rmse": nan}
+        for label, _ in cands
+    }
+    return Choice(vals=vals, pick=cands[0][0], chosen=cands[0][1])
 
 
 def selection_score(recent: list[float], *, smooth: int) -> float:
