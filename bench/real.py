@@ -243,20 +243,23 @@ def training_log(out: Path) -> dict:
     """What the training logs of a recipe run say: per member, epochs run, the epoch of the
     lowest validation error (the selected one unless the recipe smooths its selection), the
     validation error at the first, that and the last epoch, and the worst joint's validation
-    angle R^2 there (against the test's: how optimistic the selection is)."""
+    angle R^2 there (against the test's: how optimistic the selection is); the first is the
+    first validated epoch."""
     members = []
     logs = sorted(out.rglob("member_*/log.csv")) or sorted(out.rglob("log.csv"))
     for path in logs:
         with path.open() as f:
-            rows = [r for r in csv.DictReader(f) if r.get("val_error")]
+            every = list(csv.DictReader(f))
+        # epochs before select_after are not validated (their val_error is nan)
+        rows = [r for r in every if math.isfinite(float(r.get("val_error") or "nan"))]
         if not rows:
             continue
         err = [float(r["val_error"]) for r in rows]
         best = int(np.argmin(err))
         members.append(
             {
-                "epochs_run": len(rows),
-                "lowest_val_epoch": best + 1,
+                "epochs_run": len(every),
+                "lowest_val_epoch": int(rows[best]["epoch"]) + 1,
                 "val_first_best_last": [round(err[0], 4), round(err[best], 4), round(err[-1], 4)],
                 "val_theta_r2_min_at_best": round(
                     float(rows[best].get("val_theta_r2_min", "nan")), 4
