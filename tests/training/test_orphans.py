@@ -10,9 +10,11 @@ minutes), not a timing measurement.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -101,11 +103,22 @@ def _alive(pid: int) -> bool:
 def _kill_parent_and_wait(script: str, tmp_path: Path) -> list[int]:
     """Run ``script`` as a parent process, SIGKILL it once it wrote ``pids``; returns the pids
     still alive at the deadline (killed afterwards, so nothing outlives the test)."""
+    # a killed parent cannot remove its multiprocessing temp folder: give it its own, short
+    # (it holds AF_UNIX sockets), and remove it afterwards
+    scratch = Path(tempfile.mkdtemp(prefix="exsur-test-"))
+    try:
+        return _run_and_kill(script, tmp_path, scratch)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _run_and_kill(script: str, tmp_path: Path, scratch: Path) -> list[int]:
     path = tmp_path / "parent.py"
     path.write_text(textwrap.dedent(script))
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+        "TMPDIR": str(scratch),
     }
     parent = subprocess.Popen([sys.executable, str(path), str(tmp_path)], cwd=ROOT, env=env)
     try:
