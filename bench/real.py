@@ -1,6 +1,6 @@
-"""Real-machine fidelity: the default recipe on two data shapes, next to its baselines.
+"""Real-machine fidelity: the default recipe on four data shapes, next to its baselines.
 
-Three cases (:data:`CASES`, a dict of case builders; add a shape by adding a builder):
+Four cases (:data:`CASES`, a dict of case builders; add a shape by adding a builder):
 
 - ``h1``: the h1-dev development set (``../shared/real/h1-dev``: 143 valve-duty step runs of a
   production hydraulic excavator, third-party data that is never shipped with exsur; see its
@@ -11,6 +11,11 @@ Three cases (:data:`CASES`, a dict of case builders; add a shape by adding a bui
   simulated on the fly into a temporary folder and split in time: 340 s train, the next
   100 s validate, the last 160 s test; scored on the test.  Imported as a user's log would
   be: the spec declares no end stops or speed bounds.
+- ``sessions``: short sessions on several days (preset ``sessions-dig``): 15 separate
+  sessions of the same operator model and plant, each with its own draw of the operator and
+  its own oil temperature (the machine up to 25 % slower cold), so the speed differs from
+  session to session as from day to day; 12 sessions of 150 s train, 2 validate, the last
+  (180 s) is scored.  Imported like the continuous log.
 - ``stroke``: linear joints.  ``quick-hydraulic``'s runs written by
   ``examples/stroke_make_logs.py`` as a stroke-sensing machine's CSV logs (the swing an
   encoder in deg; boom, arm and bucket cylinder strokes in mm through a made-up linkage) and
@@ -33,8 +38,8 @@ For each shape, in one run on the same data:
 
 ``--condition`` also trains the recipe on the shape's run-condition variant: h1's H/L run
 condition as a per-run input (``examples/real_excavator_condition.toml``); the continuous
-log's engine throttle as the input ``u_throttle``; the JSON gains a ``condition`` block per
-shape and the goal ``condition_does_not_hurt``.
+log's and the sessions' engine throttle as the input ``u_throttle``; the JSON gains a
+``condition`` block per shape and the goal ``condition_does_not_hurt``.
 
 Prints a table per shape and ends with ONE JSON line; its ``goals`` are
 ``<shape>/<goal>``: the recipe's median beats the plain LSTM, ARX and the structured
@@ -42,7 +47,7 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 <= 600 s; every free run stays inside the observed envelope.  A shape whose data is missing
 (h1 without ``../shared``) is reported as skipped.  Usage::
 
-    python bench/real.py [--shape h1|continuous|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
+    python bench/real.py [--shape h1|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
 
 ``--smoke``: one seed, one member, 2 epochs, 2 plain-LSTM epochs (a minute: the plumbing
@@ -152,20 +157,46 @@ def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
     return load_dataset(out)
 
 
-def _continuous(work: Path, args: argparse.Namespace) -> Case:
+def _simulated(
+    work: Path, args: argparse.Namespace, preset: str, name: str, split: Callable[..., str]
+) -> Case:
+    """A stand-in log of ``preset`` (seed ``--sim-seed``) as imported (``_as_logged``), its
+    engine throttle as the condition variant; ``split(cfg)`` says how it is split."""
     from excavator_surrogate.simulate.generate import SimulateConfig, simulate_dataset
 
-    cfg = SimulateConfig.from_preset(load_preset("continuous-dig"), seed=args.sim_seed)
-    simulate_dataset(cfg, out=work / "continuous_sim")
-    sim = load_dataset(work / "continuous_sim")
+    cfg = SimulateConfig.from_preset(load_preset(preset), seed=args.sim_seed)
+    simulate_dataset(cfg, out=work / f"{name}_sim")
+    sim = load_dataset(work / f"{name}_sim")
     return Case(
-        _as_logged(sim, work / "continuous", inputs=False),
+        _as_logged(sim, work / name, inputs=False),
         "test",
-        f"one {cfg.steps_train / cfg.rate_hz:.0f}-s log in time: train | {cfg.val_s:g} s val | "
-        f"{cfg.test_s:g} s test (scored)",
-        lambda: _as_logged(sim, work / "continuous_throttle", inputs=True),
+        split(cfg),
+        lambda: _as_logged(sim, work / f"{name}_throttle", inputs=True),
         "engine throttle u_throttle",
     )
+
+
+def _in_time(cfg) -> str:
+    return (
+        f"one {cfg.steps_train / cfg.rate_hz:.0f}-s log in time: train | {cfg.val_s:g} s val | "
+        f"{cfg.test_s:g} s test (scored)"
+    )
+
+
+def _by_session(cfg) -> str:
+    return (
+        f"{cfg.n_train} sessions of {cfg.steps_train / cfg.rate_hz:.0f} s train | {cfg.n_val} "
+        f"validate | 1 of {cfg.steps_test / cfg.rate_hz:.0f} s tests (scored); each session "
+        f"its own oil temperature (up to {cfg.hydraulics.drift_amplitude:.0%} slower cold)"
+    )
+
+
+def _continuous(work: Path, args: argparse.Namespace) -> Case:
+    return _simulated(work, args, "continuous-dig", "continuous", _in_time)
+
+
+def _sessions(work: Path, args: argparse.Namespace) -> Case:
+    return _simulated(work, args, "sessions-dig", "sessions", _by_session)
 
 
 def _stroke(work: Path, args: argparse.Namespace) -> Case:
@@ -193,6 +224,7 @@ def _stroke(work: Path, args: argparse.Namespace) -> Case:
 CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
     "h1": _h1,
     "continuous": _continuous,
+    "sessions": _sessions,
     "stroke": _stroke,
 }
 """Data shapes by name: ``builder(work_dir, args) -> Case`` (or a reason to skip it)."""

@@ -1,4 +1,5 @@
-"""The continuous-log case: the dig_session operator, the engine throttle input, the split in time."""
+"""The continuous-log and sessions cases: the dig_session operator, the engine throttle input,
+the split in time, separate sessions."""
 
 from __future__ import annotations
 
@@ -80,6 +81,24 @@ def test_the_throttle_scales_the_pump():
         out.append(t(u))
     np.testing.assert_allclose(out[1], 0.5 * out[0], rtol=1e-12)
     assert out[0][0, -1, 1] < 1000.0  # already pump-limited at full throttle
+
+
+def test_sessions_are_separate_runs_each_with_its_own_oil_temperature(tmp_path):
+    preset = SimulateConfig.from_preset(load_preset("sessions-dig"))
+    assert (preset.n_train, preset.n_val, preset.n_test) == (12, 2, 1)
+    assert (preset.val_s, preset.test_s) == (0.0, 0.0)  # not cut in time
+    assert preset.hydraulics.drift and preset.soil.enabled
+    # three short sessions of the same preset
+    cfg = dataclasses.replace(
+        preset, n_train=2, n_val=0, steps_train=200, steps_test=200, workers=1
+    )
+    ds = load_dataset(simulate_dataset(cfg, out=tmp_path / "ds"))
+    eps = ds.train + ds.test
+    assert [e.n_step for e in eps] == [200, 200, 200]
+    amps = [e.generator["plant"]["drift_amplitude"] for e in eps]
+    assert len(set(amps)) == 3 and all(0 <= a < preset.hydraulics.drift_amplitude for a in amps)
+    starts = np.array([e.theta[0] for e in eps])
+    assert np.ptp(starts[:, 1:], axis=0).max() > 0.05  # each session starts somewhere else
 
 
 def test_the_preset_is_one_long_log_cut_in_time():
