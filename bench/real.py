@@ -56,9 +56,11 @@ only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training 
 cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
 the end, and ``timings_under_load`` when either is above 1.5.
 
-Takes about 40 min for h1 on the 2-core reference machine; the continuous case plans about
-11 min of recipe training per seed there (4 members of 162 s, two at a time), twice that
-with ``--condition`` (estimates from the recipe's plan: measured only under load so far).
+Takes about 40 min for h1 on the 2-core reference machine.  On computer B (quiet): the
+continuous case's recipe trains in about 3.5 min per seed (4 members of 94-106 s, two at a
+time; the recipe plans 162 s a member, but the epochs before ``select_after`` are not
+validated), the sessions case's in about 4.5 min per seed, and its plain LSTM in 11 min;
+``--condition`` adds about as much again per seed.
 """
 
 from __future__ import annotations
