@@ -57,7 +57,7 @@ cores are not the reference machine's: the JSON records ``load_avg_1min`` at the
 the end, and ``timings_under_load`` when either is above 1.5.
 
 Takes about 40 min for h1 on the 2-core reference machine.  On computer B (quiet): the
-continuous case's recipe trains in about 3.5 min per seed (4 members of 94-106 s, two at a
+continuous case's recipe trains in about 4 min per seed (4 members of 102-117 s, two at a
 time; the recipe plans 162 s a member, but the epochs before ``select_after`` are not
 validated), the sessions case's in about 4.5 min per seed, and its plain LSTM in 11 min;
 ``--condition`` adds about as much again per seed.
