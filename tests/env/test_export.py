@@ -45,15 +45,16 @@ def _step_side_by_side(
     ],
 )
 @pytest.mark.parametrize(
-    ("end_stops", "play", "omega_in", "prior"),
+    ("end_stops", "play", "omega_in", "prior", "delayed_map"),
     [
-        (False, (), False, False),
-        (True, (), False, False),
-        (False, (0.05, 0.2), False, False),
-        (True, (), True, False),
-        (True, (), False, True),
+        (False, (), False, False, False),
+        (True, (), False, False, False),
+        (False, (0.05, 0.2), False, False, False),
+        (True, (), True, False, False),
+        (True, (), False, True, False),
+        (False, (), False, False, True),
     ],
-    ids=["free", "stops", "play", "velocity", "prior"],
+    ids=["free", "stops", "play", "velocity", "prior", "delayed-map"],
 )
 def test_onnx_stepper_matches_torch(
     mode: str,
@@ -63,17 +64,26 @@ def test_onnx_stepper_matches_torch(
     play: tuple[float, ...],
     omega_in: bool,
     prior: bool,
+    delayed_map: bool,
     tmp_path: Path,
 ) -> None:
     sur = variant_surrogate(
-        mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in, prior=prior
+        mode=mode,
+        cell=cell,
+        end_stops=end_stops,
+        play=play,
+        omega_in=omega_in,
+        prior=prior,
+        delayed_map=delayed_map,
     )
+    lagged = bool(sur.norm.lags)  # a delayed map: its delay line travels in z
+    assert lagged == (delayed_map and cell != "arx")
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)
     names = [i.name for i in model.graph.input]
     expect = ["theta", "u", "h", "c"] if mode == "stateful" else ["theta", "u"]
-    assert names == expect + (["z"] if play else []) + (["w"] if omega_in else [])
+    assert names == expect + (["z"] if play or lagged else []) + (["w"] if omega_in else [])
     stepper = OnnxStepper(path)
     assert stepper.spec == sur.spec and stepper.mode == mode
     th = _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=5), n_step=40, seed=0)

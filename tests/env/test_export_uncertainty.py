@@ -29,8 +29,9 @@ EPS32 = float(np.finfo(np.float32).eps)
         ("torchscript", dict(prior=True)),
         ("torchscript", dict(map_joints=True)),
         ("dynamo", dict(map_joints=True)),
+        ("torchscript", dict(map_joints="delayed", play=(0.1,))),
     ],
-    ids=["play-velocity", "residual", "prior", "map-torchscript", "map-dynamo"],
+    ids=["play-velocity", "residual", "prior", "map-torchscript", "map-dynamo", "delayed-map"],
 )
 def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, exporter, kw) -> None:
     """onnxruntime's ``omega_members`` equal the engine's members (same network call) every
@@ -38,8 +39,8 @@ def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, expor
     the static map, which each member drives with its own gain."""
     on_map = kw.pop("map_joints", False)
     sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful", **kw) for s in range(3)])
-    if on_map:
-        sur = on_static_map(sur)
+    if on_map:  # "delayed": the swing's and the bucket's maps read earlier commands
+        sur = on_static_map(sur, delay=(3, 0, 0, 1) if on_map == "delayed" else None)
     path = export_onnx(sur, tmp_path / "ens.onnx", exporter=exporter, uncertainty=True)
     names = [o.name for o in onnx.load(str(path)).graph.output]
     assert names[-1] == "omega_members"
@@ -51,6 +52,7 @@ def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, expor
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
     stepper.reset(theta0)
     engine.reset(theta0)
+    spread = []
     for _ in range(20):
         u = rng.uniform(-1000, 1000, (n, 4))
         _, om = stepper.step(u)
@@ -61,7 +63,13 @@ def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, expor
         np.testing.assert_allclose(stepper.omega_members, om_m, atol=tol, rtol=0)
         # the members' mean is the central velocity (before any speed bound: none here)
         np.testing.assert_allclose(stepper.omega_members.mean(0), om, atol=tol, rtol=0)
-    assert np.std(stepper.omega_members, axis=0).min() > 10 * tol  # members disagree
+        spread.append(np.std(stepper.omega_members, axis=0))
+    # members disagree; on a map joint only where the map moves it (a command in the dead
+    # zone gives every member's gain times 0)
+    spread = np.stack(spread)  # (n_step, n, 4)
+    moving = [1, 2] if on_map else [0, 1, 2, 3]
+    assert spread[..., moving].min() > 10 * tol
+    assert spread.max(axis=0).min() > 10 * tol
 
 
 def test_uncertainty_export_refuses_what_has_none(make_surrogate, tmp_path: Path, capsys) -> None:

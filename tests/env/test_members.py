@@ -11,6 +11,7 @@ from excavator_surrogate.env.members import MemberLSTM, from_dense, to_dense
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.rollout import rollout_reference
+from tests.helpers.surrogates import on_static_map
 
 KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2), omega_in=True)
 
@@ -28,11 +29,17 @@ def test_layout_round_trip() -> None:
     torch.testing.assert_close(m[:, 1], h[:, :, 4:8])
 
 
-def test_members_kernel_equals_plain_loop_and_dense_kernels(members) -> None:
+@pytest.mark.parametrize("delayed_map", [False, True], ids=["network", "delayed-map"])
+def test_members_kernel_equals_plain_loop_and_dense_kernels(members, delayed_map) -> None:
     """Three members stepped as one batched matmul equal the members stepped one by one with
     their omega averaged (the plain loop), and the dense cell and module kernels; masked
-    resets and a fork from a dense one-env engine keep them equal."""
+    resets and a fork from a dense one-env engine keep them equal (also with the swing and
+    the bucket on a static map with delays 2 and 1: the fork carries the delay line)."""
     ens = merge(members)
+    ref = members
+    if delayed_map:
+        ens = ref = on_static_map(ens, delay=(2, 0, 0, 1))
+        assert ens.norm.lags == (2, 0, 0, 1)
     rng = np.random.default_rng(5)
     n, w, n_cmd = 4, members[0].window, 30
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
@@ -45,7 +52,7 @@ def test_members_kernel_equals_plain_loop_and_dense_kernels(members) -> None:
         out[k] = np.stack([eng.step(u[:, j])[0].numpy().copy() for j in range(n_cmd)], axis=1)
     for i in range(n):
         u_ref = np.concatenate([np.zeros((w - 1, 4)), u[i], np.zeros((1, 4))])
-        th_ref, _ = rollout_reference(members, np.repeat(theta0[i][None], w, 0), u_ref)
+        th_ref, _ = rollout_reference(ref, np.repeat(theta0[i][None], w, 0), u_ref)
         np.testing.assert_allclose(out["members"][i], th_ref[w:], atol=1e-5)
     for k in ("cell", "module"):
         np.testing.assert_allclose(out["members"], out[k], atol=1e-5)

@@ -70,6 +70,8 @@ def _plain(sur, theta0: np.ndarray, u: np.ndarray, design: str = "shared"):
         ("windowed", "auto", False),
         ("stateful", "cell", True),
         ("windowed", "auto", True),
+        ("stateful", "members", "delayed"),
+        ("windowed", "auto", "delayed"),
     ],
 )
 def test_engine_bands_and_flags_equal_the_plain_loop(
@@ -83,8 +85,8 @@ def test_engine_bands_and_flags_equal_the_plain_loop(
         kw = dict(KW, omega_in=False) if on_map else KW
         sur = merge([make_surrogate(seed=s, hidden=16, mode=mode, **kw) for s in range(3)])
         sur.metrics["coverage"] = ens.metrics["coverage"]
-    if on_map:
-        sur = on_static_map(sur)
+    if on_map:  # "delayed": the swing's map reads the command 2 samples back
+        sur = on_static_map(sur, delay=(2, 0, 0, 1) if on_map == "delayed" else None)
         assert sur.metrics["ensemble"]["map_gain_dev"][0][0] < 0
     rng = np.random.default_rng(1)
     n, n_step, w = 5, 25, sur.window

@@ -97,15 +97,16 @@ def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("end_stops", "play", "omega_in", "prior"),
+    ("end_stops", "play", "omega_in", "prior", "delayed_map"),
     [
-        (False, (), False, False),
-        (True, (), False, False),
-        (False, (0.05, 0.2), False, False),
-        (True, (0.05,), True, False),
-        (True, (), False, True),
+        (False, (), False, False, False),
+        (True, (), False, False, False),
+        (False, (0.05, 0.2), False, False, False),
+        (True, (0.05,), True, False, False),
+        (True, (), False, True, False),
+        (False, (0.05,), False, False, True),
     ],
-    ids=["free", "stops", "play", "velocity", "prior"],
+    ids=["free", "stops", "play", "velocity", "prior", "delayed-map"],
 )
 @pytest.mark.parametrize(
     ("mode", "cell"),
@@ -118,13 +119,21 @@ def test_engine_matches_closed_loop_reference(
     play: tuple[float, ...],
     omega_in: bool,
     prior: bool,
+    delayed_map: bool,
 ) -> None:
     """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
     (with end stops: driven into them, and both stop at the same place; with command play
     features: the engine carries the same play states; with the velocity feature: the same
-    fed-back velocities, clipped at the stops)."""
+    fed-back velocities, clipped at the stops; with a delayed static map: the same delay
+    line of commands)."""
     sur = variant_surrogate(
-        mode=mode, cell=cell, end_stops=end_stops, play=play, omega_in=omega_in, prior=prior
+        mode=mode,
+        cell=cell,
+        end_stops=end_stops,
+        play=play,
+        omega_in=omega_in,
+        prior=prior,
+        delayed_map=delayed_map,
     )
     rng = np.random.default_rng(2)
     n, w = 3, sur.window

@@ -50,3 +50,14 @@ def test_the_note_says_whether_the_bits_hold_on_another_cpu():
     assert "any x86-64 CPU with AVX2" in portable and "of this computer" not in portable
     old = training_markdown({"epochs_planned": 3, "epochs_done": 3})  # before numerics existed
     assert "of this computer" in old
+
+
+def test_a_delayed_map_says_its_delay():
+    rec = {
+        "chosen": ["swing"],
+        "names": ["swing", "boom"],
+        "map": {"delay_s": [0.65, 0.2]},
+        "why": "swing follow(s) the static map",
+    }
+    text = training_markdown({"epochs_planned": 30, "static_map": rec})
+    assert "gain per direction, delay swing 0.65 s)" in text and "boom 0.20" not in text

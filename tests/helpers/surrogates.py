@@ -120,11 +120,14 @@ def variant_surrogate(
     play: tuple[float, ...],
     omega_in: bool,
     prior: bool = False,
+    delayed_map: bool = False,
 ) -> Surrogate:
     """:func:`tiny_surrogate` for the runtime-equivalence tests: with end stops it is driven
-    into them, a velocity feature comes with the residual head, and ``prior`` gives a speed
-    prior (both where the cell has a head: not ARX, which then runs without them)."""
-    return tiny_surrogate(
+    into them, a velocity feature comes with the residual head, ``prior`` gives a speed
+    prior (both where the cell has a head: not ARX, which then runs without them), and
+    ``delayed_map`` puts the swing and the bucket on a static map with delays 2 and 0
+    (:func:`on_static_map`; LSTM/GRU without a head only)."""
+    sur = tiny_surrogate(
         mode=mode,
         cell=cell,
         end_stops=end_stops,
@@ -134,11 +137,13 @@ def variant_surrogate(
         residual=omega_in and cell != "arx" and not prior,
         prior=prior and cell != "arx",
     )
+    return on_static_map(sur, delay=(2, 0, 0, 0)) if delayed_map and cell != "arx" else sur
 
 
-def on_static_map(sur):
+def on_static_map(sur, *, delay: tuple[int, ...] | None = None):
     """``sur`` with the swing and the bucket on a static map with a gain spread (members
-    drive them with gains 1 + sigma z_m)."""
+    drive them with gains 1 + sigma z_m), reading commands ``delay`` samples back (per
+    joint; None: no delay)."""
     spec = sur.spec
     n_j = spec.n_joint
     fit = {
@@ -149,4 +154,6 @@ def on_static_map(sur):
         "k_neg": [8e-4] * n_j,
         "gain_spread": [0.2, 0.1, 0.1, 0.3],
     }
+    if delay is not None:
+        fit["delay"] = list(delay)
     return with_map_joints(sur, fit, [True, False, False, True])

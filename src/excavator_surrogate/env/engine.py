@@ -133,7 +133,7 @@ class SurrogateEngine:
         n_joint = self.spec.n_joint
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
         self.norm = sur.norm.to(self.device, torch.float32)
-        self.z = torch.zeros(self.n_envs, self.norm.n_play, n_joint, device=self.device)
+        self.z = torch.zeros(self.n_envs, self.norm.n_state, n_joint, device=self.device)
         self.omega_in = bool(self.norm.omega_in)
         self.w = torch.zeros_like(self.theta)
         self.theta_prev = torch.zeros_like(self.theta)
@@ -181,8 +181,9 @@ class SurrogateEngine:
     def _play_step(
         self, z: torch.Tensor, u: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Play states after ``u`` and their raw features (None without play features)."""
-        if not self.norm.n_play:
+        """Command states (play operators, delay line) after ``u`` and their raw features
+        (None without any)."""
+        if not self.norm.n_state:
             return z, None
         return play_and_features(self.norm, z, u)
 
@@ -275,6 +276,9 @@ class SurrogateEngine:
         u0 = torch.as_tensor(self.u_rest, device=self.device).expand(m, -1).float()
         n_warm = self.window - 1
         z0, p0 = self._play_step(self.z.new_zeros(m, *self.z.shape[1:]), u0)
+        q = self.norm.n_play
+        if self.norm.n_line:  # at rest: the delay line holds the rest command throughout
+            z0[:, q:] = z0[:, -1:]
         self.z.index_copy_(0, idx, z0)  # at rest: one step reaches the play operators' fixed point
         if self.mode == "stateful":
             f = self.fused
@@ -409,7 +413,8 @@ class SurrogateEngine:
                 w1, b1, w2, b2 = self._head
                 a = torch.relu(torch.addmm(b1, out, w1.t()))
                 omega = torch.addmm(b2, a, w2.t())
-                base = f.base(u_t, w_t)  # omega[k] (residual) or s(u[k]) (prior), else None
+                # omega[k] (residual) or s(u[k - d]) (prior), else None
+                base = f.base(u_t, w_t, self.z)
                 if unc is not None and unc.n_member:  # the same call's activations, per member
                     om_m = unc.members_from_activations(a, base)
                 if base is not None:

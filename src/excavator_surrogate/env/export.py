@@ -40,14 +40,15 @@ and ω[k], which is the input ``w`` with a velocity feature, else one more input
 ``omega_prev`` (n_batch, n_joint) [rad/s]: the previous step's ``omega`` (zeros at rest).
 
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
-of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q,
-n_joint), the play states after each of them, with play features; ``w``, (n_batch, W,
+of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q + L,
+n_joint), the command states after each of them, with play features or delayed commands; ``w``, (n_batch, W,
 n_joint), their velocity features, with a velocity feature); outputs ``omega`` and
 ``theta_next`` as above (the encoding and normalisation are in the graph).
 
 The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON machine
 spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``,
 ``exsur_play`` (JSON list of play half-widths, empty without play features),
+``exsur_lags`` (JSON list of per-joint command delays [samples], empty without delayed commands),
 ``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_members`` (M with the
 ``omega_members`` output, else ``0``), ``exsur_ood`` (``1`` with the ``ood`` output),
 ``exsur_units`` (JSON, per joint: ``theta``/``omega`` in rad or, for a linear joint, m, and
@@ -71,7 +72,13 @@ from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.coverage import channel_names
-from ..surrogate.features import integrate, play_features, play_np, scale_commands_np
+from ..surrogate.features import (
+    integrate,
+    line_features,
+    play_features,
+    play_np,
+    scale_commands_np,
+)
 from ..surrogate.model import Surrogate
 from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode
@@ -94,9 +101,10 @@ class WindowStep(nn.Module):
         self.net = sur.net
         norm = sur.norm.to("cpu", torch.float32)
         self.periodic = tuple(norm.periodic)
-        for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play"):
+        for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play", "lag_index"):
             self.register_buffer(k, getattr(norm, k).clone())
         self.n_play = norm.n_play
+        self.n_state = norm.n_state
         self.omega_in = norm.omega_in
         self.dt = float(sur.spec.dt)
         add_end_stops(self, sur)
@@ -115,10 +123,13 @@ class WindowStep(nn.Module):
             parts += [torch.sin(th), torch.cos(th)] if p else [th]
         us = (u - self.u_center) / self.u_scale
         parts.append(us)
+        if self.n_state and z is None:
+            raise ValueError("this surrogate has command states: pass z")
         if self.n_play:
-            if z is None:
-                raise ValueError("this surrogate has play features: pass the play states z")
-            parts.append(play_features(z, us[..., : len(self.periodic)], self.play))
+            zp = z[..., : self.n_play, :]
+            parts.append(play_features(zp, us[..., : len(self.periodic)], self.play))
+        if self.n_state > self.n_play:
+            parts.append(line_features(z[..., self.n_play :, :], self.lag_index))
         if self.omega_in:
             if w is None:
                 raise ValueError("this surrogate has a velocity feature: pass w")
@@ -225,7 +236,7 @@ def export_onnx(
     mode = mode or sur.mode
     spec = sur.spec
     n_joint, n_u = spec.n_joint, spec.n_u
-    n_play = sur.norm.n_play
+    n_play = sur.norm.n_state  # rows of the command state z (play operators, delay line)
     omega_in = sur.norm.omega_in
     n_b = 2
     if uncertainty and mode != "stateful":
@@ -405,6 +416,7 @@ def _add_metadata(
         "exsur_hidden": str(sur.model_cfg.hidden),
         "exsur_name": sur.name,
         "exsur_play": json.dumps(list(sur.norm.play_widths)),
+        "exsur_lags": json.dumps(list(sur.norm.lags)),
         "exsur_omega_in": str(int(sur.norm.omega_in)),
         "exsur_members": str(int(n_member)),
         "exsur_ood": str(int(ood)),
@@ -473,6 +485,10 @@ class OnnxStepper:
         self.u_rest = rest_command(self.spec).astype(np.float32)
         self.play = np.asarray(json.loads(meta.get("exsur_play", "[]")), dtype=np.float32)
         """(Q,) play half-widths (empty: no play features)."""
+        self.lags = [int(d) for d in json.loads(meta.get("exsur_lags", "[]"))]
+        """(n_joint,) command delays of the delayed-command features [samples] (empty: none)."""
+        self.n_state = len(self.play) + (max(self.lags) + 1 if self.lags else 0)
+        """Rows Q + L of the command state ``z``: play operators, then the delay line."""
         self.omega_in = meta.get("exsur_omega_in", "0") == "1"
         """Whether the graph takes a velocity feature ``w``."""
         self.n_member = int(meta.get("exsur_members", "0"))
@@ -488,9 +504,9 @@ class OnnxStepper:
         self.w = np.zeros((0, n_joint), dtype=np.float32)
         """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
         self._w_win = np.zeros((0, self.window, n_joint), np.float32)
-        self.z = np.zeros((0, len(self.play), n_joint), dtype=np.float32)
-        """Play states (n_batch, Q, n_joint) after the last command."""
-        self._z_win = np.zeros((0, self.window, len(self.play), n_joint), np.float32)
+        self.z = np.zeros((0, self.n_state, n_joint), dtype=np.float32)
+        """Command states (n_batch, Q + L, n_joint) after the last command."""
+        self._z_win = np.zeros((0, self.window, self.n_state, n_joint), np.float32)
         self.theta = np.zeros((0, self.spec.n_joint), dtype=np.float32)
         self.h = self.c = np.zeros((self.n_layer, 0, self.hidden), dtype=np.float32)
         self._theta_win = np.zeros((0, self.window, n_joint), np.float32)
@@ -503,6 +519,7 @@ class OnnxStepper:
         self.theta = theta0.copy()
         u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
         z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
+        z_rest[:, len(self.play) :] = z_rest[:, -1:]  # at rest: the line holds the rest command
         self.z = z_rest
         self.w = np.zeros_like(theta0)  # at rest
         if self.mode == "stateful":
@@ -510,7 +527,7 @@ class OnnxStepper:
             self.c = np.zeros_like(self.h)
             for _ in range(self.window - 1):
                 feed = {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
-                if len(self.play):
+                if self.n_state:
                     feed["z"] = z_rest
                 if self.omega_in:
                     feed["w"] = self.w
@@ -525,11 +542,16 @@ class OnnxStepper:
         return self.theta
 
     def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Play states after commands ``u`` (n, n_u) from ``z`` (n, Q, n_joint), float32."""
-        if not len(self.play):
+        """Command states after commands ``u`` (n, n_u) from ``z`` (n, Q + L, n_joint):
+        the play operators, then the delay line shifted by one sample; float32."""
+        if not self.n_state:
             return z
+        q = len(self.play)
         us = scale_commands_np(u, self.spec)[:, None, : self.spec.n_joint]  # one sample per row
-        return play_np(us, self.play, z0=z)[:, 0].astype(np.float32)
+        parts = [play_np(us, self.play, z0=z[:, :q])[:, 0]] if q else []
+        if self.n_state > q:
+            parts.append(np.concatenate([z[:, q + 1 :], us], axis=1))
+        return np.concatenate(parts, axis=1).astype(np.float32)
 
     def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
         """Apply commands ``u`` (n_batch, n_u) (joints', then exogenous inputs'); returns
@@ -539,7 +561,7 @@ class OnnxStepper:
             feed = {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
             if self.omega_in:
                 feed["w"] = self.w
-            if len(self.play):
+            if self.n_state:
                 feed["z"] = self.z
             if self._omega_prev:
                 feed["omega_prev"] = self.w  # the previous step's omega
@@ -555,7 +577,7 @@ class OnnxStepper:
             self._theta_win[:, -1] = self.theta
             self._u_win[:, -1] = u
             feed = {"theta": self._theta_win, "u": self._u_win}
-            if len(self.play):
+            if self.n_state:
                 self._z_win[:, -1] = self.z
                 feed["z"] = self._z_win
             if self.omega_in:

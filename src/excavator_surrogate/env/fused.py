@@ -18,7 +18,14 @@ from torch import nn
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.ensemble import member_head
-from ..surrogate.features import Normalization, integrate, play_features, play_step
+from ..surrogate.features import (
+    Normalization,
+    integrate,
+    line_features,
+    line_step,
+    play_features,
+    play_step,
+)
 from ..surrogate.model import Surrogate
 from ..surrogate.prior import SpeedPrior
 from .inputs import ActionLayout
@@ -34,12 +41,13 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
     """Matrix ``M`` (n_feature, n_raw) and offset ``e`` (n_feature,) with
     ``x_norm = M @ r + e`` for raw features ``r = [theta (J), sin θ_p, cos θ_p, u (n_u), f,
     w]`` (``u``: the joints' commands then the exogenous inputs; ``f``: the Q * J play
-    features ``(z - us) / b``, if any; ``w``: the J velocity features [rad/s], if any)."""
+    features ``(z - us) / b`` and the J delayed scaled commands, if any; ``w``: the J velocity
+    features [rad/s], if any)."""
     spec, norm = sur.spec, sur.norm
     n_joint, n_u = spec.n_joint, spec.n_u
     per = [k for k, p in enumerate(spec.periodic) if p]
     n_per = len(per)
-    n_play = norm.n_play * n_joint
+    n_play = norm.n_play * n_joint + norm.n_lag
     n_w = n_joint if norm.omega_in else 0
     n_raw = n_joint + 2 * n_per + n_u + n_play + n_w
     m = norm.x_mean.double().cpu().numpy()
@@ -67,32 +75,44 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
 
 
 def add_play(module: nn.Module, sur: Surrogate) -> None:
-    """Register the surrogate's play operators on ``module``: float32 buffers ``play`` (Q,)
-    half-widths, ``u_center`` / ``u_scale`` (n_u,); ``module.n_play`` = Q (0: none)."""
+    """Register the surrogate's command state on ``module``: float32 buffers ``play`` (Q,)
+    half-widths, ``u_center`` / ``u_scale`` (n_u,), the long buffer ``lag_index`` (J,) of the
+    delayed commands (empty: none); ``module.n_play`` = Q, ``module.n_state`` = Q + L rows of
+    ``z`` (0: none)."""
     norm = sur.norm.to("cpu", torch.float32)
     module.n_play = norm.n_play
-    for k in ("play", "u_center", "u_scale"):
+    module.n_state = norm.n_state
+    for k in ("play", "u_center", "u_scale", "lag_index"):
         module.register_buffer(k, getattr(norm, k).clone())
 
 
 def play_and_features(
     module: nn.Module | Normalization, z: torch.Tensor, u: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Play states after ``u`` and their features, with the buffers of :func:`add_play` (or
-    the same-named tensors of a :class:`Normalization`).
+    """Command states after ``u`` and their features, with the buffers of :func:`add_play`
+    (or the same-named tensors of a :class:`Normalization`).
 
     Args:
-        z: (..., Q, n_joint) play states before ``u``.
+        z: (..., Q + L, n_joint) command states before ``u``: the play operators, then the
+            delay line of the delayed commands (L = 0: none).
         u: (..., n_u) commands [command units]; the first ``n_joint`` (the joints') drive
-            the play operators, exogenous inputs do not.
+            the play operators and the line, exogenous inputs do not.
 
     Returns:
-        ``z_new`` (..., Q, n_joint) and features ``(z_new - us) / b`` (..., Q * n_joint).
+        ``z_new`` (..., Q + L, n_joint) and the features: ``(z_new - us) / b`` (..., Q *
+        n_joint), then with a line each joint's delayed scaled command (..., n_joint).
     """
-    nj = z.shape[-1]
+    nj, q = z.shape[-1], module.play.numel()
     us = (u[..., :nj] - module.u_center[:nj]) / module.u_scale[:nj]
-    z = play_step(z, us, module.play)
-    return z, play_features(z, us, module.play)
+    if z.shape[-2] == q:
+        z = play_step(z, us, module.play)
+        return z, play_features(z, us, module.play)
+    line = line_step(z[..., q:, :], us)
+    lag = line_features(line, module.lag_index)
+    if not q:
+        return line, lag
+    zp = play_step(z[..., :q, :], us, module.play)
+    return torch.cat([zp, line], dim=-2), torch.cat([play_features(zp, us, module.play), lag], -1)
 
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
@@ -122,16 +142,17 @@ class FusedStep(nn.Module):
     - ``u``: (n_batch, n_u) commands u[k] [command units] (joints', then exogenous inputs');
     - ``h``, ``c``: (n_layer, n_batch, hidden) recurrent state (``c`` unused and passed
       through for GRU cells);
-    - ``z``: (n_batch, Q, n_joint) play states before ``u`` (only if the surrogate has
-      ``Q = n_play > 0`` play features);
+    - ``z``: (n_batch, Q + L, n_joint) command states before ``u`` (only if the surrogate
+      has ``Q = n_play > 0`` play features or an ``L``-sample delay line of delayed commands);
     - ``w``: (n_batch, n_joint) velocity feature of sample k [rad/s] (only if the surrogate
       has one, ``omega_in``): the ``omega`` this step returned last time, or the measured
       ``wrap(θ[k] - θ[k-1]) / T_s`` after a measured angle.
 
     Returns ``omega`` (n_batch, n_joint) = ω̂[k+1] [rad/s], ``theta_next`` = θ + T_s·ω̂
     [rad] (clipped to the end stops if the surrogate has them), the new ``h``, ``c`` and,
-    with play features, the new ``z``.  With a speed prior (``ModelConfig.prior``) the head's
-    output is added to the prior's speed of ``u`` (:meth:`prior_speed`).  (``omega`` is the next step's ``w``.)  Only LSTM/GRU surrogates can be fused.
+    with command states, the new ``z``.  With a speed prior (``ModelConfig.prior``) the head's
+    output is added to the prior's speed of ``u`` (:meth:`prior_speed`; of the delayed
+    command for a joint whose map has a delay).  (``omega`` is the next step's ``w``.)  Only LSTM/GRU surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:
@@ -209,7 +230,7 @@ class FusedStep(nn.Module):
         w: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Raw features ``[theta, sin θ_p, cos θ_p, u, f, w]`` (n_batch, n_raw), float32, with
-        ``f`` the play features of :func:`play_and_features` (None without play) and ``w``
+        ``f`` the features of :func:`play_and_features` (None without them) and ``w``
         the velocity feature [rad/s] (None without one)."""
         tail = [u] + ([] if f is None else [f]) + ([] if w is None else [w])
         if self.has_periodic:
@@ -217,19 +238,29 @@ class FusedStep(nn.Module):
             return torch.cat([theta, torch.sin(tp), torch.cos(tp), *tail], dim=-1)
         return torch.cat([theta, *tail], dim=-1)
 
-    def prior_speed(self, u: torch.Tensor) -> torch.Tensor | None:
+    def prior_speed(self, u: torch.Tensor, z: torch.Tensor | None = None) -> torch.Tensor | None:
         """The speed prior's ``s(u)`` (n_batch, n_joint) [rad/s] of the commands ``u``
-        (n_batch, n_u) [command units]; None without a prior."""
+        (n_batch, n_u) [command units] (with delayed commands: of ``u_j[k - d_j]``, read from
+        the delay line of ``z`` (n_batch, Q + L, n_joint) after ``u``); None without a prior."""
         if self.prior is None:
             return None
-        return self.prior.speed(u[..., : self.n_joint])
+        nj = self.n_joint
+        if self.n_state > self.n_play:
+            if z is None:
+                raise ValueError("this surrogate's map reads delayed commands: pass z")
+            us = line_features(z[..., self.n_play :, :], self.lag_index)
+            return self.prior.speed(us * self.u_scale[:nj] + self.u_center[:nj])
+        return self.prior.speed(u[..., :nj])
 
-    def base(self, u: torch.Tensor, w: torch.Tensor | None) -> torch.Tensor | None:
+    def base(
+        self, u: torch.Tensor, w: torch.Tensor | None, z: torch.Tensor | None = None
+    ) -> torch.Tensor | None:
         """What the head's output is added to: the velocity feature ``w`` (residual head),
-        the prior's speed of ``u`` (speed prior), else None."""
+        the prior's speed of ``u`` (speed prior; ``z`` the command states after ``u``, for a
+        delayed map), else None."""
         if self.residual:
             return w
-        return self.prior_speed(u)
+        return self.prior_speed(u, z)
 
     def head(self, out: torch.Tensor) -> torch.Tensor:
         """Angular velocity [rad/s] from the last layer's output (n_batch, hidden) (with a
@@ -247,12 +278,12 @@ class FusedStep(nn.Module):
         w: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, ...]:
         """See the class docstring."""
-        if self.n_play and z is None:
-            raise ValueError("this surrogate has play features: pass the play state z")
+        if self.n_state and z is None:
+            raise ValueError("this surrogate has command states: pass z")
         if self.omega_in and w is None:
             raise ValueError("this surrogate has a velocity feature: pass w")
         f = None
-        if self.n_play:
+        if self.n_state:
             z, f = play_and_features(self, z, u)
         else:
             z = None
@@ -277,7 +308,7 @@ class FusedStep(nn.Module):
             cs.append(c_l)
             inp = h_l
         omega = self.head(inp)
-        base = self.base(u, w)
+        base = self.base(u, w, z)
         if base is not None:
             omega = omega + base
         theta_next, omega = integrate(theta, omega, dt=self.dt, limits=end_stops(self))
@@ -330,7 +361,7 @@ class FusedMembersStep(FusedStep):
         outs = super().forward(theta, u, h, c, z, w)
         assert self._a is not None
         om_m = torch.matmul(self._a.unsqueeze(0), self.w2m) + self.b2m
-        base = self.base(u, w)
+        base = self.base(u, w, outs[4] if self.n_state else None)
         if base is not None:
             om_m = om_m + base
             if self.map_dev is not None:  # the base is the speed prior's s(u)

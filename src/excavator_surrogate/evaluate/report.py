@@ -209,9 +209,16 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
     """One line on the joints that follow the static valve map (``training.static_map``)."""
     if not isinstance(record, Mapping) or not record.get("chosen"):
         return ""
+    names = list(record.get("names") or [])
+    lags = [
+        f"{n} {s:.2f} s"
+        for n, s in zip(names, (record.get("map") or {}).get("delay_s") or [])
+        if n in record["chosen"] and s > 0
+    ]
+    delay = f", delay {', '.join(lags)}" if lags else ""
     return (
         f"\nStatic valve map: {', '.join(record['chosen'])} follow(s) the map (dead zone, gain "
-        "per direction) instead of the network, chosen on the validation free run "
+        f"per direction{delay}) instead of the network, chosen on the validation free run "
         f"({record.get('why', '')}); its band comes from the map's gain spread over the "
         "training log, not from the members.\n"
     )

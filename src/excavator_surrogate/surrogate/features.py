@@ -16,6 +16,10 @@ theta[k-1]) / T_s`` [rad/s] (0 at the first sample of an episode, which starts a
 appended per joint: the measured velocity while synced to a machine, the integrated prediction
 in a free run.  It is the state of a slow, acceleration-limited flow (a heavy swing), which the
 net otherwise has to infer from the small differences of consecutive angle features.
+Optionally (``lags`` ``d_1..d_J`` [samples], ours) each joint's scaled command ``d_j`` samples
+back, ``us_j[k - d_j]`` (0 before the first sample), is appended before ``omega_in``: what a
+delayed static map reads (:func:`.structured.with_map_joints`).  The commands it needs travel
+in the same state tensor as the play operators, as a delay line after them (:meth:`Normalization.play_update`).
 Features and targets are then standardised with statistics of the training split
 (:class:`Normalization`), which travel with the checkpoint.
 
@@ -226,6 +230,30 @@ def play_features_np(z: np.ndarray, us: np.ndarray, widths: Sequence[float]) -> 
     return f.reshape(*f.shape[:-2], -1)
 
 
+def line_step(line: torch.Tensor, us: torch.Tensor) -> torch.Tensor:
+    """One sample of the command delay line: ``line: (..., L, n_joint)`` the scaled commands
+    ``us[k-L..k-1]``, ``us: (..., n_joint)`` -> ``us[k-L+1..k]`` (oldest first)."""
+    return torch.cat([line[..., 1:, :], us.unsqueeze(-2)], dim=-2)
+
+
+def line_features(line: torch.Tensor, lag_index: torch.Tensor) -> torch.Tensor:
+    """Each joint's delayed command from the delay line: ``line: (..., L, n_joint)`` after
+    sample k, ``lag_index: (n_joint,)`` long ``L - 1 - d_j`` -> ``(..., n_joint)`` ``us_j[k - d_j]``."""
+    cols = torch.arange(line.shape[-1], device=line.device)
+    return line[..., lag_index, cols]
+
+
+def line_from_rest_np(us: np.ndarray, n_line: int) -> np.ndarray:
+    """The delay line after each sample, plain NumPy: ``us: (..., n_step, n_joint)`` scaled
+    commands -> ``(..., n_step, n_line, n_joint)``, row ``r`` of sample ``k`` holding
+    ``us[k - n_line + 1 + r]`` (0 before the first sample)."""
+    us = np.asarray(us, dtype=np.float64)
+    n_step = us.shape[-2]
+    pad = np.zeros((*us.shape[:-2], n_line - 1, us.shape[-1]))
+    full = np.concatenate([pad, us], axis=-2)
+    return np.stack([full[..., r : r + n_step, :] for r in range(n_line)], axis=-2)
+
+
 def _play_from_rest(u: np.ndarray, spec: MachineSpec, play: Sequence[float]) -> np.ndarray | None:
     if not len(play):
         return None
@@ -239,6 +267,7 @@ def encode_np(
     *,
     play: Sequence[float] = (),
     z: np.ndarray | None = None,
+    lag: np.ndarray | None = None,
     omega: np.ndarray | None = None,
 ) -> np.ndarray:
     """Raw (un-normalised) features, NumPy version.
@@ -248,13 +277,15 @@ def encode_np(
         u: (..., n_u) commands [command units]: the joints', then the exogenous inputs'.
         play: half-widths of the play operators (empty: the paper's features).
         z: (..., P, n_joint) play states after this sample (:func:`play_np`); required with ``play``.
+        lag: (..., n_joint) each joint's delayed scaled command ``us_j[k - d_j]``, or None
+            (not a feature).
         omega: (..., n_joint) velocity input feature [rad/s] (:func:`omega_in_np`), or None
             (not a feature).
 
     Returns:
         (..., n_feature) features: angle part (sin/cos for periodic joints), scaled commands,
-        the play features, then ``omega``; ``n_feature = spec.n_feature + P * n_joint`` (+
-        ``n_joint`` with ``omega``).
+        the play features, ``lag``, then ``omega``; ``n_feature = spec.n_feature + P * n_joint``
+        (+ ``n_joint`` with ``lag``, + ``n_joint`` with ``omega``).
     """
     theta = np.asarray(theta, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
@@ -270,6 +301,8 @@ def encode_np(
         if z is None:
             raise ValueError("encode_np: play features need the play states z")
         out.append(play_features_np(z, us[..., : spec.n_joint], play))
+    if lag is not None:
+        out.append(np.asarray(lag, dtype=np.float64))
     if omega is not None:
         out.append(np.asarray(omega, dtype=np.float64))
     return np.concatenate(out, axis=-1)
@@ -297,10 +330,23 @@ class Normalization:
     omega_in: bool = False
     """The previous velocity (:func:`omega_in_np`) is a feature (the last ``n_joint`` columns),
     standardised with the target's ``y_mean`` / ``y_std`` (what a residual head adds)."""
+    lags: tuple[int, ...] = ()
+    """(n_joint,) command delays ``d_j`` [samples] of the delayed-command features (the
+    ``n_joint`` columns before the velocity feature), standardised like the commands; empty:
+    none.  Their delay line of ``max(d) + 1`` samples follows the play states in ``z``."""
 
     def __post_init__(self) -> None:
         self.periodic_mask = torch.tensor(self.periodic, device=self.u_center.device)
         """(n_joint,) bool: which joints wrap (on the device of the other tensors)."""
+        if self.lags and (len(self.lags) != len(self.periodic) or min(self.lags) < 0):
+            raise ValueError(f"lags must be one delay >= 0 per joint, got {list(self.lags)}")
+        n = len(self.periodic)
+        self.lag_index = torch.tensor(
+            [self.n_line - 1 - d for d in self.lags], dtype=torch.long, device=self.u_center.device
+        )
+        """(n_joint,) long: each joint's row ``L - 1 - d_j`` in the delay line (empty: none)."""
+        self.n_lag = n if self.lags else 0
+        """Number of delayed-command feature columns (``n_joint`` or 0)."""
 
     @property
     def n_play(self) -> int:
@@ -308,9 +354,48 @@ class Normalization:
         return int(self.play.numel())
 
     @property
+    def n_line(self) -> int:
+        """Length L of the command delay line (``max(lags) + 1``; 0: no delayed commands)."""
+        return max(self.lags) + 1 if self.lags else 0
+
+    @property
+    def n_state(self) -> int:
+        """Rows of the command state ``z``: the P play operators, then the L-sample delay line."""
+        return self.n_play + self.n_line
+
+    @property
     def n_feature(self) -> int:
-        """Input width: ``spec.n_feature + P * n_joint`` (+ ``n_joint`` with ``omega_in``)."""
+        """Input width: ``spec.n_feature + P * n_joint`` (+ ``n_joint`` with ``lags``, +
+        ``n_joint`` with ``omega_in``)."""
         return int(self.x_mean.shape[0])
+
+    def with_lags(self, lags: Sequence[int]) -> Normalization:
+        """A copy with delayed-command features ``lags`` (n_joint,) [samples] added (this one
+        must have none): their columns go before the velocity feature, with the statistics
+        of the joints' command columns (so the delayed command is standardised like the
+        command itself)."""
+        if self.lags:
+            raise ValueError("with_lags: this normalisation already has delayed commands")
+        n = len(self.periodic)
+        n_angle = sum(2 if p else 1 for p in self.periodic)
+        at = self.n_feature - (n if self.omega_in else 0)
+        src = torch.arange(n_angle, n_angle + n)
+
+        def grow(a: torch.Tensor) -> torch.Tensor:
+            return torch.cat([a[:at], a[src], a[at:]])
+
+        return Normalization(
+            x_mean=grow(self.x_mean),
+            x_std=grow(self.x_std),
+            y_mean=self.y_mean.clone(),
+            y_std=self.y_std.clone(),
+            periodic=self.periodic,
+            u_center=self.u_center.clone(),
+            u_scale=self.u_scale.clone(),
+            play=self.play.clone(),
+            omega_in=self.omega_in,
+            lags=tuple(int(d) for d in lags),
+        )
 
     @classmethod
     def fit(
@@ -362,6 +447,7 @@ class Normalization:
         spec: MachineSpec,
         play: Sequence[float] | torch.Tensor = (),
         omega_in: bool = False,
+        lags: Sequence[int] = (),
     ) -> Normalization:
         """Build from array-likes (checkpoint tensors or NumPy); with ``omega_in`` the last
         ``n_joint`` feature statistics are set to the target's (the velocity feature is
@@ -386,6 +472,7 @@ class Normalization:
             u_scale=t([c.u_scale for c in spec.u_specs]),
             play=widths,
             omega_in=bool(omega_in),
+            lags=tuple(int(d) for d in lags),
         )
 
     def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> Normalization:
@@ -394,7 +481,7 @@ class Normalization:
             k: getattr(self, k).to(device=device, dtype=dtype)
             for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play")
         }
-        return Normalization(periodic=self.periodic, omega_in=self.omega_in, **kw)
+        return Normalization(periodic=self.periodic, omega_in=self.omega_in, lags=self.lags, **kw)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Plain tensors for the checkpoint (``omega_in`` only when set, so checkpoints without
@@ -405,6 +492,8 @@ class Normalization:
         }
         if self.omega_in:
             out["omega_in"] = torch.tensor(1.0)
+        if self.lags:
+            out["lags"] = torch.tensor(self.lags, dtype=torch.float32)
         return out
 
     @classmethod
@@ -420,10 +509,11 @@ class Normalization:
                 spec=spec,
                 play=d.get("play", ()),
                 omega_in=bool(float(d.get("omega_in", 0.0))),
+                lags=[round(float(v)) for v in torch.as_tensor(d.get("lags", ())).reshape(-1)],
             )
-        except (KeyError, TypeError, ValueError) as e:
+        except (KeyError, TypeError, ValueError, RuntimeError) as e:
             raise CheckpointError(f"normalisation entry is malformed ({e})") from e
-        n_feature = spec.n_feature + norm.n_play * spec.n_joint + norm.omega_in * spec.n_joint
+        n_feature = spec.n_feature + (norm.n_play + norm.omega_in) * spec.n_joint + norm.n_lag
         if norm.x_mean.shape != (n_feature,) or norm.y_mean.shape != (spec.n_joint,):
             raise CheckpointError(
                 f"normalisation sizes {tuple(norm.x_mean.shape)}/{tuple(norm.y_mean.shape)} do not match "
@@ -434,20 +524,24 @@ class Normalization:
     # ---- play operators ---------------------------------------------------------------------
 
     def play_rest(self, n_batch: int) -> torch.Tensor:
-        """Play states at rest: zeros ``(n_batch, P, n_joint)`` (P may be 0)."""
-        return self.u_scale.new_zeros(n_batch, self.n_play, len(self.periodic))
+        """Command states at rest: zeros ``(n_batch, P + L, n_joint)`` (P + L may be 0)."""
+        return self.u_scale.new_zeros(n_batch, self.n_state, len(self.periodic))
 
     def play_update(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Play states after commands ``u: (..., n_u)`` (the joints' columns drive them);
-        ``z: (..., P, n_joint)``."""
-        if not self.n_play:
+        """Command states after commands ``u: (..., n_u)`` (the joints' columns drive them);
+        ``z: (..., P + L, n_joint)``: the play operators, then the delay line."""
+        if not self.n_state:
             return z
-        nj = len(self.periodic)
-        return play_step(z, (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj], self.play)
+        nj, q = len(self.periodic), self.n_play
+        us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
+        if not self.n_line:
+            return play_step(z, us, self.play)
+        line = line_step(z[..., q:, :], us)
+        return torch.cat([play_step(z[..., :q, :], us, self.play), line], dim=-2) if q else line
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Play states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch, P,
-        n_joint)``; returns ``(n_batch, n_step, P, n_joint)``."""
+        """Command states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch,
+        P + L, n_joint)``; returns ``(n_batch, n_step, P + L, n_joint)``."""
         zs = []
         for k in range(u.shape[1]):
             z = self.play_update(z, u[:, k])
@@ -489,8 +583,8 @@ class Normalization:
         Args:
             theta: (..., n_joint) angles [rad].
             u: (..., n_u) commands [command units] (joints', then exogenous inputs').
-            z: (..., P, n_joint) play states after ``u`` (:meth:`play_update`); needed when
-                ``n_play > 0``, ignored otherwise.
+            z: (..., P + L, n_joint) command states after ``u`` (:meth:`play_update`); needed
+                when ``n_state > 0``, ignored otherwise.
             omega: (..., n_joint) velocity input ``wrap(theta[k] - theta[k-1]) / T_s``
                 [rad/s]; needed with ``omega_in``, ignored otherwise.
 
@@ -509,7 +603,13 @@ class Normalization:
         if self.n_play:
             if z is None:
                 raise ValueError("encode: this normalisation has play features; pass z")
-            out.append(play_features(z, us[..., : len(self.periodic)], self.play))
+            out.append(
+                play_features(z[..., : self.n_play, :], us[..., : len(self.periodic)], self.play)
+            )
+        if self.n_line:
+            if z is None:
+                raise ValueError("encode: this normalisation has delayed commands; pass z")
+            out.append(line_features(z[..., self.n_play :, :], self.lag_index))
         if self.omega_in:
             if omega is None:
                 raise ValueError("encode: this normalisation has a velocity feature; pass omega")
@@ -528,8 +628,20 @@ class Normalization:
         """NumPy twin of :meth:`encode` (float64), used by reference implementations."""
         if self.omega_in and omega is None:
             raise ValueError("encode_np: this normalisation has a velocity feature; pass omega")
+        q, lag = self.n_play, None
+        if self.n_line:
+            if z is None:
+                raise ValueError("encode_np: this normalisation has delayed commands; pass z")
+            idx = self.lag_index.cpu().numpy()
+            lag = np.asarray(z)[..., q:, :][..., idx, np.arange(len(idx))]
         x = encode_np(
-            theta, u, spec, play=self.play_widths, z=z, omega=omega if self.omega_in else None
+            theta,
+            u,
+            spec,
+            play=self.play_widths,
+            z=None if z is None else np.asarray(z)[..., :q, :],
+            lag=lag,
+            omega=omega if self.omega_in else None,
         )
         return (x - self.x_mean.cpu().double().numpy()) / self.x_std.cpu().double().numpy()
 
@@ -539,9 +651,13 @@ class Normalization:
         return tuple(float(b) for b in self.play.cpu().double())
 
     def play_from_rest_np(self, u: np.ndarray, spec: MachineSpec) -> np.ndarray | None:
-        """Play states ``(..., n_step, P, n_joint)`` of commands ``u: (..., n_step, n_joint)``
-        from rest (plain loop), or None without play features."""
-        return _play_from_rest(u, spec, self.play_widths)
+        """Command states ``(..., n_step, P + L, n_joint)`` of commands ``u: (..., n_step,
+        n_u)`` from rest (plain loops), or None without play features or delayed commands."""
+        z = _play_from_rest(u, spec, self.play_widths)
+        if not self.n_line:
+            return z
+        line = line_from_rest_np(scale_commands_np(u, spec)[..., : spec.n_joint], self.n_line)
+        return line if z is None else np.concatenate([z, line], axis=-2)
 
     def omega(self, y: torch.Tensor) -> torch.Tensor:
         """Physical velocity [rad/s] from normalised model output ``(..., n_joint)``."""

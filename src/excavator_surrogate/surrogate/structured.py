@@ -239,17 +239,22 @@ def fit_structured(
     )
 
 
-def fit_prior(episodes: Sequence[Episode], spec: MachineSpec) -> dict[str, list[float]]:
-    """Least-squares static map per joint on ``episodes`` (delay 0): dead-zone edges
-    ``a_pos >= 0 >= a_neg`` [command units] and gains ``k_pos, k_neg >= 0`` [rad/s per command
-    unit], plus ``cols`` the command's column in the features (the spec fixes the layout),
-    each joint's one-step ``rmse`` [rad/s] and ``gain_spread`` (:func:`gain_spread`) (keyword
-    arguments of :meth:`SpeedPrior.load_fit`, without ``norm``, and ``rmse``,
-    ``gain_spread``)."""
-    fits = fit_joints(episodes, spec, max_delay=0)
+def fit_prior(
+    episodes: Sequence[Episode], spec: MachineSpec, *, max_delay: int = 0
+) -> dict[str, list[float]]:
+    """Least-squares static map per joint on ``episodes``: dead-zone edges ``a_pos >= 0 >=
+    a_neg`` [command units] and gains ``k_pos, k_neg >= 0`` [rad/s per command unit], plus
+    ``cols`` the command's column in the features (the spec fixes the layout), each joint's
+    ``delay`` [samples] (0 to ``max_delay``, the one-step error's best: ``omega[k+1] =
+    s(u[k - d])``), one-step ``rmse`` [rad/s] and ``gain_spread`` (:func:`gain_spread`)
+    (keyword arguments of :meth:`SpeedPrior.load_fit`, without ``norm``, and ``delay``,
+    ``rmse``, ``gain_spread``).  A speed prior (``ModelConfig.prior``) keeps ``max_delay = 0``:
+    it reads the current command only."""
+    fits = fit_joints(episodes, spec, max_delay=max_delay)
     omegas = [omega_target(e.theta, spec) for e in episodes]
     return {
         "cols": [spec.n_angle_feature + j for j in range(spec.n_joint)],
+        "delay": [int(f.delay) for f in fits],
         "a_pos": [f.a_pos for f in fits],
         "a_neg": [f.a_neg for f in fits],
         "k_pos": [f.k_pos for f in fits],
@@ -335,6 +340,13 @@ def with_map_joints(
         map joint j:    omega_j = y_std (0) + s_j(u)                 = s_j(u)
         other joint j:  omega_j = y_std (head_j + y_mean_j / y_std_j) = the network's omega_j
 
+    A joint whose map has a delay ``d_j > 0`` (``fit["delay"]``) reads its command ``d_j``
+    samples back: the copy's features get the delayed commands (:meth:`.Normalization.with_lags`,
+    carried as a delay line in the command state ``z`` by every runtime), and the network's
+    first layer gets zero weights for those columns, so the other joints' output is the
+    network's (up to the order of float sums).  Without delays the copy's features are the
+    network's.
+
     A merged ensemble's member biases are moved alike, and member ``m`` drives a map joint
     with the gain ``1 + sigma_j z_m`` (``metrics["ensemble"]["map_gain_dev"]``, (M, n_joint),
     ``sigma_j`` the map's ``gain_spread``, ``z`` fixed, mean 0 and standard deviation 1 over
@@ -345,7 +357,7 @@ def with_map_joints(
     Args:
         sur: an LSTM/GRU surrogate without a prior or residual head.
         fit: :func:`.structured.fit_prior`'s map (``cols``, ``a_pos``, ``a_neg``, ``k_pos``,
-            ``k_neg``; per joint).
+            ``k_neg`` and optionally ``delay``; per joint).
         joints: (n_joint,) which joints follow the map.
 
     Returns:
@@ -353,19 +365,31 @@ def with_map_joints(
     """
     if sur.model_cfg.prior or sur.model_cfg.residual or sur.model_cfg.cell == "arx":
         raise ValueError("with_map_joints needs an LSTM/GRU without a prior or residual head")
+    if sur.norm.lags:
+        raise ValueError("with_map_joints needs a network without delayed-command features")
     pick = torch.tensor([bool(j) for j in joints])
-    cfg = replace(sur.model_cfg, prior=True)
-    net = type(sur.net)(cfg)
+    n_joint = sur.spec.n_joint
+    lags = [int(d) if p else 0 for d, p in zip(fit.get("delay", [0] * n_joint), pick.tolist())]
+    norm, cols = sur.norm, list(fit["cols"])
     state = {k: v.detach().clone() for k, v in sur.net.state_dict().items()}
+    if any(lags):
+        at = norm.n_feature - (n_joint if norm.omega_in else 0)  # the lag columns' place
+        norm = norm.with_lags(lags)
+        cols = [at + j for j in range(n_joint)]
+        w = state["rnn.weight_ih_l0"]  # (gates, n_feature): zero weights for the new columns
+        state["rnn.weight_ih_l0"] = torch.cat(
+            [w[:, :at], w.new_zeros(len(w), n_joint), w[:, at:]], 1
+        )
+    cfg = replace(sur.model_cfg, prior=True, n_feature=norm.n_feature)
+    net = type(sur.net)(cfg)
     missing = net.load_state_dict(state, strict=False).missing_keys
     assert all(k.startswith("prior.") for k in missing), missing
 
     def on(name: str) -> list[float]:
         return [float(v) if p else 0.0 for v, p in zip(fit[name], pick.tolist())]
 
-    norm = sur.norm
     net.prior.load_fit(
-        cols=list(fit["cols"]),
+        cols=cols,
         a_pos=on("a_pos"),
         a_neg=on("a_neg"),
         k_pos=on("k_pos"),

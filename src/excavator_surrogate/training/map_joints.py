@@ -6,11 +6,16 @@ joint's free run drifts where the structured model's does not (``docs/real.md``)
 training (and merging), the recipe puts a simple model next to the network as a candidate
 per joint, chosen on the validation free run like an epoch is:
 
-1. fit the static valve map (dead zone, gain per direction, delay 0:
-   :func:`~excavator_surrogate.surrogate.structured.fit_prior`) on the training split;
-2. free-run the validation episodes with every joint on the map; the joints whose angle RMSE
-   on the map is at most :data:`MAP_TIE` above the network's are the candidates (a near tie
-   goes to the simpler model: it is the one that generalises off the training conditions);
+1. fit the static valve map (dead zone, gain per direction, delay up to
+   :data:`~excavator_surrogate.surrogate.structured.MAX_DELAY_S` and the window:
+   :func:`~excavator_surrogate.surrogate.structured.fit_prior`) on the training split, as the
+   structured baseline is fitted; a joint whose speed lags its command (a heavy swing's
+   inertia, a slow pump) reads its command that many samples back.  If some joint's fitted
+   delay is not 0, the map with delay 0 is fitted too;
+2. free-run the validation episodes with every joint on the map (on each map, if two); each
+   joint takes the map that drives it better there, and the joints whose angle RMSE on it is
+   at most :data:`MAP_TIE` above the network's are the candidates (a near tie goes to the
+   simpler model: it is the one that generalises off the training conditions);
 3. try them together, then each alone (:func:`~excavator_surrogate.surrogate.structured.with_map_joints`:
    those joints follow the map, the others keep the network's output exactly);
 4. keep the best set whose validation error is at most :data:`SET_MARGIN` above the
@@ -38,7 +43,7 @@ from ..surrogate.checkpoint import (
     write_checkpoint_dict,
 )
 from ..surrogate.model import Surrogate
-from ..surrogate.structured import fit_prior, with_map_joints
+from ..surrogate.structured import MAX_DELAY_S, fit_prior, with_map_joints
 from ..surrogate.validation import free_run_error
 
 _log = logging.getLogger(__name__)
@@ -73,16 +78,35 @@ def choose_map_joints(
     """
     spec = sur.spec
     names = list(spec.names)
-    fit = fit_prior(train, spec)
+    max_delay = int(max(0, min(sur.window - 1, round(MAX_DELAY_S * spec.rate_hz))))
+    fits = [fit_prior(train, spec, max_delay=max_delay)]
+    if any(fits[0]["delay"]):  # the same map without delays: chosen per joint on validation
+        fits.append(fit_prior(train, spec))
     net = free_run_error(sur, list(val), max_steps=max_steps)
-    all_map = free_run_error(
-        with_map_joints(sur, fit, [True] * spec.n_joint), list(val), max_steps=max_steps
-    )
-    cand = [bool(m <= (1 + MAP_TIE) * e) for m, e in zip(all_map["theta_rmse"], net["theta_rmse"])]
+    on_map = [True] * spec.n_joint
+    scores = [
+        free_run_error(with_map_joints(sur, f, on_map), list(val), max_steps=max_steps)[
+            "theta_rmse"
+        ]
+        for f in fits
+    ]
+    pick = [min(range(len(fits)), key=lambda v: scores[v][j]) for j in range(spec.n_joint)]
+    fit = {k: [fits[v][k][j] for j, v in enumerate(pick)] for k in fits[0]}
+    map_rmse = [scores[v][j] for j, v in enumerate(pick)]
+    cand = [bool(m <= (1 + MAP_TIE) * e) for m, e in zip(map_rmse, net["theta_rmse"])]
     record: dict[str, Any] = {
-        "map": {k: fit[k] for k in ("a_pos", "a_neg", "k_pos", "k_neg")},
+        "names": names,
+        "map": {
+            **{k: fit[k] for k in ("a_pos", "a_neg", "k_pos", "k_neg", "delay")},
+            "delay_s": [d * spec.dt for d in fit["delay"]],
+        },
+        "fitted_delay": fits[0]["delay"],
         "val_theta_rmse_network": net["theta_rmse"],
-        "val_theta_rmse_map": all_map["theta_rmse"],
+        "val_theta_rmse_map": map_rmse,
+        "val_theta_rmse_maps": {
+            ("delayed" if v == 0 and len(fits) > 1 else "undelayed"): sc
+            for v, sc in enumerate(scores)
+        },
         "candidates": [n for n, c in zip(names, cand) if c],
         "tried": [],
         "chosen": [],
