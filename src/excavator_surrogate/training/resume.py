@@ -13,6 +13,7 @@ from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
 from ..surrogate.model import ModelConfig, SurrogateNet
+from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import fit_prior
 from .config import TrainConfig
 
@@ -105,8 +106,8 @@ def start(
         net = SurrogateNet(mcfg)
         if net.prior is not None:
             fit = fit_prior(train_eps, spec)
-            rmse = fit.pop("rmse")
-            net.prior.load_fit(**fit, norm=norm)
+            rmse = fit["rmse"]
+            net.prior.load_fit(**{k: fit[k] for k in PRIOR_MAP}, norm=norm)
             derived += [
                 f"{js.name}: speed prior dead zone [{a_n:.4g}, {a_p:.4g}], gains {k_p:.3g} / "
                 f"{k_n:.3g} rad/s per command unit (one-step RMSE {e:.3g} rad/s)"
