@@ -13,9 +13,12 @@ base it corrects::
 so an untrained head (output 0) is the structured model without its delay, and the network
 only has to learn what the map misses (the delay and inertia, coupling, load, drift) - a
 smaller signal than the speed itself, whose errors outside the training data stay smaller.
-The map has no delay (the network carries memory, the map does not): it reads only the
-current features, so every path that runs the network (free run, envs, the fused engine,
-ensemble merge, ONNX) adds it from the same input row.
+Trained as a prior, the map has no delay (the network carries memory, the map does not): it
+reads only the current features, so every path that runs the network (free run, envs, the
+fused engine, ensemble merge, ONNX) adds it from the same input row.  A joint put on the map
+after training (:func:`.structured.with_map_joints`) may read its command ``d_j`` samples
+back: ``cols`` then points at the delayed-command features (:meth:`.Normalization.with_lags`),
+still one input row.
 
 :func:`.structured.fit_prior` fits it by least squares on the training split (the
 structured baseline's fit with delay 0); the parameters live in the network's ``state_dict`` (buffers), so checkpoints

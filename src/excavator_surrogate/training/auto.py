@@ -202,8 +202,8 @@ def auto_config(
         )
     why.append(
         "static valve map as a candidate per joint: a joint follows the map (dead zone, gain "
-        "per direction) if its validation free run is within 5 % of the network's (a near tie "
-        "goes to the simpler model)"
+        "per direction, delay) if its validation free run is within 5 % of the network's (a "
+        "near tie goes to the simpler model)"
     )
     cfg = TrainConfig(
         window=window,

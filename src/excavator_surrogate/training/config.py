@@ -134,8 +134,8 @@ class TrainConfig(PresetConfig, table="train"):
     the machine points (a machine on level ground moves alike in every direction; ours, not
     the paper's; the data-driven recipe turns it on)."""
     static_map: bool = False
-    """After training, a joint that the static valve map (dead zone, gain per direction, fitted
-    on the training split) drives within 5 % of the network on validation may follow the map
+    """After training, a joint that the static valve map (dead zone, gain per direction, delay,
+    fitted on the training split) drives within 5 % of the network on validation may follow the map
     (:mod:`.map_joints`: a near tie goes to the simpler model; ours; the recipe turns it on)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction) fitted on
