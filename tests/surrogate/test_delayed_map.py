@@ -9,16 +9,17 @@ import numpy as np
 import pytest
 import torch
 
-from excavator_surrogate.errors import CheckpointError
+from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
+from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.features import scale_commands_np
 from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.config import TrainConfig
 from excavator_surrogate.training.map_joints import choose_map_joints
 from excavator_surrogate.training.resume import start
-from tests.helpers.surrogates import tiny_surrogate
+from tests.helpers.surrogates import on_static_map, tiny_surrogate
 from tests.surrogate.test_structured import SPEC, TRUTH, _episode
 
 LAGS = (2, 0, 3, 1)
@@ -143,3 +144,20 @@ def test_training_with_a_speed_prior_starts(spec, episodes) -> None:
     st = start(cfg, cfg.model_config(spec.n_feature, spec.n_joint), spec, list(episodes), None)
     assert st.net.prior is not None and float(st.net.prior.k_pos.abs().sum()) > 0
     assert any("speed prior dead zone" in line for line in st.derived)
+
+
+def test_members_with_other_delays_are_not_merged() -> None:
+    a = on_static_map(tiny_surrogate(seed=0), delay=(2, 0, 0, 0))
+    b = on_static_map(tiny_surrogate(seed=1), delay=(1, 0, 0, 0))
+    with pytest.raises(ConfigError, match="command delays"):
+        merge([a, b])
+    c = on_static_map(tiny_surrogate(seed=1), delay=(2, 0, 0, 0))
+    merged = merge([a, c])
+    assert merged.norm.lags == (2, 0, 0, 0)
+    # the merged network's free run is the members' mean, each stepped on its own
+    rng = np.random.default_rng(4)
+    u = rng.uniform(-1000, 1000, (30, 4))
+    theta = np.repeat(np.array([[0.1, 0.2, 1.5, 0.5]]), 30, axis=0)
+    th, _ = rollout(merged, theta[None], u[None])
+    th_ref, _ = rollout_reference([a, c], theta, u)
+    np.testing.assert_allclose(th[0], th_ref, atol=1e-5)

@@ -64,6 +64,7 @@ def check_members(surs: Sequence[Surrogate]) -> None:
             (bool(s.end_stops) == bool(ref.end_stops), "end stops"),
             (torch.equal(s.norm.play.cpu(), ref.norm.play.cpu()), "play widths"),
             (s.norm.omega_in == ref.norm.omega_in, "velocity feature"),
+            (s.norm.lags == ref.norm.lags, "command delays (a static map's delay)"),
             (s.model_cfg.residual == ref.model_cfg.residual, "residual head"),
             (_same_prior(s, ref), "speed prior (another map, or other joints on the static map)"),
             (s.model_cfg.n_feature == ref.model_cfg.n_feature, "input features"),
