@@ -13,7 +13,7 @@ from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.surrogate.features import joint_limits
-from tests.helpers.surrogates import variant_surrogate
+from tests.helpers.surrogates import VARIANTS, variant_surrogate
 
 
 def _step_side_by_side(
@@ -44,40 +44,15 @@ def _step_side_by_side(
         ("windowed", "arx", "torchscript"),
     ],
 )
-@pytest.mark.parametrize(
-    ("end_stops", "play", "omega_in", "prior", "delayed_map"),
-    [
-        (False, (), False, False, False),
-        (True, (), False, False, False),
-        (False, (0.05, 0.2), False, False, False),
-        (True, (), True, False, False),
-        (True, (), False, True, False),
-        (False, (), False, False, True),
-    ],
-    ids=["free", "stops", "play", "velocity", "prior", "delayed-map"],
-)
+@pytest.mark.parametrize("variant", list(VARIANTS))
 def test_onnx_stepper_matches_torch(
-    mode: str,
-    cell: str,
-    exporter: str,
-    end_stops: bool,
-    play: tuple[float, ...],
-    omega_in: bool,
-    prior: bool,
-    delayed_map: bool,
-    tmp_path: Path,
+    mode: str, cell: str, exporter: str, variant: str, tmp_path: Path
 ) -> None:
-    sur = variant_surrogate(
-        mode=mode,
-        cell=cell,
-        end_stops=end_stops,
-        play=play,
-        omega_in=omega_in,
-        prior=prior,
-        delayed_map=delayed_map,
-    )
+    kw = VARIANTS[variant]
+    end_stops, play, omega_in = kw["end_stops"], kw["play"], kw["omega_in"]
+    sur = variant_surrogate(mode=mode, cell=cell, **kw)
     lagged = bool(sur.norm.lags)  # a delayed map: its delay line travels in z
-    assert lagged == (delayed_map and cell != "arx")
+    assert lagged == (variant == "delayed-map" and cell != "arx")
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)

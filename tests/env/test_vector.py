@@ -21,7 +21,7 @@ from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.features import joint_limits
 from excavator_surrogate.surrogate.rollout import ClosedLoop
-from tests.helpers.surrogates import variant_surrogate
+from tests.helpers.surrogates import VARIANTS, variant_surrogate
 
 N_ENVS = 3
 LIMIT = 7  # short episodes so autoresets happen within the test
@@ -96,45 +96,19 @@ def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
         np.testing.assert_allclose(obs[0], obs[1], atol=1e-5)
 
 
-@pytest.mark.parametrize(
-    ("end_stops", "play", "omega_in", "prior", "delayed_map"),
-    [
-        (False, (), False, False, False),
-        (True, (), False, False, False),
-        (False, (0.05, 0.2), False, False, False),
-        (True, (0.05,), True, False, False),
-        (True, (), False, True, False),
-        (False, (0.05,), False, False, True),
-    ],
-    ids=["free", "stops", "play", "velocity", "prior", "delayed-map"],
-)
+@pytest.mark.parametrize("variant", list(VARIANTS))
 @pytest.mark.parametrize(
     ("mode", "cell"),
     [("stateful", "lstm"), ("stateful", "gru"), ("windowed", "lstm"), ("windowed", "arx")],
 )
-def test_engine_matches_closed_loop_reference(
-    mode: str,
-    cell: str,
-    end_stops: bool,
-    play: tuple[float, ...],
-    omega_in: bool,
-    prior: bool,
-    delayed_map: bool,
-) -> None:
+def test_engine_matches_closed_loop_reference(mode: str, cell: str, variant: str) -> None:
     """The batched engine equals the surrogate package's ClosedLoop with an at-rest history
     (with end stops: driven into them, and both stop at the same place; with command play
     features: the engine carries the same play states; with the velocity feature: the same
     fed-back velocities, clipped at the stops; with a delayed static map: the same delay
     line of commands)."""
-    sur = variant_surrogate(
-        mode=mode,
-        cell=cell,
-        end_stops=end_stops,
-        play=play,
-        omega_in=omega_in,
-        prior=prior,
-        delayed_map=delayed_map,
-    )
+    end_stops = VARIANTS[variant]["end_stops"]
+    sur = variant_surrogate(mode=mode, cell=cell, **VARIANTS[variant])
     rng = np.random.default_rng(2)
     n, w = 3, sur.window
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])

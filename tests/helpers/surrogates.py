@@ -112,6 +112,18 @@ def make_surrogate(
     return tiny_surrogate(spec, episodes, mode=mode, window=window, hidden=hidden, **kw)
 
 
+VARIANTS: dict[str, dict] = {
+    "free": dict(end_stops=False, play=(), omega_in=False),
+    "stops": dict(end_stops=True, play=(), omega_in=False),
+    "play": dict(end_stops=False, play=(0.05, 0.2), omega_in=False),
+    "velocity": dict(end_stops=True, play=(0.05,), omega_in=True),
+    "prior": dict(end_stops=True, play=(), omega_in=False, prior=True),
+    "delayed-map": dict(end_stops=False, play=(0.05,), omega_in=False, delayed_map=True),
+}
+"""The runtime-equivalence tests' surrogate variants (keyword arguments of
+:func:`variant_surrogate` besides ``mode`` and ``cell``), by test id."""
+
+
 def variant_surrogate(
     *,
     mode: str,
