@@ -519,7 +519,8 @@ class OnnxStepper:
         self.theta = theta0.copy()
         u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
         z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
-        z_rest[:, len(self.play) :] = z_rest[:, -1:]  # at rest: the line holds the rest command
+        if self.n_state > len(self.play):  # at rest: the delay line holds the rest command
+            z_rest[:, len(self.play) :] = z_rest[:, -1:]
         self.z = z_rest
         self.w = np.zeros_like(theta0)  # at rest
         if self.mode == "stateful":
