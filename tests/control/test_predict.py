@@ -12,7 +12,7 @@ from excavator_surrogate.env.mujoco_env import ExcavatorMujocoEnv
 from excavator_surrogate.errors import ConfigError, ExsurError
 from excavator_surrogate.simulate.hydraulics import HydraulicTransform
 from excavator_surrogate.surrogate.rollout import ClosedLoop
-from tests.helpers.surrogates import tiny_surrogate
+from tests.helpers.surrogates import on_static_map, tiny_surrogate
 
 THETA0 = np.array([0.2, 0.1, 1.5, 0.6])
 K, N, N_HIST = 4, 6, 9
@@ -27,22 +27,27 @@ def _history(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize(
-    ("mode", "cell", "play", "omega_in"),
+    ("mode", "cell", "play", "omega_in", "delayed_map"),
     [
-        ("stateful", "lstm", (), False),
-        ("stateful", "gru", (0.05,), False),
-        ("windowed", "lstm", (0.05, 0.1), False),
-        ("stateful", "lstm", (), True),
-        ("windowed", "lstm", (0.05,), True),
+        ("stateful", "lstm", (), False, False),
+        ("stateful", "gru", (0.05,), False, False),
+        ("windowed", "lstm", (0.05, 0.1), False, False),
+        ("stateful", "lstm", (), True, False),
+        ("windowed", "lstm", (0.05,), True, False),
+        ("stateful", "lstm", (0.05,), False, True),
+        ("windowed", "gru", (), False, True),
     ],
 )
 def test_surrogate_batch_matches_single_closed_loops(
-    mode: str, cell: str, play: tuple, omega_in: bool
+    mode: str, cell: str, play: tuple, omega_in: bool, delayed_map: bool
 ) -> None:
     """Synced to a measured history, the K-candidate batched rollout equals K single
     ClosedLoop rollouts, each warmed up on the at-rest samples plus the full history (with
-    the velocity feature: the measured velocities of that history)."""
+    the velocity feature: the measured velocities of that history; with a delayed static
+    map: the commands of that history in its delay line)."""
     sur = tiny_surrogate(mode=mode, cell=cell, play=play, window=5, omega_in=omega_in)
+    if delayed_map:
+        sur = on_static_map(sur, delay=(3, 0, 0, 1))
     rng = np.random.default_rng(0)
     theta, u_hist = _history(rng)
     pred = SurrogatePredictor(sur, n_batch=K)
@@ -139,9 +144,17 @@ def _assert_split_close(got: np.ndarray, ref: np.ndarray, theta_now: np.ndarray)
 
 
 @pytest.mark.parametrize(
-    ("mode", "omega_in"), [("stateful", False), ("windowed", False), ("stateful", True)]
+    ("mode", "omega_in", "delayed_map"),
+    [
+        ("stateful", False, False),
+        ("windowed", False, False),
+        ("stateful", True, False),
+        ("stateful", False, True),
+    ],
 )
-def test_worker_processes_split_the_candidates(mode: str, omega_in: bool) -> None:
+def test_worker_processes_split_the_candidates(
+    mode: str, omega_in: bool, delayed_map: bool
+) -> None:
     """Candidates split over this process and two spawned workers give the same angles as
     one process, call after call (each call re-sends the synced state).
 
@@ -155,6 +168,8 @@ def test_worker_processes_split_the_candidates(mode: str, omega_in: bool) -> Non
     kw = dict(mode=mode, play=(0.05,), window=5, omega_in=omega_in)
     members = [tiny_surrogate(seed=s, **kw) for s in range(2)]
     sur = merge(members)
+    if delayed_map:  # the workers get the delay line with the synced state
+        sur = on_static_map(sur, delay=(2, 0, 0, 1))
     rng = np.random.default_rng(3)
     theta, u_hist = _history(rng)
     one = SurrogatePredictor(sur, n_batch=7, bias_gain=0.2)
