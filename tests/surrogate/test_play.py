@@ -14,13 +14,8 @@ from excavator_surrogate.surrogate.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from excavator_surrogate.surrogate.features import (
-    Normalization,
-    encode_np,
-    play_np,
-    play_step,
-    scale_commands_np,
-)
+from excavator_surrogate.surrogate.command_state import play_np, play_step
+from excavator_surrogate.surrogate.features import Normalization, encode_np, scale_commands_np
 from excavator_surrogate.surrogate.rollout import window_rollout
 from excavator_surrogate.training import TrainConfig
 from tests.helpers.surrogates import make_surrogate

@@ -71,14 +71,9 @@ from torch import nn
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
+from ..surrogate.command_state import command_features, play_np
 from ..surrogate.coverage import channel_names
-from ..surrogate.features import (
-    integrate,
-    line_features,
-    play_features,
-    play_np,
-    scale_commands_np,
-)
+from ..surrogate.features import integrate, scale_commands_np
 from ..surrogate.model import Surrogate
 from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode
@@ -123,13 +118,11 @@ class WindowStep(nn.Module):
             parts += [torch.sin(th), torch.cos(th)] if p else [th]
         us = (u - self.u_center) / self.u_scale
         parts.append(us)
-        if self.n_state and z is None:
-            raise ValueError("this surrogate has command states: pass z")
-        if self.n_play:
-            zp = z[..., : self.n_play, :]
-            parts.append(play_features(zp, us[..., : len(self.periodic)], self.play))
-        if self.n_state > self.n_play:
-            parts.append(line_features(z[..., self.n_play :, :], self.lag_index))
+        if self.n_state:
+            if z is None:
+                raise ValueError("this surrogate has command states: pass z")
+            nj = len(self.periodic)
+            parts.append(command_features(z, us[..., :nj], self.play, self.lag_index))
         if self.omega_in:
             if w is None:
                 raise ValueError("this surrogate has a velocity feature: pass w")

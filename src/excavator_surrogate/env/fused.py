@@ -17,15 +17,9 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
+from ..surrogate.command_state import command_features, command_step, delayed_commands
 from ..surrogate.ensemble import member_head
-from ..surrogate.features import (
-    Normalization,
-    integrate,
-    line_features,
-    line_step,
-    play_features,
-    play_step,
-)
+from ..surrogate.features import Normalization, integrate
 from ..surrogate.model import Surrogate
 from ..surrogate.prior import SpeedPrior
 from .inputs import ActionLayout
@@ -102,17 +96,10 @@ def play_and_features(
         ``z_new`` (..., Q + L, n_joint) and the features: ``(z_new - us) / b`` (..., Q *
         n_joint), then with a line each joint's delayed scaled command (..., n_joint).
     """
-    nj, q = z.shape[-1], module.play.numel()
+    nj = z.shape[-1]
     us = (u[..., :nj] - module.u_center[:nj]) / module.u_scale[:nj]
-    if z.shape[-2] == q:
-        z = play_step(z, us, module.play)
-        return z, play_features(z, us, module.play)
-    line = line_step(z[..., q:, :], us)
-    lag = line_features(line, module.lag_index)
-    if not q:
-        return line, lag
-    zp = play_step(z[..., :q, :], us, module.play)
-    return torch.cat([zp, line], dim=-2), torch.cat([play_features(zp, us, module.play), lag], -1)
+    z = command_step(z, us, module.play)
+    return z, command_features(z, us, module.play, module.lag_index)
 
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
@@ -248,7 +235,7 @@ class FusedStep(nn.Module):
         if self.n_state > self.n_play:
             if z is None:
                 raise ValueError("this surrogate's map reads delayed commands: pass z")
-            us = line_features(z[..., self.n_play :, :], self.lag_index)
+            us = delayed_commands(z, self.play, self.lag_index)
             return self.prior.speed(us * self.u_scale[:nj] + self.u_center[:nj])
         return self.prior.speed(u[..., :nj])
 

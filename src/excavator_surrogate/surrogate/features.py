@@ -18,8 +18,8 @@ in a free run.  It is the state of a slow, acceleration-limited flow (a heavy sw
 net otherwise has to infer from the small differences of consecutive angle features.
 Optionally (``lags`` ``d_1..d_J`` [samples], ours) each joint's scaled command ``d_j`` samples
 back, ``us_j[k - d_j]`` (0 before the first sample), is appended before ``omega_in``: what a
-delayed static map reads (:func:`.structured.with_map_joints`).  The commands it needs travel
-in the same state tensor as the play operators, as a delay line after them (:meth:`Normalization.play_update`).
+delayed static map reads (:func:`.structured.with_map_joints`).  Both histories travel in one
+command state ``z``, the delay line after the play operators (:mod:`.command_state`).
 Features and targets are then standardised with statistics of the training split
 (:class:`Normalization`), which travel with the checkpoint.
 
@@ -42,6 +42,13 @@ import torch
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
+from .command_state import (
+    command_features,
+    command_step,
+    line_from_rest_np,
+    play_features_np,
+    play_np,
+)
 
 STD_FLOOR = 1e-3
 """Smallest standard deviation used to scale a feature or target (avoids blowing up constants)."""
@@ -182,78 +189,6 @@ def scale_commands_np(u: np.ndarray, spec: MachineSpec) -> np.ndarray:
     return (np.asarray(u, dtype=np.float64) - center) / scale
 
 
-def play_np(us: np.ndarray, widths: Sequence[float], z0: np.ndarray | None = None) -> np.ndarray:
-    """Play operators over time, plain loop (the reference of :func:`play_step`).
-
-    Args:
-        us: (..., n_step, n_joint) scaled commands (:func:`scale_commands_np`).
-        widths: P half-widths ``b_p`` > 0 [scaled command units].
-        z0: (..., P, n_joint) state before the first sample; None: at rest (0).
-
-    Returns:
-        ``z``: (..., n_step, P, n_joint) operator outputs after each sample.
-    """
-    us = np.asarray(us, dtype=np.float64)
-    b = np.asarray(widths, dtype=np.float64)[:, None]  # (P, 1)
-    lead = us.shape[:-2]
-    n_step, n_joint = us.shape[-2:]
-    z = np.zeros((*lead, len(b), n_joint)) if z0 is None else np.array(z0, dtype=np.float64)
-    out = np.empty((*lead, n_step, len(b), n_joint))
-    for k in range(n_step):
-        x = us[..., k, None, :]
-        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
-        z = np.minimum(np.maximum(z, x - b), x + b)
-        out[..., k, :, :] = z
-    return out
-
-
-def play_step(z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    """One sample of the play operators: ``z: (..., P, n_joint)``, scaled commands
-    ``us: (..., n_joint)``, half-widths ``widths: (P,)`` -> new ``z``."""
-    x = us.unsqueeze(-2)
-    b = widths.unsqueeze(-1)
-    # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
-    return torch.minimum(torch.maximum(z, x - b), x + b)
-
-
-def play_features(z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
-    """``(z - us) / b`` in [-1, 1], ``z: (..., P, n_joint)``, ``us: (..., n_joint)``, ``widths:
-    (P,)`` -> ``(..., P * n_joint)`` (width-major; torch twin of :func:`play_features_np`)."""
-    return ((z - us.unsqueeze(-2)) / widths.unsqueeze(-1)).flatten(-2)
-
-
-def play_features_np(z: np.ndarray, us: np.ndarray, widths: Sequence[float]) -> np.ndarray:
-    """``(z - us) / b`` in [-1, 1], ``z: (..., P, n_joint)``, ``us: (..., n_joint)`` ->
-    ``(..., P * n_joint)`` (width-major)."""
-    b = np.asarray(widths, dtype=np.float64)[:, None]
-    f = (z - np.asarray(us, dtype=np.float64)[..., None, :]) / b
-    return f.reshape(*f.shape[:-2], -1)
-
-
-def line_step(line: torch.Tensor, us: torch.Tensor) -> torch.Tensor:
-    """One sample of the command delay line: ``line: (..., L, n_joint)`` the scaled commands
-    ``us[k-L..k-1]``, ``us: (..., n_joint)`` -> ``us[k-L+1..k]`` (oldest first)."""
-    return torch.cat([line[..., 1:, :], us.unsqueeze(-2)], dim=-2)
-
-
-def line_features(line: torch.Tensor, lag_index: torch.Tensor) -> torch.Tensor:
-    """Each joint's delayed command from the delay line: ``line: (..., L, n_joint)`` after
-    sample k, ``lag_index: (n_joint,)`` long ``L - 1 - d_j`` -> ``(..., n_joint)`` ``us_j[k - d_j]``."""
-    cols = torch.arange(line.shape[-1], device=line.device)
-    return line[..., lag_index, cols]
-
-
-def line_from_rest_np(us: np.ndarray, n_line: int) -> np.ndarray:
-    """The delay line after each sample, plain NumPy: ``us: (..., n_step, n_joint)`` scaled
-    commands -> ``(..., n_step, n_line, n_joint)``, row ``r`` of sample ``k`` holding
-    ``us[k - n_line + 1 + r]`` (0 before the first sample)."""
-    us = np.asarray(us, dtype=np.float64)
-    n_step = us.shape[-2]
-    pad = np.zeros((*us.shape[:-2], n_line - 1, us.shape[-1]))
-    full = np.concatenate([pad, us], axis=-2)
-    return np.stack([full[..., r : r + n_step, :] for r in range(n_line)], axis=-2)
-
-
 def _play_from_rest(u: np.ndarray, spec: MachineSpec, play: Sequence[float]) -> np.ndarray | None:
     if not len(play):
         return None
@@ -369,6 +304,12 @@ class Normalization:
         ``n_joint`` with ``omega_in``)."""
         return int(self.x_mean.shape[0])
 
+    @property
+    def lag_start(self) -> int:
+        """The column of the first delayed-command feature (without them: where they would
+        go, before the velocity feature)."""
+        return self.n_feature - self.n_lag - (len(self.periodic) if self.omega_in else 0)
+
     def with_lags(self, lags: Sequence[int]) -> Normalization:
         """A copy with delayed-command features ``lags`` (n_joint,) [samples] added (this one
         must have none): their columns go before the velocity feature, with the statistics
@@ -378,7 +319,7 @@ class Normalization:
             raise ValueError("with_lags: this normalisation already has delayed commands")
         n = len(self.periodic)
         n_angle = sum(2 if p else 1 for p in self.periodic)
-        at = self.n_feature - (n if self.omega_in else 0)
+        at = self.lag_start
         src = torch.arange(n_angle, n_angle + n)
 
         def grow(a: torch.Tensor) -> torch.Tensor:
@@ -532,12 +473,8 @@ class Normalization:
         ``z: (..., P + L, n_joint)``: the play operators, then the delay line."""
         if not self.n_state:
             return z
-        nj, q = len(self.periodic), self.n_play
-        us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
-        if not self.n_line:
-            return play_step(z, us, self.play)
-        line = line_step(z[..., q:, :], us)
-        return torch.cat([play_step(z[..., :q, :], us, self.play), line], dim=-2) if q else line
+        nj = len(self.periodic)
+        return command_step(z, (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj], self.play)
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Command states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch,
@@ -600,16 +537,12 @@ class Normalization:
                 parts.append(th)
         us = (u - self.u_center) / self.u_scale
         out = [torch.stack(parts, dim=-1), us]
-        if self.n_play:
+        if self.n_state:
             if z is None:
-                raise ValueError("encode: this normalisation has play features; pass z")
-            out.append(
-                play_features(z[..., : self.n_play, :], us[..., : len(self.periodic)], self.play)
-            )
-        if self.n_line:
-            if z is None:
-                raise ValueError("encode: this normalisation has delayed commands; pass z")
-            out.append(line_features(z[..., self.n_play :, :], self.lag_index))
+                what = "play features" if self.n_play else "delayed commands"
+                raise ValueError(f"encode: this normalisation has {what}; pass z")
+            nj = len(self.periodic)
+            out.append(command_features(z, us[..., :nj], self.play, self.lag_index))
         if self.omega_in:
             if omega is None:
                 raise ValueError("encode: this normalisation has a velocity feature; pass omega")

@@ -373,8 +373,8 @@ def with_map_joints(
     norm, cols = sur.norm, list(fit["cols"])
     state = {k: v.detach().clone() for k, v in sur.net.state_dict().items()}
     if any(lags):
-        at = norm.n_feature - (n_joint if norm.omega_in else 0)  # the lag columns' place
         norm = norm.with_lags(lags)
+        at = norm.lag_start  # the delayed commands' columns
         cols = [at + j for j in range(n_joint)]
         w = state["rnn.weight_ih_l0"]  # (gates, n_feature): zero weights for the new columns
         state["rnn.weight_ih_l0"] = torch.cat(
