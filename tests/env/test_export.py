@@ -12,7 +12,7 @@ from excavator_surrogate.cli import main
 from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import CheckpointError
-from excavator_surrogate.surrogate.features import joint_limits
+from excavator_surrogate.surrogate.angles import joint_limits
 from tests.helpers.surrogates import VARIANTS, variant_surrogate
 
 

@@ -19,7 +19,7 @@ from excavator_surrogate.env import (
 )
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.spec import EXCAVATOR
-from excavator_surrogate.surrogate.features import joint_limits
+from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.rollout import ClosedLoop
 from tests.helpers.surrogates import VARIANTS, variant_surrogate
 

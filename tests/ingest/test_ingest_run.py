@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from excavator_surrogate.surrogate.angles import envelope
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
-from excavator_surrogate.surrogate.features import envelope
 
 # The data-driven recipe with a tiny network and one short epoch (the recipe itself is
 # tested in tests/surrogate/test_auto.py).

@@ -10,15 +10,11 @@ import pytest
 import torch
 
 from excavator_surrogate.surrogate import rollout, rollout_reference
+from excavator_surrogate.surrogate.angles import integrate, integrate_np, joint_limits
 from excavator_surrogate.surrogate.checkpoint import (
     checkpoint_dict,
     load_checkpoint,
     save_checkpoint,
-)
-from excavator_surrogate.surrogate.features import (
-    integrate,
-    integrate_np,
-    joint_limits,
 )
 from excavator_surrogate.surrogate.rollout import window_rollout
 from tests.helpers.surrogates import make_surrogate

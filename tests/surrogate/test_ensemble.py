@@ -13,9 +13,9 @@ import torch
 from excavator_surrogate.cli import main
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate import free_run_error, rollout, rollout_reference
+from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge, n_member
-from excavator_surrogate.surrogate.features import joint_limits
 from excavator_surrogate.training import member_configs, train
 from tests.helpers.surrogates import make_surrogate
 from tests.helpers.training import tiny_dataset, tiny_train_config

@@ -13,15 +13,15 @@ import torch
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.spec import MachineSpec
 from excavator_surrogate.surrogate import rollout, rollout_reference
-from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
-from excavator_surrogate.surrogate.envelope import fill_envelope
-from excavator_surrogate.surrogate.features import (
+from excavator_surrogate.surrogate.angles import (
     envelope,
     integrate,
     integrate_np,
     omega_target,
     unwrap_periodic,
 )
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
+from excavator_surrogate.surrogate.envelope import fill_envelope
 from excavator_surrogate.training import train
 from tests.helpers.surrogates import make_surrogate
 from tests.helpers.training import tiny_dataset, tiny_train_config

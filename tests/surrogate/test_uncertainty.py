@@ -10,6 +10,7 @@ import torch
 
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import rollout, rollout_reference
+from excavator_surrogate.surrogate.angles import omega_target
 from excavator_surrogate.surrogate.bands import (
     PRIOR_RUNS,
     RULE,
@@ -31,7 +32,6 @@ from excavator_surrogate.surrogate.coverage import (
     ood_flags,
 )
 from excavator_surrogate.surrogate.ensemble import member_head, merge
-from excavator_surrogate.surrogate.features import omega_target
 from excavator_surrogate.surrogate.rollout import ClosedLoop
 from excavator_surrogate.surrogate.synthetic import synthetic_spec
 from excavator_surrogate.surrogate.uncertainty import (

@@ -10,13 +10,9 @@ import pytest
 import torch
 
 from excavator_surrogate.surrogate import rollout, rollout_reference
+from excavator_surrogate.surrogate.angles import omega_in_np, omega_target
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
-from excavator_surrogate.surrogate.features import (
-    Normalization,
-    encode_np,
-    omega_in_np,
-    omega_target,
-)
+from excavator_surrogate.surrogate.features import Normalization, encode_np
 from excavator_surrogate.surrogate.rollout import ClosedLoop, window_rollout
 from tests.helpers.surrogates import make_surrogate
 from tests.helpers.training import tiny_train_config, train_tiny_free_run

@@ -11,7 +11,7 @@ import torch
 
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import free_run_error, load_checkpoint, read_checkpoint
-from excavator_surrogate.surrogate.features import omega_target
+from excavator_surrogate.surrogate.angles import omega_target
 from excavator_surrogate.surrogate.rollout import window_rollout
 from excavator_surrogate.training import TrainConfig, horizon_loss, train
 from tests.helpers.surrogates import make_surrogate

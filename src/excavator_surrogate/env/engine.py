@@ -27,8 +27,8 @@ from torch import nn
 
 from ..devices import resolve_device
 from ..errors import ConfigError
+from ..surrogate.angles import integrate
 from ..surrogate.ensemble import n_member
-from ..surrogate.features import integrate
 from ..surrogate.model import Surrogate, step_layers
 from .fused import FusedStep, play_and_features, rest_command
 from .members import MemberLSTM, from_dense, to_dense

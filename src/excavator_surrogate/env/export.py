@@ -71,9 +71,10 @@ from torch import nn
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
+from ..surrogate.angles import integrate
 from ..surrogate.command_state import command_features, play_np
 from ..surrogate.coverage import channel_names
-from ..surrogate.features import integrate, scale_commands_np
+from ..surrogate.features import scale_commands_np
 from ..surrogate.model import Surrogate
 from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode

@@ -17,9 +17,10 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
+from ..surrogate.angles import integrate
 from ..surrogate.command_state import command_features, command_step, delayed_commands
 from ..surrogate.ensemble import member_head
-from ..surrogate.features import Normalization, integrate
+from ..surrogate.features import Normalization
 from ..surrogate.model import Surrogate
 from ..surrogate.prior import SpeedPrior
 from .inputs import ActionLayout

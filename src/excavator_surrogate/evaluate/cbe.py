@@ -34,9 +34,9 @@ from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, recorded_path, write_json, write_text
 from ..spec import MachineSpec
+from ..surrogate.angles import unwrap_periodic
 from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
-from ..surrogate.features import unwrap_periodic
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .metrics import cbe_metrics, regression_metrics

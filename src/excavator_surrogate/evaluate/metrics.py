@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from ..spec import MachineSpec
-from ..surrogate.features import unwrap_periodic
+from ..surrogate.angles import unwrap_periodic
 
 
 class RunLike(Protocol):

@@ -6,9 +6,10 @@ Public API: :func:`load_checkpoint`, :func:`save_checkpoint`, :class:`Surrogate`
 :mod:`excavator_surrogate.training`.
 """
 
+from .angles import omega_target, unwrap_periodic, wrap_angle
 from .baselines import fit_arx
 from .checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
-from .features import Normalization, encode_np, omega_target, unwrap_periodic, wrap_angle
+from .features import Normalization, encode_np
 from .model import ARXNet, ModelConfig, Surrogate, SurrogateNet
 from .rollout import ClosedLoop, EpisodeRollout, rollout, rollout_episodes, rollout_reference
 from .validation import free_run_error

@@ -22,10 +22,10 @@ from typing import Any, Literal
 import numpy as np
 
 from ..data.episode import Episode
+from .angles import omega_target
 from .checkpoint import read_checkpoint, surrogate_from_dict, write_checkpoint_dict
 from .coverage import CoverageRecord, fit_coverage
 from .ensemble import member_head
-from .features import omega_target
 from .model import Surrogate
 from .rollout import batch_episodes
 from .uncertainty import (

@@ -19,7 +19,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 from ..data.episode import Episode
 from ..errors import DataError
 from ..spec import MachineSpec
-from .features import Normalization, omega_in_np, omega_target
+from .angles import omega_in_np, omega_target
+from .features import Normalization
 from .model import ARXNet, ModelConfig, Surrogate
 from .structured import fit_structured
 

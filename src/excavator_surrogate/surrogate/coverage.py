@@ -28,7 +28,7 @@ import numpy as np
 from ..data.episode import Episode
 from ..errors import CheckpointError, DataError
 from ..spec import MachineSpec
-from .features import omega_target
+from .angles import omega_target
 
 QUANTILES = (0.005, 0.995)
 """The quantiles that bound each channel's box."""

@@ -1,7 +1,7 @@
 """The machine's physical envelope, completed from data where the spec leaves it open.
 
 A free run must never leave what the machine can physically do.  The envelope is a pair of
-bounds per joint (:func:`~.features.envelope`): end stops ``[theta_min, theta_max]`` [rad] and
+bounds per joint (:func:`~.angles.envelope`): end stops ``[theta_min, theta_max]`` [rad] and
 a speed bound ``omega_max`` [rad/s].  A mapping or a simulator spec may declare them; most
 users' mappings do not.  :func:`fill_envelope` then takes them from the training data:
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from ..data.episode import Episode
 from ..spec import MachineSpec
-from .features import omega_target, unwrap_periodic
+from .angles import omega_target, unwrap_periodic
 
 
 def fill_envelope(

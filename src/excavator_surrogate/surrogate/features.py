@@ -42,6 +42,7 @@ import torch
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
+from .angles import omega_in_np, omega_target
 from .command_state import (
     command_features,
     command_step,
@@ -52,134 +53,6 @@ from .command_state import (
 
 STD_FLOOR = 1e-3
 """Smallest standard deviation used to scale a feature or target (avoids blowing up constants)."""
-
-
-def wrap_angle(d: np.ndarray) -> np.ndarray:
-    """Wrap angle differences to ``[-pi, pi)`` [rad]."""
-    return (np.asarray(d) + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def omega_target(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
-    """Training target: backward difference of the angle.
-
-    Args:
-        theta: (n_step, n_joint) angles [rad]; periodic joints may be wrapped or unwrapped.
-        spec: the machine (``periodic`` flags, ``dt``).
-
-    Returns:
-        (n_step, n_joint) ``omega_tgt`` [rad/s]; row ``k >= 1`` is
-        ``wrap(theta[k] - theta[k-1]) / T_s``; row 0 is NaN (no previous sample; never a target).
-    """
-    theta = np.asarray(theta, dtype=np.float64)
-    d = np.diff(theta, axis=0)
-    per = np.asarray(spec.periodic, dtype=bool)
-    if per.any():
-        d[:, per] = wrap_angle(d[:, per])
-    out = np.full_like(theta, np.nan)
-    out[1:] = d / spec.dt
-    return out
-
-
-def joint_limits(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Mechanical end stops ``(lo, hi)``, each ``(n_joint,)`` [rad]; ``-inf`` / ``+inf`` for
-    periodic joints and for limits the spec leaves open (``None``)."""
-    lo = [
-        -math.inf if j.periodic or j.theta_min is None else float(j.theta_min) for j in spec.joints
-    ]
-    hi = [
-        math.inf if j.periodic or j.theta_max is None else float(j.theta_max) for j in spec.joints
-    ]
-    return np.array(lo), np.array(hi)
-
-
-def speed_limits(spec: MachineSpec) -> np.ndarray:
-    """Largest angular speed per joint ``(n_joint,)`` [rad/s]; ``+inf`` where the spec has none."""
-    return np.array([math.inf if j.omega_max is None else float(j.omega_max) for j in spec.joints])
-
-
-def envelope(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The machine's physical envelope ``(lo, hi, omega_max)``, each ``(n_joint,)``: end stops
-    [rad] (:func:`joint_limits`) and speed bounds [rad/s] (:func:`speed_limits`)."""
-    lo, hi = joint_limits(spec)
-    return lo, hi, speed_limits(spec)
-
-
-Limits = tuple[torch.Tensor, torch.Tensor] | tuple[torch.Tensor, torch.Tensor, torch.Tensor]
-"""``(lo, hi)`` end stops [rad], optionally with ``omega_max`` [rad/s], each (n_joint,)."""
-
-
-def integrate(
-    theta: torch.Tensor,
-    omega: torch.Tensor,
-    *,
-    dt: float,
-    limits: Limits | None = None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """One integration step of the closed loop, with optional end stops and speed bounds.
-
-    Args:
-        theta: (..., n_joint) angle ``theta[k]`` [rad].
-        omega: (..., n_joint) predicted ``omega[k+1]`` [rad/s].
-        dt: sample period T_s [s].
-        limits: ``(lo, hi)`` or ``(lo, hi, omega_max)``, each (n_joint,) (see :func:`envelope`),
-            or None.
-
-    Returns:
-        ``theta[k+1]`` [rad] and the velocity the sensors would report, ``omega[k+1]`` [rad/s]:
-        the prediction clipped to ``[-omega_max, omega_max]``, except at an end stop, where it
-        is what was actually travelled.
-    """
-    if limits is None:
-        # theta[k+1] = theta[k] + T_s * omega[k+1]
-        return theta + dt * omega, omega
-    lo, hi = limits[0], limits[1]
-    if len(limits) == 3:
-        # omega[k+1] <- min(max(omega[k+1], -omega_max), omega_max)       (speed bound)
-        omega = torch.minimum(torch.maximum(omega, -limits[2]), limits[2])
-    # theta[k+1] = theta[k] + T_s * omega[k+1]
-    nxt = theta + dt * omega
-    # theta[k+1] <- min(max(theta[k+1], theta_min), theta_max)        (end stops)
-    stopped = torch.minimum(torch.maximum(nxt, lo), hi)
-    hit = stopped != nxt
-    # omega[k+1] = (theta[k+1] - theta[k]) / T_s                     (only where a stop was hit)
-    omega = torch.where(hit, (stopped - theta) / dt, omega)
-    return stopped, omega
-
-
-def integrate_np(
-    theta: np.ndarray,
-    omega: np.ndarray,
-    *,
-    dt: float,
-    limits: tuple[np.ndarray, ...] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """NumPy twin of :func:`integrate` (the plain-loop reference uses it)."""
-    if limits is None:
-        return theta + dt * omega, omega
-    if len(limits) == 3:
-        omega = np.minimum(np.maximum(omega, -limits[2]), limits[2])
-    nxt = theta + dt * omega
-    stopped = np.minimum(np.maximum(nxt, limits[0]), limits[1])
-    hit = stopped != nxt
-    return stopped, np.where(hit, (stopped - theta) / dt, omega)
-
-
-def omega_in_np(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
-    """The velocity input feature of every sample: :func:`omega_target` with row 0 set to 0
-    (an episode starts at rest).  ``theta: (n_step, n_joint)`` [rad] -> ``(n_step, n_joint)``
-    [rad/s]."""
-    out = omega_target(theta, spec)
-    out[:1] = 0.0
-    return out
-
-
-def unwrap_periodic(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
-    """Unwrap periodic joints along the time axis (-2): ``(..., n_step, n_joint)`` [rad]."""
-    theta = np.array(theta, dtype=np.float64, copy=True)
-    for j, p in enumerate(spec.periodic):
-        if p:
-            theta[..., j] = np.unwrap(theta[..., j], axis=-1)
-    return theta
 
 
 def scale_commands_np(u: np.ndarray, spec: MachineSpec) -> np.ndarray:
@@ -214,7 +87,7 @@ def encode_np(
         z: (..., P, n_joint) play states after this sample (:func:`play_np`); required with ``play``.
         lag: (..., n_joint) each joint's delayed scaled command ``us_j[k - d_j]``, or None
             (not a feature).
-        omega: (..., n_joint) velocity input feature [rad/s] (:func:`omega_in_np`), or None
+        omega: (..., n_joint) velocity input feature [rad/s] (:func:`.angles.omega_in_np`), or None
             (not a feature).
 
     Returns:
@@ -263,7 +136,7 @@ class Normalization:
     play: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
     """(P,) half-widths of the command play operators [scaled command units]; empty: none."""
     omega_in: bool = False
-    """The previous velocity (:func:`omega_in_np`) is a feature (the last ``n_joint`` columns),
+    """The previous velocity (:func:`.angles.omega_in_np`) is a feature (the last ``n_joint`` columns),
     standardised with the target's ``y_mean`` / ``y_std`` (what a residual head adds)."""
     lags: tuple[int, ...] = ()
     """(n_joint,) command delays ``d_j`` [samples] of the delayed-command features (the
@@ -501,7 +374,7 @@ class Normalization:
         return d / dt
 
     def velocity_seq(self, theta: torch.Tensor, dt: float) -> torch.Tensor:
-        """Torch twin of :func:`omega_in_np` along axis -2: ``theta: (..., n_step, n_joint)``
+        """Torch twin of :func:`.angles.omega_in_np` along axis -2: ``theta: (..., n_step, n_joint)``
         [rad] -> (..., n_step, n_joint) [rad/s], sample 0 at rest (0)."""
         w = self.velocity(theta[..., 1:, :], theta[..., :-1, :], dt)
         return torch.cat([torch.zeros_like(theta[..., :1, :]), w], dim=-2)

@@ -27,7 +27,8 @@ from torch import nn
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
-from .features import Normalization, envelope
+from .angles import envelope
+from .features import Normalization
 from .prior import SpeedPrior
 
 State = tuple[torch.Tensor, torch.Tensor]

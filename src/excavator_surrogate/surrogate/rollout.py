@@ -28,8 +28,9 @@ import torch
 
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
+from .angles import integrate, integrate_np, omega_in_np, omega_target
 from .ensemble import check_members, member_head
-from .features import Normalization, integrate, integrate_np, omega_in_np, omega_target
+from .features import Normalization
 from .model import State, Surrogate
 
 Mode = Literal["windowed", "stateful"]

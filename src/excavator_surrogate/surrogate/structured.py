@@ -34,8 +34,9 @@ from torch import nn
 from ..data.episode import Episode
 from ..errors import DataError
 from ..spec import MachineSpec
+from .angles import omega_target
 from .envelope import fill_envelope
-from .features import Normalization, omega_target
+from .features import Normalization
 from .model import ModelConfig, Surrogate
 
 N_EDGE = 31

@@ -29,7 +29,7 @@ import numpy as np
 from ..data.dataset import write_dataset
 from ..data.episode import Episode
 from ..spec import JointSpec, MachineSpec
-from .features import wrap_angle
+from .angles import wrap_angle
 
 _NAMES = ("swing", "boom", "arm", "bucket", "wrist", "tilt", "j6", "j7")
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..data.episode import Episode
-from .features import unwrap_periodic
+from .angles import unwrap_periodic
 from .model import Surrogate
 from .rollout import rollout_episodes
 

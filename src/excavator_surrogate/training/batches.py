@@ -18,7 +18,8 @@ import torch
 from ..data.dataset import Dataset
 from ..data.episode import Episode
 from ..errors import DataError
-from ..surrogate.features import Normalization, omega_in_np, omega_target
+from ..surrogate.angles import omega_in_np, omega_target
+from ..surrogate.features import Normalization
 from .config import TrainConfig
 
 _log = logging.getLogger(__name__)

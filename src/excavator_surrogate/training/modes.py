@@ -37,7 +37,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from ..surrogate.features import integrate
+from ..surrogate.angles import integrate
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import window_rollout
 from .batches import (
