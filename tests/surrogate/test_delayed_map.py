@@ -9,15 +9,20 @@ import numpy as np
 import pytest
 import torch
 
+from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.features import scale_commands_np
+from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.training.api import train
+from excavator_surrogate.training.batches import make_data
 from excavator_surrogate.training.config import TrainConfig
 from excavator_surrogate.training.map_joints import choose_map_joints
+from excavator_surrogate.training.modes import make_mode
 from excavator_surrogate.training.resume import start
 from tests.helpers.surrogates import on_static_map, tiny_surrogate
 from tests.surrogate.test_structured import SPEC, TRUTH, _episode
@@ -144,6 +149,83 @@ def test_training_with_a_speed_prior_starts(spec, episodes) -> None:
     st = start(cfg, cfg.model_config(spec.n_feature, spec.n_joint), spec, list(episodes), None)
     assert st.net.prior is not None and float(st.net.prior.k_pos.abs().sum()) > 0
     assert any("speed prior dead zone" in line for line in st.derived)
+
+
+@pytest.mark.parametrize(
+    ("mode", "feedback"), [("stateful", "teacher"), ("stateful", "free"), ("windowed", "teacher")]
+)
+def test_a_speed_prior_is_trained_with_its_delay(mode: str, feedback: str) -> None:
+    """``prior = true`` on the dead-zone / gain / delay plant (delays 3 and 5): the prior
+    takes the fitted delays, the network's first layer reads the delayed commands, and with a
+    silent head every training mode's predictions are the plant's speeds (the batches carry
+    the delay line like every runtime)."""
+    train_eps = [_episode(s) for s in range(3)]
+    per_mode = (
+        dict(feedback=feedback, teacher_epochs=0, seq_len=40, burn_in=6, tbptt=8)
+        if mode == "stateful"
+        else dict(horizon=4)
+    )
+    cfg = TrainConfig(prior=True, mode=mode, window=6, hidden=8, head_hidden=8, **per_mode)
+    st = start(cfg, cfg.model_config(SPEC.n_feature, SPEC.n_joint), SPEC, train_eps, None)
+    assert st.norm.lags == (3, 5)
+    assert st.model_cfg.n_feature == st.norm.n_feature == SPEC.n_feature + SPEC.n_joint
+    assert st.net.rnn.weight_ih_l0.shape[1] == st.norm.n_feature
+    assert st.net.prior.cols.tolist() == [st.norm.lag_start, st.norm.lag_start + 1]
+    assert any("delay 0.15 s" in line for line in st.derived)  # 3 samples at 20 Hz
+    with torch.no_grad():  # a silent head: the network is the delayed map
+        st.net.head[2].weight.zero_()
+        st.net.head[2].bias.zero_()
+    sur = Surrogate(
+        net=st.net,
+        spec=st.spec,
+        norm=st.norm,
+        model_cfg=st.model_cfg,
+        mode=mode,
+        train_config={},
+        metrics={},
+        name="lstm",
+        end_stops=False,
+    )
+    mode_ = make_mode(cfg, make_data(train_eps, st.norm, torch.device("cpu")), sur)
+    batch = mode_.batches(np.random.default_rng(0), 1)[0]
+    with torch.no_grad():
+        for y_hat, y, _ in mode_.predict(st.net, batch, epoch=1):
+            torch.testing.assert_close(y_hat, y, atol=1e-4, rtol=0)
+
+
+def test_a_delayed_prior_trains_resumes_and_runs_like_a_plain_loop(tmp_path: Path) -> None:
+    """A short run with the delayed prior: ``best.pt`` keeps the delays, its free run equals
+    the plain loop, and a resumed run accepts its wider first layer."""
+    ds = Dataset(spec=SPEC)
+    ds.episodes["train"] = [_episode(s) for s in range(3)]
+    ds.episodes["val"] = [_episode(7)]
+    kw = dict(
+        prior=True,
+        mode="stateful",
+        window=6,
+        seq_len=40,
+        burn_in=6,
+        hidden=8,
+        head_hidden=8,
+        tensorboard=False,
+        max_train_seconds=0.0,
+    )
+    best = train(TrainConfig(epochs=2, **kw), ds, out=tmp_path / "a", show_progress=False)
+    sur = load_checkpoint(best)
+    assert sur.norm.lags == (3, 5) and sur.net.prior is not None
+    ep = _episode(9)
+    theta, u = ep.theta[None, :60], ep.u[None, :60]
+    th, _ = rollout(sur, theta, u)
+    th_ref, _ = rollout_reference(sur, theta[0], u[0])
+    np.testing.assert_allclose(th[0], th_ref, atol=1e-5)
+    train(
+        TrainConfig(epochs=3, **kw),
+        ds,
+        out=tmp_path / "a",
+        resume=tmp_path / "a" / "last.pt",
+        show_progress=False,
+    )
+    assert load_checkpoint(tmp_path / "a" / "last.pt").norm.lags == (3, 5)
 
 
 def test_members_with_other_delays_are_not_merged() -> None:

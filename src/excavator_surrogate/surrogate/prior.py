@@ -7,21 +7,22 @@ to day, or a test that drives the machine harder than its training did, it gener
 than a network trained from scratch.  With ``ModelConfig.prior`` the network keeps it as the
 base it corrects::
 
-    omega[k+1] = s(u[k]) + y_std * head(h[k])          (no y_mean term)
+    omega[k+1] = s(u[k - d]) + y_std * head(h[k])      (no y_mean term)
     s_j(u)     = k_pos,j * max(u_j - a_pos,j, 0) - k_neg,j * max(a_neg,j - u_j, 0)
 
-so an untrained head (output 0) is the structured model without its delay, and the network
-only has to learn what the map misses (the delay and inertia, coupling, load, drift) - a
-smaller signal than the speed itself, whose errors outside the training data stay smaller.
-Trained as a prior, the map has no delay (the network carries memory, the map does not): it
-reads only the current features, so every path that runs the network (free run, envs, the
-fused engine, ensemble merge, ONNX) adds it from the same input row.  A joint put on the map
-after training (:func:`.structured.with_map_joints`) may read its command ``d_j`` samples
-back: ``cols`` then points at the delayed-command features (:meth:`.Normalization.with_lags`),
-still one input row.
+so an untrained head (output 0) is the structured model (without its end stops), and the
+network only has to learn what the map misses (inertia, coupling, load, drift) - a smaller
+signal than the speed itself, whose errors outside the training data stay smaller.  The map
+reads only the current input row, so every path that runs the network (free run, envs, the
+fused engine, ensemble merge, ONNX) adds it from the same row.  A joint whose map has a
+delay ``d_j > 0`` reads its command ``d_j`` samples back: ``cols`` then points at the
+delayed-command features (:meth:`.Normalization.with_lags`, carried as a delay line in the
+command state ``z``), still one input row.  Training with a prior fits the delays as the
+structured baseline does (up to 1 s, within the window); a joint put on the map after
+training (:func:`.structured.with_map_joints`) reads them the same way.
 
 :func:`.structured.fit_prior` fits it by least squares on the training split (the
-structured baseline's fit with delay 0); the parameters live in the network's ``state_dict`` (buffers), so checkpoints
+structured baseline's fit); the parameters live in the network's ``state_dict`` (buffers), so checkpoints
 carry them and a resumed run keeps them.
 """
 

@@ -249,8 +249,7 @@ def fit_prior(
     ``delay`` [samples] (0 to ``max_delay``, the one-step error's best: ``omega[k+1] =
     s(u[k - d])``), one-step ``rmse`` [rad/s] and ``gain_spread`` (:func:`gain_spread`)
     (keyword arguments of :meth:`SpeedPrior.load_fit`, without ``norm``, and ``delay``,
-    ``rmse``, ``gain_spread``).  A speed prior (``ModelConfig.prior``) keeps ``max_delay = 0``:
-    it reads the current command only."""
+    ``rmse``, ``gain_spread``).  With ``max_delay = 0`` every joint reads its current command."""
     fits = fit_joints(episodes, spec, max_delay=max_delay)
     omegas = [omega_target(e.theta, spec) for e in episodes]
     return {

@@ -138,9 +138,9 @@ class TrainConfig(PresetConfig, table="train"):
     fitted on the training split) drives within 5 % of the network on validation may follow the map
     (:mod:`.map_joints`: a near tie goes to the simpler model; ours; the recipe turns it on)."""
     prior: bool = False
-    """The head corrects a static per-joint valve map (dead zone, gain per direction) fitted on
-    the training split by least squares: ``omega[k+1] = s(u[k]) + net`` (ours, not the paper's;
-    an option: on the continuous case it generalised worse, docs/real.md)."""
+    """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
+    fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,
+    not the paper's; an option, not the recipe's: docs/real.md has where it helped)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is

@@ -147,7 +147,7 @@ def train_network(
         net=net,
         spec=st.spec,
         norm=st.norm.to(par.device),
-        model_cfg=mcfg,
+        model_cfg=st.model_cfg,
         mode=cfg.mode,
         train_config=to_dict(cfg),
         metrics={},

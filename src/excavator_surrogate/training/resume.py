@@ -14,7 +14,7 @@ from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
 from ..surrogate.model import ModelConfig, SurrogateNet
 from ..surrogate.prior import PRIOR_MAP
-from ..surrogate.structured import fit_prior
+from ..surrogate.structured import MAX_DELAY_S, fit_prior
 from .config import TrainConfig
 
 SOURCE_META = "data_source"
@@ -37,6 +37,9 @@ class Start:
     net: SurrogateNet
     norm: Normalization
     spec: MachineSpec
+    model_cfg: ModelConfig
+    """The net's architecture: the config's, widened by the delayed-command features of a
+    delayed speed prior (:meth:`~excavator_surrogate.surrogate.features.Normalization.with_lags`)."""
     """The machine the net runs on: the dataset's, with the envelope completed from the
     training data (:func:`~excavator_surrogate.surrogate.envelope.fill_envelope`), or the
     resumed checkpoint's."""
@@ -103,22 +106,42 @@ def start(
             play=cfg.play,
             omega_in=cfg.velocity_input,
         )
-        net = SurrogateNet(mcfg)
-        if net.prior is not None:
-            fit = fit_prior(train_eps, spec)
-            rmse = fit["rmse"]
-            net.prior.load_fit(**{k: fit[k] for k in PRIOR_MAP}, norm=norm)
+        if mcfg.prior:
+            # the structured baseline's map, delay included (up to MAX_DELAY_S, within the window)
+            max_delay = int(max(0, min(cfg.window - 1, round(MAX_DELAY_S * spec.rate_hz))))
+            fit = fit_prior(train_eps, spec, max_delay=max_delay)
+            cols = fit["cols"]
+            if any(fit["delay"]):
+                # omega[k+1] = s(u[k - d]) + net: the delayed commands become features
+                norm = norm.with_lags(fit["delay"])
+                cols = [norm.lag_start + j for j in range(spec.n_joint)]
+                mcfg = replace(mcfg, n_feature=norm.n_feature)
+            net = SurrogateNet(mcfg)
+            assert net.prior is not None
+            net.prior.load_fit(
+                **{k: fit[k] for k in PRIOR_MAP if k != "cols"}, cols=cols, norm=norm
+            )
             derived += [
                 f"{js.name}: speed prior dead zone [{a_n:.4g}, {a_p:.4g}], gains {k_p:.3g} / "
-                f"{k_n:.3g} rad/s per command unit (one-step RMSE {e:.3g} rad/s)"
-                for js, a_n, a_p, k_p, k_n, e in zip(
-                    spec.joints, fit["a_neg"], fit["a_pos"], fit["k_pos"], fit["k_neg"], rmse
+                f"{k_n:.3g} rad/s per command unit, delay {d / spec.rate_hz:.3g} s "
+                f"(one-step RMSE {e:.3g} rad/s)"
+                for js, a_n, a_p, k_p, k_n, d, e in zip(
+                    spec.joints,
+                    fit["a_neg"],
+                    fit["a_pos"],
+                    fit["k_pos"],
+                    fit["k_neg"],
+                    fit["delay"],
+                    fit["rmse"],
                 )
             ]
-        return Start(net=net, norm=norm, spec=spec, derived=derived)
+        else:
+            net = SurrogateNet(mcfg)
+        return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived)
     ck = read_checkpoint(resume)
     old = surrogate_from_dict(ck, where=str(resume))
-    if old.model_cfg != mcfg:
+    # a delayed speed prior widened the first layer by its delayed-command features
+    if replace(old.model_cfg, n_feature=old.model_cfg.n_feature - old.norm.n_lag) != mcfg:
         raise CheckpointError(
             f"{resume}: architecture {old.model_cfg.to_dict()} differs from the config's {mcfg.to_dict()}; "
             "resume with the same window/hidden/layers/cell"
@@ -131,6 +154,7 @@ def start(
         net=old.net,
         norm=old.norm,
         spec=old.spec,
+        model_cfg=old.model_cfg,
         train_state=ck.get("train_state") or None,
         history=list(ck.get("history") or []),
     )
