@@ -25,6 +25,7 @@ from excavator_surrogate.training.map_joints import choose_map_joints
 from excavator_surrogate.training.modes import make_mode
 from excavator_surrogate.training.resume import start
 from tests.helpers.surrogates import on_static_map, tiny_surrogate
+from tests.helpers.training import tiny_train_config
 from tests.surrogate.test_structured import SPEC, TRUTH, _episode
 
 LAGS = (2, 0, 3, 1)
@@ -160,12 +161,9 @@ def test_a_speed_prior_is_trained_with_its_delay(mode: str, feedback: str) -> No
     silent head every training mode's predictions are the plant's speeds (the batches carry
     the delay line like every runtime)."""
     train_eps = [_episode(s) for s in range(3)]
-    per_mode = (
-        dict(feedback=feedback, teacher_epochs=0, seq_len=40, burn_in=6, tbptt=8)
-        if mode == "stateful"
-        else dict(horizon=4)
+    cfg = tiny_train_config(
+        prior=True, mode=mode, window=6, burn_in=6, feedback=feedback, teacher_epochs=0, horizon=4
     )
-    cfg = TrainConfig(prior=True, mode=mode, window=6, hidden=8, head_hidden=8, **per_mode)
     st = start(cfg, cfg.model_config(SPEC.n_feature, SPEC.n_joint), SPEC, train_eps, None)
     assert st.norm.lags == (3, 5)
     assert st.model_cfg.n_feature == st.norm.n_feature == SPEC.n_feature + SPEC.n_joint
@@ -199,18 +197,8 @@ def test_a_delayed_prior_trains_resumes_and_runs_like_a_plain_loop(tmp_path: Pat
     ds = Dataset(spec=SPEC)
     ds.episodes["train"] = [_episode(s) for s in range(3)]
     ds.episodes["val"] = [_episode(7)]
-    kw = dict(
-        prior=True,
-        mode="stateful",
-        window=6,
-        seq_len=40,
-        burn_in=6,
-        hidden=8,
-        head_hidden=8,
-        tensorboard=False,
-        max_train_seconds=0.0,
-    )
-    best = train(TrainConfig(epochs=2, **kw), ds, out=tmp_path / "a", show_progress=False)
+    kw = dict(prior=True, window=6, burn_in=6, max_train_seconds=0.0)
+    best = train(tiny_train_config(epochs=2, **kw), ds, out=tmp_path / "a", show_progress=False)
     sur = load_checkpoint(best)
     assert sur.norm.lags == (3, 5) and sur.net.prior is not None
     ep = _episode(9)
@@ -219,7 +207,7 @@ def test_a_delayed_prior_trains_resumes_and_runs_like_a_plain_loop(tmp_path: Pat
     th_ref, _ = rollout_reference(sur, theta[0], u[0])
     np.testing.assert_allclose(th[0], th_ref, atol=1e-5)
     train(
-        TrainConfig(epochs=3, **kw),
+        tiny_train_config(epochs=3, **kw),
         ds,
         out=tmp_path / "a",
         resume=tmp_path / "a" / "last.pt",
