@@ -40,8 +40,9 @@ from .prior import PRIOR_MAP
 _GATES = {"lstm": 4, "gru": 3}
 
 
-def check_members(surs: Sequence[Surrogate]) -> None:
-    """Raise :class:`ConfigError` naming the first member that cannot join the first one."""
+def check_members(surs: Sequence[Surrogate], *, same_gains: bool = True) -> None:
+    """Raise :class:`ConfigError` naming the first member that cannot join the first one
+    (``same_gains=False``: speed priors may differ in their gains, as in a composite)."""
     if len(surs) < 1:
         raise ConfigError("an ensemble needs at least one member")
     ref = surs[0]
@@ -66,7 +67,10 @@ def check_members(surs: Sequence[Surrogate]) -> None:
             (s.norm.omega_in == ref.norm.omega_in, "velocity feature"),
             (s.norm.lags == ref.norm.lags, "command delays (a static map's delay)"),
             (s.model_cfg.residual == ref.model_cfg.residual, "residual head"),
-            (_same_prior(s, ref), "speed prior (another map, or other joints on the static map)"),
+            (
+                _same_prior(s, ref, same_gains=same_gains),
+                "speed prior (another map, or other joints on the static map)",
+            ),
             (s.model_cfg.n_feature == ref.model_cfg.n_feature, "input features"),
         ]
         for ok, what in checks:
@@ -84,12 +88,14 @@ def check_members(surs: Sequence[Surrogate]) -> None:
                 )
 
 
-def _same_prior(a: Surrogate, b: Surrogate) -> bool:
-    """Both without a speed prior, or both with the same map (the same training data)."""
+def _same_prior(a: Surrogate, b: Surrogate, *, same_gains: bool = True) -> bool:
+    """Both without a speed prior, or both with the same map (the same training data); with
+    ``same_gains=False`` only the columns it reads must agree (see :func:`merge`)."""
     pa, pb = getattr(a.net, "prior", None), getattr(b.net, "prior", None)
     if pa is None or pb is None:
         return pa is None and pb is None
-    return all(torch.equal(getattr(pa, n).cpu(), getattr(pb, n).cpu()) for n in PRIOR_MAP)
+    names = PRIOR_MAP if same_gains else ("cols",)
+    return all(torch.equal(getattr(pa, n).cpu(), getattr(pb, n).cpu()) for n in names)
 
 
 def non_finite_weight(sur: Surrogate) -> str | None:
@@ -119,12 +125,25 @@ def _np(t: torch.Tensor) -> np.ndarray:
     return t.detach().double().cpu().numpy()
 
 
-def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
+def merge(
+    surs: Sequence[Surrogate],
+    *,
+    name: str | None = None,
+    joint_weights: Sequence[Sequence[float]] | None = None,
+) -> Surrogate:
     """Merge K surrogates into one whose omega is the mean of theirs (see the module docstring).
 
     Args:
         surs: K >= 1 members (LSTM or GRU, same spec/cell/depth/window/mode/end stops/play/velocity feature/head).
         name: label of the merged model (default ``"<cell>-ensemble-K"``).
+        joint_weights: (K, n_joint) member ``m``'s weight on joint ``j``, each column summing
+            to 1, or None (``1/K`` everywhere: the ensemble).  A weighted merge is a
+            **composite**, one network whose joint ``j`` is ``sum_m W[m, j] omega_m,j``
+            (e.g. each joint from one member), not an ensemble: its metrics say
+            ``composite``, and it joins ensembles as one member.  Speed priors then only
+            have to read the same columns: the merged map's gain on joint ``j`` is
+            ``sum_m W[m, j] k_m,j`` (exact: the map is linear in its gains), its dead zone
+            that of the members that drive joint ``j`` with a non-zero gain (they must agree).
 
     Returns:
         A :class:`Surrogate` with hidden width ``sum_m hidden_m`` and head width
@@ -134,13 +153,26 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
     Raises:
         ConfigError: members that cannot be merged (one line naming the member and what differs).
     """
-    check_members(surs)
+    check_members(surs, same_gains=joint_weights is None)
     ref = surs[0]
     n_member = len(surs)
+    n_joint = ref.spec.n_joint
+    if joint_weights is None:
+        weights = np.full((n_member, n_joint), 1.0 / n_member)
+    else:
+        weights = np.asarray(joint_weights, dtype=np.float64)
+        if (
+            weights.shape != (n_member, n_joint)
+            or not np.all(weights >= 0)
+            or not np.allclose(weights.sum(0), 1.0)
+        ):
+            raise ConfigError(
+                f"merge: joint_weights must be ({n_member}, {n_joint}) non-negative weights "
+                f"whose columns sum to 1, got {weights.tolist()}"
+            )
     cell = ref.model_cfg.cell
     n_gate = _GATES[cell]
     n_layer = ref.model_cfg.n_layer
-    n_joint = ref.spec.n_joint
     hid = [s.model_cfg.hidden for s in surs]
     head = [s.model_cfg.head_hidden for s in surs]
     h_off = np.concatenate([[0], np.cumsum(hid)])
@@ -191,11 +223,13 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         # a_m = relu(W1_m h_m + b1_m): block-diagonal first head layer
         w1[f_lo:f_hi, lo:hi] = _np(lin1.weight)
         b1[f_lo:f_hi] = _np(lin1.bias)
-        # y = (mean_m (ys_m (W2_m a_m + b2_m) + ym_m) - ym0) / ys0   (member 0's output scale)
-        # residual: omega = mean_m ys_m (W2_m a_m + b2_m) + w = ys0 y + w, so no ym terms;
-        # prior: the same with s(u) for w (every member has the same map)
-        w2[:, f_lo:f_hi] = _np(lin2.weight) * (ys / (n_member * ys0))[:, None]
-        b2 += (ys * _np(lin2.bias) + (0.0 if no_ym else ym)) / (n_member * ys0)
+        # y = (sum_m w_m (ys_m (W2_m a_m + b2_m) + ym_m) - ym0) / ys0   (w_m = 1/K: the mean;
+        # member 0's output scale)
+        # residual: omega = sum_m w_m ys_m (W2_m a_m + b2_m) + w = ys0 y + w, so no ym terms;
+        # prior: the same with s(u) for w (the merged map is the members' weighted map)
+        wm = weights[m]
+        w2[:, f_lo:f_hi] = _np(lin2.weight) * (ys * wm / ys0)[:, None]
+        b2 += wm * (ys * _np(lin2.bias) + (0.0 if no_ym else ym)) / ys0
         member_bias.append((ys * _np(lin2.bias) + (0.0 if no_ym else ym - ym0)) / ys0)
     if not no_ym:
         b2 -= ym0 / ys0
@@ -212,9 +246,13 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         prior=prior,
     )
     net = SurrogateNet(mcfg)
-    if net.prior is not None:  # member 0's map, reading the shared features of norm0
-        p0 = ref.net.prior
-        net.prior.load_fit(**{k: getattr(p0, k).cpu().tolist() for k in PRIOR_MAP}, norm=norm0)
+    if net.prior is not None:  # the members' map, reading the shared features of norm0
+        if joint_weights is None:  # one map: member 0's
+            p0 = ref.net.prior
+            fit = {k: getattr(p0, k).cpu().tolist() for k in PRIOR_MAP}
+        else:
+            fit = _merged_map(surs, weights)
+        net.prior.load_fit(**fit, norm=norm0)
     f32 = torch.float32
     with torch.no_grad():
         for k in range(n_layer):
@@ -245,6 +283,9 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
             for s in surs
         ],
     }
+    if joint_weights is not None:  # one network: its parts are not an ensemble's members
+        del info["member_bias"]
+        info = {**info, "joint_weights": weights.tolist()}
     return Surrogate(
         net=net,
         spec=ref.spec,
@@ -252,10 +293,41 @@ def merge(surs: Sequence[Surrogate], *, name: str | None = None) -> Surrogate:
         model_cfg=mcfg,
         mode=ref.mode,
         train_config=dict(ref.train_config or {}),
-        metrics={"ensemble": info},
-        name=name or (f"{cell}-ensemble-{n_member}" if n_member > 1 else ref.name),
+        metrics={"ensemble" if joint_weights is None else "composite": info},
+        name=name
+        or (
+            f"{cell}-composite-{n_member}"
+            if joint_weights is not None
+            else f"{cell}-ensemble-{n_member}"
+            if n_member > 1
+            else ref.name
+        ),
         end_stops=ref.end_stops,
     )
+
+
+def _merged_map(surs: Sequence[Surrogate], weights: np.ndarray) -> dict[str, list[float]]:
+    """The merged speed prior of ``surs`` (all with one) under ``weights`` (K, n_joint):
+    gains ``sum_m W[m, j] k_m,j``, dead zones of the members driving joint ``j`` with a
+    non-zero gain (all equal: one map, other gains), columns of member 0."""
+    priors = [s.net.prior for s in surs]
+    get = {n: np.array([_np(getattr(p, n)) for p in priors]) for n in PRIOR_MAP}
+    out: dict[str, list[float]] = {"cols": get["cols"][0].astype(int).tolist()}
+    for n in ("k_pos", "k_neg"):
+        out[n] = (weights * get[n]).sum(0).tolist()
+    live = (weights > 0) & ((get["k_pos"] != 0) | (get["k_neg"] != 0))  # (K, n_joint)
+    for n in ("a_pos", "a_neg"):
+        col = []
+        for j in range(weights.shape[1]):
+            vals = get[n][live[:, j], j]
+            if len(vals) and not np.all(vals == vals[0]):
+                raise ConfigError(
+                    f"merge: the members' maps differ in their dead zone on joint {j} "
+                    f"({n} {vals.tolist()}): merge members of one training data set"
+                )
+            col.append(float(vals[0]) if len(vals) else 0.0)
+        out[n] = col
+    return out
 
 
 def n_member(sur: Surrogate) -> int:

@@ -38,6 +38,7 @@ from .angles import omega_target
 from .envelope import fill_envelope
 from .features import Normalization
 from .model import ModelConfig, Surrogate
+from .prior import PRIOR_MAP
 
 N_EDGE = 31
 """Dead-zone edges tried per direction (0 to ``max_dead_zone`` of the command range)."""
@@ -329,6 +330,8 @@ def with_map_joints(
     sur: Surrogate,
     fit: Mapping[str, Sequence[float]],
     joints: Sequence[bool],
+    *,
+    lags: Sequence[int] | None = None,
 ) -> Surrogate:
     """A copy of ``sur`` whose ``joints`` move by the static map ``fit`` alone (the network's
     output for them is dropped) while the other joints keep the network's output exactly.
@@ -340,12 +343,16 @@ def with_map_joints(
         map joint j:    omega_j = y_std (0) + s_j(u)                 = s_j(u)
         other joint j:  omega_j = y_std (head_j + y_mean_j / y_std_j) = the network's omega_j
 
+    A network that already corrects a map (``model_cfg.prior``) keeps it on the other joints
+    (its head carries no ``y_mean``, so no bias moves).
+
     A joint whose map has a delay ``d_j > 0`` (``fit["delay"]``) reads its command ``d_j``
     samples back: the copy's features get the delayed commands (:meth:`.Normalization.with_lags`,
     carried as a delay line in the command state ``z`` by every runtime), and the network's
     first layer gets zero weights for those columns, so the other joints' output is the
     network's (up to the order of float sums).  Without delays the copy's features are the
-    network's.
+    network's.  If ``sur`` already reads delayed commands, a map joint's delay must be its
+    feature's, or 0 (the map then reads the current command's column).
 
     A merged ensemble's member biases are moved alike, and member ``m`` drives a map joint
     with the gain ``1 + sigma_j z_m`` (``metrics["ensemble"]["map_gain_dev"]``, (M, n_joint),
@@ -355,48 +362,90 @@ def with_map_joints(
     joints still read the map joints' angles, now the map's.
 
     Args:
-        sur: an LSTM/GRU surrogate without a prior or residual head.
+        sur: an LSTM/GRU surrogate without a residual head.
         fit: :func:`.structured.fit_prior`'s map (``cols``, ``a_pos``, ``a_neg``, ``k_pos``,
-            ``k_neg`` and optionally ``delay``; per joint).
+            ``k_neg`` and optionally ``delay`` and ``gain_spread``; per joint).
         joints: (n_joint,) which joints follow the map.
+        lags: (n_joint,) the delayed-command features to give a network without them
+            (default: each map joint's delay, 0 elsewhere); e.g. those of another network
+            this one is to be merged with.
 
     Returns:
         A new surrogate (``model_cfg.prior`` set; ``metrics["map_joints"]`` names the joints).
+
+    Raises:
+        ValueError: a residual head or ARX; a map delay that the features cannot read.
     """
-    if sur.model_cfg.prior or sur.model_cfg.residual or sur.model_cfg.cell == "arx":
-        raise ValueError("with_map_joints needs an LSTM/GRU without a prior or residual head")
-    if sur.norm.lags:
-        raise ValueError("with_map_joints needs a network without delayed-command features")
+    if sur.model_cfg.residual or sur.model_cfg.cell == "arx":
+        raise ValueError("with_map_joints needs an LSTM/GRU without a residual head")
     pick = torch.tensor([bool(j) for j in joints])
-    n_joint = sur.spec.n_joint
-    lags = [int(d) if p else 0 for d, p in zip(fit.get("delay", [0] * n_joint), pick.tolist())]
-    norm, cols = sur.norm, list(fit["cols"])
+    spec = sur.spec
+    n_joint = spec.n_joint
+    delay = [int(d) for d in fit.get("delay", [0] * n_joint)]
+    old = sur.net.prior if sur.model_cfg.prior else None
+    norm = sur.norm
     state = {k: v.detach().clone() for k, v in sur.net.state_dict().items()}
-    if any(lags):
-        norm = norm.with_lags(lags)
-        at = norm.lag_start  # the delayed commands' columns
-        cols = [at + j for j in range(n_joint)]
-        w = state["rnn.weight_ih_l0"]  # (gates, n_feature): zero weights for the new columns
-        state["rnn.weight_ih_l0"] = torch.cat(
-            [w[:, :at], w.new_zeros(len(w), n_joint), w[:, at:]], 1
+    if not norm.lags:
+        want = (
+            [int(d) for d in lags]
+            if lags is not None
+            else [d if p else 0 for d, p in zip(delay, pick.tolist())]
         )
+        if any(want):
+            norm = norm.with_lags(want)
+            at = norm.lag_start  # the delayed commands' columns
+            w = state["rnn.weight_ih_l0"]  # (gates, n_feature): zero weights for the new columns
+            state["rnn.weight_ih_l0"] = torch.cat(
+                [w[:, :at], w.new_zeros(len(w), n_joint), w[:, at:]], 1
+            )
+    elif lags is not None and tuple(int(d) for d in lags) != norm.lags:
+        raise ValueError(f"with_map_joints: this network already reads the delays {norm.lags}")
+
+    def col(j: int) -> int:
+        """The feature column that map joint ``j`` reads."""
+        if norm.lags and norm.lags[j] == delay[j]:
+            return norm.lag_start + j
+        if delay[j] == 0:
+            return spec.n_angle_feature + j  # the current command
+        raise ValueError(
+            f"with_map_joints: joint {spec.names[j]}'s map delay {delay[j]} is not a feature "
+            f"of this network (its delays {norm.lags or 'none'})"
+        )
+
     cfg = replace(sur.model_cfg, prior=True, n_feature=norm.n_feature)
     net = type(sur.net)(cfg)
     missing = net.load_state_dict(state, strict=False).missing_keys
     assert all(k.startswith("prior.") for k in missing), missing
+    base = {n: getattr(old, n).tolist() for n in PRIOR_MAP} if old is not None else None
+
+    if base is not None:
+        keep = base["cols"]
+    else:  # gain 0: any column; the delayed or current command, as fit_prior would say
+        keep = [
+            norm.lag_start + j if norm.lags else spec.n_angle_feature + j for j in range(n_joint)
+        ]
 
     def on(name: str) -> list[float]:
-        return [float(v) if p else 0.0 for v, p in zip(fit[name], pick.tolist())]
+        """The map's ``name`` per joint: ``fit``'s on ``joints``, the old map's (or 0) elsewhere."""
+        return [
+            float(v) if p else (base[name][j] if base is not None else 0.0)
+            for j, (v, p) in enumerate(zip(fit[name], pick.tolist()))
+        ]
 
     net.prior.load_fit(
-        cols=cols,
+        cols=[col(j) if p else keep[j] for j, p in enumerate(pick.tolist())],
         a_pos=on("a_pos"),
         a_neg=on("a_neg"),
         k_pos=on("k_pos"),
         k_neg=on("k_neg"),
         norm=norm,
     )
-    shift = (norm.y_mean / norm.y_std).detach().float().cpu()  # (n_joint,)
+    # a network without a map carries y_mean in its head: the prior now subtracts it
+    shift = (
+        torch.zeros(n_joint)
+        if old is not None
+        else (norm.y_mean / norm.y_std).detach().float().cpu()
+    )
     last = net.head[2]
     with torch.no_grad():
         last.weight[pick] = 0.0
@@ -410,10 +459,17 @@ def with_map_joints(
         mb[:, ~pick] += shift.double()[~pick]
         metrics["ensemble"] = {**ens, "member_bias": mb.tolist()}
         if "gain_spread" in fit:  # (M, n_joint) each member's gain deviation on the map joints
-            sigma = torch.tensor(on("gain_spread"), dtype=torch.float64)
+            sigma = torch.tensor(
+                [float(v) if p else 0.0 for v, p in zip(fit["gain_spread"], pick.tolist())],
+                dtype=torch.float64,
+            )
             dev = member_offsets(mb.shape[0])[:, None] * sigma[None, :]
+            if "map_gain_dev" in ens:  # earlier map joints keep theirs
+                prev = torch.tensor(ens["map_gain_dev"], dtype=torch.float64)
+                dev[:, ~pick] = prev[:, ~pick]
             metrics["ensemble"]["map_gain_dev"] = dev.tolist()
-    metrics["map_joints"] = [n for n, p in zip(sur.spec.names, pick.tolist()) if p]
+    before = set(metrics.get("map_joints") or [])
+    metrics["map_joints"] = [n for n, p in zip(spec.names, pick.tolist()) if p or n in before]
     return Surrogate(
         net=net.train(sur.net.training),
         spec=sur.spec,

@@ -17,6 +17,7 @@ from .config import TrainConfig
 from .ensembles import train_ensemble
 from .guards import check_excitation
 from .jobs import TrainJob, run_jobs
+from .kinds import train_choosing_kinds
 from .loop import EpochCallback, train_network
 from .loss import LossFn
 from .map_joints import apply_map_choice
@@ -74,6 +75,11 @@ def train(
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
     check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
     choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
+    if choosing and cfg.prior_choice:
+        raise ConfigError(
+            '[train] exogenous = "choose" and prior_choice = true: one choice per run; '
+            'set exogenous = "use" or "ignore", or prior_choice = false'
+        )
     if cfg.members > 1 or choosing:
         for given, what in (
             (resume, "resume"),
@@ -90,7 +96,9 @@ def train(
                     + (', exogenous = "use" or "ignore"' if choosing else "")
                     + ") and merge them with 'exsur merge'"
                 )
-    if choosing:
+    if cfg.prior_choice:
+        best = train_choosing_kinds(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
+    elif choosing:
         best = train_choosing_inputs(
             cfg, dataset, out=out, show_progress=show_progress, notes=notes
         )

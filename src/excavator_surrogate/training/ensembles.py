@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -17,6 +17,7 @@ from ..devices import usable_cpus
 from ..io_utils import mark_output
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
 from ..surrogate.ensemble import merge
+from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
@@ -90,12 +91,16 @@ def merge_members(
     out: Path,
     t0: float,
     training: Mapping[str, Any] | None = None,
+    merged: Surrogate | None = None,
+    kinds: Sequence[str] | None = None,
 ) -> Path:
     """Merge the members' ``bests`` (trained with ``cfgs``) into ``out/best.pt``, score its
     validation free run and write ``out/log.csv`` (one row per member, one for the ensemble);
-    ``training`` entries are added to the merged metrics' ``training`` summary."""
+    ``training`` entries are added to the merged metrics' ``training`` summary.  ``merged``:
+    the model built from them another way (a composite, :mod:`.kinds`), ``kinds`` each
+    member's kind for the log."""
     members = [load_checkpoint(b) for b in bests]
-    sur = merge(members)
+    sur = merge(members) if merged is None else merged
     sur.train_config = to_dict(cfg)
     val = free_run_error(sur, val_eps, max_steps=cfg.val_steps or None)
     rows: list[dict[str, Any]] = []
@@ -112,6 +117,8 @@ def merge_members(
         )
         if training and "exogenous" in training:
             rows[-1]["exogenous"] = cfgs[i].exogenous
+        if kinds is not None:
+            rows[-1]["kind"] = kinds[i]
     rows.append(
         {
             "member": "ensemble",
@@ -123,6 +130,8 @@ def merge_members(
     )
     if training and "exogenous" in training:
         rows[-1]["exogenous"] = cfg.exogenous
+    if kinds is not None:
+        rows[-1]["kind"] = "composite"
     sur.metrics = {
         **(sur.metrics or {}),
         "val_error": val["val_error"],

@@ -1,0 +1,145 @@
+"""Two kinds of network chosen per joint (``prior_choice``): the composite's maths against its
+parts, the choice on a plant where each kind is exact on one joint, and a short training."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from excavator_surrogate.data import Dataset
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint
+from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.model import Surrogate
+from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
+from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.training.api import train
+from excavator_surrogate.training.kinds import choose_kinds, composite, in_prior_form
+from excavator_surrogate.training.resume import start
+from tests.helpers.surrogates import tiny_surrogate
+from tests.helpers.training import tiny_train_config
+from tests.surrogate.test_structured import SPEC, _episode
+
+TRAIN = [_episode(s) for s in range(3)]
+
+
+def _prior_net(seed: int, *, exact: tuple[bool, ...]) -> Surrogate:
+    """An untrained network correcting the plant's delayed map, with a silent head on the
+    joints ``exact`` (there it is the plant)."""
+    torch.manual_seed(seed)
+    cfg = tiny_train_config(prior=True, window=6, burn_in=6)
+    st = start(cfg, cfg.model_config(SPEC.n_feature, SPEC.n_joint), SPEC, TRAIN, None)
+    pick = torch.tensor(exact)
+    with torch.no_grad():
+        st.net.head[2].weight[pick] = 0.0
+        st.net.head[2].bias[pick] = 0.0
+    return Surrogate(
+        net=st.net.eval(),
+        spec=SPEC,  # as the plain test networks' (no envelope from the data)
+        norm=st.norm,
+        model_cfg=st.model_cfg,
+        mode="stateful",
+        train_config={"seed": seed},
+        metrics={},
+        name="lstm",
+        end_stops=False,
+    )
+
+
+def _plain_net(seed: int) -> Surrogate:
+    return tiny_surrogate(SPEC, TRAIN, window=6, hidden=8, seed=seed)
+
+
+def _omega(sur: Surrogate, ep, n: int = 80) -> np.ndarray:
+    """Teacher-forced omega (n - 1, n_joint) [rad/s] of ``sur`` on the episode's first samples."""
+    th, u = torch.tensor(ep.theta[:n]).float(), torch.tensor(ep.u[:n]).float()
+    z = sur.norm.play_seq(sur.norm.play_rest(1), u[None])[0] if sur.norm.n_state else None
+    x = sur.norm.encode(th, u, z)
+    with torch.no_grad():
+        y, _ = sur.net.forward_seq(x[None])
+    return sur.norm.omega(y)[0].numpy()
+
+
+def test_a_plain_network_in_prior_form_keeps_its_output() -> None:
+    plain, prior = _plain_net(0), _prior_net(1, exact=(True, False))
+    form = in_prior_form(plain, prior)
+    assert form.norm.lags == prior.norm.lags == (3, 5) and form.net.prior is not None
+    assert float(form.net.prior.k_pos.abs().sum()) == 0.0
+    ep = _episode(9)
+    np.testing.assert_allclose(_omega(form, ep), _omega(plain, ep), atol=1e-5)
+
+
+def test_a_composite_takes_each_joint_from_its_member() -> None:
+    """joint_weights (0/1 per joint): joint 0 from the map-correcting network, joint 1 from
+    the plain one, on the same input rows; and an ensemble of such pairs is their mean."""
+    ep = _episode(9)
+    plains = [_plain_net(s) for s in (0, 1)]
+    priors = [_prior_net(s + 10, exact=(False, False)) for s in (0, 1)]
+    pair = merge([in_prior_form(plains[0], priors[0]), priors[0]], joint_weights=[[0, 1], [1, 0]])
+    assert "composite" in pair.metrics and "ensemble" not in pair.metrics
+    om = _omega(pair, ep)
+    np.testing.assert_allclose(om[:, 0], _omega(priors[0], ep)[:, 0], atol=1e-5)
+    np.testing.assert_allclose(om[:, 1], _omega(plains[0], ep)[:, 1], atol=1e-5)
+    both = composite(plains, priors, [True, False])
+    want = np.mean(
+        [
+            np.stack([_omega(b, ep)[:, 0], _omega(a, ep)[:, 1]], axis=1)
+            for a, b in zip(plains, priors)
+        ],
+        axis=0,
+    )
+    np.testing.assert_allclose(_omega(both, ep), want, atol=1e-5)
+    with pytest.raises(ConfigError, match="joint_weights"):
+        merge([plains[0], plains[1]], joint_weights=[[0.5, 1.0], [0.2, 0.0]])
+
+
+def test_the_choice_takes_each_joint_from_the_kind_that_drives_it() -> None:
+    """'Plain' networks exact on joint b (it follows the map), map-correcting ones exact on
+    joint a: the choice takes a from the map-correcting ones, and the composite drives the
+    plant on both joints; its free run equals the plain loop."""
+    fit = fit_prior(TRAIN, SPEC, max_delay=5)
+    plains = [with_map_joints(_plain_net(s), fit, [False, True], lags=(3, 5)) for s in (0, 1)]
+    priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
+    val = [_episode(7)]
+    model, record = choose_kinds(plains, priors, val)
+    assert record["candidates"] == ["a"] and record["chosen"] == ["a"]
+    assert record["val_theta_rmse_prior"][0] < 0.05 * record["val_theta_rmse_plain"][0]
+    ep = _episode(9)
+    theta, u = ep.theta[None, :80], ep.u[None, :80]
+    th, om = rollout(model, theta, u)
+    th_ref, _ = rollout_reference(model, theta[0], u[0])
+    np.testing.assert_allclose(th[0], th_ref, atol=1e-5)
+    w = model.window
+    np.testing.assert_allclose(om[0, w:], ep.omega[w:80], atol=1e-4)  # the plant, both joints
+
+
+def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) -> None:
+    ds = Dataset(spec=SPEC)
+    ds.episodes["train"] = TRAIN
+    ds.episodes["val"] = [_episode(7)]
+    cfg = tiny_train_config(
+        prior_choice=True,
+        members=2,
+        window=6,
+        burn_in=6,
+        epochs=2,
+        max_train_seconds=0.0,
+        static_map=True,
+    )
+    best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
+    for kind in ("plain", "prior"):
+        assert (tmp_path / "m" / kind / "member_0" / "best.pt").is_file()
+    sur = load_checkpoint(best)
+    record = sur.metrics["training"]["kinds"]
+    assert set(record) >= {"candidates", "chosen", "why", "val_theta_rmse_prior"}
+    rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
+    assert [r["kind"] for r in rows] == ["plain", "prior", "composite"]
+    assert "kinds" in (tmp_path / "m" / "config.toml").read_text()
+    with pytest.raises(ConfigError, match="prior_choice needs members >= 2"):
+        tiny_train_config(prior_choice=True, members=1)
+    with pytest.raises(ConfigError, match="prior_choice trains both kinds"):
+        tiny_train_config(prior_choice=True, prior=True, members=2)
