@@ -143,3 +143,25 @@ def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) ->
         tiny_train_config(prior_choice=True, members=1)
     with pytest.raises(ConfigError, match="prior_choice trains both kinds"):
         tiny_train_config(prior_choice=True, prior=True, members=2)
+
+
+def test_a_network_that_corrects_a_map_can_put_a_joint_on_a_map() -> None:
+    """with_map_joints on a map-correcting network (delays 3 and 5): the picked joint follows
+    the new map (delayed: its feature; undelayed: the current command's column), the other
+    keeps its output; a delay the features do not carry is refused."""
+    net = _prior_net(0, exact=(False, False))
+    ep = _episode(9)
+    before = _omega(net, ep)
+    delayed = fit_prior([_episode(s) for s in range(3)], SPEC, max_delay=5)
+    hyb = with_map_joints(net, delayed, [True, False])
+    om = _omega(hyb, ep)
+    np.testing.assert_allclose(om[:, 1], before[:, 1], atol=1e-5)
+    np.testing.assert_allclose(om[3:79, 0], ep.omega[4:80, 0], atol=1e-5)  # s(u[k - 3])
+    assert hyb.net.prior.cols.tolist()[0] == hyb.norm.lag_start
+    undelayed = fit_prior([_episode(s) for s in range(3)], SPEC)
+    hyb0 = with_map_joints(net, undelayed, [True, False])
+    assert hyb0.net.prior.cols.tolist()[0] == SPEC.n_angle_feature
+    np.testing.assert_allclose(_omega(hyb0, ep)[:, 1], before[:, 1], atol=1e-5)
+    bad = {**delayed, "delay": [2, 5]}
+    with pytest.raises(ValueError, match="not a feature"):
+        with_map_joints(net, bad, [True, False])
