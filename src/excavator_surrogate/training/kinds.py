@@ -33,6 +33,7 @@ import logging
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,7 @@ from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, train_member
 from .jobs import TrainJob, run_jobs
-from .map_joints import SET_MARGIN
+from .map_joints import SET_MARGIN, best_set
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -131,31 +132,8 @@ def choose_kinds(
             "joint's validation free run: the plain networks drive every joint"
         )
         return merged["plain"], record
-    sets = [cand]
-    if sum(cand) > 1:
-        sets += [[k == j for k in range(len(names))] for j, c in enumerate(cand) if c]
-    best: tuple[float, Surrogate, list[bool]] | None = None
-    for joints in sets:
-        model = composite(plains, priors, joints)
-        got = (
-            vals["prior"] if all(joints) else free_run_error(model, list(val), max_steps=max_steps)
-        )
-        worse = [
-            names[j]
-            for j, (a, b) in enumerate(zip(got["theta_rmse"], base["theta_rmse"]))
-            if not a <= (1 + SET_MARGIN) * b
-        ]
-        ok = got["val_error"] <= (1 + SET_MARGIN) * base["val_error"] and not worse
-        record["tried"].append(
-            {
-                "joints": [n for n, p in zip(names, joints) if p],
-                "val_error": got["val_error"],
-                "val_theta_rmse": got["theta_rmse"],
-                "kept": bool(ok),
-            }
-        )
-        if ok and (best is None or got["val_error"] < best[0]):
-            best = (got["val_error"], model, joints)
+    build = partial(composite, plains, priors)  # joints -> the composite taking them
+    best = best_set(cand, build, base, val, record=record, max_steps=max_steps)
     if best is None:
         record["why"] = (
             f"every set of joints on the map-correcting networks is worse than the plain "
@@ -163,11 +141,11 @@ def choose_kinds(
             f"{SET_MARGIN:.0%}, overall or on a joint: the plain networks drive every joint"
         )
         return merged["plain"], record
-    err, model, joints = best
+    model, got, joints = best
     record["chosen"] = [n for n, p in zip(names, joints) if p]
     record["why"] = (
         f"{', '.join(record['chosen'])} from the map-correcting networks: validation error "
-        f"{err:.4g} against the plain networks' {base['val_error']:.4g}"
+        f"{got['val_error']:.4g} against the plain networks' {base['val_error']:.4g}"
     )
     return model, record
 

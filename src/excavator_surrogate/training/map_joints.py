@@ -31,7 +31,8 @@ distance the map moved it.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -117,29 +118,8 @@ def choose_map_joints(
             "validation free run: no joint follows the map"
         )
         return None, record
-    sets = [cand]
-    if sum(cand) > 1:
-        sets += [[k == j for k in range(spec.n_joint)] for j, c in enumerate(cand) if c]
-    best: tuple[float, Surrogate, dict[str, Any], list[bool]] | None = None
-    for joints in sets:
-        hyb = with_map_joints(sur, fit, joints)
-        got = free_run_error(hyb, list(val), max_steps=max_steps)
-        worse = [
-            names[j]
-            for j, (a, b) in enumerate(zip(got["theta_rmse"], net["theta_rmse"]))
-            if not a <= (1 + SET_MARGIN) * b
-        ]
-        ok = got["val_error"] <= (1 + SET_MARGIN) * net["val_error"] and not worse
-        record["tried"].append(
-            {
-                "joints": [n for n, p in zip(names, joints) if p],
-                "val_error": got["val_error"],
-                "val_theta_rmse": got["theta_rmse"],
-                "kept": bool(ok),
-            }
-        )
-        if ok and (best is None or got["val_error"] < best[0]):
-            best = (got["val_error"], hyb, got, joints)
+    build = partial(with_map_joints, sur, fit)  # joints -> the model with them on the map
+    best = best_set(cand, build, net, val, record=record, max_steps=max_steps)
     if best is None:
         record["why"] = (
             f"every set of map joints is worse than the network's validation error "
@@ -147,7 +127,7 @@ def choose_map_joints(
             "the network stays"
         )
         return None, record
-    _, hyb, got, joints = best
+    hyb, got, joints = best
     record["chosen"] = [n for n, p in zip(names, joints) if p]
     record["why"] = (
         f"{', '.join(record['chosen'])} follow(s) the static map: validation error "
@@ -160,6 +140,51 @@ def choose_map_joints(
         "best_val_error": got["val_error"],
     }
     return hyb, record
+
+
+def best_set(
+    cand: Sequence[bool],
+    build: Callable[[list[bool]], Surrogate],
+    base: Mapping[str, Any],
+    val: Sequence[Episode],
+    *,
+    record: dict[str, Any],
+    max_steps: int | None = None,
+) -> tuple[Surrogate, dict[str, Any], list[bool]] | None:
+    """The best set of joints to change, or None: the candidates ``cand`` together and each
+    alone, each model ``build(joints)`` scored on the validation free run and kept if within
+    :data:`SET_MARGIN` of ``base`` (a :func:`free_run_error` result) overall and on every
+    joint (a joint's change moves the angles the others read).
+
+    Returns:
+        ``(model, its free_run_error, joints)`` of the lowest kept validation error; each set
+        tried is appended to ``record["tried"]`` (``record["names"]``: the joints' names).
+    """
+    n_joint, names = len(cand), record["names"]
+    sets = [list(cand)]
+    if sum(cand) > 1:
+        sets += [[k == j for k in range(n_joint)] for j, c in enumerate(cand) if c]
+    best: tuple[float, Surrogate, dict[str, Any], list[bool]] | None = None
+    for joints in sets:
+        model = build(joints)
+        got = free_run_error(model, list(val), max_steps=max_steps)
+        worse = [
+            names[j]
+            for j, (a, b) in enumerate(zip(got["theta_rmse"], base["theta_rmse"]))
+            if not a <= (1 + SET_MARGIN) * b
+        ]
+        ok = got["val_error"] <= (1 + SET_MARGIN) * base["val_error"] and not worse
+        record["tried"].append(
+            {
+                "joints": [n for n, p in zip(names, joints) if p],
+                "val_error": got["val_error"],
+                "val_theta_rmse": got["theta_rmse"],
+                "kept": bool(ok),
+            }
+        )
+        if ok and (best is None or got["val_error"] < best[0]):
+            best = (got["val_error"], model, got, joints)
+    return None if best is None else best[1:]
 
 
 def apply_map_choice(
