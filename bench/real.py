@@ -49,9 +49,12 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 
     python bench/real.py [--shape h1|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
+                         [--set KEY=VALUE ...]
 
-``--smoke``: one seed, one member, 2 epochs, 2 plain-LSTM epochs (a minute: the plumbing
-only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training budget
+``--set KEY=VALUE`` changes a ``[train]`` field of the recipe (TOML value, repeatable; recorded
+as ``recipe_set`` in the JSON line), e.g. ``--set prior_choice=true`` for the per-joint kind
+choice (docs/real.md).  ``--smoke``: one seed, one member (two with ``prior_choice``), 2
+epochs, 2 plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training budget
 (``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the
 cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
 the end, and ``timings_under_load`` when either is above 1.5.
@@ -73,6 +76,7 @@ import math
 import os
 import tempfile
 import time
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -353,11 +357,11 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         f"bench/real: {name}: {len(ds.train)} training, {len(ds.val)} validation, "
         f"{len(ds.test)} test episode(s); scored on {split}"
     )
-    overrides: dict = {}
+    overrides: dict = dict(args.recipe_set)
     if args.budget is not None:
         overrides["max_train_seconds"] = args.budget
-    if args.smoke:
-        overrides.update(epochs=2, members=1)
+    if args.smoke:  # prior_choice needs a member of each kind
+        overrides.update(epochs=2, members=2 if overrides.get("prior_choice") else 1)
     rows: dict[str, dict] = {}
     t0 = time.monotonic()
     arx = fit_arx(
@@ -506,8 +510,25 @@ def main() -> None:
     ap.add_argument(
         "--budget", type=float, default=None, help="the recipe's training budget [s] (0: no cap)"
     )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        dest="sets",
+        metavar="KEY=VALUE",
+        help="a [train] field of the recipe, e.g. prior_choice=true (TOML value; repeatable)",
+    )
     ap.add_argument("--smoke", action="store_true", help="one seed, 2 epochs: the plumbing only")
     args = ap.parse_args()
+    args.recipe_set = {}
+    for item in args.sets:
+        key, sep, value = item.partition("=")
+        try:
+            args.recipe_set[key.strip()] = tomllib.loads(f"v = {value}")["v"]
+        except tomllib.TOMLDecodeError as e:
+            ap.error(
+                f"--set {item}: {'no =' if not sep else e}; give KEY=VALUE, e.g. prior_choice=true"
+            )
     setup_logging()
     args.seed_list = [int(s) for s in args.seeds.split(",") if s.strip()]
     if args.smoke:
@@ -530,6 +551,7 @@ def main() -> None:
         load_avg_1min=[round(load0, 2), round(load1, 2)],
         timings_under_load=bool(max(load0, load1) > BUSY_LOAD),
         smoke=bool(args.smoke),
+        recipe_set=args.recipe_set,
         goals={
             f"{name}/{goal}": ok
             for name, shape in result["shapes"].items()
