@@ -12,6 +12,7 @@ from excavator_surrogate.data import Episode
 from excavator_surrogate.spec import EXCAVATOR, MachineSpec
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
 from excavator_surrogate.surrogate.structured import with_map_joints
 
 
@@ -169,3 +170,16 @@ def on_static_map(sur, *, delay: tuple[int, ...] | None = None):
     if delay is not None:
         fit["delay"] = list(delay)
     return with_map_joints(sur, fit, [True, False, False, True])
+
+
+def free_run_checked(sur: Surrogate, ep: Episode, n_step: int = 80) -> np.ndarray:
+    """The free run of ``sur`` on the first ``n_step`` samples of ``ep``, asserted equal to the
+    plain loop (angles, and velocities after the window); returns the velocities
+    ``(n_step, n_joint)`` [rad/s]."""
+    theta, u = ep.theta[None, :n_step], ep.u[None, :n_step]
+    th, om = rollout(sur, theta, u)
+    th_ref, om_ref = rollout_reference(sur, theta[0], u[0])
+    np.testing.assert_allclose(th[0], th_ref, atol=1e-5)
+    w = sur.window
+    np.testing.assert_allclose(om[0, w:], om_ref[w:], atol=1e-5)
+    return om[0]
