@@ -241,6 +241,12 @@ def fit_structured(
     )
 
 
+def max_map_delay(window: int, spec: MachineSpec) -> int:
+    """The longest delay [samples] a map inside a network may have: :data:`MAX_DELAY_S`, and
+    no more than the window holds (``window - 1``)."""
+    return int(max(0, min(window - 1, round(MAX_DELAY_S * spec.rate_hz))))
+
+
 def fit_prior(
     episodes: Sequence[Episode], spec: MachineSpec, *, max_delay: int = 0
 ) -> dict[str, list[float]]:

@@ -44,7 +44,7 @@ from ..surrogate.checkpoint import (
     write_checkpoint_dict,
 )
 from ..surrogate.model import Surrogate
-from ..surrogate.structured import MAX_DELAY_S, fit_prior, with_map_joints
+from ..surrogate.structured import fit_prior, max_map_delay, with_map_joints
 from ..surrogate.validation import free_run_error
 
 _log = logging.getLogger(__name__)
@@ -79,8 +79,7 @@ def choose_map_joints(
     """
     spec = sur.spec
     names = list(spec.names)
-    max_delay = int(max(0, min(sur.window - 1, round(MAX_DELAY_S * spec.rate_hz))))
-    fits = [fit_prior(train, spec, max_delay=max_delay)]
+    fits = [fit_prior(train, spec, max_delay=max_map_delay(sur.window, spec))]
     if any(fits[0]["delay"]):  # the same map without delays: chosen per joint on validation
         fits.append(fit_prior(train, spec))
     net = free_run_error(sur, list(val), max_steps=max_steps)

@@ -14,7 +14,7 @@ from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
 from ..surrogate.model import ModelConfig, SurrogateNet
 from ..surrogate.prior import PRIOR_MAP
-from ..surrogate.structured import MAX_DELAY_S, fit_prior
+from ..surrogate.structured import fit_prior, max_map_delay
 from .config import TrainConfig
 
 SOURCE_META = "data_source"
@@ -37,12 +37,12 @@ class Start:
     net: SurrogateNet
     norm: Normalization
     spec: MachineSpec
-    model_cfg: ModelConfig
-    """The net's architecture: the config's, widened by the delayed-command features of a
-    delayed speed prior (:meth:`~excavator_surrogate.surrogate.features.Normalization.with_lags`)."""
     """The machine the net runs on: the dataset's, with the envelope completed from the
     training data (:func:`~excavator_surrogate.surrogate.envelope.fill_envelope`), or the
     resumed checkpoint's."""
+    model_cfg: ModelConfig
+    """The net's architecture: the config's, widened by the delayed-command features of a
+    delayed speed prior (:meth:`~excavator_surrogate.surrogate.features.Normalization.with_lags`)."""
     derived: list[str] = field(default_factory=list)
     """One line per joint whose bounds came from the data (for the log)."""
     train_state: dict[str, Any] | None = None
@@ -107,9 +107,8 @@ def start(
             omega_in=cfg.velocity_input,
         )
         if mcfg.prior:
-            # the structured baseline's map, delay included (up to MAX_DELAY_S, within the window)
-            max_delay = int(max(0, min(cfg.window - 1, round(MAX_DELAY_S * spec.rate_hz))))
-            fit = fit_prior(train_eps, spec, max_delay=max_delay)
+            # the structured baseline's map, delay included
+            fit = fit_prior(train_eps, spec, max_delay=max_map_delay(cfg.window, spec))
             cols = fit["cols"]
             if any(fit["delay"]):
                 # omega[k+1] = s(u[k - d]) + net: the delayed commands become features
