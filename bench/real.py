@@ -49,13 +49,14 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 
     python bench/real.py [--shape h1|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
-                         [--set KEY=VALUE ...]
+                         [--set train.KEY=VALUE ...]
 
-``--set KEY=VALUE`` changes a ``[train]`` field of the recipe (TOML value, repeatable; recorded
-as ``recipe_set`` in the JSON line), e.g. ``--set prior_choice=true`` for the per-joint kind
-choice (docs/real.md).  ``--smoke``: one seed, one member (two with ``prior_choice``), 2
-epochs, 2 plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training budget
-(``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the
+``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
+does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
+train.prior_choice=true`` for the per-joint kind choice (docs/real.md).  ``--smoke``: one
+seed, one member (two with ``prior_choice``), 2 epochs, 2 plain-LSTM epochs (a minute: the
+plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
+budget (``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the
 cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
 the end, and ``timings_under_load`` when either is above 1.5.
 
@@ -76,15 +77,15 @@ import math
 import os
 import tempfile
 import time
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from excavator_surrogate.config import load_preset
+from excavator_surrogate.config import load_preset, parse_sets
 from excavator_surrogate.data import Dataset, load_dataset, write_dataset
+from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.evaluate.cbe import evaluate_models
 from excavator_surrogate.io_utils import log, setup_logging
 from excavator_surrogate.surrogate.baselines import fit_arx
@@ -515,20 +516,15 @@ def main() -> None:
         action="append",
         default=[],
         dest="sets",
-        metavar="KEY=VALUE",
-        help="a [train] field of the recipe, e.g. prior_choice=true (TOML value; repeatable)",
+        metavar="train.KEY=VALUE",
+        help="a [train] field of the recipe, e.g. train.prior_choice=true (TOML value; repeatable)",
     )
     ap.add_argument("--smoke", action="store_true", help="one seed, 2 epochs: the plumbing only")
     args = ap.parse_args()
-    args.recipe_set = {}
-    for item in args.sets:
-        key, sep, value = item.partition("=")
-        try:
-            args.recipe_set[key.strip()] = tomllib.loads(f"v = {value}")["v"]
-        except tomllib.TOMLDecodeError as e:
-            ap.error(
-                f"--set {item}: {'no =' if not sep else e}; give KEY=VALUE, e.g. prior_choice=true"
-            )
+    try:  # the same --set as exsur train's
+        args.recipe_set = parse_sets(args.sets, sections=("train",)).get("train", {})
+    except ConfigError as e:
+        ap.error(str(e))
     setup_logging()
     args.seed_list = [int(s) for s in args.seeds.split(",") if s.strip()]
     if args.smoke:
