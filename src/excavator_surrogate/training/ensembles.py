@@ -36,6 +36,23 @@ def member_configs(cfg: TrainConfig) -> list[TrainConfig]:
     ]
 
 
+def open_run(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    out: str | Path,
+    *,
+    notes: Mapping[str, Any] | None,
+    trainings: int,
+) -> tuple[list[Episode], Path, int]:
+    """Start a run of several trainings: the validation episodes (bad data fails here, before
+    any member starts), the output folder marked as exsur's with ``config.toml`` written, and
+    the number of worker processes for ``trainings`` trainings at once."""
+    _, val_eps = split_episodes(cfg, dataset)
+    out = mark_output(out, "model")  # before the first file; members mark their own
+    write_config(out, cfg, notes=notes)
+    return val_eps, out, min(cfg.member_workers or usable_cpus(), trainings)
+
+
 def train_member(job: TrainJob, show_progress: bool | None) -> Path:
     """One member, trained exactly as a single network (a :func:`~.jobs.run_jobs` job)."""
     return train_network(job.cfg, job.dataset, out=job.out, show_progress=show_progress)
@@ -61,12 +78,9 @@ def train_ensemble(
     Returns:
         Path of ``OUT/best.pt``.
     """
-    _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
-    out = mark_output(out, "model")  # before the first file; members mark their own
+    val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=cfg.members)
     cfgs = member_configs(cfg)
     dirs = [out / f"member_{i}" for i in range(cfg.members)]
-    workers = min(cfg.member_workers or usable_cpus(), cfg.members)
-    write_config(out, cfg, notes=notes)
     _log.info(
         f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}"
         + ("; each on its own bootstrap resample of the training episodes" if cfg.bootstrap else "")
@@ -79,27 +93,28 @@ def train_ensemble(
         for i, (c, d) in enumerate(zip(cfgs, dirs))
     ]
     bests = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
-    return merge_members(cfg, cfgs, bests, val_eps, out=out, t0=t0)
+    members = [load_checkpoint(b) for b in bests]
+    return merge_members(cfg, cfgs, members, val_eps, out=out, t0=t0)
 
 
 def merge_members(
     cfg: TrainConfig,
     cfgs: list[TrainConfig],
-    bests: list[Path],
+    members: list[Surrogate],
     val_eps: list[Episode],
     *,
     out: Path,
     t0: float,
     training: Mapping[str, Any] | None = None,
     merged: Surrogate | None = None,
-    kinds: Sequence[str] | None = None,
+    column: tuple[str, Sequence[Any], Any] | None = None,
 ) -> Path:
-    """Merge the members' ``bests`` (trained with ``cfgs``) into ``out/best.pt``, score its
-    validation free run and write ``out/log.csv`` (one row per member, one for the ensemble);
+    """Merge the ``members`` (trained with ``cfgs``) into ``out/best.pt``, score its validation
+    free run and write ``out/log.csv`` (one row per member, one for the ensemble);
     ``training`` entries are added to the merged metrics' ``training`` summary.  ``merged``:
-    the model built from them another way (a composite, :mod:`.kinds`), ``kinds`` each
-    member's kind for the log."""
-    members = [load_checkpoint(b) for b in bests]
+    the model built from them another way (a composite, :mod:`.kinds`); ``column``: ``(name,
+    each member's value, the model's value)``, one more column of the log (e.g. how each
+    member treated the exogenous inputs)."""
     sur = merge(members) if merged is None else merged
     sur.train_config = to_dict(cfg)
     val = free_run_error(sur, val_eps, max_steps=cfg.val_steps or None)
@@ -115,10 +130,8 @@ def merge_members(
                 "val_theta_r2_min": min((mm.get("val") or {}).get("theta_r2") or [math.nan]),
             }
         )
-        if training and "exogenous" in training:
-            rows[-1]["exogenous"] = cfgs[i].exogenous
-        if kinds is not None:
-            rows[-1]["kind"] = kinds[i]
+        if column is not None:
+            rows[-1][column[0]] = column[1][i]
     rows.append(
         {
             "member": "ensemble",
@@ -128,10 +141,8 @@ def merge_members(
             "val_theta_r2_min": min(val["theta_r2"]),
         }
     )
-    if training and "exogenous" in training:
-        rows[-1]["exogenous"] = cfg.exogenous
-    if kinds is not None:
-        rows[-1]["kind"] = "composite"
+    if column is not None:
+        rows[-1][column[0]] = column[2]
     sur.metrics = {
         **(sur.metrics or {}),
         "val_error": val["val_error"],

@@ -38,17 +38,14 @@ from pathlib import Path
 from typing import Any
 
 from ..data.dataset import Dataset
-from ..devices import usable_cpus
-from ..io_utils import mark_output
 from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
 from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import with_map_joints
 from ..surrogate.validation import free_run_error
-from .batches import split_episodes
 from .config import TrainConfig
-from .ensembles import member_configs, merge_members, train_member
+from .ensembles import member_configs, merge_members, open_run, train_member
 from .jobs import TrainJob, run_jobs
 from .map_joints import SET_MARGIN, best_set
 from .records import write_config
@@ -67,8 +64,7 @@ def in_prior_form(plain: Surrogate, prior: Surrogate) -> Surrogate:
     with zero gains: the same output, ready to be merged with ``prior``."""
     p = prior.net.prior
     n_joint = plain.spec.n_joint
-    fit = {k: getattr(p, k).tolist() for k in PRIOR_MAP}
-    fit["delay"] = list(prior.norm.lags) or [0] * n_joint
+    fit = {k: getattr(p, k).tolist() for k in PRIOR_MAP}  # no joint on it: gains 0
     return with_map_joints(plain, fit, [False] * n_joint, lags=prior.norm.lags or None)
 
 
@@ -161,11 +157,8 @@ def train_choosing_kinds(
     """Train ``cfg.members`` networks, half plain and half correcting the static map (the same
     seeds), and keep per joint the kind that validates better (see the module docstring);
     returns ``OUT/best.pt``."""
-    _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
-    out = mark_output(out, "model")
     half = max(1, cfg.members // 2)
-    write_config(out, cfg, notes=notes)
-    workers = min(cfg.member_workers or usable_cpus(), 2 * half)
+    val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=2 * half)
     _log.info(
         f"two kinds of network: {half} plain and {half} correcting the static map (same "
         f"seeds), {workers} in parallel; per joint, the kind that validates better"
@@ -191,13 +184,13 @@ def train_choosing_kinds(
     best = merge_members(
         cfg,
         cfgs["plain"] + cfgs["prior"],
-        paths,
+        nets["plain"] + nets["prior"],
         val_eps,
         out=out,
         t0=t0,
         training={"kinds": record},
         merged=model,
-        kinds=[k for k in KINDS for _ in range(half)],
+        column=("kind", [k for k in KINDS for _ in range(half)], "composite"),
     )
     write_config(out, cfg, notes={**(notes or {}), "kinds": record})
     return best

@@ -27,14 +27,11 @@ from pathlib import Path
 from typing import Any
 
 from ..data.dataset import Dataset
-from ..devices import usable_cpus
-from ..io_utils import mark_output
 from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.validation import free_run_error
-from .batches import split_episodes
 from .config import TrainConfig
-from .ensembles import member_configs, merge_members, train_member
+from .ensembles import member_configs, merge_members, open_run, train_member
 from .jobs import TrainJob, run_jobs
 from .records import write_config
 
@@ -84,12 +81,9 @@ def train_choosing_inputs(
 ) -> Path:
     """Train ``cfg.members`` networks with the exogenous inputs used or ignored, whichever
     validates better (see the module docstring); returns ``OUT/best.pt``."""
-    _, val_eps = split_episodes(cfg, dataset)  # bad data fails here, before any member starts
-    out = mark_output(out, "model")
     half = max(1, cfg.members // 2)
+    val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=2 * half)
     names = list(dataset.spec.u_names[dataset.spec.n_joint :])
-    write_config(out, cfg, notes=notes)
-    workers = min(cfg.member_workers or usable_cpus(), 2 * half)
     _log.info(
         f"exogenous inputs {names}: {half} member(s) use them, {half} ignore them "
         f"(same seeds), {workers} in parallel; the better way trains the rest"
@@ -103,8 +97,10 @@ def train_choosing_inputs(
         for i, c in enumerate(cfgs[w])
     ]
     paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
-    bests = {"use": paths[:half], "ignore": paths[half:]}
-    halves = {w: [load_checkpoint(p) for p in bests[w]] for w in ways}
+    halves = {
+        w: [load_checkpoint(p) for p in paths[i * half : (i + 1) * half]]
+        for i, w in enumerate(ways)
+    }
     vals = {
         w: free_run_error(merge(halves[w]), val_eps, max_steps=cfg.val_steps or None) for w in ways
     }
@@ -114,7 +110,6 @@ def train_choosing_inputs(
     for i in range(half):  # the winning half becomes the ensemble's first members
         os.replace(out / way / f"member_{i}", out / f"member_{i}")
     (out / way).rmdir()
-    bests[way] = [out / f"member_{i}" / "best.pt" for i in range(half)]
     rest = member_configs(replace(cfg, exogenous=way))[half:]
     rest_jobs = [
         TrainJob(
@@ -143,14 +138,16 @@ def train_choosing_inputs(
     if any((m.metrics or {}).get("training", {}).get("budget_cut") for m in halves[lost]):
         training["budget_cut"] = True  # the choice itself depended on the clock: say so
     final_cfg = replace(cfg, exogenous=way)
+    final_cfgs = cfgs[way] + rest
     best = merge_members(
         final_cfg,
-        cfgs[way] + rest,
-        bests[way] + more,
+        final_cfgs,
+        halves[way] + [load_checkpoint(p) for p in more],
         val_eps,
         out=out,
         t0=t0,
         training=training,
+        column=("exogenous", [c.exogenous for c in final_cfgs], way),
     )
     write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
     return best
