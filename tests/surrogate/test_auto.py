@@ -195,6 +195,16 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
     assert forced.exogenous == "use" and forced.max_train_seconds == without.max_train_seconds
 
 
+def test_the_kind_choice_is_planned_within_the_same_budget():
+    """prior_choice: 4 plain members and 2 map-correcting networks share the budget."""
+    ds = _dataset([8000])
+    without, _ = auto_config(ds, cpus=2)
+    cfg, why = auto_config(ds, cpus=2, overrides={"prior_choice": True})
+    assert cfg.prior_choice and cfg.members == without.members == 4
+    assert cfg.max_train_seconds == pytest.approx(540 * 2 / 6) and cfg.epochs < without.epochs
+    assert any("2 correct the static valve map" in w and "6 trainings" in w for w in why)
+
+
 def test_periodic_joints_are_turned_and_the_static_map_competes():
     """A swing (periodic joint) gets random offsets in training; without one nothing turns;
     the static map is a candidate either way."""

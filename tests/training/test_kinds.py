@@ -17,7 +17,12 @@ from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.api import train
-from excavator_surrogate.training.kinds import choose_kinds, composite, in_prior_form
+from excavator_surrogate.training.kinds import (
+    choose_kinds,
+    composite,
+    in_prior_form,
+    prior_members,
+)
 from excavator_surrogate.training.resume import start
 from tests.helpers.surrogates import free_run_checked, tiny_surrogate
 from tests.helpers.training import tiny_train_config
@@ -75,9 +80,10 @@ def test_a_plain_network_in_prior_form_keeps_its_output() -> None:
 
 def test_a_composite_takes_each_joint_from_its_member() -> None:
     """joint_weights (0/1 per joint): joint 0 from the map-correcting network, joint 1 from
-    the plain one, on the same input rows; and an ensemble of such pairs is their mean."""
+    the plain one, on the same input rows; and the composite ensemble of four plain and two
+    map-correcting networks is the plain ones' mean on one joint, the others' on the other."""
     ep = _episode(9)
-    plains = [_plain_net(s) for s in (0, 1)]
+    plains = [_plain_net(s) for s in (0, 1, 2, 3)]
     priors = [_prior_net(s + 10, exact=(False, False)) for s in (0, 1)]
     pair = merge([in_prior_form(plains[0], priors[0]), priors[0]], joint_weights=[[0, 1], [1, 0]])
     assert "composite" in pair.metrics and "ensemble" not in pair.metrics
@@ -85,14 +91,18 @@ def test_a_composite_takes_each_joint_from_its_member() -> None:
     np.testing.assert_allclose(om[:, 0], _omega(priors[0], ep)[:, 0], atol=1e-5)
     np.testing.assert_allclose(om[:, 1], _omega(plains[0], ep)[:, 1], atol=1e-5)
     both = composite(plains, priors, [True, False])
-    want = np.mean(
+    assert "ensemble" in both.metrics and both.metrics["ensemble"]["n_member"] == 2
+    want = np.stack(
         [
-            np.stack([_omega(b, ep)[:, 0], _omega(a, ep)[:, 1]], axis=1)
-            for a, b in zip(plains, priors)
+            np.mean([_omega(b, ep)[:, 0] for b in priors], axis=0),
+            np.mean([_omega(a, ep)[:, 1] for a in plains], axis=0),
         ],
-        axis=0,
+        axis=1,
     )
     np.testing.assert_allclose(_omega(both, ep), want, atol=1e-5)
+    with pytest.raises(ValueError, match="do not divide"):
+        composite(plains[:3], priors, [True, False])
+    assert [prior_members(k) for k in (1, 2, 3, 4, 5, 6, 8)] == [1, 1, 1, 2, 1, 3, 4]
     with pytest.raises(ConfigError, match="joint_weights"):
         merge([plains[0], plains[1]], joint_weights=[[0.5, 1.0], [0.2, 0.0]])
 
@@ -120,16 +130,16 @@ def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) ->
     ds.episodes["val"] = [_episode(7)]
     cfg = tiny_train_config(prior_choice=True, members=2, epochs=2, static_map=True, **SMALL)
     best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
-    for kind in ("plain", "prior"):
-        assert (tmp_path / "m" / kind / "member_0" / "best.pt").is_file()
+    for folder in ("plain/member_0", "plain/member_1", "prior/member_0"):  # 2 plain, 1 prior
+        assert (tmp_path / "m" / folder / "best.pt").is_file()
+    assert not (tmp_path / "m" / "prior" / "member_1").exists()
     sur = load_checkpoint(best)
     record = sur.metrics["training"]["kinds"]
     assert set(record) >= {"candidates", "chosen", "why", "val_theta_rmse_prior"}
     rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
-    assert [r["kind"] for r in rows] == ["plain", "prior", "composite"]
+    model_kind = {0: "plain", 2: "prior"}.get(len(record["chosen"]), "composite")
+    assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind]
     assert "kinds" in (tmp_path / "m" / "config.toml").read_text()
-    with pytest.raises(ConfigError, match="prior_choice needs members >= 2"):
-        tiny_train_config(prior_choice=True, members=1)
     with pytest.raises(ConfigError, match="prior_choice trains both kinds"):
         tiny_train_config(prior_choice=True, prior=True, members=2)
 

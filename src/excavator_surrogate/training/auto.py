@@ -48,6 +48,7 @@ from ..data.dataset import Dataset
 from ..devices import usable_cpus
 from ..errors import ConfigError, DataError
 from .config import TrainConfig
+from .kinds import prior_members
 
 TRAIN_BUDGET_S = 540.0
 """Wall time of the whole training (every member) on the reference 2-core machine [s]."""
@@ -146,6 +147,7 @@ def auto_config(
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
     choose = bool(inputs) and exogenous == "choose"
+    kinds = bool(overrides.get("prior_choice", False))
     n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
     val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
@@ -153,10 +155,12 @@ def auto_config(
     members = (
         int(asked)
         if asked
-        else plan_members(cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=choose)
+        else plan_members(
+            cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=choose, kinds=kinds
+        )
     )
     workers = min(members, cpus)
-    per_member = member_budget_s(members, budget_s, cpus=cpus, choose=choose)
+    per_member = member_budget_s(members, budget_s, cpus=cpus, choose=choose, kinds=kinds)
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {per_member:.0f} s "
         f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s))"
@@ -174,6 +178,13 @@ def auto_config(
             f"ignore them (same seeds); they are kept only if better on validation, overall "
             f"and on every joint, and the other {members - half} member(s) train the chosen "
             f"way ({trainings(members, choose=True)} trainings in the budget)"
+        )
+    if kinds:
+        why.append(
+            f"two kinds of network: beside the {members} plain member(s), "
+            f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
+            "the kind whose ensemble validates better drives it "
+            f"({trainings(members, choose=choose, kinds=True)} trainings in the budget)"
         )
     n_val = len(dataset.val)
     short_val = n_val < SHORT_VAL_EPISODES
@@ -277,19 +288,25 @@ def max_members(cpus: int) -> int:
     return MAX_MEMBERS if cpus >= 2 else MAX_MEMBERS // 2
 
 
-def trainings(members: int, *, choose: bool) -> int:
+def trainings(members: int, *, choose: bool, kinds: bool = False) -> int:
     """Trainings an ensemble of ``members`` costs: one per member, plus half as many again
-    when an exogenous input is chosen (the members that ignore it)."""
-    return members + max(1, members // 2) if choose else members
+    when an exogenous input is chosen (the members that ignore it), plus the map-correcting
+    networks of the kind choice (:func:`~.kinds.prior_members`)."""
+    extra = max(1, members // 2) if choose else 0
+    return members + extra + (prior_members(members) if kinds else 0)
 
 
-def member_budget_s(members: int, budget_s: float, *, cpus: int, choose: bool) -> float:
+def member_budget_s(
+    members: int, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
+) -> float:
     """Each training's share of the whole ``budget_s`` [s]: the trainings
     (:func:`trainings`) run ``min(members, cpus)`` at a time."""
-    return budget_s * min(members, cpus) / trainings(members, choose=choose)
+    return budget_s * min(members, cpus) / trainings(members, choose=choose, kinds=kinds)
 
 
-def plan_members(member_s: float, budget_s: float, *, cpus: int, choose: bool) -> int:
+def plan_members(
+    member_s: float, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
+) -> int:
     """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
     steps of the parallel workers, whose planned training (``member_s`` each on the reference
     machine) still fits :data:`PLAN_SHARE` of each member's share of ``budget_s``."""
@@ -297,7 +314,8 @@ def plan_members(member_s: float, budget_s: float, *, cpus: int, choose: bool) -
     step = min(cpus, members)
     while members + step <= max_members(cpus):
         n = members + step
-        if member_s > PLAN_SHARE * member_budget_s(n, budget_s, cpus=cpus, choose=choose):
+        share = member_budget_s(n, budget_s, cpus=cpus, choose=choose, kinds=kinds)
+        if member_s > PLAN_SHARE * share:
             break
         members = n
     return members

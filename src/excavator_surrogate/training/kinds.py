@@ -4,21 +4,25 @@ A network trained from scratch and one that corrects the static valve map (``pri
 zone, gain per direction, delay) generalise differently, and not alike on every joint: on
 the stand-in sessions case the map-correcting networks drove the boom and the bucket better
 on validation and on the test day, the plain ones the arm (docs/real.md).  With
-``prior_choice`` the ensemble's members are trained in both ways on the same seeds: half of
-them plain, half correcting the map (the same number of trainings as the plain ensemble, so
-the same budget).  Each half is merged and scored by its validation free run, and then:
+``prior_choice`` the run trains the whole plain ensemble (``members`` networks, seeds
+``seed, seed + 1, ...``, exactly as without the option) and :func:`prior_members` more that
+correct the map (seeds ``seed, seed + 1, ...``): ``members + prior_members(members)``
+trainings, which the recipe plans the epochs for within the same budget
+(:func:`~.auto.trainings`).  Both ensembles are scored by their validation free run, and:
 
 1. a joint is a candidate for the map-correcting networks if their validation angle RMSE
-   on it is lower than the plain ones' by :data:`PRIOR_MARGIN` (a near tie stays plain);
-2. for the candidates, and for each candidate alone, a **composite** is built: member pair
-   ``i`` (plain ``i``, map-correcting ``i``, the same seed) becomes one network whose
-   candidate joints come from the map-correcting network and the others from the plain one
+   on it is lower than the plain ensemble's by :data:`PRIOR_MARGIN` (a near tie stays plain);
+2. for the candidates, and for each candidate alone, a **composite** ensemble is built
+   (:func:`composite`): group ``g`` of every ``P``-th plain network and map-correcting
+   network ``g`` becomes one network whose candidate joints come from the map-correcting
+   network and the others from the mean of its plain ones
    (:func:`~excavator_surrogate.surrogate.ensemble.merge` with ``joint_weights``), and the
-   pairs are merged into the ensemble;
-3. the best set whose validation error is at most :data:`SET_MARGIN` above the plain half's,
-   overall and on every joint, is kept (a joint's choice changes the angles the others
-   read); if none, or no candidate, the plain half is the model; if every joint prefers the
-   map-correcting half, that half is.
+   ``P`` groups are merged into the ensemble.  A plain joint is then exactly the plain
+   ensemble's mean, a map joint the map-correcting ensemble's;
+3. the best set whose validation error is at most :data:`SET_MARGIN` above the plain
+   ensemble's, overall and on every joint, is kept (a joint's choice changes the angles the
+   others read); if none, or no candidate, the plain ensemble is the model, as without the
+   option.
 
 The static map choice (``static_map``) then runs on the result as on any model.
 
@@ -68,27 +72,47 @@ def in_prior_form(plain: Surrogate, prior: Surrogate) -> Surrogate:
     return with_map_joints(plain, fit, [False] * n_joint, lags=prior.norm.lags or None)
 
 
+def prior_members(members: int) -> int:
+    """Map-correcting networks trained beside a plain ensemble of ``members``: the largest
+    divisor of ``members`` up to half of it (4 -> 2, 8 -> 4, 6 -> 3; 1 for a prime), so
+    that every group of :func:`composite` holds as many plain networks."""
+    return max([p for p in range(1, members // 2 + 1) if members % p == 0], default=1)
+
+
 def composite(
     plains: Sequence[Surrogate], priors: Sequence[Surrogate], use_prior: Sequence[bool]
 ) -> Surrogate:
-    """The ensemble of member pairs, each pair one network whose joints ``use_prior`` come
-    from the map-correcting member and the others from the plain one.
+    """The ensemble whose joints ``use_prior`` are the map-correcting networks' mean and the
+    others the plain networks' mean.
 
     Args:
-        plains: K plain networks; priors: K map-correcting networks (pair ``i`` = the same
-            seed).
+        plains: K plain networks; priors: P map-correcting networks, P dividing K.
         use_prior: (n_joint,) which joints the map-correcting networks drive.
+
+    Returns:
+        All plain or all map-correcting: that ensemble.  Else the merge of P composites,
+        group ``g`` = plain networks ``g, g + P, ...`` (weight ``P / K`` each on the plain
+        joints) and map-correcting network ``g`` (weight 1 on the others).
     """
     if not any(use_prior):
         return merge(list(plains))
     if all(use_prior):
         return merge(list(priors))
-    w = [[0.0 if p else 1.0 for p in use_prior], [1.0 if p else 0.0 for p in use_prior]]
-    pairs = [
-        merge([in_prior_form(a, b), b], joint_weights=w, name=f"{b.name}-composite")
-        for a, b in zip(plains, priors)
+    n_prior = len(priors)
+    if len(plains) % n_prior:
+        raise ValueError(f"{len(priors)} map-correcting networks do not divide {len(plains)}")
+    n_group = len(plains) // n_prior  # plain networks per group
+    w_plain = [0.0 if p else 1.0 / n_group for p in use_prior]
+    w_prior = [1.0 if p else 0.0 for p in use_prior]
+    groups = [
+        merge(
+            [in_prior_form(a, b) for a in plains[g::n_prior]] + [b],
+            joint_weights=[w_plain] * n_group + [w_prior],
+            name=f"{b.name}-composite",
+        )
+        for g, b in enumerate(priors)
     ]
-    return merge(pairs)
+    return merge(groups)
 
 
 def choose_kinds(
@@ -98,11 +122,16 @@ def choose_kinds(
     *,
     max_steps: int | None = None,
 ) -> tuple[Surrogate, dict[str, Any]]:
-    """The model of the two halves (see the module docstring) and the record of the choice.
+    """The model of the two ensembles (see the module docstring) and the record of the choice.
+
+    Args:
+        plains: the K plain networks; priors: the P map-correcting ones (P divides K).
+        val: the validation episodes.
+        max_steps: validation free-run length cap (as the epoch selection's).
 
     Returns:
-        ``(model, record)``; ``record`` holds both halves' validation scores, the candidate
-        joints, the sets tried and what was chosen, with a one-line ``why``.
+        ``(model, record)``; ``record`` holds both ensembles' validation scores, the
+        candidate joints, the sets tried and what was chosen, with a one-line ``why``.
     """
     names = list(plains[0].spec.names)
     merged = {"plain": merge(list(plains)), "prior": merge(list(priors))}
@@ -154,19 +183,22 @@ def train_choosing_kinds(
     show_progress: bool | None = None,
     notes: Mapping[str, Any] | None = None,
 ) -> Path:
-    """Train ``cfg.members`` networks, half plain and half correcting the static map (the same
-    seeds), and keep per joint the kind that validates better (see the module docstring);
-    returns ``OUT/best.pt``."""
-    half = max(1, cfg.members // 2)
-    val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=2 * half)
+    """Train the plain ensemble of ``cfg.members`` networks and :func:`prior_members` more
+    that correct the static map, and keep per joint the kind that validates better (see the
+    module docstring); returns ``OUT/best.pt``."""
+    n_plain, n_prior = cfg.members, prior_members(cfg.members)
+    val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=n_plain + n_prior)
     _log.info(
-        f"two kinds of network: {half} plain and {half} correcting the static map (same "
-        f"seeds), {workers} in parallel; per joint, the kind that validates better"
+        f"two kinds of network: {n_plain} plain and {n_prior} correcting the static map (seeds "
+        f"from {cfg.seed}), {workers} in parallel; per joint, the kind that validates better"
     )
     t0 = time.monotonic()
     # the members are single networks: the static map choice runs on the model they make
-    base = replace(cfg, prior_choice=False, members=half, static_map=False)
-    cfgs = {"plain": member_configs(base), "prior": member_configs(replace(base, prior=True))}
+    base = replace(cfg, prior_choice=False, static_map=False)
+    cfgs = {
+        "plain": member_configs(base),
+        "prior": member_configs(replace(base, prior=True, members=n_prior)),
+    }
     jobs = [
         TrainJob(cfg=c, dataset=dataset, out=out / k / f"member_{i}", tag=f"exsur {k} {i}")
         for k in KINDS
@@ -174,13 +206,15 @@ def train_choosing_kinds(
     ]
     paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
     nets = {
-        k: [load_checkpoint(p) for p in paths[i * half : (i + 1) * half]]
-        for i, k in enumerate(KINDS)
+        "plain": [load_checkpoint(p) for p in paths[:n_plain]],
+        "prior": [load_checkpoint(p) for p in paths[n_plain:]],
     }
     model, record = choose_kinds(
         nets["plain"], nets["prior"], val_eps, max_steps=cfg.val_steps or None
     )
     _log.info(f"two kinds of network: {record['why']}")
+    chosen = len(record["chosen"])
+    kind = "plain" if not chosen else "prior" if chosen == len(record["names"]) else "composite"
     best = merge_members(
         cfg,
         cfgs["plain"] + cfgs["prior"],
@@ -190,7 +224,7 @@ def train_choosing_kinds(
         t0=t0,
         training={"kinds": record},
         merged=model,
-        column=("kind", [k for k in KINDS for _ in range(half)], "composite"),
+        column=("kind", [k for k in KINDS for _ in cfgs[k]], kind),
     )
     write_config(out, cfg, notes={**(notes or {}), "kinds": record})
     return best
