@@ -61,3 +61,17 @@ def test_a_delayed_map_says_its_delay():
     }
     text = training_markdown({"epochs_planned": 30, "static_map": rec})
     assert "gain per direction, delay swing 0.65 s)" in text and "boom 0.20" not in text
+
+
+def test_the_kind_and_input_choices_are_named():
+    kinds = {"names": ["swing", "boom"], "chosen": ["boom"], "why": "boom from the map..."}
+    text = training_markdown({"epochs_planned": 30, "kinds": kinds})
+    assert "correct the static valve map drive boom, the plain networks the other" in text
+    none = training_markdown({"epochs_planned": 30, "kinds": {**kinds, "chosen": []}})
+    assert "the plain networks drive every joint" in none
+    every = training_markdown({"epochs_planned": 30, "kinds": {**kinds, "chosen": kinds["names"]}})
+    assert "static valve map drive every joint" in every
+    rec = {"inputs": ["u_throttle"], "kept": False, "why": "validation error 0.41 with"}
+    text = training_markdown({"epochs_planned": 30, "exogenous": rec})
+    assert "Exogenous inputs (u_throttle): ignored by the model" in text and "0.41" in text
+    assert "Two kinds" not in text and "Exogenous" not in training_markdown({"epochs_planned": 3})

@@ -202,7 +202,43 @@ def training_markdown(training: Mapping[str, Any] | None) -> str:
     """
     if not training:
         return ""
-    return _budget_markdown(training) + _map_markdown(training.get("static_map"))
+    return (
+        _budget_markdown(training)
+        + _inputs_markdown(training.get("exogenous"))
+        + _kinds_markdown(training.get("kinds"))
+        + _map_markdown(training.get("static_map"))
+    )
+
+
+def _inputs_markdown(record: Mapping[str, Any] | None) -> str:
+    """One line on the exogenous-input choice (``training.exogenous``)."""
+    if not isinstance(record, Mapping) or "kept" not in record:
+        return ""
+    names = ", ".join(record.get("inputs") or []) or "the exogenous inputs"
+    return (
+        f"\nExogenous inputs ({names}): {'used' if record['kept'] else 'ignored'} by the "
+        f"model, chosen on the validation free run ({record.get('why', '')}).\n"
+    )
+
+
+def _kinds_markdown(record: Mapping[str, Any] | None) -> str:
+    """One line on which joints the map-correcting networks drive (``training.kinds``)."""
+    if not isinstance(record, Mapping) or "chosen" not in record:
+        return ""
+    chosen = list(record["chosen"])
+    if not chosen:
+        who = "the plain networks drive every joint"
+    elif len(chosen) == len(record.get("names") or chosen):
+        who = "the networks that correct the static valve map drive every joint"
+    else:
+        who = (
+            f"the networks that correct the static valve map drive {', '.join(chosen)}, "
+            "the plain networks the other joints"
+        )
+    return (
+        f"\nTwo kinds of network: {who}, chosen on the validation free run "
+        f"({record.get('why', '')}).\n"
+    )
 
 
 def _map_markdown(record: Mapping[str, Any] | None) -> str:
