@@ -308,6 +308,23 @@ def training_log(out: Path) -> dict:
     return {"members": members}
 
 
+def choices(sur) -> dict:
+    """What the trained model chose on validation, beside the validation free run's position
+    RMSE per joint in the shown unit (to set against the scored split's): the joints on the
+    static map, those driven by the map-correcting networks, whether the inputs are used."""
+    metrics = sur.metrics or {}
+    facts = metrics.get("training") or {}
+    val = (metrics.get("val") or {}).get("theta_rmse")
+    out: dict = {
+        "val_rmse": None if val is None else (shown(sur.spec)[0] * np.asarray(val)).tolist()
+    }
+    for key, field in (("static_map", "chosen"), ("kinds", "chosen"), ("exogenous", "kept")):
+        record = facts.get(key)
+        if isinstance(record, dict) and field in record:
+            out[f"{key}_{field}"] = record[field]
+    return out
+
+
 def run_recipe(
     data: Dataset,
     split: str,
@@ -339,6 +356,7 @@ def run_recipe(
             "epochs_planned": cfg.epochs,
             "budget_cut": bool(facts.get("budget_cut", False)),
             **training_log(out),
+            **choices(sur),
             **score(sur, data.split(split)),
         }
         results.append(res)
@@ -460,6 +478,14 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "recipe_epochs_planned": [r["epochs_planned"] for r in recipe],
         "recipe_budget_cut": [r["budget_cut"] for r in recipe],
         "recipe_training_log": {r["seed"]: r["members"] for r in recipe},
+        "recipe_val_rmse_and_choices": {
+            r["seed"]: {
+                k: [round(v, 3) for v in r[k]] if k == "val_rmse" and r[k] else r[k]
+                for k in r
+                if k == "val_rmse" or k.endswith(("_chosen", "_kept"))
+            }
+            for r in recipe
+        },
         "median_over": {
             k: [round(float(a / b), 3) for a, b in zip(median, rows[k]["rmse"])]
             for k in rows
