@@ -124,6 +124,24 @@ def test_the_choice_takes_each_joint_from_the_kind_that_drives_it() -> None:
     np.testing.assert_allclose(om[w:], ep.omega[w:80], atol=1e-4)  # the plant, both joints
 
 
+def test_when_every_joint_prefers_the_map_the_known_score_is_not_run_again(monkeypatch) -> None:
+    """Map-correcting networks exact on both joints: both are candidates; the set of both is
+    the map-correcting ensemble, already scored, so only the two single-joint sets run."""
+    import excavator_surrogate.training.map_joints as map_joints
+
+    runs = []
+    real = map_joints.free_run_error
+    monkeypatch.setattr(
+        map_joints, "free_run_error", lambda *a, **k: runs.append(1) or real(*a, **k)
+    )
+    plains = [_plain_net(s) for s in (0, 1)]
+    priors = [_prior_net(s + 10, exact=(True, True)) for s in (0, 1)]
+    model, record = choose_kinds(plains, priors, [_episode(7)])
+    assert record["candidates"] == ["a", "b"] and record["chosen"] == ["a", "b"]
+    assert len(record["tried"]) == 3 and len(runs) == 2
+    assert "ensemble" in model.metrics and model.metrics["ensemble"]["n_member"] == 2
+
+
 def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) -> None:
     ds = Dataset(spec=SPEC)
     ds.episodes["train"] = TRAIN

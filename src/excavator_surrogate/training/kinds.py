@@ -5,7 +5,7 @@ zone, gain per direction, delay) generalise differently, and not alike on every 
 the stand-in sessions case the map-correcting networks drove the boom and the bucket better
 on validation and on the test day, the plain ones the arm (docs/real.md).  With
 ``prior_choice`` the run trains the whole plain ensemble (``members`` networks, seeds
-``seed, seed + 1, ...``, exactly as without the option) and :func:`prior_members` more that
+``seed, seed + 1, ...``, as without the option) and :func:`prior_members` more that
 correct the map (seeds ``seed, seed + 1, ...``): ``members + prior_members(members)``
 trainings, which the recipe plans the epochs for within the same budget
 (:func:`~.auto.trainings`).  Both ensembles are scored by their validation free run, and:
@@ -158,7 +158,10 @@ def choose_kinds(
         )
         return merged["plain"], record
     build = partial(composite, plains, priors)  # joints -> the composite taking them
-    best = best_set(cand, build, base, val, record=record, max_steps=max_steps)
+    every = (True,) * len(names)  # that set is the map-correcting ensemble: scored above
+    best = best_set(
+        cand, build, base, val, record=record, max_steps=max_steps, known={every: vals["prior"]}
+    )
     if best is None:
         record["why"] = (
             f"every set of joints on the map-correcting networks is worse than the plain "

@@ -149,11 +149,13 @@ def best_set(
     *,
     record: dict[str, Any],
     max_steps: int | None = None,
+    known: Mapping[tuple[bool, ...], Mapping[str, Any]] | None = None,
 ) -> tuple[Surrogate, dict[str, Any], list[bool]] | None:
     """The best set of joints to change, or None: the candidates ``cand`` together and each
     alone, each model ``build(joints)`` scored on the validation free run and kept if within
     :data:`SET_MARGIN` of ``base`` (a :func:`free_run_error` result) overall and on every
-    joint (a joint's change moves the angles the others read).
+    joint (a joint's change moves the angles the others read).  ``known``: sets whose
+    validation free run the caller has already scored (not run again).
 
     Returns:
         ``(model, its free_run_error, joints)`` of the lowest kept validation error; each set
@@ -166,7 +168,12 @@ def best_set(
     best: tuple[float, Surrogate, dict[str, Any], list[bool]] | None = None
     for joints in sets:
         model = build(joints)
-        got = free_run_error(model, list(val), max_steps=max_steps)
+        done = (known or {}).get(tuple(joints))
+        got = (
+            dict(done)
+            if done is not None
+            else free_run_error(model, list(val), max_steps=max_steps)
+        )
         worse = [
             names[j]
             for j, (a, b) in enumerate(zip(got["theta_rmse"], base["theta_rmse"]))
