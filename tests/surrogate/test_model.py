@@ -38,3 +38,33 @@ def test_step_equals_forward_seq(cell: str, device: str) -> None:
         torch.testing.assert_close(state[1], c_seq, atol=1e-5, rtol=1e-5)
     for a, b in zip(g_step, g_seq):
         torch.testing.assert_close(a, b, atol=1e-4, rtol=1e-4)
+
+
+@pytest.mark.parametrize("cell", ["lstm", "gru"])
+def test_step_reads_the_same_weights_from_the_flat_list_as_by_name(cell: str) -> None:
+    """step() takes the cells' weights from the module's flat list; looked up by name (the
+    path for another torch layout) they are the same tensors, so the outputs are equal to the
+    bit, also after a dtype change and after a weight is replaced."""
+    torch.manual_seed(0)
+    net = SurrogateNet(ModelConfig(n_feature=7, n_joint=3, hidden=16, head_hidden=8, cell=cell))
+    assert net._flat_layout
+    x = torch.randn(4, 7)
+    state = tuple(0.1 * torch.randn_like(s) for s in net.init_state(4))
+
+    def both() -> torch.Tensor:
+        fast, _ = net.step(x, state)
+        net._flat_layout = False
+        try:
+            named, _ = net.step(x, state)
+        finally:
+            net._flat_layout = True
+        assert torch.equal(fast, named)
+        return fast
+
+    before = both()
+    net = net.double()
+    x, state = x.double(), tuple(s.double() for s in state)
+    assert both().dtype == torch.float64
+    with torch.no_grad():
+        net.rnn.weight_ih_l0 = torch.nn.Parameter(2.0 * net.rnn.weight_ih_l0)
+    assert not torch.equal(both().float(), before)  # the replaced weight is read

@@ -134,6 +134,9 @@ class SurrogateNet(nn.Module):
         self.cfg = cfg
         rnn = nn.LSTM if cfg.cell == "lstm" else nn.GRU
         self.rnn = rnn(cfg.n_feature, cfg.hidden, num_layers=cfg.n_layer, batch_first=True)
+        want = [f"{n}_l{k}" for k in range(cfg.n_layer) for n in CELL_WEIGHTS]
+        # step() reads the cells' weights from the module's flat list when it has this layout
+        self._flat_layout = list(getattr(self.rnn, "_flat_weights_names", [])) == want
         self.head = nn.Sequential(
             nn.Linear(cfg.hidden, cfg.head_hidden),
             nn.ReLU(),
@@ -195,10 +198,15 @@ class SurrogateNet(nn.Module):
         ~190 us forward + ~290 us backward in oneDNN's sequence kernel on CPU, the cell ~2x less
         (free-run training and validation step one sample at a time).
         """
-        weights = [
-            tuple(getattr(self.rnn, f"{n}_l{layer}") for n in CELL_WEIGHTS)
-            for layer in range(self.cfg.n_layer)
-        ]
+        n = len(CELL_WEIGHTS)
+        if self._flat_layout:
+            # nn.LSTM / nn.GRU keep their parameters in this list, 4 per layer in CELL_WEIGHTS'
+            # order: one attribute read instead of 4 module lookups a layer (~10 % of a step)
+            flat = self.rnn._flat_weights
+        else:  # another torch's layout: the same tensors, looked up by name
+            layers = range(self.cfg.n_layer)
+            flat = [getattr(self.rnn, f"{w}_l{k}") for k in layers for w in CELL_WEIGHTS]
+        weights = [tuple(flat[n * k : n * (k + 1)]) for k in range(self.cfg.n_layer)]
         out, h, c = step_layers(x_t, *state, weights, lstm=self.cfg.cell == "lstm")
         return self._out(out, x_t), (h, c)
 

@@ -98,7 +98,8 @@ class ClosedLoop:
             raise ConfigError(
                 f"model '{sur.name}' ({sur.model_cfg.cell}) cannot be stepped statefully"
             )
-        self.norm = sur.norm.to(sur.device, sur.dtype)
+        self._device, self._dtype = sur.device, sur.dtype  # fixed for the loop's life
+        self.norm = sur.norm.to(self._device, self._dtype)
         self.dt = sur.spec.dt
         self.theta: torch.Tensor | None = None
         """Current angle ``(n_batch, n_joint)`` [rad]."""
@@ -124,7 +125,7 @@ class ClosedLoop:
         ``omega[k+1]`` at the last step (before the speed bound and end stops)."""
 
     def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
-        return torch.as_tensor(a, device=self.sur.device, dtype=self.sur.dtype)
+        return torch.as_tensor(a, device=self._device, dtype=self._dtype)
 
     @torch.no_grad()
     def reset(
