@@ -58,6 +58,26 @@ def train_member(job: TrainJob, show_progress: bool | None) -> Path:
     return train_network(job.cfg, job.dataset, out=job.out, show_progress=show_progress)
 
 
+def train_groups(
+    cfgs: Mapping[str, Sequence[TrainConfig]],
+    dataset: Dataset,
+    *,
+    out: Path,
+    workers: int,
+    show_progress: bool | None = None,
+) -> dict[str, list[Surrogate]]:
+    """Train every group's single-network configs side by side (up to ``workers`` processes),
+    group ``g``'s ``i``-th into ``out/g/member_i`` (log tag ``exsur g i``), and return each
+    group's selected networks, loaded, in the order of ``cfgs``."""
+    jobs = [
+        TrainJob(cfg=c, dataset=dataset, out=out / g / f"member_{i}", tag=f"exsur {g} {i}")
+        for g, group in cfgs.items()
+        for i, c in enumerate(group)
+    ]
+    paths = iter(run_jobs(train_member, jobs, workers=workers, show_progress=show_progress))
+    return {g: [load_checkpoint(next(paths)) for _ in group] for g, group in cfgs.items()}
+
+
 def train_ensemble(
     cfg: TrainConfig,
     dataset: Dataset,

@@ -42,15 +42,13 @@ from pathlib import Path
 from typing import Any
 
 from ..data.dataset import Dataset
-from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
 from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import with_map_joints
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
-from .ensembles import member_configs, merge_members, open_run, train_member
-from .jobs import TrainJob, run_jobs
+from .ensembles import member_configs, merge_members, open_run, train_groups
 from .map_joints import SET_MARGIN, best_set
 from .records import write_config
 
@@ -202,16 +200,7 @@ def train_choosing_kinds(
         "plain": member_configs(base),
         "prior": member_configs(replace(base, prior=True, members=n_prior)),
     }
-    jobs = [
-        TrainJob(cfg=c, dataset=dataset, out=out / k / f"member_{i}", tag=f"exsur {k} {i}")
-        for k in KINDS
-        for i, c in enumerate(cfgs[k])
-    ]
-    paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
-    nets = {
-        "plain": [load_checkpoint(p) for p in paths[:n_plain]],
-        "prior": [load_checkpoint(p) for p in paths[n_plain:]],
-    }
+    nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
     model, record = choose_kinds(
         nets["plain"], nets["prior"], val_eps, max_steps=cfg.val_steps or None
     )

@@ -31,7 +31,7 @@ from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
-from .ensembles import member_configs, merge_members, open_run, train_member
+from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .jobs import TrainJob, run_jobs
 from .records import write_config
 
@@ -91,16 +91,7 @@ def train_choosing_inputs(
     t0 = time.monotonic()
     ways = ("use", "ignore")
     cfgs = {w: member_configs(replace(cfg, exogenous=w))[:half] for w in ways}
-    jobs = [
-        TrainJob(cfg=c, dataset=dataset, out=out / w / f"member_{i}", tag=f"exsur {w} {i}")
-        for w in ways
-        for i, c in enumerate(cfgs[w])
-    ]
-    paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
-    halves = {
-        w: [load_checkpoint(p) for p in paths[i * half : (i + 1) * half]]
-        for i, w in enumerate(ways)
-    }
+    halves = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
     vals = {
         w: free_run_error(merge(halves[w]), val_eps, max_steps=cfg.val_steps or None) for w in ways
     }
