@@ -54,8 +54,8 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
 train.prior_choice=true`` for the per-joint kind choice (docs/real.md).  ``--smoke``: one
-seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2 plain-LSTM epochs (a minute: the
-plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
+seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2
+plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
 budget (``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the
 cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
 the end, and ``timings_under_load`` when either is above 1.5.
@@ -316,7 +316,9 @@ def choices(sur) -> dict:
     facts = metrics.get("training") or {}
     val = (metrics.get("val") or {}).get("theta_rmse")
     out: dict = {
-        "val_rmse": None if val is None else (shown(sur.spec)[0] * np.asarray(val)).tolist()
+        "val_rmse": None
+        if val is None
+        else [round(float(v), 3) for v in shown(sur.spec)[0] * np.asarray(val)]
     }
     for key, field in (("static_map", "chosen"), ("kinds", "chosen"), ("exogenous", "kept")):
         record = facts.get(key)
@@ -356,7 +358,7 @@ def run_recipe(
             "epochs_planned": cfg.epochs,
             "budget_cut": bool(facts.get("budget_cut", False)),
             **training_log(out),
-            **choices(sur),
+            "choices": choices(sur),
             **score(sur, data.split(split)),
         }
         results.append(res)
@@ -478,14 +480,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "recipe_epochs_planned": [r["epochs_planned"] for r in recipe],
         "recipe_budget_cut": [r["budget_cut"] for r in recipe],
         "recipe_training_log": {r["seed"]: r["members"] for r in recipe},
-        "recipe_val_rmse_and_choices": {
-            r["seed"]: {
-                k: [round(v, 3) for v in r[k]] if k == "val_rmse" and r[k] else r[k]
-                for k in r
-                if k == "val_rmse" or k.endswith(("_chosen", "_kept"))
-            }
-            for r in recipe
-        },
+        "recipe_val_rmse_and_choices": {r["seed"]: r["choices"] for r in recipe},
         "median_over": {
             k: [round(float(a / b), 3) for a, b in zip(median, rows[k]["rmse"])]
             for k in rows
