@@ -34,10 +34,8 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError
-from .model import ModelConfig, Surrogate, SurrogateNet
+from .model import CELL_GATES, ModelConfig, Surrogate, SurrogateNet
 from .prior import PRIOR_MAP
-
-_GATES = {"lstm": 4, "gru": 3}
 
 
 def check_members(surs: Sequence[Surrogate], *, same_gains: bool = True) -> None:
@@ -46,7 +44,7 @@ def check_members(surs: Sequence[Surrogate], *, same_gains: bool = True) -> None
     if len(surs) < 1:
         raise ConfigError("an ensemble needs at least one member")
     ref = surs[0]
-    if ref.model_cfg.cell not in _GATES:
+    if ref.model_cfg.cell not in CELL_GATES:
         raise ConfigError(f"only LSTM/GRU surrogates can be ensembled, not '{ref.model_cfg.cell}'")
     for i, s in enumerate(surs):
         bad = non_finite_weight(s)
@@ -171,7 +169,7 @@ def merge(
                 f"whose columns sum to 1, got {weights.tolist()}"
             )
     cell = ref.model_cfg.cell
-    n_gate = _GATES[cell]
+    n_gate = CELL_GATES[cell]
     n_layer = ref.model_cfg.n_layer
     hid = [s.model_cfg.hidden for s in surs]
     head = [s.model_cfg.head_hidden for s in surs]

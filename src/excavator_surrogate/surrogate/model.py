@@ -85,6 +85,8 @@ class ModelConfig:
 
 CELL_WEIGHTS = ("weight_ih", "weight_hh", "bias_ih", "bias_hh")
 """Per-layer parameter names of ``nn.LSTM`` / ``nn.GRU`` (suffix ``_l<layer>``)."""
+CELL_GATES = {"lstm": 4, "gru": 3}
+"""Gates of a cell: its weight matrices stack this many ``hidden``-row blocks."""
 
 
 def step_layers(

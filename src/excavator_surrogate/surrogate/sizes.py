@@ -11,9 +11,7 @@ from __future__ import annotations
 
 from ..devices import available_memory
 from ..errors import ConfigError, ExsurError
-from .model import ModelConfig
-
-_GATES = {"lstm": 4, "gru": 3}
+from .model import CELL_GATES, ModelConfig
 
 
 def n_param(cfg: ModelConfig) -> int:
@@ -23,7 +21,7 @@ def n_param(cfg: ModelConfig) -> int:
     """
     if cfg.cell == "arx":
         return (int(cfg.window) * int(cfg.n_feature) + 1) * int(cfg.n_joint)
-    gates = _GATES.get(cfg.cell, 4)
+    gates = CELL_GATES.get(cfg.cell, 4)
     h, f = int(cfg.hidden), int(cfg.head_hidden)
     n = 0
     for k in range(int(cfg.n_layer)):

@@ -2,7 +2,8 @@
 
 Model selection (training, baselines, sweeps) ranks candidates by it: the model is rolled out
 in closed loop on the validation episodes; ``val_error`` = mean over joints of
-RMSE(theta) / std(theta_ref) after the warm-up.
+RMSE(theta) / std(theta_ref) after the warm-up.  :func:`free_run_errors` scores several
+candidates of one architecture in one batched free run (:mod:`.stacked`).
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import numpy as np
 from ..data.episode import Episode
 from .angles import unwrap_periodic
 from .model import Surrogate
-from .rollout import rollout_episodes
+from .rollout import EpisodeRollout, rollout_episodes
+from .stacked import stack, stackable
 
 
 def free_run_error(
@@ -28,7 +30,36 @@ def free_run_error(
         "omega_rmse": [...]}`` (per joint lists); ``val_error`` is ``inf`` if the rollout diverged.
     """
     sur.net.eval()
-    runs = rollout_episodes(sur, episodes, max_steps=max_steps)
+    return score_runs(rollout_episodes(sur, episodes, max_steps=max_steps), sur)
+
+
+def free_run_errors(
+    surs: list[Surrogate], episodes: list[Episode], *, max_steps: int | None = None
+) -> list[dict[str, Any]]:
+    """:func:`free_run_error` of each of ``surs``: in one batched free run when they differ
+    only in their weights (:func:`~.stacked.stackable`, e.g. a training's raw and averaged
+    weights), else one after the other.  The batched scores equal the separate ones to
+    float32 rounding.
+
+    A candidate that diverges (NaN or inf) would spread to the others in the batched run
+    (``0 * inf`` is NaN in the block-diagonal sums), so then every candidate runs alone.
+    """
+    if stackable(surs):
+        n = len(episodes)
+        runs = rollout_episodes(stack(surs), list(episodes) * len(surs), max_steps=max_steps)
+        if all(_finite(r) for r in runs):
+            return [score_runs(runs[c * n : (c + 1) * n], s) for c, s in enumerate(surs)]
+    return [free_run_error(s, episodes, max_steps=max_steps) for s in surs]
+
+
+def _finite(run: EpisodeRollout) -> bool:
+    """Whether the free run stayed finite after its warm-up."""
+    w = run.warmup
+    return bool(np.isfinite(run.theta_hat[w:]).all() and np.isfinite(run.omega_hat[w:]).all())
+
+
+def score_runs(runs: list[EpisodeRollout], sur: Surrogate) -> dict[str, Any]:
+    """The scores of :func:`free_run_error` from the free runs ``runs`` of ``sur``."""
     spec = sur.spec
     th_err, th_ref, om_err = [], [], []
     for r in runs:

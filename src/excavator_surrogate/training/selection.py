@@ -1,8 +1,9 @@
 """Model selection: validate the epoch's candidates by free run, keep the best epoch.
 
 After every epoch the candidates (the raw weights, and the weight average with ``ema_decay``)
-are rolled out in closed loop on the validation episodes on the main rank
-(:func:`~excavator_surrogate.surrogate.validation.free_run_error`); the better one competes for
+are rolled out in closed loop on the validation episodes on the main rank, side by side in
+one batched run (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`); the
+better one competes for
 ``best.pt``.  The result is broadcast, so every rank keeps the same bookkeeping.  When the
 validation split is short (one or two segments), the recipe makes the competition sound:
 only epochs after ``select_after`` of the plan compete, each scored with its recent
@@ -21,7 +22,7 @@ import numpy as np
 
 from ..data.episode import Episode
 from ..surrogate.model import Surrogate
-from ..surrogate.validation import free_run_error
+from ..surrogate.validation import free_run_errors
 from .parallel import Parallel
 
 
@@ -54,13 +55,15 @@ def choose(
     *,
     max_steps: int | None,
 ) -> Choice:
-    """Validate every candidate (main rank, broadcast) and pick the lowest ``val_error``."""
-    vals = {
-        label: par.broadcast(
-            free_run_error(cand, val_eps, max_steps=max_steps) if par.is_main else None
-        )
-        for label, cand in cands
-    }
+    """Validate every candidate (main rank, in one batched free run, broadcast) and pick the
+    lowest ``val_error``."""
+    labels = [label for label, _ in cands]
+    errors = (
+        free_run_errors([cand for _, cand in cands], val_eps, max_steps=max_steps)
+        if par.is_main
+        else None
+    )
+    vals = dict(zip(labels, par.broadcast(errors), strict=True))
     pick = min(vals, key=lambda k: finite_or_inf(vals[k]["val_error"]))
     return Choice(vals=vals, pick=pick, chosen=dict(cands)[pick])
 
