@@ -7,7 +7,11 @@ synthetic 4-joint data.  Reported: loss samples/s, recurrent steps/s and achieve
 Next to it, timed in the same run with the same threads: the dense float32 matmul peak of a
 GEMM shaped like the LSTM's largest one (``(n_batch, 2H) @ (2H, 4H)``), and of a 1024^3 GEMM.
 Also side by side: the fused one-step cell (``SurrogateNet.step``) against a one-step
-``nn.LSTM`` call, as used by free-run training and validation.
+``nn.LSTM`` call, as used by free-run training and validation; and an epoch's validation of
+its two candidates (raw and averaged weights) as one batched free run
+(``free_run_errors``) against two separate ones (``free_run_error``), on validation splits
+shaped like the real cases' (one long segment, two sessions, 24 short runs), with the
+seconds per step that ``training/auto.py`` plans with (``VAL_STEP_S``).
 
 FLOP count (multiply-add = 2): forward per recurrent step and sample
 ``F = 2 * sum_layers 4H (n_in + H) + 2 * (H * H_head + H_head * n_joint)``; a step inside the
@@ -198,6 +202,45 @@ def step_speed(mc: ModelConfig, *, n_batch: int, dev: torch.device, seconds: flo
     return out
 
 
+VAL_SHAPES = {"1 segment": (1, 600), "2 sessions": (2, 600), "24 runs": (24, 300)}
+"""Validation splits timed: (episodes, samples each), like the continuous case, the sessions
+case and h1-dev (shorter: the time per step does not depend on the length)."""
+
+
+def validation_speed(mc: ModelConfig, spec, eps, *, dev: torch.device, reps: int = 3) -> dict:
+    """Seconds per free-run step of validating two candidates, batched and separately
+    (medians of ``reps`` interleaved runs per validation shape), and their ratio."""
+    from excavator_surrogate.surrogate.features import Normalization
+    from excavator_surrogate.surrogate.validation import free_run_error, free_run_errors
+
+    norm = Normalization.fit([e.theta for e in eps], [e.u for e in eps], spec).to(dev)
+    torch.manual_seed(0)
+    cands = []
+    for _ in range(2):  # two sets of weights of one architecture, as the raw and the average
+        net = SurrogateNet(mc).to(dev).eval()
+        cands.append(
+            Surrogate(net=net, spec=spec, norm=norm, model_cfg=mc, mode="stateful", end_stops=True)
+        )
+    out = {}
+    for name, (n_ep, n_step) in VAL_SHAPES.items():
+        val = [
+            synthetic_episode(spec, kind="step", n_step=n_step, seed=100 + i) for i in range(n_ep)
+        ]
+        times: dict[str, list[float]] = {"batched": [], "separate": []}
+        for _ in range(reps + 1):  # the first round warms up and is not kept
+            for how in times:
+                t0 = time.perf_counter()
+                if how == "batched":
+                    free_run_errors(cands, val)
+                else:
+                    [free_run_error(c, val) for c in cands]
+                times[how].append(time.perf_counter() - t0)
+        steps = n_step - mc.window
+        b, sep = (float(np.median(times[k][1:])) / steps for k in ("batched", "separate"))
+        out[name] = {"batched_s_per_step": b, "separate_s_per_step": sep, "ratio": b / sep}
+    return out
+
+
 def main() -> int:
     args = _parse()
     dev = resolve_device(args.device)
@@ -261,6 +304,7 @@ def main() -> int:
     peak = max(peak_shape, peak_big)
     mc = ModelConfig(n_feature=spec.n_feature, n_joint=spec.n_joint, hidden=h, head_hidden=h)
     cell = step_speed(mc, n_batch=16, dev=dev, seconds=min(3.0, args.seconds))
+    val = validation_speed(mc, spec, eps, dev=dev)
     for r in results.values():
         r["fraction_of_peak"] = r["gflops"] / peak
     print(
@@ -278,6 +322,11 @@ def main() -> int:
         )
         + f"\none-step cell vs one-step nn.LSTM (batch 16, fwd+bwd): "
         f"{cell['cell'] / cell['module']:.2f}x ({cell['cell']:.0f} vs {cell['module']:.0f} steps/s)"
+        + "".join(
+            f"\nvalidation of 2 candidates, {k}: batched {1e3 * r['batched_s_per_step']:.3f} ms "
+            f"per step, separate {1e3 * r['separate_s_per_step']:.3f} ms ({r['ratio']:.2f}x)"
+            for k, r in val.items()
+        )
     )
     best_stateful = max(r["fraction_of_peak"] for k, r in results.items() if "teacher" in k)
     best_free = max(r["fraction_of_peak"] for k, r in results.items() if "free" in k)
@@ -293,6 +342,9 @@ def main() -> int:
                 "matmul_peak_gflops": round(peak, 1),
                 "matmul_shape_gflops": round(peak_shape, 1),
                 "results": {k: {n: round(v, 4) for n, v in r.items()} for k, r in results.items()},
+                "validation_s_per_step": {
+                    k: {n: float(f"{v:.3g}") for n, v in r.items()} for k, r in val.items()
+                },
                 "ratios": {
                     "stateful_teacher_of_peak": round(best_stateful, 3),
                     "stateful_free_of_peak": round(best_free, 3),
@@ -300,6 +352,10 @@ def main() -> int:
                         results[large]["samples_per_s"] / results[small]["samples_per_s"], 2
                     ),
                     "cell_over_module_step": round(cell["cell"] / cell["module"], 2),
+                    **{
+                        f"validation_batched_over_separate {k}": round(r["ratio"], 2)
+                        for k, r in val.items()
+                    },
                     **{
                         f"bf16_over_fp32 {k}": round(
                             r["samples_per_s"] / results[k]["samples_per_s"], 2
@@ -310,6 +366,7 @@ def main() -> int:
                 "goals": {
                     "stateful_ge_30pct_of_peak": best_stateful >= GOAL_RATIO,
                     "fused_cell_faster": cell["cell"] > cell["module"],
+                    "batched_validation_faster": all(r["ratio"] < 1.0 for r in val.values()),
                 },
             }
         )

@@ -72,7 +72,12 @@ STEP_S = 4.5e-4
 LSTM, forward and backward, one core [s] (measured on h1-dev: 2.0 s for 32 batches of 109
 steps with the other core busy)."""
 VAL_STEP_S = 3.0e-4
-"""Reference machine: one step of the validation free run over all validation episodes [s]."""
+"""Reference machine: one step of the validation free run over all validation episodes [s],
+one candidate at a time.  The plan's constant, not a measurement of today's code: the two
+candidates now free-run together (``surrogate.validation.free_run_errors``, about 0.7x
+the time of two runs), and the epochs before ``select_after`` are not validated, so a long
+log's member finishes well within its estimate.  The plan keeps it: more epochs in the same
+budget did not pay on one long log (docs/real.md, "Faster, not longer")."""
 MEMBERS = 4
 """Fewest seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
 MAX_MEMBERS = 8
