@@ -143,15 +143,16 @@ class StackedNet(nn.Module):
         """``x_t: (C * n, n_feature)`` -> ``(C * n, n_joint)`` and the new state."""
         n_cand, hid = self.n_cand, self.cfg.hidden
         h, c = state
-        inp = x_t.view(n_cand, -1, x_t.shape[-1])
+        inp = x_t.reshape(n_cand, -1, x_t.shape[-1])
         hs, cs = [], []
         for k in range(self.cfg.n_layer):
-            h_k = h[k].view(n_cand, -1, hid)
+            h_k = h[k].reshape(n_cand, -1, hid)
             # gates = [x, h] W^T + b                                          (C, n, 4 hidden)
             gates = torch.baddbmm(self._b[k], torch.cat([inp, h_k], dim=-1), self._w[k])
             i, f, g, o = gates.chunk(4, dim=-1)
             # c <- sigmoid(f) c + sigmoid(i) tanh(g);  h <- sigmoid(o) tanh(c)
-            c_k = torch.sigmoid(f) * c[k].view(n_cand, -1, hid) + torch.sigmoid(i) * torch.tanh(g)
+            c_prev = c[k].reshape(n_cand, -1, hid)
+            c_k = torch.sigmoid(f) * c_prev + torch.sigmoid(i) * torch.tanh(g)
             inp = torch.sigmoid(o) * torch.tanh(c_k)
             hs.append(inp.reshape(-1, hid))
             cs.append(c_k.reshape(-1, hid))
