@@ -60,11 +60,13 @@ budget (``0`` = no cap, the planned epochs always run).  Timings taken while oth
 cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
 the end, and ``timings_under_load`` when either is above 1.5.
 
-Takes about 40 min for h1 on the 2-core reference machine.  On computer B (quiet): the
-continuous case's recipe trains in about 4 min per seed (4 members of 102-117 s, two at a
-time; the recipe plans 162 s a member, but the epochs before ``select_after`` are not
-validated), the sessions case's in about 4.5 min per seed, and its plain LSTM in 11 min;
-``--condition`` adds about as much again per seed.
+Takes about 40 min for h1 on the 2-core reference machine (computer B, quiet, session 18:
+the recipe 289-395 s per seed, ``--condition`` about 4 min more per seed). On computer B
+(quiet): the continuous case's recipe trains in about 3 min per seed (4 members of 71-79 s,
+two at a time; the recipe plans 162 s a member, but the epochs before ``select_after`` are
+not validated and the two candidates validate in one batched free run), the sessions
+case's in about 4.5 min per seed, and its plain LSTM in 11 min; ``--condition`` adds about
+as much again per seed.
 """
 
 from __future__ import annotations
