@@ -39,23 +39,13 @@ def free_run_errors(
     """:func:`free_run_error` of each of ``surs``: in one batched free run when they differ
     only in their weights (:func:`~.stacked.stackable`, e.g. a training's raw and averaged
     weights), else one after the other.  The batched scores equal the separate ones to
-    float32 rounding.
-
-    A candidate that diverges (NaN or inf) would spread to the others in the batched run
-    (``0 * inf`` is NaN in the block-diagonal sums), so then every candidate runs alone.
-    """
-    if stackable(surs):
-        n = len(episodes)
-        runs = rollout_episodes(stack(surs), list(episodes) * len(surs), max_steps=max_steps)
-        if all(_finite(r) for r in runs):
-            return [score_runs(runs[c * n : (c + 1) * n], s) for c, s in enumerate(surs)]
-    return [free_run_error(s, episodes, max_steps=max_steps) for s in surs]
-
-
-def _finite(run: EpisodeRollout) -> bool:
-    """Whether the free run stayed finite after its warm-up."""
-    w = run.warmup
-    return bool(np.isfinite(run.theta_hat[w:]).all() and np.isfinite(run.omega_hat[w:]).all())
+    float32 rounding; a candidate that diverges scores ``inf`` without touching the others
+    (no operation mixes two candidates' rows)."""
+    if not stackable(surs):
+        return [free_run_error(s, episodes, max_steps=max_steps) for s in surs]
+    n = len(episodes)
+    runs = rollout_episodes(stack(surs), list(episodes) * len(surs), max_steps=max_steps)
+    return [score_runs(runs[c * n : (c + 1) * n], s) for c, s in enumerate(surs)]
 
 
 def score_runs(runs: list[EpisodeRollout], sur: Surrogate) -> dict[str, Any]:

@@ -3,11 +3,10 @@
 After every epoch the candidates (the raw weights, and the weight average with ``ema_decay``)
 are rolled out in closed loop on the validation episodes on the main rank, side by side in
 one batched run (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`); the
-better one competes for
-``best.pt``.  The result is broadcast, so every rank keeps the same bookkeeping.  When the
-validation split is short (one or two segments), the recipe makes the competition sound:
-only epochs after ``select_after`` of the plan compete, each scored with its recent
-neighbours (:func:`selection_score`).  The epochs before them are not validated at all
+better one competes for ``best.pt``.  The result is broadcast, so every rank keeps the same
+bookkeeping.  When the validation split is short (one or two segments), the recipe makes the
+competition sound: only epochs after ``select_after`` of the plan compete, each scored with
+its recent neighbours (:func:`selection_score`).  The epochs before them are not validated at all
 (:func:`first_validated`), except the few whose errors the first competitors' scores read:
 on a continuous log the validation free run costs several times the epoch's training.
 """
