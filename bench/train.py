@@ -10,8 +10,8 @@ Also side by side: the fused one-step cell (``SurrogateNet.step``) against a one
 ``nn.LSTM`` call, as used by free-run training and validation; and an epoch's validation of
 its two candidates (raw and averaged weights) as one batched free run
 (``free_run_errors``) against two separate ones (``free_run_error``), on validation splits
-shaped like the real cases' (one long segment, two sessions, 24 short runs), with the
-seconds per step that ``training/auto.py`` plans with (``VAL_STEP_S``).
+shaped like the real cases' (one long segment, two sessions, 24 short runs): the batched
+run must take at most :data:`GOAL_VAL_RATIO` of the separate runs' time.
 
 FLOP count (multiply-add = 2): forward per recurrent step and sample
 ``F = 2 * sum_layers 4H (n_in + H) + 2 * (H * H_head + H_head * n_joint)``; a step inside the
@@ -51,6 +51,9 @@ from excavator_surrogate.training.resume import start
 
 GOAL_RATIO = 0.30
 """Stateful training of the 2 x 128 LSTM reaches this fraction of the matmul peak (issue 15)."""
+GOAL_VAL_RATIO = 0.8
+"""Validating two candidates in one batched free run takes at most this fraction of two
+separate free runs' time (0.5-0.7 measured on the reference machine)."""
 
 
 def _parse() -> argparse.Namespace:
@@ -366,7 +369,9 @@ def main() -> int:
                 "goals": {
                     "stateful_ge_30pct_of_peak": best_stateful >= GOAL_RATIO,
                     "fused_cell_faster": cell["cell"] > cell["module"],
-                    "batched_validation_faster": all(r["ratio"] < 1.0 for r in val.values()),
+                    "batched_validation_faster": all(
+                        r["ratio"] <= GOAL_VAL_RATIO for r in val.values()
+                    ),
                 },
             }
         )
