@@ -48,6 +48,24 @@ def test_play_step_equals_the_plain_loop(rng):
         np.testing.assert_allclose(z.numpy(), ref[:, k], atol=1e-12)
 
 
+def test_play_np_equals_one_sample_at_a_time_to_the_bit(rng):
+    # the reference computes each sample's bounds inside the loop; play_np all at once
+    us = rng.uniform(-1, 1, (2, 3, 40, 4))
+    z0 = rng.uniform(-0.5, 0.5, (2, 3, len(PLAY), 4))
+    b = np.asarray(PLAY)[:, None]
+    for start in (None, z0):
+        z = np.zeros((2, 3, len(PLAY), 4)) if start is None else start.copy()
+        ref = np.empty((2, 3, 40, len(PLAY), 4))
+        for k in range(40):
+            x = us[..., k, None, :]
+            z = np.minimum(np.maximum(z, x - b), x + b)
+            ref[..., k, :, :] = z
+        assert np.array_equal(play_np(us, PLAY, z0=start), ref)
+    # a state shared by every episode broadcasts over them
+    shared = play_np(us, PLAY, z0=z0[0, 0])
+    assert np.array_equal(shared[1, 2], play_np(us[1, 2], PLAY, z0=z0[0, 0]))
+
+
 def test_encode_with_play_matches_numpy_and_widens_the_input(spec, episodes):
     norm = Normalization.fit([e.theta for e in episodes], [e.u for e in episodes], spec, play=PLAY)
     assert norm.n_feature == spec.n_feature + len(PLAY) * spec.n_joint

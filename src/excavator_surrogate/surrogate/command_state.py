@@ -41,11 +41,13 @@ def play_np(us: np.ndarray, widths: Sequence[float], z0: np.ndarray | None = Non
     n_step, n_joint = us.shape[-2:]
     z = np.zeros((*lead, len(b), n_joint)) if z0 is None else np.array(z0, dtype=np.float64)
     out = np.empty((*lead, n_step, len(b), n_joint))
+    # the bounds of every sample at once (the same sums as one sample at a time):
+    # lo[k] = us[k] - b,  hi[k] = us[k] + b
+    x = us[..., None, :]
+    lo, hi = x - b, x + b
     for k in range(n_step):
-        x = us[..., k, None, :]
-        # z[k] = min(max(z[k-1], us[k] - b), us[k] + b)
-        z = np.minimum(np.maximum(z, x - b), x + b)
-        out[..., k, :, :] = z
+        # z[k] = min(max(z[k-1], lo[k]), hi[k]), written in place
+        z = np.minimum(np.maximum(z, lo[..., k, :, :]), hi[..., k, :, :], out=out[..., k, :, :])
     return out
 
 
