@@ -48,6 +48,7 @@ from .batches import (
     windowed_indices,
 )
 from .config import TrainConfig
+from .free_run import free_run_chunk, supported
 
 Piece = tuple[torch.Tensor, torch.Tensor, int]
 """``(y_hat, y, n_step)``: predictions and targets ``(n_batch, n_step, n_joint)``."""
@@ -121,9 +122,11 @@ class Stateful:
     sur: Surrogate
     _limits: Any = field(init=False, repr=False)
     _counts: np.ndarray | None = field(init=False, repr=False)
+    _fused: bool = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._counts = _bootstrap(self.cfg, self.data)
+        self._fused = self.cfg.fused_backward and supported(self.sur.net)
         self._limits = self.sur.limits()
         spec = self.sur.spec
         # the (sin, cos) feature columns of each periodic joint, in the feature layout
@@ -184,6 +187,18 @@ class Stateful:
             j1 = min(j0 + cfg.tbptt, cfg.seq_len)
             if teacher:
                 y_hat, state = net.forward_seq(x_seq[:, j0:j1], state)
+            elif self._fused and net is self.sur.net:
+                y_hat, state, theta, omega = free_run_chunk(
+                    net,
+                    norm,
+                    theta=theta,
+                    omega=omega,
+                    state=state,
+                    u=u_seq[:, j0:j1],
+                    z=z_seq[:, j0:j1],
+                    dt=dt,
+                    limits=limits,
+                )
             else:
                 ys = []
                 for j in range(j0, j1):
