@@ -217,7 +217,7 @@ def step_speed(mc: ModelConfig, *, n_batch: int, dev: torch.device, seconds: flo
 
 def fused_speed(spec, episodes, *, dev: torch.device, seconds: float, rounds: int = 5) -> dict:
     """Free-run training samples/s of the demo's network (2 x 64 LSTM, play features, velocity
-    input, residual head, end stops and speed bounds, batch 64) with the hand-written chunk
+    input, residual head, end stops and speed bounds, batch 64, one thread) with the hand-written chunk
     backward (``fused_backward``) and through autograd: ``rounds`` interleaved slices each,
     medians, and their ratio."""
     joints = [
@@ -247,12 +247,17 @@ def fused_speed(spec, episodes, *, dev: torch.device, seconds: float, rounds: in
         device=str(dev),
     )
     speeds: dict[str, list[float]] = {"fused": [], "autograd": []}
-    for r in range(rounds + 1):  # the first round warms up and is not kept
-        for how in speeds:
-            cfg = replace(demo, fused_backward=how == "fused")
-            got = measure(cfg, spec, episodes, dev=dev, seconds=seconds, warm=False)
-            if r:
-                speeds[how].append(got["samples_per_s"])
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as the demo trains: one member per core, one thread each
+    try:
+        for r in range(rounds + 1):  # the first round warms up and is not kept
+            for how in speeds:
+                cfg = replace(demo, fused_backward=how == "fused")
+                got = measure(cfg, spec, episodes, dev=dev, seconds=seconds, warm=False)
+                if r:
+                    speeds[how].append(got["samples_per_s"])
+    finally:
+        torch.set_num_threads(threads)
     f, a = (float(np.median(speeds[k])) for k in ("fused", "autograd"))
     return {"fused_samples_per_s": f, "autograd_samples_per_s": a, "ratio": f / a}
 
