@@ -167,6 +167,11 @@ class Normalization:
         return max(self.lags) + 1 if self.lags else 0
 
     @property
+    def n_angle(self) -> int:
+        """Angle feature columns: 2 per periodic joint (sin, cos), 1 per other joint."""
+        return sum(2 if p else 1 for p in self.periodic)
+
+    @property
     def n_state(self) -> int:
         """Rows of the command state ``z``: the P play operators, then the L-sample delay line."""
         return self.n_play + self.n_line
@@ -191,9 +196,8 @@ class Normalization:
         if self.lags:
             raise ValueError("with_lags: this normalisation already has delayed commands")
         n = len(self.periodic)
-        n_angle = sum(2 if p else 1 for p in self.periodic)
         at = self.lag_start
-        src = torch.arange(n_angle, n_angle + n)
+        src = torch.arange(self.n_angle, self.n_angle + n)
 
         def grow(a: torch.Tensor) -> torch.Tensor:
             return torch.cat([a[:at], a[src], a[at:]])
@@ -401,6 +405,17 @@ class Normalization:
         Returns:
             (..., n_feature) normalised features (same layout as :func:`encode_np`).
         """
+        out = [self.angle_raw(theta), self.command_raw(u, z)]
+        if self.omega_in:
+            if omega is None:
+                raise ValueError("encode: this normalisation has a velocity feature; pass omega")
+            out.append(omega)
+        x = torch.cat(out, dim=-1)
+        return (x - self.x_mean) / self.x_std
+
+    def angle_raw(self, theta: torch.Tensor) -> torch.Tensor:
+        """The angle columns of :meth:`encode` before normalisation: ``theta: (..., n_joint)``
+        [rad] -> ``(..., n_angle)``, sin and cos of a periodic joint, else the angle."""
         parts = []
         for j, p in enumerate(self.periodic):
             th = theta[..., j]
@@ -408,20 +423,20 @@ class Normalization:
                 parts += [torch.sin(th), torch.cos(th)]
             else:
                 parts.append(th)
+        return torch.stack(parts, dim=-1)
+
+    def command_raw(self, u: torch.Tensor, z: torch.Tensor | None) -> torch.Tensor:
+        """The command columns of :meth:`encode` before normalisation (they do not depend on
+        the angles): the scaled commands ``us = (u - u_center) / u_scale`` of ``u: (..., n_u)``,
+        then the features of the command state ``z: (..., P + L, n_joint)`` (if any)."""
         us = (u - self.u_center) / self.u_scale
-        out = [torch.stack(parts, dim=-1), us]
-        if self.n_state:
-            if z is None:
-                what = "play features" if self.n_play else "delayed commands"
-                raise ValueError(f"encode: this normalisation has {what}; pass z")
-            nj = len(self.periodic)
-            out.append(command_features(z, us[..., :nj], self.play, self.lag_index))
-        if self.omega_in:
-            if omega is None:
-                raise ValueError("encode: this normalisation has a velocity feature; pass omega")
-            out.append(omega)
-        x = torch.cat(out, dim=-1)
-        return (x - self.x_mean) / self.x_std
+        if not self.n_state:
+            return us
+        if z is None:
+            what = "play features" if self.n_play else "delayed commands"
+            raise ValueError(f"encode: this normalisation has {what}; pass z")
+        nj = len(self.periodic)
+        return torch.cat([us, command_features(z, us[..., :nj], self.play, self.lag_index)], dim=-1)
 
     def encode_np(
         self,

@@ -37,7 +37,6 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..surrogate.command_state import command_features
 from ..surrogate.features import Normalization
 from ..surrogate.model import SurrogateNet
 
@@ -52,8 +51,6 @@ class _Plan:
     norm: Normalization
     dt: float
     limits: tuple[torch.Tensor, ...] | None
-    n_angle: int
-    """Angle feature columns (2 per periodic joint, 1 otherwise)."""
 
 
 def supported(net: nn.Module) -> bool:
@@ -85,31 +82,14 @@ def _weights(net: SurrogateNet) -> list[torch.Tensor]:
     ]
 
 
-def _commands(norm: Normalization, u: torch.Tensor, z: torch.Tensor, n_angle: int) -> torch.Tensor:
+def _commands(norm: Normalization, u: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     """The normalised command columns of every sample at once (they do not depend on the
     angles): ``u: (n_batch, n_step, n_u)``, ``z: (n_batch, n_step, P + L, n_joint)`` ->
     ``(n_batch, n_step, n_u + P * n_joint [+ n_joint])``, the same values as
     :meth:`Normalization.encode`'s columns (the same element-wise operations)."""
-    us = (u - norm.u_center) / norm.u_scale
-    parts = [us]
-    if norm.n_state:
-        nj = len(norm.periodic)
-        parts.append(command_features(z, us[..., :nj], norm.play, norm.lag_index))
-    raw = torch.cat(parts, dim=-1) if len(parts) > 1 else us
-    hi = n_angle + raw.shape[-1]
-    return (raw - norm.x_mean[n_angle:hi]) / norm.x_std[n_angle:hi]
-
-
-def _angle_raw(theta: torch.Tensor, periodic: tuple[bool, ...]) -> torch.Tensor:
-    """The raw angle columns ``(n_batch, n_angle)``: sin, cos of periodic joints, else theta."""
-    parts = []
-    for j, p in enumerate(periodic):
-        th = theta[..., j]
-        if p:
-            parts += [torch.sin(th), torch.cos(th)]
-        else:
-            parts.append(th)
-    return torch.stack(parts, dim=-1)
+    raw = norm.command_raw(u, z)
+    lo, hi = norm.n_angle, norm.n_angle + raw.shape[-1]
+    return (raw - norm.x_mean[lo:hi]) / norm.x_std[lo:hi]
 
 
 @dataclass
@@ -152,7 +132,7 @@ class _Chunk(torch.autograd.Function):
         n_layer, n_joint = net.cfg.n_layer, net.cfg.n_joint
         cells = [weights[4 * k : 4 * k + 4] for k in range(n_layer)]
         w1, b1, w2, b2 = weights[4 * n_layer :]
-        na, omega_in, periodic = plan.n_angle, norm.omega_in, norm.periodic
+        na, omega_in = norm.n_angle, norm.omega_in
         m_a, s_a = norm.x_mean[:na], norm.x_std[:na]
         m_w, s_w = norm.x_mean[-n_joint:], norm.x_std[-n_joint:]
         residual, prior = net.cfg.residual, net.prior
@@ -173,17 +153,17 @@ class _Chunk(torch.autograd.Function):
             ],
             tc=[new(n_step, n_batch, hidden) for _ in range(n_layer)],
             a1=new(n_step, n_batch, w1.shape[0]),
-            hit=None if limits is None else torch.empty(n_step, n_batch, n_joint, dtype=torch.bool),
+            hit=None if limits is None else new(n_step, n_batch, n_joint, dtype=torch.bool),
             free=None
             if limits is None or len(limits) < 3
-            else torch.empty(n_step, n_batch, n_joint, dtype=torch.bool),
+            else new(n_step, n_batch, n_joint, dtype=torch.bool),
         )
         w_lo = None if b.free is None else -limits[2]  # type: ignore[index]
         ys = []
         for k in range(n_step):
             b.theta[k] = theta
             # x[k] = (raw(theta, u, z, omega) - x_mean) / x_std, column block by column block
-            xs = [(_angle_raw(theta, periodic) - m_a) / s_a, cmd[:, k]]
+            xs = [(norm.angle_raw(theta) - m_a) / s_a, cmd[:, k]]
             if omega_in:
                 xs.append((omega - m_w) / s_w)
             x = torch.cat(xs, dim=-1, out=b.x[k])
@@ -232,7 +212,7 @@ class _Chunk(torch.autograd.Function):
         net, norm, dt = plan.net, plan.norm, plan.dt
         n_layer, n_joint = net.cfg.n_layer, net.cfg.n_joint
         w1, w2 = weights[4 * n_layer], weights[4 * n_layer + 2]
-        na, omega_in, residual = plan.n_angle, norm.omega_in, net.cfg.residual
+        na, omega_in, residual = norm.n_angle, norm.omega_in, net.cfg.residual
         y_std, s_w = norm.y_std, norm.x_std[-n_joint:]
         n_step, n_batch = b.x.shape[:2]
         hidden = b.tc[0].shape[-1]
@@ -369,9 +349,8 @@ def free_run_chunk(
         ``y_hat`` (n_batch, n_step, n_joint) normalised velocities (differentiable in the
         weights), the state after the chunk, and ``theta``, ``omega`` after its last sample.
     """
-    n_angle = sum(2 if p else 1 for p in norm.periodic)
     with torch.no_grad():
-        cmd = _commands(norm, u, z, n_angle)
-    plan = _Plan(net=net, norm=norm, dt=dt, limits=limits, n_angle=n_angle)
+        cmd = _commands(norm, u, z)
+    plan = _Plan(net=net, norm=norm, dt=dt, limits=limits)
     y_hat, h, c, theta, omega = _Chunk.apply(plan, theta, omega, state, cmd, *_weights(net))
     return y_hat, (h, c), theta, omega
