@@ -37,6 +37,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..surrogate.angles import integrate
 from ..surrogate.features import Normalization
 from ..surrogate.model import SurrogateNet
 
@@ -99,13 +100,12 @@ class _Buffers:
 
     x: torch.Tensor
     theta: torch.Tensor
+    y: torch.Tensor
     gates: list[torch.Tensor]
     c: list[torch.Tensor]
     h: list[torch.Tensor]
     tc: list[torch.Tensor]
     a1: torch.Tensor
-    hit: torch.Tensor | None
-    free: torch.Tensor | None
 
 
 class _Chunk(torch.autograd.Function):
@@ -142,6 +142,7 @@ class _Chunk(torch.autograd.Function):
         b = _Buffers(
             x=new(n_step, n_batch, norm.n_feature),
             theta=new(n_step, n_batch, n_joint),
+            y=new(n_step, n_batch, n_joint),
             gates=[new(n_step, n_batch, 4 * hidden) for _ in range(n_layer)],
             c=[
                 torch.cat([state[1][k : k + 1], new(n_step, n_batch, hidden)])
@@ -153,13 +154,7 @@ class _Chunk(torch.autograd.Function):
             ],
             tc=[new(n_step, n_batch, hidden) for _ in range(n_layer)],
             a1=new(n_step, n_batch, w1.shape[0]),
-            hit=None if limits is None else new(n_step, n_batch, n_joint, dtype=torch.bool),
-            free=None
-            if limits is None or len(limits) < 3
-            else new(n_step, n_batch, n_joint, dtype=torch.bool),
         )
-        w_lo = None if b.free is None else -limits[2]  # type: ignore[index]
-        ys = []
         for k in range(n_step):
             b.theta[k] = theta
             # x[k] = (raw(theta, u, z, omega) - x_mean) / x_std, column block by column block
@@ -184,23 +179,10 @@ class _Chunk(torch.autograd.Function):
                 y = y + x[..., -n_joint:]
             if prior is not None:
                 y = y + prior(x)
-            ys.append(y)
-            w_hat = y * y_std + y_mean
-            # the same steps as surrogate.angles.integrate
-            if limits is None:
-                theta, omega = theta + dt * w_hat, w_hat
-                continue
-            if b.free is not None:
-                w_c = torch.minimum(torch.maximum(w_hat, w_lo), limits[2])
-                torch.eq(w_c, w_hat, out=b.free[k])
-            else:
-                w_c = w_hat
-            nxt = theta + dt * w_c
-            stopped = torch.minimum(torch.maximum(nxt, limits[0]), limits[1])
-            hit = torch.ne(stopped, nxt, out=b.hit[k])
-            theta, omega = stopped, torch.where(hit, (stopped - theta) / dt, w_c)
+            b.y[k] = y
+            theta, omega = integrate(theta, y * y_std + y_mean, dt=dt, limits=limits)
         ctx.plan, ctx.buffers, ctx.weights = plan, b, weights
-        y_hat = torch.stack(ys, dim=1)
+        y_hat = b.y.transpose(0, 1).contiguous()  # a copy: no output is kept on ctx
         h_out = torch.stack([h[-1] for h in b.h])
         c_out = torch.stack([c[-1] for c in b.c])
         ctx.mark_non_differentiable(h_out, c_out, theta, omega)
@@ -242,11 +224,24 @@ class _Chunk(torch.autograd.Function):
                 jac[..., col + 1] *= -torch.sin(th)
             col += 1 + p
         # integrate: theta' = stop(theta + dt w_c), omega' = hit ? (theta' - theta)/dt : w_c;
-        # moved: 0 where a stop was hit; pass_w: 0 there and where the speed bound clipped
-        if b.hit is not None:
-            moved = (~b.hit).to(g_yhat.dtype)
-            pass_w = moved if b.free is None else moved * b.free.to(g_yhat.dtype)
-            back_dt = b.hit.to(g_yhat.dtype) / dt
+        # its clip masks for every sample at once, from the same element-wise operations as
+        # the forward pass's (so the same values): free where the speed bound did not clip,
+        # hit where a stop did; moved: 0 where a stop was hit; pass_w: 0 there and where the
+        # speed bound clipped
+        limits = plan.limits
+        if limits is not None:
+            w_hat = b.y * y_std + norm.y_mean
+            free = None
+            if len(limits) == 3:
+                w_c = torch.minimum(torch.maximum(w_hat, -limits[2]), limits[2])
+                free = w_c == w_hat
+            else:
+                w_c = w_hat
+            nxt = b.theta + dt * w_c
+            hit = torch.minimum(torch.maximum(nxt, limits[0]), limits[1]) != nxt
+            moved = (~hit).to(g_yhat.dtype)
+            pass_w = moved if free is None else moved * free.to(g_yhat.dtype)
+            back_dt = hit.to(g_yhat.dtype) / dt
             pass_ys = pass_w * y_std
         w_in = [weights[4 * k] for k in range(n_layer)]
         w_rec = [weights[4 * k + 1] for k in range(n_layer)]
@@ -260,7 +255,7 @@ class _Chunk(torch.autograd.Function):
         for k in range(n_step - 1, -1, -1):
             if g_theta is None:
                 g_y[k], g_th = g_yhat[:, k], None
-            elif b.hit is None:
+            elif limits is None:
                 torch.add(g_yhat[:, k], torch.add(g_omega, g_theta, alpha=dt) * y_std, out=g_y[k])
                 g_th = g_theta
             else:
