@@ -121,8 +121,7 @@ def measure(
 ) -> dict[str, float]:
     """Train slices of an epoch of ``cfg`` for about ``seconds``; throughput and GFLOP/s."""
     torch.manual_seed(0)
-    n_feature = spec.n_feature + (len(cfg.play) + cfg.velocity_input) * spec.n_joint
-    mcfg = cfg.model_config(n_feature, spec.n_joint)
+    mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
     st = start(cfg, mcfg, spec, episodes, None)
     net = st.net.to(dev).train()
     sur = Surrogate(

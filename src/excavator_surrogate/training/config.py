@@ -13,6 +13,7 @@ from typing import Any, Literal
 
 from ..config import PresetConfig
 from ..errors import ConfigError
+from ..spec import MachineSpec
 from ..surrogate.model import ModelConfig
 
 MODE_FIELDS: dict[str, tuple[str, ...]] = {
@@ -301,6 +302,12 @@ class TrainConfig(PresetConfig, table="train"):
         defaults = {f.name: f.default for f in fields(self)}
         reset = {n: defaults[n] for m, ns in MODE_FIELDS.items() if m != mode for n in ns}
         return replace(self, mode=mode, **reset)  # type: ignore[arg-type]
+
+    def n_feature(self, spec: MachineSpec) -> int:
+        """Feature columns a network trained with this config reads on ``spec``: the spec's
+        own (angles, commands, exogenous inputs), then per joint one per play operator and one
+        for the velocity feature."""
+        return spec.n_feature + (len(self.play) + self.velocity_input) * spec.n_joint
 
     def model_config(self, n_feature: int, n_joint: int) -> ModelConfig:
         """Architecture implied by this config."""

@@ -133,8 +133,7 @@ def train_network(
     val_steps = cfg.val_steps or None
 
     torch.manual_seed(cfg.seed)
-    n_feature = spec.n_feature + (len(cfg.play) + cfg.velocity_input) * spec.n_joint
-    mcfg = cfg.model_config(n_feature, spec.n_joint)
+    mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
     st = start(cfg, mcfg, spec, train_eps, resume)
     net, history = st.net, st.history
     for line in st.derived:
