@@ -8,7 +8,9 @@ Two measurements, one JSON line at the end:
   paths), once with native and once with portable numerics. ``best.pt`` holds no wall-clock
   value, so its bytes compare. Skipped when ``qemu-x86_64`` is not installed (Debian:
   ``apt-get install qemu-user``); on a CPU without AVX-512 the emulated CPU is no different,
-  so the comparison says nothing there either (reported).
+  so the comparison says nothing there either (reported). The emulated CPU is an Intel one,
+  so on an AMD computer (``vendor``) it also checks the pins across vendors: MKL runs other
+  kernels on AMD unless told ``COMPATIBLE``.
 - **Cost.** The recipe's network (2 x 128 LSTM, stateful, one member, single-threaded) trained
   for ``--epochs`` on the same data with native and with portable numerics, alternating,
   ``--repeat`` times each, each in a fresh process; the medians of the training loops' own
@@ -88,6 +90,17 @@ def train(data: Path, out: Path, mode: str, *, hidden: int, epochs: int, qemu: b
     return out / "best.pt"
 
 
+def cpu_vendor() -> str:
+    """This CPU's vendor (``GenuineIntel``, ``AuthenticAMD``; MKL picks its kernels by it)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("vendor_id"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
 def sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
@@ -106,7 +119,7 @@ def bits(work: Path, data: Path) -> dict:
     if shutil.which("qemu-x86_64") is None:
         return {"skipped": "qemu-x86_64 not found (apt-get install qemu-user)"}
     here = torch.backends.cpu.get_cpu_capability()
-    out: dict = {"this_cpu": here, "emulated_cpu": EMULATED_CPU}
+    out: dict = {"this_cpu": here, "vendor": cpu_vendor(), "emulated_cpu": EMULATED_CPU}
     for mode in numerics.MODES:
         for where, qemu in (("here", False), ("emulated", True)):
             log(f"bench/portable: {mode} numerics, {where}")

@@ -6,8 +6,11 @@ free-run training grows the difference into other networks (docs/design.md, "Acr
 Four kernel families differ between an AVX2 and an AVX-512 CPU, measured under an emulated
 AVX2-only CPU or by turning the AVX-512 code off:
 
-- MKL's matrix products: pinned by ``MKL_CBWR=AVX2,STRICT`` (MKL's conditional numerical
-  reproducibility: the AVX2 code path on every CPU that has it);
+- MKL's matrix products and vector maths (VML: ``exp``, ``sqrt``): pinned by
+  ``MKL_CBWR=COMPATIBLE,STRICT`` (MKL's conditional numerical reproducibility: its SSE2 code
+  path, the one branch MKL honours on every x86-64 CPU; its ``AVX2`` branch holds on Intel
+  CPUs only, and an AMD CPU ran its own kernels under it: other matrix-vector products,
+  ``exp`` and ``sqrt``);
 - ATen's vectorised element-wise functions (``tanh``, ``exp``): pinned by
   ``ATEN_CPU_CAPABILITY=avx2``;
 - NumPy's AVX-512 loops (``sin``, ``exp`` in the simulator's data: the last bit of the
@@ -16,10 +19,15 @@ AVX2-only CPU or by turning the AVX-512 code off:
   (``ONEDNN_MAX_CPU_ISA=AVX2`` still gave other bits), so portable numerics turn oneDNN off
   and ``nn.LSTM`` runs torch's own kernels (MKL products, ATen functions).
 
-``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all four. The
+- VML's ``sqrt``, which Adam's step takes of its second moment, is not correctly rounded on
+  every CPU even in MKL's compatible branch (an AMD CPU and an emulated Intel one round a
+  fifth of the results differently): portable numerics step Adam with torch's fused CPU kernel
+  (:func:`fused_adam`), whose ``sqrt`` is the vector unit's, correctly rounded everywhere.
+
+``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all five. The
 package's ``__init__`` sets the variables (unless already set) before it imports NumPy or
-torch, and :func:`apply` turns oneDNN off where a network is trained or run. Spawned
-training workers inherit all of it. The price is training speed on an AVX-512 computer
+torch, :func:`apply` turns oneDNN off where a network is trained or run, and the optimiser
+asks :func:`fused_adam`. Spawned training workers inherit all of it. The price is training speed on an AVX-512 computer
 (1.05-1.9x the time there); ``bench/portable.py`` measures it and checks the bits under an
 emulated AVX2 CPU. The default, ``native``, leaves NumPy and torch as they are.
 """
@@ -41,7 +49,7 @@ NUMPY_AVX512 = (
 """NumPy's AVX-512 dispatch targets (names it does not know are ignored with an ImportWarning,
 which Python hides by default)."""
 PINS = {
-    "MKL_CBWR": "AVX2,STRICT",
+    "MKL_CBWR": "COMPATIBLE,STRICT",
     "ATEN_CPU_CAPABILITY": "avx2",
     "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512,
 }
@@ -91,6 +99,17 @@ def apply() -> str:
 
         torch.backends.mkldnn.enabled = False
     return chosen
+
+
+def fused_adam() -> bool | None:
+    """Adam's ``fused`` argument: True with portable numerics (the fused CPU kernel's
+    correctly rounded ``sqrt``, not VML's), None (torch's default, the for-loop step)
+    otherwise, so native training keeps its models.
+
+    Raises:
+        ConfigError: a bad :data:`ENV` value.
+    """
+    return True if mode() == "portable" else None
 
 
 def check() -> str:

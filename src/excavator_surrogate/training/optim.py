@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from .. import numerics
 from ..errors import CheckpointError
 from ..surrogate.model import Surrogate
 from .config import TrainConfig
@@ -16,7 +17,7 @@ from .parallel import LrAt
 
 @dataclass
 class Optimisation:
-    """Adam, ReduceLROnPlateau and the optional EMA copy of the weights."""
+    """Adam (its fused CPU kernel with portable numerics), ReduceLROnPlateau and the optional EMA copy of the weights."""
 
     opt: torch.optim.Optimizer
     sched: Any  # torch.optim.lr_scheduler.ReduceLROnPlateau
@@ -27,7 +28,7 @@ class Optimisation:
     def build(cls, cfg: TrainConfig, sur: Surrogate) -> Optimisation:
         """Fresh optimiser state for ``sur.net``."""
         net = sur.net
-        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=numerics.fused_adam())
         ema_sur: Surrogate | None = None
         if cfg.ema_decay > 0:
             ema = torch.optim.swa_utils.AveragedModel(
