@@ -58,6 +58,10 @@ class TrainConfig(PresetConfig, table="train"):
     """Weight of the mean-bias penalty over the horizon (paper: 0.3 for compound data)."""
     lr: float = 1e-3
     """Adam learning rate."""
+    weight_decay: float = 0.0
+    """Decoupled weight decay (AdamW): each optimiser step shrinks every weight by
+    ``lr * weight_decay`` of itself (0 = plain Adam, the paper's; ours, an option: docs/real.md
+    has where it helped and where it hurt)."""
     batch_size: int = 256
     """Windowed: windows per batch; per process with DDP (global batch = batch_size x world size)."""
     epochs: int = 50
@@ -187,6 +191,10 @@ class TrainConfig(PresetConfig, table="train"):
             (all(0 < b <= 1 for b in self.play), "play widths must be in (0, 1]"),
             (self.lambda_bias >= 0, "lambda_bias must be >= 0"),
             (0 < self.lr <= 1, f"lr = {self.lr!r} must be in (0, 1] (typical: 1e-4 to 1e-2)"),
+            (
+                math.isfinite(self.weight_decay) and self.weight_decay >= 0,
+                f"weight_decay = {self.weight_decay!r} must be >= 0 (typical: 0.01 to 1)",
+            ),
             (self.seed >= 0, f"seed = {self.seed} must be >= 0 (numpy seeds are non-negative)"),
             (self.seed < 2**32, f"seed = {self.seed} must be < 2**32 (a 32-bit seed)"),
             (

@@ -17,7 +17,8 @@ from .parallel import LrAt
 
 @dataclass
 class Optimisation:
-    """Adam (its fused CPU kernel with portable numerics), ReduceLROnPlateau and the optional EMA copy of the weights."""
+    """Adam (AdamW with ``weight_decay``; the fused CPU kernel with portable numerics),
+    ReduceLROnPlateau and the optional EMA copy of the weights."""
 
     opt: torch.optim.Optimizer
     sched: Any  # torch.optim.lr_scheduler.ReduceLROnPlateau
@@ -28,7 +29,15 @@ class Optimisation:
     def build(cls, cfg: TrainConfig, sur: Surrogate) -> Optimisation:
         """Fresh optimiser state for ``sur.net``."""
         net = sur.net
-        opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=numerics.fused_adam())
+        fused = numerics.fused_adam()
+        opt: torch.optim.Optimizer
+        if cfg.weight_decay > 0:
+            # w <- w - lr * (adam_step(g) + weight_decay * w)      (decoupled decay, AdamW)
+            opt = torch.optim.AdamW(
+                net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=fused
+            )
+        else:
+            opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, fused=fused)
         ema_sur: Surrogate | None = None
         if cfg.ema_decay > 0:
             ema = torch.optim.swa_utils.AveragedModel(
