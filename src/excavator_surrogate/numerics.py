@@ -3,8 +3,8 @@
 Training is bit-identical on one computer (``tests/training/test_reproducible.py``), not
 across CPUs: torch's CPU kernels pick their code by instruction set, round differently, and a
 free-run training grows the difference into other networks (docs/design.md, "Across CPUs").
-Four kernel families differ between an AVX2 and an AVX-512 CPU, measured under an emulated
-AVX2-only CPU or by turning the AVX-512 code off:
+Five kernel families differ between CPUs, measured under an emulated AVX2-only Intel CPU,
+by turning the AVX-512 code off, or on an AMD CPU:
 
 - MKL's matrix products and vector maths (VML: ``exp``, ``sqrt``): pinned by
   ``MKL_CBWR=COMPATIBLE,STRICT`` (MKL's conditional numerical reproducibility: its SSE2 code
@@ -18,7 +18,6 @@ AVX2-only CPU or by turning the AVX-512 code off:
 - oneDNN's LSTM, which ``nn.LSTM`` uses on the CPU: not pinnable
   (``ONEDNN_MAX_CPU_ISA=AVX2`` still gave other bits), so portable numerics turn oneDNN off
   and ``nn.LSTM`` runs torch's own kernels (MKL products, ATen functions).
-
 - VML's ``sqrt``, which Adam's step takes of its second moment, is not correctly rounded on
   every CPU even in MKL's compatible branch (an AMD CPU and an emulated Intel one round a
   fifth of the results differently): portable numerics step Adam with torch's fused CPU kernel
@@ -27,9 +26,10 @@ AVX2-only CPU or by turning the AVX-512 code off:
 ``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all five. The
 package's ``__init__`` sets the variables (unless already set) before it imports NumPy or
 torch, :func:`apply` turns oneDNN off where a network is trained or run, and the optimiser
-asks :func:`fused_adam`. Spawned training workers inherit all of it. The price is training speed on an AVX-512 computer
-(1.05-1.9x the time there); ``bench/portable.py`` measures it and checks the bits under an
-emulated AVX2 CPU. The default, ``native``, leaves NumPy and torch as they are.
+asks :func:`fused_adam`. Spawned training workers inherit all of it. The price is training
+speed (1.05-1.9x the time on an Intel AVX-512 computer, 1.3-1.4x on an AMD one);
+``bench/portable.py`` measures it and checks the bits under an emulated AVX2 CPU. The
+default, ``native``, leaves NumPy and torch as they are.
 """
 
 from __future__ import annotations
