@@ -128,28 +128,3 @@ def test_the_command_line_refuses_a_bad_setting_in_one_line():
         "exsur: error: EXSUR_NUMERICS='fast': use 'native' (the default) or 'portable' (the "
         "same trained bits on every x86-64 CPU with AVX2, slower)"
     ]
-
-
-
-def test_portable_numerics_step_adam_with_the_fused_kernel(monkeypatch):
-    """VML's sqrt rounds differently from one CPU vendor to another; the fused kernel's does not."""
-    from types import SimpleNamespace
-
-    import torch
-
-    from excavator_surrogate.training.optim import Optimisation
-    from tests.helpers.training import tiny_train_config
-
-    steps = {}
-    for mode, fused in (("native", None), ("portable", True)):
-        monkeypatch.setenv(numerics.ENV, mode)
-        assert numerics.fused_adam() is fused
-        torch.manual_seed(0)
-        net = torch.nn.Linear(3, 2)
-        opt = Optimisation.build(tiny_train_config(epochs=1), SimpleNamespace(net=net)).opt
-        assert opt.param_groups[0]["fused"] is fused
-        net(torch.ones(4, 3)).square().sum().backward()
-        opt.step()
-        steps[mode] = net.weight.detach().clone()
-    # the same Adam step either way, up to the last bits of the square root
-    torch.testing.assert_close(steps["native"], steps["portable"])
