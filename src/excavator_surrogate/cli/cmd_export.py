@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..env.engine import SurrogateEngine
-    from ..env.export import OnnxStepper, export_onnx
+    from ..env.export import export_onnx
+    from ..env.onnx_stepper import OnnxStepper
     from ..env.surrogate_env import load_surrogate
     from ..env.tasks import sample_pose
     from ..outdir import check_out_file

@@ -42,7 +42,7 @@ _LAZY = {
     "ActionError": ".safety",
     "GuardConfig": ".safety",
     "export_onnx": ".export",
-    "OnnxStepper": ".export",
+    "OnnxStepper": ".onnx_stepper",
     "RenderError": ".render",
     "side_by_side": ".render",
     "checkpoint_plant": ".plants",

@@ -53,7 +53,7 @@ spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsu
 ``omega_members`` output, else ``0``), ``exsur_ood`` (``1`` with the ``ood`` output),
 ``exsur_units`` (JSON, per joint: ``theta``/``omega`` in rad or, for a linear joint, m, and
 the ``display`` unit its mapping gave with the ``factor`` into it, :func:`units_metadata`).
-:class:`OnnxStepper` runs the exported file with the same warm-up convention as the
+:class:`~.onnx_stepper.OnnxStepper` runs the exported file with the same warm-up convention as the
 environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 """
 
@@ -62,23 +62,21 @@ from __future__ import annotations
 import json
 import warnings
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
-import numpy as np
 import torch
 from torch import nn
 
-from ..errors import CheckpointError, ConfigError
+from ..errors import ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.angles import integrate
-from ..surrogate.command_state import command_features, play_np
+from ..surrogate.command_state import command_features
 from ..surrogate.coverage import channel_names
-from ..surrogate.features import scale_commands_np
 from ..surrogate.model import Surrogate
 from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode
-from .fused import FusedMembersStep, FusedStep, add_end_stops, end_stops, rest_command
+from .fused import FusedMembersStep, FusedStep, add_end_stops, end_stops
 from .surrogate_env import load_surrogate
 from .uncertainty import OodFlags
 
@@ -439,150 +437,3 @@ def units_metadata(spec: MachineSpec) -> dict[str, dict[str, str]]:
         }
         for j in spec.joints
     }
-
-
-class OnnxStepper:
-    """Closed-loop stepper over an exported ONNX surrogate (onnxruntime, CPU).
-
-    Same convention as :class:`~.engine.SurrogateEngine`: :meth:`reset` puts every batch row at
-    rest at ``theta0`` with a warm-up of ``W - 1`` at-rest samples; :meth:`step` returns
-    ``(theta[k+1], omega[k+1])``.
-
-    Args:
-        path: the ``.onnx`` file written by :func:`export_onnx`.
-        n_threads: onnxruntime intra-op threads.
-    """
-
-    def __init__(self, path: str | Path, *, n_threads: int = 1) -> None:
-        import onnxruntime as ort
-
-        path = Path(path)
-        if not path.is_file():
-            raise CheckpointError(
-                f"{path}: ONNX file not found (create it with 'exsur export CKPT --out FILE')"
-            )
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = int(n_threads)
-        opts.inter_op_num_threads = 1
-        try:
-            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-        except Exception as e:
-            raise CheckpointError(f"{path}: onnxruntime cannot load it ({type(e).__name__})") from e
-        meta = self.session.get_modelmeta().custom_metadata_map
-        if "exsur_spec" not in meta:
-            raise CheckpointError(f"{path}: not an exsur export (no exsur_spec metadata)")
-        self.spec = MachineSpec.from_dict(json.loads(meta["exsur_spec"]))
-        self.mode = meta["exsur_mode"]
-        self.window = int(meta["exsur_window"])
-        self.n_layer = int(meta["exsur_n_layer"])
-        self.hidden = int(meta["exsur_hidden"])
-        self.u_rest = rest_command(self.spec).astype(np.float32)
-        self.play = np.asarray(json.loads(meta.get("exsur_play", "[]")), dtype=np.float32)
-        """(Q,) play half-widths (empty: no play features)."""
-        self.lags = [int(d) for d in json.loads(meta.get("exsur_lags", "[]"))]
-        """(n_joint,) command delays of the delayed-command features [samples] (empty: none)."""
-        self.n_state = len(self.play) + (max(self.lags) + 1 if self.lags else 0)
-        """Rows Q + L of the command state ``z``: play operators, then the delay line."""
-        self.omega_in = meta.get("exsur_omega_in", "0") == "1"
-        """Whether the graph takes a velocity feature ``w``."""
-        self.n_member = int(meta.get("exsur_members", "0"))
-        """M of the ``omega_members`` output (0: none)."""
-        self.omega_members: np.ndarray | None = None
-        """(M, n_batch, n_joint) each member's omega of the last step [rad/s] (with M > 0)."""
-        self._outputs = [o.name for o in self.session.get_outputs()]
-        self._omega_prev = "omega_prev" in {i.name for i in self.session.get_inputs()}
-        self.ood: np.ndarray | None = None
-        """(n_batch, n_joint) bool: the last step's sample left the training coverage (graphs
-        with the ``ood`` output; None otherwise)."""
-        n_joint = self.spec.n_joint
-        self.w = np.zeros((0, n_joint), dtype=np.float32)
-        """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
-        self._w_win = np.zeros((0, self.window, n_joint), np.float32)
-        self.z = np.zeros((0, self.n_state, n_joint), dtype=np.float32)
-        """Command states (n_batch, Q + L, n_joint) after the last command."""
-        self._z_win = np.zeros((0, self.window, self.n_state, n_joint), np.float32)
-        self.theta = np.zeros((0, self.spec.n_joint), dtype=np.float32)
-        self.h = self.c = np.zeros((self.n_layer, 0, self.hidden), dtype=np.float32)
-        self._theta_win = np.zeros((0, self.window, n_joint), np.float32)
-        self._u_win = np.zeros((0, self.window, self.spec.n_u), np.float32)
-
-    def reset(self, theta0: np.ndarray) -> np.ndarray:
-        """Start every row at rest at ``theta0`` (n_batch, n_joint) [rad]; returns θ (float32)."""
-        theta0 = np.atleast_2d(np.asarray(theta0, dtype=np.float32))
-        n = theta0.shape[0]
-        self.theta = theta0.copy()
-        u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
-        z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
-        if self.n_state > len(self.play):  # at rest: the delay line holds the rest command
-            z_rest[:, len(self.play) :] = z_rest[:, -1:]
-        self.z = z_rest
-        self.w = np.zeros_like(theta0)  # at rest
-        if self.mode == "stateful":
-            self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
-            self.c = np.zeros_like(self.h)
-            for _ in range(self.window - 1):
-                feed = {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
-                if self.n_state:
-                    feed["z"] = z_rest
-                if self.omega_in:
-                    feed["w"] = self.w
-                if self._omega_prev:
-                    feed["omega_prev"] = self.w
-                _, _, self.h, self.c, *_ = self.session.run(None, feed)
-        else:
-            self._theta_win = np.repeat(theta0[:, None], self.window, axis=1)
-            self._u_win = np.repeat(u0[:, None], self.window, axis=1)
-            self._z_win = np.repeat(z_rest[:, None], self.window, axis=1)
-            self._w_win = np.zeros_like(self._theta_win)
-        return self.theta
-
-    def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Command states after commands ``u`` (n, n_u) from ``z`` (n, Q + L, n_joint):
-        the play operators, then the delay line shifted by one sample; float32."""
-        if not self.n_state:
-            return z
-        q = len(self.play)
-        us = scale_commands_np(u, self.spec)[:, None, : self.spec.n_joint]  # one sample per row
-        parts = [play_np(us, self.play, z0=z[:, :q])[:, 0]] if q else []
-        if self.n_state > q:
-            parts.append(np.concatenate([z[:, q + 1 :], us], axis=1))
-        return np.concatenate(parts, axis=1).astype(np.float32)
-
-    def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Apply commands ``u`` (n_batch, n_u) (joints', then exogenous inputs'); returns
-        ``(theta[k+1], omega[k+1])`` float32."""
-        u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape[0], self.spec.n_u)
-        if self.mode == "stateful":
-            feed = {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
-            if self.omega_in:
-                feed["w"] = self.w
-            if self.n_state:
-                feed["z"] = self.z
-            if self._omega_prev:
-                feed["omega_prev"] = self.w  # the previous step's omega
-            outs = dict(zip(self._outputs, self.session.run(None, feed)))
-            omega, theta, self.h, self.c = (
-                outs[k] for k in ("omega", "theta_next", "h_out", "c_out")
-            )
-            self.z = outs.get("z_out", self.z)
-            self.omega_members = outs.get("omega_members")
-            self.ood = outs.get("ood")
-        else:
-            self.z = self._play_update(self.z, u)
-            self._theta_win[:, -1] = self.theta
-            self._u_win[:, -1] = u
-            feed = {"theta": self._theta_win, "u": self._u_win}
-            if self.n_state:
-                self._z_win[:, -1] = self.z
-                feed["z"] = self._z_win
-            if self.omega_in:
-                self._w_win[:, -1] = self.w
-                feed["w"] = self._w_win
-            omega, theta = self.session.run(None, feed)
-            self._theta_win = np.roll(self._theta_win, -1, axis=1)
-            self._u_win = np.roll(self._u_win, -1, axis=1)
-            self._z_win = np.roll(self._z_win, -1, axis=1)
-            self._w_win = np.roll(self._w_win, -1, axis=1)
-        self.theta = theta
-        self.w = omega
-        return theta, omega
