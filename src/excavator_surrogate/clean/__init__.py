@@ -12,7 +12,8 @@ from .api import (
     pooled_cleaning_metrics,
 )
 from .config import METHODS, CleanConfig
-from .kalman import FusionResult, backward_difference, fuse, integrate_gyro
+from .filters import integrate_gyro
+from .kalman import FusionResult, backward_difference, fuse
 
 __all__ = [
     "METHODS",

@@ -1,7 +1,7 @@
 """Plain per-sample, per-joint Python reference of the cleaning filters.
 
 Slow (pure Python floats) and written for clarity: one joint at a time, one sample at a
-time.  The vectorised filters in :mod:`.kalman` must reproduce it bit for bit (same
+time.  The vectorised filters in :mod:`.filters` must reproduce it bit for bit (same
 operation order); tests and ``bench/clean.py`` use it as the oracle and the speed baseline.
 """
 

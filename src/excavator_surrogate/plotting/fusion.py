@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..clean.kalman import integrate_gyro
+from ..clean.filters import integrate_gyro
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_path
