@@ -37,15 +37,8 @@ import pyarrow as pa
 from ..errors import DataError
 from .limits import TooBig, bounded_open, memory_limit, too_big
 from .mapping import TABLE, Mapping
-from .sources import (
-    CSV_SUFFIXES,
-    RawLog,
-    Reader,
-    Series,
-    _numeric,
-    _parse_time,
-    missing_channel,
-)
+from .sources import CSV_SUFFIXES, RawLog, Reader, Series, missing_channel
+from .tables import numeric_column, parse_time
 
 SUFFIXES = (".dspace.csv.gz", ".dspace.csv")
 GENERIC = re.compile(r"(?:In|Out)\d*", re.IGNORECASE)
@@ -261,7 +254,7 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
                 f"cannot parse the samples ({str(e).splitlines()[0]})",
                 fix="re-export the measurement from ControlDesk",
             ) from e
-        table = read(pa.string())  # a cell is not a number: _numeric names it
+        table = read(pa.string())  # a cell is not a number: numeric_column names it
     if size is not None and table.num_rows < size:
         raise DataError(
             path,
@@ -271,11 +264,11 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     if table.num_rows == 0:
         raise DataError(path, "the export has no samples", fix="remove the file or record data")
     tlabel = str(tm.column) if tm.column is not None else t_trace.short
-    time_s, origin = _parse_time(
+    time_s, origin = parse_time(
         path, table.column(names[t_trace.index]), dataclasses.replace(tm, column=tlabel)
     )
     values: dict[str, np.ndarray] = {
-        k: _numeric(path, table.column(names[t.index]), k) for k, t in chosen.items()
+        k: numeric_column(path, table.column(names[t.index]), k) for k, t in chosen.items()
     }
     return RawLog(
         path=path,

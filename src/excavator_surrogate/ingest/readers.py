@@ -2,7 +2,7 @@
 
 :data:`READERS` lists the formats in detection order (the first match wins): dSPACE
 ControlDesk CSV exports (:mod:`.dspace`), plain CSV and Parquet
-(:mod:`.sources`), ROS bags (:mod:`.ros`), ASAM MDF4 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
+(:mod:`.tables`), ROS bags (:mod:`.ros`), ASAM MDF4 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
 :func:`log_stem`, :func:`expand_sources` and :data:`SUPPORTED` all derive from it, so adding
 a log format is one reader module plus one entry here.
 """
@@ -18,7 +18,8 @@ from .dspace import READER as _DSPACE
 from .mapping import Mapping
 from .mdf import READER as _MDF
 from .ros import ROS_READERS
-from .sources import TABLE_READERS, RawLog, Reader
+from .sources import RawLog, Reader
+from .tables import TABLE_READERS
 
 READERS: tuple[Reader, ...] = (_DSPACE, *TABLE_READERS, *ROS_READERS, _MDF)
 """Every log format, in detection order (the first match wins)."""

@@ -1,0 +1,454 @@
+"""The table readers: CSV (plain or .gz) and Parquet, one :class:`~.sources.Series` per file
+(``"table"``), and the column converters the dSPACE reader shares (:func:`numeric_column`,
+:func:`parse_time`).  Values are raw (no unit conversion); missing cells are NaN; rows are
+counted from 0, header not counted.
+"""
+
+from __future__ import annotations
+
+import csv as _csv
+import gzip
+import zlib
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..errors import ConfigError, DataError
+from .limits import TooBig, bounded_open, memory_limit, too_big
+from .mapping import TABLE, CsvOptions, Mapping, TimeMap
+from .sources import (
+    CSV_SUFFIXES,
+    PARQUET_SUFFIXES,
+    RawLog,
+    Reader,
+    Series,
+    has_suffix,
+    missing_channel,
+)
+
+_UNIT_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+
+MAX_CSV_COLUMNS = 100_000
+"""A CSV header with more columns than this is refused (no logger writes that many)."""
+MAX_LINE_BYTES = 64 * 1024**2
+"""A header or skipped line longer than this is refused."""
+
+
+def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
+            for _ in range(opts.skip_rows):
+                f.readline(MAX_LINE_BYTES)
+            line = f.readline(MAX_LINE_BYTES)
+    except (OSError, UnicodeDecodeError, EOFError) as e:
+        raise DataError(
+            path,
+            f"cannot read the header ({type(e).__name__}: {e})",
+            fix="check that it is a UTF-8 CSV file (gzip if .gz)",
+        ) from e
+    if not line.strip():
+        raise DataError(
+            path,
+            "empty file or no header line",
+            fix="the first line (after [csv] skip_rows) must hold the column names",
+        )
+    if len(line) >= MAX_LINE_BYTES and not line.endswith("\n"):
+        raise DataError(
+            path,
+            f"the header (line {opts.skip_rows + 1}) is longer than {MAX_LINE_BYTES // 1024**2} MB",
+            fix="the file is not a CSV log (or its line ends are not \\n); re-export it",
+        )
+    names = [c.strip() for c in next(_csv.reader([line], delimiter=opts.delimiter))]
+    if len(names) > MAX_CSV_COLUMNS:
+        raise DataError(
+            path,
+            f"the header (line {opts.skip_rows + 1}) has {len(names)} columns: too many "
+            f"(more than {MAX_CSV_COLUMNS})",
+            fix="export only the channels the mapping needs, or check [csv] delimiter",
+        )
+    return names
+
+
+def _ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
+    """The first data row whose field count differs from the header's (streamed)."""
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
+            for _ in range(opts.skip_rows + 1):
+                f.readline()
+            for i, row in enumerate(_csv.reader(f, delimiter=opts.delimiter)):
+                if row and len(row) != n_header:
+                    what = "too many" if len(row) > n_header else "too few"
+                    return DataError(
+                        path,
+                        f"ragged rows: line {opts.skip_rows + 2 + i} of the file has "
+                        f"{len(row)} fields, the header {n_header} ({what})",
+                        row=i,
+                        fix="repair or cut the damaged line, or check [csv] delimiter",
+                    )
+    except (OSError, UnicodeDecodeError, EOFError, _csv.Error):
+        return None
+    return None
+
+
+def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Mapping) -> None:
+    dup = [c for c in needed if names.count(c) > 1]
+    if dup:
+        raise DataError(
+            path,
+            "mapped column appears more than once in the header",
+            column=dup[0],
+            fix="rename one of the duplicates in the log, so the mapping is unambiguous",
+        )
+    for c in needed:
+        if c not in names:
+            delim = _other_delimiter(names, c, mapping.csv.delimiter)
+            if delim is not None:
+                raise DataError(
+                    path,
+                    f"column '{c}' is in the header, but separated by {delim!r}, "
+                    f"not by {mapping.csv.delimiter!r}",
+                    fix=f"set [csv] delimiter = {_toml_str(delim)} in {mapping.where}",
+                )
+            raise missing_channel(path, c, names, mapping, what="column")
+
+
+def _other_delimiter(names: list[str], column: str, current: str) -> str | None:
+    """The delimiter that makes ``column`` a field of the header ``names`` split by ``current``."""
+    for d in (";", "\t", ",", "|", " "):
+        if d != current and any(column in (x.strip() for x in n.split(d)) for n in names):
+            return d
+    return None
+
+
+def _toml_str(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace("\t", "\\t").replace('"', '\\"') + '"'
+
+
+def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
+    tm = mapping.time
+    if tm.column is None:
+        raise ConfigError(
+            f'{mapping.where}: time.column is required for CSV/Parquet logs (add [time] column = "...")'
+        )
+    tcol = str(tm.column)
+    value_cols = [c.key for c in mapping.channels()]
+    needed = [tcol, *[c for c in value_cols if c != tcol]]
+    meta: dict[str, str] = {}
+    if kind == "csv":
+        names = _csv_header(path, mapping.csv)
+        _check_columns(path, names, needed, mapping)
+        table = _read_csv(path, mapping, needed, value_cols, names=names)
+    else:
+        table, names = _read_parquet(path, needed, mapping)
+        meta = _parquet_meta(table.schema.metadata)
+    n = table.num_rows
+    if n == 0:
+        raise DataError(path, "the log has no data rows", fix="remove the file or record data")
+    time_s, origin = parse_time(path, table.column(tcol), tm)
+    values: dict[str, np.ndarray] = {}
+    for c in value_cols:
+        values[c] = numeric_column(path, table.column(c), c)
+    return RawLog(
+        path=path,
+        kind=kind,
+        series={TABLE: Series(TABLE, time_s, values, tcol)},
+        origin=origin,
+        columns=list(names),
+        meta=meta,
+    )
+
+
+def _parquet_meta(raw: dict[bytes, bytes] | None) -> dict[str, str]:
+    """A Parquet file's key-value metadata as text (pandas/arrow schema blobs left out)."""
+    skip = {"pandas", "ARROW:schema"}
+    out = {}
+    for k, v in (raw or {}).items():
+        key = k.decode("utf-8", errors="replace")
+        if key not in skip:
+            out[key] = v.decode("utf-8", errors="replace")
+    return out
+
+
+def _read_csv(
+    path: Path, mapping: Mapping, needed: list[str], value_cols: list[str], *, names: list[str]
+) -> pa.Table:
+    limit = memory_limit(mapping.options.max_memory_mb)
+    gz = path.name.lower().endswith(".gz")
+    if not gz and path.stat().st_size > limit:
+        raise too_big(path, "reading the log", path.stat().st_size, limit)
+    try:
+        return _parse_csv(path, mapping, needed, value_cols, limit=limit, names=names)
+    except TooBig as e:
+        raise too_big(path, "decompressing the log", e.n_read, limit, more=True) from None
+
+
+def _parse_csv(
+    path: Path,
+    mapping: Mapping,
+    needed: list[str],
+    value_cols: list[str],
+    *,
+    limit: int,
+    names: list[str],
+) -> pa.Table:
+    import pyarrow.csv as pcsv
+
+    # a block must hold the header line (pyarrow: "cannot infer number of columns")
+    block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
+    read = pcsv.ReadOptions(skip_rows=mapping.csv.skip_rows, block_size=block)
+    parse = pcsv.ParseOptions(delimiter=mapping.csv.delimiter)
+    types: dict[str, pa.DataType] = {c: pa.float64() for c in value_cols}
+    tcol = str(mapping.time.column)
+    if mapping.time.unit == "datetime":
+        types[tcol] = pa.string()
+
+    def go(column_types: dict[str, pa.DataType]) -> pa.Table:
+        conv = pcsv.ConvertOptions(
+            include_columns=needed, column_types=column_types, strings_can_be_null=True
+        )
+        if not path.name.lower().endswith(".gz"):  # its size was checked: read it natively
+            return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=conv)
+        with bounded_open(path, limit) as src:  # decompressed while counting
+            return pcsv.read_csv(src, read_options=read, parse_options=parse, convert_options=conv)
+
+    try:
+        return go(types)
+    except pa.ArrowInvalid as e:
+        msg = str(e)
+        if "conversion error" not in msg and "CSV conversion" not in msg:
+            ragged = _ragged_row(path, mapping.csv, len(names)) if "columns" in msg else None
+            if ragged is not None:
+                raise ragged from e
+            raise DataError(
+                path,
+                f"cannot parse the CSV ({msg.splitlines()[0]})",
+                fix="check the delimiter ([csv] delimiter) and that rows have as many fields as the header",
+            ) from e
+    except (OSError, EOFError, zlib.error) as e:
+        raise DataError(
+            path,
+            f"cannot read the file ({type(e).__name__}: {e})",
+            fix="the file may be truncated; re-export it",
+        ) from e
+    # slow path: a value is not a number, or the inferred time type changed mid-file (int ->
+    # float); read the mapped columns as text, locate a bad cell, else convert the text
+    text = go({c: pa.string() for c in needed})
+    for c in needed:
+        if c == tcol and mapping.time.unit == "datetime":
+            continue
+        numeric_column(path, text.column(c), c)
+    return text
+
+
+def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.Table, list[str]]:
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(path)
+        schema = pf.schema_arrow
+    except Exception as e:  # pyarrow raises several types for corrupt files
+        raise DataError(
+            path,
+            f"not a readable Parquet file ({type(e).__name__})",
+            fix="re-export the log as Parquet or CSV",
+        ) from e
+    if schema.metadata and b"exsur" in schema.metadata:
+        raise DataError(
+            path,
+            "this is already an exsur episode, not a raw log",
+            fix="put episodes in a dataset folder (exsur validate) instead of importing them",
+        )
+    names = list(schema.names)
+    _check_columns(path, names, needed, mapping)
+    meta = pf.metadata
+    limit = memory_limit(mapping.options.max_memory_mb)
+    cols = [i for i in range(meta.num_columns) if meta.schema.column(i).name in needed]
+    size = sum(
+        meta.row_group(g).column(i).total_uncompressed_size
+        for g in range(meta.num_row_groups)
+        for i in cols
+    )
+    if size > limit:
+        raise too_big(path, "reading the mapped columns", size, limit)
+    try:
+        return pf.read(columns=needed), names
+    except Exception as e:
+        raise DataError(
+            path,
+            f"cannot read Parquet data ({type(e).__name__}: {e})",
+            fix="the file is corrupt; re-export it",
+        ) from e
+
+
+def numeric_column(path: Path, col: pa.ChunkedArray | pa.Array, name: str) -> np.ndarray:
+    """Column as float64 (nulls -> NaN); DataError at the first non-numeric cell."""
+    t = col.type
+    if (
+        pa.types.is_floating(t)
+        or pa.types.is_integer(t)
+        or pa.types.is_boolean(t)
+        or pa.types.is_null(t)
+    ):
+        return np.asarray(
+            pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
+        )
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        try:
+            return np.asarray(
+                pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
+            )
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            pass
+        arr = col.to_numpy(zero_copy_only=False)
+        for i, v in enumerate(arr):
+            if v is None:
+                continue
+            try:
+                float(v)
+            except ValueError:
+                raise DataError(
+                    path,
+                    f"non-numeric value {v!r}",
+                    column=name,
+                    row=i,
+                    fix="replace it with a number or leave the cell empty (see --nan)",
+                ) from None
+    raise DataError(
+        path, f"values are of type {t}, not numbers", column=name, fix="map a numeric column"
+    )
+
+
+def parse_time(path: Path, col: pa.ChunkedArray, tm: TimeMap) -> tuple[np.ndarray, str]:
+    """Time column -> (seconds since the first row, origin string)."""
+    name = str(tm.column)
+    t = col.type
+    if col.null_count:
+        valid = col.is_valid().to_numpy(zero_copy_only=False)
+        row = int(np.flatnonzero(~valid)[0])
+        raise DataError(
+            path,
+            "missing timestamp",
+            column=name,
+            row=row,
+            fix="drop rows without a time stamp (time gaps are handled, missing stamps are not)",
+        )
+    if tm.unit == "datetime":
+        ns = _datetime_ns(path, col, name)
+        origin = str(pc.cast(col, pa.string())[0]) if col.num_chunks else ""
+        return (ns - ns[0]).astype(np.float64) * 1e-9, origin
+    if pa.types.is_timestamp(t):
+        raise DataError(
+            path,
+            "time column holds timestamps, but unit is numeric",
+            column=name,
+            fix='set [time] unit = "datetime"',
+        )
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        first = col[0].as_py()
+        try:
+            float(first)
+        except (TypeError, ValueError):
+            raise DataError(
+                path,
+                f"time value {first!r} is text, not a number",
+                column=name,
+                row=0,
+                fix='set [time] unit = "datetime" for ISO-8601 time stamps',
+            ) from None
+        vals = numeric_column(path, col, name)
+    elif pa.types.is_integer(t):
+        ints = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
+        rel = (ints - ints[0]).astype(np.float64) * (_UNIT_NS[tm.unit] * 1e-9)
+        return rel, f"{int(ints[0])} {tm.unit}"
+    else:
+        vals = numeric_column(path, col, name)
+    bad = ~np.isfinite(vals)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            path,
+            f"non-finite timestamp {float(vals[row]):g}",
+            column=name,
+            row=row,
+            fix="drop rows without a valid time stamp",
+        )
+    with np.errstate(over="ignore", invalid="ignore"):
+        rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
+    bad = ~np.isfinite(rel)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            path,
+            f"timestamp {float(vals[row]):.6g} is out of range (row 0 reads {float(vals[0]):.6g})",
+            column=name,
+            row=row,
+            fix="drop rows without a valid time stamp",
+        )
+    return rel, f"{float(vals[0])!r} {tm.unit}"
+
+
+def _datetime_ns(path: Path, col: pa.ChunkedArray, name: str) -> np.ndarray:
+    t = col.type
+    if pa.types.is_timestamp(t) or pa.types.is_date(t):
+        ts = pc.cast(col, pa.timestamp("ns", tz=getattr(t, "tz", None)))
+        return np.asarray(pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64)
+    if not (pa.types.is_string(t) or pa.types.is_large_string(t)):
+        raise DataError(
+            path,
+            f"time values are of type {t}, not ISO-8601 text",
+            column=name,
+            fix="use a numeric unit (s, ms, us, ns) for numeric time stamps",
+        )
+    for target in (pa.timestamp("ns"), pa.timestamp("ns", tz="UTC")):
+        try:
+            ts = pc.cast(col, target)
+            return np.asarray(
+                pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64
+            )
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            continue
+    # mixed or unusual forms: parse in Python and locate the first bad row
+    out = np.empty(len(col), dtype=np.int64)
+    epoch = datetime(1970, 1, 1)
+    for i, v in enumerate(col.to_pylist()):
+        try:
+            d = datetime.fromisoformat(str(v).strip())
+        except ValueError:
+            raise DataError(
+                path,
+                f"time value {v!r} is not an ISO-8601 date-time",
+                column=name,
+                row=i,
+                fix="write times like 2024-05-01T12:00:00.125 (or use a numeric unit)",
+            ) from None
+        if d.tzinfo is not None:
+            d = (d - (d.utcoffset() or timedelta(0))).replace(tzinfo=None)
+        out[i] = int((d - epoch).total_seconds() * 1e6) * 1000
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# the formats read here (the registry is excavator_surrogate.ingest.readers.READERS)
+
+TABLE_READERS: tuple[Reader, ...] = (
+    Reader(
+        "csv",
+        "CSV (.csv, .csv.gz)",
+        CSV_SUFFIXES[::-1],
+        has_suffix(*CSV_SUFFIXES),
+        lambda path, mapping: _read_table(path, "csv", mapping),
+    ),
+    Reader(
+        "parquet",
+        "Parquet (.parquet)",
+        PARQUET_SUFFIXES,
+        has_suffix(*PARQUET_SUFFIXES),
+        lambda path, mapping: _read_table(path, "parquet", mapping),
+    ),
+)
+"""The table formats (CSV, Parquet); :mod:`.readers` lists every format."""
