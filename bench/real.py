@@ -171,7 +171,8 @@ def _simulated(
 ) -> Case:
     """A stand-in log of ``preset`` (seed ``--sim-seed``) as imported (``_as_logged``), its
     engine throttle as the condition variant; ``split(cfg)`` says how it is split."""
-    from excavator_surrogate.simulate.generate import SimulateConfig, simulate_dataset
+    from excavator_surrogate.simulate.config import SimulateConfig
+    from excavator_surrogate.simulate.generate import simulate_dataset
 
     cfg = SimulateConfig.from_preset(load_preset(preset), seed=args.sim_seed)
     simulate_dataset(cfg, out=work / f"{name}_sim")

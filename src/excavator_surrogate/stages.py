@@ -56,7 +56,7 @@ def stage_classes() -> dict[str, type]:
     from .clean.config import CleanConfig
     from .evaluate.cbe import EvaluateConfig
     from .scale.sweep import SweepConfig
-    from .simulate.generate import SimulateConfig
+    from .simulate.config import SimulateConfig
     from .training import TrainConfig
 
     return {
@@ -226,7 +226,7 @@ def check_dataset_size(sim: Any, *, out: str | Path) -> None:
     whole) or on the disk of ``out``, before simulating anything.
 
     Args:
-        sim: the :class:`~excavator_surrogate.simulate.generate.SimulateConfig`.
+        sim: the :class:`~excavator_surrogate.simulate.config.SimulateConfig`.
         out: the dataset folder (its nearest existing parent is where the files go).
 
     Raises:

@@ -14,7 +14,8 @@ from excavator_surrogate.data import load_dataset
 from excavator_surrogate.env.compare import compare
 from excavator_surrogate.env.plants import checkpoint_plant, data_source, trained_plant
 from excavator_surrogate.errors import CheckpointError, ConfigError
-from excavator_surrogate.simulate.generate import SimulateConfig, simulate_dataset
+from excavator_surrogate.simulate.config import SimulateConfig
+from excavator_surrogate.simulate.generate import simulate_dataset
 from excavator_surrogate.spec import EXCAVATOR, JointSpec
 from excavator_surrogate.training import train
 from tests.helpers.training import tiny_train_config

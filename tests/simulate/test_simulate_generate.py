@@ -14,7 +14,8 @@ from excavator_surrogate.cli import main
 from excavator_surrogate.config import from_dict, load_preset
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.simulate.generate import SimulateConfig, plan_episodes, simulate_dataset
+from excavator_surrogate.simulate.config import SimulateConfig
+from excavator_surrogate.simulate.generate import plan_episodes, simulate_dataset
 
 
 def _tiny() -> SimulateConfig:

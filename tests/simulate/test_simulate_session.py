@@ -11,8 +11,9 @@ import pytest
 from excavator_surrogate.config import load_preset
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.simulate.config import SimulateConfig
 from excavator_surrogate.simulate.excitation import ExcitationConfig
-from excavator_surrogate.simulate.generate import SimulateConfig, simulate_dataset
+from excavator_surrogate.simulate.generate import simulate_dataset
 from excavator_surrogate.simulate.hydraulics import HydraulicConfig, HydraulicTransform
 from excavator_surrogate.simulate.session import SessionParams
 from excavator_surrogate.simulate.soil import SoilConfig

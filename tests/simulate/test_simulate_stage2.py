@@ -13,10 +13,10 @@ import pytest
 from excavator_surrogate.config import from_dict, load_preset
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.simulate.config import SimulateConfig
 from excavator_surrogate.simulate.excitation import DigOperator, generate
 from excavator_surrogate.simulate.generate import (
     EpisodeJob,
-    SimulateConfig,
     _soil_hook,
     build_plant,
     simulate_dataset,

@@ -49,7 +49,8 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur simulate``."""
-    from ..simulate.generate import SimulateConfig, simulate_dataset
+    from ..simulate.config import SimulateConfig
+    from ..simulate.generate import simulate_dataset
 
     preset = load_preset(args.preset)
     table = preset.get("simulate")

@@ -21,7 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import CheckpointError, ConfigError
-from ..simulate.generate import SOURCES
+from ..simulate.config import SOURCES
 from ..simulate.plant import PlantConfig
 from ..spec import EXCAVATOR, MachineSpec
 from ..surrogate.checkpoint import check_compatible

@@ -19,8 +19,9 @@ See docs/plant.md and docs/hydraulics.md.  Main entry points:
 
 from __future__ import annotations
 
+from .config import SimulateConfig
 from .excitation import CLOSED_LOOP, SIGNALS, DigOperator, ExcitationConfig, NominalModel, generate
-from .generate import SimulateConfig, build_plant, simulate_dataset
+from .generate import build_plant, simulate_dataset
 from .hooks import CommandTransform, ForceHook, ZeroOrderHold
 from .hydraulics import HydraulicConfig, HydraulicTransform, ReliefAntiWindup
 from .plant import MujocoExcavator, PlantConfig
