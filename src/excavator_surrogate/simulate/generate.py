@@ -54,9 +54,6 @@ from .soil import ChainHook, SoilHook
 
 _log = logging.getLogger(__name__)
 
-SOURCE = "mujoco-ideal"
-"""``source`` metadata of episodes from the ideal Stage I plant."""
-
 
 @dataclass(frozen=True)
 class EpisodeJob:
