@@ -36,6 +36,11 @@ For each shape, in one run on the same data:
   rate, position RMSE and R^2 per joint, pooled over episodes (deg for an angle, the
   mapping's unit for a stroke).
 
+The simulated shapes are also scored on more test data of the same machine (``--more-test
+N``, :data:`MORE_TEST`: the continuous log's next 8 x 160 s, 12 more sessions; 0 for none),
+in a second table and the JSON's ``more`` block: one test segment can rank models the other
+way from many (docs/real.md, *More test data*).
+
 ``--condition`` also trains the recipe on the shape's run-condition variant: h1's H/L run
 condition as a per-run input (``examples/real_excavator_condition.toml``); the continuous
 log's and the sessions' engine throttle as the input ``u_throttle``; the JSON gains a
@@ -44,11 +49,13 @@ log's and the sessions' engine throttle as the input ``u_throttle``; the JSON ga
 Prints a table per shape and ends with ONE JSON line; its ``goals`` are
 ``<shape>/<goal>``: the recipe's median beats the plain LSTM, ARX and the structured
 baseline on every joint; its worst seed is within 1.5x of the median; each seed trains in
-<= 600 s; every free run stays inside the observed envelope.  A shape whose data is missing
+<= 600 s; every free run stays inside the observed envelope; with more test data, the
+median beats each baseline there too (``more_median_beats_*``).  A shape whose data is missing
 (h1 without ``../shared``) is reported as skipped.  Usage::
 
     python bench/real.py [--shape h1|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
+                         [--more-test N]
                          [--set train.KEY=VALUE ...]
 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
@@ -79,14 +86,14 @@ import math
 import os
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from excavator_surrogate.config import load_preset, parse_sets
-from excavator_surrogate.data import Dataset, load_dataset, write_dataset
+from excavator_surrogate.data import Dataset, Episode, load_dataset, write_dataset
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.evaluate.cbe import evaluate_models
 from excavator_surrogate.io_utils import log, setup_logging
@@ -109,6 +116,9 @@ TRAIN_GOAL_S = 600.0
 """Training wall time per seed, every member counted [s]."""
 BUSY_LOAD = 1.5
 """1-min load average above which timings are marked as taken under load."""
+MORE_TEST = {"continuous": 8, "sessions": 12}
+"""More test segments per simulated shape (``--more-test`` default): 8 x 160 s of the log's
+continuation, 12 more sessions of 180 s."""
 
 
 @dataclass
@@ -125,6 +135,11 @@ class Case:
     """Builds the same data with the shape's run-condition / exogenous input (``--condition``)."""
     condition_name: str = ""
     """What that input is, in words."""
+    more: Sequence[Episode] = ()
+    """More test data of the same machine, scored beside the split (``--more-test``; the
+    simulated shapes): one test segment misranks models that many segments rank the other way."""
+    more_what: str = ""
+    """What ``more`` is, in words."""
 
 
 def _h1(work: Path, args: argparse.Namespace) -> Case | str:
@@ -167,23 +182,69 @@ def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
 
 
 def _simulated(
-    work: Path, args: argparse.Namespace, preset: str, name: str, split: Callable[..., str]
+    work: Path,
+    args: argparse.Namespace,
+    preset: str,
+    name: str,
+    split: Callable[..., str],
+    more: Callable[..., tuple[list[Episode], str]],
 ) -> Case:
     """A stand-in log of ``preset`` (seed ``--sim-seed``) as imported (``_as_logged``), its
-    engine throttle as the condition variant; ``split(cfg)`` says how it is split."""
+    engine throttle as the condition variant; ``split(cfg)`` says how it is split, and
+    ``more(cfg, sim, n, out)`` simulates ``n`` more test segments (``--more-test``)."""
     from excavator_surrogate.simulate.config import SimulateConfig
     from excavator_surrogate.simulate.generate import simulate_dataset
 
     cfg = SimulateConfig.from_preset(load_preset(preset), seed=args.sim_seed)
     simulate_dataset(cfg, out=work / f"{name}_sim")
     sim = load_dataset(work / f"{name}_sim")
+    n_more = MORE_TEST[name] if args.more_test is None else args.more_test
+    extra, what = more(cfg, sim, n_more, work / f"{name}_more") if n_more > 0 else ([], "")
     return Case(
         _as_logged(sim, work / name, inputs=False),
         "test",
         split(cfg),
         lambda: _as_logged(sim, work / f"{name}_throttle", inputs=True),
         "engine throttle u_throttle",
+        more=extra,
+        more_what=what,
     )
+
+
+def _more_in_time(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], str]:
+    """The same log ``n`` test lengths longer: its continuation, cut into ``n`` segments of the
+    test's length (the same seed draws the same operator and plant, so the first part is the
+    log the case trains on, which is checked)."""
+    from excavator_surrogate.simulate.generate import simulate_dataset
+
+    n_test = round(cfg.test_s * cfg.rate_hz)
+    longer = dataclasses.replace(
+        cfg, steps_train=cfg.steps_train + n * n_test, val_s=0.0, test_s=0.0
+    )
+    (ep,) = load_dataset(simulate_dataset(longer, out=out)).train
+    logged = np.concatenate([e.theta for e in sim.train + sim.val + sim.test])
+    if not np.array_equal(ep.theta[: cfg.steps_train], logged):
+        raise RuntimeError(f"{out}: the longer log does not continue the case's log")
+    start = cfg.steps_train
+    segments = [ep.slice(start + i * n_test, start + (i + 1) * n_test) for i in range(n)]
+    return segments, f"the log's next {n} x {cfg.test_s:g} s after the test"
+
+
+def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], str]:
+    """``n`` more test sessions: test episodes ``1 .. n`` of the same seed (each episode's seed
+    depends on its split and index only, so episode 0 is the case's test, which is checked)."""
+    from excavator_surrogate.simulate.generate import simulate_dataset
+
+    more = dataclasses.replace(cfg, n_train=0, n_val=0, n_test=1 + n)
+    test = load_dataset(simulate_dataset(more, out=out)).test
+    if not np.array_equal(test[0].theta, sim.test[0].theta):
+        raise RuntimeError(f"{out}: the first test session is not the case's")
+    return list(test[1:]), f"{n} more test sessions of {cfg.steps_test / cfg.rate_hz:.0f} s"
+
+
+def _as_spec(episodes: Sequence[Episode], spec) -> list[Episode]:
+    """``episodes`` (as simulated) as a dataset of ``spec`` holds them (``_as_logged``)."""
+    return [e.replace(spec=spec, u=e.u[:, : spec.n_u]) for e in episodes]
 
 
 def _in_time(cfg) -> str:
@@ -202,11 +263,11 @@ def _by_session(cfg) -> str:
 
 
 def _continuous(work: Path, args: argparse.Namespace) -> Case:
-    return _simulated(work, args, "continuous-dig", "continuous", _in_time)
+    return _simulated(work, args, "continuous-dig", "continuous", _in_time, _more_in_time)
 
 
 def _sessions(work: Path, args: argparse.Namespace) -> Case:
-    return _simulated(work, args, "sessions-dig", "sessions", _by_session)
+    return _simulated(work, args, "sessions-dig", "sessions", _by_session, _more_sessions)
 
 
 def _stroke(work: Path, args: argparse.Namespace) -> Case:
@@ -261,6 +322,15 @@ def score(sur, episodes) -> dict[str, list[float]]:
         "theta_min": (shown(sur.spec)[0] * lo).tolist(),
         "theta_max": (shown(sur.spec)[0] * hi).tolist(),
     }
+
+
+def scored_more(sur, more: Sequence[Episode], spec) -> dict:
+    """``{"more": {"rmse", "r2"}}``: :func:`score` on ``more`` (as a dataset of ``spec``, the
+    one ``sur`` trained on, holds them), or ``{}`` without more test data."""
+    if not more:
+        return {}
+    got = score(sur, _as_spec(more, spec))
+    return {"more": {"rmse": got["rmse"], "r2": got["r2"]}}
 
 
 def plain_lstm_config(epochs: int, seed: int) -> TrainConfig:
@@ -339,8 +409,10 @@ def run_recipe(
     tag: str,
     rows: dict[str, dict],
     label: str,
+    more: Sequence[Episode] = (),
 ) -> list[dict]:
-    """Train the recipe once per seed; each result holds the scores and the training facts.
+    """Train the recipe once per seed; each result holds the scores and the training facts
+    (``more``: also scored on them, pooled, as ``more``).
     Each seed's row is added to ``rows`` (as ``default recipe<label>, seed S``) and every row so
     far is written to ``work/<tag>_partial.json`` (a long run cut short keeps what it has)."""
     results = []
@@ -363,10 +435,14 @@ def run_recipe(
             **training_log(out),
             "choices": choices(sur),
             **score(sur, data.split(split)),
+            **scored_more(sur, more, data.spec),
         }
         results.append(res)
         rows[f"default recipe{label}, seed {seed}"] = res
-        partial = {k: {"rmse": v["rmse"], "r2": v["r2"]} for k, v in rows.items()}
+        partial = {
+            k: {"rmse": v["rmse"], "r2": v["r2"], **({"more": v["more"]} if "more" in v else {})}
+            for k, v in rows.items()
+        }
         (work / f"{tag}_partial.json").write_text(json.dumps({"rows": partial, "seeds": results}))
         log(f"bench/real: {tag}, seed {seed}: RMSE {np.round(res['rmse'], 2)} in {train_s:.0f} s")
     return results
@@ -398,6 +474,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
     rows["linear ARX, clipped to the training range"] = {
         "train_s": round(time.monotonic() - t0, 1),
         **score(arx, scored),
+        **scored_more(arx, case.more, ds.spec),
     }
     t0 = time.monotonic()
     structured = fit_structured(ds.train, window=WARMUP)
@@ -405,16 +482,21 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "train_s": round(time.monotonic() - t0, 1),
         "fit": structured.metrics["joints"],
         **score(structured, scored),
+        **scored_more(structured, case.more, ds.spec),
     }
     if args.plain_epochs > 0:
         t0 = time.monotonic()
         plain = train(plain_lstm_config(args.plain_epochs, 0), ds, out=work / f"{name}_plain")
+        plain_sur = load_checkpoint(plain)
         rows["plain 2x128 LSTM, one-step loss"] = {
             "train_s": round(time.monotonic() - t0, 1),
-            **score(load_checkpoint(plain), scored),
+            **score(plain_sur, scored),
+            **scored_more(plain_sur, case.more, ds.spec),
         }
 
-    recipe = run_recipe(ds, split, args.seed_list, overrides, work, f"{name}_auto", rows, "")
+    recipe = run_recipe(
+        ds, split, args.seed_list, overrides, work, f"{name}_auto", rows, "", case.more
+    )
     with_cond: list[dict] = []
     if args.condition and case.condition is not None:
         ds_cond = case.condition()
@@ -427,6 +509,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
             f"{name}_cond",
             rows,
             f" with {case.condition_name}",
+            case.more,
         )
 
     rmse = np.array([r["rmse"] for r in recipe])
@@ -459,9 +542,29 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         )
     )
 
-    def beats(label: str) -> bool | None:
+    more_median = None
+    if case.more:
+        more_median = np.median([r["more"]["rmse"] for r in recipe], axis=0)
+        print()
+        print(f"[{name}] the same models on {case.more_what} (pooled)")
+        print(f"| model | {' | '.join(f'{n} [{u}]' for n, u in zip(names, units))} |")
+        print("|---|" + "---|" * len(names))
+        for label, r in rows.items():
+            m = r["more"]
+            cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(m["rmse"], m["r2"]))
+            print(f"| {label} | {cells} |")
+        print(
+            f"| default recipe, median of {len(recipe)} | "
+            f"{' | '.join(f'{v:.2f}' for v in more_median)} |"
+        )
+
+    def beats(label: str, key: str = "") -> bool | None:
         row = rows.get(label)
-        return None if row is None else bool(np.all(median < np.array(row["rmse"])))
+        if row is None:
+            return None
+        if key:
+            return bool(np.all(more_median < np.array(row[key]["rmse"])))
+        return bool(np.all(median < np.array(row["rmse"])))
 
     goals = {
         "median_beats_plain_lstm_every_joint": beats("plain 2x128 LSTM, one-step loss"),
@@ -473,6 +576,16 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "train_le_600s_per_seed": bool(all(r["train_s"] <= TRAIN_GOAL_S for r in recipe)),
         "inside_envelope": bool(inside),
     }
+    if more_median is not None:
+        for goal, label in (
+            ("more_median_beats_plain_lstm_every_joint", "plain 2x128 LSTM, one-step loss"),
+            ("more_median_beats_arx_every_joint", "linear ARX, clipped to the training range"),
+            (
+                "more_median_beats_structured_every_joint",
+                "structured (dead zone, gain, delay, end stops)",
+            ),
+        ):
+            goals[goal] = beats(label, "more")
     out = {
         "split": case.split,
         "joints": names,
@@ -499,6 +612,23 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "structured_fit": rows["structured (dead zone, gain, delay, end stops)"]["fit"],
         "goals": goals,
     }
+    if more_median is not None:
+        out["more"] = {
+            "what": case.more_what,
+            "recipe_median_rmse": [round(float(v), 3) for v in more_median],
+            "median_over": {
+                k: [round(float(a / b), 3) for a, b in zip(more_median, rows[k]["more"]["rmse"])]
+                for k in rows
+                if not k.startswith("default recipe")
+            },
+            "models": {
+                k: {
+                    "rmse": [round(v, 3) for v in r["more"]["rmse"]],
+                    "r2": [round(v, 4) for v in r["more"]["r2"]],
+                }
+                for k, r in rows.items()
+            },
+        }
     if with_cond:
         cond_median = np.median(np.array([r["rmse"] for r in with_cond]), axis=0)
         print(
@@ -525,6 +655,14 @@ def main() -> None:
         help="comma-separated recipe seeds (members take seed .. seed + 3: keep them apart)",
     )
     ap.add_argument("--sim-seed", type=int, default=0, help="seed of the simulated log")
+    ap.add_argument(
+        "--more-test",
+        type=int,
+        default=None,
+        metavar="N",
+        help="more test segments of a simulated shape, scored beside its test (default: "
+        f"{', '.join(f'{k} {v}' for k, v in MORE_TEST.items())}; 0: none)",
+    )
     ap.add_argument("--plain-epochs", type=int, default=30, help="epochs of the plain LSTM")
     ap.add_argument("--work", type=Path, default=None, help="keep the models here (default: temp)")
     ap.add_argument(
