@@ -12,7 +12,12 @@ from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_check
 from excavator_surrogate.surrogate.ensemble import member_head, merge
 from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
-from excavator_surrogate.training.map_joints import apply_map_choice, choose_map_joints
+from excavator_surrogate.training.map_joints import (
+    apply_map_choice,
+    best_set,
+    choose_map_joints,
+    joint_allowance,
+)
 from tests.helpers.surrogates import make_surrogate, tiny_surrogate
 from tests.surrogate.test_prior import _static_episode
 from tests.surrogate.test_structured import SPEC
@@ -143,3 +148,39 @@ def test_a_map_joints_spread_grows_with_the_distance_the_map_moved_it(spec, epis
         pred.theta_spread[0, w:, 0], fit["gain_spread"][0] * moved, rtol=1e-3, atol=1e-6
     )
     assert any("gain spread" in n for n in pred.notes)
+
+
+def _pick(scores: dict[tuple[bool, ...], tuple[float, list[float]]]) -> tuple[list[str], list]:
+    """``best_set`` over three joints with every set's validation scores given (``known``):
+    the chosen joints' names and the record of the sets tried."""
+    base = {"val_error": 1.0, "theta_rmse": [1.0, 1.0, 1.0]}
+    known = {k: {"val_error": e, "theta_rmse": t} for k, (e, t) in scores.items()}
+    record: dict = {"names": ["a", "b", "c"], "tried": []}
+    got = best_set([True, True, False], lambda j: j, base, [], record=record, known=known)
+    chosen = [] if got is None else [n for n, p in zip("abc", got[2]) if p]
+    return chosen, record["tried"]
+
+
+def test_a_set_may_cost_a_joint_what_the_whole_gains_and_no_more() -> None:
+    """The whole 20 % better buys one joint 12 % worse (kept); 5 % better does not buy 8 %."""
+    chosen, tried = _pick(
+        {
+            (True, True, False): (0.80, [0.5, 0.9, 1.12]),
+            (True, False, False): (0.95, [0.8, 1.0, 1.08]),
+            (False, True, False): (0.98, [1.0, 0.95, 1.0]),
+        }
+    )
+    assert chosen == ["a", "b"]
+    assert [t["kept"] for t in tried] == [True, False, True]
+    assert tried[0]["joint_allowance"] == joint_allowance(0.80, 1.0)
+    assert abs(joint_allowance(0.80, 1.0) - 0.20) < 1e-12
+    assert joint_allowance(0.99, 1.0) == joint_allowance(1.03, 1.0) == 0.05
+    # the same whole gain cannot buy a joint 25 % worse: the next best set is kept
+    chosen, tried = _pick(
+        {
+            (True, True, False): (0.80, [0.5, 0.9, 1.25]),
+            (True, False, False): (0.95, [0.8, 1.0, 1.08]),
+            (False, True, False): (0.98, [1.0, 0.95, 1.0]),
+        }
+    )
+    assert chosen == ["b"] and [t["kept"] for t in tried] == [False, False, True]

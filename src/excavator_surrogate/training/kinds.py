@@ -20,9 +20,10 @@ trainings, which the recipe plans the epochs for within the same budget
    ``P`` groups are merged into the ensemble.  A plain joint is then exactly the plain
    ensemble's mean, a map joint the map-correcting ensemble's;
 3. the best set whose validation error is at most :data:`SET_MARGIN` above the plain
-   ensemble's, overall and on every joint, is kept (a joint's choice changes the angles the
-   others read); if none, or no candidate, the plain ensemble is the model, as without the
-   option.
+   ensemble's overall, and on every joint within the static map choice's allowance
+   (:func:`~excavator_surrogate.training.map_joints.joint_allowance`), is kept (a joint's
+   choice changes the angles the others read); if none, or no candidate, the plain ensemble
+   is the model, as without the option.
 
 The static map choice (``static_map``) then runs on the result as on any model.
 
@@ -164,7 +165,8 @@ def choose_kinds(
         record["why"] = (
             f"every set of joints on the map-correcting networks is worse than the plain "
             f"networks' validation error {base['val_error']:.4g} by more than "
-            f"{SET_MARGIN:.0%}, overall or on a joint: the plain networks drive every joint"
+            f"{SET_MARGIN:.0%} overall, or on a joint by more than the whole gains: the plain "
+            "networks drive every joint"
         )
         return merged["plain"], record
     model, got, joints = best

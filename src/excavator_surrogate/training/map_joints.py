@@ -19,7 +19,8 @@ per joint, chosen on the validation free run like an epoch is:
 3. try them together, then each alone (:func:`~excavator_surrogate.surrogate.structured.with_map_joints`:
    those joints follow the map, the others keep the network's output exactly);
 4. keep the best set whose validation error is at most :data:`SET_MARGIN` above the
-   network's, overall and on every joint; else the network stays as it was.
+   network's overall, and on no joint more than :data:`SET_MARGIN` above it, or more than the
+   share by which the whole fell (:func:`joint_allowance`); else the network stays as it was.
 
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
 in the log and in ``metrics.json``.  On a joint on the map, the ensemble's members drive it
@@ -55,7 +56,22 @@ the network's: on the continuous case a swing whose network tied the map on vali
 (7.6 against 7.2 deg) drifted 2x the map's error on the test."""
 SET_MARGIN = 0.05
 """A set of map joints is kept when its validation error is at most this share above the
-network's, overall and on every joint (the other joints now read the map joints' angles)."""
+network's, overall and on every joint (the other joints now read the map joints' angles),
+unless the whole gains more (:func:`joint_allowance`)."""
+
+
+def joint_allowance(val_error: float, base_error: float) -> float:
+    """How much worse than ``base`` [share] a joint's validation error may get in a kept set
+    whose whole validation error is ``val_error`` against ``base_error``:
+
+        allowance = max(SET_MARGIN, 1 - val_error / base_error)
+
+    A set that lowers the whole error by 20 % may cost one joint up to 20 %, never more than
+    the whole gains; one that gains less may cost a joint :data:`SET_MARGIN` at most.  (On the
+    sessions case, the arm on the map lowered the whole validation error by 20 % and moved the
+    bucket, which reads the arm's angle, 13 % worse; on 12 more test sessions the arm was
+    24-29 % better and the bucket 2-7 % worse, over 3 seeds.  docs/real.md.)"""
+    return max(SET_MARGIN, 1.0 - val_error / base_error)
 
 
 def choose_map_joints(
@@ -122,8 +138,8 @@ def choose_map_joints(
     if best is None:
         record["why"] = (
             f"every set of map joints is worse than the network's validation error "
-            f"{net['val_error']:.4g} by more than {SET_MARGIN:.0%}, overall or on a joint: "
-            "the network stays"
+            f"{net['val_error']:.4g} by more than {SET_MARGIN:.0%} overall, or on a joint by "
+            "more than the whole gains: the network stays"
         )
         return None, record
     hyb, got, joints = best
@@ -153,9 +169,10 @@ def best_set(
 ) -> tuple[Surrogate, dict[str, Any], list[bool]] | None:
     """The best set of joints to change, or None: the candidates ``cand`` together and each
     alone, each model ``build(joints)`` scored on the validation free run and kept if within
-    :data:`SET_MARGIN` of ``base`` (a :func:`free_run_error` result) overall and on every
-    joint (a joint's change moves the angles the others read).  ``known``: sets whose
-    validation free run the caller has already scored (not run again).
+    :data:`SET_MARGIN` of ``base`` (a :func:`free_run_error` result) overall and within
+    :func:`joint_allowance` of it on every joint (a joint's change moves the angles the others
+    read).  ``known``: sets whose validation free run the caller has already scored (not run
+    again).
 
     Returns:
         ``(model, its free_run_error, joints)`` of the lowest kept validation error; each set
@@ -174,10 +191,11 @@ def best_set(
             if done is not None
             else free_run_error(model, list(val), max_steps=max_steps)
         )
+        allow = joint_allowance(got["val_error"], base["val_error"])
         worse = [
             names[j]
             for j, (a, b) in enumerate(zip(got["theta_rmse"], base["theta_rmse"]))
-            if not a <= (1 + SET_MARGIN) * b
+            if not a <= (1 + allow) * b
         ]
         ok = got["val_error"] <= (1 + SET_MARGIN) * base["val_error"] and not worse
         record["tried"].append(
@@ -185,6 +203,7 @@ def best_set(
                 "joints": [n for n, p in zip(names, joints) if p],
                 "val_error": got["val_error"],
                 "val_theta_rmse": got["theta_rmse"],
+                "joint_allowance": allow,
                 "kept": bool(ok),
             }
         )
