@@ -1,6 +1,7 @@
 """Real-machine fidelity: the default recipe on four data shapes, next to its baselines.
 
-Four cases (:data:`CASES`, a dict of case builders; add a shape by adding a builder):
+Four cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
+add a shape by adding a builder):
 
 - ``h1``: the h1-dev development set (``../shared/real/h1-dev``: 143 valve-duty step runs of a
   production hydraulic excavator, third-party data that is never shipped with exsur; see its
@@ -80,20 +81,19 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import math
 import os
+import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from excavator_surrogate.config import load_preset, parse_sets
-from excavator_surrogate.data import Dataset, Episode, load_dataset, write_dataset
+from excavator_surrogate.config import parse_sets
+from excavator_surrogate.data import Dataset, Episode
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.evaluate.cbe import evaluate_models
 from excavator_surrogate.io_utils import log, setup_logging
@@ -103,202 +103,15 @@ from excavator_surrogate.surrogate.structured import fit_structured, training_ra
 from excavator_surrogate.training import TrainConfig, train
 from excavator_surrogate.training.auto import auto_config
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_DATA = REPO.parent / "shared" / "real" / "h1-dev"
-MAPPING = REPO / "examples" / "real_excavator.toml"
-MAPPING_CONDITION = REPO / "examples" / "real_excavator_condition.toml"
-"""The same mapping plus the run names' H/L condition as a per-run input."""
-STROKE_EXAMPLE = REPO / "examples" / "stroke_make_logs.py"
-"""Writes the stroke-sensing machine's logs and mapping (``make_logs``)."""
+sys.path.insert(0, str(Path(__file__).parent))
+from real_cases import CASES, DEFAULT_DATA, MORE_TEST, Case, as_spec
+
 WARMUP = 30
 """The warm-up of every free run [samples] (the h1 protocol's)."""
 TRAIN_GOAL_S = 600.0
 """Training wall time per seed, every member counted [s]."""
 BUSY_LOAD = 1.5
 """1-min load average above which timings are marked as taken under load."""
-MORE_TEST = {"continuous": 8, "sessions": 12}
-"""More test segments per simulated shape (``--more-test`` default): 8 x 160 s of the log's
-continuation, 12 more sessions of 180 s."""
-
-
-@dataclass
-class Case:
-    """One data shape: its dataset, the split it is scored on, and its condition variant."""
-
-    dataset: Dataset
-    """Train / val (/ test) episodes."""
-    score_split: str
-    """The split the table scores (``val`` for h1, whose test is hidden; else ``test``)."""
-    split: str
-    """How the data is split, in words (for the JSON)."""
-    condition: Callable[[], Dataset] | None = None
-    """Builds the same data with the shape's run-condition / exogenous input (``--condition``)."""
-    condition_name: str = ""
-    """What that input is, in words."""
-    more: Sequence[Episode] = ()
-    """More test data of the same machine, scored beside the split (``--more-test``; the
-    simulated shapes): one test segment misranks models that many segments rank the other way."""
-    more_what: str = ""
-    """What ``more`` is, in words."""
-
-
-def _h1(work: Path, args: argparse.Namespace) -> Case | str:
-    from excavator_surrogate.ingest import import_logs
-    from excavator_surrogate.ingest.mapping import load_mapping
-
-    runs_dir = args.data / "runs"
-    if not runs_dir.is_dir():
-        return f"no real data at {runs_dir}"
-    import_logs([runs_dir], load_mapping(MAPPING), out=work / "h1", quiet=True)
-
-    def with_condition() -> Dataset:
-        import_logs([runs_dir], load_mapping(MAPPING_CONDITION), out=work / "h1_cond", quiet=True)
-        return load_dataset(work / "h1_cond")
-
-    return Case(
-        load_dataset(work / "h1"),
-        "val",
-        "train: duty 40/60/80/90/100; scored on val: duty 50",
-        with_condition,
-        f"H/L run condition ({MAPPING_CONDITION.name})",
-    )
-
-
-def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
-    """``src`` as a user's import of the log would give it: no declared end stops or speed
-    bounds, and the exogenous inputs only with ``inputs``."""
-    spec = src.spec
-    joints = tuple(
-        dataclasses.replace(j, theta_min=None, theta_max=None, omega_max=None) for j in spec.joints
-    )
-    spec = dataclasses.replace(spec, joints=joints, inputs=spec.inputs if inputs else ())
-    items = [
-        (ep.replace(spec=spec, u=ep.u[:, : spec.n_u]), s)
-        for s in ("train", "val", "test")
-        for ep in src.split(s)
-    ]
-    write_dataset(out, items, config=src.manifest.get("config") or None)
-    return load_dataset(out)
-
-
-def _simulated(
-    work: Path,
-    args: argparse.Namespace,
-    preset: str,
-    name: str,
-    split: Callable[..., str],
-    more: Callable[..., tuple[list[Episode], str]],
-) -> Case:
-    """A stand-in log of ``preset`` (seed ``--sim-seed``) as imported (``_as_logged``), its
-    engine throttle as the condition variant; ``split(cfg)`` says how it is split, and
-    ``more(cfg, sim, n, out)`` simulates ``n`` more test segments (``--more-test``)."""
-    from excavator_surrogate.simulate.config import SimulateConfig
-    from excavator_surrogate.simulate.generate import simulate_dataset
-
-    cfg = SimulateConfig.from_preset(load_preset(preset), seed=args.sim_seed)
-    simulate_dataset(cfg, out=work / f"{name}_sim")
-    sim = load_dataset(work / f"{name}_sim")
-    n_more = MORE_TEST[name] if args.more_test is None else args.more_test
-    extra, what = more(cfg, sim, n_more, work / f"{name}_more") if n_more > 0 else ([], "")
-    return Case(
-        _as_logged(sim, work / name, inputs=False),
-        "test",
-        split(cfg),
-        lambda: _as_logged(sim, work / f"{name}_throttle", inputs=True),
-        "engine throttle u_throttle",
-        more=extra,
-        more_what=what,
-    )
-
-
-def _more_in_time(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], str]:
-    """The same log ``n`` test lengths longer: its continuation, cut into ``n`` segments of the
-    test's length (the same seed draws the same operator and plant, so the first part is the
-    log the case trains on, which is checked)."""
-    from excavator_surrogate.simulate.generate import simulate_dataset
-
-    n_test = round(cfg.test_s * cfg.rate_hz)
-    longer = dataclasses.replace(
-        cfg, steps_train=cfg.steps_train + n * n_test, val_s=0.0, test_s=0.0
-    )
-    (ep,) = load_dataset(simulate_dataset(longer, out=out)).train
-    logged = np.concatenate([e.theta for e in sim.train + sim.val + sim.test])
-    if not np.array_equal(ep.theta[: cfg.steps_train], logged):
-        raise RuntimeError(f"{out}: the longer log does not continue the case's log")
-    start = cfg.steps_train
-    segments = [ep.slice(start + i * n_test, start + (i + 1) * n_test) for i in range(n)]
-    return segments, f"the log's next {n} x {cfg.test_s:g} s after the test"
-
-
-def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], str]:
-    """``n`` more test sessions: test episodes ``1 .. n`` of the same seed (each episode's seed
-    depends on its split and index only, so episode 0 is the case's test, which is checked)."""
-    from excavator_surrogate.simulate.generate import simulate_dataset
-
-    more = dataclasses.replace(cfg, n_train=0, n_val=0, n_test=1 + n)
-    test = load_dataset(simulate_dataset(more, out=out)).test
-    if not np.array_equal(test[0].theta, sim.test[0].theta):
-        raise RuntimeError(f"{out}: the first test session is not the case's")
-    return list(test[1:]), f"{n} more test sessions of {cfg.steps_test / cfg.rate_hz:.0f} s"
-
-
-def _as_spec(episodes: Sequence[Episode], spec) -> list[Episode]:
-    """``episodes`` (as simulated) as a dataset of ``spec`` holds them (``_as_logged``)."""
-    return [e.replace(spec=spec, u=e.u[:, : spec.n_u]) for e in episodes]
-
-
-def _in_time(cfg) -> str:
-    return (
-        f"one {cfg.steps_train / cfg.rate_hz:.0f}-s log in time: train | {cfg.val_s:g} s val | "
-        f"{cfg.test_s:g} s test (scored)"
-    )
-
-
-def _by_session(cfg) -> str:
-    return (
-        f"{cfg.n_train} sessions of {cfg.steps_train / cfg.rate_hz:.0f} s train | {cfg.n_val} "
-        f"validate | 1 of {cfg.steps_test / cfg.rate_hz:.0f} s tests (scored); each session "
-        f"its own oil temperature (up to {cfg.hydraulics.drift_amplitude:.0%} slower cold)"
-    )
-
-
-def _continuous(work: Path, args: argparse.Namespace) -> Case:
-    return _simulated(work, args, "continuous-dig", "continuous", _in_time, _more_in_time)
-
-
-def _sessions(work: Path, args: argparse.Namespace) -> Case:
-    return _simulated(work, args, "sessions-dig", "sessions", _by_session, _more_sessions)
-
-
-def _stroke(work: Path, args: argparse.Namespace) -> Case:
-    import importlib.util
-
-    from excavator_surrogate.ingest import import_logs
-    from excavator_surrogate.ingest.mapping import load_mapping
-
-    spec = importlib.util.spec_from_file_location("stroke_make_logs", STROKE_EXAMPLE)
-    assert spec is not None and spec.loader is not None
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
-    mapping = example.make_logs(work / "stroke_logs", seed=args.sim_seed, preset="quick-hydraulic")
-    import_logs(
-        [work / "stroke_logs" / "logs"], load_mapping(mapping), out=work / "stroke", quiet=True
-    )
-    return Case(
-        load_dataset(work / "stroke"),
-        "test",
-        "quick-hydraulic's runs as a stroke-sensing machine's CSV logs (swing in deg; boom, "
-        "arm, bucket cylinder strokes in mm): its own train / val / test (scored)",
-    )
-
-
-CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
-    "h1": _h1,
-    "continuous": _continuous,
-    "sessions": _sessions,
-    "stroke": _stroke,
-}
-"""Data shapes by name: ``builder(work_dir, args) -> Case`` (or a reason to skip it)."""
 
 
 def shown(spec) -> tuple[np.ndarray, list[str]]:
@@ -329,7 +142,7 @@ def scored_more(sur, more: Sequence[Episode], spec) -> dict:
     one ``sur`` trained on, holds them), or ``{}`` without more test data."""
     if not more:
         return {}
-    got = score(sur, _as_spec(more, spec))
+    got = score(sur, as_spec(more, spec))
     return {"more": {"rmse": got["rmse"], "r2": got["r2"]}}
 
 
