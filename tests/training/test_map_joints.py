@@ -175,6 +175,7 @@ def test_a_set_may_cost_a_joint_what_the_whole_gains_and_no_more() -> None:
     assert tried[0]["joint_allowance"] == joint_allowance(0.80, 1.0)
     assert abs(joint_allowance(0.80, 1.0) - 0.20) < 1e-12
     assert joint_allowance(0.99, 1.0) == joint_allowance(1.03, 1.0) == 0.05
+    assert joint_allowance(0.0, 0.0) == joint_allowance(float("nan"), 1.0) == 0.05
     # the same whole gain cannot buy a joint 25 % worse: the next best set is kept
     chosen, tried = _pick(
         {

@@ -32,6 +32,7 @@ distance the map moved it.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
@@ -71,6 +72,8 @@ def joint_allowance(val_error: float, base_error: float) -> float:
     sessions case, the arm on the map lowered the whole validation error by 20 % and moved the
     bucket, which reads the arm's angle, 13 % worse; on 12 more test sessions the arm was
     24-29 % better and the bucket 2-7 % worse, over 3 seeds.  docs/real.md.)"""
+    if not (math.isfinite(val_error) and math.isfinite(base_error) and base_error > 0):
+        return SET_MARGIN  # nothing to share out (a perfect or failed base)
     return max(SET_MARGIN, 1.0 - val_error / base_error)
 
 
