@@ -146,6 +146,57 @@ def scored_more(sur, more: Sequence[Episode], spec) -> dict:
     return {"more": {"rmse": got["rmse"], "r2": got["r2"]}}
 
 
+BASELINES = (
+    ("plain_lstm", "plain 2x128 LSTM, one-step loss"),
+    ("arx", "linear ARX, clipped to the training range"),
+    ("structured", "structured (dead zone, gain, delay, end stops)"),
+)
+"""The baselines' goal names and row labels: the recipe's median must beat each on every joint."""
+
+
+def print_table(title: str, head: str, rows: dict[str, dict], median, n_seeds: int) -> None:
+    """One markdown table of ``rows`` (label -> ``rmse``, ``r2`` and maybe ``train_s``) and the
+    recipe's median; with a ``train_s`` column when the rows carry it."""
+    train = any("train_s" in r for r in rows.values())
+    print()
+    print(title)
+    print(f"| model | {head} |" + (" train [s] |" if train else ""))
+    print("|---|" + "---|" * (len(median) + train))
+    for label, r in rows.items():
+        cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(r["rmse"], r["r2"]))
+        print(f"| {label} | {cells} |" + (f" {r.get('train_s', '-')} |" if train else ""))
+    med = " | ".join(f"{v:.2f}" for v in median)
+    print(f"| default recipe, median of {n_seeds} | {med} |" + (" |" if train else ""))
+
+
+def beats_every_joint(median, rows: dict[str, dict]) -> dict[str, bool | None]:
+    """Per baseline (:data:`BASELINES`): the median below its RMSE on every joint (None: the
+    baseline did not run)."""
+    return {
+        name: None if label not in rows else bool(np.all(median < np.array(rows[label]["rmse"])))
+        for name, label in BASELINES
+    }
+
+
+def summary(median, rows: dict[str, dict]) -> dict:
+    """The JSON's ``median_over`` (the median over each baseline's RMSE, per joint) and
+    ``models`` (every row's RMSE and R^2, rounded)."""
+    return {
+        "median_over": {
+            k: [round(float(a / b), 3) for a, b in zip(median, rows[k]["rmse"])]
+            for k in rows
+            if not k.startswith("default recipe")
+        },
+        "models": {
+            k: {
+                "rmse": [round(v, 3) for v in r["rmse"]],
+                "r2": [round(v, 4) for v in r["r2"]],
+            }
+            for k, r in rows.items()
+        },
+    }
+
+
 def plain_lstm_config(epochs: int, seed: int) -> TrainConfig:
     """The issue's best reference: 2 x 128 LSTM, one-step loss, windowed, no envelope."""
     return TrainConfig(
@@ -338,15 +389,13 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         for r in recipe
     )
 
-    print()
-    print(f"[{name}] free-run position RMSE (R^2) on {split}, {WARMUP}-sample warm-up")
-    print(f"| model | {' | '.join(f'{n} [{u}]' for n, u in zip(names, units))} | train [s] |")
-    print("|---|" + "---|" * (len(names) + 1))
-    for label, r in rows.items():
-        cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(r["rmse"], r["r2"]))
-        print(f"| {label} | {cells} | {r.get('train_s', '-')} |")
-    print(
-        f"| default recipe, median of {len(recipe)} | {' | '.join(f'{v:.2f}' for v in median)} | |"
+    head = " | ".join(f"{n} [{u}]" for n, u in zip(names, units))
+    print_table(
+        f"[{name}] free-run position RMSE (R^2) on {split}, {WARMUP}-sample warm-up",
+        head,
+        rows,
+        median,
+        len(recipe),
     )
     print(
         "seed spread (min-max): "
@@ -355,50 +404,29 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         )
     )
 
-    more_median = None
+    more_median, more_rows = None, {}
     if case.more:
         more_median = np.median([r["more"]["rmse"] for r in recipe], axis=0)
-        print()
-        print(f"[{name}] the same models on {case.more_what} (pooled)")
-        print(f"| model | {' | '.join(f'{n} [{u}]' for n, u in zip(names, units))} |")
-        print("|---|" + "---|" * len(names))
-        for label, r in rows.items():
-            m = r["more"]
-            cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(m["rmse"], m["r2"]))
-            print(f"| {label} | {cells} |")
-        print(
-            f"| default recipe, median of {len(recipe)} | "
-            f"{' | '.join(f'{v:.2f}' for v in more_median)} |"
+        more_rows = {label: r["more"] for label, r in rows.items()}
+        print_table(
+            f"[{name}] the same models on {case.more_what} (pooled)",
+            head,
+            more_rows,
+            more_median,
+            len(recipe),
         )
 
-    def beats(label: str, key: str = "") -> bool | None:
-        row = rows.get(label)
-        if row is None:
-            return None
-        if key:
-            return bool(np.all(more_median < np.array(row[key]["rmse"])))
-        return bool(np.all(median < np.array(row["rmse"])))
-
     goals = {
-        "median_beats_plain_lstm_every_joint": beats("plain 2x128 LSTM, one-step loss"),
-        "median_beats_arx_every_joint": beats("linear ARX, clipped to the training range"),
-        "median_beats_structured_every_joint": beats(
-            "structured (dead zone, gain, delay, end stops)"
-        ),
+        **{
+            f"median_beats_{b}_every_joint": ok for b, ok in beats_every_joint(median, rows).items()
+        },
         "worst_seed_within_1_5x_median": bool(np.all(worst <= 1.5 * median)),
         "train_le_600s_per_seed": bool(all(r["train_s"] <= TRAIN_GOAL_S for r in recipe)),
         "inside_envelope": bool(inside),
     }
     if more_median is not None:
-        for goal, label in (
-            ("more_median_beats_plain_lstm_every_joint", "plain 2x128 LSTM, one-step loss"),
-            ("more_median_beats_arx_every_joint", "linear ARX, clipped to the training range"),
-            (
-                "more_median_beats_structured_every_joint",
-                "structured (dead zone, gain, delay, end stops)",
-            ),
-        ):
-            goals[goal] = beats(label, "more")
+        for b, ok in beats_every_joint(more_median, more_rows).items():
+            goals[f"more_median_beats_{b}_every_joint"] = ok
     out = {
         "split": case.split,
         "joints": names,
@@ -410,18 +438,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "recipe_budget_cut": [r["budget_cut"] for r in recipe],
         "recipe_training_log": {r["seed"]: r["members"] for r in recipe},
         "recipe_val_rmse_and_choices": {r["seed"]: r["choices"] for r in recipe},
-        "median_over": {
-            k: [round(float(a / b), 3) for a, b in zip(median, rows[k]["rmse"])]
-            for k in rows
-            if not k.startswith("default recipe")
-        },
-        "models": {
-            k: {
-                "rmse": [round(v, 3) for v in r["rmse"]],
-                "r2": [round(v, 4) for v in r["r2"]],
-            }
-            for k, r in rows.items()
-        },
+        **summary(median, rows),
         "structured_fit": rows["structured (dead zone, gain, delay, end stops)"]["fit"],
         "goals": goals,
     }
@@ -429,18 +446,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         out["more"] = {
             "what": case.more_what,
             "recipe_median_rmse": [round(float(v), 3) for v in more_median],
-            "median_over": {
-                k: [round(float(a / b), 3) for a, b in zip(more_median, rows[k]["more"]["rmse"])]
-                for k in rows
-                if not k.startswith("default recipe")
-            },
-            "models": {
-                k: {
-                    "rmse": [round(v, 3) for v in r["more"]["rmse"]],
-                    "r2": [round(v, 4) for v in r["more"]["r2"]],
-                }
-                for k, r in rows.items()
-            },
+            **summary(more_median, more_rows),
         }
     if with_cond:
         cond_median = np.median(np.array([r["rmse"] for r in with_cond]), axis=0)

@@ -80,11 +80,7 @@ def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
         dataclasses.replace(j, theta_min=None, theta_max=None, omega_max=None) for j in spec.joints
     )
     spec = dataclasses.replace(spec, joints=joints, inputs=spec.inputs if inputs else ())
-    items = [
-        (ep.replace(spec=spec, u=ep.u[:, : spec.n_u]), s)
-        for s in ("train", "val", "test")
-        for ep in src.split(s)
-    ]
+    items = [(ep, s) for s in ("train", "val", "test") for ep in as_spec(src.split(s), spec)]
     write_dataset(out, items, config=src.manifest.get("config") or None)
     return load_dataset(out)
 
