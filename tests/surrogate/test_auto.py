@@ -45,8 +45,12 @@ def test_members_and_budget_follow_the_cpus():
     ds = _dataset([8000])  # one long log: its planned epochs fill the fewest members' budget
     two, _ = auto_config(ds, cpus=2, budget_s=600)
     one, _ = auto_config(ds, cpus=1, budget_s=600)
-    assert (two.members, two.member_workers, two.max_train_seconds) == (4, 2, 300)
-    assert (one.members, one.member_workers, one.max_train_seconds) == (2, 1, 300)
+    # 4 plain members and 2 map-correcting networks, 2 at a time: 600 s x 2 / 6
+    assert (two.members, two.member_workers, two.max_train_seconds) == (4, 2, 200)
+    # 2 plain and 1 map-correcting network, one at a time: 600 s / 3
+    assert (one.members, one.member_workers, one.max_train_seconds) == (2, 1, 200)
+    plain, _ = auto_config(ds, cpus=2, budget_s=600, overrides={"prior_choice": False})
+    assert (plain.members, plain.max_train_seconds) == (4, 300)
 
 
 def test_cheap_epochs_buy_more_members_within_the_budget():
@@ -59,19 +63,25 @@ def test_cheap_epochs_buy_more_members_within_the_budget():
     )
 
     many = _dataset([600] * 100)  # the h1 shape: many short runs, cheap epochs
-    cfg, why = auto_config(many, cpus=2, budget_s=600)
+    plain = {"prior_choice": False}  # the plain ensemble alone: 8 trainings fit
+    cfg, why = auto_config(many, cpus=2, budget_s=600, overrides=plain)
     assert (cfg.members, cfg.member_workers) == (MAX_MEMBERS, 2)
     assert cfg.max_train_seconds == 600 * 2 / MAX_MEMBERS
     n_seq = count_sequences(np.array([600] * 100), seq_len=cfg.seq_len, burn_in=cfg.burn_in)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=200)
     assert cfg.epochs * cost <= PLAN_SHARE * cfg.max_train_seconds  # the plan still fits
     assert any("as many members as the budget fits" in w for w in why)
-    one, _ = auto_config(many, cpus=1, budget_s=600)
+    one, _ = auto_config(many, cpus=1, budget_s=600, overrides=plain)
     assert one.members == MAX_MEMBERS // 2
     # a smaller budget fits fewer members at the same planned epochs, never fewer than MEMBERS
-    tight, _ = auto_config(many, cpus=2, budget_s=cfg.epochs * cost / PLAN_SHARE * 3)
+    tight, _ = auto_config(
+        many, cpus=2, budget_s=cfg.epochs * cost / PLAN_SHARE * 3, overrides=plain
+    )
     assert MEMBERS <= tight.members < MAX_MEMBERS and tight.epochs == cfg.epochs
     assert auto_config(many, cpus=2, budget_s=10)[0].members == MEMBERS
+    # the recipe's kind choice: a third more trainings per member, so fewer members fit
+    kinds, _ = auto_config(many, cpus=2, budget_s=600)
+    assert kinds.prior_choice and MEMBERS <= kinds.members < cfg.members
     given, why = auto_config(many, cpus=2, overrides={"members": 3})
     assert given.members == 3 and not any("as many members" in w for w in why)
 
@@ -127,8 +137,8 @@ def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
     assert cfg1.epochs * cost <= PLAN_SHARE * cfg1.max_train_seconds + cost
     small, _ = auto_config(one, cpus=2, overrides={"max_train_seconds": 60})
     assert (
-        small.epochs < cfg1.epochs and small.max_train_seconds == 30
-    )  # 60 s for 4 members, 2 at a time
+        small.epochs < cfg1.epochs and small.max_train_seconds == 20
+    )  # 60 s for 4 members and 2 map-correcting networks, 2 at a time
     assert auto_config(one, cpus=2)[0] == cfg1  # planned from the data: the same every time
 
 
@@ -188,21 +198,28 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
         ]
     cfg, why = auto_config(ds, cpus=2)
     assert cfg.exogenous == "choose" and cfg.members == without.members == 4
+    # one choice per run: the input choice, not the kind choice
+    assert not cfg.prior_choice and any("one kind of network" in w for w in why)
     # 4 members + 2 that ignore the inputs share the budget: 540 s x 2 workers / 6 trainings
-    assert cfg.max_train_seconds == pytest.approx(180) and cfg.epochs < without.epochs
+    assert cfg.max_train_seconds == pytest.approx(180)
     assert any("must not hurt" in w for w in why)
     forced, _ = auto_config(ds, cpus=2, overrides={"exogenous": "use"})
-    assert forced.exogenous == "use" and forced.max_train_seconds == without.max_train_seconds
+    # using the inputs outright, the run chooses the kinds instead, as without inputs
+    assert forced.exogenous == "use" and forced.prior_choice
+    assert forced.max_train_seconds == without.max_train_seconds
 
 
-def test_the_kind_choice_is_planned_within_the_same_budget():
-    """prior_choice: 4 plain members and 2 map-correcting networks share the budget."""
+def test_the_kind_choice_is_the_recipes_and_is_planned_within_the_same_budget():
+    """prior_choice (the recipe's, unless the run chooses its inputs): 4 plain members and 2
+    map-correcting networks share the budget; off, the 4 plain members have it alone."""
     ds = _dataset([8000])
-    without, _ = auto_config(ds, cpus=2)
-    cfg, why = auto_config(ds, cpus=2, overrides={"prior_choice": True})
-    assert cfg.prior_choice and cfg.members == without.members == 4
+    cfg, why = auto_config(ds, cpus=2)
+    without, why_not = auto_config(ds, cpus=2, overrides={"prior_choice": False})
+    assert cfg.prior_choice and not without.prior_choice
+    assert cfg.members == without.members == 4
     assert cfg.max_train_seconds == pytest.approx(540 * 2 / 6) and cfg.epochs < without.epochs
     assert any("2 correct the static valve map" in w and "6 trainings" in w for w in why)
+    assert not any("two kinds" in w for w in why_not)
 
 
 def test_periodic_joints_are_turned_and_the_static_map_competes():

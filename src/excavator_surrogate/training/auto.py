@@ -28,6 +28,10 @@ The recipe, and the measurement behind each choice, is documented in ``docs/real
 - periodic joints (the swing) turned by a random offset per training sub-sequence, so the
   network does not tie the dynamics to where the machine points (it did: on the continuous
   case the test free run's error changed up to 5x with the swing's starting direction);
+- two kinds of network (:mod:`.kinds`): beside the plain members, half as many that correct
+  the static valve map (dead zone, gain per direction, delay); per joint, the kind whose
+  ensemble validates better drives it.  Not when the run chooses its exogenous inputs
+  (:mod:`.variants`): a run makes one choice of trainings;
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`).
 
@@ -152,7 +156,8 @@ def auto_config(
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
     choose = bool(inputs) and exogenous == "choose"
-    kinds = bool(overrides.get("prior_choice", False))
+    # the kind choice is the recipe's unless the run chooses its inputs (one choice per run)
+    kinds = bool(overrides.get("prior_choice", not choose))
     n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
     val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
@@ -190,6 +195,11 @@ def auto_config(
             f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
             "the kind whose ensemble validates better drives it "
             f"({trainings(members, choose=choose, kinds=True)} trainings in the budget)"
+        )
+    elif choose and "prior_choice" not in overrides:
+        why.append(
+            "one kind of network (plain): the run chooses its exogenous inputs, and a run "
+            "makes one choice of trainings"
         )
     n_val = len(dataset.val)
     short_val = n_val < SHORT_VAL_EPISODES
@@ -247,6 +257,7 @@ def auto_config(
         exogenous="choose" if inputs else "use",
         periodic_offsets=bool(turning),
         static_map=True,
+        prior_choice=kinds,
     )
     if overrides:
         if overrides.get("mode") in ("windowed", "stateful") and overrides["mode"] != cfg.mode:

@@ -154,7 +154,8 @@ class TrainConfig(PresetConfig, table="train"):
     prior_choice: bool = False
     """Beside the ``members`` plain networks, about half as many more correct the static map
     (as with ``prior``, the same seeds); per joint, the kind whose ensemble validates better
-    drives it (:mod:`.kinds`; ours)."""
+    drives it (:mod:`.kinds`; ours; the recipe turns it on unless it chooses exogenous
+    inputs)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is
