@@ -135,3 +135,26 @@ def test_inputs_are_kept_only_if_better_overall_and_on_every_joint():
     keep, why = choose_inputs(_val(0.5, [0.2, 2.2]), _val(1.0, [2.0, 2.0]))
     assert not keep and "[1]" in why
     assert not choose_inputs(_val(math.inf, [math.nan, 1.0]), _val(1.0, [1.0, 1.0]))[0]
+
+
+def test_choose_with_the_kind_choice_trains_the_map_correcting_networks_the_chosen_way(tmp_path):
+    """The inputs are chosen first; the rest of the plain ensemble and the map-correcting
+    networks then train the chosen way, and the kind choice runs on them."""
+    ds = _dataset(informative=True)
+    cfg = _cfg(exogenous="choose", prior_choice=True, members=2, member_workers=1)
+    best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
+    ck = read_checkpoint(best)
+    training = ck["metrics"]["training"]
+    assert training["exogenous"]["kept"] is True, training["exogenous"]["why"]
+    kinds = training["kinds"]
+    assert set(kinds) >= {"candidates", "chosen", "why", "val_theta_rmse_prior"}
+    for d in ("ignore/member_0", "member_0", "member_1", "prior/member_0"):
+        assert (tmp_path / "m" / d / "best.pt").is_file()
+    prior = load_checkpoint(tmp_path / "m" / "prior" / "member_0" / "best.pt")
+    assert prior.net.prior is not None and prior.train_config["exogenous"] == "use"
+    rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
+    model_kind = {0: "plain", 1: "prior"}.get(len(kinds["chosen"]), "composite")
+    assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind]
+    assert _gear_effect(best) > 1e-3  # whichever kind drives the joint reads the gear
+    notes = tomllib.loads((tmp_path / "m" / "config.toml").read_text())
+    assert notes["exogenous"]["kept"] is True and "chosen" in notes["kinds"]

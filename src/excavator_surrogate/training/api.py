@@ -75,11 +75,6 @@ def train(
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
     check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
     choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
-    if choosing and cfg.prior_choice:
-        raise ConfigError(
-            '[train] exogenous = "choose" and prior_choice = true: one choice per run; '
-            'set exogenous = "use" or "ignore", or prior_choice = false'
-        )
     if cfg.members > 1 or choosing:
         for given, what in (
             (resume, "resume"),
@@ -96,12 +91,12 @@ def train(
                     + (', exogenous = "use" or "ignore"' if choosing else "")
                     + ") and merge them with 'exsur merge'"
                 )
-    if cfg.prior_choice:
-        best = train_choosing_kinds(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
-    elif choosing:
+    if choosing:  # the inputs first; then, with prior_choice, the kinds too
         best = train_choosing_inputs(
             cfg, dataset, out=out, show_progress=show_progress, notes=notes
         )
+    elif cfg.prior_choice:
+        best = train_choosing_kinds(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
     elif cfg.members > 1:
         best = train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
     else:

@@ -8,12 +8,15 @@ free run; the inputs are kept only if that half is better by :data:`INPUT_MARGIN
 and no joint's angle RMSE is worse by more than it.  The remaining members are then trained
 the chosen way and merged with the winning half, so the result is an ensemble of
 ``members`` networks, as without inputs (the recipe plans the epochs for the
-``members + members // 2`` trainings within the same budget).
+``members + members // 2`` trainings within the same budget).  With ``prior_choice`` the
+kind choice's map-correcting networks (:mod:`.kinds`) train beside the rest, the chosen
+way, and the kinds are chosen per joint on the result.
 
 Layout: ``OUT/member_*`` (the ensemble's members, as for any ensemble: the winning half,
 then the rest), ``OUT/use/member_*`` or ``OUT/ignore/member_*`` (the losing half),
-``OUT/best.pt`` (the merged ensemble, ``metrics.training.exogenous`` says what was chosen and
-why), ``OUT/config.toml`` (``[exogenous]``: the same).
+``OUT/prior/member_*`` (with ``prior_choice``), ``OUT/best.pt`` (the merged ensemble,
+``metrics.training.exogenous`` and ``kinds`` say what was chosen and why),
+``OUT/config.toml`` (``[exogenous]``, ``[kinds]``: the same).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .jobs import TrainJob, run_jobs
+from .kinds import choose_kinds, prior_members
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -82,15 +86,18 @@ def train_choosing_inputs(
     """Train ``cfg.members`` networks with the exogenous inputs used or ignored, whichever
     validates better (see the module docstring); returns ``OUT/best.pt``."""
     half = max(1, cfg.members // 2)
+    n_prior = prior_members(cfg.members) if cfg.prior_choice else 0
     val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=2 * half)
     names = list(dataset.spec.u_names[dataset.spec.n_joint :])
     _log.info(
         f"exogenous inputs {names}: {half} member(s) use them, {half} ignore them "
         f"(same seeds), {workers} in parallel; the better way trains the rest"
+        + (f" and {n_prior} network(s) correcting the static map" if n_prior else "")
     )
     t0 = time.monotonic()
     ways = ("use", "ignore")
-    cfgs = {w: member_configs(replace(cfg, exogenous=w))[:half] for w in ways}
+    base = replace(cfg, prior_choice=False, static_map=False)  # single networks
+    cfgs = {w: member_configs(replace(base, exogenous=w))[:half] for w in ways}
     halves = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
     vals = {
         w: free_run_error(merge(halves[w]), val_eps, max_steps=cfg.val_steps or None) for w in ways
@@ -101,17 +108,23 @@ def train_choosing_inputs(
     for i in range(half):  # the winning half becomes the ensemble's first members
         os.replace(out / way / f"member_{i}", out / f"member_{i}")
     (out / way).rmdir()
-    rest = member_configs(replace(cfg, exogenous=way))[half:]
+    rest = member_configs(replace(base, exogenous=way))[half:]
+    # the kind choice's map-correcting networks treat the inputs the chosen way too
+    priors = member_configs(replace(base, exogenous=way, prior=True, members=max(1, n_prior)))
+    priors = priors[:n_prior]
     rest_jobs = [
         TrainJob(
             cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {half + i}"
         )
         for i, c in enumerate(rest)
+    ] + [
+        TrainJob(cfg=c, dataset=dataset, out=out / "prior" / f"member_{i}", tag=f"exsur prior {i}")
+        for i, c in enumerate(priors)
     ]
     more = run_jobs(
         train_member,
         rest_jobs,
-        workers=min(workers, max(1, len(rest))),
+        workers=min(workers, max(1, len(rest_jobs))),
         show_progress=show_progress,
     )
     record = {
@@ -130,15 +143,35 @@ def train_choosing_inputs(
         training["budget_cut"] = True  # the choice itself depended on the clock: say so
     final_cfg = replace(cfg, exogenous=way)
     final_cfgs = cfgs[way] + rest
+    nets = [load_checkpoint(p) for p in more]
+    plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
+    if not n_prior:
+        best = merge_members(
+            final_cfg,
+            final_cfgs,
+            plains,
+            val_eps,
+            out=out,
+            t0=t0,
+            training=training,
+            column=("exogenous", [c.exogenous for c in final_cfgs], way),
+        )
+        write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
+        return best
+    model, kinds = choose_kinds(plains, prior_nets, val_eps, max_steps=cfg.val_steps or None)
+    _log.info(f"two kinds of network: {kinds['why']}")
+    chosen = len(kinds["chosen"])
+    kind = "plain" if not chosen else "prior" if chosen == len(kinds["names"]) else "composite"
     best = merge_members(
         final_cfg,
-        final_cfgs,
-        halves[way] + [load_checkpoint(p) for p in more],
+        final_cfgs + priors,
+        plains + prior_nets,
         val_eps,
         out=out,
         t0=t0,
-        training=training,
-        column=("exogenous", [c.exogenous for c in final_cfgs], way),
+        training={**training, "kinds": kinds},
+        merged=model,
+        column=("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), kind),
     )
-    write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
+    write_config(out, cfg, notes={**(notes or {}), "exogenous": record, "kinds": kinds})
     return best
