@@ -198,11 +198,15 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
         ]
     cfg, why = auto_config(ds, cpus=2)
     assert cfg.exogenous == "choose" and cfg.members == without.members == 4
-    # one choice per run: the input choice, not the kind choice
+    # the input choice, not the kind choice (both together: prior_choice = true)
     assert not cfg.prior_choice and any("one kind of network" in w for w in why)
     # 4 members + 2 that ignore the inputs share the budget: 540 s x 2 workers / 6 trainings
     assert cfg.max_train_seconds == pytest.approx(180)
     assert any("must not hurt" in w for w in why)
+    both, why = auto_config(ds, cpus=2, overrides={"prior_choice": True})
+    # 4 members + 2 that ignore the inputs + 2 map-correcting networks: 540 s x 2 / 8
+    assert both.prior_choice and both.max_train_seconds == pytest.approx(135)
+    assert any("8 trainings" in w for w in why)
     forced, _ = auto_config(ds, cpus=2, overrides={"exogenous": "use"})
     # using the inputs outright, the run chooses the kinds instead, as without inputs
     assert forced.exogenous == "use" and forced.prior_choice
