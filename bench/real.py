@@ -61,7 +61,7 @@ median beats each baseline there too (``more_median_beats_*``).  A shape whose d
 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
-train.prior_choice=true`` for the per-joint kind choice (docs/real.md).  ``--smoke``: one
+train.prior_choice=false`` for the recipe without the per-joint kind choice (docs/real.md).  ``--smoke``: one
 seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2
 plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
 budget (``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the
@@ -69,7 +69,8 @@ cores are not the reference machine's: the JSON records ``load_avg_1min`` at the
 the end, and ``timings_under_load`` when either is above 1.5.
 
 Takes about 40 min for h1 on the 2-core reference machine (computer B, quiet, session 18:
-the recipe 289-395 s per seed, ``--condition`` about 4 min more per seed). On computer B
+the recipe 289-395 s per seed, ``--condition`` about 4 min more per seed; with the kind
+choice, session 25 on computer C: 239-243 s per seed, 4 + 2 networks). On computer B
 (quiet): the continuous case's recipe trains in about 3 min per seed (4 members of 71-79 s,
 two at a time; the recipe plans 162 s a member, but the epochs before ``select_after`` are
 not validated and the two candidates validate in one batched free run), the sessions
