@@ -114,6 +114,13 @@ def composite(
     return merge(groups)
 
 
+def model_kind(record: Mapping[str, Any]) -> str:
+    """What :func:`choose_kinds`'s ``record`` made the model: ``"plain"`` (no joint chosen),
+    ``"prior"`` (every joint) or ``"composite"``."""
+    chosen = len(record["chosen"])
+    return "plain" if not chosen else "prior" if chosen == len(record["names"]) else "composite"
+
+
 def choose_kinds(
     plains: Sequence[Surrogate],
     priors: Sequence[Surrogate],
@@ -207,8 +214,7 @@ def train_choosing_kinds(
         nets["plain"], nets["prior"], val_eps, max_steps=cfg.val_steps or None
     )
     _log.info(f"two kinds of network: {record['why']}")
-    chosen = len(record["chosen"])
-    kind = "plain" if not chosen else "prior" if chosen == len(record["names"]) else "composite"
+    kind = model_kind(record)
     best = merge_members(
         cfg,
         cfgs["plain"] + cfgs["prior"],

@@ -36,7 +36,7 @@ from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .jobs import TrainJob, run_jobs
-from .kinds import choose_kinds, prior_members
+from .kinds import choose_kinds, model_kind, prior_members
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -160,8 +160,7 @@ def train_choosing_inputs(
         return best
     model, kinds = choose_kinds(plains, prior_nets, val_eps, max_steps=cfg.val_steps or None)
     _log.info(f"two kinds of network: {kinds['why']}")
-    chosen = len(kinds["chosen"])
-    kind = "plain" if not chosen else "prior" if chosen == len(kinds["names"]) else "composite"
+    kind = model_kind(kinds)
     best = merge_members(
         final_cfg,
         final_cfgs + priors,
