@@ -110,8 +110,9 @@ def train_choosing_inputs(
     (out / way).rmdir()
     rest = member_configs(replace(base, exogenous=way))[half:]
     # the kind choice's map-correcting networks treat the inputs the chosen way too
-    priors = member_configs(replace(base, exogenous=way, prior=True, members=max(1, n_prior)))
-    priors = priors[:n_prior]
+    priors = (
+        member_configs(replace(base, exogenous=way, prior=True, members=n_prior)) if n_prior else []
+    )
     rest_jobs = [
         TrainJob(
             cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {half + i}"
@@ -145,22 +146,13 @@ def train_choosing_inputs(
     final_cfgs = cfgs[way] + rest
     nets = [load_checkpoint(p) for p in more]
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
-    if not n_prior:
-        best = merge_members(
-            final_cfg,
-            final_cfgs,
-            plains,
-            val_eps,
-            out=out,
-            t0=t0,
-            training=training,
-            column=("exogenous", [c.exogenous for c in final_cfgs], way),
-        )
-        write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
-        return best
-    model, kinds = choose_kinds(plains, prior_nets, val_eps, max_steps=cfg.val_steps or None)
-    _log.info(f"two kinds of network: {kinds['why']}")
-    kind = model_kind(kinds)
+    model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
+    chosen: dict[str, Any] = {"exogenous": record}  # the choices, for config.toml too
+    if n_prior:  # the kinds, per joint, among the networks trained the chosen way
+        model, kinds = choose_kinds(plains, prior_nets, val_eps, max_steps=cfg.val_steps or None)
+        _log.info(f"two kinds of network: {kinds['why']}")
+        training["kinds"] = chosen["kinds"] = kinds
+        column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
     best = merge_members(
         final_cfg,
         final_cfgs + priors,
@@ -168,9 +160,9 @@ def train_choosing_inputs(
         val_eps,
         out=out,
         t0=t0,
-        training={**training, "kinds": kinds},
+        training=training,
         merged=model,
-        column=("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), kind),
+        column=column,
     )
-    write_config(out, cfg, notes={**(notes or {}), "exogenous": record, "kinds": kinds})
+    write_config(out, cfg, notes={**(notes or {}), **chosen})
     return best
