@@ -182,3 +182,17 @@ def test_a_network_that_corrects_a_map_can_put_a_joint_on_a_map() -> None:
     bad = {**delayed, "delay": [2, 5]}
     with pytest.raises(ValueError, match="not a feature"):
         with_map_joints(net, bad, [True, False])
+
+
+def test_what_works_per_network_is_refused_with_the_kind_choice_even_for_one_member(
+    tmp_path: Path,
+) -> None:
+    """One plain member and one map-correcting network are two trainings: a resume or an
+    on_epoch hook cannot apply to both, so it is refused, not silently dropped."""
+    ds = Dataset(spec=SPEC)
+    ds.episodes["train"] = TRAIN
+    ds.episodes["val"] = [_episode(7)]
+    cfg = tiny_train_config(prior_choice=True, members=1, epochs=1, **SMALL)
+    with pytest.raises(ConfigError, match="prior_choice = true: on_epoch works per member"):
+        train(cfg, ds, out=tmp_path / "m", on_epoch=lambda *a: False, show_progress=False)
+    assert not (tmp_path / "m").exists()

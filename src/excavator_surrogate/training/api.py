@@ -75,7 +75,7 @@ def train(
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
     check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
     choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
-    if cfg.members > 1 or choosing:
+    if cfg.members > 1 or choosing or cfg.prior_choice:  # several trainings
         for given, what in (
             (resume, "resume"),
             (dist, "data-parallel training"),
@@ -86,9 +86,11 @@ def train(
                 raise ConfigError(
                     f"[train] members = {cfg.members}"
                     + (', exogenous = "choose"' if choosing else "")
+                    + (", prior_choice = true" if cfg.prior_choice else "")
                     + f": {what} works per member; train each member as a single network "
                     "(members = 1"
                     + (', exogenous = "use" or "ignore"' if choosing else "")
+                    + (", prior_choice = false" if cfg.prior_choice else "")
                     + ") and merge them with 'exsur merge'"
                 )
     if choosing:  # the inputs first; then, with prior_choice, the kinds too
