@@ -56,8 +56,12 @@ median beats each baseline there too (``more_median_beats_*``).  A shape whose d
 
     python bench/real.py [--shape h1|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
-                         [--more-test N]
+                         [--more-test N] [--sim-seed S]
                          [--set train.KEY=VALUE ...]
+
+``--sim-seed S`` simulates another log of the simulated shapes (another operator run on the
+same machine; recorded as ``sim_seed`` in the JSON line): a check on logs the recipe was not
+developed on (seed 0).
 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
@@ -530,6 +534,7 @@ def main() -> None:
         timings_under_load=bool(max(load0, load1) > BUSY_LOAD),
         smoke=bool(args.smoke),
         recipe_set=args.recipe_set,
+        sim_seed=args.sim_seed,
         goals={
             f"{name}/{goal}": ok
             for name, shape in result["shapes"].items()
