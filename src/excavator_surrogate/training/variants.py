@@ -147,11 +147,10 @@ def train_choosing_inputs(
     nets = [load_checkpoint(p) for p in more]
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
-    chosen: dict[str, Any] = {"exogenous": record}  # the choices, for config.toml too
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
         model, kinds = choose_kinds(plains, prior_nets, val_eps, max_steps=cfg.val_steps or None)
         _log.info(f"two kinds of network: {kinds['why']}")
-        training["kinds"] = chosen["kinds"] = kinds
+        training["kinds"] = kinds
         column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
     best = merge_members(
         final_cfg,
@@ -164,5 +163,6 @@ def train_choosing_inputs(
         merged=model,
         column=column,
     )
+    chosen = {k: training[k] for k in ("exogenous", "kinds") if k in training}  # the records
     write_config(out, cfg, notes={**(notes or {}), **chosen})
     return best
