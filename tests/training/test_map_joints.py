@@ -13,6 +13,7 @@ from excavator_surrogate.surrogate.ensemble import member_head, merge
 from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.map_joints import (
+    PERIODIC_MAP_R2,
     apply_map_choice,
     best_set,
     choose_map_joints,
@@ -185,3 +186,50 @@ def test_a_set_may_cost_a_joint_what_the_whole_gains_and_no_more() -> None:
         }
     )
     assert chosen == ["b"] and [t["kept"] for t in tried] == [False, False, True]
+
+
+def _periodic_case(gain: float):
+    """Joint ``a`` periodic (a swing); training from the plant, validation from one ``gain``
+    times as fast; the "network" is the validation's own map, exact there."""
+    spec = dataclasses.replace(
+        SPEC, joints=(dataclasses.replace(SPEC.joints[0], periodic=True), SPEC.joints[1])
+    )
+
+    def ep(s: int, g: float):
+        return dataclasses.replace(_scaled(_static_episode(s), g), spec=spec)
+
+    train = [ep(s, 1.0) for s in range(3)]
+    val = [ep(s, gain) for s in (7, 8)]
+    net = tiny_surrogate(spec, mode="stateful", window=6, seed=3)
+    exact = with_map_joints(net, fit_prior(val, spec), [True, True])
+    return exact, train, val
+
+
+def test_a_periodic_joint_that_the_map_runs_well_follows_it_whatever_the_network_scores() -> None:
+    """The validation machine is 10 % faster: the network (exact there) beats the map on both
+    joints by far, but the map still runs the periodic joint with R^2 >= 0.95, so that joint
+    follows the map; the other joint keeps the network.  With ``periodic=False``, neither."""
+    net, train, val = _periodic_case(1.1)
+    new, rec = choose_map_joints(net, train, val)
+    assert rec["val_theta_r2_map_delayed"][0] >= PERIODIC_MAP_R2
+    assert rec["val_theta_rmse_map"][0] > 10 * max(rec["val_theta_rmse_network"][0], 1e-6)
+    assert rec["pinned"] == ["a"] and rec["chosen"] == ["a"] and rec["candidates"] == []
+    assert new is not None
+    assert "periodic joint" in rec["why"] and "no other joint" in rec["why"]
+    # joint a moves by the training map (the network's own map is gone), b by the network's
+    fit = fit_prior(train, net.spec)
+    ref = with_map_joints(net, fit, [True, False])
+    u = np.stack([e.u for e in val])
+    th0 = np.stack([e.theta[:6] for e in val])
+    np.testing.assert_allclose(rollout(new, th0, u)[0], rollout(ref, th0, u)[0], atol=1e-5)
+    none, rec_off = choose_map_joints(net, train, val, periodic=False)
+    assert none is None and rec_off["pinned"] == [] and rec_off["chosen"] == []
+
+
+def test_a_periodic_joint_the_map_runs_badly_is_chosen_as_any_joint() -> None:
+    """Validation 3x as fast: the map's R^2 on the periodic joint falls below the line, so it
+    is not pinned, and the network (exact there) keeps both joints."""
+    net, train, val = _periodic_case(3.0)
+    new, rec = choose_map_joints(net, train, val)
+    assert rec["val_theta_r2_map_delayed"][0] < PERIODIC_MAP_R2
+    assert new is None and rec["pinned"] == [] and rec["chosen"] == []

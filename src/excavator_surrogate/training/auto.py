@@ -232,6 +232,12 @@ def auto_config(
         "static valve map as a candidate per joint: a joint follows the map (dead zone, gain "
         "per direction, delay) if its validation free run is within 5 % of the network's (a "
         "near tie goes to the simpler model)"
+        + (
+            f"; {', '.join(turning)}, whose drift no end stop resets, follow(s) the map with its "
+            "fitted delay wherever that map alone runs the validation with angle R^2 >= 0.95"
+            if turning
+            else ""
+        )
     )
     cfg = TrainConfig(
         window=window,

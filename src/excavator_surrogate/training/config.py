@@ -147,6 +147,10 @@ class TrainConfig(PresetConfig, table="train"):
     """After training, a joint that the static valve map (dead zone, gain per direction, delay,
     fitted on the training split) drives within 5 % of the network on validation may follow the map
     (:mod:`.map_joints`: a near tie goes to the simpler model; ours; the recipe turns it on)."""
+    map_periodic: bool = True
+    """With ``static_map``: a periodic joint (the swing) whose map with the fitted delay alone
+    runs its validation free run with angle R^2 >= 0.95 follows the map, whatever the network
+    scores there (no end stop resets its drift; :mod:`.map_joints`)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,
