@@ -71,8 +71,8 @@ PERIODIC_MAP_R2 = 0.95
 """A periodic joint follows the static map with its fitted delay when that map alone runs its
 validation free run with angle R^2 at least this (the demo's quality line).  On the four
 simulated operator logs the swing's map scored 0.97-0.99 there and was the best swing model on
-their more test data, or within 12 % of it, where the networks validated up to 2.3x better and
-drifted up to 1.8x further; on the stroke case's lab runs it scored 0.02 (docs/real.md)."""
+their more test data, or within 10 % of it, where networks validated up to 2.3x better than it
+and drifted up to 4.9x further; on the stroke case's lab runs it scored 0.02 (docs/real.md)."""
 
 
 def joint_allowance(val_error: float, base_error: float) -> float:
