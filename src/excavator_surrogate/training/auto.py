@@ -55,6 +55,7 @@ from ..devices import usable_cpus
 from ..errors import ConfigError, DataError
 from .config import TrainConfig
 from .kinds import prior_members
+from .map_joints import PERIODIC_MAP_R2
 
 TRAIN_BUDGET_S = 540.0
 """Wall time of the whole training (every member) on the reference 2-core machine [s]."""
@@ -234,7 +235,8 @@ def auto_config(
         "near tie goes to the simpler model)"
         + (
             f"; {', '.join(turning)}, whose drift no end stop resets, follow(s) the map with its "
-            "fitted delay wherever that map alone runs the validation with angle R^2 >= 0.95"
+            "fitted delay wherever that map alone runs the validation with angle R^2 >= "
+            f"{PERIODIC_MAP_R2:g}"
             if turning
             else ""
         )
