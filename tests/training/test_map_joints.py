@@ -233,3 +233,26 @@ def test_a_periodic_joint_the_map_runs_badly_is_chosen_as_any_joint() -> None:
     new, rec = choose_map_joints(net, train, val)
     assert rec["val_theta_r2_map_delayed"][0] < PERIODIC_MAP_R2
     assert new is None and rec["pinned"] == [] and rec["chosen"] == []
+
+
+def test_the_all_map_set_reuses_the_all_map_free_run(monkeypatch) -> None:
+    """With every joint a candidate on one map, the set of all of them is the all-map free run
+    that scored the candidates: it is not run again, and it scores as a fresh run of it."""
+    import excavator_surrogate.training.map_joints as mj
+
+    calls = []
+    real = mj.free_run_error
+
+    def counting(sur, episodes, **kw):
+        calls.append(sur)
+        return real(sur, episodes, **kw)
+
+    monkeypatch.setattr(mj, "free_run_error", counting)
+    train = [_static_episode(s) for s in range(3)]
+    val = [_static_episode(s) for s in (7, 8)]
+    net = _net()
+    _, rec = choose_map_joints(net, train, val)
+    # the network, the all-map run, then "a" alone and "b" alone (the pair is known)
+    assert len(calls) == 4 and [t["joints"] for t in rec["tried"]] == [["a", "b"], ["a"], ["b"]]
+    fresh = real(with_map_joints(net, fit_prior(train, SPEC), [True, True]), val)
+    assert rec["tried"][0]["val_error"] == fresh["val_error"]

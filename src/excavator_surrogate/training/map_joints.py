@@ -183,7 +183,13 @@ def choose_map_joints(
             f"{'no other' if lead else 'no'} joint follows the map"
         )
         return _chosen(base_model, base), record
-    best = best_set(cand, build, base, val, record=record, max_steps=max_steps)
+    # every joint on one map is the all-map free run above: best_set need not run it again
+    known = (
+        {tuple(cand): runs[pick[0]]}
+        if all(c or p for c, p in zip(cand, pinned)) and len(set(pick)) == 1
+        else None
+    )
+    best = best_set(cand, build, base, val, record=record, max_steps=max_steps, known=known)
     if best is None:
         record["chosen"] = list(record["pinned"])
         record["why"] = lead + (
