@@ -27,6 +27,7 @@ MODE_FIELDS: dict[str, tuple[str, ...]] = {
         "teacher_epochs",
         "fused_backward",
         "periodic_offsets",
+        "angle_noise",
     ),
 }
 """Fields read by one training mode only (every other field is read by both)."""
@@ -143,6 +144,11 @@ class TrainConfig(PresetConfig, table="train"):
     swing) turned by its own random offset, so the network cannot tie the dynamics to where
     the machine points (a machine on level ground moves alike in every direction; ours, not
     the paper's; the data-driven recipe turns it on)."""
+    angle_noise: float = 0.0
+    """Stateful, teacher-forced: each training sub-sequence's non-periodic joint angles, as the
+    network reads them, drift from the measured ones by a random walk from 0 whose standard
+    deviation at the sub-sequence's end is this share of the joint's training standard
+    deviation (a free run reads its own drifting angles; ours, not the paper's; 0 = off)."""
     static_map: bool = False
     """After training, a joint that the static valve map (dead zone, gain per direction, delay,
     fitted on the training split) drives within 5 % of the network on validation may follow the map
@@ -196,6 +202,10 @@ class TrainConfig(PresetConfig, table="train"):
             (all(0 < b <= 1 for b in self.play), "play widths must be in (0, 1]"),
             (self.lambda_bias >= 0, "lambda_bias must be >= 0"),
             (0 < self.lr <= 1, f"lr = {self.lr!r} must be in (0, 1] (typical: 1e-4 to 1e-2)"),
+            (
+                math.isfinite(self.angle_noise) and 0 <= self.angle_noise <= 1,
+                f"angle_noise = {self.angle_noise!r} must be in [0, 1] (typical: 0.02 to 0.1)",
+            ),
             (
                 math.isfinite(self.weight_decay) and self.weight_decay >= 0,
                 f"weight_decay = {self.weight_decay!r} must be >= 0 (typical: 0.01 to 1)",

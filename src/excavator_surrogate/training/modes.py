@@ -136,6 +136,16 @@ class Stateful:
                 cols.append((j, k, k + 1))
             k += 2 if p else 1
         self._turn = cols if self.cfg.periodic_offsets else []
+        # the angle feature column of each non-periodic joint and its noise scale
+        # [feature units]: angle_noise * std_j(theta) / x_std
+        self._noise: list[tuple[int, float]] = []
+        if self.cfg.angle_noise > 0:
+            k = 0
+            for j, p in enumerate(spec.periodic):
+                if not p:
+                    std = float(self.data.theta[..., j].std()) / float(self.sur.norm.x_std[k])
+                    self._noise.append((k, self.cfg.angle_noise * std))
+                k += 2 if p else 1
 
     def _turned(
         self, x: torch.Tensor, theta: torch.Tensor, index: np.ndarray, epoch: int
@@ -158,6 +168,28 @@ class Stateful:
             x[..., cc] = (torch.cos(th) - norm.x_mean[cc]) / norm.x_std[cc]
         return x, theta
 
+    def _drifted(self, x: torch.Tensor, index: np.ndarray, epoch: int) -> torch.Tensor:
+        """``x`` (n_batch, n_step, n_feature) with each non-periodic joint's angle feature
+        drifting by a random walk from 0 at the burn-in's end (``angle_noise``), drawn from the
+        seed, the epoch and the sub-sequence's start (the same on every machine)::
+
+            x[k, col_j] += sigma_j * sqrt(1 / n) * sum_{i <= k} e_i,   e_i ~ N(0, 1)
+
+        with ``n`` the steps after the burn-in and ``sigma_j`` the walk's end standard
+        deviation in feature units."""
+        if not self._noise:
+            return x
+        b0 = max(self.cfg.burn_in - 1, 0)
+        n = x.shape[1] - b0
+        rng = np.random.default_rng([self.cfg.seed, epoch, *(int(i) for i in index[:1]), 1])
+        e = rng.standard_normal((len(index), n, len(self._noise)))
+        walk = np.cumsum(e, axis=1) * np.sqrt(1.0 / n) * [s for _, s in self._noise]
+        walk_t = torch.as_tensor(walk, dtype=x.dtype, device=x.device)
+        x = x.clone()
+        for m, (col, _) in enumerate(self._noise):
+            x[:, b0:, col] += walk_t[..., m]
+        return x
+
     def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
         """Shuffled sub-sequence starts, capped at ``epoch_samples``, ``seq_batch * world`` per batch."""
         cfg = self.cfg
@@ -176,6 +208,8 @@ class Stateful:
         g = s[:, None] + torch.arange(cfg.seq_len, device=data.x.device)
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
         x_seq, th_seq = self._turned(x_seq, th_seq, index, epoch)
+        if teacher:
+            x_seq = self._drifted(x_seq, index, epoch)
         z_seq, w_seq = data.z[g], data.w[g]
         state = net.init_state(len(s))
         b0 = cfg.burn_in - 1  # first step whose output is in the loss
