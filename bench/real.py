@@ -65,7 +65,9 @@ developed on (seed 0).
 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
-train.prior_choice=false`` for the recipe without the per-joint kind choice (docs/real.md).  ``--smoke``: one
+train.prior_choice=false`` for the recipe without the per-joint kind choice (docs/real.md).
+``--work DIR`` keeps every network; ``bench/real_rechoose.py --work DIR`` then makes the
+kind and static map choices again on them with the code on the path (no training).  ``--smoke``: one
 seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2
 plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
 budget (``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the

@@ -129,9 +129,14 @@ def _more_in_time(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], 
     logged = np.concatenate([e.theta for e in sim.train + sim.val + sim.test])
     if not np.array_equal(ep.theta[: cfg.steps_train], logged):
         raise RuntimeError(f"{out}: the longer log does not continue the case's log")
+    return _segments(cfg, ep, n), f"the log's next {n} x {cfg.test_s:g} s after the test"
+
+
+def _segments(cfg, ep: Episode, n: int) -> list[Episode]:
+    """The ``n`` test-length segments of the longer log ``ep`` after the case's own log."""
+    n_test = round(cfg.test_s * cfg.rate_hz)
     start = cfg.steps_train
-    segments = [ep.slice(start + i * n_test, start + (i + 1) * n_test) for i in range(n)]
-    return segments, f"the log's next {n} x {cfg.test_s:g} s after the test"
+    return [ep.slice(start + i * n_test, start + (i + 1) * n_test) for i in range(n)]
 
 
 def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], str]:
@@ -144,6 +149,24 @@ def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode],
     if not np.array_equal(test[0].theta, sim.test[0].theta):
         raise RuntimeError(f"{out}: the first test session is not the case's")
     return list(test[1:]), f"{n} more test sessions of {cfg.steps_test / cfg.rate_hz:.0f} s"
+
+
+def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
+    """The more test data that ``python bench/real.py --work WORK`` simulated for the shape
+    ``name`` (``WORK/<name>_more``; none for h1 and stroke), as a dataset of ``spec`` holds
+    them, without simulating anything."""
+    if name not in MORE_TEST or not (work / f"{name}_more").is_dir():
+        return []
+    from excavator_surrogate.simulate.config import SimulateConfig
+
+    more = load_dataset(work / f"{name}_more")
+    if name == "sessions":
+        return as_spec(more.test[1:], spec)
+    preset = {"continuous": "continuous-dig"}[name]
+    cfg = SimulateConfig.from_preset(load_preset(preset), seed=sim_seed)
+    (ep,) = more.train
+    n_test = round(cfg.test_s * cfg.rate_hz)
+    return as_spec(_segments(cfg, ep, (len(ep.theta) - cfg.steps_train) // n_test), spec)
 
 
 def as_spec(episodes: Sequence[Episode], spec) -> list[Episode]:
