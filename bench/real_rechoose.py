@@ -40,6 +40,7 @@ from excavator_surrogate.io_utils import setup_logging
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.structured import fit_structured
+from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.batches import split_episodes
 from excavator_surrogate.training.kinds import choose_kinds
@@ -127,12 +128,12 @@ def main() -> None:
         rows[label] = score(model, ds.split(split))
         if more:
             more_rows[label] = score(model, more)
-        val = (model.metrics or {}).get("val", {}).get("theta_rmse")
+        val = free_run_error(model, split_episodes(cfg, ds)[1], max_steps=cfg.val_steps or None)
         per_seed[seed] = {
             **now,
             "recorded": then,
             "why": [r["why"] for r in (kinds, maps) if r is not None],
-            "val_rmse": None if val is None else [round(float(v), 3) for v in factor * val],
+            "val_rmse": [round(float(v), 3) for v in factor * np.asarray(val["theta_rmse"])],
         }
         print(f"seed {seed}: kinds {now['kinds']}, static map {now['static_map']}")
         for why in per_seed[seed]["why"]:
