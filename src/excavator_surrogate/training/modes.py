@@ -129,23 +129,20 @@ class Stateful:
         self._fused = self.cfg.fused_backward and supported(self.sur.net)
         self._limits = self.sur.limits()
         spec = self.sur.spec
-        # the (sin, cos) feature columns of each periodic joint, in the feature layout
-        cols, k = [], 0
+        # in the feature layout: the (sin, cos) columns of each periodic joint, and the angle
+        # column of each other joint with its drift's end std [feature units]:
+        # angle_noise * std_j(theta) / x_std
+        turn: list[tuple[int, int, int]] = []
+        self._noise: list[tuple[int, float]] = []
+        k = 0
         for j, p in enumerate(spec.periodic):
             if p:
-                cols.append((j, k, k + 1))
+                turn.append((j, k, k + 1))
+            elif self.cfg.angle_noise > 0:
+                std = float(self.data.theta[..., j].std()) / float(self.sur.norm.x_std[k])
+                self._noise.append((k, self.cfg.angle_noise * std))
             k += 2 if p else 1
-        self._turn = cols if self.cfg.periodic_offsets else []
-        # the angle feature column of each non-periodic joint and its noise scale
-        # [feature units]: angle_noise * std_j(theta) / x_std
-        self._noise: list[tuple[int, float]] = []
-        if self.cfg.angle_noise > 0:
-            k = 0
-            for j, p in enumerate(spec.periodic):
-                if not p:
-                    std = float(self.data.theta[..., j].std()) / float(self.sur.norm.x_std[k])
-                    self._noise.append((k, self.cfg.angle_noise * std))
-                k += 2 if p else 1
+        self._turn = turn if self.cfg.periodic_offsets else []
 
     def _turned(
         self, x: torch.Tensor, theta: torch.Tensor, index: np.ndarray, epoch: int
