@@ -61,10 +61,10 @@ def members(run: Path, kind: str) -> list:
     return [load_checkpoint(p) for p in paths]
 
 
-def rechoose(run: Path, cfg, dataset) -> tuple:
+def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     """The model ``exsur train`` would make from the networks saved in ``run`` under ``cfg``'s
-    choice fields, and the two choices' records (None where a choice is off)."""
-    train_eps, val_eps = split_episodes(cfg, dataset)
+    choice fields (fitted on ``train_eps``, chosen on ``val_eps``: ``split_episodes``), and
+    the two choices' records (None where a choice is off)."""
     max_steps = cfg.val_steps or None
     plains, priors = members(run, "plain"), members(run, "prior")
     if not plains:
@@ -116,7 +116,8 @@ def main() -> None:
     for seed in seeds:
         run = args.work / f"{args.shape}_auto_seed{seed}"
         cfg, _ = auto_config(ds, overrides={"seed": seed, "tensorboard": False, **overrides})
-        model, kinds, maps = rechoose(run, cfg, ds)
+        train_eps, val_eps = split_episodes(cfg, ds)
+        model, kinds, maps = rechoose(run, cfg, train_eps, val_eps)
         recorded = (load_checkpoint(run / "best.pt").metrics or {}).get("training", {})
         now = {
             "kinds": None if kinds is None else kinds["chosen"],
@@ -128,7 +129,7 @@ def main() -> None:
         rows[label] = score(model, ds.split(split))
         if more:
             more_rows[label] = score(model, more)
-        val = free_run_error(model, split_episodes(cfg, ds)[1], max_steps=cfg.val_steps or None)
+        val = free_run_error(model, val_eps, max_steps=cfg.val_steps or None)
         per_seed[seed] = {
             **now,
             "recorded": then,
