@@ -12,6 +12,7 @@ from excavator_surrogate.data import Episode
 from excavator_surrogate.spec import EXCAVATOR, MachineSpec
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+from excavator_surrogate.surrogate.parallel import with_parallel_map
 from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
 from excavator_surrogate.surrogate.structured import with_map_joints
 
@@ -120,6 +121,7 @@ VARIANTS: dict[str, dict] = {
     "velocity": dict(end_stops=True, play=(0.05,), omega_in=True),
     "prior": dict(end_stops=True, play=(), omega_in=False, prior=True),
     "delayed-map": dict(end_stops=False, play=(0.05,), omega_in=False, delayed_map=True),
+    "parallel-map": dict(end_stops=True, play=(0.05,), omega_in=True, parallel_map=True),
 }
 """The runtime-equivalence tests' surrogate variants (keyword arguments of
 :func:`variant_surrogate` besides ``mode`` and ``cell``), by test id."""
@@ -134,12 +136,14 @@ def variant_surrogate(
     omega_in: bool,
     prior: bool = False,
     delayed_map: bool = False,
+    parallel_map: bool = False,
 ) -> Surrogate:
     """:func:`tiny_surrogate` for the runtime-equivalence tests: with end stops it is driven
     into them, a velocity feature comes with the residual head, ``prior`` gives a speed
     prior (both where the cell has a head: not ARX, which then runs without them), and
     ``delayed_map`` puts the swing and the bucket on a static map with delays 2 and 0
-    (:func:`on_static_map`; LSTM/GRU without a head only)."""
+    (:func:`on_static_map`; LSTM/GRU without a head only); ``parallel_map`` puts them on it
+    in parallel (:func:`on_parallel_map`, delays 2 and 0; LSTM/GRU only)."""
     sur = tiny_surrogate(
         mode=mode,
         cell=cell,
@@ -150,14 +154,17 @@ def variant_surrogate(
         residual=omega_in and cell != "arx" and not prior,
         prior=prior and cell != "arx",
     )
+    if parallel_map and cell != "arx":
+        return on_parallel_map(sur, delay=(2, 0, 0, 0))
     return on_static_map(sur, delay=(2, 0, 0, 0)) if delayed_map and cell != "arx" else sur
 
 
-def on_static_map(sur, *, delay: tuple[int, ...] | None = None):
-    """``sur`` with the swing and the bucket on a static map with a gain spread (members
-    drive them with gains 1 + sigma z_m), reading commands ``delay`` samples back (per
-    joint; None: no delay)."""
-    spec = sur.spec
+PARALLEL_JOINTS = [True, False, False, True]
+"""The joints :func:`on_parallel_map` puts on the map (swing and bucket)."""
+
+
+def map_fit(spec: MachineSpec, delay: tuple[int, ...] | None = None) -> dict:
+    """A static map for every joint of ``spec`` with a gain spread (the test maps)."""
     n_j = spec.n_joint
     fit = {
         "cols": [spec.n_angle_feature + j for j in range(n_j)],
@@ -169,7 +176,20 @@ def on_static_map(sur, *, delay: tuple[int, ...] | None = None):
     }
     if delay is not None:
         fit["delay"] = list(delay)
-    return with_map_joints(sur, fit, [True, False, False, True])
+    return fit
+
+
+def on_parallel_map(sur, *, delay: tuple[int, ...] | None = None):
+    """``sur`` with the swing and the bucket on :func:`map_fit`'s map in parallel (the
+    network reads its own angles of them)."""
+    return with_parallel_map(sur, map_fit(sur.spec, delay), PARALLEL_JOINTS)
+
+
+def on_static_map(sur, *, delay: tuple[int, ...] | None = None):
+    """``sur`` with the swing and the bucket on a static map with a gain spread (members
+    drive them with gains 1 + sigma z_m), reading commands ``delay`` samples back (per
+    joint; None: no delay)."""
+    return with_map_joints(sur, map_fit(sur.spec, delay), [True, False, False, True])
 
 
 def free_run_checked(sur: Surrogate, ep: Episode, n_step: int = 80) -> np.ndarray:

@@ -72,10 +72,12 @@ def _fold_input(sur: Surrogate) -> tuple[np.ndarray, np.ndarray]:
 def add_play(module: nn.Module, sur: Surrogate) -> None:
     """Register the surrogate's command state on ``module``: float32 buffers ``play`` (Q,)
     half-widths, ``u_center`` / ``u_scale`` (n_u,), the long buffer ``lag_index`` (J,) of the
-    delayed commands (empty: none); ``module.n_play`` = Q, ``module.n_state`` = Q + L rows of
-    ``z`` (0: none)."""
+    delayed commands (empty: none); ``module.n_play`` = Q, ``module.n_command`` = Q + L rows of
+    the command state, ``module.n_state`` the rows of ``z`` (+ 2 with joints on a map in
+    parallel, :mod:`~excavator_surrogate.surrogate.own_angles`; 0: none)."""
     norm = sur.norm.to("cpu", torch.float32)
     module.n_play = norm.n_play
+    module.n_command = norm.n_command
     module.n_state = norm.n_state
     for k in ("play", "u_center", "u_scale", "lag_index"):
         module.register_buffer(k, getattr(norm, k).clone())
@@ -83,24 +85,29 @@ def add_play(module: nn.Module, sur: Surrogate) -> None:
 
 def play_and_features(
     module: nn.Module | Normalization, z: torch.Tensor, u: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Command states after ``u`` and their features, with the buffers of :func:`add_play`
     (or the same-named tensors of a :class:`Normalization`).
 
     Args:
-        z: (..., Q + L, n_joint) command states before ``u``: the play operators, then the
-            delay line of the delayed commands (L = 0: none).
+        z: (..., Q + L [+ 2], n_joint) command states before ``u``: the play operators, then
+            the delay line of the delayed commands (L = 0: none), then (joints on a map in
+            parallel) the network's own angle and velocity, passed through.
         u: (..., n_u) commands [command units]; the first ``n_joint`` (the joints') drive
             the play operators and the line, exogenous inputs do not.
 
     Returns:
-        ``z_new`` (..., Q + L, n_joint) and the features: ``(z_new - us) / b`` (..., Q *
-        n_joint), then with a line each joint's delayed scaled command (..., n_joint).
+        ``z_new`` (as ``z``) and the features: ``(z_new - us) / b`` (..., Q * n_joint), then
+        with a line each joint's delayed scaled command (..., n_joint); None without a
+        command state proper (Q = L = 0).
     """
-    nj = z.shape[-1]
+    nj, c = z.shape[-1], module.n_command
+    if not c:  # only the network's own angle and velocity: no command features
+        return z, None
     us = (u[..., :nj] - module.u_center[:nj]) / module.u_scale[:nj]
-    z = command_step(z, us, module.play)
-    return z, command_features(z, us, module.play, module.lag_index)
+    zc = command_step(z[..., :c, :], us, module.play)
+    f = command_features(zc, us, module.play, module.lag_index)
+    return (torch.cat([zc, z[..., c:, :]], dim=-2) if z.shape[-2] > c else zc), f
 
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:

@@ -50,6 +50,7 @@ from .command_state import (
     play_features_np,
     play_np,
 )
+from .own_angles import N_OWN_ROWS, OwnMap
 
 STD_FLOOR = 1e-3
 """Smallest standard deviation used to scale a feature or target (avoids blowing up constants)."""
@@ -142,6 +143,9 @@ class Normalization:
     """(n_joint,) command delays ``d_j`` [samples] of the delayed-command features (the
     ``n_joint`` columns before the velocity feature), standardised like the commands; empty:
     none.  Their delay line of ``max(d) + 1`` samples follows the play states in ``z``."""
+    own: OwnMap | None = None
+    """Joints that report a static map's speed while the network reads its own angle of them
+    (:mod:`.own_angles`): two more rows of ``z`` after the command state; None: none."""
 
     def __post_init__(self) -> None:
         self.periodic_mask = torch.tensor(self.periodic, device=self.u_center.device)
@@ -155,6 +159,15 @@ class Normalization:
         """(n_joint,) long: each joint's row ``L - 1 - d_j`` in the delay line (empty: none)."""
         self.n_lag = n if self.lags else 0
         """Number of delayed-command feature columns (``n_joint`` or 0)."""
+        if self.own is not None:
+            if len(self.own.own) != n:
+                raise ValueError(f"the own-angle map has {len(self.own.own)} joints, not {n}")
+            far = [d for d in self.own.delay if d >= max(self.n_line, 1)]
+            if far:
+                raise ValueError(
+                    f"the own-angle map reads commands {max(far)} samples back; the command "
+                    f"delay line holds {max(self.n_line - 1, 0)}"
+                )
 
     @property
     def n_play(self) -> int:
@@ -172,9 +185,20 @@ class Normalization:
         return sum(2 if p else 1 for p in self.periodic)
 
     @property
-    def n_state(self) -> int:
-        """Rows of the command state ``z``: the P play operators, then the L-sample delay line."""
+    def n_command(self) -> int:
+        """Rows of the command state proper: the P play operators, then the L-sample delay line."""
         return self.n_play + self.n_line
+
+    @property
+    def n_own(self) -> int:
+        """Rows after them: the network's own angle and velocity (:mod:`.own_angles`), or 0."""
+        return N_OWN_ROWS if self.own is not None else 0
+
+    @property
+    def n_state(self) -> int:
+        """Rows of ``z``: the P play operators, the L-sample delay line, then the network's own
+        angle and velocity when joints follow a map in parallel (:attr:`own`)."""
+        return self.n_command + self.n_own
 
     @property
     def n_feature(self) -> int:
@@ -213,6 +237,23 @@ class Normalization:
             play=self.play.clone(),
             omega_in=self.omega_in,
             lags=tuple(int(d) for d in lags),
+            own=self.own,
+        )
+
+    def with_own(self, own: OwnMap | None) -> Normalization:
+        """A copy whose joints ``own.own`` follow ``own``'s map in parallel (None: none)."""
+        return Normalization(
+            x_mean=self.x_mean.clone(),
+            x_std=self.x_std.clone(),
+            y_mean=self.y_mean.clone(),
+            y_std=self.y_std.clone(),
+            periodic=self.periodic,
+            u_center=self.u_center.clone(),
+            u_scale=self.u_scale.clone(),
+            play=self.play.clone(),
+            omega_in=self.omega_in,
+            lags=self.lags,
+            own=None if own is None else own.to(self.u_center.device, self.u_center.dtype),
         )
 
     @classmethod
@@ -299,7 +340,10 @@ class Normalization:
             k: getattr(self, k).to(device=device, dtype=dtype)
             for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play")
         }
-        return Normalization(periodic=self.periodic, omega_in=self.omega_in, lags=self.lags, **kw)
+        own = None if self.own is None else self.own.to(device, dtype)
+        return Normalization(
+            periodic=self.periodic, omega_in=self.omega_in, lags=self.lags, own=own, **kw
+        )
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Plain tensors for the checkpoint (``omega_in`` only when set, so checkpoints without
@@ -312,6 +356,8 @@ class Normalization:
             out["omega_in"] = torch.tensor(1.0)
         if self.lags:
             out["lags"] = torch.tensor(self.lags, dtype=torch.float32)
+        if self.own is not None:
+            out.update(self.own.state_dict())
         return out
 
     @classmethod
@@ -329,6 +375,9 @@ class Normalization:
                 omega_in=bool(float(d.get("omega_in", 0.0))),
                 lags=[round(float(v)) for v in torch.as_tensor(d.get("lags", ())).reshape(-1)],
             )
+            own = OwnMap.from_state_dict(d)
+            if own is not None:
+                norm = norm.with_own(own)
         except (KeyError, TypeError, ValueError, RuntimeError) as e:
             raise CheckpointError(f"normalisation entry is malformed ({e})") from e
         n_feature = spec.n_feature + (norm.n_play + norm.omega_in) * spec.n_joint + norm.n_lag
@@ -347,11 +396,16 @@ class Normalization:
 
     def play_update(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Command states after commands ``u: (..., n_u)`` (the joints' columns drive them);
-        ``z: (..., P + L, n_joint)``: the play operators, then the delay line."""
-        if not self.n_state:
+        ``z: (..., P + L [+ 2], n_joint)``: the play operators, then the delay line (then the
+        network's own angle and velocity, passed through: :meth:`own_advance` moves them)."""
+        if not self.n_command:
             return z
         nj = len(self.periodic)
-        return command_step(z, (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj], self.play)
+        us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
+        if not self.n_own:
+            return command_step(z, us, self.play)
+        c = self.n_command
+        return torch.cat([command_step(z[..., :c, :], us, self.play), z[..., c:, :]], dim=-2)
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Command states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch,
@@ -430,13 +484,13 @@ class Normalization:
         the angles): the scaled commands ``us = (u - u_center) / u_scale`` of ``u: (..., n_u)``,
         then the features of the command state ``z: (..., P + L, n_joint)`` (if any)."""
         us = (u - self.u_center) / self.u_scale
-        if not self.n_state:
+        if not self.n_command:
             return us
         if z is None:
             what = "play features" if self.n_play else "delayed commands"
             raise ValueError(f"encode: this normalisation has {what}; pass z")
-        nj = len(self.periodic)
-        return torch.cat([us, command_features(z, us[..., :nj], self.play, self.lag_index)], dim=-1)
+        nj, zc = len(self.periodic), z[..., : self.n_command, :]
+        return torch.cat([us, command_features(zc, us[..., :nj], self.play, self.lag_index)], dim=-1)
 
     def encode_np(
         self,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -32,6 +32,8 @@ from .angles import integrate, integrate_np, omega_in_np, omega_target
 from .ensemble import check_members, member_head
 from .features import Normalization
 from .model import State, Surrogate
+from .own_angles import OWN_FIELDS, network_inputs, own_advance, own_start
+from .parallel import own_gain_dev
 
 Mode = Literal["windowed", "stateful"]
 
@@ -117,6 +119,7 @@ class ClosedLoop:
                 f"model '{sur.name}' has no ensemble members to report (a single network, or "
                 "merged by an older exsur: merge its members again with 'exsur merge')"
             )
+        self._own_dev = own_gain_dev(sur).to(self._device, self._dtype) if members else None
         self.follow: torch.Tensor | None = None
         """With ``members``: ``(n_batch,)`` long, the member whose velocity row ``b``
         integrates (``-1``: the ensemble mean, i.e. the merged network; None: all rows)."""
@@ -154,6 +157,8 @@ class ClosedLoop:
         self.z = z_hist[:, -1] if n_hist > 1 else self.norm.play_rest(n_batch)
         w_hist = self.norm.velocity_seq(theta_hist, self.dt)  # (n_batch, n_hist, n_joint)
         self.omega = w_hist[:, -1]
+        # the recorded history is what the network reads on every joint, its own angle included
+        self.z = own_start(self.norm, self.z, theta_hist[:, -1], w_hist[:, -1])
         # (n_batch, n_hist-1, n_feature)
         rows = self.norm.encode(theta_hist[:, :-1], u_hist, z_hist, w_hist[:, :-1])
         self.theta = theta_hist[:, -1].clone()
@@ -177,7 +182,8 @@ class ClosedLoop:
             raise RuntimeError("call reset() before step()")
         u = self._t(u)
         self.z = self.norm.play_update(self.z, u)
-        row = self.norm.encode(self.theta, u, self.z, self.omega)
+        theta_in, omega_in = network_inputs(self.norm, self.theta, self.z, self.omega)
+        row = self.norm.encode(theta_in, u, self.z, omega_in)
         with self._head.capture() if self._head is not None else nullcontext():
             if self.mode == "windowed":
                 x = torch.cat([self._rows, row.unsqueeze(1)], dim=1)
@@ -195,10 +201,30 @@ class ClosedLoop:
                 rows = torch.arange(y.shape[0], device=y.device)
                 picked = y_m[self.follow.clamp(min=0), rows]
                 y = torch.where((self.follow >= 0)[:, None], picked, y)
-        self.theta, self.omega = integrate(
-            self.theta, self.norm.omega(y), dt=self.dt, limits=self._limits
-        )
+        omega = self.norm.omega(y)
+        if self.norm.own is not None:  # map joints in parallel: the map's speed, own angle on
+            omega, self.z = own_advance(
+                self.norm, self.z, u, omega, dt=self.dt, limits=self._limits
+            )
+            if self._head is not None:
+                omega = self._own_members(omega)
+        self.theta, self.omega = integrate(self.theta, omega, dt=self.dt, limits=self._limits)
         return self.theta, self.omega
+
+    def _own_members(self, omega: torch.Tensor) -> torch.Tensor:
+        """With members and joints on a map in parallel: member ``m`` drives such a joint
+        with gain ``1 + own_dev[m]`` (:func:`.parallel.own_gain_dev`); a row that follows a
+        member integrates that member's; returns the speed to integrate."""
+        assert self.omega_members is not None and self.norm.own is not None
+        dev = self._own_dev  # (M, n_joint), 0 off the own joints
+        pick = self.norm.own.own_mask
+        om_m = torch.where(pick, omega.unsqueeze(0) * (1.0 + dev[:, None, :]), self.omega_members)
+        self.omega_members = om_m
+        if self.follow is None:
+            return omega
+        rows = torch.arange(omega.shape[0], device=omega.device)
+        mine = om_m[self.follow.clamp(min=0), rows]
+        return torch.where((self.follow >= 0)[:, None] & pick, mine, omega)
 
 
 @torch.no_grad()
@@ -374,6 +400,8 @@ def rollout_reference(
     if len(surs) > 1:
         check_members(surs)
     ref = surs[0]
+    if ref.norm.own is not None:
+        return _parallel_reference(surs, theta, u, warmup=warmup, mode=mode)
     w = ref.window
     warmup = w if warmup is None else int(warmup)
     mode = mode or ref.mode
@@ -417,3 +445,44 @@ def rollout_reference(
         omega_hat.append(omega)
         theta_hat.append(theta_next)
     return np.array(theta_hat), np.array(omega_hat)
+
+
+def _parallel_reference(
+    surs: Sequence[Surrogate],
+    theta: np.ndarray,
+    u: np.ndarray,
+    *,
+    warmup: int | None,
+    mode: Mode | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`rollout_reference` of joints on a static map in parallel (``norm.own``): the
+    network's own free run (the surrogates without the map) on the other joints, and on the
+    map joints the map's free run, a NumPy loop of its own::
+
+        omega[k+1] = s(u[k - d]),  theta[k+1] = theta[k] + T_s omega[k+1]   (end stops)
+
+    with the command before the first sample at the command centre (rest)."""
+    ref = surs[0]
+    own = ref.norm.own
+    assert own is not None
+    nets = [replace(s, norm=s.norm.with_own(None)) for s in surs]
+    th_net, om_net = rollout_reference(nets, theta, u, warmup=warmup, mode=mode)
+    warmup = ref.window if warmup is None else int(warmup)
+    spec = ref.spec
+    n_joint = spec.n_joint
+    center = np.array([c.u_center for c in spec.u_specs[:n_joint]])
+    a_pos, a_neg, k_pos, k_neg = (getattr(own, k).double().cpu().numpy() for k in OWN_FIELDS)
+    th, om = th_net.copy(), om_net.copy()
+    limits = ref.limits_np()
+    theta_map = np.asarray(theta[warmup - 1], dtype=np.float64)
+    for k in range(warmup - 1, u.shape[0] - 1):
+        u_d = np.array(
+            [u[k - d, j] if k >= d else center[j] for j, d in enumerate(own.delay)],
+            dtype=np.float64,
+        )
+        # s_j(u) = k_pos max(u - a_pos, 0) - k_neg max(a_neg - u, 0)
+        s = k_pos * np.maximum(u_d - a_pos, 0.0) - k_neg * np.maximum(a_neg - u_d, 0.0)
+        theta_map, w_map = integrate_np(theta_map, s, dt=spec.dt, limits=limits)
+        th[k + 1, list(own.own)] = theta_map[list(own.own)]
+        om[k + 1, list(own.own)] = w_map[list(own.own)]
+    return th, om
