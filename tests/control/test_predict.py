@@ -12,7 +12,7 @@ from excavator_surrogate.env.mujoco_env import ExcavatorMujocoEnv
 from excavator_surrogate.errors import ConfigError, ExsurError
 from excavator_surrogate.simulate.hydraulics import HydraulicTransform
 from excavator_surrogate.surrogate.rollout import ClosedLoop
-from tests.helpers.surrogates import on_static_map, tiny_surrogate
+from tests.helpers.surrogates import on_parallel_map, on_static_map, tiny_surrogate
 
 THETA0 = np.array([0.2, 0.1, 1.5, 0.6])
 K, N, N_HIST = 4, 6, 9
@@ -36,17 +36,21 @@ def _history(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         ("windowed", "lstm", (0.05,), True, False),
         ("stateful", "lstm", (0.05,), False, True),
         ("windowed", "gru", (), False, True),
+        ("stateful", "lstm", (0.05,), True, "parallel"),
+        ("windowed", "lstm", (), False, "parallel"),
     ],
 )
 def test_surrogate_batch_matches_single_closed_loops(
-    mode: str, cell: str, play: tuple, omega_in: bool, delayed_map: bool
+    mode: str, cell: str, play: tuple, omega_in: bool, delayed_map: bool | str
 ) -> None:
     """Synced to a measured history, the K-candidate batched rollout equals K single
     ClosedLoop rollouts, each warmed up on the at-rest samples plus the full history (with
     the velocity feature: the measured velocities of that history; with a delayed static
     map: the commands of that history in its delay line)."""
     sur = tiny_surrogate(mode=mode, cell=cell, play=play, window=5, omega_in=omega_in)
-    if delayed_map:
+    if delayed_map == "parallel":  # the network reads the measured angles while synced
+        sur = on_parallel_map(sur, delay=(3, 0, 0, 1))
+    elif delayed_map:
         sur = on_static_map(sur, delay=(3, 0, 0, 1))
     rng = np.random.default_rng(0)
     theta, u_hist = _history(rng)

@@ -11,7 +11,7 @@ from excavator_surrogate.env.members import MemberLSTM, from_dense, to_dense
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.rollout import rollout_reference
-from tests.helpers.surrogates import on_static_map
+from tests.helpers.surrogates import on_parallel_map, on_static_map
 
 KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2), omega_in=True)
 
@@ -29,15 +29,21 @@ def test_layout_round_trip() -> None:
     torch.testing.assert_close(m[:, 1], h[:, :, 4:8])
 
 
-@pytest.mark.parametrize("delayed_map", [False, True], ids=["network", "delayed-map"])
+@pytest.mark.parametrize(
+    "delayed_map", [False, True, "parallel"], ids=["network", "delayed-map", "parallel-map"]
+)
 def test_members_kernel_equals_plain_loop_and_dense_kernels(members, delayed_map) -> None:
     """Three members stepped as one batched matmul equal the members stepped one by one with
     their omega averaged (the plain loop), and the dense cell and module kernels; masked
     resets and a fork from a dense one-env engine keep them equal (also with the swing and
-    the bucket on a static map with delays 2 and 1: the fork carries the delay line)."""
+    the bucket on a static map with delays 2 and 1, in series or in parallel: the fork
+    carries the delay line and the network's own angles)."""
     ens = merge(members)
     ref = members
-    if delayed_map:
+    if delayed_map == "parallel":
+        ens = ref = on_parallel_map(ens, delay=(2, 0, 0, 1))
+        assert ens.norm.lags == (2, 0, 0, 1) and ens.norm.n_own == 2
+    elif delayed_map:
         ens = ref = on_static_map(ens, delay=(2, 0, 0, 1))
         assert ens.norm.lags == (2, 0, 0, 1)
     rng = np.random.default_rng(5)

@@ -20,7 +20,7 @@ from excavator_surrogate.surrogate.uncertainty import (
     bands,
     member_runs,
 )
-from tests.helpers.surrogates import on_static_map
+from tests.helpers.surrogates import on_parallel_map, on_static_map
 
 KW = dict(end_stops=True, play=(0.05, 0.2), omega_in=True)
 EPS32 = float(np.finfo(np.float32).eps)
@@ -72,6 +72,8 @@ def _plain(sur, theta0: np.ndarray, u: np.ndarray, design: str = "shared"):
         ("windowed", "auto", True),
         ("stateful", "members", "delayed"),
         ("windowed", "auto", "delayed"),
+        ("stateful", "members", "parallel"),
+        ("windowed", "auto", "parallel"),
     ],
 )
 def test_engine_bands_and_flags_equal_the_plain_loop(
@@ -85,7 +87,10 @@ def test_engine_bands_and_flags_equal_the_plain_loop(
         kw = dict(KW, omega_in=False) if on_map else KW
         sur = merge([make_surrogate(seed=s, hidden=16, mode=mode, **kw) for s in range(3)])
         sur.metrics["coverage"] = ens.metrics["coverage"]
-    if on_map:  # "delayed": the swing's map reads the command 2 samples back
+    if on_map == "parallel":  # the network reads its own angles of the map joints
+        sur = on_parallel_map(sur, delay=(2, 0, 0, 1))
+        assert sur.metrics["ensemble"]["own_gain_dev"][0][0] < 0
+    elif on_map:  # "delayed": the swing's map reads the command 2 samples back
         sur = on_static_map(sur, delay=(2, 0, 0, 1) if on_map == "delayed" else None)
         assert sur.metrics["ensemble"]["map_gain_dev"][0][0] < 0
     rng = np.random.default_rng(1)

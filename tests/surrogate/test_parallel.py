@@ -20,6 +20,7 @@ from excavator_surrogate.surrogate.checkpoint import (
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.parallel import own_gain_dev, with_parallel_map
 from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout, rollout_reference
+from excavator_surrogate.surrogate.uncertainty import map_note
 from tests.helpers.surrogates import PARALLEL_JOINTS, map_fit, on_parallel_map, tiny_surrogate
 
 PICK = np.array(PARALLEL_JOINTS)
@@ -114,6 +115,8 @@ def test_members_spread_on_the_map_joints_by_the_maps_gain_spread() -> None:
     par = on_parallel_map(merge(members), delay=(2, 0, 0, 0))
     dev = own_gain_dev(par)
     assert dev.shape == (3, 4) and torch.all(dev[:, ~torch.tensor(PICK)] == 0)
+    note = map_note(par)
+    assert note is not None and "swing, bucket" in note and "gain spread" in note
     np.testing.assert_allclose(dev[:, 0].std().item(), 0.2, rtol=1e-6)
     theta, u = _drive(seed=3)
     w = par.window

@@ -30,6 +30,8 @@ from ..errors import ConfigError
 from ..surrogate.angles import integrate
 from ..surrogate.ensemble import n_member
 from ..surrogate.model import Surrogate, step_layers
+from ..surrogate.own_angles import network_inputs, own_advance, own_start
+from ..surrogate.parallel import own_gain_dev
 from .fused import FusedStep, play_and_features, rest_command
 from .members import MemberLSTM, from_dense, to_dense
 from .uncertainty import StepUncertainty
@@ -139,6 +141,14 @@ class SurrogateEngine:
         self.theta_prev = torch.zeros_like(self.theta)
         lim = sur.limits()
         self._limits = None if lim is None else tuple(a.double() for a in lim)
+        own = self.norm.own
+        self._own = (
+            None
+            if own is None
+            else (own.own_mask, own_gain_dev(sur).to(self.device, torch.float32))
+        )
+        """Joints on a map in parallel: their mask (n_joint,) and the members' gain deviations
+        (M, n_joint) (:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`), or None."""
         self._members: MemberLSTM | None = None
         if self.mode == "stateful":
             if sur.model_cfg.cell not in ("lstm", "gru"):
@@ -278,7 +288,8 @@ class SurrogateEngine:
         z0, p0 = self._play_step(self.z.new_zeros(m, *self.z.shape[1:]), u0)
         q = self.norm.n_play
         if self.norm.n_line:  # at rest: the delay line holds the rest command throughout
-            z0[:, q:] = z0[:, -1:]
+            z0[:, q : self.norm.n_command] = z0[:, self.norm.n_command - 1 : self.norm.n_command]
+        z0 = own_start(self.norm, z0, th.float())  # the network's own angles: the reset's
         self.z.index_copy_(0, idx, z0)  # at rest: one step reaches the play operators' fixed point
         if self.mode == "stateful":
             f = self.fused
@@ -323,6 +334,8 @@ class SurrogateEngine:
         self.theta.copy_(torch.as_tensor(np.asarray(theta, dtype=np.float64), device=self.device))
         if self.omega_in:
             self.w.copy_(self.norm.velocity(self.theta, self.theta_prev, self.dt))
+        # joints on a map in parallel: the network reads the measurement too
+        self.z = own_start(self.norm, self.z, self.theta, self.w if self.omega_in else None)
 
     @torch.inference_mode()
     def export_row(self, row: int = 0) -> dict[str, torch.Tensor | int]:
@@ -403,9 +416,11 @@ class SurrogateEngine:
             unc, om_m = self.unc, None
             if unc is not None:
                 unc.flag(theta, u_t)
+            # the angles and velocity the network reads (its own on joints on a map in parallel)
+            th_in, w_in = network_inputs(self.norm, theta.float(), self.z, w_t)
             if self.mode == "stateful":
                 f = self.fused
-                r = f.features(theta.float(), u_t, p_t, w_t)
+                r = f.features(th_in, u_t, p_t, w_in)
                 if self.impl == "module":
                     out, self.h, self.c = self._rnn_seq(r.unsqueeze(1), self.h, self.c)
                 else:
@@ -414,7 +429,7 @@ class SurrogateEngine:
                 a = torch.relu(torch.addmm(b1, out, w1.t()))
                 omega = torch.addmm(b2, a, w2.t())
                 # omega[k] (residual) or s(u[k - d]) (prior), else None
-                base = f.base(u_t, w_t, self.z)
+                base = f.base(u_t, w_in, self.z)
                 if unc is not None and unc.n_member:  # the same call's activations, per member
                     om_m = unc.members_from_activations(a, base)
                 if base is not None:
@@ -422,7 +437,7 @@ class SurrogateEngine:
                 omega = omega.double()
             else:
                 w, p = self.window, self._pos
-                row = self.norm.encode(theta.float(), u_t, self.z, w_t)
+                row = self.norm.encode(th_in, u_t, self.z, w_in)
                 self._ring[:, p] = row
                 self._ring[:, p + w] = row
                 if unc is not None and unc.head is not None:
@@ -433,6 +448,13 @@ class SurrogateEngine:
                     y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
                 self._pos = (p + 1) % w
                 omega = self.norm.omega(y).double()
+            if self._own is not None:  # map joints in parallel: the map's speed; own angles on
+                omega, self.z = own_advance(
+                    self.norm, self.z, u_t, omega, dt=self.dt, limits=self._limits
+                )
+                if om_m is not None:  # member m drives a map joint with gain 1 + dev[m]
+                    pick, dev = self._own
+                    om_m = torch.where(pick, omega.to(om_m) * (1.0 + dev[:, None, :]), om_m)
             if self._limits is None:
                 theta.add_(omega, alpha=self.dt)
             else:

@@ -54,7 +54,9 @@ def map_note(sur: Surrogate) -> str | None:
     head = member_head(sur)
     if not on_map or head is None:
         return None
-    if head.map_dev is None:  # merged before the members' map gains were recorded
+    ens = (sur.metrics or {}).get("ensemble") or {}
+    spread = "own_gain_dev" in ens if sur.norm.own is not None else head.map_dev is not None
+    if not spread:  # merged before the members' map gains were recorded
         return (
             f"{', '.join(on_map)} follow(s) the static valve map: no member spread there; "
             "the band is the calibrated error quantile by horizon"
