@@ -77,7 +77,12 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     maps = None
     if cfg.static_map:
         new, maps = choose_map_joints(
-            model, train_eps, val_eps, max_steps=max_steps, periodic=cfg.map_periodic
+            model,
+            train_eps,
+            val_eps,
+            max_steps=max_steps,
+            periodic=cfg.map_periodic,
+            parallel=cfg.map_parallel,
         )
         model = new if new is not None else model
     return model, kinds, maps

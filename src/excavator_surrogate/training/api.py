@@ -117,7 +117,12 @@ def train(
         if cfg.static_map:  # joints on the static valve map, if validation says so
             train_eps, val_eps = split_episodes(cfg, dataset)
             apply_map_choice(
-                best, train_eps, val_eps, max_steps=cfg.val_steps or None, periodic=cfg.map_periodic
+                best,
+                train_eps,
+                val_eps,
+                max_steps=cfg.val_steps or None,
+                periodic=cfg.map_periodic,
+                parallel=cfg.map_parallel,
             )
         calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
     return best
