@@ -41,6 +41,9 @@ def test_joints_on_the_static_map_are_named():
     text = training_markdown({"epochs_planned": 30, "static_map": rec})
     assert "Static valve map: swing" in text and "gain spread over the training log" in text
     assert "Static valve map" not in training_markdown({"static_map": {"chosen": []}, "x": 1})
+    assert "instead of the network" in text
+    par = training_markdown({"static_map": {**rec, "composition": "parallel"}})
+    assert "in parallel with the network, which keeps reading its own angles" in par
 
 
 def test_the_note_says_whether_the_bits_hold_on_another_cpu():

@@ -252,9 +252,14 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
         if n in record["chosen"] and s > 0
     ]
     delay = f", delay {', '.join(lags)}" if lags else ""
+    how = (
+        "in parallel with the network, which keeps reading its own angles of them"
+        if record.get("composition") == "parallel"
+        else "instead of the network"
+    )
     return (
         f"\nStatic valve map: {', '.join(record['chosen'])} follow(s) the map (dead zone, gain "
-        f"per direction{delay}) instead of the network, chosen on the validation free run "
+        f"per direction{delay}) {how}, chosen on the validation free run "
         f"({record.get('why', '')}); its band comes from the map's gain spread over the "
         "training log, not from the members.\n"
     )
