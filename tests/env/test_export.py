@@ -2,18 +2,30 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import onnx
 import pytest
+import torch
 
 from excavator_surrogate.cli import main
 from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.env.fused import rest_command
 from excavator_surrogate.errors import CheckpointError
+from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.angles import joint_limits
-from tests.helpers.surrogates import VARIANTS, variant_surrogate
+from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.rollout import ClosedLoop
+from tests.helpers.surrogates import (
+    PARALLEL_JOINTS,
+    VARIANTS,
+    on_parallel_map,
+    tiny_surrogate,
+    variant_surrogate,
+)
 
 
 def _step_side_by_side(
@@ -52,13 +64,19 @@ def test_onnx_stepper_matches_torch(
     end_stops, play, omega_in = kw["end_stops"], kw["play"], kw["omega_in"]
     sur = variant_surrogate(mode=mode, cell=cell, **kw)
     lagged = bool(sur.norm.lags)  # a delayed map: its delay line travels in z
-    assert lagged == (variant == "delayed-map" and cell != "arx")
+    own = sur.norm.own is not None  # a map in parallel: the network's own angle travels in z
+    assert own == (variant == "parallel-map" and cell != "arx")
+    assert lagged == (variant in ("delayed-map", "parallel-map") and cell != "arx")
     path = export_onnx(sur, tmp_path / "model.onnx", exporter=exporter)
     model = onnx.load(str(path))
     onnx.checker.check_model(model)
     names = [i.name for i in model.graph.input]
     expect = ["theta", "u", "h", "c"] if mode == "stateful" else ["theta", "u"]
-    assert names == expect + (["z"] if play or lagged else []) + (["w"] if omega_in else [])
+    has_z = bool(play) or lagged or own
+    assert names == expect + (["z"] if has_z else []) + (["w"] if omega_in else [])
+    outs = [o.name for o in model.graph.output]
+    expect = ["omega", "theta_next"] + (["h_out", "c_out"] if mode == "stateful" else [])
+    assert outs == expect + (["z_out"] if has_z and (mode == "stateful" or own) else [])
     stepper = OnnxStepper(path)
     assert stepper.spec == sur.spec and stepper.mode == mode
     th = _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=5), n_step=40, seed=0)
@@ -110,3 +128,93 @@ def test_onnx_runs_a_merged_ensemble(make_surrogate, tmp_path: Path) -> None:
     sur = merge([make_surrogate(seed=0, **kw), make_surrogate(seed=1, hidden=8, **kw)])
     stepper = OnnxStepper(export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript"))
     _step_side_by_side(stepper, SurrogateEngine(sur, n_envs=2), n_step=30, seed=1)
+
+
+def _reset_at_rest(loop: ClosedLoop, theta0: np.ndarray) -> None:
+    """:meth:`ClosedLoop.reset` as the runtimes reset: ``W`` samples at ``theta0`` (n,
+    n_joint) [rad] under the rest command (``W - 1`` warm-up steps)."""
+    w, spec = loop.sur.window, loop.sur.spec
+    theta_hist = np.repeat(theta0[:, None], w, axis=1)
+    u_hist = np.broadcast_to(rest_command(spec), (len(theta0), w - 1, spec.n_u))
+    loop.reset(theta_hist, np.ascontiguousarray(u_hist))
+
+
+@pytest.mark.parametrize(
+    ("mode", "cell", "exporter", "kw", "delay"),
+    [
+        ("stateful", "lstm", "dynamo", VARIANTS["parallel-map"], (2, 0, 0, 0)),
+        ("stateful", "gru", "torchscript", VARIANTS["parallel-map"], (2, 0, 0, 0)),
+        ("windowed", "lstm", "dynamo", VARIANTS["parallel-map"], (2, 0, 0, 0)),
+        ("windowed", "gru", "torchscript", VARIANTS["parallel-map"], (1, 0, 0, 0)),
+        ("stateful", "lstm", "torchscript", dict(end_stops=True, prior=True), (2, 0, 0, 1)),
+        ("stateful", "gru", "torchscript", {}, None),  # z: the own rows only
+        ("windowed", "lstm", "torchscript", {}, None),
+    ],
+    ids=["lstm", "gru", "window-lstm", "window-gru", "prior", "own-rows-only", "window-own-only"],
+)
+def test_parallel_map_graph_matches_the_closed_loop(
+    mode: str, cell: str, exporter: str, kw: dict, delay, tmp_path: Path
+) -> None:
+    """Joints on a static map in parallel: the graph (stateful, or windowed with ``z_out``)
+    stepped by the stepper equals :class:`ClosedLoop` reset at rest, angles, velocities and
+    the network's own angle and velocity in ``z``; the metadata names the joints."""
+    kw = {k: v for k, v in kw.items() if k != "parallel_map"}
+    base = variant_surrogate(
+        mode=mode, cell=cell, **{"end_stops": False, "play": (), "omega_in": False, **kw}
+    )
+    sur = on_parallel_map(base, delay=delay)
+    assert sur.norm.n_own == 2
+    path = export_onnx(sur, tmp_path / "par.onnx", exporter=exporter)
+    meta = {p.key: p.value for p in onnx.load(str(path)).metadata_props}
+    assert json.loads(meta["exsur_own"]) == PARALLEL_JOINTS
+    stepper = OnnxStepper(path)
+    assert stepper.n_state == sur.norm.n_state and stepper.n_command == sur.norm.n_command
+    loop = ClosedLoop(sur)
+    n = 5
+    rng = np.random.default_rng(2)
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    stepper.reset(theta0)
+    _reset_at_rest(loop, theta0)
+    c = sur.norm.n_command
+    np.testing.assert_allclose(stepper.z, loop.z.numpy(), atol=1e-6, rtol=0)
+    pick = np.array(PARALLEL_JOINTS)
+    for _ in range(40):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        th, om = stepper.step(u)
+        th_t, om_t = loop.step(torch.as_tensor(u, dtype=torch.float32))
+        np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+        np.testing.assert_allclose(om, om_t.numpy(), atol=2e-4, rtol=0)
+        z_t = loop.z.numpy()
+        np.testing.assert_allclose(stepper.z, z_t, atol=1e-5, rtol=1e-5)
+    # the network's own angle of the map joints is not the reported one
+    assert np.abs(stepper.z[:, c][:, pick] - th[:, pick]).max() > 1e-2
+
+
+def test_parallel_map_members_match_the_closed_loop(tmp_path: Path) -> None:
+    """A merged ensemble on a map in parallel: ``omega_members`` of the graph equal the
+    closed loop's members, which drive a map joint with gain ``1 + own_gain_dev[m]``."""
+    kw = dict(mode="stateful", play=(0.05,), omega_in=True, residual=True, hidden=8)
+    members = [tiny_surrogate(EXCAVATOR, seed=s, **kw) for s in (7, 8, 9)]
+    sur = on_parallel_map(merge(members), delay=(2, 0, 0, 0))
+    path = export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript", uncertainty=True)
+    stepper = OnnxStepper(path)
+    assert stepper.n_member == 3
+    loop = ClosedLoop(sur, members=True)
+    n = 4
+    rng = np.random.default_rng(5)
+    theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.0, 1.5, 0.5])
+    stepper.reset(theta0)
+    _reset_at_rest(loop, theta0)
+    pick = np.array(PARALLEL_JOINTS)
+    spread = []
+    for _ in range(25):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        th, om = stepper.step(u)
+        th_t, om_t = loop.step(torch.as_tensor(u, dtype=torch.float32))
+        np.testing.assert_allclose(th, th_t.numpy(), atol=1e-5, rtol=0)
+        np.testing.assert_allclose(om, om_t.numpy(), atol=2e-4, rtol=0)
+        assert stepper.omega_members is not None and loop.omega_members is not None
+        om_m = loop.omega_members.numpy()
+        np.testing.assert_allclose(stepper.omega_members, om_m, atol=1e-5, rtol=1e-5)
+        spread.append(np.std(stepper.omega_members, axis=0))
+    assert np.stack(spread)[..., pick].max() > 1e-4  # the map joints spread by the gains

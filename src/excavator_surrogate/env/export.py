@@ -20,35 +20,51 @@ outputs
 
 A surrogate with Q > 0 command play features (``TrainConfig.play``) has one more input
 ``z`` (n_batch, Q, n_joint), the play states before ``u`` (zeros at rest), and output
-``z_out``, the states after it; the play operators are in the graph.  A surrogate with a
-velocity feature (``TrainConfig.velocity_input``) has one more input after those, ``w``
-(n_batch, n_joint) [rad/s]: the ``omega`` of the previous step (zeros at rest), or the
-measured ``wrap(θ[k] - θ[k-1]) / T_s`` when synced to a machine.
+``z_out``, the states after it; the play operators are in the graph.  With delayed commands
+(``exsur_lags``) ``z`` also holds their delay line, L = ``max(lags) + 1`` rows of scaled
+commands after the Q play rows (at rest: the scaled rest command on every row).  With joints
+on a static map in parallel (``exsur_own``, :mod:`~excavator_surrogate.surrogate.own_angles`)
+``z`` has two rows more, last: the network's own angle θ_own [rad] and velocity ω_own [rad/s]
+of every joint, which the network reads on those joints in place of ``theta`` and ``w``;
+on them ``omega`` is the map's speed s(u[k - d]) and ``z_out`` carries θ_own, ω_own moved by
+the network's speed (at rest: θ_own = θ0, ω_own = 0; after a measured sample: the measured
+angle and velocity).  A surrogate with a velocity feature (``TrainConfig.velocity_input``)
+has one more input after those, ``w`` (n_batch, n_joint) [rad/s]: the ``omega`` of the
+previous step (zeros at rest), or the measured ``wrap(θ[k] - θ[k-1]) / T_s`` when synced to
+a machine.
 
 With ``uncertainty=True`` (``exsur export --uncertainty``; a merged seed ensemble, stateful
 export) the graph has one more output, last: ``omega_members`` (M, n_batch, n_joint) float32,
 each member's ω̂[k+1] (rad/s) from the same network call (their std over M, ddof 1, is the
 velocity spread; member m's angle is θ plus its integrated deviation from ``omega``, as in
-the environments, :mod:`.uncertainty`).  The band calibration and the training coverage
-record travel as JSON metadata ``exsur_uncertainty`` and ``exsur_coverage`` (the checkpoint's
-``metrics`` records, ``{}`` if it has none).  When the checkpoint has a coverage record, the
-out-of-distribution flag is in the graph too: output ``ood`` (n_batch, n_joint) bool, after
-``omega_members``, the whole test of
+the environments, :mod:`.uncertainty`; on a joint on a map in parallel, member m's is the
+map's speed times ``1 + own_gain_dev[m]``,
+:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`).  The band calibration and the
+training coverage record travel as JSON metadata ``exsur_uncertainty`` and
+``exsur_coverage`` (the checkpoint's ``metrics`` records, ``{}`` if it has none).  When the
+checkpoint has a coverage record, the out-of-distribution flag is in the graph too: output
+``ood`` (n_batch, n_joint) bool, after ``omega_members``, the whole test of
 :func:`~excavator_surrogate.surrogate.coverage.ood_flags` (command, angle and velocity boxes,
 the (angle, command) occupancy grid) on the sample the step predicts from: ``theta``, ``u``
 and ω[k], which is the input ``w`` with a velocity feature, else one more input, last,
 ``omega_prev`` (n_batch, n_joint) [rad/s]: the previous step's ``omega`` (zeros at rest).
 
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
-of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``, (n_batch, W, Q + L,
-n_joint), the command states after each of them, with play features or delayed commands; ``w``, (n_batch, W,
-n_joint), their velocity features, with a velocity feature); outputs ``omega`` and
-``theta_next`` as above (the encoding and normalisation are in the graph).
+of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``,
+(n_batch, W, Q + L [+ 2], n_joint), the command states after each of them, with play
+features, delayed commands or joints on a map in parallel; ``w``, (n_batch, W, n_joint),
+their velocity features, with a velocity feature); outputs ``omega`` and ``theta_next`` as
+above (the encoding and normalisation are in the graph).  With joints on a map in parallel
+the caller keeps each sample's ``z`` with the own rows as they were when that sample was
+stepped, and the graph has one more output, ``z_out`` (n_batch, Q + L + 2, n_joint): the
+last sample's ``z`` with the own rows moved (the next step's ``z`` before its command).
 
 The batch axis is dynamic.  Metadata (``metadata_props``): ``exsur_spec`` (JSON machine
 spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsur_hidden``,
 ``exsur_play`` (JSON list of play half-widths, empty without play features),
 ``exsur_lags`` (JSON list of per-joint command delays [samples], empty without delayed commands),
+``exsur_own`` (JSON list of per-joint booleans, the joints on a static map in parallel, empty
+without; with them ``z`` has the two own rows),
 ``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_members`` (M with the
 ``omega_members`` output, else ``0``), ``exsur_ood`` (``1`` with the ``ood`` output),
 ``exsur_units`` (JSON, per joint: ``theta``/``omega`` in rad or, for a linear joint, m, and
@@ -74,6 +90,7 @@ from ..surrogate.angles import integrate
 from ..surrogate.command_state import command_features
 from ..surrogate.coverage import channel_names
 from ..surrogate.model import Surrogate
+from ..surrogate.own_angles import network_inputs, own_advance
 from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode
 from .fused import FusedMembersStep, FusedStep, add_end_stops, end_stops
@@ -86,9 +103,17 @@ Exporter = Literal["auto", "dynamo", "torchscript"]
 
 class WindowStep(nn.Module):
     """Windowed step with encoding and normalisation in the graph:
-    ``(theta (n, W, J), u (n, W, n_u)[, z (n, W, Q, J)][, w (n, W, J)]) -> (omega (n, J),
-    theta_next (n, J))`` (``u``: the joints' commands, then the exogenous inputs'; ``w``: the
-    velocity features [rad/s])."""
+    ``(theta (n, W, J), u (n, W, n_u)[, z (n, W, S, J)][, w (n, W, J)]) -> (omega (n, J),
+    theta_next (n, J)[, z_out (n, S, J)])`` (``u``: the joints' commands, then the exogenous
+    inputs'; ``z``: the command states after each sample's ``u``, ``S = Q + L [+ 2]`` rows;
+    ``w``: the velocity features [rad/s]).
+
+    With joints on a static map in parallel (``norm.own``) the network reads, at every
+    sample, its own angle and velocity of them from that sample's ``z``
+    (:func:`~excavator_surrogate.surrogate.own_angles.network_inputs`), ``omega`` there is the
+    map's speed, and ``z_out`` is the last sample's ``z`` with the own rows moved by the
+    network's speed (:func:`~excavator_surrogate.surrogate.own_angles.own_advance`): the
+    caller's ``z`` for the next step, before its command."""
 
     def __init__(self, sur: Surrogate) -> None:
         super().__init__()
@@ -98,9 +123,13 @@ class WindowStep(nn.Module):
         for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play", "lag_index"):
             self.register_buffer(k, getattr(norm, k).clone())
         self.n_play = norm.n_play
+        self.n_command = norm.n_command
         self.n_state = norm.n_state
         self.omega_in = norm.omega_in
         self.dt = float(sur.spec.dt)
+        self.own_norm = norm if norm.own is not None else None
+        """The float32 normalisation with joints on a map in parallel (None: none; CPU, as
+        the export runs)."""
         add_end_stops(self, sur)
 
     def forward(
@@ -109,29 +138,42 @@ class WindowStep(nn.Module):
         u: torch.Tensor,
         z: torch.Tensor | None = None,
         w: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, ...]:
         """See the class docstring."""
+        if self.n_state and z is None:
+            raise ValueError("this surrogate has command states: pass z")
+        if self.omega_in and w is None:
+            raise ValueError("this surrogate has a velocity feature: pass w")
+        w_in = w if self.omega_in else None
+        theta_in, own = theta, self.own_norm
+        if own is not None:
+            # every sample i: theta_in = where(own, theta_own[i], theta[i]), w_in likewise
+            theta_in, w_in = network_inputs(own, theta, z, w_in)
         parts = []
         for j, p in enumerate(self.periodic):
-            th = theta[..., j : j + 1]
+            th = theta_in[..., j : j + 1]
             parts += [torch.sin(th), torch.cos(th)] if p else [th]
         us = (u - self.u_center) / self.u_scale
         parts.append(us)
-        if self.n_state:
-            if z is None:
-                raise ValueError("this surrogate has command states: pass z")
-            nj = len(self.periodic)
-            parts.append(command_features(z, us[..., :nj], self.play, self.lag_index))
-        if self.omega_in:
-            if w is None:
-                raise ValueError("this surrogate has a velocity feature: pass w")
-            parts.append(w)
+        if self.n_command:
+            assert z is not None
+            nj, zc = len(self.periodic), z[..., : self.n_command, :]
+            parts.append(command_features(zc, us[..., :nj], self.play, self.lag_index))
+        if w_in is not None:
+            parts.append(w_in)
         x = torch.cat(parts, dim=-1)
         y = self.net((x - self.x_mean) / self.x_std)
-        theta_next, omega = integrate(
-            theta[:, -1], y * self.y_std + self.y_mean, dt=self.dt, limits=end_stops(self)
-        )
-        return omega, theta_next
+        # omega_net[k+1] = y_std y + y_mean
+        omega = y * self.y_std + self.y_mean
+        lim = end_stops(self)
+        z_out = None
+        if own is not None:
+            assert z is not None
+            # omega[k+1] = where(own, s(u[k - d]), omega_net[k+1]); the own rows move by omega_net
+            omega, z_out = own_advance(own, z[:, -1], u[:, -1], omega, dt=self.dt, limits=lim)
+        # theta[k+1] = theta[k] + T_s omega[k+1]   (speed bound, end stops)
+        theta_next, omega = integrate(theta[:, -1], omega, dt=self.dt, limits=lim)
+        return (omega, theta_next) if z_out is None else (omega, theta_next, z_out)
 
 
 class _StatefulOod(nn.Module):
@@ -228,7 +270,7 @@ def export_onnx(
     mode = mode or sur.mode
     spec = sur.spec
     n_joint, n_u = spec.n_joint, spec.n_u
-    n_play = sur.norm.n_state  # rows of the command state z (play operators, delay line)
+    n_play = sur.norm.n_state  # rows of z (play operators, delay line, own angle and velocity)
     omega_in = sur.norm.omega_in
     n_b = 2
     if uncertainty and mode != "stateful":
@@ -286,6 +328,9 @@ def export_onnx(
             args = (*args, torch.zeros(n_b, w, n_play, n_joint))
             inputs.append("z")
             axes["z"] = {0: "batch"}
+        if sur.norm.own is not None:  # the own rows move in the graph: the next step's z
+            outputs.append("z_out")
+            axes["z_out"] = {0: "batch"}
         if omega_in:
             args = (*args, torch.zeros(n_b, w, n_joint))
             inputs.append("w")
@@ -409,6 +454,7 @@ def _add_metadata(
         "exsur_name": sur.name,
         "exsur_play": json.dumps(list(sur.norm.play_widths)),
         "exsur_lags": json.dumps(list(sur.norm.lags)),
+        "exsur_own": json.dumps([] if sur.norm.own is None else list(sur.norm.own.own)),
         "exsur_omega_in": str(int(sur.norm.omega_in)),
         "exsur_members": str(int(n_member)),
         "exsur_ood": str(int(ood)),

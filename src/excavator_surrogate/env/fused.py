@@ -10,6 +10,7 @@ matmuls and pointwise ops, so it exports to ONNX as is (see :mod:`.export`), and
 from __future__ import annotations
 
 import copy
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -22,6 +23,8 @@ from ..surrogate.command_state import command_features, command_step, delayed_co
 from ..surrogate.ensemble import member_head
 from ..surrogate.features import Normalization
 from ..surrogate.model import Surrogate
+from ..surrogate.own_angles import network_inputs, own_advance
+from ..surrogate.parallel import own_gain_dev
 from ..surrogate.prior import SpeedPrior
 from .inputs import ActionLayout
 
@@ -110,6 +113,28 @@ def play_and_features(
     return (torch.cat([zc, z[..., c:, :]], dim=-2) if z.shape[-2] > c else zc), f
 
 
+def _prior_lagged(sur: Surrogate) -> list[bool]:
+    """(n_joint,) for a network with a speed prior: whether joint ``j``'s map reads its
+    delayed-command feature (column ``lag_start + j``) rather than its current command
+    (column ``n_angle + j``); a network given delayed commands for a map in parallel
+    (:func:`~excavator_surrogate.surrogate.parallel.with_parallel_map`) keeps its prior on the
+    current ones."""
+    norm, n_angle = sur.norm, sur.spec.n_angle_feature
+    cols = [int(c) for c in sur.net.prior.cols.tolist()]
+    out = []
+    for j, col in enumerate(cols):
+        if norm.n_lag and col == norm.lag_start + j:
+            out.append(True)
+        elif col == n_angle + j:
+            out.append(False)
+        else:
+            raise ConfigError(
+                f"model '{sur.name}': the speed prior of joint {sur.spec.names[j]} reads "
+                f"feature column {col}, neither its command nor its delayed command"
+            )
+    return out
+
+
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
     """Register the surrogate's envelope on ``module`` as float32 buffers ``theta_lo`` /
     ``theta_hi`` (n_joint,) [rad] and ``omega_max`` (n_joint,) [rad/s], each None when the
@@ -128,6 +153,27 @@ def end_stops(module: nn.Module) -> tuple[torch.Tensor, ...] | None:
     return (lo, hi) if w is None else (lo, hi, w)  # type: ignore[return-value]
 
 
+class _Parts(NamedTuple):
+    """One :meth:`FusedStep.step_parts`: the step's outputs and what a members' step reuses."""
+
+    omega: torch.Tensor
+    """(n_batch, n_joint) ω̂[k+1] [rad/s] after the speed bound and end stops."""
+    theta_next: torch.Tensor
+    """(n_batch, n_joint) θ[k+1] [rad]."""
+    h: torch.Tensor
+    """(n_layer, n_batch, hidden) new recurrent state."""
+    c: torch.Tensor
+    """(n_layer, n_batch, hidden) new cell state (GRU: passed through)."""
+    z: torch.Tensor | None
+    """(n_batch, Q + L [+ 2], n_joint) the new command state (None without one)."""
+    base: torch.Tensor | None
+    """(n_batch, n_joint) [rad/s] what the head's output was added to (:meth:`FusedStep.base`
+    of the velocity feature the network read), or None."""
+    speed: torch.Tensor
+    """(n_batch, n_joint) [rad/s] the speed integrated, before the speed bound and end stops
+    (the map's on joints on a map in parallel)."""
+
+
 class FusedStep(nn.Module):
     """One closed-loop step with encoding and normalisation folded into the weights.
 
@@ -137,8 +183,11 @@ class FusedStep(nn.Module):
     - ``u``: (n_batch, n_u) commands u[k] [command units] (joints', then exogenous inputs');
     - ``h``, ``c``: (n_layer, n_batch, hidden) recurrent state (``c`` unused and passed
       through for GRU cells);
-    - ``z``: (n_batch, Q + L, n_joint) command states before ``u`` (only if the surrogate
-      has ``Q = n_play > 0`` play features or an ``L``-sample delay line of delayed commands);
+    - ``z``: (n_batch, Q + L [+ 2], n_joint) command states before ``u`` (only if the
+      surrogate has ``Q = n_play > 0`` play features, an ``L``-sample delay line of delayed
+      commands or joints on a static map in parallel, whose two rows, the network's own angle
+      [rad] and velocity [rad/s] of every joint, come last:
+      :mod:`excavator_surrogate.surrogate.own_angles`);
     - ``w``: (n_batch, n_joint) velocity feature of sample k [rad/s] (only if the surrogate
       has one, ``omega_in``): the ``omega`` this step returned last time, or the measured
       ``wrap(θ[k] - θ[k-1]) / T_s`` after a measured angle.
@@ -147,7 +196,13 @@ class FusedStep(nn.Module):
     [rad] (clipped to the end stops if the surrogate has them), the new ``h``, ``c`` and,
     with command states, the new ``z``.  With a speed prior (``ModelConfig.prior``) the head's
     output is added to the prior's speed of ``u`` (:meth:`prior_speed`; of the delayed
-    command for a joint whose map has a delay).  (``omega`` is the next step's ``w``.)  Only LSTM/GRU surrogates can be fused.
+    command for a joint whose map has a delay).  (``omega`` is the next step's ``w``.)  With
+    joints on a static map in parallel (``norm.own``) the network reads its own angle and
+    velocity of them from ``z``
+    (:func:`~excavator_surrogate.surrogate.own_angles.network_inputs`), ``omega`` there is the
+    map's speed, and ``z``'s own rows move by the network's
+    (:func:`~excavator_surrogate.surrogate.own_angles.own_advance`).  Only LSTM/GRU
+    surrogates can be fused.
     """
 
     def __init__(self, sur: Surrogate) -> None:
@@ -168,6 +223,12 @@ class FusedStep(nn.Module):
         per = [k for k, p in enumerate(spec.periodic) if p]
         self.register_buffer("periodic_idx", torch.tensor(per, dtype=torch.long), persistent=False)
         self.has_periodic = bool(per)
+        self.own_norm: Normalization | None = (
+            None if sur.norm.own is None else sur.norm.to("cpu", torch.float32)
+        )
+        """With joints on a static map in parallel: a float32 copy of the normalisation, for
+        :func:`~excavator_surrogate.surrogate.own_angles.network_inputs` / ``own_advance``
+        (moved to the buffers' device on use, :meth:`own`); None without."""
         mat, off = _fold_input(sur)
         rnn = net.rnn
         f32 = torch.float32
@@ -207,6 +268,12 @@ class FusedStep(nn.Module):
             None if prior is None else copy.deepcopy(prior).float().cpu()
         )
         """The network's speed prior (its map reads the raw commands here: :meth:`prior_speed`)."""
+        lagged = [] if self.prior is None else _prior_lagged(sur)
+        self.prior_lagged = any(lagged)
+        """The prior's map reads some joint's delayed command (from the delay line of ``z``)."""
+        self.register_buffer(
+            "prior_lag_mask", torch.tensor(lagged, dtype=torch.bool), persistent=False
+        )
         self.w1 = nn.Parameter(lin1.weight.detach().float().clone(), requires_grad=False)
         self.b1 = nn.Parameter(lin1.bias.detach().float().clone(), requires_grad=False)
         self.w2 = nn.Parameter(torch.tensor(w2, dtype=f32), requires_grad=False)
@@ -235,17 +302,21 @@ class FusedStep(nn.Module):
 
     def prior_speed(self, u: torch.Tensor, z: torch.Tensor | None = None) -> torch.Tensor | None:
         """The speed prior's ``s(u)`` (n_batch, n_joint) [rad/s] of the commands ``u``
-        (n_batch, n_u) [command units] (with delayed commands: of ``u_j[k - d_j]``, read from
-        the delay line of ``z`` (n_batch, Q + L, n_joint) after ``u``); None without a prior."""
+        (n_batch, n_u) [command units] (a joint whose map reads its delayed-command feature:
+        of ``u_j[k - d_j]``, read from the delay line of ``z`` (n_batch, Q + L [+ 2],
+        n_joint) after ``u``); None without a prior."""
         if self.prior is None:
             return None
         nj = self.n_joint
-        if self.n_state > self.n_play:
-            if z is None:
-                raise ValueError("this surrogate's map reads delayed commands: pass z")
-            us = delayed_commands(z, self.play, self.lag_index)
-            return self.prior.speed(us * self.u_scale[:nj] + self.u_center[:nj])
-        return self.prior.speed(u[..., :nj])
+        if not self.prior_lagged:
+            return self.prior.speed(u[..., :nj])
+        if z is None:
+            raise ValueError("this surrogate's map reads delayed commands: pass z")
+        # u_j[k - d_j] = us_j[k - d_j] u_scale_j + u_center_j   (from the delay line)
+        u_d = (
+            delayed_commands(z, self.play, self.lag_index) * self.u_scale[:nj] + self.u_center[:nj]
+        )
+        return self.prior.speed(torch.where(self.prior_lag_mask, u_d, u[..., :nj]))
 
     def base(
         self, u: torch.Tensor, w: torch.Tensor | None, z: torch.Tensor | None = None
@@ -263,7 +334,15 @@ class FusedStep(nn.Module):
         z = torch.relu(torch.nn.functional.linear(out, self.w1, self.b1))
         return torch.nn.functional.linear(z, self.w2, self.b2)
 
-    def forward(
+    def own(self) -> Normalization | None:
+        """The float32 normalisation copy with the map in parallel (:attr:`own_norm`) on the
+        buffers' device, or None without joints on such a map."""
+        norm = self.own_norm
+        if norm is not None and norm.u_center.device != self.u_center.device:
+            norm = self.own_norm = norm.to(self.u_center.device, torch.float32)
+        return norm
+
+    def step_parts(
         self,
         theta: torch.Tensor,
         u: torch.Tensor,
@@ -271,8 +350,9 @@ class FusedStep(nn.Module):
         c: torch.Tensor,
         z: torch.Tensor | None = None,
         w: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, ...]:
-        """See the class docstring."""
+    ) -> _Parts:
+        """One step (the arguments as :meth:`forward`'s), with the values a members' step
+        needs besides the outputs (:class:`_Parts`)."""
         if self.n_state and z is None:
             raise ValueError("this surrogate has command states: pass z")
         if self.omega_in and w is None:
@@ -282,7 +362,12 @@ class FusedStep(nn.Module):
             z, f = play_and_features(self, z, u)
         else:
             z = None
-        inp = self.features(theta, u, f, w if self.omega_in else None)
+        w_in = w if self.omega_in else None
+        theta_in, norm = theta, self.own()
+        if norm is not None:
+            # theta_in = where(own, theta_own[k], theta[k]);  w_in = where(own, omega_own[k], w)
+            theta_in, w_in = network_inputs(norm, theta, z, w_in)
+        inp = self.features(theta_in, u, f, w_in)
         hs, cs = [], []
         for layer in range(self.n_layer):
             h_l, c_l = h[layer], c[layer]
@@ -303,13 +388,34 @@ class FusedStep(nn.Module):
             cs.append(c_l)
             inp = h_l
         omega = self.head(inp)
-        base = self.base(u, w, z)
+        base = self.base(u, w_in, z)
         if base is not None:
+            # omega_net[k+1] = base + head
             omega = omega + base
-        theta_next, omega = integrate(theta, omega, dt=self.dt, limits=end_stops(self))
-        if z is not None:
-            return omega, theta_next, torch.stack(hs), torch.stack(cs), z
-        return omega, theta_next, torch.stack(hs), torch.stack(cs)
+        lim = end_stops(self)
+        if norm is not None:
+            assert z is not None
+            # omega[k+1] = where(own, s(u[k - d]), omega_net[k+1]); z's own rows move by omega_net
+            omega, z = own_advance(norm, z, u, omega, dt=self.dt, limits=lim)
+        speed = omega
+        # theta[k+1] = theta[k] + T_s omega[k+1]   (speed bound, end stops)
+        theta_next, omega = integrate(theta, omega, dt=self.dt, limits=lim)
+        return _Parts(omega, theta_next, torch.stack(hs), torch.stack(cs), z, base, speed)
+
+    def forward(
+        self,
+        theta: torch.Tensor,
+        u: torch.Tensor,
+        h: torch.Tensor,
+        c: torch.Tensor,
+        z: torch.Tensor | None = None,
+        w: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, ...]:
+        """See the class docstring."""
+        p = self.step_parts(theta, u, h, c, z, w)
+        if p.z is not None:
+            return p.omega, p.theta_next, p.h, p.c, p.z
+        return p.omega, p.theta_next, p.h, p.c
 
 
 class FusedMembersStep(FusedStep):
@@ -336,6 +442,13 @@ class FusedMembersStep(FusedStep):
             self.map_dev = None
         else:
             self.register_buffer("map_dev", map_dev.cpu())
+        # a joint on a map in parallel: member m drives it with gain 1 + own_dev[m] (None: none)
+        self.own_dev: torch.Tensor | None
+        if sur.norm.own is None:
+            self.own_dev = None
+        else:
+            dev = own_gain_dev(sur).float()  # (M, n_joint), 0 off the map's joints
+            self.register_buffer("own_dev", dev[:, None, :].clone())  # (M, 1, n_joint)
         self._a: torch.Tensor | None = None
 
     def head(self, out: torch.Tensor) -> torch.Tensor:
@@ -353,12 +466,20 @@ class FusedMembersStep(FusedStep):
         w: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, ...]:
         """:class:`FusedStep`'s outputs, then ``omega_members``."""
-        outs = super().forward(theta, u, h, c, z, w)
+        p = self.step_parts(theta, u, h, c, z, w)
         assert self._a is not None
+        # omega_m = a @ w2m[m] + b2m[m]   (M, n_batch, n_joint)
         om_m = torch.matmul(self._a.unsqueeze(0), self.w2m) + self.b2m
-        base = self.base(u, w, outs[4] if self.n_state else None)
-        if base is not None:
-            om_m = om_m + base
+        if p.base is not None:
+            # omega_m += base   (the velocity feature the network read, or s(u))
+            om_m = om_m + p.base
             if self.map_dev is not None:  # the base is the speed prior's s(u)
-                om_m = om_m + self.map_dev * base
+                # omega_m += map_dev[m] s(u)
+                om_m = om_m + self.map_dev * p.base
+        norm = self.own()
+        if norm is not None and norm.own is not None and self.own_dev is not None:
+            # omega_m = where(own, (1 + own_dev[m]) s(u[k - d]), omega_m)
+            gain = p.speed.unsqueeze(0) * (1.0 + self.own_dev)
+            om_m = torch.where(norm.own.own_mask, gain, om_m)
+        outs = (p.omega, p.theta_next, p.h, p.c) + (() if p.z is None else (p.z,))
         return (*outs, om_m)

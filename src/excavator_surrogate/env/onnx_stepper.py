@@ -18,6 +18,7 @@ from ..errors import CheckpointError
 from ..spec import MachineSpec
 from ..surrogate.command_state import play_np
 from ..surrogate.features import scale_commands_np
+from ..surrogate.own_angles import N_OWN_ROWS
 from .fused import rest_command
 
 
@@ -61,8 +62,14 @@ class OnnxStepper:
         """(Q,) play half-widths (empty: no play features)."""
         self.lags = [int(d) for d in json.loads(meta.get("exsur_lags", "[]"))]
         """(n_joint,) command delays of the delayed-command features [samples] (empty: none)."""
-        self.n_state = len(self.play) + (max(self.lags) + 1 if self.lags else 0)
-        """Rows Q + L of the command state ``z``: play operators, then the delay line."""
+        own = [bool(j) for j in json.loads(meta.get("exsur_own", "[]"))]
+        self.own: np.ndarray | None = np.array(own, dtype=bool) if any(own) else None
+        """(n_joint,) bool: the joints on a static map in parallel (None: none)."""
+        self.n_command = len(self.play) + (max(self.lags) + 1 if self.lags else 0)
+        """Rows Q + L of the command state proper: play operators, then the delay line."""
+        self.n_state = self.n_command + (N_OWN_ROWS if self.own is not None else 0)
+        """Rows of ``z``: the Q + L command rows, then (joints on a map in parallel) the
+        network's own angle [rad] and velocity [rad/s] of every joint."""
         self.omega_in = meta.get("exsur_omega_in", "0") == "1"
         """Whether the graph takes a velocity feature ``w``."""
         self.n_member = int(meta.get("exsur_members", "0"))
@@ -79,7 +86,9 @@ class OnnxStepper:
         """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
         self._w_win = np.zeros((0, self.window, n_joint), np.float32)
         self.z = np.zeros((0, self.n_state, n_joint), dtype=np.float32)
-        """Command states (n_batch, Q + L, n_joint) after the last command."""
+        """Command states (n_batch, Q + L [+ 2], n_joint) after the last command (stateful)
+        or the last step (windowed: the own rows moved, the command rows before the next
+        command)."""
         self._z_win = np.zeros((0, self.window, self.n_state, n_joint), np.float32)
         self.theta = np.zeros((0, self.spec.n_joint), dtype=np.float32)
         self.h = self.c = np.zeros((self.n_layer, 0, self.hidden), dtype=np.float32)
@@ -93,8 +102,12 @@ class OnnxStepper:
         self.theta = theta0.copy()
         u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
         z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
-        if self.n_state > len(self.play):  # at rest: the delay line holds the rest command
-            z_rest[:, len(self.play) :] = z_rest[:, -1:]
+        q, c = len(self.play), self.n_command
+        if c > q:  # at rest: the delay line holds the rest command
+            z_rest[:, q:c] = z_rest[:, c - 1 : c]
+        if self.own is not None:  # the network's own angle: the reset angle, at rest
+            z_rest[:, c] = theta0
+            z_rest[:, c + 1] = 0.0
         self.z = z_rest
         self.w = np.zeros_like(theta0)  # at rest
         if self.mode == "stateful":
@@ -117,15 +130,18 @@ class OnnxStepper:
         return self.theta
 
     def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """Command states after commands ``u`` (n, n_u) from ``z`` (n, Q + L, n_joint):
-        the play operators, then the delay line shifted by one sample; float32."""
-        if not self.n_state:
+        """Command states after commands ``u`` (n, n_u) from ``z`` (n, Q + L [+ 2], n_joint):
+        the play operators, then the delay line shifted by one sample (then the network's
+        own angle and velocity, passed through); float32."""
+        q, c = len(self.play), self.n_command
+        if not c:
             return z
-        q = len(self.play)
         us = scale_commands_np(u, self.spec)[:, None, : self.spec.n_joint]  # one sample per row
         parts = [play_np(us, self.play, z0=z[:, :q])[:, 0]] if q else []
-        if self.n_state > q:
-            parts.append(np.concatenate([z[:, q + 1 :], us], axis=1))
+        if c > q:
+            # line[k] = (us[k-L+1], ..., us[k])   (oldest first)
+            parts.append(np.concatenate([z[:, q + 1 : c], us], axis=1))
+        parts.append(z[:, c:])
         return np.concatenate(parts, axis=1).astype(np.float32)
 
     def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +174,9 @@ class OnnxStepper:
             if self.omega_in:
                 self._w_win[:, -1] = self.w
                 feed["w"] = self._w_win
-            omega, theta = self.session.run(None, feed)
+            outs = dict(zip(self._outputs, self.session.run(None, feed)))
+            omega, theta = outs["omega"], outs["theta_next"]
+            self.z = outs.get("z_out", self.z)  # joints on a map in parallel: own rows moved
             self._theta_win = np.roll(self._theta_win, -1, axis=1)
             self._u_win = np.roll(self._u_win, -1, axis=1)
             self._z_win = np.roll(self._z_win, -1, axis=1)
