@@ -269,7 +269,9 @@ def test_in_parallel_a_joint_the_map_runs_well_is_pinned_and_the_network_keeps_i
     val = [_scaled(_static_episode(s), np.array([1.1, 3.0])) for s in (7, 8)]
     net = with_map_joints(_net(), fit_prior(val, SPEC), [True, True])
     new, rec = choose_map_joints(net, train, val, parallel=True)
-    assert rec["val_theta_r2_map_delayed"][0] >= PERIODIC_MAP_R2 > rec["val_theta_r2_map_delayed"][1]
+    assert (
+        rec["val_theta_r2_map_delayed"][0] >= PERIODIC_MAP_R2 > rec["val_theta_r2_map_delayed"][1]
+    )
     assert rec["val_theta_rmse_map"][0] > 10 * max(rec["val_theta_rmse_network"][0], 1e-6)
     assert rec["pinned"] == ["a"] and rec["chosen"] == ["a"] and rec["composition"] == "parallel"
     assert new is not None and new.norm.own is not None and new.norm.own.own == (True, False)

@@ -490,7 +490,9 @@ class Normalization:
             what = "play features" if self.n_play else "delayed commands"
             raise ValueError(f"encode: this normalisation has {what}; pass z")
         nj, zc = len(self.periodic), z[..., : self.n_command, :]
-        return torch.cat([us, command_features(zc, us[..., :nj], self.play, self.lag_index)], dim=-1)
+        return torch.cat(
+            [us, command_features(zc, us[..., :nj], self.play, self.lag_index)], dim=-1
+        )
 
     def encode_np(
         self,

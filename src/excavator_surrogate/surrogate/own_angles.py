@@ -38,14 +38,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import torch
 
 from .angles import integrate
-
-if TYPE_CHECKING:
-    from .features import Normalization
 
 OWN_FIELDS = ("a_pos", "a_neg", "k_pos", "k_neg")
 """The map's per-joint tensors, ``(n_joint,)`` each (raw command units; rad/s per command unit)."""
@@ -132,8 +129,25 @@ class OwnMap:
         return self.k_pos * torch.relu(u - self.a_pos) - self.k_neg * torch.relu(self.a_neg - u)
 
 
+class OwnRows(Protocol):
+    """What these functions read of a :class:`.features.Normalization` (which imports this
+    module, so it is not imported here)."""
+
+    own: OwnMap | None
+    periodic: tuple[bool, ...]
+    u_center: torch.Tensor
+    u_scale: torch.Tensor
+
+    @property
+    def n_play(self) -> int: ...
+    @property
+    def n_line(self) -> int: ...
+    @property
+    def n_command(self) -> int: ...
+
+
 def network_inputs(
-    norm: Normalization,
+    norm: OwnRows,
     theta: torch.Tensor,
     z: torch.Tensor | None,
     omega: torch.Tensor | None = None,
@@ -154,7 +168,7 @@ def network_inputs(
 
 
 def own_start(
-    norm: Normalization,
+    norm: OwnRows,
     z: torch.Tensor,
     theta: torch.Tensor,
     omega: torch.Tensor | None = None,
@@ -171,7 +185,7 @@ def own_start(
 
 
 def own_advance(
-    norm: Normalization,
+    norm: OwnRows,
     z: torch.Tensor,
     u: torch.Tensor,
     omega_net: torch.Tensor,

@@ -133,11 +133,7 @@ def choose_map_joints(
     ]
     scores = [r["theta_rmse"] for r in runs]
     pinned = [
-        bool(
-            periodic
-            and (parallel or js.periodic)
-            and runs[0]["theta_r2"][j] >= PERIODIC_MAP_R2
-        )
+        bool(periodic and (parallel or js.periodic) and runs[0]["theta_r2"][j] >= PERIODIC_MAP_R2)
         for j, js in enumerate(spec.joints)
     ]
     pick = [
