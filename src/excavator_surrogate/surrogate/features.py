@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -242,19 +242,8 @@ class Normalization:
 
     def with_own(self, own: OwnMap | None) -> Normalization:
         """A copy whose joints ``own.own`` follow ``own``'s map in parallel (None: none)."""
-        return Normalization(
-            x_mean=self.x_mean.clone(),
-            x_std=self.x_std.clone(),
-            y_mean=self.y_mean.clone(),
-            y_std=self.y_std.clone(),
-            periodic=self.periodic,
-            u_center=self.u_center.clone(),
-            u_scale=self.u_scale.clone(),
-            play=self.play.clone(),
-            omega_in=self.omega_in,
-            lags=self.lags,
-            own=None if own is None else own.to(self.u_center.device, self.u_center.dtype),
-        )
+        dev = self.u_center
+        return replace(self, own=None if own is None else own.to(dev.device, dev.dtype))
 
     @classmethod
     def fit(
