@@ -43,6 +43,10 @@ def test_a_map_that_drives_validation_better_is_chosen_and_recorded(tmp_path: Pa
     assert new.metrics["map_joints"] == ["a", "b"] and new.model_cfg.prior
     assert new.metrics["val_error"] < 1e-3  # the plant is the map
     assert "follow(s) the static map" in rec["why"]
+    par, rec_p = choose_map_joints(_net(), train, val, parallel=True)
+    assert par is not None and par.norm.own is not None and par.norm.own.own == (True, True)
+    assert rec_p["chosen"] == ["a", "b"] and rec_p["composition"] == "parallel"
+    assert par.metrics["val_error"] < 1e-3
     # through the checkpoint: rewritten in place, the record in metrics.training
     path = save_checkpoint(tmp_path / "best.pt", _net())
     apply_map_choice(path, train, val)
@@ -275,7 +279,7 @@ def test_in_parallel_a_joint_the_map_runs_well_is_pinned_and_the_network_keeps_i
     assert rec["val_theta_rmse_map"][0] > 10 * max(rec["val_theta_rmse_network"][0], 1e-6)
     assert rec["pinned"] == ["a"] and rec["chosen"] == ["a"] and rec["composition"] == "parallel"
     assert new is not None and new.norm.own is not None and new.norm.own.own == (True, False)
-    assert "in parallel" in rec["why"] and new.metrics["val_error"] == rec["tried"][0]["val_error"]
+    assert "in parallel" in rec["why"] and new.metrics["val_error"] == rec["parallel"]["val_error"]
     u = np.stack([e.u for e in val])
     th0 = np.stack([e.theta[:6] for e in val])
     th_new, th_net = rollout(new, th0, u)[0], rollout(net, th0, u)[0]
