@@ -232,14 +232,10 @@ def auto_config(
     why.append(
         "static valve map as a candidate per joint: a joint follows the map (dead zone, gain "
         "per direction, delay) if its validation free run is within 5 % of the network's (a "
-        "near tie goes to the simpler model)"
-        + (
-            f"; {', '.join(turning)}, whose drift no end stop resets, follow(s) the map with its "
-            "fitted delay wherever that map alone runs the validation with angle R^2 >= "
-            f"{PERIODIC_MAP_R2:g}"
-            if turning
-            else ""
-        )
+        "near tie goes to the simpler model), and any joint whose map with its fitted delay "
+        f"alone runs the validation with angle R^2 >= {PERIODIC_MAP_R2:g} follows it; in "
+        "parallel: the networks keep reading their own angles of the map joints, so no map "
+        "joint moves the others"
     )
     cfg = TrainConfig(
         window=window,

@@ -157,11 +157,12 @@ class TrainConfig(PresetConfig, table="train"):
     """With ``static_map``: a periodic joint (the swing) whose map with the fitted delay alone
     runs its validation free run with angle R^2 >= 0.95 follows the map, whatever the network
     scores there (no end stop resets its drift; :mod:`.map_joints`)."""
-    map_parallel: bool = False
+    map_parallel: bool = True
     """With ``static_map``: the joints on the map are composed in parallel (the network keeps
-    reading its own angles of them, so the other joints run as in the network's own free run;
-    :mod:`~excavator_surrogate.surrogate.own_angles`), each chosen on its own, and with
-    ``map_periodic`` any joint whose map alone validates with angle R^2 >= 0.95 follows it."""
+    reading its own angles of them, so the other joints run as in its own free run;
+    :mod:`~excavator_surrogate.surrogate.own_angles`), and with ``map_periodic`` any joint,
+    not only a periodic one, whose map alone validates with angle R^2 >= 0.95 follows it;
+    false: in series, as before session 30 (the network reads the map's angles)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,
