@@ -29,6 +29,12 @@ with its fitted delay alone runs such a joint's validation free run with angle R
 :data:`PERIODIC_MAP_R2` (the map is a good model of it), the joint follows that map without a
 comparison with the network, and steps 2-4 choose among the other joints with it on the map.
 
+**In parallel** (``parallel``, ``[train] map_parallel``, the recipe's since session 30): the
+joints steps 2-4 keep, and every joint whose delayed map alone validates with angle R^2 >=
+:data:`PERIODIC_MAP_R2` (periodic or not), follow the map while the network keeps reading its
+own angles of them (:func:`~excavator_surrogate.surrogate.parallel.with_parallel_map`), so
+no map joint moves the others (:func:`choose_parallel`).
+
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
 in the log and in ``metrics.json``.  On a joint on the map, the ensemble's members drive it
 with gains spread like the map's stretch-wise gain over the training log
