@@ -132,3 +132,17 @@ def test_members_spread_on_the_map_joints_by_the_maps_gain_spread() -> None:
             want = mean * (1.0 + dev[m, PICK])
             torch.testing.assert_close(om_m[m, 0, PICK].double(), want, atol=1e-6, rtol=1e-5)
         torch.testing.assert_close(om[1, PICK], om_m[2, 1, PICK], atol=1e-6, rtol=1e-5)
+
+
+def test_resuming_training_from_a_parallel_model_is_one_clear_error(tmp_path: Path) -> None:
+    """Training runs the network alone: a checkpoint whose joints follow a map beside it
+    cannot be resumed (one line naming the file and the joints, and what to do)."""
+    from excavator_surrogate.training.resume import start
+    from tests.helpers.training import tiny_train_config
+
+    cfg = tiny_train_config(window=6, hidden=16)
+    net = tiny_surrogate(EXCAVATOR, seed=10, window=6, hidden=16)
+    path = save_checkpoint(tmp_path / "best.pt", on_parallel_map(net, delay=(1, 0, 0, 0)))
+    mcfg = cfg.model_config(EXCAVATOR.n_feature, EXCAVATOR.n_joint)
+    with pytest.raises(CheckpointError, match=r"best\.pt: joints swing, bucket follow .* last\.pt"):
+        start(cfg, mcfg, EXCAVATOR, [], path)

@@ -139,6 +139,12 @@ def start(
         return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived)
     ck = read_checkpoint(resume)
     old = surrogate_from_dict(ck, where=str(resume))
+    if old.norm.own is not None:  # training runs the network alone, not beside a map
+        raise CheckpointError(
+            f"{resume}: joints {', '.join((old.metrics or {}).get('map_joints') or [])} follow "
+            "the static map in parallel with this network (chosen after training); resume "
+            "from the run's last.pt, or a member's best.pt, instead"
+        )
     # a delayed speed prior widened the first layer by its delayed-command features
     if replace(old.model_cfg, n_feature=old.model_cfg.n_feature - old.norm.n_lag) != mcfg:
         raise CheckpointError(
