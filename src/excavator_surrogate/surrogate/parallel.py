@@ -15,7 +15,7 @@ import torch
 
 from .model import Surrogate
 from .own_angles import OwnMap
-from .structured import member_offsets
+from .structured import member_offsets, with_lag_columns
 
 
 def with_parallel_map(
@@ -58,7 +58,6 @@ def with_parallel_map(
     if sur.norm.own is not None:
         raise ValueError("with_parallel_map: this network already has joints on a map")
     spec = sur.spec
-    n_joint = spec.n_joint
     pick = [bool(j) for j in joints]
     own = OwnMap.from_fit(fit, pick)
     norm = sur.norm
@@ -66,12 +65,7 @@ def with_parallel_map(
     cfg = sur.model_cfg
     want = [int(d) for d in lags] if lags is not None else list(own.delay)
     if not norm.lags and any(want):
-        norm = norm.with_lags(want)
-        at = norm.lag_start  # the delayed commands' columns, read with zero weights
-        w = state["rnn.weight_ih_l0"]  # (gates, n_feature)
-        state["rnn.weight_ih_l0"] = torch.cat(
-            [w[:, :at], w.new_zeros(len(w), n_joint), w[:, at:]], 1
-        )
+        norm = with_lag_columns(norm, state, want)  # read with zero weights
         cfg = replace(cfg, n_feature=norm.n_feature)
     norm = norm.with_own(own)  # raises if the line cannot hold a delay
     net = type(sur.net)(cfg)

@@ -332,6 +332,20 @@ def member_offsets(n_member: int) -> torch.Tensor:
     return z / z.std() if n_member > 1 else z * 0.0
 
 
+def with_lag_columns(
+    norm: Normalization, state: dict[str, torch.Tensor], lags: Sequence[int]
+) -> Normalization:
+    """``norm`` with delayed-command features ``lags`` (:meth:`.Normalization.with_lags`),
+    and the network weights ``state`` (a ``state_dict``, changed in place) given zero weights
+    for those columns in their first layer: the network's output does not change (up to the
+    order of float sums).  Returns the new normalisation."""
+    new = norm.with_lags(lags)
+    at, n_joint = new.lag_start, len(new.periodic)  # the delayed commands' columns
+    w = state["rnn.weight_ih_l0"]  # (gates, n_feature)
+    state["rnn.weight_ih_l0"] = torch.cat([w[:, :at], w.new_zeros(len(w), n_joint), w[:, at:]], 1)
+    return new
+
+
 def with_map_joints(
     sur: Surrogate,
     fit: Mapping[str, Sequence[float]],
@@ -398,12 +412,7 @@ def with_map_joints(
             else [d if p else 0 for d, p in zip(delay, pick.tolist())]
         )
         if any(want):
-            norm = norm.with_lags(want)
-            at = norm.lag_start  # the delayed commands' columns
-            w = state["rnn.weight_ih_l0"]  # (gates, n_feature): zero weights for the new columns
-            state["rnn.weight_ih_l0"] = torch.cat(
-                [w[:, :at], w.new_zeros(len(w), n_joint), w[:, at:]], 1
-            )
+            norm = with_lag_columns(norm, state, want)
     elif lags is not None and tuple(int(d) for d in lags) != norm.lags:
         raise ValueError(f"with_map_joints: this network already reads the delays {norm.lags}")
 
