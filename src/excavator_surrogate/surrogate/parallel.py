@@ -81,16 +81,13 @@ def with_parallel_map(
         metrics["ensemble"] = {**ens, "own_gain_dev": dev.tolist()}
     metrics["map_joints"] = [n for n, p in zip(spec.names, pick) if p]
     metrics["map_parallel"] = True
-    return Surrogate(
+    return replace(
+        sur,
         net=net.to(sur.device, sur.dtype).train(sur.net.training),
-        spec=sur.spec,
         norm=norm.to(sur.device, sur.dtype),
         model_cfg=cfg,
-        mode=sur.mode,
         train_config=dict(sur.train_config or {}),
         metrics=metrics,
-        name=sur.name,
-        end_stops=sur.end_stops,
     )
 
 
