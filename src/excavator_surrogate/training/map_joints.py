@@ -174,16 +174,19 @@ def choose_map_joints(
         """The model with ``joints`` and the pinned joints on the map."""
         return with_map_joints(sur, fit, [bool(a or b) for a, b in zip(joints, pinned)])
 
-    base_model: Surrogate | None = None
-    base, lead = net, ""
-    if any(pinned):
-        base_model = build([False] * spec.n_joint)
-        base = free_run_error(base_model, list(val), max_steps=max_steps)
-        lead = (
-            f"{', '.join(record['pinned'])} follow(s) the static map with its fitted delay (a "
-            f"periodic joint that the map alone runs with validation angle R^2 >= "
-            f"{PERIODIC_MAP_R2:g}: no end stop resets its drift); "
-        )
+    base_model = build([False] * spec.n_joint) if any(pinned) else None
+    lead = (
+        f"{', '.join(record['pinned'])} follow(s) the static map with its fitted delay (a "
+        f"periodic joint that the map alone runs with validation angle R^2 >= "
+        f"{PERIODIC_MAP_R2:g}: no end stop resets its drift); "
+        if any(pinned)
+        else ""
+    )
+    # the series choice: which joints it keeps on the map, the model and its validation
+    # scores (None: not run yet; in parallel it is not needed)
+    kept: list[bool] = list(pinned)
+    model: Surrogate | None = base_model
+    got: Mapping[str, Any] | None = None
     if not any(cand):
         record["chosen"] = list(record["pinned"])
         record["why"] = lead + (
@@ -191,41 +194,42 @@ def choose_map_joints(
             f"{'other ' if lead else ''}joint's validation free run: "
             f"{'no other' if lead else 'no'} joint follows the map"
         )
-        if parallel:
-            return choose_parallel(
-                sur, fit, net, pinned, good, val, record=record, max_steps=max_steps
-            )
-        return _chosen(base_model, base), record
-    # every joint on one map is the all-map free run above: best_set need not run it again
-    known = (
-        {tuple(cand): runs[pick[0]]}
-        if all(c or p for c, p in zip(cand, pinned)) and len(set(pick)) == 1
-        else None
-    )
-    best = best_set(cand, build, base, val, record=record, max_steps=max_steps, known=known)
-    if best is None:
-        record["chosen"] = list(record["pinned"])
-        record["why"] = lead + (
-            f"every set of {'other ' if lead else ''}map joints is worse than the validation "
-            f"error {base['val_error']:.4g} without them by more than {SET_MARGIN:.0%} "
-            "overall, or on a joint by more than the whole gains: the network keeps them"
+    else:
+        base = (
+            net
+            if base_model is None
+            else free_run_error(base_model, list(val), max_steps=max_steps)
         )
-        if parallel:
-            return choose_parallel(
-                sur, fit, net, pinned, good, val, record=record, max_steps=max_steps
+        got = base
+        # every joint on one map is the all-map free run above: best_set need not run it again
+        known = (
+            {tuple(cand): runs[pick[0]]}
+            if all(c or p for c, p in zip(cand, pinned)) and len(set(pick)) == 1
+            else None
+        )
+        best = best_set(cand, build, base, val, record=record, max_steps=max_steps, known=known)
+        if best is None:
+            record["chosen"] = list(record["pinned"])
+            record["why"] = lead + (
+                f"every set of {'other ' if lead else ''}map joints is worse than the validation "
+                f"error {base['val_error']:.4g} without them by more than {SET_MARGIN:.0%} "
+                "overall, or on a joint by more than the whole gains: the network keeps them"
             )
-        return _chosen(base_model, base), record
-    hyb, got, joints = best
-    record["chosen"] = [n for n, p, q in zip(names, joints, pinned) if p or q]
-    record["why"] = lead + (
-        f"{', '.join(n for n, p in zip(names, joints) if p)} follow(s) the static map: "
-        f"validation error {got['val_error']:.4g} against {base['val_error']:.4g} without "
-        f"{'them' if sum(joints) > 1 else 'it'}" + ("" if lead else " (the network's)")
-    )
+        else:
+            model, got, joints = best
+            kept = [bool(p or q) for p, q in zip(joints, pinned)]
+            record["chosen"] = [n for n, k in zip(names, kept) if k]
+            record["why"] = lead + (
+                f"{', '.join(n for n, p in zip(names, joints) if p)} follow(s) the static map: "
+                f"validation error {got['val_error']:.4g} against {base['val_error']:.4g} "
+                f"without {'them' if sum(joints) > 1 else 'it'}"
+                + ("" if lead else " (the network's)")
+            )
     if parallel:
-        kept = [bool(p or q) for p, q in zip(joints, pinned)]
         return choose_parallel(sur, fit, net, kept, good, val, record=record, max_steps=max_steps)
-    return _chosen(hyb, got), record
+    if got is None:  # no candidate: the network, or the pinned joints on the map
+        got = net if model is None else free_run_error(model, list(val), max_steps=max_steps)
+    return _chosen(model, got), record
 
 
 def choose_parallel(
