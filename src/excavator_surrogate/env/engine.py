@@ -30,7 +30,7 @@ from ..errors import ConfigError
 from ..surrogate.angles import integrate
 from ..surrogate.ensemble import n_member
 from ..surrogate.model import Surrogate, step_layers
-from ..surrogate.own_angles import network_inputs, own_advance, own_start
+from ..surrogate.own_angles import network_inputs, own_advance, own_members, own_start
 from ..surrogate.parallel import own_gain_dev
 from .fused import FusedStep, play_and_features, rest_command
 from .members import MemberLSTM, from_dense, to_dense
@@ -141,14 +141,11 @@ class SurrogateEngine:
         self.theta_prev = torch.zeros_like(self.theta)
         lim = sur.limits()
         self._limits = None if lim is None else tuple(a.double() for a in lim)
-        own = self.norm.own
-        self._own = (
-            None
-            if own is None
-            else (own.own_mask, own_gain_dev(sur).to(self.device, torch.float32))
+        self._own_dev = (
+            None if self.norm.own is None else own_gain_dev(sur).to(self.device, torch.float32)
         )
-        """Joints on a map in parallel: their mask (n_joint,) and the members' gain deviations
-        (M, n_joint) (:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`), or None."""
+        """Joints on a map in parallel: the members' gain deviations (M, n_joint)
+        (:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`), or None."""
         self._members: MemberLSTM | None = None
         if self.mode == "stateful":
             if sur.model_cfg.cell not in ("lstm", "gru"):
@@ -448,13 +445,12 @@ class SurrogateEngine:
                     y = self.sur.net(self._ring[:, p + 1 : p + w + 1])
                 self._pos = (p + 1) % w
                 omega = self.norm.omega(y).double()
-            if self._own is not None:  # map joints in parallel: the map's speed; own angles on
+            if self._own_dev is not None:  # map joints in parallel: the map's speed; own angles on
                 omega, self.z = own_advance(
                     self.norm, self.z, u_t, omega, dt=self.dt, limits=self._limits
                 )
                 if om_m is not None:  # member m drives a map joint with gain 1 + dev[m]
-                    pick, dev = self._own
-                    om_m = torch.where(pick, omega.to(om_m) * (1.0 + dev[:, None, :]), om_m)
+                    om_m = own_members(self.norm, om_m, omega, self._own_dev)
             if self._limits is None:
                 theta.add_(omega, alpha=self.dt)
             else:

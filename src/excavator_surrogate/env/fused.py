@@ -23,7 +23,7 @@ from ..surrogate.command_state import command_features, command_step, delayed_co
 from ..surrogate.ensemble import member_head
 from ..surrogate.features import Normalization
 from ..surrogate.model import Surrogate
-from ..surrogate.own_angles import network_inputs, own_advance
+from ..surrogate.own_angles import network_inputs, own_advance, own_members
 from ..surrogate.parallel import own_gain_dev
 from ..surrogate.prior import SpeedPrior
 from .inputs import ActionLayout
@@ -447,8 +447,8 @@ class FusedMembersStep(FusedStep):
         if sur.norm.own is None:
             self.own_dev = None
         else:
-            dev = own_gain_dev(sur).float()  # (M, n_joint), 0 off the map's joints
-            self.register_buffer("own_dev", dev[:, None, :].clone())  # (M, 1, n_joint)
+            # (M, n_joint), 0 off the map's joints
+            self.register_buffer("own_dev", own_gain_dev(sur).float())
         self._a: torch.Tensor | None = None
 
     def head(self, out: torch.Tensor) -> torch.Tensor:
@@ -477,9 +477,8 @@ class FusedMembersStep(FusedStep):
                 # omega_m += map_dev[m] s(u)
                 om_m = om_m + self.map_dev * p.base
         norm = self.own()
-        if norm is not None and norm.own is not None and self.own_dev is not None:
+        if norm is not None and self.own_dev is not None:
             # omega_m = where(own, (1 + own_dev[m]) s(u[k - d]), omega_m)
-            gain = p.speed.unsqueeze(0) * (1.0 + self.own_dev)
-            om_m = torch.where(norm.own.own_mask, gain, om_m)
+            om_m = own_members(norm, om_m, p.speed, self.own_dev)
         outs = (p.omega, p.theta_next, p.h, p.c) + (() if p.z is None else (p.z,))
         return (*outs, om_m)

@@ -225,3 +225,24 @@ def own_advance(
     omega = torch.where(own.own_mask, s, omega_net)
     z = torch.cat([z[..., :c, :], th.unsqueeze(-2), w.unsqueeze(-2)], dim=-2)
     return omega, z
+
+
+def own_members(
+    norm: OwnRows, omega_members: torch.Tensor, omega: torch.Tensor, dev: torch.Tensor
+) -> torch.Tensor:
+    """The ensemble members' speeds with the joints on the map in parallel driven by the map:
+    member ``m`` drives such a joint with gain ``1 + dev[m]``.
+
+    Args:
+        norm: the normalisation (``norm.own`` the map; None: ``omega_members`` unchanged).
+        omega_members: (M, ..., n_joint) each member's speed [rad/s] from the network.
+        omega: (..., n_joint) the speed :func:`own_advance` returned (the map's on its joints).
+        dev: (M, n_joint) the members' gain deviations
+            (:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`).
+    """
+    if norm.own is None:
+        return omega_members
+    d = dev.to(omega_members).reshape(dev.shape[0], *[1] * (omega_members.dim() - 2), -1)
+    # omega_m = where(own, (1 + dev[m]) omega, omega_m)
+    gain = omega.to(omega_members).unsqueeze(0) * (1.0 + d)
+    return torch.where(norm.own.own_mask, gain, omega_members)

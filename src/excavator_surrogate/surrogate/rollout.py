@@ -32,7 +32,7 @@ from .angles import integrate, integrate_np, omega_in_np, omega_target
 from .ensemble import check_members, member_head
 from .features import Normalization
 from .model import State, Surrogate
-from .own_angles import OWN_FIELDS, network_inputs, own_advance, own_start
+from .own_angles import OWN_FIELDS, network_inputs, own_advance, own_members, own_start
 from .parallel import own_gain_dev
 
 Mode = Literal["windowed", "stateful"]
@@ -216,15 +216,14 @@ class ClosedLoop:
         with gain ``1 + own_dev[m]`` (:func:`.parallel.own_gain_dev`); a row that follows a
         member integrates that member's; returns the speed to integrate."""
         assert self.omega_members is not None and self.norm.own is not None
-        dev = self._own_dev  # (M, n_joint), 0 off the own joints
-        pick = self.norm.own.own_mask
-        om_m = torch.where(pick, omega.unsqueeze(0) * (1.0 + dev[:, None, :]), self.omega_members)
+        assert self._own_dev is not None
+        om_m = own_members(self.norm, self.omega_members, omega, self._own_dev)
         self.omega_members = om_m
         if self.follow is None:
             return omega
         rows = torch.arange(omega.shape[0], device=omega.device)
         mine = om_m[self.follow.clamp(min=0), rows]
-        return torch.where((self.follow >= 0)[:, None] & pick, mine, omega)
+        return torch.where((self.follow >= 0)[:, None] & self.norm.own.own_mask, mine, omega)
 
 
 @torch.no_grad()
