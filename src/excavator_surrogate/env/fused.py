@@ -19,7 +19,7 @@ from torch import nn
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.angles import integrate
-from ..surrogate.command_state import command_features, command_step, delayed_commands
+from ..surrogate.command_state import command_features, command_rows_step, delayed_commands
 from ..surrogate.ensemble import member_head
 from ..surrogate.features import Normalization
 from ..surrogate.model import Surrogate
@@ -108,9 +108,8 @@ def play_and_features(
     if not c:  # only the network's own angle and velocity: no command features
         return z, None
     us = (u[..., :nj] - module.u_center[:nj]) / module.u_scale[:nj]
-    zc = command_step(z[..., :c, :], us, module.play)
-    f = command_features(zc, us, module.play, module.lag_index)
-    return (torch.cat([zc, z[..., c:, :]], dim=-2) if z.shape[-2] > c else zc), f
+    z = command_rows_step(z, us, module.play, c)
+    return z, command_features(z[..., :c, :], us, module.play, module.lag_index)
 
 
 def _prior_lagged(sur: Surrogate) -> list[bool]:

@@ -10,8 +10,9 @@ runtime carries that history as one tensor ``z: (..., Q + L, n_joint)`` of scale
 - rows ``Q..Q+L-1``: the last ``L`` commands, oldest first; their features are each joint's
   command ``d_j`` samples back, row ``L - 1 - d_j`` (``lag_index``).
 
-:func:`command_step`, :func:`command_features` and :func:`delayed_commands` are the only
-torch code that knows this layout; :class:`.features.Normalization`, the fused step and the
+:func:`command_step` (:func:`command_rows_step` with rows after the command state),
+:func:`command_features` and :func:`delayed_commands` are the only torch code that knows
+this layout; :class:`.features.Normalization`, the fused step and the
 ONNX graphs call them.
 The NumPy functions are the plain-loop references.
 """
@@ -107,6 +108,18 @@ def command_step(z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor) -> tor
         return play_step(z, us, widths)
     line = line_step(z[..., q:, :], us)
     return torch.cat([play_step(z[..., :q, :], us, widths), line], dim=-2) if q else line
+
+
+def command_rows_step(
+    z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor, n_command: int
+) -> torch.Tensor:
+    """:func:`command_step` on the first ``n_command`` (Q + L) rows of ``z: (..., Q + L + R,
+    n_joint)``; the R rows after them (the network's own angle and velocity,
+    :mod:`.own_angles`) pass through unchanged."""
+    if z.shape[-2] == n_command:
+        return command_step(z, us, widths)
+    rest = z[..., n_command:, :]
+    return torch.cat([command_step(z[..., :n_command, :], us, widths), rest], dim=-2)
 
 
 def command_features(

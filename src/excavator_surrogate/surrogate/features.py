@@ -45,7 +45,7 @@ from ..spec import MachineSpec
 from .angles import omega_in_np, omega_target
 from .command_state import (
     command_features,
-    command_step,
+    command_rows_step,
     line_from_rest_np,
     play_features_np,
     play_np,
@@ -391,10 +391,7 @@ class Normalization:
             return z
         nj = len(self.periodic)
         us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
-        if not self.n_own:
-            return command_step(z, us, self.play)
-        c = self.n_command
-        return torch.cat([command_step(z[..., :c, :], us, self.play), z[..., c:, :]], dim=-2)
+        return command_rows_step(z, us, self.play, self.n_command)
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Command states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch,
