@@ -40,7 +40,7 @@ For each shape, in one run on the same data:
 The simulated shapes are also scored on more test data of the same machine (``--more-test
 N``, :data:`MORE_TEST`: the continuous log's next 8 x 160 s, 12 more sessions; 0 for none),
 in a second table and the JSON's ``more`` block: one test segment can rank models the other
-way from many (docs/real.md, *More test data*).
+way from many (docs/real-history.md, *More test data*).
 
 ``--condition`` also trains the recipe on the shape's run-condition variant: h1's H/L run
 condition as a per-run input (``examples/real_excavator_condition.toml``); the continuous
@@ -65,7 +65,7 @@ developed on (seed 0).
 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
-train.prior_choice=false`` for the recipe without the per-joint kind choice (docs/real.md).
+train.prior_choice=false`` for the recipe without the per-joint kind choice (docs/real-history.md).
 ``--work DIR`` keeps every network; ``bench/real_rechoose.py --work DIR`` then makes the
 kind and static map choices again on them with the code on the path (no training).  ``--smoke``: one
 seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2

@@ -11,7 +11,7 @@ composed with the network in two ways:
 
 A network's joints are coupled through what they read: on the continuous dev case the arm's
 network, reading a map-driven bucket it never saw in its own free run, drifted 1.6x further
-on the test (docs/real.md, session 29).  In parallel, the network's free run is the
+on the test (docs/real-history.md, session 29).  In parallel, the network's free run is the
 network's own and a map joint's angle depends on its own command only, so every joint scores
 as its source scores alone, and the choice can be made per joint.
 

@@ -6,7 +6,8 @@ nobody wrote down, at whatever rate the user resampled to.  :func:`auto_config` 
 dataset's sizes, rate and episode lengths and returns a complete :class:`TrainConfig` plus a
 list of one-line reasons (logged and recorded in ``config.toml``).
 
-The recipe, and the measurement behind each choice, is documented in ``docs/real.md``:
+The recipe is documented in ``docs/real.md``, and the measurement behind each choice in
+``docs/real-history.md``:
 
 - the paper's network (2 x 128 LSTM, FC-ReLU-linear head, window W = 30 samples; W shrinks
   for data whose episodes are too short for it);
@@ -84,7 +85,7 @@ one candidate at a time.  The plan's constant, not a measurement of today's code
 candidates now free-run together (``surrogate.validation.free_run_errors``, about 0.7x
 the time of two runs), and the epochs before ``select_after`` are not validated, so a long
 log's member finishes well within its estimate.  The plan keeps it: more epochs in the same
-budget did not pay on one long log (docs/real.md, "Faster, not longer")."""
+budget did not pay on one long log (docs/real-history.md, "Faster, not longer")."""
 MEMBERS = 4
 """Fewest seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
 MAX_MEMBERS = 8
@@ -92,7 +93,7 @@ MAX_MEMBERS = 8
 epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
 varies less from seed to seed, and another CPU's kernels act like another draw of the seeds
 (docs/design.md). On h1-dev's validation runs the bucket's error was 11-23 deg for single
-members, 14.0-16.5 for 4-member ensembles and 12.8-14.0 for 8-member ones (docs/real.md)."""
+members, 14.0-16.5 for 4-member ensembles and 12.8-14.0 for 8-member ones (docs/real-history.md)."""
 SEQ_BATCH = 16
 """Sub-sequences per batch."""
 SHORT_VAL_EPISODES = 4

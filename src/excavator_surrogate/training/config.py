@@ -61,8 +61,8 @@ class TrainConfig(PresetConfig, table="train"):
     """Adam learning rate."""
     weight_decay: float = 0.0
     """Decoupled weight decay (AdamW): each optimiser step shrinks every weight by
-    ``lr * weight_decay`` of itself (0 = plain Adam, the paper's; ours, an option: docs/real.md
-    has where it helped and where it hurt)."""
+    ``lr * weight_decay`` of itself (0 = plain Adam, the paper's; ours, an option:
+    docs/real-history.md has where it helped and where it hurt)."""
     batch_size: int = 256
     """Windowed: windows per batch; per process with DDP (global batch = batch_size x world size)."""
     epochs: int = 50
@@ -166,7 +166,7 @@ class TrainConfig(PresetConfig, table="train"):
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,
-    not the paper's; an option, not the recipe's: docs/real.md has where it helped)."""
+    not the paper's; an option, not the recipe's: docs/real-history.md has where it helped)."""
     prior_choice: bool = False
     """Beside the ``members`` plain networks, about half as many more correct the static map
     (as with ``prior``, the same seeds); per joint, the kind whose ensemble validates better

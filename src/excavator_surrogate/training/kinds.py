@@ -3,7 +3,7 @@
 A network trained from scratch and one that corrects the static valve map (``prior``: dead
 zone, gain per direction, delay) generalise differently, and not alike on every joint: on
 the stand-in sessions case the map-correcting networks drove the boom and the bucket better
-on validation and on the test day, the plain ones the arm (docs/real.md).  With
+on validation and on the test day, the plain ones the arm (docs/real-history.md).  With
 ``prior_choice`` the run trains the whole plain ensemble (``members`` networks, seeds
 ``seed, seed + 1, ...``, as without the option) and :func:`prior_members` more that
 correct the map (seeds ``seed, seed + 1, ...``): ``members + prior_members(members)``

@@ -2,7 +2,7 @@
 
 A network trained on a few minutes of one machine can fit them better than any simple model
 and still generalise worse: on a test that drives the machine harder, or on another day, a
-joint's free run drifts where the structured model's does not (``docs/real.md``).  So after
+joint's free run drifts where the structured model's does not (``docs/real-history.md``).  So after
 training (and merging), the recipe puts a simple model next to the network as a candidate
 per joint, chosen on the validation free run like an epoch is:
 
@@ -79,7 +79,8 @@ PERIODIC_MAP_R2 = 0.95
 validation free run with angle R^2 at least this (the demo's quality line).  On the four
 simulated operator logs the swing's map scored 0.97-0.99 there and was the best swing model on
 their more test data, or within 10 % of it, where networks validated up to 2.3x better than it
-and drifted up to 4.9x further; on the stroke case's lab runs it scored 0.02 (docs/real.md)."""
+and drifted up to 4.9x further; on the stroke case's lab runs it scored 0.02
+(docs/real-history.md)."""
 
 
 def joint_allowance(val_error: float, base_error: float) -> float:
@@ -92,7 +93,7 @@ def joint_allowance(val_error: float, base_error: float) -> float:
     the whole gains; one that gains less may cost a joint :data:`SET_MARGIN` at most.  (On the
     sessions case, the arm on the map lowered the whole validation error by 20 % and moved the
     bucket, which reads the arm's angle, 13 % worse; on 12 more test sessions the arm was
-    24-29 % better and the bucket 2-7 % worse, over 3 seeds.  docs/real.md.)"""
+    24-29 % better and the bucket 2-7 % worse, over 3 seeds.  docs/real-history.md.)"""
     if not (math.isfinite(val_error) and math.isfinite(base_error) and base_error > 0):
         return SET_MARGIN  # nothing to share out (a perfect or failed base)
     return max(SET_MARGIN, 1.0 - val_error / base_error)
@@ -252,7 +253,7 @@ def choose_parallel(
     command only, so every joint scores as its source does alone: a joint the map runs that
     well is pinned to it, periodic or not (on the first continuous dev log the bucket's map
     validated 19 % worse than the network and drifted 4.7x less on the test, and in series
-    the arm, reading the map's bucket, drifted 1.6x further; docs/real.md).  The other
+    the arm, reading the map's bucket, drifted 1.6x further; docs/real-history.md).  The other
     candidates still pass the series set rule first (``kept``): in parallel no joint would
     pay for them, but the rule is the stricter evidence (the same log's boom map validated
     6-25 % better than the network in two seeds, the set with it was refused, and it was
