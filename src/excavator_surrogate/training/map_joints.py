@@ -175,7 +175,6 @@ def choose_map_joints(
         """The model with ``joints`` and the pinned joints on the map."""
         return with_map_joints(sur, fit, [bool(a or b) for a, b in zip(joints, pinned)])
 
-    base_model = build([False] * spec.n_joint) if any(pinned) else None
     lead = (
         f"{', '.join(record['pinned'])} follow(s) the static map with its fitted delay (a "
         f"periodic joint that the map alone runs with validation angle R^2 >= "
@@ -183,10 +182,10 @@ def choose_map_joints(
         if any(pinned)
         else ""
     )
-    # the series choice: which joints it keeps on the map, the model and its validation
-    # scores (None: not run yet; in parallel it is not needed)
+    # the series choice: which joints it keeps on the map, its model (None: the network) and
+    # its validation scores (None: not run yet; in parallel neither is needed)
     kept: list[bool] = list(pinned)
-    model: Surrogate | None = base_model
+    model: Surrogate | None = None
     got: Mapping[str, Any] | None = None
     if not any(cand):
         record["chosen"] = list(record["pinned"])
@@ -196,11 +195,9 @@ def choose_map_joints(
             f"{'no other' if lead else 'no'} joint follows the map"
         )
     else:
-        base = (
-            net
-            if base_model is None
-            else free_run_error(base_model, list(val), max_steps=max_steps)
-        )
+        # the base: the pinned joints alone on the map (best_set's sets add to it)
+        model = build([False] * spec.n_joint) if any(pinned) else None
+        base = net if model is None else free_run_error(model, list(val), max_steps=max_steps)
         got = base
         # every joint on one map is the all-map free run above: best_set need not run it again
         known = (
@@ -229,6 +226,7 @@ def choose_map_joints(
     if parallel:
         return choose_parallel(sur, fit, net, kept, good, val, record=record, max_steps=max_steps)
     if got is None:  # no candidate: the network, or the pinned joints on the map
+        model = build([False] * spec.n_joint) if any(pinned) else None
         got = net if model is None else free_run_error(model, list(val), max_steps=max_steps)
     return _chosen(model, got), record
 
