@@ -10,6 +10,7 @@ from torch import nn
 
 from excavator_surrogate.data import Episode
 from excavator_surrogate.spec import EXCAVATOR, MachineSpec
+from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
 from excavator_surrogate.surrogate.parallel import with_parallel_map
@@ -143,7 +144,8 @@ def variant_surrogate(
     prior (both where the cell has a head: not ARX, which then runs without them), and
     ``delayed_map`` puts the swing and the bucket on a static map with delays 2 and 0
     (:func:`on_static_map`; LSTM/GRU without a head only); ``parallel_map`` puts them on it
-    in parallel (:func:`on_parallel_map`, delays 2 and 0; LSTM/GRU only)."""
+    in parallel (:func:`on_parallel_map`, delays 2 and 0, with end stops tighter than the
+    network's; LSTM/GRU only)."""
     sur = tiny_surrogate(
         mode=mode,
         cell=cell,
@@ -155,7 +157,7 @@ def variant_surrogate(
         prior=prior and cell != "arx",
     )
     if parallel_map and cell != "arx":
-        return on_parallel_map(sur, delay=(2, 0, 0, 0))
+        return on_parallel_map(sur, delay=(2, 0, 0, 0), stops=end_stops)
     return on_static_map(sur, delay=(2, 0, 0, 0)) if delayed_map and cell != "arx" else sur
 
 
@@ -179,10 +181,20 @@ def map_fit(spec: MachineSpec, delay: tuple[int, ...] | None = None) -> dict:
     return fit
 
 
-def on_parallel_map(sur, *, delay: tuple[int, ...] | None = None):
+def tight_stops(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray]:
+    """End stops 30 % of each joint's range inside the spec's (``(lo, hi)``, (n_joint,) each
+    [rad]; +-inf where it has none): tighter than the network's, as a map joint's may be."""
+    lo, hi = joint_limits(spec)
+    span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+    return lo + 0.3 * span, hi - 0.3 * span
+
+
+def on_parallel_map(sur, *, delay: tuple[int, ...] | None = None, stops: bool = False):
     """``sur`` with the swing and the bucket on :func:`map_fit`'s map in parallel (the
-    network reads its own angles of them)."""
-    return with_parallel_map(sur, map_fit(sur.spec, delay), PARALLEL_JOINTS)
+    network reads its own angles of them); ``stops``: the map joints stop at
+    :func:`tight_stops` (the network keeps its own)."""
+    map_stops = tight_stops(sur.spec) if stops else None
+    return with_parallel_map(sur, map_fit(sur.spec, delay), PARALLEL_JOINTS, map_stops=map_stops)
 
 
 def on_static_map(sur, *, delay: tuple[int, ...] | None = None):

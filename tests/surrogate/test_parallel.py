@@ -21,7 +21,13 @@ from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.parallel import own_gain_dev, with_parallel_map
 from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout, rollout_reference
 from excavator_surrogate.surrogate.uncertainty import map_note
-from tests.helpers.surrogates import PARALLEL_JOINTS, map_fit, on_parallel_map, tiny_surrogate
+from tests.helpers.surrogates import (
+    PARALLEL_JOINTS,
+    map_fit,
+    on_parallel_map,
+    tight_stops,
+    tiny_surrogate,
+)
 
 PICK = np.array(PARALLEL_JOINTS)
 
@@ -64,6 +70,38 @@ def test_each_joint_runs_as_its_source_alone(mode: str, kw: dict, delay) -> None
     np.testing.assert_allclose(om[0, w:], om_ref[w:], atol=2e-4)
     # the map joints move: the map is not a constant
     assert np.ptp(th[0, w:, 0]) > 1e-3 and np.ptp(th[0, w:, 3]) > 1e-3
+
+
+def test_map_joints_stop_at_their_own_end_stops_and_the_network_at_its(tmp_path: Path) -> None:
+    """With tighter end stops on the map joints (the structured model's), the map joints stop
+    there, the network still runs its own free run within its own end stops (the other joints
+    are exactly the network's alone), the plain loop agrees, and the checkpoint keeps both."""
+    net = tiny_surrogate(EXCAVATOR, seed=4, end_stops=True, drive=20.0)
+    par = on_parallel_map(net, delay=(2, 0, 0, 0), stops=True)
+    lo, hi = tight_stops(EXCAVATOR)
+    own = par.norm.own
+    assert own is not None and own.theta_min is not None and own.theta_max is not None
+    np.testing.assert_allclose(own.theta_min.numpy()[1:], net.limits_np()[0][1:])
+    assert par.spec.joints[3].theta_max == pytest.approx(hi[3])  # the bucket: the map's stops
+    assert par.spec.joints[1].theta_max == net.spec.joints[1].theta_max  # the boom: the network's
+    theta, u = _drive(n_step=120, seed=3)
+    u[0, :, 3] = 900.0  # the map drives the bucket up into its stop; the network drives it down
+    th, om = rollout(par, theta, u)
+    th_net, _ = rollout(net, theta, u)
+    np.testing.assert_allclose(th[0][:, ~PICK], th_net[0][:, ~PICK], atol=2e-5)
+    w = net.window
+    assert th[0, w:, 3].max() == pytest.approx(hi[3], abs=1e-6)
+    assert th_net[0, w:, 3].min() < lo[3]  # the network's own bucket goes past the map's stop
+    th_ref, om_ref = rollout_reference(par, theta[0], u[0])
+    np.testing.assert_allclose(th[0], th_ref, atol=2e-5)
+    np.testing.assert_allclose(om[0, w:], om_ref[w:], atol=2e-4)
+    back = load_checkpoint(save_checkpoint(tmp_path / "m.pt", par))
+    assert back.norm.own is not None and back.norm.own.theta_min is not None
+    np.testing.assert_allclose(rollout(back, theta, u)[0], th, atol=1e-6)
+    old = checkpoint_dict(par)  # a checkpoint from before the own end stops were kept
+    del old["norm"]["own_theta_min"], old["norm"]["own_theta_max"]
+    write_checkpoint_dict(tmp_path / "old.pt", old)
+    assert load_checkpoint(tmp_path / "old.pt").norm.own.theta_min is None
 
 
 def test_the_map_joints_follow_the_map_whatever_the_network_does() -> None:

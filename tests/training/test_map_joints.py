@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.ensemble import member_head, merge
+from excavator_surrogate.surrogate.envelope import fill_envelope
 from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.map_joints import (
@@ -296,3 +298,38 @@ def test_in_parallel_a_joint_the_map_runs_well_is_pinned_and_the_network_keeps_i
     assert back.norm.own is not None and back.norm.own.own == (True, False)
     assert back.metrics["training"]["static_map"]["composition"] == "parallel"
     np.testing.assert_allclose(rollout(back, th0, u)[0], th_new, atol=1e-6)
+
+
+def test_a_map_joint_stops_at_the_training_range_and_the_network_keeps_its_margin() -> None:
+    """``end_stops``: a joint on the map stops where the structured baseline does (the
+    training range), in series and in parallel, and the record says so; the network's end
+    stops (the range and a margin) stay on the other joints and, in parallel, on its own
+    angles; ``end_stops=False`` keeps the network's on every joint."""
+    train = [_static_episode(s) for s in range(3)]
+    val = [_static_episode(s) for s in (7, 8)]
+    th = np.concatenate([e.theta for e in train])
+    lo, hi = th.min(axis=0), th.max(axis=0)
+    spec, _ = fill_envelope(SPEC, train, limit_margin=0.2, speed_margin=-1.0)
+    net = dataclasses.replace(_net(), spec=spec, end_stops=True)
+    wide_lo, wide_hi = joint_limits(spec)
+    assert np.all(wide_lo < lo) and np.all(wide_hi > hi)
+    for parallel in (False, True):
+        new, rec = choose_map_joints(net, train, val, parallel=parallel)
+        assert new is not None and rec["chosen"] == ["a", "b"]
+        got_lo, got_hi = joint_limits(new.spec)
+        np.testing.assert_allclose(got_lo, lo)
+        np.testing.assert_allclose(got_hi, hi)
+        np.testing.assert_allclose(rec["end_stops"]["theta_max"], hi)
+        if parallel:
+            np.testing.assert_allclose(new.norm.own.theta_min.numpy(), wide_lo)
+        kept, rec_off = choose_map_joints(net, train, val, parallel=parallel, end_stops=False)
+        assert kept is not None and rec_off["end_stops"] == "the network's"
+        np.testing.assert_allclose(joint_limits(kept.spec)[1], wide_hi)
+    # a machine 1.5x as fast on validation: the map's free run now meets the training range
+    fast = [_scaled(e, 1.5) for e in val]
+    new, _ = choose_map_joints(net, train, fast, parallel=True)
+    wide, _ = choose_map_joints(net, train, fast, parallel=True, end_stops=False)
+    u = np.stack([e.u for e in fast])
+    th0 = np.stack([e.theta[:6] for e in fast])
+    th_new, th_wide = rollout(new, th0, u)[0], rollout(wide, th0, u)[0]
+    assert th_new.max() <= hi.max() + 1e-6 < th_wide.max()

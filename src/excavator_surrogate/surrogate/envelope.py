@@ -83,3 +83,26 @@ def fill_envelope(
         joints.append(dataclasses.replace(j, **changes) if changes else j)
         info[j.name] = rec
     return dataclasses.replace(spec, joints=tuple(joints)), info
+
+
+def with_end_stops(
+    spec: MachineSpec, lo: Sequence[float], hi: Sequence[float], *, joints: Sequence[bool]
+) -> MachineSpec:
+    """``spec`` with the end stops of ``joints`` set to ``lo`` / ``hi``.
+
+    Args:
+        spec: the machine.
+        lo, hi: (n_joint,) end stops [rad]; an infinite value sets none.
+        joints: (n_joint,) which joints take them; periodic joints keep none.
+    """
+    out = []
+    for j, a, b, p in zip(spec.joints, lo, hi, joints):
+        if p and not j.periodic:
+            a, b = float(a), float(b)
+            j = dataclasses.replace(
+                j,
+                theta_min=a if math.isfinite(a) else None,
+                theta_max=b if math.isfinite(b) else None,
+            )
+        out.append(j)
+    return dataclasses.replace(spec, joints=tuple(out))

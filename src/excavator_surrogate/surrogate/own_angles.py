@@ -22,9 +22,13 @@ that carries ``z`` (free run, environments, forks, ONNX) carries them.  One step
     theta_in  = where(own, theta_own[k], theta[k])       what the network reads
     omega_in  = where(own, omega_own[k], omega[k])       (its velocity feature, if any)
     omega_net = network(theta_in, u[k], z, omega_in)     its own omega[k+1], every joint
-    theta_own[k+1], omega_own[k+1] = integrate(theta_own[k], omega_net)   (end stops)
+    theta_own[k+1], omega_own[k+1] = integrate(theta_own[k], omega_net)   (the network's end stops)
     omega[k+1] = where(own, s(u[k - d]), omega_net)      the reported speed
-    theta[k+1] = integrate(theta[k], omega[k+1])         (end stops)
+    theta[k+1] = integrate(theta[k], omega[k+1])         (the model's end stops)
+
+The model's end stops are the spec's; a map joint's may be tighter than the network's (the
+structured model's: the training range), and then :class:`OwnMap` keeps the network's for the
+own rows, so the network's free run stays its own.
 
 with the map ``s_j(u) = k_pos,j max(u_j - a_pos,j, 0) - k_neg,j max(a_neg,j - u_j, 0)`` of the
 joint's command ``d_j`` samples back (from the command delay line; ``d_j = 0``: the current
@@ -37,7 +41,7 @@ input unchanged when the normalisation has no such joints.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import torch
@@ -46,6 +50,8 @@ from .angles import integrate
 
 OWN_FIELDS = ("a_pos", "a_neg", "k_pos", "k_neg")
 """The map's per-joint tensors, ``(n_joint,)`` each (raw command units; rad/s per command unit)."""
+OWN_STOPS = ("theta_min", "theta_max")
+"""The network's own end stops, ``(n_joint,)`` each [rad], when the map joints stop elsewhere."""
 N_OWN_ROWS = 2
 """Rows of ``z`` after the command state: the network's own angle [rad], then its own velocity
 [rad/s], per joint."""
@@ -57,7 +63,9 @@ class OwnMap:
 
     ``own``: (n_joint,) which joints report the map's speed; ``a_pos``, ``a_neg`` [command
     units] the dead zone, ``k_pos``, ``k_neg`` [rad/s per command unit] the gains (0 off
-    ``own``); ``delay``: (n_joint,) the samples ``d_j`` each joint's map reads its command back.
+    ``own``); ``delay``: (n_joint,) the samples ``d_j`` each joint's map reads its command back;
+    ``theta_min``, ``theta_max``: (n_joint,) the network's own end stops [rad] (+-inf: none),
+    where the map joints' reported angles stop elsewhere (None: the model's end stops).
     """
 
     own: tuple[bool, ...]
@@ -66,6 +74,8 @@ class OwnMap:
     k_pos: torch.Tensor
     k_neg: torch.Tensor
     delay: tuple[int, ...]
+    theta_min: torch.Tensor | None = None
+    theta_max: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         n = len(self.own)
@@ -75,6 +85,12 @@ class OwnMap:
             raise ValueError(f"delay must be one value >= 0 per joint, got {list(self.delay)}")
         for k in OWN_FIELDS:
             if tuple(getattr(self, k).shape) != (n,):
+                raise ValueError(f"own map {k} must have shape ({n},)")
+        if (self.theta_min is None) != (self.theta_max is None):
+            raise ValueError("own map: give both theta_min and theta_max, or neither")
+        for k in OWN_STOPS:
+            t = getattr(self, k)
+            if t is not None and tuple(t.shape) != (n,):
                 raise ValueError(f"own map {k} must have shape ({n},)")
         self.own_mask = torch.tensor(self.own, device=self.a_pos.device)
         """(n_joint,) bool :attr:`own` on the map's device."""
@@ -101,13 +117,26 @@ class OwnMap:
     def to(self, device: torch.device | str, dtype: torch.dtype = torch.float32) -> OwnMap:
         """Copy with the tensors on ``device`` / ``dtype``."""
         kw = {k: getattr(self, k).to(device=device, dtype=dtype) for k in OWN_FIELDS}
+        for k in OWN_STOPS:
+            t = getattr(self, k)
+            kw[k] = None if t is None else t.to(device=device, dtype=dtype)
         return OwnMap(own=self.own, delay=self.delay, **kw)
 
+    def with_stops(self, lo: Sequence[float], hi: Sequence[float]) -> OwnMap:
+        """A copy whose own rows stop at ``lo`` / ``hi`` (n_joint,) [rad] (float64)."""
+        t = {"dtype": torch.float64}
+        return replace(self, theta_min=torch.tensor(lo, **t), theta_max=torch.tensor(hi, **t))
+
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """Plain tensors for the checkpoint's ``norm`` entry (keys ``own_*``)."""
+        """Plain tensors for the checkpoint's ``norm`` entry (keys ``own_*``; the end stops in
+        float64, as the spec holds them)."""
         out = {f"own_{k}": getattr(self, k).detach().cpu().float() for k in OWN_FIELDS}
         out["own_joints"] = torch.tensor(self.own, dtype=torch.float32)
         out["own_delay"] = torch.tensor(self.delay, dtype=torch.float32)
+        for k in OWN_STOPS:
+            t = getattr(self, k)
+            if t is not None:
+                out[f"own_{k}"] = t.detach().cpu().double()
         return out
 
     @classmethod
@@ -117,7 +146,12 @@ class OwnMap:
             return None
         own = tuple(bool(float(v)) for v in torch.as_tensor(d["own_joints"]).reshape(-1))
         delay = tuple(round(float(v)) for v in torch.as_tensor(d["own_delay"]).reshape(-1))
-        kw = {k: torch.as_tensor(d[f"own_{k}"]).float().reshape(-1).clone() for k in OWN_FIELDS}
+        kw: dict[str, Any] = {
+            k: torch.as_tensor(d[f"own_{k}"]).float().reshape(-1).clone() for k in OWN_FIELDS
+        }
+        for k in OWN_STOPS:  # a checkpoint from before these were kept: the model's stops
+            if f"own_{k}" in d:
+                kw[k] = torch.as_tensor(d[f"own_{k}"]).double().reshape(-1).clone()
         return cls(own=own, delay=delay, **kw)
 
     def speed(self, u: torch.Tensor) -> torch.Tensor:
@@ -212,6 +246,9 @@ def own_advance(
         return omega_net, z
     own, c, nj = norm.own, norm.n_command, len(norm.periodic)
     lim = None if limits is None else tuple(a.to(z) for a in limits)
+    if lim is not None and own.theta_min is not None and own.theta_max is not None:
+        # the network's own angles keep the network's end stops (the map joints' are the map's)
+        lim = (own.theta_min.to(z), own.theta_max.to(z), *lim[2:])
     # theta_own[k+1], omega_own[k+1] = integrate(theta_own[k], omega_net[k+1])
     th, w = integrate(z[..., c, :], omega_net.to(z.dtype), dt=dt, limits=lim)
     if norm.n_line:  # each joint's scaled command d_j back: delay line row L - 1 - d_j

@@ -13,6 +13,8 @@ from dataclasses import replace
 
 import torch
 
+from .angles import joint_limits
+from .envelope import with_end_stops
 from .model import Surrogate
 from .own_angles import OwnMap
 from .structured import member_offsets, with_lag_columns
@@ -24,9 +26,14 @@ def with_parallel_map(
     joints: Sequence[bool],
     *,
     lags: Sequence[int] | None = None,
+    map_stops: tuple[Sequence[float], Sequence[float]] | None = None,
 ) -> Surrogate:
     """A copy of ``sur`` whose ``joints`` report the static map ``fit``'s speed and angle
     while its network runs as before, reading its own angles of them.
+
+    With ``map_stops`` the map joints' reported angles stop there (the copy's spec), and the
+    network's own angles keep ``sur``'s end stops (:attr:`.own_angles.OwnMap.theta_min`), so
+    the network's free run is still its own.
 
     The network's weights are ``sur``'s.  A map with a delay ``d_j > 0`` reads the command
     ``d_j`` samples back from the command delay line: a network without delayed-command
@@ -44,6 +51,9 @@ def with_parallel_map(
         joints: (n_joint,) which joints follow the map (at least one).
         lags: (n_joint,) delayed-command features to give a network without them (default:
             each map joint's delay, 0 elsewhere).
+        map_stops: ``(lo, hi)``, (n_joint,) each [rad], the map joints' end stops (+-inf:
+            none; e.g. the training range, as :func:`.structured.fit_structured`'s), or None:
+            ``sur``'s.  Ignored when ``sur`` runs without end stops.
 
     Returns:
         A new surrogate (``norm.own`` set; ``metrics["map_joints"]`` names the joints,
@@ -67,6 +77,9 @@ def with_parallel_map(
     if not norm.lags and any(want):
         norm = with_lag_columns(norm, state, want)  # read with zero weights
         cfg = replace(cfg, n_feature=norm.n_feature)
+    if map_stops is not None and sur.end_stops:
+        own = own.with_stops(*joint_limits(spec))  # the network's, for its own rows
+        spec = with_end_stops(spec, *map_stops, joints=pick)
     norm = norm.with_own(own)  # raises if the line cannot hold a delay
     net = type(sur.net)(cfg)
     net.load_state_dict(state)
@@ -83,6 +96,7 @@ def with_parallel_map(
     metrics["map_parallel"] = True
     return replace(
         sur,
+        spec=spec,
         net=net.to(sur.device, sur.dtype).train(sur.net.training),
         norm=norm.to(sur.device, sur.dtype),
         model_cfg=cfg,

@@ -30,6 +30,7 @@ from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from .angles import integrate, integrate_np, omega_in_np, omega_target
 from .ensemble import check_members, member_head
+from .envelope import with_end_stops
 from .features import Normalization
 from .model import State, Surrogate
 from .own_angles import OWN_FIELDS, network_inputs, own_advance, own_members, own_start
@@ -460,11 +461,17 @@ def _parallel_reference(
 
         omega[k+1] = s(u[k - d]),  theta[k+1] = theta[k] + T_s omega[k+1]   (end stops)
 
-    with the command before the first sample at the command centre (rest)."""
+    with the command before the first sample at the command centre (rest), within the
+    model's end stops; the network runs within its own (``own.theta_min``, if set)."""
     ref = surs[0]
     own = ref.norm.own
     assert own is not None
-    nets = [replace(s, norm=s.norm.with_own(None)) for s in surs]
+    spec_net = ref.spec
+    if own.theta_min is not None and own.theta_max is not None:
+        every = [True] * ref.spec.n_joint
+        lo, hi = own.theta_min.cpu().numpy(), own.theta_max.cpu().numpy()
+        spec_net = with_end_stops(ref.spec, lo, hi, joints=every)
+    nets = [replace(s, spec=spec_net, norm=s.norm.with_own(None)) for s in surs]
     th_net, om_net = rollout_reference(nets, theta, u, warmup=warmup, mode=mode)
     warmup = ref.window if warmup is None else int(warmup)
     spec = ref.spec

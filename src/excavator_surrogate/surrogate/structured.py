@@ -35,7 +35,7 @@ from ..data.episode import Episode
 from ..errors import DataError
 from ..spec import MachineSpec
 from .angles import omega_target
-from .envelope import fill_envelope
+from .envelope import fill_envelope, with_end_stops
 from .features import Normalization
 from .model import ModelConfig, Surrogate
 from .prior import PRIOR_MAP
@@ -352,6 +352,7 @@ def with_map_joints(
     joints: Sequence[bool],
     *,
     lags: Sequence[int] | None = None,
+    map_stops: tuple[Sequence[float], Sequence[float]] | None = None,
 ) -> Surrogate:
     """A copy of ``sur`` whose ``joints`` move by the static map ``fit`` alone (the network's
     output for them is dropped) while the other joints keep the network's output exactly.
@@ -389,6 +390,8 @@ def with_map_joints(
         lags: (n_joint,) the delayed-command features to give a network without them
             (default: each map joint's delay, 0 elsewhere); e.g. those of another network
             this one is to be merged with.
+        map_stops: ``(lo, hi)``, (n_joint,) each [rad], the map joints' end stops (the
+            copy's spec; +-inf: none), or None: ``sur``'s.  Ignored without end stops.
 
     Returns:
         A new surrogate (``model_cfg.prior`` set; ``metrics["map_joints"]`` names the joints).
@@ -485,9 +488,11 @@ def with_map_joints(
             metrics["ensemble"]["map_gain_dev"] = dev.tolist()
     before = set(metrics.get("map_joints") or [])
     metrics["map_joints"] = [n for n, p in zip(spec.names, pick.tolist()) if p or n in before]
+    if map_stops is not None and sur.end_stops:
+        spec = with_end_stops(spec, *map_stops, joints=pick.tolist())
     return Surrogate(
         net=net.train(sur.net.training),
-        spec=sur.spec,
+        spec=spec,
         norm=norm,
         model_cfg=cfg,
         mode=sur.mode,

@@ -163,6 +163,11 @@ class TrainConfig(PresetConfig, table="train"):
     :mod:`~excavator_surrogate.surrogate.own_angles`), and with ``map_periodic`` any joint,
     not only a periodic one, whose map alone validates with angle R^2 >= 0.95 follows it;
     false: in series, as before session 30 (the network reads the map's angles)."""
+    map_end_stops: bool = True
+    """A joint on the static map (``static_map``) stops at the training data's angle range, as
+    the structured baseline does, not ``limit_margin`` beyond it: the map has no angle to
+    correct its drift, and an end stop is its only reset (needs ``end_stops``; a negative
+    ``limit_margin`` keeps the network's)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,

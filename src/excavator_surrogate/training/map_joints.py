@@ -35,6 +35,14 @@ joints steps 2-4 keep, and every joint whose delayed map alone validates with an
 own angles of them (:func:`~excavator_surrogate.surrogate.parallel.with_parallel_map`), so
 no map joint moves the others (:func:`choose_parallel`).
 
+**End stops** (``end_stops``, ``[train] map_end_stops``): a joint on the map stops at the
+training data's angle range, as the structured baseline does (:func:`map_end_stops`), where
+the network's end stops leave ``[train] limit_margin`` beyond it.  The map integrates its
+command with no angle to correct it, and an end stop is its only reset: on the simulated
+operator logs and h1-dev, every map clipped at the training range scored at least as well
+on the more test data as with the margin, by up to 9 % (docs/real-history.md).  In parallel
+the network's own angles keep the network's end stops.
+
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
 in the log and in ``metrics.json``.  On a joint on the map, the ensemble's members drive it
 with gains spread like the map's stretch-wise gain over the training log
@@ -51,6 +59,7 @@ from pathlib import Path
 from typing import Any
 
 from ..data.episode import Episode
+from ..surrogate.angles import joint_limits
 from ..surrogate.checkpoint import (
     checkpoint_dict,
     read_checkpoint,
@@ -59,7 +68,12 @@ from ..surrogate.checkpoint import (
 )
 from ..surrogate.model import Surrogate
 from ..surrogate.parallel import with_parallel_map
-from ..surrogate.structured import fit_prior, max_map_delay, with_map_joints
+from ..surrogate.structured import (
+    fit_prior,
+    max_map_delay,
+    training_range_spec,
+    with_map_joints,
+)
 from ..surrogate.validation import free_run_error
 
 _log = logging.getLogger(__name__)
@@ -99,6 +113,13 @@ def joint_allowance(val_error: float, base_error: float) -> float:
     return max(SET_MARGIN, 1.0 - val_error / base_error)
 
 
+def map_end_stops(train: Sequence[Episode]) -> tuple[Any, Any]:
+    """The end stops ``(lo, hi)``, (n_joint,) each [rad], of a joint on the static map: those
+    the training episodes' spec declares, else the training data's angle range (+-inf on a
+    periodic joint), the structured baseline's (:func:`.structured.training_range_spec`)."""
+    return joint_limits(training_range_spec(train[0].spec, train))
+
+
 def choose_map_joints(
     sur: Surrogate,
     train: Sequence[Episode],
@@ -107,6 +128,7 @@ def choose_map_joints(
     max_steps: int | None = None,
     periodic: bool = True,
     parallel: bool = False,
+    end_stops: bool = True,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The surrogate with the chosen joints on the static map, or None to keep ``sur``.
 
@@ -120,6 +142,8 @@ def choose_map_joints(
             comparison with the network.
         parallel: compose in parallel (:func:`.parallel.with_parallel_map`, the network
             reads its own angles; :func:`choose_parallel`) instead of in series.
+        end_stops: a joint on the map stops at :func:`map_end_stops` (else at ``sur``'s end
+            stops); every map free run of the choice is scored so.
 
     Returns:
         ``(new or None, record)``; ``record`` holds the map, both validation scores, the
@@ -132,10 +156,13 @@ def choose_map_joints(
         fits.append(fit_prior(train, spec))
     net = free_run_error(sur, list(val), max_steps=max_steps)
     on_map = [True] * spec.n_joint
+    stops = map_end_stops(train) if end_stops else None
     # a map joint's angle depends on its own command only, so each joint's score on the
     # all-map free run is that joint's map alone
     runs = [
-        free_run_error(with_map_joints(sur, f, on_map), list(val), max_steps=max_steps)
+        free_run_error(
+            with_map_joints(sur, f, on_map, map_stops=stops), list(val), max_steps=max_steps
+        )
         for f in fits
     ]
     scores = [r["theta_rmse"] for r in runs]
@@ -166,6 +193,14 @@ def choose_map_joints(
         },
         "candidates": [n for n, c in zip(names, cand) if c],
         "val_theta_r2_map_delayed": runs[0]["theta_r2"],
+        "end_stops": (
+            "the network's"
+            if stops is None
+            else {
+                k: [float(v) if math.isfinite(v) else None for v in a]
+                for k, a in zip(("theta_min", "theta_max"), stops)
+            }
+        ),
         "pinned": [n for n, p in zip(names, pinned) if p],
         "tried": [],
         "chosen": [],
@@ -173,7 +208,8 @@ def choose_map_joints(
 
     def build(joints: Sequence[bool]) -> Surrogate:
         """The model with ``joints`` and the pinned joints on the map."""
-        return with_map_joints(sur, fit, [bool(a or b) for a, b in zip(joints, pinned)])
+        on = [bool(a or b) for a, b in zip(joints, pinned)]
+        return with_map_joints(sur, fit, on, map_stops=stops)
 
     lead = (
         f"{', '.join(record['pinned'])} follow(s) the static map with its fitted delay (a "
@@ -224,7 +260,9 @@ def choose_map_joints(
                 + ("" if lead else " (the network's)")
             )
     if parallel:
-        return choose_parallel(sur, fit, net, kept, good, val, record=record, max_steps=max_steps)
+        return choose_parallel(
+            sur, fit, net, kept, good, val, record=record, max_steps=max_steps, map_stops=stops
+        )
     if got is None:  # no candidate: the network, or the pinned joints on the map
         model = build([False] * spec.n_joint) if any(pinned) else None
         got = net if model is None else free_run_error(model, list(val), max_steps=max_steps)
@@ -241,6 +279,7 @@ def choose_parallel(
     *,
     record: dict[str, Any],
     max_steps: int | None = None,
+    map_stops: tuple[Any, Any] | None = None,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The static map choice composed in parallel (:func:`.parallel.with_parallel_map`): the
     joints the series choice ``kept`` and every joint whose delayed map alone validates with
@@ -265,7 +304,7 @@ def choose_parallel(
     record["chosen"] = [n for n, j in zip(names, joints) if j]
     if not any(joints):
         return None, record  # the series ``why`` stands: nothing follows the map
-    model = with_parallel_map(sur, fit, joints)
+    model = with_parallel_map(sur, fit, joints, map_stops=map_stops)
     got = free_run_error(model, list(val), max_steps=max_steps)
     parts = []
     if any(good):
@@ -360,6 +399,7 @@ def apply_map_choice(
     max_steps: int | None = None,
     periodic: bool = True,
     parallel: bool = False,
+    end_stops: bool = True,
 ) -> dict[str, Any]:
     """Run :func:`choose_map_joints` on the checkpoint ``best`` and rewrite it atomically (the
     chosen model, or the same model; either way ``metrics.training.static_map`` records the
@@ -368,7 +408,13 @@ def apply_map_choice(
     ckpt = read_checkpoint(path)
     sur = surrogate_from_dict(ckpt, where=str(path))
     new, record = choose_map_joints(
-        sur, train, val, max_steps=max_steps, periodic=periodic, parallel=parallel
+        sur,
+        train,
+        val,
+        max_steps=max_steps,
+        periodic=periodic,
+        parallel=parallel,
+        end_stops=end_stops,
     )
     if new is not None:
         ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it
