@@ -325,6 +325,8 @@ def test_a_map_joint_stops_at_the_training_range_and_the_network_keeps_its_margi
         kept, rec_off = choose_map_joints(net, train, val, parallel=parallel, end_stops=False)
         assert kept is not None and rec_off["end_stops"] == "the network's"
         np.testing.assert_allclose(joint_limits(kept.spec)[1], wide_hi)
+    _, rec_free = choose_map_joints(_net(), train, val)  # a network run without end stops
+    assert rec_free["end_stops"] == "the network's"
     # a machine 1.5x as fast on validation: the map's free run now meets the training range
     fast = [_scaled(e, 1.5) for e in val]
     new, _ = choose_map_joints(net, train, fast, parallel=True)

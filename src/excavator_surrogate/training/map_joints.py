@@ -142,8 +142,9 @@ def choose_map_joints(
             comparison with the network.
         parallel: compose in parallel (:func:`.parallel.with_parallel_map`, the network
             reads its own angles; :func:`choose_parallel`) instead of in series.
-        end_stops: a joint on the map stops at :func:`map_end_stops` (else at ``sur``'s end
-            stops); every map free run of the choice is scored so.
+        end_stops: a joint on the map stops at :func:`map_end_stops` (else, or when ``sur``
+            runs without end stops, at ``sur``'s); every map free run of the choice is scored
+            so.
 
     Returns:
         ``(new or None, record)``; ``record`` holds the map, both validation scores, the
@@ -156,7 +157,7 @@ def choose_map_joints(
         fits.append(fit_prior(train, spec))
     net = free_run_error(sur, list(val), max_steps=max_steps)
     on_map = [True] * spec.n_joint
-    stops = map_end_stops(train) if end_stops else None
+    stops = map_end_stops(train) if end_stops and sur.end_stops else None
     # a map joint's angle depends on its own command only, so each joint's score on the
     # all-map free run is that joint's map alone
     runs = [
