@@ -83,7 +83,7 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
             max_steps=max_steps,
             periodic=cfg.map_periodic,
             parallel=cfg.map_parallel,
-            end_stops=cfg.map_end_stops and cfg.limit_margin >= 0,
+            end_stops=cfg.map_stops_at_range,
         )
         model = new if new is not None else model
     return model, kinds, maps

@@ -123,7 +123,7 @@ def train(
                 max_steps=cfg.val_steps or None,
                 periodic=cfg.map_periodic,
                 parallel=cfg.map_parallel,
-                end_stops=cfg.map_end_stops and cfg.limit_margin >= 0,
+                end_stops=cfg.map_stops_at_range,
             )
         calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
     return best

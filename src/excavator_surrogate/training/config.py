@@ -202,6 +202,12 @@ class TrainConfig(PresetConfig, table="train"):
     tensorboard: bool = True
     """Write TensorBoard scalars to ``OUT/tb`` (skipped if tensorboard is not installed)."""
 
+    @property
+    def map_stops_at_range(self) -> bool:
+        """Whether a joint on the static map stops at the training range: ``map_end_stops``,
+        unless a negative ``limit_margin`` asks for no end stops from the data."""
+        return self.map_end_stops and self.limit_margin >= 0
+
     def __post_init__(self) -> None:
         checks = [
             (self.window >= 1, "window must be >= 1"),

@@ -212,6 +212,14 @@ def choose_map_joints(
         on = [bool(a or b) for a, b in zip(joints, pinned)]
         return with_map_joints(sur, fit, on, map_stops=stops)
 
+    def pinned_only() -> tuple[Surrogate | None, Mapping[str, Any]]:
+        """The pinned joints alone on the map (None without any: the network) and its
+        validation scores."""
+        if not any(pinned):
+            return None, net
+        base_model = build([False] * spec.n_joint)
+        return base_model, free_run_error(base_model, list(val), max_steps=max_steps)
+
     lead = (
         f"{', '.join(record['pinned'])} follow(s) the static map with its fitted delay (a "
         f"periodic joint that the map alone runs with validation angle R^2 >= "
@@ -232,9 +240,7 @@ def choose_map_joints(
             f"{'no other' if lead else 'no'} joint follows the map"
         )
     else:
-        # the base: the pinned joints alone on the map (best_set's sets add to it)
-        model = build([False] * spec.n_joint) if any(pinned) else None
-        base = net if model is None else free_run_error(model, list(val), max_steps=max_steps)
+        model, base = pinned_only()  # the base: best_set's sets add to it
         got = base
         # every joint on one map is the all-map free run above: best_set need not run it again
         known = (
@@ -265,8 +271,7 @@ def choose_map_joints(
             sur, fit, net, kept, good, val, record=record, max_steps=max_steps, map_stops=stops
         )
     if got is None:  # no candidate: the network, or the pinned joints on the map
-        model = build([False] * spec.n_joint) if any(pinned) else None
-        got = net if model is None else free_run_error(model, list(val), max_steps=max_steps)
+        model, got = pinned_only()
     return _chosen(model, got), record
 
 
