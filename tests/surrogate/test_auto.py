@@ -86,6 +86,30 @@ def test_cheap_epochs_buy_more_members_within_the_budget():
     assert given.members == 3 and not any("as many members" in w for w in why)
 
 
+def test_every_round_of_the_pool_fits_the_budget():
+    """Two workers run the trainings in rounds: an odd count leaves one idle in the last
+    round, so 6 members and 3 map-correcting networks take 5 rounds, and each training's cap
+    is a fifth of the budget (not 2 / 9 of it, which a computer that needed the whole cap ran
+    11 % past the budget).  One worker: one round per training."""
+    from excavator_surrogate.training.auto import member_budget_s, plan_members, trainings
+
+    assert trainings(6, choose=False, kinds=True) == 9
+    assert member_budget_s(6, 600, cpus=2, choose=False, kinds=True) == pytest.approx(120)
+    assert member_budget_s(4, 600, cpus=2, choose=False, kinds=True) == pytest.approx(200)
+    assert member_budget_s(6, 600, cpus=2, choose=True) == pytest.approx(120)  # 6 + 3
+    assert member_budget_s(8, 600, cpus=2, choose=False, kinds=True) == pytest.approx(100)
+    assert member_budget_s(2, 600, cpus=1, choose=False, kinds=True) == pytest.approx(200)
+    # the plan reads the same cap: h1-dev's 72 s members fit 6 + 3 in 2 x 600 / 9 = 133 s
+    # at 60 %, but not in the fifth of it the five rounds leave
+    assert plan_members(72.3, 600, cpus=2, choose=False, kinds=True) == 4
+    assert plan_members(72.3, 720, cpus=2, choose=False, kinds=True) == 6
+    for members in (4, 6, 8):
+        for choose, kinds in ((False, False), (True, False), (False, True), (True, True)):
+            cap = member_budget_s(members, 600, cpus=2, choose=choose, kinds=kinds)
+            rounds = -(-trainings(members, choose=choose, kinds=kinds) // 2)
+            assert rounds * cap <= 600 + 1e-9
+
+
 def test_overrides_are_strict():
     ds = _dataset([300, 300])
     cfg, why = auto_config(ds, overrides={"members": 1, "seed": 7}, cpus=2)

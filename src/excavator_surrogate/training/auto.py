@@ -322,9 +322,13 @@ def trainings(members: int, *, choose: bool, kinds: bool = False) -> int:
 def member_budget_s(
     members: int, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
 ) -> float:
-    """Each training's share of the whole ``budget_s`` [s]: the trainings
-    (:func:`trainings`) run ``min(members, cpus)`` at a time."""
-    return budget_s * min(members, cpus) / trainings(members, choose=choose, kinds=kinds)
+    """Each training's wall-time cap [s]: the trainings (:func:`trainings`) run
+    ``min(members, cpus)`` at a time, so they take ``ceil(trainings / workers)`` rounds, and
+    every round must fit ``budget_s``.  An odd count on two workers leaves one worker idle in
+    the last round: 9 trainings are 5 rounds, not 4.5 (the cap was ``budget_s * 2 / 9``, and
+    a computer that needed it all ran 11 % past the budget)."""
+    rounds = math.ceil(trainings(members, choose=choose, kinds=kinds) / min(members, cpus))
+    return budget_s / rounds
 
 
 def plan_members(
