@@ -66,6 +66,39 @@ def _commands(
     return np.clip(u, -1000.0, 1000.0)
 
 
+def _advance(
+    theta: list[float],
+    v: list[float],
+    drive: list[float],
+    gain: list[float],
+    grav: list[float],
+    tau: list[float],
+    lo: list[float],
+    hi: list[float],
+    *,
+    drag: float,
+    h: float,
+    substeps: int,
+) -> None:
+    """``substeps`` Euler steps of the module's equations, in place on ``theta`` and ``v``
+    (per joint, [rad] and [rad/s]).  The joints do not couple, so each is stepped alone in
+    plain floats: the same IEEE operations in the same order as on arrays, without an array
+    call per operation (the fixtures of many tests are made here)."""
+    for j, d in enumerate(drive):
+        kd, gs = gain[j] * d, grav[j] * ((d > 0.0) - (d < 0.0))  # K d, g sign(d)
+        th, vj = theta[j], v[j]
+        for _ in range(substeps):
+            # v' = (K d (1 - g sign(d) cos theta) - v) / tau - c v |v|
+            acc = (kd * (1.0 - gs * math.cos(th)) - vj) / tau[j] - drag * vj * abs(vj)
+            vj = vj + h * acc
+            th = th + h * vj
+            if th < lo[j]:  # an end stop: the joint rests on it
+                th, vj = lo[j], 0.0
+            elif th > hi[j]:
+                th, vj = hi[j], 0.0
+        theta[j], v[j] = th, vj
+
+
 def synthetic_episode(
     spec: MachineSpec,
     *,
@@ -112,8 +145,9 @@ def synthetic_episode(
     theta = np.where(
         np.isfinite(lo), rng.uniform(-0.3, 0.3, nj), rng.uniform(-math.pi, math.pi, nj)
     )
-    v = np.zeros(nj)
+    v = [0.0] * nj
     h = dt / substeps
+    plant = (gain.tolist(), grav.tolist(), tau.tolist(), lo.tolist(), hi.tolist())
     th_true = np.empty((n_step, nj))
     th_true[0] = theta
     for k in range(n_step - 1):
@@ -134,16 +168,10 @@ def synthetic_episode(
             )
         ud = (u[max(k - delay, 0)] - center) / scale
         drive = np.sign(ud) * np.maximum(np.abs(ud) - dz, 0.0) / (1 - dz)
-        for _ in range(substeps):
-            v_cmd = gain * drive * (1.0 - grav * np.sign(drive) * np.cos(theta))
-            acc = (v_cmd - v) / tau - drag * v * np.abs(v)
-            v = v + h * acc
-            theta = theta + h * v
-            stop = (theta < lo) | (theta > hi)
-            if stop.any():
-                theta = np.clip(theta, lo, hi)
-                v = np.where(stop, 0.0, v)
-        th_true[k + 1] = theta
+        th_list = theta.tolist()
+        _advance(th_list, v, drive.tolist(), *plant, drag=drag, h=h, substeps=substeps)
+        th_true[k + 1] = th_list
+        theta = th_true[k + 1]
     om_true = np.zeros_like(th_true)
     om_true[1:] = np.diff(th_true, axis=0) / dt
     per = np.array(spec.periodic)
