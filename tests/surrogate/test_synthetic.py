@@ -29,10 +29,10 @@ def test_joint_by_joint_floats_step_as_the_arrays_do_and_rest_on_the_stops():
     lo, hi = np.array([-np.inf, -0.4, -0.5, -0.6]), np.array([np.inf, 0.4, 0.5, 0.6])
     theta, v = rng.uniform(-0.3, 0.3, nj), np.zeros(nj)
     th_list, v_list = theta.tolist(), v.tolist()
+    plant = (gain.tolist(), grav.tolist(), tau.tolist(), lo.tolist(), hi.tolist())
     rested = np.zeros(nj, dtype=bool)
     for _ in range(300):
         drive = rng.uniform(-1.0, 1.0, nj) * (rng.random(nj) > 0.2)  # zero drive too
-        plant = (gain.tolist(), grav.tolist(), tau.tolist(), lo.tolist(), hi.tolist())
         _advance(th_list, v_list, drive.tolist(), *plant, drag=0.5, h=0.005, substeps=10)
         theta, v = _advance_arrays(
             theta, v, drive, gain, grav, tau, lo, hi, drag=0.5, h=0.005, substeps=10

@@ -142,15 +142,15 @@ def synthetic_episode(
     center = np.array([j.u_center for j in spec.joints])
     lo = np.array([j.theta_min if j.theta_min is not None else -np.inf for j in spec.joints])
     hi = np.array([j.theta_max if j.theta_max is not None else np.inf for j in spec.joints])
-    theta = np.where(
+    th_true = np.empty((n_step, nj))
+    th_true[0] = np.where(
         np.isfinite(lo), rng.uniform(-0.3, 0.3, nj), rng.uniform(-math.pi, math.pi, nj)
     )
-    v = [0.0] * nj
+    th, v = th_true[0].tolist(), [0.0] * nj  # the state that _advance steps
     h = dt / substeps
     plant = (gain.tolist(), grav.tolist(), tau.tolist(), lo.tolist(), hi.tolist())
-    th_true = np.empty((n_step, nj))
-    th_true[0] = theta
     for k in range(n_step - 1):
+        theta = th_true[k]  # the pose at t_k, which the operator and the tracking read
         if kind == "step":  # an operator: random steps, heading away from the stops when close
             for j in np.flatnonzero(next_change <= k):
                 level = 0.0 if rng.random() < 0.3 else rng.uniform(150.0, 700.0)
@@ -168,10 +168,8 @@ def synthetic_episode(
             )
         ud = (u[max(k - delay, 0)] - center) / scale
         drive = np.sign(ud) * np.maximum(np.abs(ud) - dz, 0.0) / (1 - dz)
-        th_list = theta.tolist()
-        _advance(th_list, v, drive.tolist(), *plant, drag=drag, h=h, substeps=substeps)
-        th_true[k + 1] = th_list
-        theta = th_true[k + 1]
+        _advance(th, v, drive.tolist(), *plant, drag=drag, h=h, substeps=substeps)
+        th_true[k + 1] = th
     om_true = np.zeros_like(th_true)
     om_true[1:] = np.diff(th_true, axis=0) / dt
     per = np.array(spec.periodic)
