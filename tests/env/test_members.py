@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from excavator_surrogate.env.engine import MEMBERS_MIN_BATCH, SurrogateEngine
-from excavator_surrogate.env.members import MemberLSTM, from_dense, to_dense
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.member_lstm import MemberLSTM, from_dense, to_dense
 from excavator_surrogate.surrogate.rollout import rollout_reference
 from tests.helpers.surrogates import on_parallel_map, on_static_map
 

@@ -6,7 +6,7 @@
   ``(h, c)``; small batches use ``torch.lstm_cell``/``torch.gru_cell`` per layer, large ones a
   folded ``nn.LSTM``/``nn.GRU`` (oneDNN), both with the folded weights; a merged LSTM seed
   ensemble steps its members' diagonal blocks as one batched matmul from 64 envs on
-  (:mod:`.members`), skipping the zero blocks of the dense kernels;
+  (:mod:`~excavator_surrogate.surrogate.member_lstm`), skipping the zero blocks of the dense kernels;
 - **windowed** checkpoints re-run their ``W``-sample window every step from a zero state, as
   they were trained, from a rolling buffer (a doubled ring buffer: no copies per step).
 
@@ -28,12 +28,11 @@ from torch import nn
 from ..devices import resolve_device
 from ..errors import ConfigError
 from ..surrogate.angles import integrate
-from ..surrogate.ensemble import n_member
+from ..surrogate.member_lstm import MemberLSTM, from_dense, member_count, to_dense
 from ..surrogate.model import Surrogate, step_layers
 from ..surrogate.own_angles import network_inputs, own_advance, own_members, own_start
 from ..surrogate.parallel import own_gain_dev
 from .fused import FusedStep, play_and_features, rest_command
-from .members import MemberLSTM, from_dense, to_dense
 from .uncertainty import StepUncertainty
 
 Mode = Literal["windowed", "stateful"]
@@ -91,7 +90,7 @@ class SurrogateEngine:
         mode: ``"stateful"`` or ``"windowed"``; default: the checkpoint's training mode.
         impl: stateful implementation: ``"cell"`` (per-layer cell ops), ``"module"`` (folded
             ``nn.LSTM``), ``"members"`` (a merged LSTM ensemble's members as one batched
-            matmul, :mod:`.members`) or ``"auto"`` (members from :data:`MEMBERS_MIN_BATCH`
+            matmul, :mod:`~excavator_surrogate.surrogate.member_lstm`) or ``"auto"`` (members from :data:`MEMBERS_MIN_BATCH`
             envs on when the surrogate is such an ensemble, else module from
             :data:`MODULE_MIN_BATCH` envs on, else cell).
         uncertainty: also track the members' spread and the out-of-distribution flags
@@ -200,7 +199,9 @@ class SurrogateEngine:
         """The per-member kernel when ``impl`` asks for it (or ``auto`` picks it), else None."""
         if impl not in ("auto", "members") or (impl == "auto" and self.n_envs < MEMBERS_MIN_BATCH):
             return None
-        kernel = MemberLSTM.from_layers(self._layers, n_member(sur)) if self._is_lstm else None
+        # the finest equal blocks: a merge of merges steps as its smallest members
+        count = member_count(self._layers) if self._is_lstm else None
+        kernel = None if count is None else MemberLSTM.from_layers(self._layers, count)
         if impl == "members" and kernel is None:
             raise ConfigError(
                 f"impl='members' needs a merged LSTM seed ensemble of equal members; "

@@ -29,6 +29,7 @@ import torch
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from .angles import integrate, integrate_np, omega_in_np, omega_target
+from .blocks import split
 from .ensemble import check_members, member_head
 from .envelope import with_end_stops
 from .features import Normalization
@@ -248,6 +249,9 @@ def rollout(
     Returns:
         ``theta_hat``: (n_batch, n_step, n_joint) [rad], recorded for ``k < warmup``;
         ``omega_hat``: (n_batch, n_step, n_joint) [rad/s], NaN for ``k < warmup``.
+
+    A merged ensemble run statefully is stepped member by member (:func:`.blocks.split`: the
+    same network without the zeros of its block-diagonal matrices, equal to float32 rounding).
     """
     warmup = sur.window if warmup is None else int(warmup)
     theta = np.asarray(theta, dtype=np.float64)
@@ -256,7 +260,7 @@ def rollout(
     n_joint = sur.spec.n_joint
     if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
         raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
-    loop = ClosedLoop(sur, mode=mode)
+    loop = ClosedLoop(sur if mode == "windowed" else split(sur), mode=mode)
     loop.reset(theta[:, :warmup], u[:, : warmup - 1])
     u_t = loop._t(u)
     th_out = torch.empty(n_batch, n_step, n_joint, dtype=sur.dtype, device=sur.device)

@@ -1,4 +1,4 @@
-"""Per-member LSTM kernel for merged seed ensembles (``SurrogateEngine(impl="members")``).
+"""Per-member LSTM kernel for merged seed ensembles: :class:`MemberLSTM`.
 
 A merged ensemble (:func:`~excavator_surrogate.surrogate.ensemble.merge`) is one LSTM whose
 weights are block-diagonal: member ``m`` owns rows ``[m H, (m + 1) H)`` of every gate block
@@ -8,6 +8,10 @@ work of the recurrent products.  :class:`MemberLSTM` cuts the blocks back out an
 members as one batched matmul (``torch.baddbmm`` over the member axis): for two members of
 width 64 at 256 envs on one core, a whole engine step takes 1.04 ms against the dense cell's
 1.42 (1.36x).
+
+It steps the environments' engine (``SurrogateEngine(impl="members")``) and the batched free
+runs (:mod:`.blocks`).  :func:`member_count` finds the finest equal blocks in the weights, so
+a merge of merges (the kind choice's ensemble of composites) steps as its smallest members.
 
 State layout: ``h``, ``c`` (n_layer, M, n_envs, H), member-major, so no step copies it.
 :func:`to_dense` / :func:`from_dense` convert to and from the dense ``(n_layer, n_envs, M H)``.
@@ -92,6 +96,28 @@ class MemberLSTM:
             c_k = torch.addcmul(f * c[k], i, torch.tanh(g[..., 3 * w :]), out=c_new[k])
             inp = torch.mul(o, torch.tanh(c_k), out=h_new[k])
         return to_dense(inp), h_new, c_new
+
+
+def member_count(layers: Sequence[tuple[torch.Tensor, ...]]) -> int | None:
+    """The number M >= 2 of the finest equal diagonal blocks of a merged LSTM's layers (per
+    layer ``(w_ih, w_hh, b_ih, b_hh)``): no recurrent or deeper-layer weight links two
+    blocks.  None: one block (a single network), or blocks of different widths."""
+    hidden = layers[0][1].shape[1]
+    # links[i, j]: unit j's output feeds unit i's gates in some layer (or the reverse) (H, H)
+    links = torch.zeros(hidden, hidden, dtype=torch.bool)
+    for k, (w_ih, w_hh, _, _) in enumerate(layers):
+        for w in [w_hh] if k == 0 else [w_ih, w_hh]:
+            links |= (w.detach().reshape(4, hidden, hidden) != 0).any(0).cpu()
+    links |= links.T.clone()
+    idx = torch.arange(hidden)
+    # a block may end after unit b iff no unit up to b links a unit after b
+    last = torch.where(links, idx[None, :], -1).amax(1)  # last unit that unit i links
+    reach = torch.cummax(torch.maximum(last, idx), 0).values
+    ends = (idx[reach == idx] + 1).tolist()
+    widths = {b - a for a, b in zip([0, *ends[:-1]], ends)}
+    if len(ends) < 2 or len(widths) != 1:
+        return None
+    return len(ends)
 
 
 def _rows(i: int, h: int, m: int) -> torch.Tensor:
