@@ -101,6 +101,28 @@ def test_reset_at_given_pose_at_rest(kind: str, stateful_ckpt: Path) -> None:
         env.reset(options={"theta0": [0.0, 0.0]})
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_pose_a_hair_beyond_an_end_stop_starts_at_the_stop(
+    kind: str, stateful_ckpt: Path
+) -> None:
+    """A pose read off a log at a stop, plus sensor noise: the boom's stop is 0.85 rad and
+    its range 1.6 rad, so up to 0.032 rad beyond starts at the stop, with a warning."""
+    env = _env(kind, stateful_ckpt)
+    with pytest.warns(UserWarning, match=r"theta0\[1\] \(boom\).*beyond its end stop 0.85"):
+        obs, info = env.reset(options={"theta0": [0.0, 0.86, 1.5, 0.5]})
+    np.testing.assert_allclose(obs[:4], [0.0, 0.85, 1.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(info["theta"], [0.0, 0.85, 1.5, 0.5])
+    with pytest.warns(UserWarning, match=r"theta0\[2\] \(arm\).*beyond its end stop 0.55"):
+        obs, _ = env.reset(options={"theta0": [0.0, 0.0, 0.53, 0.5]})
+    np.testing.assert_allclose(obs[2], 0.55, atol=1e-6)
+    with pytest.raises(ConfigError, match=r"by 2.86 deg, more than 2% of the range"):
+        env.reset(options={"theta0": [0.0, 0.9, 1.5, 0.5]})
+    with warnings.catch_warnings():  # on the stop itself: no warning
+        warnings.simplefilter("error")
+        obs, _ = env.reset(options={"theta0": [0.0, 0.85, 0.55, 0.5]})
+    np.testing.assert_allclose(obs[1:3], [0.85, 0.55], atol=1e-6)
+
+
 def test_swing_is_wrapped_in_observation(stateful_ckpt: Path) -> None:
     env = ExcavatorMujocoEnv()
     env.reset(options={"theta0": [3.1, 0.0, 1.5, 0.5]})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import gymnasium as gym
@@ -18,6 +19,7 @@ from excavator_surrogate.env import (
     SurrogateVectorEnv,
 )
 from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.rollout import ClosedLoop
@@ -216,3 +218,18 @@ def test_engine_runs_a_merged_ensemble_like_its_members_averaged(mode: str, make
         np.testing.assert_allclose(th[i], th_ref[w:], atol=1e-5)
     lo, hi = joint_limits(EXCAVATOR)
     assert (np.isclose(th, lo) | np.isclose(th, hi)).any()
+
+
+def test_poses_a_hair_beyond_the_stops_start_there_with_one_warning(stateful_ckpt: Path) -> None:
+    env = SurrogateVectorEnv(stateful_ckpt, N_ENVS, max_episode_steps=None)
+    theta0 = np.array([[0.5, 0.86, 1.2, 0.3], [-1.0, 0.0, 1.6, 0.8], [2.0, -0.76, 2.0, 2.52]])
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        obs, _ = env.reset(options={"theta0": theta0})
+    said = [str(w.message) for w in got if "beyond the end stops" in str(w.message)]
+    assert len(said) == 1 and "2 env(s) (first: env 0)" in said[0]
+    want = theta0.copy()
+    want[0, 1], want[2, 1], want[2, 3] = 0.85, -0.75, 2.5
+    np.testing.assert_allclose(obs[:, :4], want, atol=1e-6)
+    with pytest.raises(ConfigError, match="outside the joint limits"):
+        env.reset(options={"theta0": theta0 + np.array([0.0, 0.1, 0.0, 0.0])})

@@ -88,8 +88,22 @@ def observation_space(
     return spaces.Box(lo, hi, dtype=np.float32)
 
 
-def check_theta0(spec: MachineSpec, theta0: Any, *, where: str) -> np.ndarray:
-    """Validate a start pose: (n_joint,) finite, limited joints inside their limits."""
+THETA0_SLACK = 0.02
+"""A given start pose may lie this fraction of a joint's range beyond its end stop: it starts
+at the stop, and a warning says so (a pose read off a log at a stop, plus sensor noise, or
+a model whose stops are its training data's range).  Farther out is an error."""
+
+
+def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = True) -> np.ndarray:
+    """Validate a start pose: (n_joint,) finite, limited joints inside their limits.
+
+    A limited joint up to :data:`THETA0_SLACK` of its range beyond a limit starts at that
+    limit, with one warning naming the joint and the distance (``warn=False``: no warning,
+    the caller says it); farther out raises.
+
+    Returns:
+        The pose (n_joint,) [rad], float64, clipped into the limits.
+    """
     try:
         th = np.asarray(theta0, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):  # text, ragged lists, None entries
@@ -99,16 +113,31 @@ def check_theta0(spec: MachineSpec, theta0: Any, *, where: str) -> np.ndarray:
             f"{where}: theta0 must be {spec.n_joint} finite angles in rad for joints "
             f"{list(spec.names)}, got {theta0!r:.200}"
         )
+    th = th.copy()
     for k, j in enumerate(spec.joints):
         if j.periodic:
             continue
-        if (j.theta_min is not None and th[k] < j.theta_min - 1e-9) or (
-            j.theta_max is not None and th[k] > j.theta_max + 1e-9
-        ):
+        lo = -math.inf if j.theta_min is None else j.theta_min
+        hi = math.inf if j.theta_max is None else j.theta_max
+        span = hi - lo
+        slack = THETA0_SLACK * span if math.isfinite(span) else 0.0
+        beyond = max(lo - th[k], th[k] - hi)
+        if beyond <= 1e-9:
+            continue
+        if beyond > slack + 1e-9:
             raise ConfigError(
                 f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is outside the joint limits "
-                f"[{j.theta_min}, {j.theta_max}]"
+                f"[{j.theta_min}, {j.theta_max}] by {math.degrees(beyond):.3g} deg, more than "
+                f"{THETA0_SLACK:.0%} of the range: give a start pose inside them"
             )
+        stop = lo if th[k] < lo else hi
+        if warn:
+            gym.logger.warn(
+                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is "
+                f"{math.degrees(beyond):.3g} deg beyond its end stop {stop:.4g} rad: it starts "
+                "at the stop"
+            )
+        th[k] = stop
     return th
 
 

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from gymnasium import logger
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -190,11 +191,22 @@ class SurrogateVectorEnv(VectorEnv):
                     f"{self.env_id}: options['theta0'] must be ({spec.n_joint},) or "
                     f"({self.num_envs}, {spec.n_joint}) angles in rad, got shape {g.shape}"
                 )
+        clipped = []
         for i in np.flatnonzero(mask):
             if given is not None:
-                theta0[i] = check_theta0(spec, g[i], where=f"{self.env_id}.reset env {i}")
+                where = f"{self.env_id}.reset env {i}"
+                theta0[i] = check_theta0(spec, g[i], where=where, warn=False)
+                if not np.array_equal(theta0[i], g[i]):
+                    clipped.append(int(i))
             else:
                 theta0[i] = start_pose(spec, self.task, self._rngs[i], margin=self.reset_margin)
+        if clipped:  # one warning for all of them
+            worst = np.degrees(np.abs(theta0[clipped] - g[clipped]).max())
+            logger.warn(
+                f"{self.env_id}.reset: the theta0 of {len(clipped)} env(s) (first: env "
+                f"{clipped[0]}) lay up to {worst:.3g} deg beyond the end stops: they start at "
+                "the stops"
+            )
         return theta0
 
     def _write_obs(self, theta: np.ndarray, omega: np.ndarray, rows: np.ndarray | None) -> None:
