@@ -13,6 +13,7 @@ from excavator_surrogate.surrogate import blocks, free_run_error, rollout, rollo
 from excavator_surrogate.surrogate.blocks import BlockNet, split
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.rollout import rollout_episodes
+from excavator_surrogate.surrogate.uncertainty import member_runs
 from excavator_surrogate.surrogate.validation import score_runs
 from tests.helpers.surrogates import on_parallel_map, on_static_map, tiny_surrogate
 
@@ -168,3 +169,24 @@ def test_validation_free_runs_step_the_blocks(monkeypatch, spec, episodes) -> No
     monkeypatch.setattr(BlockNet, "step", counted)
     free_run_error(ens, episodes, max_steps=60)
     assert calls  # the validation free run went through the member blocks
+
+
+@pytest.mark.parametrize("design", ["shared", "independent"])
+def test_member_runs_through_the_blocks_equal_the_merged_networks(monkeypatch, design) -> None:
+    """The calibration's free runs report each member (a hook on the head's ReLU): the
+    blocks give the same members' velocities as the merged network, rows following members
+    included."""
+    ens = on_parallel_map(merge(_members(end_stops=True, drive=6.0)), delay=(2, 0, 0, 0))
+    theta, u = _drive(seed=4)
+    monkeypatch.setattr(blocks, "MIN_SPLIT_WIDTH", 10**9)  # the merged network's cells
+    want = member_runs(ens, theta, u, design=design)
+    monkeypatch.setattr(blocks, "MIN_SPLIT_WIDTH", 0)
+    calls = []
+    step = BlockNet.step
+    monkeypatch.setattr(BlockNet, "step", lambda *a: calls.append(1) or step(*a))
+    got = member_runs(ens, theta, u, design=design)
+    assert calls
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, atol=1e-5, rtol=1e-6, equal_nan=True)
+    # the test can fail: the members run apart
+    assert np.nanmax(np.abs(want[3][0] - want[3][1])) > 1e-3

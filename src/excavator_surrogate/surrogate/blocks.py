@@ -18,6 +18,10 @@ the head per member block::
     a_m = relu(b1_m + h_m W1_m)                                   (M, n, f), baddbmm
     y = b2 + [a_1, ..., a_M] W2  (+ velocity feature if residual, + prior if prior)
 
+(the ReLU is the merged head's own module, on the merged layout ``[a_1, ..., a_M]``, so
+the member reports of :class:`~.ensemble.MemberHead` read it as they read the merged
+network's).
+
 where layer 0's ``x_m`` is the shared input and a deeper layer's is member m's output of
 the layer below.  These are the merged network's products without the zeros, summed in
 another order: the results agree with the merged network's to float32 rounding, not bit
@@ -128,14 +132,27 @@ class BlockNet(nn.Module):
         y, (h, c) = net.forward_seq(x, dense)
         return y, (from_dense(h, m), from_dense(c, m))
 
+    @property
+    def head(self) -> nn.Sequential:
+        """The merged network's head (FC, ReLU, linear): its ReLU module runs in every
+        :meth:`step`, on the merged layout, so a hook on it (:class:`~.ensemble.MemberHead`)
+        sees what it sees on the merged network."""
+        return self._net[0].head
+
+    @property
+    def prior(self) -> nn.Module | None:
+        """The merged network's speed prior, or None."""
+        return self._net[0].prior
+
     def step(self, x_t: torch.Tensor, state: State) -> tuple[torch.Tensor, State]:
         """``x_t: (n_batch, n_feature)`` -> ``(n_batch, n_joint)`` and the new ``(h, c)``."""
         _, h, c = self.kernel.step(x_t, *state)
         n = x_t.shape[0]
-        # a_m = relu(b1_m + h_m W1_m)                                           (M, n, f)
-        a = torch.relu(torch.baddbmm(self._b1, h[-1], self._w1))
-        # y = b2 + [a_1 .. a_M] W2                                          (n, n_joint)
-        y = torch.addmm(self._b2, a.transpose(0, 1).reshape(n, -1), self._w2)
+        # a = relu([b1_m + h_m W1_m]_m), member-major (M, n, f) to the merged (n, M f)
+        pre = torch.baddbmm(self._b1, h[-1], self._w1)
+        a = self.head[1](pre.transpose(0, 1).reshape(n, -1))
+        # y = b2 + a W2                                                     (n, n_joint)
+        y = torch.addmm(self._b2, a, self._w2)
         net = self._net[0]
         if self.cfg.residual:
             y = y + x_t[..., -self.cfg.n_joint :]
@@ -150,8 +167,8 @@ def split(sur: Surrogate) -> Surrogate:
     LSTM of equal blocks, or without a merge record (``metrics`` ``ensemble`` /
     ``composite``).
 
-    The returned surrogate shares ``sur``'s spec, normalisation and metrics; it runs free
-    runs without member reports (``ClosedLoop(members=False)``).
+    The returned surrogate shares ``sur``'s spec, normalisation and metrics, and runs in a
+    :class:`~.rollout.ClosedLoop` with or without member reports.
     """
     metrics = sur.metrics or {}
     merged = isinstance(metrics.get("ensemble") or metrics.get("composite"), dict)

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from ..errors import CheckpointError, ConfigError
+from .blocks import split
 from .coverage import CoverageRecord, ood_flags
 from .ensemble import member_head, n_member
 from .model import Surrogate
@@ -250,7 +251,7 @@ def member_runs(
     n_batch, n_step, _ = u.shape
     if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
         raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
-    loop = ClosedLoop(sur, members=True)
+    loop = ClosedLoop(split(sur), members=True)  # stepped as its member blocks
     m = n_member(sur)
     rep = m + 1 if design == "independent" else 1
     th0 = np.concatenate([theta[:, :warmup]] * rep)
