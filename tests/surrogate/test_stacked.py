@@ -58,6 +58,25 @@ def test_stacked_free_run_equals_each_candidate_run_alone(spec, episodes, kw, n_
     assert np.abs(th_s[:b] - th_s[b : 2 * b]).max() > 1e-3
 
 
+@pytest.mark.parametrize("same_map", [True, False], ids=["one-map", "own-maps"])
+def test_candidates_with_a_speed_prior_read_their_own_map(spec, episodes, same_map):
+    """Candidates of one training share its map (one call for every row); candidates whose
+    maps differ each read their own."""
+    cands = _candidates(spec, episodes, 2, prior=True)
+    if not same_map:
+        with torch.no_grad():
+            cands[1].net.prior = copy.deepcopy(cands[1].net.prior)
+            cands[1].net.prior.k_pos.mul_(3.0)
+    assert stack(cands).net._one_prior is same_map
+    n = 60
+    theta = np.stack([e.theta[:n] for e in episodes])
+    u = np.stack([e.u[:n] for e in episodes])
+    th_s, _ = rollout(stack(cands), np.concatenate([theta] * 2), np.concatenate([u] * 2))
+    b = len(episodes)
+    for c, cand in enumerate(cands):
+        np.testing.assert_allclose(th_s[c * b : (c + 1) * b], rollout(cand, theta, u)[0], atol=1e-5)
+
+
 def test_free_run_errors_score_like_free_run_error(spec, episodes):
     cands = _candidates(spec, episodes, 2, drive=1.0)
     batched = free_run_errors(cands, episodes)

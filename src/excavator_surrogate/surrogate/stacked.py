@@ -104,13 +104,21 @@ class StackedNet(nn.Module):
         self.weights = nn.ParameterList([nn.Parameter(t, requires_grad=False) for t in w + b])
         n = len(w)
         self._w, self._b = list(self.weights[:n]), list(self.weights[n:])  # plain lists: fast
+        # candidates of one training (raw and averaged weights) share its fitted map: one
+        # call on every row instead of one per candidate (the map is elementwise per row)
+        maps = [net.prior.state_dict() for net in nets] if self.cfg.prior else []
+        self._one_prior = bool(maps) and all(
+            all(torch.equal(m[k], maps[0][k]) for k in maps[0]) for m in maps[1:]
+        )
 
     def _extras(self, y: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """``y`` plus each candidate's residual / prior terms (:meth:`SurrogateNet._out`) on its
         own rows of ``x: (C * n, n_feature)``."""
         if self.cfg.residual:
             y = y + x[..., -self.cfg.n_joint :]
-        if self.cfg.prior:
+        if self._one_prior:
+            y = y + self._nets[0].prior(x)
+        elif self.cfg.prior:
             y = torch.cat(
                 [
                     y_c + net.prior(x_c)
