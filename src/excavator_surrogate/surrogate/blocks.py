@@ -84,14 +84,17 @@ class BlockNet(nn.Module):
         w1, b1 = net.head[0].weight.detach(), net.head[0].bias.detach()
         f = w1.shape[0] // m
         # W1_m^T (M, h, f): member m's head units read its own recurrent units only
-        self._w1 = torch.stack(
-            [w1[i * f : (i + 1) * f, i * h : (i + 1) * h] for i in range(m)]
-        ).transpose(1, 2)
-        self._w1 = self._w1.contiguous()
+        self._w1 = (
+            torch.stack([w1[i * f : (i + 1) * f, i * h : (i + 1) * h] for i in range(m)])
+            .transpose(1, 2)
+            .contiguous()
+        )
         self._b1 = b1.reshape(m, 1, f).contiguous()
         # W2^T (M f, n_joint): the merged output layer as it is
         self._w2 = net.head[2].weight.detach().t().contiguous()
         self._b2 = net.head[2].bias.detach().clone()
+        # the merged head's ReLU and speed prior (tuples: not registered as submodules)
+        self._act, self._prior = (net.head[1],), (net.prior,)
         # a parameter only so that the surrogate knows its device and dtype
         self._like = nn.Parameter(self._b2.new_zeros(()), requires_grad=False)
 
@@ -150,14 +153,13 @@ class BlockNet(nn.Module):
         n = x_t.shape[0]
         # a = relu([b1_m + h_m W1_m]_m), member-major (M, n, f) to the merged (n, M f)
         pre = torch.baddbmm(self._b1, h[-1], self._w1)
-        a = self.head[1](pre.transpose(0, 1).reshape(n, -1))
+        a = self._act[0](pre.transpose(0, 1).reshape(n, -1))
         # y = b2 + a W2                                                     (n, n_joint)
         y = torch.addmm(self._b2, a, self._w2)
-        net = self._net[0]
         if self.cfg.residual:
             y = y + x_t[..., -self.cfg.n_joint :]
-        if net.prior is not None:
-            y = y + net.prior(x_t)
+        if self._prior[0] is not None:
+            y = y + self._prior[0](x_t)
         return y, (h, c)
 
 
