@@ -20,41 +20,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.blocks import MIN_SPLIT_WIDTH
 from excavator_surrogate.surrogate.ensemble import merge
-from excavator_surrogate.surrogate.features import Normalization
-from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
+from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.rollout import rollout
+
+sys.path.insert(0, str(Path(__file__).parent))
+from ensemble import member
 
 SHAPES = ((2, 64), (2, 128), (3, 64), (4, 128), (6, 128))
 """(members, units per member): the demo's 2 x 64 and the recipe's 4-6 x 128."""
 BATCHES = (2, 13)
 """Free-run batches: a validation split of two sessions, and a test set of 13."""
-
-
-def member(seed: int, hidden: int) -> Surrogate:
-    """An untrained stateful 2 x ``hidden`` LSTM surrogate of the default excavator."""
-    torch.manual_seed(seed)
-    spec = EXCAVATOR
-    cfg = ModelConfig(
-        n_feature=spec.n_feature, n_joint=spec.n_joint, hidden=hidden, head_hidden=hidden
-    )
-    norm = Normalization.from_arrays(
-        x_mean=np.zeros(spec.n_feature),
-        x_std=np.ones(spec.n_feature),
-        y_mean=np.zeros(spec.n_joint),
-        y_std=np.full(spec.n_joint, 0.05),
-        spec=spec,
-    )
-    net = build_net(cfg).eval()
-    return Surrogate(net=net, spec=spec, norm=norm, model_cfg=cfg, mode="stateful")
 
 
 def timed(

@@ -33,11 +33,18 @@ from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
 
 
-def member(seed: int) -> Surrogate:
-    """An untrained paper-size stateful LSTM surrogate of the default excavator."""
+def member(seed: int, hidden: int = 128) -> Surrogate:
+    """An untrained stateful 2 x ``hidden`` LSTM surrogate (head ``hidden``) of the default
+    excavator: paper-size by default."""
     torch.manual_seed(seed)
     spec = EXCAVATOR
-    cfg = ModelConfig(n_feature=spec.n_feature, n_joint=spec.n_joint, window=30, hidden=128)
+    cfg = ModelConfig(
+        n_feature=spec.n_feature,
+        n_joint=spec.n_joint,
+        window=30,
+        hidden=hidden,
+        head_hidden=hidden,
+    )
     norm = Normalization.from_arrays(
         x_mean=np.zeros(spec.n_feature),
         x_std=np.ones(spec.n_feature),
