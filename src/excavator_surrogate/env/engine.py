@@ -6,7 +6,8 @@
   ``(h, c)``; small batches use ``torch.lstm_cell``/``torch.gru_cell`` per layer, large ones a
   folded ``nn.LSTM``/``nn.GRU`` (oneDNN), both with the folded weights; a merged LSTM seed
   ensemble steps its members' diagonal blocks as one batched matmul from 64 envs on
-  (:mod:`~excavator_surrogate.surrogate.member_lstm`), skipping the zero blocks of the dense kernels;
+  (:mod:`~excavator_surrogate.surrogate.member_lstm`), skipping the zero blocks of the dense
+  kernels;
 - **windowed** checkpoints re-run their ``W``-sample window every step from a zero state, as
   they were trained, from a rolling buffer (a doubled ring buffer: no copies per step).
 
@@ -90,8 +91,9 @@ class SurrogateEngine:
         mode: ``"stateful"`` or ``"windowed"``; default: the checkpoint's training mode.
         impl: stateful implementation: ``"cell"`` (per-layer cell ops), ``"module"`` (folded
             ``nn.LSTM``), ``"members"`` (a merged LSTM ensemble's members as one batched
-            matmul, :mod:`~excavator_surrogate.surrogate.member_lstm`) or ``"auto"`` (members from :data:`MEMBERS_MIN_BATCH`
-            envs on when the surrogate is such an ensemble, else module from
+            matmul, :mod:`~excavator_surrogate.surrogate.member_lstm`) or ``"auto"``
+            (members from :data:`MEMBERS_MIN_BATCH` envs on when the surrogate is such an
+            ensemble, else module from
             :data:`MODULE_MIN_BATCH` envs on, else cell).
         uncertainty: also track the members' spread and the out-of-distribution flags
             (:class:`~.uncertainty.StepUncertainty`, in :attr:`unc`): the members' velocities

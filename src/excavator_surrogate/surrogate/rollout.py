@@ -250,8 +250,9 @@ def rollout(
         ``theta_hat``: (n_batch, n_step, n_joint) [rad], recorded for ``k < warmup``;
         ``omega_hat``: (n_batch, n_step, n_joint) [rad/s], NaN for ``k < warmup``.
 
-    A merged ensemble run statefully is stepped member by member (:func:`.blocks.split`: the
-    same network without the zeros of its block-diagonal matrices, equal to float32 rounding).
+    A merged ensemble of 256 units or more run statefully is stepped member by member
+    (:func:`.blocks.split`: the same network without the zeros of its block-diagonal
+    matrices, equal to float32 rounding).
     """
     warmup = sur.window if warmup is None else int(warmup)
     theta = np.asarray(theta, dtype=np.float64)
