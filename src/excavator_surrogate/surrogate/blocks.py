@@ -28,9 +28,9 @@ another order: the results agree with the merged network's to float32 rounding, 
 for bit (tested against it and against the members averaged in a plain loop).  The warm-up
 (:meth:`BlockNet.forward_seq`) runs the merged network's own recurrent module.
 
-Splitting pays from two members of 128 units on (:data:`MIN_SPLIT_WIDTH`): a narrower
-merged network is fast already, and the member kernel's dozen small operations a layer cost
-about what its zeros do (``python bench/blocks.py``).
+Splitting starts at two members of 128 units (:data:`MIN_SPLIT_WIDTH`: level at batch 2,
+faster from there on): a narrower merged network is fast already, and the member kernel's
+dozen small operations a layer cost about what its zeros do (``python bench/blocks.py``).
 """
 
 from __future__ import annotations
@@ -45,9 +45,10 @@ from .model import CELL_WEIGHTS, State, Surrogate, SurrogateNet
 
 MIN_SPLIT_WIDTH = 256
 """Merged recurrent widths ``H = M h`` from which :func:`split` steps the members.  A whole
-free-run step (``bench/blocks.py``, one thread, batch 2 / 13, an AVX-512 computer) takes
-0.68 / 0.63x the merged network's time for two members of 128 units, 0.69 / 0.26x for four
-and 0.58 / 0.22x for six; two of 64 and three of 64 are level (0.95-1.02x)."""
+free-run step (``bench/blocks.py``, one thread, batch 2 / 13, an AVX-512 computer, medians of
+paired runs) takes 0.99 / 0.79x the merged network's time for two members of 128 units,
+0.85 / 0.34x for four and 0.73 / 0.25x for six; two and three members of 64 are level
+(0.97-1.03x)."""
 
 
 def worth_splitting(sur: Surrogate) -> bool:
