@@ -9,7 +9,6 @@ import torch
 from excavator_surrogate.env.engine import MEMBERS_MIN_BATCH, SurrogateEngine
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
-from excavator_surrogate.surrogate.member_lstm import MemberLSTM, from_dense, to_dense
 from excavator_surrogate.surrogate.rollout import rollout_reference
 from tests.helpers.surrogates import on_parallel_map, on_static_map
 
@@ -19,14 +18,6 @@ KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2), omega_i
 @pytest.fixture(scope="module")
 def members(make_surrogate):
     return [make_surrogate(seed=s, hidden=16, **KW) for s in range(3)]
-
-
-def test_layout_round_trip() -> None:
-    h = torch.randn(2, 5, 12)
-    m = from_dense(h, 3)
-    assert m.shape == (2, 3, 5, 4)
-    torch.testing.assert_close(to_dense(m), h)
-    torch.testing.assert_close(m[:, 1], h[:, :, 4:8])
 
 
 @pytest.mark.parametrize(
@@ -91,14 +82,3 @@ def test_auto_picks_the_member_kernel_from_its_batch_size(members, make_surrogat
     assert SurrogateEngine(mixed, n_envs=MEMBERS_MIN_BATCH).impl == "cell"
     gru = merge([make_surrogate(seed=s, hidden=8, cell="gru", **KW) for s in range(2)])
     assert SurrogateEngine(gru, n_envs=MEMBERS_MIN_BATCH).impl == "cell"
-
-
-def test_from_layers_rejects_weights_off_the_blocks() -> None:
-    m, h, n_in = 2, 3, 5
-    w_ih = torch.zeros(4 * m * h, n_in) + 0.1
-    w_hh = torch.zeros(4 * m * h, m * h)
-    b = torch.zeros(4 * m * h)
-    assert MemberLSTM.from_layers([(w_ih, w_hh, b, b)], m) is not None
-    w_hh[0, m * h - 1] = 1.0  # member 0's input-gate row reads member 1's state
-    assert MemberLSTM.from_layers([(w_ih, w_hh, b, b)], m) is None
-    assert MemberLSTM.from_layers([(w_ih, torch.zeros(4 * 5, 5), b, b)], 2) is None  # 5 % 2
