@@ -18,15 +18,14 @@ the head per member block::
     a_m = relu(b1_m + h_m W1_m)                                   (M, n, f), baddbmm
     y = b2 + [a_1, ..., a_M] W2  (+ velocity feature if residual, + prior if prior)
 
-(the ReLU is the merged head's own module, on the merged layout ``[a_1, ..., a_M]``, so
-the member reports of :class:`~.ensemble.MemberHead` read it as they read the merged
-network's).
-
 where layer 0's ``x_m`` is the shared input and a deeper layer's is member m's output of
-the layer below.  These are the merged network's products without the zeros, summed in
-another order: the results agree with the merged network's to float32 rounding, not bit
-for bit (tested against it and against the members averaged in a plain loop).  The warm-up
-(:meth:`BlockNet.forward_seq`) runs the merged network's own recurrent module.
+the layer below; the ReLU is the merged head's own module, run on the merged layout
+``[a_1, ..., a_M]``, so the member reports of :class:`~.ensemble.MemberHead` read it as
+they read the merged network's.  These are the merged network's products without the
+zeros, summed in another order: the results agree with the merged network's to float32
+rounding, not bit for bit (tested against it and against the members averaged in a plain
+loop).  The warm-up (:meth:`BlockNet.forward_seq`) runs the merged network's own recurrent
+module.
 
 Splitting starts at two members of 128 units (:data:`MIN_SPLIT_WIDTH`: level at batch 2,
 faster from there on): a narrower merged network is fast already, and the member kernel's
