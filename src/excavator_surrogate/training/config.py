@@ -165,9 +165,9 @@ class TrainConfig(PresetConfig, table="train"):
     false: in series, as before session 30 (the network reads the map's angles)."""
     map_end_stops: bool = True
     """A joint on the static map (``static_map``) stops at the training data's angle range, as
-    the structured baseline does, not ``limit_margin`` beyond it: the map has no angle to
-    correct its drift, and an end stop is its only reset (needs ``end_stops``; a negative
-    ``limit_margin`` keeps the network's)."""
+    the structured baseline does, even where a positive ``limit_margin`` widens the networks'
+    stops: the map has no angle to correct its drift, and an end stop is its only reset (needs
+    ``end_stops``; a negative ``limit_margin`` keeps the network's)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,
@@ -193,9 +193,10 @@ class TrainConfig(PresetConfig, table="train"):
     """Keep free runs inside the machine's envelope: clip angles to the joint limits (end stops)
     and velocities to the speed bounds, in training rollouts and in every rollout of the trained
     model (stored in the checkpoint's spec)."""
-    limit_margin: float = 0.02
+    limit_margin: float = 0.0
     """End stops the spec lacks come from the angle range seen in training, widened by this
-    fraction of the range on each side (negative: none from data)."""
+    fraction of the range on each side (0: the range itself, where real runs end; negative:
+    none from data; 0.02 before session 36, docs/real-history.md)."""
     speed_margin: float = 0.25
     """Speed bounds the spec lacks are the largest |omega| seen in training times
     ``1 + speed_margin`` (negative: none from data)."""
