@@ -71,7 +71,9 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
         raise SystemExit(f"{run}: no saved networks (member_*/best.pt); run bench/real.py --work")
     kinds = None
     if cfg.prior_choice and priors:
-        model, kinds = choose_kinds(plains, priors, val_eps, max_steps=max_steps)
+        model, kinds = choose_kinds(
+            plains, priors, val_eps, max_steps=max_steps, margin=cfg.prior_margin
+        )
     else:
         model = merge(plains) if len(plains) > 1 else plains[0]
     maps = None

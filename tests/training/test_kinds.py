@@ -196,3 +196,27 @@ def test_what_works_per_network_is_refused_with_the_kind_choice_even_for_one_mem
     with pytest.raises(ConfigError, match="prior_choice = true: on_epoch works per member"):
         train(cfg, ds, out=tmp_path / "m", on_epoch=lambda *a: False, show_progress=False)
     assert not (tmp_path / "m").exists()
+
+
+def test_the_margin_decides_where_a_tie_goes() -> None:
+    """Map-correcting networks that run exactly as the plain ones (a tie on every joint): the
+    default margin keeps the plain networks; a negative margin makes every joint a candidate
+    and takes them from the map-correcting networks, whose free run is the same."""
+    plains = [_plain_net(s) for s in (0, 1)]
+    carrier = _prior_net(10, exact=(False, False))
+    priors = [in_prior_form(p, carrier) for p in plains[::-1]]  # no group pairs a net with itself
+    val = [_episode(7)]
+    model, record = choose_kinds(plains, priors, val)
+    assert record["candidates"] == [] and record["chosen"] == [] and record["margin"] == 0.05
+    np.testing.assert_allclose(
+        record["val_theta_rmse_prior"], record["val_theta_rmse_plain"], rtol=1e-5
+    )
+    tied, record = choose_kinds(plains, priors, val, margin=-0.05)
+    assert record["candidates"] == ["a", "b"] and record["chosen"] == ["a", "b"]
+    ep = _episode(9)
+    np.testing.assert_allclose(free_run_checked(tied, ep), free_run_checked(model, ep), atol=1e-5)
+
+
+def test_the_config_bounds_the_margin() -> None:
+    with pytest.raises(ConfigError, match="prior_margin"):
+        tiny_train_config(prior_margin=1.5)

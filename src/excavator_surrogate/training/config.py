@@ -177,6 +177,10 @@ class TrainConfig(PresetConfig, table="train"):
     (as with ``prior``, the same seeds); per joint, the kind whose ensemble validates better
     drives it (:mod:`.kinds`; ours; the recipe turns it on unless it chooses exogenous
     inputs)."""
+    prior_margin: float = 0.05
+    """With ``prior_choice``: a joint is a candidate for the map-correcting networks when their
+    validation angle RMSE on it is below ``1 - prior_margin`` times the plain ensemble's (a near
+    tie stays plain; negative: a near tie goes to the map-correcting networks; :mod:`.kinds`)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is
@@ -244,6 +248,10 @@ class TrainConfig(PresetConfig, table="train"):
             (
                 not (self.prior_choice and (self.prior or self.residual)),
                 "prior_choice trains both kinds itself: set prior = false and residual = false",
+            ),
+            (
+                -1.0 < self.prior_margin < 1.0,
+                "prior_margin must be in (-1, 1) (typical: -0.05 to 0.05)",
             ),
             (
                 not (self.static_map and (self.prior or self.residual)),

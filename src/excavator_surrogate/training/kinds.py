@@ -11,7 +11,9 @@ trainings, which the recipe plans the epochs for within the same budget
 (:func:`~.auto.trainings`).  Both ensembles are scored by their validation free run, and:
 
 1. a joint is a candidate for the map-correcting networks if their validation angle RMSE
-   on it is lower than the plain ensemble's by :data:`PRIOR_MARGIN` (a near tie stays plain);
+   on it is below ``1 - margin`` times the plain ensemble's (``[train] prior_margin``,
+   default :data:`PRIOR_MARGIN`: a near tie stays plain; a negative margin sends a near tie
+   to the map-correcting networks);
 2. for the candidates, and for each candidate alone, a **composite** ensemble is built
    (:func:`composite`): group ``g`` of every ``P``-th plain network and map-correcting
    network ``g`` becomes one network whose candidate joints come from the map-correcting
@@ -55,9 +57,10 @@ from .records import write_config
 
 _log = logging.getLogger(__name__)
 
-PRIOR_MARGIN = 0.05
-"""Relative margin by which the map-correcting networks must beat the plain ones on a
-joint's validation angle RMSE for the joint to be a candidate (a tie stays plain)."""
+PRIOR_MARGIN = TrainConfig.prior_margin
+"""Default relative margin by which the map-correcting networks must beat the plain ones on a
+joint's validation angle RMSE for the joint to be a candidate (a tie stays plain);
+``TrainConfig.prior_margin`` sets it."""
 
 KINDS = ("plain", "prior")
 
@@ -127,6 +130,7 @@ def choose_kinds(
     val: Sequence[Any],
     *,
     max_steps: int | None = None,
+    margin: float = PRIOR_MARGIN,
 ) -> tuple[Surrogate, dict[str, Any]]:
     """The model of the two ensembles (see the module docstring) and the record of the choice.
 
@@ -134,6 +138,8 @@ def choose_kinds(
         plains: the K plain networks; priors: the P map-correcting ones (P divides K).
         val: the validation episodes.
         max_steps: validation free-run length cap (as the epoch selection's).
+        margin: a joint is a candidate for the map-correcting networks when their
+            validation angle RMSE is below ``1 - margin`` times the plain ensemble's.
 
     Returns:
         ``(model, record)``; ``record`` holds both ensembles' validation scores, the
@@ -144,8 +150,7 @@ def choose_kinds(
     vals = {k: free_run_error(m, list(val), max_steps=max_steps) for k, m in merged.items()}
     base = vals["plain"]
     cand = [
-        bool(b < (1 - PRIOR_MARGIN) * a)
-        for a, b in zip(base["theta_rmse"], vals["prior"]["theta_rmse"])
+        bool(b < (1 - margin) * a) for a, b in zip(base["theta_rmse"], vals["prior"]["theta_rmse"])
     ]
     record: dict[str, Any] = {
         "names": names,
@@ -154,13 +159,14 @@ def choose_kinds(
         "val_error_plain": base["val_error"],
         "val_error_prior": vals["prior"]["val_error"],
         "candidates": [n for n, c in zip(names, cand) if c],
+        "margin": margin,
         "tried": [],
         "chosen": [],
     }
     if not any(cand):
         record["why"] = (
-            f"the map-correcting networks beat the plain ones by {PRIOR_MARGIN:.0%} on no "
-            "joint's validation free run: the plain networks drive every joint"
+            f"the map-correcting networks are not below {1 - margin:.0%} of the plain ones' "
+            "validation angle RMSE on any joint: the plain networks drive every joint"
         )
         return merged["plain"], record
     build = partial(composite, plains, priors)  # joints -> the composite taking them
@@ -211,7 +217,11 @@ def train_choosing_kinds(
     }
     nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
     model, record = choose_kinds(
-        nets["plain"], nets["prior"], val_eps, max_steps=cfg.val_steps or None
+        nets["plain"],
+        nets["prior"],
+        val_eps,
+        max_steps=cfg.val_steps or None,
+        margin=cfg.prior_margin,
     )
     _log.info(f"two kinds of network: {record['why']}")
     kind = model_kind(record)

@@ -148,7 +148,9 @@ def train_choosing_inputs(
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
-        model, kinds = choose_kinds(plains, prior_nets, val_eps, max_steps=cfg.val_steps or None)
+        model, kinds = choose_kinds(
+            plains, prior_nets, val_eps, max_steps=cfg.val_steps or None, margin=cfg.prior_margin
+        )
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
         column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
