@@ -20,6 +20,7 @@ from gymnasium import spaces
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
+from ..surrogate.angles import joint_limits
 from .inputs import ActionLayout
 from .render import (
     RENDER_MODES,
@@ -114,11 +115,8 @@ def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = Tru
             f"{list(spec.names)}, got {theta0!r:.200}"
         )
     th = th.copy()
-    for k, j in enumerate(spec.joints):
-        if j.periodic:
-            continue
-        lo = -math.inf if j.theta_min is None else j.theta_min
-        hi = math.inf if j.theta_max is None else j.theta_max
+    for k, (j, lo, hi) in enumerate(zip(spec.joints, *joint_limits(spec))):
+        # lo, hi = -inf, +inf for a periodic joint or an open limit: never beyond
         span = hi - lo
         slack = THETA0_SLACK * span if math.isfinite(span) else 0.0
         beyond = max(lo - th[k], th[k] - hi)
