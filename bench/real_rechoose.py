@@ -72,7 +72,12 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     kinds = None
     if cfg.prior_choice and priors:
         model, kinds = choose_kinds(
-            plains, priors, val_eps, max_steps=max_steps, margin=cfg.prior_margin
+            plains,
+            priors,
+            val_eps,
+            max_steps=max_steps,
+            margin=cfg.prior_margin,
+            blend=cfg.prior_blend,
         )
     else:
         model = merge(plains) if len(plains) > 1 else plains[0]

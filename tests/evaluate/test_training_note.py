@@ -74,6 +74,14 @@ def test_the_kind_and_input_choices_are_named():
     assert "the plain networks drive every joint" in none
     every = training_markdown({"epochs_planned": 30, "kinds": {**kinds, "chosen": kinds["names"]}})
     assert "static valve map drive every joint" in every
+    mixed = {**kinds, "chosen": kinds["names"], "blended": ["swing"]}
+    text = training_markdown({"epochs_planned": 30, "kinds": mixed})
+    assert "static valve map drive boom, the even blend of both kinds drives swing, chosen" in text
+    assert "the plain networks" not in text
+    some = {**kinds, "blended": ["boom"]}
+    text = training_markdown({"epochs_planned": 30, "kinds": some})
+    assert "the even blend of both kinds drives boom, the plain networks the other" in text
+    assert "static valve map drive" not in text
     rec = {"inputs": ["u_throttle"], "kept": False, "why": "validation error 0.41 with"}
     text = training_markdown({"epochs_planned": 30, "exogenous": rec})
     assert "Exogenous inputs (u_throttle): ignored by the model" in text and "0.41" in text

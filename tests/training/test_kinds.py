@@ -21,6 +21,7 @@ from excavator_surrogate.training.kinds import (
     choose_kinds,
     composite,
     in_prior_form,
+    model_kind,
     prior_members,
 )
 from excavator_surrogate.training.resume import start
@@ -155,8 +156,7 @@ def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) ->
     record = sur.metrics["training"]["kinds"]
     assert set(record) >= {"candidates", "chosen", "why", "val_theta_rmse_prior"}
     rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
-    model_kind = {0: "plain", 2: "prior"}.get(len(record["chosen"]), "composite")
-    assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind]
+    assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind(record)]
     assert "kinds" in (tmp_path / "m" / "config.toml").read_text()
     with pytest.raises(ConfigError, match="prior_choice trains both kinds"):
         tiny_train_config(prior_choice=True, prior=True, members=2)
@@ -220,3 +220,65 @@ def test_the_margin_decides_where_a_tie_goes() -> None:
 def test_the_config_bounds_the_margin() -> None:
     with pytest.raises(ConfigError, match="prior_margin"):
         tiny_train_config(prior_margin=1.5)
+
+
+def test_a_composite_blends_both_kinds_by_its_weights() -> None:
+    """Weight 1/2 on a joint: the mean of the map-correcting ensemble and the plain one; a
+    weight outside [0, 1] is refused."""
+    ep = _episode(9)
+    plains = [_plain_net(s) for s in (0, 1, 2, 3)]
+    priors = [_prior_net(s + 10, exact=(False, False)) for s in (0, 1)]
+    both = composite(plains, priors, [0.5, 0.0])
+    plain = np.mean([_omega(a, ep) for a in plains], axis=0)
+    prior = np.mean([_omega(b, ep) for b in priors], axis=0)
+    want = np.stack([0.5 * plain[:, 0] + 0.5 * prior[:, 0], plain[:, 1]], axis=1)
+    np.testing.assert_allclose(_omega(both, ep), want, atol=1e-5)
+    with pytest.raises(ValueError, match=r"not in \[0, 1\]"):
+        composite(plains, priors, [1.5, 0.0])
+
+
+def _scaled_map(fit: dict, joint: int, factor: float) -> dict:
+    """``fit`` with joint ``joint``'s gains times ``factor``."""
+    out = {k: list(v) if isinstance(v, list) else v for k, v in fit.items()}
+    for k in ("k_pos", "k_neg"):
+        out[k][joint] *= factor
+    return out
+
+
+def test_the_blend_drives_a_joint_where_the_kinds_err_in_opposite_ways() -> None:
+    """Joint a: the plain networks follow the plant's map 20 % too fast, the map-correcting
+    ones 20 % too slow, so neither beats the other and their even blend is the plant; joint b:
+    the map-correcting networks are exact.  Without the blend a stays plain; with it, a takes
+    the blend and b the map-correcting networks, and the model free-runs as the plant."""
+    fit = fit_prior(TRAIN, SPEC, max_delay=5)
+    plains = [
+        with_map_joints(_plain_net(s), _scaled_map(fit, 0, 1.2), [True, False], lags=(3, 5))
+        for s in (0, 1)
+    ]
+    priors = [_prior_net(s + 10, exact=(True, True)) for s in (0, 1)]
+    for b in priors:
+        with torch.no_grad():
+            b.net.prior.k_pos[0] *= 0.8
+            b.net.prior.k_neg[0] *= 0.8
+    val = [_episode(7)]
+    _, record = choose_kinds(plains, priors, val, blend=False)
+    assert record["chosen"] == ["b"] and record["blend"] is False and record["blended"] == []
+    model, record = choose_kinds(plains, priors, val)  # the default: with the blend
+    assert record["chosen"] == ["a", "b"] and record["blended"] == ["a"]
+    assert record["weights"] == [0.5, 1.0]
+    assert record["val_theta_rmse_blend"][0] < 0.05 * record["val_theta_rmse_plain"][0]
+    assert "a from the even blend of both kinds" in record["why"]
+    assert model_kind(record) == "composite"
+    ep = _episode(9)
+    om = free_run_checked(model, ep)
+    w = model.window
+    np.testing.assert_allclose(om[w:], ep.omega[w:80], atol=1e-4)  # the plant, both joints
+
+
+def test_what_the_choice_made_the_model() -> None:
+    names = ["a", "b"]
+    assert model_kind({"names": names, "chosen": []}) == "plain"
+    assert model_kind({"names": names, "chosen": names}) == "prior"  # before the blend
+    assert model_kind({"names": names, "chosen": names, "blended": []}) == "prior"
+    assert model_kind({"names": names, "chosen": names, "blended": ["a"]}) == "composite"
+    assert model_kind({"names": names, "chosen": ["a"], "blended": []}) == "composite"

@@ -226,15 +226,19 @@ def _kinds_markdown(record: Mapping[str, Any] | None) -> str:
     if not isinstance(record, Mapping) or "chosen" not in record:
         return ""
     chosen = list(record["chosen"])
+    blended = [n for n in record.get("blended") or [] if n in chosen]
+    whole = [n for n in chosen if n not in blended]
     if not chosen:
         who = "the plain networks drive every joint"
-    elif len(chosen) == len(record.get("names") or chosen):
+    elif not blended and len(chosen) == len(record.get("names") or chosen):
         who = "the networks that correct the static valve map drive every joint"
     else:
-        who = (
-            f"the networks that correct the static valve map drive {', '.join(chosen)}, "
-            "the plain networks the other joints"
+        parts = [f"the networks that correct the static valve map drive {', '.join(whole)}"] * bool(
+            whole
         )
+        parts += [f"the even blend of both kinds drives {', '.join(blended)}"] * bool(blended)
+        rest = len(chosen) < len(record.get("names") or chosen)
+        who = ", ".join(parts) + (", the plain networks the other joints" if rest else "")
     return (
         f"\nTwo kinds of network: {who}, chosen on the validation free run "
         f"({record.get('why', '')}).\n"

@@ -31,7 +31,8 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   case the test free run's error changed up to 5x with the swing's starting direction);
 - two kinds of network (:mod:`.kinds`): beside the plain members, half as many that correct
   the static valve map (dead zone, gain per direction, delay); per joint, the kind whose
-  ensemble validates better drives it.  Not when the run chooses its exogenous inputs
+  ensemble validates better drives it, or the even blend of both where that validates
+  better still.  Not when the run chooses its exogenous inputs
   (:mod:`.variants`): both together cut every network's epochs further, and on the
   continuous case with its throttle they scored worse than the input choice alone
   (docs/real.md); ``prior_choice = true`` still runs both;
@@ -197,7 +198,7 @@ def auto_config(
         why.append(
             f"two kinds of network: beside the {members} plain member(s), "
             f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
-            "the kind whose ensemble validates better drives it "
+            "the kind whose ensemble validates better drives it, or the even blend of both "
             f"({trainings(members, choose=choose, kinds=True)} trainings in the budget)"
         )
     elif choose and "prior_choice" not in overrides:

@@ -175,12 +175,17 @@ class TrainConfig(PresetConfig, table="train"):
     prior_choice: bool = False
     """Beside the ``members`` plain networks, about half as many more correct the static map
     (as with ``prior``, the same seeds); per joint, the kind whose ensemble validates better
-    drives it (:mod:`.kinds`; ours; the recipe turns it on unless it chooses exogenous
-    inputs)."""
+    (or their even blend, ``prior_blend``) drives it (:mod:`.kinds`; ours; the recipe turns
+    it on unless it chooses exogenous inputs)."""
     prior_margin: float = 0.05
     """With ``prior_choice``: a joint is a candidate for the map-correcting networks when their
     validation angle RMSE on it is below ``1 - prior_margin`` times the plain ensemble's (a near
     tie stays plain; negative: a near tie goes to the map-correcting networks; :mod:`.kinds`)."""
+    prior_blend: bool = True
+    """With ``prior_choice``: the even blend of both kinds (each ensemble's omega weighted 1/2)
+    is a third option per joint beside the plain and the map-correcting ensemble, held to the
+    same margin over the plain one; the lowest validation angle RMSE of the options drives the
+    joint (:mod:`.kinds`; false: each joint is one kind's)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is

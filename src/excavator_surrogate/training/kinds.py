@@ -13,14 +13,20 @@ trainings, which the recipe plans the epochs for within the same budget
 1. a joint is a candidate for the map-correcting networks if their validation angle RMSE
    on it is below ``1 - margin`` times the plain ensemble's (``[train] prior_margin``,
    default :data:`PRIOR_MARGIN`: a near tie stays plain; a negative margin sends a near tie
-   to the map-correcting networks);
+   to the map-correcting networks).  With ``[train] prior_blend`` (default
+   :data:`PRIOR_BLEND`) the even blend of both ensembles (:data:`BLEND`: each kind's omega
+   weighted 1/2 on every joint) is scored too and is a candidate on the same terms; a joint
+   takes the candidate with the lower RMSE.  The blend hedges where validation cannot tell
+   the kinds apart: on the development shapes it repaired a seed whose bucket the plain kind
+   drove at 2x the median, and bettered h1-dev's arm on every seed (docs/real-history.md);
 2. for the candidates, and for each candidate alone, a **composite** ensemble is built
    (:func:`composite`): group ``g`` of every ``P``-th plain network and map-correcting
-   network ``g`` becomes one network whose candidate joints come from the map-correcting
-   network and the others from the mean of its plain ones
-   (:func:`~excavator_surrogate.surrogate.ensemble.merge` with ``joint_weights``), and the
-   ``P`` groups are merged into the ensemble.  A plain joint is then exactly the plain
-   ensemble's mean, a map joint the map-correcting ensemble's;
+   network ``g`` becomes one network whose joint ``j`` is ``a_j`` times the map-correcting
+   network plus ``1 - a_j`` times the mean of its plain ones (``a_j``: 1 or 1/2 on a
+   candidate, 0 elsewhere; :func:`~excavator_surrogate.surrogate.ensemble.merge` with
+   ``joint_weights``), and the ``P`` groups are merged into the ensemble.  A plain joint is
+   then exactly the plain ensemble's mean, a map joint the map-correcting ensemble's, a
+   blended joint the mean of the two;
 3. the best set whose validation error is at most :data:`SET_MARGIN` above the plain
    ensemble's overall, and on every joint within the static map choice's allowance
    (:func:`~excavator_surrogate.training.map_joints.joint_allowance`), is kept (a joint's
@@ -40,7 +46,6 @@ import logging
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +67,14 @@ PRIOR_MARGIN = TrainConfig.prior_margin
 joint's validation angle RMSE for the joint to be a candidate (a tie stays plain);
 ``TrainConfig.prior_margin`` sets it."""
 
+PRIOR_BLEND = TrainConfig.prior_blend
+"""Default: the even blend of both kinds is a candidate per joint (``TrainConfig.prior_blend``)."""
+
 KINDS = ("plain", "prior")
+
+BLEND = 0.5
+"""The map-correcting networks' weight on a joint that the even blend of both kinds drives
+(``[train] prior_blend``)."""
 
 
 def in_prior_form(plain: Surrogate, prior: Surrogate) -> Surrogate:
@@ -82,34 +94,38 @@ def prior_members(members: int) -> int:
 
 
 def composite(
-    plains: Sequence[Surrogate], priors: Sequence[Surrogate], use_prior: Sequence[bool]
+    plains: Sequence[Surrogate], priors: Sequence[Surrogate], use_prior: Sequence[float]
 ) -> Surrogate:
-    """The ensemble whose joints ``use_prior`` are the map-correcting networks' mean and the
-    others the plain networks' mean.
+    """The ensemble whose joint ``j`` is ``a_j`` times the map-correcting networks' mean plus
+    ``1 - a_j`` times the plain networks' mean, ``a = use_prior``.
 
     Args:
         plains: K plain networks; priors: P map-correcting networks, P dividing K.
-        use_prior: (n_joint,) which joints the map-correcting networks drive.
+        use_prior: (n_joint,) the map-correcting networks' weight ``a_j`` in [0, 1] per joint
+            (a bool: which joints they drive; 1/2: the even blend of both kinds).
 
     Returns:
-        All plain or all map-correcting: that ensemble.  Else the merge of P composites,
-        group ``g`` = plain networks ``g, g + P, ...`` (weight ``P / K`` each on the plain
-        joints) and map-correcting network ``g`` (weight 1 on the others).
+        All 0 or all 1: the plain or the map-correcting ensemble.  Else the merge of P
+        composites, group ``g`` = plain networks ``g, g + P, ...`` (weight
+        ``(1 - a_j) P / K`` each on joint ``j``) and map-correcting network ``g`` (weight
+        ``a_j``).
     """
-    if not any(use_prior):
+    a = [float(x) for x in use_prior]
+    if not all(0.0 <= x <= 1.0 for x in a):
+        raise ValueError(f"the map-correcting networks' weights {a} are not in [0, 1]")
+    if not any(a):
         return merge(list(plains))
-    if all(use_prior):
+    if all(x == 1.0 for x in a):
         return merge(list(priors))
     n_prior = len(priors)
     if len(plains) % n_prior:
         raise ValueError(f"{len(priors)} map-correcting networks do not divide {len(plains)}")
     n_group = len(plains) // n_prior  # plain networks per group
-    w_plain = [0.0 if p else 1.0 / n_group for p in use_prior]
-    w_prior = [1.0 if p else 0.0 for p in use_prior]
+    w_plain = [(1.0 - x) / n_group for x in a]
     groups = [
         merge(
-            [in_prior_form(a, b) for a in plains[g::n_prior]] + [b],
-            joint_weights=[w_plain] * n_group + [w_prior],
+            [in_prior_form(p, b) for p in plains[g::n_prior]] + [b],
+            joint_weights=[w_plain] * n_group + [a],
             name=f"{b.name}-composite",
         )
         for g, b in enumerate(priors)
@@ -119,9 +135,12 @@ def composite(
 
 def model_kind(record: Mapping[str, Any]) -> str:
     """What :func:`choose_kinds`'s ``record`` made the model: ``"plain"`` (no joint chosen),
-    ``"prior"`` (every joint) or ``"composite"``."""
+    ``"prior"`` (every joint, from the map-correcting networks alone) or ``"composite"``."""
     chosen = len(record["chosen"])
-    return "plain" if not chosen else "prior" if chosen == len(record["names"]) else "composite"
+    if not chosen:
+        return "plain"
+    whole = chosen == len(record["names"]) and not record.get("blended")
+    return "prior" if whole else "composite"
 
 
 def choose_kinds(
@@ -131,6 +150,7 @@ def choose_kinds(
     *,
     max_steps: int | None = None,
     margin: float = PRIOR_MARGIN,
+    blend: bool = PRIOR_BLEND,
 ) -> tuple[Surrogate, dict[str, Any]]:
     """The model of the two ensembles (see the module docstring) and the record of the choice.
 
@@ -140,18 +160,31 @@ def choose_kinds(
         max_steps: validation free-run length cap (as the epoch selection's).
         margin: a joint is a candidate for the map-correcting networks when their
             validation angle RMSE is below ``1 - margin`` times the plain ensemble's.
+        blend: the even blend of both kinds (:data:`BLEND`) is a candidate on the same terms;
+            a joint takes the candidate with the lower validation angle RMSE.
 
     Returns:
         ``(model, record)``; ``record`` holds both ensembles' validation scores, the
         candidate joints, the sets tried and what was chosen, with a one-line ``why``.
     """
     names = list(plains[0].spec.names)
+    n_joint = len(names)
     merged = {"plain": merge(list(plains)), "prior": merge(list(priors))}
+    if blend:
+        merged["blend"] = composite(plains, priors, [BLEND] * n_joint)
     vals = {k: free_run_error(m, list(val), max_steps=max_steps) for k, m in merged.items()}
     base = vals["plain"]
-    cand = [
-        bool(b < (1 - margin) * a) for a, b in zip(base["theta_rmse"], vals["prior"]["theta_rmse"])
-    ]
+    # per joint, the map-correcting networks' weight: the option (1 = their ensemble, 1/2 =
+    # the even blend) with the lowest validation angle RMSE among those below (1 - margin)
+    # times the plain ensemble's; 0 (plain) if none is
+    options = {1.0: vals["prior"]["theta_rmse"]}
+    if blend:
+        options[BLEND] = vals["blend"]["theta_rmse"]
+    weights = []
+    for j, plain in enumerate(base["theta_rmse"]):
+        ok = [(e[j], -w) for w, e in options.items() if e[j] < (1 - margin) * plain]
+        weights.append(-min(ok)[1] if ok else 0.0)
+    cand = [w > 0 for w in weights]
     record: dict[str, Any] = {
         "names": names,
         "val_theta_rmse_plain": base["theta_rmse"],
@@ -160,20 +193,32 @@ def choose_kinds(
         "val_error_prior": vals["prior"]["val_error"],
         "candidates": [n for n, c in zip(names, cand) if c],
         "margin": margin,
+        "blend": blend,
         "tried": [],
         "chosen": [],
+        "weights": [0.0] * n_joint,
     }
+    if blend:
+        record["val_theta_rmse_blend"] = vals["blend"]["theta_rmse"]
+        record["val_error_blend"] = vals["blend"]["val_error"]
+    options_said = "nor the even blend of both kinds is" if blend else "are not"
     if not any(cand):
         record["why"] = (
-            f"the map-correcting networks are not below {1 - margin:.0%} of the plain ones' "
-            "validation angle RMSE on any joint: the plain networks drive every joint"
+            f"the map-correcting networks {options_said} below {1 - margin:.0%} of the plain "
+            "ones' validation angle RMSE on any joint: the plain networks drive every joint"
         )
         return merged["plain"], record
-    build = partial(composite, plains, priors)  # joints -> the composite taking them
-    every = (True,) * len(names)  # that set is the map-correcting ensemble: scored above
-    best = best_set(
-        cand, build, base, val, record=record, max_steps=max_steps, known={every: vals["prior"]}
-    )
+
+    def weights_of(joints: Sequence[bool]) -> list[float]:
+        return [w if p else 0.0 for w, p in zip(weights, joints)]
+
+    def build(joints: Sequence[bool]) -> Surrogate:  # joints -> the composite taking them
+        return composite(plains, priors, weights_of(joints))
+
+    # the set of every joint at one weight is an ensemble scored above: not run again
+    same = [k for k, w in (("prior", 1.0), ("blend", BLEND)) if all(x == w for x in weights)]
+    known = {(True,) * n_joint: vals[same[0]]} if same and same[0] in vals else {}
+    best = best_set(cand, build, base, val, record=record, max_steps=max_steps, known=known)
     if best is None:
         record["why"] = (
             f"every set of joints on the map-correcting networks is worse than the plain "
@@ -183,10 +228,16 @@ def choose_kinds(
         )
         return merged["plain"], record
     model, got, joints = best
+    record["weights"] = weights_of(joints)
     record["chosen"] = [n for n, p in zip(names, joints) if p]
+    record["blended"] = [n for n, w in zip(names, record["weights"]) if 0.0 < w < 1.0]
+    whole = [n for n in record["chosen"] if n not in record["blended"]]
+    who = [f"{', '.join(whole)} from the map-correcting networks"] if whole else []
+    if record["blended"]:
+        who.append(f"{', '.join(record['blended'])} from the even blend of both kinds")
     record["why"] = (
-        f"{', '.join(record['chosen'])} from the map-correcting networks: validation error "
-        f"{got['val_error']:.4g} against the plain networks' {base['val_error']:.4g}"
+        f"{'; '.join(who)}: validation error {got['val_error']:.4g} against the plain "
+        f"networks' {base['val_error']:.4g}"
     )
     return model, record
 
@@ -200,13 +251,14 @@ def train_choosing_kinds(
     notes: Mapping[str, Any] | None = None,
 ) -> Path:
     """Train the plain ensemble of ``cfg.members`` networks and :func:`prior_members` more
-    that correct the static map, and keep per joint the kind that validates better (see the
-    module docstring); returns ``OUT/best.pt``."""
+    that correct the static map, and keep per joint the kind (or their blend) that validates
+    better (see the module docstring); returns ``OUT/best.pt``."""
     n_plain, n_prior = cfg.members, prior_members(cfg.members)
     val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=n_plain + n_prior)
     _log.info(
         f"two kinds of network: {n_plain} plain and {n_prior} correcting the static map (seeds "
         f"from {cfg.seed}), {workers} in parallel; per joint, the kind that validates better"
+        + (" (or the even blend of both)" if cfg.prior_blend else "")
     )
     t0 = time.monotonic()
     # the members are single networks: the static map choice runs on the model they make
@@ -222,6 +274,7 @@ def train_choosing_kinds(
         val_eps,
         max_steps=cfg.val_steps or None,
         margin=cfg.prior_margin,
+        blend=cfg.prior_blend,
     )
     _log.info(f"two kinds of network: {record['why']}")
     kind = model_kind(record)

@@ -149,7 +149,12 @@ def train_choosing_inputs(
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
         model, kinds = choose_kinds(
-            plains, prior_nets, val_eps, max_steps=cfg.val_steps or None, margin=cfg.prior_margin
+            plains,
+            prior_nets,
+            val_eps,
+            max_steps=cfg.val_steps or None,
+            margin=cfg.prior_margin,
+            blend=cfg.prior_blend,
         )
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
