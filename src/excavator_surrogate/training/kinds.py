@@ -197,6 +197,7 @@ def choose_kinds(
         "tried": [],
         "chosen": [],
         "weights": [0.0] * n_joint,
+        "blended": [],
     }
     if blend:
         record["val_theta_rmse_blend"] = vals["blend"]["theta_rmse"]
@@ -221,8 +222,10 @@ def choose_kinds(
     best = best_set(cand, build, base, val, record=record, max_steps=max_steps, known=known)
     if best is None:
         record["why"] = (
-            f"every set of joints on the map-correcting networks is worse than the plain "
-            f"networks' validation error {base['val_error']:.4g} by more than "
+            "every set of joints on the map-correcting networks"
+            + (" (or on the even blend of both kinds)" if blend else "")
+            + f" is worse than the plain networks' validation error {base['val_error']:.4g} "
+            "by more than "
             f"{SET_MARGIN:.0%} overall, or on a joint by more than the whole gains: the plain "
             "networks drive every joint"
         )
