@@ -18,6 +18,7 @@ from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.api import train
 from excavator_surrogate.training.kinds import (
+    choice_options,
     choose_kinds,
     composite,
     in_prior_form,
@@ -282,3 +283,9 @@ def test_what_the_choice_made_the_model() -> None:
     assert model_kind({"names": names, "chosen": names, "blended": []}) == "prior"
     assert model_kind({"names": names, "chosen": names, "blended": ["a"]}) == "composite"
     assert model_kind({"names": names, "chosen": ["a"], "blended": []}) == "composite"
+
+
+def test_the_config_sets_the_choice_options() -> None:
+    cfg = tiny_train_config(prior_margin=-0.05, prior_blend=False, val_steps=50)
+    assert choice_options(cfg) == {"max_steps": 50, "margin": -0.05, "blend": False}
+    assert choice_options(tiny_train_config(val_steps=0))["max_steps"] is None

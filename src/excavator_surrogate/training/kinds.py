@@ -143,6 +143,16 @@ def model_kind(record: Mapping[str, Any]) -> str:
     return "prior" if whole else "composite"
 
 
+def choice_options(cfg: TrainConfig) -> dict[str, Any]:
+    """The keyword options of :func:`choose_kinds` that ``cfg`` sets (the validation cap, the
+    margin, the blend): every caller makes the choice as ``exsur train`` does."""
+    return {
+        "max_steps": cfg.val_steps or None,
+        "margin": cfg.prior_margin,
+        "blend": cfg.prior_blend,
+    }
+
+
 def choose_kinds(
     plains: Sequence[Surrogate],
     priors: Sequence[Surrogate],
@@ -271,14 +281,7 @@ def train_choosing_kinds(
         "prior": member_configs(replace(base, prior=True, members=n_prior)),
     }
     nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
-    model, record = choose_kinds(
-        nets["plain"],
-        nets["prior"],
-        val_eps,
-        max_steps=cfg.val_steps or None,
-        margin=cfg.prior_margin,
-        blend=cfg.prior_blend,
-    )
+    model, record = choose_kinds(nets["plain"], nets["prior"], val_eps, **choice_options(cfg))
     _log.info(f"two kinds of network: {record['why']}")
     kind = model_kind(record)
     best = merge_members(

@@ -36,7 +36,7 @@ from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .jobs import TrainJob, run_jobs
-from .kinds import choose_kinds, model_kind, prior_members
+from .kinds import choice_options, choose_kinds, model_kind, prior_members
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -148,14 +148,7 @@ def train_choosing_inputs(
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
-        model, kinds = choose_kinds(
-            plains,
-            prior_nets,
-            val_eps,
-            max_steps=cfg.val_steps or None,
-            margin=cfg.prior_margin,
-            blend=cfg.prior_blend,
-        )
+        model, kinds = choose_kinds(plains, prior_nets, val_eps, **choice_options(cfg))
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
         column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
