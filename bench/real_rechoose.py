@@ -16,8 +16,9 @@ Usage::
     python bench/real_rechoose.py --work DIR --shape continuous [--seeds 0,10,20] [--sim-seed N]
                                   [--set train.KEY=VALUE ...]
 
-``--set`` changes the ``[train]`` fields the choices read (``prior_choice``, ``static_map``,
-``map_periodic``; e.g. ``--set train.map_periodic=false``).  ``--sim-seed`` must be the one the
+``--set`` changes the ``[train]`` fields the choices read (``prior_choice``, ``prior_margin``,
+``prior_blend``, ``prior_skip_pinned``, ``static_map``, ``map_periodic``, ``map_parallel``;
+e.g. ``--set train.prior_blend=false``).  ``--sim-seed`` must be the one the
 run simulated (its JSON line's ``sim_seed``).  Prints each seed's choices and a table per
 scored set, and ends with ONE JSON line whose ``goals`` say whether the median beats the
 structured baseline on every joint and whether every seed chose what its ``best.pt`` records
@@ -43,7 +44,7 @@ from excavator_surrogate.surrogate.structured import fit_structured
 from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.batches import split_episodes
-from excavator_surrogate.training.kinds import choice_options, choose_kinds
+from excavator_surrogate.training.kinds import choice_options, choose_kinds, map_pinned
 from excavator_surrogate.training.map_joints import choose_map_joints
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -71,7 +72,8 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
         raise SystemExit(f"{run}: no saved networks (member_*/best.pt); run bench/real.py --work")
     kinds = None
     if cfg.prior_choice and priors:
-        model, kinds = choose_kinds(plains, priors, val_eps, **choice_options(cfg))
+        pinned = map_pinned(cfg, plains[0], train_eps, val_eps)
+        model, kinds = choose_kinds(plains, priors, val_eps, pinned=pinned, **choice_options(cfg))
     else:
         model = merge(plains) if len(plains) > 1 else plains[0]
     maps = None

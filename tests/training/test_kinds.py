@@ -4,6 +4,7 @@ parts, the choice on a plant where each kind is exact on one joint, and a short 
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from excavator_surrogate.training.kinds import (
     choose_kinds,
     composite,
     in_prior_form,
+    map_pinned,
     model_kind,
     prior_members,
 )
@@ -289,3 +291,26 @@ def test_the_config_sets_the_choice_options() -> None:
     cfg = tiny_train_config(prior_margin=-0.05, prior_blend=False, val_steps=50)
     assert choice_options(cfg) == {"max_steps": 50, "margin": -0.05, "blend": False}
     assert choice_options(tiny_train_config(val_steps=0))["max_steps"] is None
+
+
+def test_joints_the_static_map_will_pin_are_found_before_the_kind_choice() -> None:
+    """On this plant the delayed map is exact, so in parallel the static map choice pins both
+    joints (in series neither: they are not periodic); the kind choice records the joints it
+    was told cannot refuse a set."""
+    val = [_episode(7)]
+    net = _plain_net(0)
+    cfg = tiny_train_config(static_map=True, map_parallel=True, val_steps=0, **SMALL)
+    assert map_pinned(cfg, net, TRAIN, val) == [True, True]
+    for off in (
+        {"map_parallel": False},
+        {"prior_skip_pinned": False},
+        {"static_map": False},
+        {"map_periodic": False},
+    ):
+        assert map_pinned(dataclasses.replace(cfg, **off), net, TRAIN, val) is None
+    plains = [_plain_net(s) for s in (0, 1)]
+    priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
+    _, record = choose_kinds(plains, priors, val, pinned=[False, True])
+    assert record["pinned"] == ["b"]
+    _, record = choose_kinds(plains, priors, val)
+    assert record["pinned"] == []

@@ -186,6 +186,11 @@ class TrainConfig(PresetConfig, table="train"):
     is a third option per joint beside the plain and the map-correcting ensemble, held to the
     same margin over the plain one; the lowest validation angle RMSE of the options drives the
     joint (:mod:`.kinds`; false: each joint is one kind's)."""
+    prior_skip_pinned: bool = True
+    """With ``prior_choice`` and ``static_map``: a joint that the static map choice will put on
+    the map whatever the networks (``map_periodic``: its delayed map alone validates with angle
+    R^2 >= 0.95) cannot refuse a set of the kind choice on its own score; it still counts in
+    the whole validation error that ranks the sets (:mod:`.kinds`; false: every joint can)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is

@@ -31,7 +31,11 @@ trainings, which the recipe plans the epochs for within the same budget
    ensemble's overall, and on every joint within the static map choice's allowance
    (:func:`~excavator_surrogate.training.map_joints.joint_allowance`), is kept (a joint's
    choice changes the angles the others read); if none, or no candidate, the plain ensemble
-   is the model, as without the option.
+   is the model, as without the option.  A joint the static map choice will put on the map
+   whatever the networks (:func:`map_pinned`, ``[train] prior_skip_pinned``) cannot refuse
+   a set on its own score; it still counts in the whole error (on the first continuous
+   development log the networks' own swing, which the map drives, refused the
+   map-correcting networks' boom in two seeds of three).
 
 The static map choice (``static_map``) then runs on the result as on any model.
 
@@ -55,9 +59,10 @@ from ..surrogate.model import Surrogate
 from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import with_map_joints
 from ..surrogate.validation import free_run_error
+from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups
-from .map_joints import SET_MARGIN, best_set
+from .map_joints import SET_MARGIN, best_set, pinned_joints
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -143,6 +148,25 @@ def model_kind(record: Mapping[str, Any]) -> str:
     return "prior" if whole else "composite"
 
 
+def map_pinned(
+    cfg: TrainConfig, carrier: Surrogate, train: Sequence[Any], val: Sequence[Any]
+) -> list[bool] | None:
+    """The joints the static map choice that follows will put on the map whatever the networks
+    (:func:`~.map_joints.pinned_joints` with ``cfg``'s options, on the run's ``carrier``
+    network), when ``cfg.prior_skip_pinned`` and that choice pins any; else None."""
+    if not (cfg.prior_skip_pinned and cfg.static_map and cfg.map_periodic):
+        return None
+    pinned = pinned_joints(
+        carrier,
+        train,
+        val,
+        max_steps=cfg.val_steps or None,
+        parallel=cfg.map_parallel,
+        end_stops=cfg.map_stops_at_range,
+    )
+    return pinned if any(pinned) else None
+
+
 def choice_options(cfg: TrainConfig) -> dict[str, Any]:
     """The keyword options of :func:`choose_kinds` that ``cfg`` sets (the validation cap, the
     margin, the blend): every caller makes the choice as ``exsur train`` does."""
@@ -161,6 +185,7 @@ def choose_kinds(
     max_steps: int | None = None,
     margin: float = PRIOR_MARGIN,
     blend: bool = PRIOR_BLEND,
+    pinned: Sequence[bool] | None = None,
 ) -> tuple[Surrogate, dict[str, Any]]:
     """The model of the two ensembles (see the module docstring) and the record of the choice.
 
@@ -172,6 +197,8 @@ def choose_kinds(
             validation angle RMSE is below ``1 - margin`` times the plain ensemble's.
         blend: the even blend of both kinds (:data:`BLEND`) is a candidate on the same terms;
             a joint takes the candidate with the lower validation angle RMSE.
+        pinned: (n_joint,) joints the static map choice will drive whatever the networks
+            (:func:`map_pinned`): they cannot refuse a set (``best_set``'s ``ignore``).
 
     Returns:
         ``(model, record)``; ``record`` holds both ensembles' validation scores, the
@@ -208,6 +235,7 @@ def choose_kinds(
         "chosen": [],
         "weights": [0.0] * n_joint,
         "blended": [],
+        "pinned": [n for n, p in zip(names, pinned or []) if p],
     }
     if blend:
         record["val_theta_rmse_blend"] = vals["blend"]["theta_rmse"]
@@ -229,7 +257,9 @@ def choose_kinds(
     # the set of every joint at one weight is an ensemble scored above: not run again
     same = [k for k, w in (("prior", 1.0), ("blend", BLEND)) if all(x == w for x in weights)]
     known = {(True,) * n_joint: vals[same[0]]} if same and same[0] in vals else {}
-    best = best_set(cand, build, base, val, record=record, max_steps=max_steps, known=known)
+    best = best_set(
+        cand, build, base, val, record=record, max_steps=max_steps, known=known, ignore=pinned
+    )
     if best is None:
         record["why"] = (
             "every set of joints on the map-correcting networks"
@@ -281,7 +311,11 @@ def train_choosing_kinds(
         "prior": member_configs(replace(base, prior=True, members=n_prior)),
     }
     nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
-    model, record = choose_kinds(nets["plain"], nets["prior"], val_eps, **choice_options(cfg))
+    train_eps, _ = split_episodes(cfg, dataset)
+    pinned = map_pinned(cfg, nets["plain"][0], train_eps, val_eps)
+    model, record = choose_kinds(
+        nets["plain"], nets["prior"], val_eps, pinned=pinned, **choice_options(cfg)
+    )
     _log.info(f"two kinds of network: {record['why']}")
     kind = model_kind(record)
     best = merge_members(

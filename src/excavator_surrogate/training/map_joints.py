@@ -120,6 +120,38 @@ def map_end_stops(train: Sequence[Episode]) -> tuple[Any, Any]:
     return joint_limits(training_range_spec(train[0].spec, train))
 
 
+def pinned_joints(
+    sur: Surrogate,
+    train: Sequence[Episode],
+    val: Sequence[Episode],
+    *,
+    max_steps: int | None = None,
+    periodic: bool = True,
+    parallel: bool = False,
+    end_stops: bool = True,
+) -> list[bool]:
+    """The joints that :func:`choose_map_joints` (with the same options) puts on the map
+    whatever the network: with ``periodic``, a joint (a periodic one; with ``parallel``, any)
+    whose delayed map alone runs the validation free run with angle R^2 >=
+    :data:`PERIODIC_MAP_R2`.  A map joint's angle depends on its own command only, so this
+    reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
+    before the map choice on other networks of the same run, gets the same joints
+    (``record["pinned"]`` of the map choice)."""
+    spec = sur.spec
+    if not periodic:
+        return [False] * spec.n_joint
+    fit = fit_prior(train, spec, max_delay=max_map_delay(sur.window, spec))
+    stops = map_end_stops(train) if end_stops and sur.end_stops else None
+    on_map = [True] * spec.n_joint
+    run = free_run_error(
+        with_map_joints(sur, fit, on_map, map_stops=stops), list(val), max_steps=max_steps
+    )
+    return [
+        bool(r2 >= PERIODIC_MAP_R2 and (parallel or js.periodic))
+        for r2, js in zip(run["theta_r2"], spec.joints)
+    ]
+
+
 def choose_map_joints(
     sur: Surrogate,
     train: Sequence[Episode],
@@ -351,19 +383,23 @@ def best_set(
     record: dict[str, Any],
     max_steps: int | None = None,
     known: Mapping[tuple[bool, ...], Mapping[str, Any]] | None = None,
+    ignore: Sequence[bool] | None = None,
 ) -> tuple[Surrogate, dict[str, Any], list[bool]] | None:
     """The best set of joints to change, or None: the candidates ``cand`` together and each
     alone, each model ``build(joints)`` scored on the validation free run and kept if within
     :data:`SET_MARGIN` of ``base`` (a :func:`free_run_error` result) overall and within
     :func:`joint_allowance` of it on every joint (a joint's change moves the angles the others
     read).  ``known``: sets whose validation free run the caller has already scored (not run
-    again).
+    again).  ``ignore``: (n_joint,) joints that cannot refuse a set (another choice drives
+    them whatever this one keeps): they still count in the whole error, which ranks the sets,
+    but are not checked one by one.
 
     Returns:
         ``(model, its free_run_error, joints)`` of the lowest kept validation error; each set
         tried is appended to ``record["tried"]`` (``record["names"]``: the joints' names).
     """
     n_joint, names = len(cand), record["names"]
+    skip = list(ignore) if ignore is not None else [False] * n_joint
     sets = [list(cand)]
     if sum(cand) > 1:
         sets += [[k == j for k in range(n_joint)] for j, c in enumerate(cand) if c]
@@ -380,7 +416,7 @@ def best_set(
         worse = [
             names[j]
             for j, (a, b) in enumerate(zip(got["theta_rmse"], base["theta_rmse"]))
-            if not a <= (1 + allow) * b
+            if not skip[j] and not a <= (1 + allow) * b
         ]
         ok = got["val_error"] <= (1 + SET_MARGIN) * base["val_error"] and not worse
         record["tried"].append(
