@@ -255,7 +255,8 @@ def training_log(out: Path) -> dict:
 def choices(sur) -> dict:
     """What the trained model chose on validation, beside the validation free run's position
     RMSE per joint in the shown unit (to set against the scored split's): the joints on the
-    static map, those driven by the map-correcting networks, whether the inputs are used."""
+    static map, those driven by the map-correcting networks (and of those, the ones driven by
+    the even blend of both kinds), whether the inputs are used."""
     metrics = sur.metrics or {}
     facts = metrics.get("training") or {}
     val = (metrics.get("val") or {}).get("theta_rmse")
@@ -264,7 +265,12 @@ def choices(sur) -> dict:
         if val is None
         else [round(float(v), 3) for v in shown(sur.spec)[0] * np.asarray(val)]
     }
-    for key, field in (("static_map", "chosen"), ("kinds", "chosen"), ("exogenous", "kept")):
+    for key, field in (
+        ("static_map", "chosen"),
+        ("kinds", "chosen"),
+        ("kinds", "blended"),
+        ("exogenous", "kept"),
+    ):
         record = facts.get(key)
         if isinstance(record, dict) and field in record:
             out[f"{key}_{field}"] = record[field]
