@@ -45,7 +45,7 @@ from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.batches import split_episodes
 from excavator_surrogate.training.kinds import choice_options, choose_kinds, map_pinned
-from excavator_surrogate.training.map_joints import choose_map_joints
+from excavator_surrogate.training.map_joints import choose_map_joints, map_options
 
 sys.path.insert(0, str(Path(__file__).parent))
 from real import WARMUP, score, shown
@@ -66,7 +66,6 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     """The model ``exsur train`` would make from the networks saved in ``run`` under ``cfg``'s
     choice fields (fitted on ``train_eps``, chosen on ``val_eps``: ``split_episodes``), and
     the two choices' records (None where a choice is off)."""
-    max_steps = cfg.val_steps or None
     plains, priors = members(run, "plain"), members(run, "prior")
     if not plains:
         raise SystemExit(f"{run}: no saved networks (member_*/best.pt); run bench/real.py --work")
@@ -78,15 +77,7 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
         model = merge(plains) if len(plains) > 1 else plains[0]
     maps = None
     if cfg.static_map:
-        new, maps = choose_map_joints(
-            model,
-            train_eps,
-            val_eps,
-            max_steps=max_steps,
-            periodic=cfg.map_periodic,
-            parallel=cfg.map_parallel,
-            end_stops=cfg.map_stops_at_range,
-        )
+        new, maps = choose_map_joints(model, train_eps, val_eps, **map_options(cfg))
         model = new if new is not None else model
     return model, kinds, maps
 

@@ -75,6 +75,7 @@ from ..surrogate.structured import (
     with_map_joints,
 )
 from ..surrogate.validation import free_run_error
+from .config import TrainConfig
 
 _log = logging.getLogger(__name__)
 
@@ -120,6 +121,57 @@ def map_end_stops(train: Sequence[Episode]) -> tuple[Any, Any]:
     return joint_limits(training_range_spec(train[0].spec, train))
 
 
+def map_options(cfg: TrainConfig) -> dict[str, Any]:
+    """The keyword options of :func:`choose_map_joints`, :func:`apply_map_choice` and
+    :func:`pinned_joints` that ``cfg`` sets: every caller makes the map choice, or predicts
+    its pinned joints, as ``exsur train`` does."""
+    return {
+        "max_steps": cfg.val_steps or None,
+        "periodic": cfg.map_periodic,
+        "parallel": cfg.map_parallel,
+        "end_stops": cfg.map_stops_at_range,
+    }
+
+
+def _all_on_map(
+    sur: Surrogate,
+    fit: Mapping[str, Any],
+    val: Sequence[Episode],
+    *,
+    stops: tuple[Any, Any] | None,
+    max_steps: int | None,
+) -> dict[str, Any]:
+    """The validation free run of ``sur`` with every joint on the map ``fit``: a map joint's
+    angle depends on its own command only, so each joint scores as its map alone."""
+    on_map = [True] * sur.spec.n_joint
+    return free_run_error(
+        with_map_joints(sur, fit, on_map, map_stops=stops), list(val), max_steps=max_steps
+    )
+
+
+def _delayed_map(
+    sur: Surrogate,
+    train: Sequence[Episode],
+    val: Sequence[Episode],
+    *,
+    max_steps: int | None,
+    end_stops: bool,
+) -> tuple[dict[str, Any], tuple[Any, Any] | None, dict[str, Any]]:
+    """``(fit, stops, run)``: the map fitted on ``train`` with delays up to ``sur``'s window,
+    the end stops a map joint gets (:func:`map_end_stops`, or ``sur``'s without
+    ``end_stops``), and the validation free run of every joint on that map alone."""
+    fit = fit_prior(train, sur.spec, max_delay=max_map_delay(sur.window, sur.spec))
+    stops = map_end_stops(train) if end_stops and sur.end_stops else None
+    return fit, stops, _all_on_map(sur, fit, val, stops=stops, max_steps=max_steps)
+
+
+def _runs_well(run: Mapping[str, Any], *, periodic: bool) -> list[bool]:
+    """Per joint, whether its map alone ran ``run`` with angle R^2 >= :data:`PERIODIC_MAP_R2`
+    (never without ``periodic``): such a joint follows the map without a comparison with the
+    network (a periodic one in series; any in parallel)."""
+    return [bool(periodic and r2 >= PERIODIC_MAP_R2) for r2 in run["theta_r2"]]
+
+
 def pinned_joints(
     sur: Surrogate,
     train: Sequence[Episode],
@@ -137,19 +189,11 @@ def pinned_joints(
     reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
     before the map choice on other networks of the same run, gets the same joints
     (``record["pinned"]`` of the map choice)."""
-    spec = sur.spec
     if not periodic:
-        return [False] * spec.n_joint
-    fit = fit_prior(train, spec, max_delay=max_map_delay(sur.window, spec))
-    stops = map_end_stops(train) if end_stops and sur.end_stops else None
-    on_map = [True] * spec.n_joint
-    run = free_run_error(
-        with_map_joints(sur, fit, on_map, map_stops=stops), list(val), max_steps=max_steps
-    )
-    return [
-        bool(r2 >= PERIODIC_MAP_R2 and (parallel or js.periodic))
-        for r2, js in zip(run["theta_r2"], spec.joints)
-    ]
+        return [False] * sur.spec.n_joint
+    _, _, run = _delayed_map(sur, train, val, max_steps=max_steps, end_stops=end_stops)
+    good = _runs_well(run, periodic=periodic)
+    return [g and (parallel or js.periodic) for g, js in zip(good, sur.spec.joints)]
 
 
 def choose_map_joints(
@@ -184,22 +228,14 @@ def choose_map_joints(
     """
     spec = sur.spec
     names = list(spec.names)
-    fits = [fit_prior(train, spec, max_delay=max_map_delay(sur.window, spec))]
-    if any(fits[0]["delay"]):  # the same map without delays: chosen per joint on validation
+    delayed, stops, run = _delayed_map(sur, train, val, max_steps=max_steps, end_stops=end_stops)
+    fits, runs = [delayed], [run]
+    if any(delayed["delay"]):  # the same map without delays: chosen per joint on validation
         fits.append(fit_prior(train, spec))
+        runs.append(_all_on_map(sur, fits[1], val, stops=stops, max_steps=max_steps))
     net = free_run_error(sur, list(val), max_steps=max_steps)
-    on_map = [True] * spec.n_joint
-    stops = map_end_stops(train) if end_stops and sur.end_stops else None
-    # a map joint's angle depends on its own command only, so each joint's score on the
-    # all-map free run is that joint's map alone
-    runs = [
-        free_run_error(
-            with_map_joints(sur, f, on_map, map_stops=stops), list(val), max_steps=max_steps
-        )
-        for f in fits
-    ]
     scores = [r["theta_rmse"] for r in runs]
-    good = [bool(periodic and r2 >= PERIODIC_MAP_R2) for r2 in runs[0]["theta_r2"]]
+    good = _runs_well(runs[0], periodic=periodic)
     pinned = [g and js.periodic for g, js in zip(good, spec.joints)]
     pick = [
         0 if good[j] else min(range(len(fits)), key=lambda v: scores[v][j])
