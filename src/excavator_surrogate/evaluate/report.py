@@ -233,10 +233,11 @@ def _kinds_markdown(record: Mapping[str, Any] | None) -> str:
     elif not blended and len(chosen) == len(record.get("names") or chosen):
         who = "the networks that correct the static valve map drive every joint"
     else:
-        parts = [f"the networks that correct the static valve map drive {', '.join(whole)}"] * bool(
-            whole
-        )
-        parts += [f"the even blend of both kinds drives {', '.join(blended)}"] * bool(blended)
+        parts = []
+        if whole:
+            parts.append(f"the networks that correct the static valve map drive {', '.join(whole)}")
+        if blended:
+            parts.append(f"the even blend of both kinds drives {', '.join(blended)}")
         rest = len(chosen) < len(record.get("names") or chosen)
         who = ", ".join(parts) + (", the plain networks the other joints" if rest else "")
     return (

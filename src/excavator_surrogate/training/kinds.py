@@ -62,7 +62,7 @@ from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups
-from .map_joints import SET_MARGIN, best_set, pinned_joints
+from .map_joints import SET_MARGIN, best_set, map_options, pinned_joints
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -156,14 +156,7 @@ def map_pinned(
     network), when ``cfg.prior_skip_pinned`` and that choice pins any; else None."""
     if not (cfg.prior_skip_pinned and cfg.static_map and cfg.map_periodic):
         return None
-    pinned = pinned_joints(
-        carrier,
-        train,
-        val,
-        max_steps=cfg.val_steps or None,
-        parallel=cfg.map_parallel,
-        end_stops=cfg.map_stops_at_range,
-    )
+    pinned = pinned_joints(carrier, train, val, **map_options(cfg))
     return pinned if any(pinned) else None
 
 
@@ -214,12 +207,14 @@ def choose_kinds(
     # per joint, the map-correcting networks' weight: the option (1 = their ensemble, 1/2 =
     # the even blend) with the lowest validation angle RMSE among those below (1 - margin)
     # times the plain ensemble's; 0 (plain) if none is
-    options = {1.0: vals["prior"]["theta_rmse"]}
-    if blend:
-        options[BLEND] = vals["blend"]["theta_rmse"]
+    scored = {1.0: vals["prior"]} | ({BLEND: vals["blend"]} if blend else {})
     weights = []
     for j, plain in enumerate(base["theta_rmse"]):
-        ok = [(e[j], -w) for w, e in options.items() if e[j] < (1 - margin) * plain]
+        ok = [
+            (v["theta_rmse"][j], -w)
+            for w, v in scored.items()
+            if v["theta_rmse"][j] < (1 - margin) * plain
+        ]
         weights.append(-min(ok)[1] if ok else 0.0)
     cand = [w > 0 for w in weights]
     record: dict[str, Any] = {
@@ -255,8 +250,8 @@ def choose_kinds(
         return composite(plains, priors, weights_of(joints))
 
     # the set of every joint at one weight is an ensemble scored above: not run again
-    same = [k for k, w in (("prior", 1.0), ("blend", BLEND)) if all(x == w for x in weights)]
-    known = {(True,) * n_joint: vals[same[0]]} if same and same[0] in vals else {}
+    uniform = len(set(weights)) == 1 and weights[0] in scored
+    known = {(True,) * n_joint: scored[weights[0]]} if uniform else {}
     best = best_set(
         cand, build, base, val, record=record, max_steps=max_steps, known=known, ignore=pinned
     )
