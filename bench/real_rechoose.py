@@ -44,7 +44,7 @@ from excavator_surrogate.surrogate.structured import fit_structured
 from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.batches import split_episodes
-from excavator_surrogate.training.kinds import choice_options, choose_kinds, map_pinned
+from excavator_surrogate.training.kinds import choice_joints, choice_options, choose_kinds
 from excavator_surrogate.training.map_joints import choose_map_joints, map_options
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -71,8 +71,8 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
         raise SystemExit(f"{run}: no saved networks (member_*/best.pt); run bench/real.py --work")
     kinds = None
     if cfg.prior_choice and priors:
-        pinned = map_pinned(cfg, plains[0], train_eps, val_eps)
-        model, kinds = choose_kinds(plains, priors, val_eps, pinned=pinned, **choice_options(cfg))
+        joints = choice_joints(cfg, plains[0], train_eps, val_eps)
+        model, kinds = choose_kinds(plains, priors, val_eps, **joints, **choice_options(cfg))
     else:
         model = merge(plains) if len(plains) > 1 else plains[0]
     maps = None

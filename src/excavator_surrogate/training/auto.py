@@ -37,7 +37,12 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   continuous case with its throttle they scored worse than the input choice alone
   (docs/real.md); ``prior_choice = true`` still runs both;
 - after training, the static valve map as a candidate per joint, chosen on validation
-  (:mod:`.map_joints`).
+  (:mod:`.map_joints`);
+- neither the map nor the map-correcting networks for a joint whose validation commands span
+  less than half its training command range beyond the dead zone (:mod:`.span`): there
+  validation cannot vouch for them, and the plain networks drive it.  Where no joint spans
+  enough (h1-dev: every validation run at one duty) no map-correcting network is trained,
+  and the budget goes to plain members.
 
 Every field can still be overridden: ``auto_config(ds, overrides={"members": 1})``, or on
 the command line ``exsur train DATA --members 1``.
@@ -58,6 +63,7 @@ from ..errors import ConfigError, DataError
 from .config import TrainConfig
 from .kinds import prior_members
 from .map_joints import PERIODIC_MAP_R2
+from .span import joint_spans, span_note
 
 TRAIN_BUDGET_S = 540.0
 """Wall time of the whole training (every member) on the reference 2-core machine [s]."""
@@ -161,8 +167,13 @@ def auto_config(
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
     choose = bool(inputs) and exogenous == "choose"
-    # the kind choice is the recipe's unless the run chooses its inputs (both: measured worse)
-    kinds = bool(overrides.get("prior_choice", not choose))
+    # the kind choice is the recipe's unless the run chooses its inputs (both: measured
+    # worse), or validation spans too little of any joint's command range to choose a kind
+    min_span = float(overrides.get("choice_min_span", TrainConfig.choice_min_span))
+    spans, spanned = joint_spans(
+        dataset.train, dataset.val or dataset.train, dataset.spec, min_span=min_span
+    )
+    kinds = bool(overrides.get("prior_choice", not choose and any(spanned)))
     n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
     val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
@@ -206,6 +217,13 @@ def auto_config(
             "one kind of network (plain): the run chooses its exogenous inputs, and both "
             "choices together leave each network too few epochs (prior_choice = true runs both)"
         )
+    elif spans is not None and not any(spanned) and "prior_choice" not in overrides:
+        why.append(
+            "one kind of network (plain): validation commands "
+            f"{span_note(spans, dataset.spec, min_span=min_span)} of the training's command "
+            f"range beyond the dead zone (below {100 * min_span:.0f} %), too little to choose the "
+            "map-correcting networks or the map for any joint; the budget trains plain members"
+        )
     n_val = len(dataset.val)
     short_val = n_val < SHORT_VAL_EPISODES
     if short_val:
@@ -237,7 +255,10 @@ def auto_config(
         "near tie goes to the simpler model), and any joint whose map with its fitted delay "
         f"alone runs the validation with angle R^2 >= {PERIODIC_MAP_R2:g} follows it; in "
         "parallel: the networks keep reading their own angles of the map joints, so no map "
-        "joint moves the others"
+        "joint moves the others; only on a joint whose validation commands span at least "
+        f"{100 * min_span:.0f} % of its training command range beyond the dead zone (a "
+        "valve's speed is not linear in its command: validation at one command level cannot "
+        "vouch for the map at the others)"
     )
     cfg = TrainConfig(
         window=window,

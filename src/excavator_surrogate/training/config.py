@@ -191,6 +191,12 @@ class TrainConfig(PresetConfig, table="train"):
     the map whatever the networks (``map_periodic``: its delayed map alone validates with angle
     R^2 >= 0.95) cannot refuse a set of the kind choice on its own score; it still counts in
     the whole validation error that ranks the sets (:mod:`.kinds`; false: every joint can)."""
+    choice_min_span: float = 0.5
+    """With ``static_map`` or ``prior_choice``: a joint may follow the map, or the networks
+    that correct it, only where validation commands it over at least this share of the
+    training's command range beyond the dead zone, in each direction (:mod:`.span`; elsewhere
+    the plain networks drive it; the recipe trains no map-correcting networks when no joint
+    reaches it; 0 = every joint may)."""
     members: int = 1
     """Seed ensemble: train this many members independently (seeds ``seed``, ``seed + 1``, ...),
     each selected by its own validation free run, and merge them into one network whose omega is
@@ -258,6 +264,10 @@ class TrainConfig(PresetConfig, table="train"):
             (
                 not (self.prior_choice and (self.prior or self.residual)),
                 "prior_choice trains both kinds itself: set prior = false and residual = false",
+            ),
+            (
+                0.0 <= self.choice_min_span <= 1.0,
+                "choice_min_span must be in [0, 1] (0 = every joint may follow the map)",
             ),
             (
                 -1.0 < self.prior_margin < 1.0,

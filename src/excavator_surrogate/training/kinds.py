@@ -64,6 +64,7 @@ from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups
 from .map_joints import SET_MARGIN, best_set, map_options, pinned_joints
 from .records import write_config
+from .span import joint_spans
 
 _log = logging.getLogger(__name__)
 
@@ -160,6 +161,16 @@ def map_pinned(
     return pinned if any(pinned) else None
 
 
+def choice_joints(
+    cfg: TrainConfig, carrier: Surrogate, train: Sequence[Any], val: Sequence[Any]
+) -> dict[str, Any]:
+    """The per-joint keyword options of :func:`choose_kinds` that the data and ``cfg`` set:
+    ``pinned`` (:func:`map_pinned`) and ``spanned`` (:func:`~.span.joint_spans` at
+    ``cfg.choice_min_span``)."""
+    _, spanned = joint_spans(train, val, carrier.spec, min_span=cfg.choice_min_span)
+    return {"pinned": map_pinned(cfg, carrier, train, val), "spanned": spanned}
+
+
 def choice_options(cfg: TrainConfig) -> dict[str, Any]:
     """The keyword options of :func:`choose_kinds` that ``cfg`` sets (the validation cap, the
     margin, the blend): every caller makes the choice as ``exsur train`` does."""
@@ -179,6 +190,7 @@ def choose_kinds(
     margin: float = PRIOR_MARGIN,
     blend: bool = PRIOR_BLEND,
     pinned: Sequence[bool] | None = None,
+    spanned: Sequence[bool] | None = None,
 ) -> tuple[Surrogate, dict[str, Any]]:
     """The model of the two ensembles (see the module docstring) and the record of the choice.
 
@@ -192,6 +204,8 @@ def choose_kinds(
             a joint takes the candidate with the lower validation angle RMSE.
         pinned: (n_joint,) joints the static map choice will drive whatever the networks
             (:func:`map_pinned`): they cannot refuse a set (``best_set``'s ``ignore``).
+        spanned: (n_joint,) joints whose validation commands span enough of the training's
+            command range (:func:`~.span.joint_spans`); the others stay plain (default: all).
 
     Returns:
         ``(model, record)``; ``record`` holds both ensembles' validation scores, the
@@ -208,6 +222,7 @@ def choose_kinds(
     # the even blend) with the lowest validation angle RMSE among those below (1 - margin)
     # times the plain ensemble's; 0 (plain) if none is
     scored = {1.0: vals["prior"]} | ({BLEND: vals["blend"]} if blend else {})
+    spanned = list(spanned) if spanned is not None else [True] * n_joint
     weights = []
     for j, plain in enumerate(base["theta_rmse"]):
         ok = [
@@ -215,7 +230,7 @@ def choose_kinds(
             for w, v in scored.items()
             if v["theta_rmse"][j] < (1 - margin) * plain
         ]
-        weights.append(-min(ok)[1] if ok else 0.0)
+        weights.append(-min(ok)[1] if ok and spanned[j] else 0.0)
     cand = [w > 0 for w in weights]
     record: dict[str, Any] = {
         "names": names,
@@ -231,6 +246,7 @@ def choose_kinds(
         "weights": [0.0] * n_joint,
         "blended": [],
         "pinned": [n for n, p in zip(names, pinned or []) if p],
+        "unspanned": [n for n, sp in zip(names, spanned) if not sp],
     }
     if blend:
         record["val_theta_rmse_blend"] = vals["blend"]["theta_rmse"]
@@ -239,7 +255,14 @@ def choose_kinds(
     if not any(cand):
         record["why"] = (
             f"the map-correcting networks {options_said} below {1 - margin:.0%} of the plain "
-            "ones' validation angle RMSE on any joint: the plain networks drive every joint"
+            "ones' validation angle RMSE on any joint"
+            + (
+                f" whose validation commands span enough of its command range (not "
+                f"{', '.join(record['unspanned'])})"
+                if record["unspanned"]
+                else ""
+            )
+            + ": the plain networks drive every joint"
         )
         return merged["plain"], record
 
@@ -307,9 +330,12 @@ def train_choosing_kinds(
     }
     nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
     train_eps, _ = split_episodes(cfg, dataset)
-    pinned = map_pinned(cfg, nets["plain"][0], train_eps, val_eps)
     model, record = choose_kinds(
-        nets["plain"], nets["prior"], val_eps, pinned=pinned, **choice_options(cfg)
+        nets["plain"],
+        nets["prior"],
+        val_eps,
+        **choice_joints(cfg, nets["plain"][0], train_eps, val_eps),
+        **choice_options(cfg),
     )
     _log.info(f"two kinds of network: {record['why']}")
     kind = model_kind(record)

@@ -76,6 +76,7 @@ from ..surrogate.structured import (
 )
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
+from .span import joint_spans, span_note
 
 _log = logging.getLogger(__name__)
 
@@ -88,6 +89,10 @@ SET_MARGIN = 0.05
 network's, overall and on every joint (the other joints now read the map joints' angles),
 unless the whole gains more (:func:`joint_allowance`)."""
 
+
+MIN_SPAN = TrainConfig.choice_min_span
+"""Default: the share of the training's command range a joint's validation commands must
+span for the joint to be a candidate (:mod:`.span`)."""
 
 PERIODIC_MAP_R2 = 0.95
 """A periodic joint follows the static map with its fitted delay when that map alone runs its
@@ -130,6 +135,7 @@ def map_options(cfg: TrainConfig) -> dict[str, Any]:
         "periodic": cfg.map_periodic,
         "parallel": cfg.map_parallel,
         "end_stops": cfg.map_stops_at_range,
+        "min_span": cfg.choice_min_span,
     }
 
 
@@ -165,11 +171,14 @@ def _delayed_map(
     return fit, stops, _all_on_map(sur, fit, val, stops=stops, max_steps=max_steps)
 
 
-def _runs_well(run: Mapping[str, Any], *, periodic: bool) -> list[bool]:
+def _runs_well(run: Mapping[str, Any], *, periodic: bool, spanned: Sequence[bool]) -> list[bool]:
     """Per joint, whether its map alone ran ``run`` with angle R^2 >= :data:`PERIODIC_MAP_R2`
-    (never without ``periodic``): such a joint follows the map without a comparison with the
-    network (a periodic one in series; any in parallel)."""
-    return [bool(periodic and r2 >= PERIODIC_MAP_R2) for r2 in run["theta_r2"]]
+    (never without ``periodic``, nor on a joint validation does not span: :mod:`.span`): such
+    a joint follows the map without a comparison with the network (a periodic one in series;
+    any in parallel)."""
+    return [
+        bool(periodic and s and r2 >= PERIODIC_MAP_R2) for r2, s in zip(run["theta_r2"], spanned)
+    ]
 
 
 def pinned_joints(
@@ -181,6 +190,7 @@ def pinned_joints(
     periodic: bool = True,
     parallel: bool = False,
     end_stops: bool = True,
+    min_span: float = MIN_SPAN,
 ) -> list[bool]:
     """The joints that :func:`choose_map_joints` (with the same options) puts on the map
     whatever the network: with ``periodic``, a joint (a periodic one; with ``parallel``, any)
@@ -189,10 +199,11 @@ def pinned_joints(
     reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
     before the map choice on other networks of the same run, gets the same joints
     (``record["pinned"]`` of the map choice)."""
-    if not periodic:
+    _, spanned = joint_spans(train, val, sur.spec, min_span=min_span)
+    if not (periodic and any(spanned)):
         return [False] * sur.spec.n_joint
     _, _, run = _delayed_map(sur, train, val, max_steps=max_steps, end_stops=end_stops)
-    good = _runs_well(run, periodic=periodic)
+    good = _runs_well(run, periodic=periodic, spanned=spanned)
     return [g and (parallel or js.periodic) for g, js in zip(good, sur.spec.joints)]
 
 
@@ -205,6 +216,7 @@ def choose_map_joints(
     periodic: bool = True,
     parallel: bool = False,
     end_stops: bool = True,
+    min_span: float = MIN_SPAN,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The surrogate with the chosen joints on the static map, or None to keep ``sur``.
 
@@ -221,6 +233,8 @@ def choose_map_joints(
         end_stops: a joint on the map stops at :func:`map_end_stops` (else, or when ``sur``
             runs without end stops, at ``sur``'s); every map free run of the choice is scored
             so.
+        min_span: a joint whose validation commands span less than this share of the
+            training's command range (:func:`~.span.command_span`) keeps the network.
 
     Returns:
         ``(new or None, record)``; ``record`` holds the map, both validation scores, the
@@ -235,7 +249,8 @@ def choose_map_joints(
         runs.append(_all_on_map(sur, fits[1], val, stops=stops, max_steps=max_steps))
     net = free_run_error(sur, list(val), max_steps=max_steps)
     scores = [r["theta_rmse"] for r in runs]
-    good = _runs_well(runs[0], periodic=periodic)
+    spans, spanned = joint_spans(train, val, spec, min_span=min_span)
+    good = _runs_well(runs[0], periodic=periodic, spanned=spanned)
     pinned = [g and js.periodic for g, js in zip(good, spec.joints)]
     pick = [
         0 if good[j] else min(range(len(fits)), key=lambda v: scores[v][j])
@@ -244,8 +259,8 @@ def choose_map_joints(
     fit = {k: [fits[v][k][j] for j, v in enumerate(pick)] for k in fits[0]}
     map_rmse = [scores[v][j] for j, v in enumerate(pick)]
     cand = [
-        bool(not p and m <= (1 + MAP_TIE) * e)
-        for p, m, e in zip(pinned, map_rmse, net["theta_rmse"])
+        bool(not p and s and m <= (1 + MAP_TIE) * e)
+        for p, s, m, e in zip(pinned, spanned, map_rmse, net["theta_rmse"])
     ]
     record: dict[str, Any] = {
         "names": names,
@@ -271,6 +286,9 @@ def choose_map_joints(
             }
         ),
         "pinned": [n for n, p in zip(names, pinned) if p],
+        "span": spans,
+        "min_span": min_span,
+        "unspanned": [n for n, s in zip(names, spanned) if not s],
         "tried": [],
         "chosen": [],
     }
@@ -295,12 +313,20 @@ def choose_map_joints(
         if any(pinned)
         else ""
     )
+    if spans is not None and not all(spanned):
+        lead += (
+            f"validation commands {span_note(spans, spec, min_span=min_span)} of the "
+            f"training's command range beyond the dead zone, below {100 * min_span:.0f} %: the "
+            f"network keeps {'them' if spanned.count(False) > 1 else 'it'}; "
+        )
     # the series choice: which joints it keeps on the map, its model (None: the network) and
     # its validation scores (None: not run yet; in parallel neither is needed)
     kept: list[bool] = list(pinned)
     model: Surrogate | None = None
     got: Mapping[str, Any] | None = None
-    if not any(cand):
+    if not any(spanned):
+        record["why"] = lead + "no joint follows the map"
+    elif not any(cand):
         record["chosen"] = list(record["pinned"])
         record["why"] = lead + (
             f"the network beats the static map by more than {MAP_TIE:.0%} on every "
@@ -393,6 +419,12 @@ def choose_parallel(
         f"{', '.join(record['chosen'])} follow(s) the static map in parallel (the network "
         f"reads its own angles): {'; '.join(parts)}; validation error {got['val_error']:.4g} "
         f"against the network's {net['val_error']:.4g}"
+        + (
+            f"; {', '.join(record['unspanned'])} keep(s) the network: validation commands "
+            f"less than {100 * record['min_span']:.0f} % of the training's command range"
+            if record.get("unspanned")
+            else ""
+        )
     )
     record["parallel"] = {"val_error": got["val_error"], "val_theta_rmse": got["theta_rmse"]}
     return _chosen(model, got), record
@@ -478,6 +510,7 @@ def apply_map_choice(
     periodic: bool = True,
     parallel: bool = False,
     end_stops: bool = True,
+    min_span: float = MIN_SPAN,
 ) -> dict[str, Any]:
     """Run :func:`choose_map_joints` on the checkpoint ``best`` and rewrite it atomically (the
     chosen model, or the same model; either way ``metrics.training.static_map`` records the
@@ -493,6 +526,7 @@ def apply_map_choice(
         periodic=periodic,
         parallel=parallel,
         end_stops=end_stops,
+        min_span=min_span,
     )
     if new is not None:
         ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it

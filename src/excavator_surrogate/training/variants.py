@@ -37,7 +37,7 @@ from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .jobs import TrainJob, run_jobs
-from .kinds import choice_options, choose_kinds, map_pinned, model_kind, prior_members
+from .kinds import choice_joints, choice_options, choose_kinds, model_kind, prior_members
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -149,10 +149,8 @@ def train_choosing_inputs(
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
-        pinned = map_pinned(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
-        model, kinds = choose_kinds(
-            plains, prior_nets, val_eps, pinned=pinned, **choice_options(cfg)
-        )
+        joints = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
+        model, kinds = choose_kinds(plains, prior_nets, val_eps, **joints, **choice_options(cfg))
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
         column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
