@@ -1,12 +1,15 @@
-"""Real-machine fidelity: the default recipe on four data shapes, next to its baselines.
+"""Real-machine fidelity: the default recipe on five data shapes, next to its baselines.
 
-Four cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
+Five cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
 add a shape by adding a builder):
 
 - ``h1``: the h1-dev development set (``../shared/real/h1-dev``: 143 valve-duty step runs of a
   production hydraulic excavator, third-party data that is never shipped with exsur; see its
   README), imported with ``examples/real_excavator.toml``: duty 50 validates, every other duty
   trains; scored on the validation runs (the h1 test is hidden).  Many short step tests.
+- ``h1-duty80``: the same runs with duty 80 held out of training and scored as a test (duty
+  50 still validates): how the recipe does at a duty it never saw between two it did, as on
+  the hidden test, where duty 50 near the dead zones cannot tell (docs/real-history.md).
 - ``continuous``: ONE 10-minute operator log of the hydraulic stand-in with soil (preset
   ``continuous-dig``: digging cycles under load, free moves, pauses, engine throttle changes),
   simulated on the fly into a temporary folder and split in time: 340 s train, the next
@@ -54,7 +57,7 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 median beats each baseline there too (``more_median_beats_*``).  A shape whose data is missing
 (h1 without ``../shared``) is reported as skipped.  Usage::
 
-    python bench/real.py [--shape h1|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
+    python bench/real.py [--shape h1|h1-duty80|continuous|sessions|stroke|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
                          [--more-test N] [--sim-seed S]
                          [--set train.KEY=VALUE ...]

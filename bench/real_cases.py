@@ -72,6 +72,30 @@ def _h1(work: Path, args: argparse.Namespace) -> Case | str:
     )
 
 
+HELD_OUT_DUTY = 80
+"""``h1-duty80``: the duty level whose runs leave the training split to be its test."""
+
+
+def _h1_duty80(work: Path, args: argparse.Namespace) -> Case | str:
+    """h1-dev with the duty-80 runs held out of training as a test: a duty the models never
+    saw, between two they did (60 and 90), as the hidden test's duty is.  Validation stays
+    duty 50, one level near the dead zones: the split the recipe chooses on."""
+    got = _h1(work, args)
+    if isinstance(got, str):
+        return got
+    src = got.dataset
+    tag = f"-{HELD_OUT_DUTY}-"
+    items = [(ep, "test" if tag in ep.name else "train") for ep in src.train]
+    items += [(ep, "val") for ep in src.val]
+    write_dataset(work / "h1-duty80", items, config=src.manifest.get("config") or None)
+    return Case(
+        load_dataset(work / "h1-duty80"),
+        "test",
+        f"train: duty 40/60/90/100; val: duty 50; scored on test: duty {HELD_OUT_DUTY} (held out "
+        "of h1-dev's training runs, a development stand-in for the hidden test's unseen duty)",
+    )
+
+
 def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
     """``src`` as a user's import of the log would give it: no declared end stops or speed
     bounds, and the exogenous inputs only with ``inputs``."""
@@ -221,6 +245,7 @@ def _stroke(work: Path, args: argparse.Namespace) -> Case:
 
 CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
     "h1": _h1,
+    "h1-duty80": _h1_duty80,
     "continuous": _continuous,
     "sessions": _sessions,
     "stroke": _stroke,
