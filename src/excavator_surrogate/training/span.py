@@ -21,7 +21,7 @@ commands beyond the edge ``a`` in that direction,
 and :func:`joint_spans` keeps the joints whose span reaches ``[train] choice_min_span``.
 Only those can leave the plain networks on validation's word; elsewhere the plain networks
 drive the joint, as they do where no choice is made.  On the development operator logs
-every joint spans 0.69-1.4 of its range; on h1-dev 0.19-0.31.
+every joint spans at least 0.69 of its range; on h1-dev 0.19-0.31.
 """
 
 from __future__ import annotations
