@@ -67,6 +67,7 @@ def command_span(
             t, v = t[t > edge], v[v > edge]
             if t.size == 0:  # the training never drives it this way: nothing to cover
                 continue
+            # span_dir = (q_val - a) / (q_train - a); span = min over the directions
             reach = float(np.percentile(t, SPAN_PERCENTILE)) - edge
             got = float(np.percentile(v, SPAN_PERCENTILE)) - edge if v.size else 0.0
             span = min(span, got / reach) if reach > 0 else span
