@@ -199,8 +199,10 @@ def pinned_joints(
     reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
     before the map choice on other networks of the same run, gets the same joints
     (``record["pinned"]`` of the map choice)."""
+    if not periodic:
+        return [False] * sur.spec.n_joint
     _, spanned = joint_spans(train, val, sur.spec, min_span=min_span)
-    if not (periodic and any(spanned)):
+    if not any(spanned):
         return [False] * sur.spec.n_joint
     _, _, run = _delayed_map(sur, train, val, max_steps=max_steps, end_stops=end_stops)
     good = _runs_well(run, periodic=periodic, spanned=spanned)

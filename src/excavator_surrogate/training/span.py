@@ -11,9 +11,9 @@ rest: there the map of h1-dev's boom validated as well as the networks, and free
 held-out 80 % duty 3x worse (docs/real-history.md).
 
 :func:`command_span` measures it per joint and direction of motion, beyond the static map's
-dead zone ``[a_neg, a_pos]`` (:func:`~excavator_surrogate.surrogate.structured.fit_prior`,
-undelayed): with ``q_train`` and ``q_val`` the :data:`SPAN_PERCENTILE` th percentile of the
-commands beyond the edge ``a`` in that direction,
+dead zone ``[a_neg, a_pos]`` (:func:`~excavator_surrogate.surrogate.structured.fit_joints`,
+undelayed, as ``fit_prior``'s): with ``q_train`` and ``q_val`` the :data:`SPAN_PERCENTILE` th
+percentile of the commands beyond the edge ``a`` in that direction,
 
     span_dir = (q_val - a) / (q_train - a)      (1 where training never commands that way)
     span     = min over the two directions
@@ -32,7 +32,7 @@ import numpy as np
 
 from ..data.episode import Episode
 from ..spec import MachineSpec
-from ..surrogate.structured import fit_prior
+from ..surrogate.structured import fit_joints
 
 SPAN_PERCENTILE = 99.0
 """Percentile of a direction's commands beyond the dead zone that stands for its extent (the
@@ -55,13 +55,13 @@ def command_span(
         zone in a direction the training does; 1 where the training never commands it
         beyond its dead zone at all.
     """
-    fit = fit_prior(train, spec)
+    fits = fit_joints(train, spec, max_delay=0)  # the dead zones only: no gain spread
     spans = []
     for j in range(spec.n_joint):
         u_train = np.concatenate([e.u[:, j] for e in train])
         u_val = np.concatenate([e.u[:, j] for e in val]) if val else np.zeros(0)
         span = 1.0
-        for sign, edge in ((1.0, fit["a_pos"][j]), (-1.0, -fit["a_neg"][j])):
+        for sign, edge in ((1.0, fits[j].a_pos), (-1.0, -fits[j].a_neg)):
             t = sign * u_train[np.isfinite(u_train)]
             v = sign * u_val[np.isfinite(u_val)]
             t, v = t[t > edge], v[v > edge]
