@@ -259,7 +259,7 @@ def choices(sur) -> dict:
     """What the trained model chose on validation, beside the validation free run's position
     RMSE per joint in the shown unit (to set against the scored split's): the joints on the
     static map, those driven by the map-correcting networks (and of those, the ones driven by
-    the even blend of both kinds), whether the inputs are used."""
+    the even blend of both kinds), whether the inputs are used and by which joints."""
     metrics = sur.metrics or {}
     facts = metrics.get("training") or {}
     val = (metrics.get("val") or {}).get("theta_rmse")
@@ -273,6 +273,7 @@ def choices(sur) -> dict:
         ("kinds", "chosen"),
         ("kinds", "blended"),
         ("exogenous", "kept"),
+        ("exogenous", "joints"),
     ):
         record = facts.get(key)
         if isinstance(record, dict) and field in record:

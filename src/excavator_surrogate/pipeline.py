@@ -218,11 +218,12 @@ def run_pipeline(
             result_extra["cleaning_effect"] = _score_models(
                 {"trained on cleaned": best, "trained on raw": raw_best}, train_ds, eval_cfg
             )
-        if train_cfg.members > 1:
-            member_paths = {
-                f"member {i}": best.parent / f"member_{i}" / "best.pt"
-                for i in range(train_cfg.members)
-            }
+        member_paths = {  # none where the members live elsewhere (choices of two kinds)
+            f"member {i}": p
+            for i in range(train_cfg.members)
+            if (p := best.parent / f"member_{i}" / "best.pt").is_file()
+        }
+        if len(member_paths) > 1:
             result_extra["ensemble_members"] = _score_models(
                 {"ensemble": best, **member_paths},
                 train_ds,

@@ -85,4 +85,9 @@ def test_the_kind_and_input_choices_are_named():
     rec = {"inputs": ["u_throttle"], "kept": False, "why": "validation error 0.41 with"}
     text = training_markdown({"epochs_planned": 30, "exogenous": rec})
     assert "Exogenous inputs (u_throttle): ignored by the model" in text and "0.41" in text
+    some = {**rec, "kept": True, "per_joint": True, "joints": ["boom"]}
+    text = training_markdown({"epochs_planned": 30, "exogenous": some})
+    assert "Exogenous inputs (u_throttle): used by boom only (the other joints ignore" in text
+    whole = {**rec, "kept": True, "per_joint": False, "joints": ["swing", "boom"]}
+    assert "used by the model" in training_markdown({"epochs_planned": 30, "exogenous": whole})
     assert "Two kinds" not in text and "Exogenous" not in training_markdown({"epochs_planned": 3})

@@ -158,3 +158,174 @@ def test_choose_with_the_kind_choice_trains_the_map_correcting_networks_the_chos
     assert _gear_effect(best) > 1e-3  # whichever kind drives the joint reads the gear
     notes = tomllib.loads((tmp_path / "m" / "config.toml").read_text())
     assert notes["exogenous"]["kept"] is True and "chosen" in notes["kinds"]
+
+
+SPEC2 = MachineSpec(
+    joints=(
+        JointSpec("boom", theta_min=-1.2, theta_max=1.2),
+        JointSpec("arm", theta_min=-1.2, theta_max=1.2),
+    ),
+    rate_hz=20.0,
+    name="gear-2j",
+    inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),),
+)
+
+
+def _episode2(seed: int, n_step: int = 200) -> Episode:
+    """Two joints driven by sine commands; the ``gear`` adds to the boom's speed only."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_step) / SPEC2.rate_hz
+    cmd = 0.8 * np.sin(
+        2 * math.pi * rng.uniform(0.1, 0.3, 2)[None] * t[:, None] + rng.uniform(0, 6.3, 2)[None]
+    )
+    gear = np.repeat(rng.choice([-1.0, 1.0], n_step // 40 + 1), 40)[:n_step]
+    speed = 0.5 * cmd + np.stack([0.3 * gear, 0.0 * gear], axis=1)
+    theta = np.zeros((n_step, 2))
+    for k in range(1, n_step):
+        theta[k] = np.clip(theta[k - 1] + speed[k - 1] / SPEC2.rate_hz, -1.1, 1.1)
+    omega = np.concatenate([np.zeros((1, 2)), np.diff(theta, axis=0) * SPEC2.rate_hz])
+    return Episode(
+        spec=SPEC2,
+        time=t,
+        u=np.concatenate([cmd, gear[:, None]], axis=1),
+        theta=theta,
+        omega=omega,
+        name=f"ep{seed}",
+    )
+
+
+def _dataset2() -> Dataset:
+    ds = Dataset(spec=SPEC2)
+    ds.episodes["train"] = [_episode2(s) for s in range(4)]
+    ds.episodes["val"] = [_episode2(50)]
+    return ds
+
+
+def _omega(sur, ep: Episode, *, flip_gear: bool = False) -> torch.Tensor:
+    """The net's normalised one-step outputs on ``ep`` (teacher-forced), the gear flipped or not."""
+    u = ep.u * np.array([1.0, 1.0, -1.0 if flip_gear else 1.0])
+    x = sur.norm.encode(
+        torch.tensor(ep.theta, dtype=torch.float32), torch.tensor(u.astype(np.float32))
+    )
+    with torch.no_grad():
+        y, _ = sur.net.forward_seq(x[None])  # (1, n_step, n_joint), the state
+    return y[0]
+
+
+def test_paired_takes_each_joint_from_its_way_and_averages_the_seeds(tmp_path):
+    from excavator_surrogate.training.variants import paired
+
+    ds = _dataset2()
+    nets = {
+        (w, s): load_checkpoint(
+            train(
+                _cfg(exogenous=w, seed=s),
+                ds,
+                out=tmp_path / f"{w}{s}",
+                show_progress=False,
+            )
+        )
+        for w in ("use", "ignore")
+        for s in (0, 1)
+    }
+    use, ignore = [nets["use", s] for s in (0, 1)], [nets["ignore", s] for s in (0, 1)]
+    model = paired(use, ignore, [True, False])
+    ep = _episode2(9)
+    got = _omega(model, ep)
+    # the plain loop: joint 0 is the mean of the networks that use the gear, joint 1 of the others
+    want = torch.stack(
+        [
+            torch.stack([_omega(n, ep)[:, 0] for n in use]).mean(0),
+            torch.stack([_omega(n, ep)[:, 1] for n in ignore]).mean(0),
+        ],
+        dim=-1,
+    )
+    torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5)
+    # the arm comes from networks that cannot read the gear: flipping it cannot move the arm
+    flipped = _omega(model, ep, flip_gear=True)
+    assert torch.equal(flipped[:, 1], got[:, 1])
+    assert float((flipped[:, 0] - got[:, 0]).abs().max()) > 1e-3
+    assert (model.metrics or {}).get("ensemble", {}).get("n_member") == 2
+    with pytest.raises(ValueError, match="do not pair up"):
+        paired(use, ignore[:1], [True, False])
+
+
+def test_choose_input_joints_keeps_the_best_set_that_passes_the_whole_rule(monkeypatch):
+    """The candidates together and each alone are scored; a set must beat the half that
+    ignores the inputs as the whole half must (better overall, no joint worse)."""
+    from excavator_surrogate.training import variants
+
+    monkeypatch.setattr(variants, "paired", lambda use, ignore, joints: tuple(joints))
+    scores: dict = {}
+    monkeypatch.setattr(variants, "free_run_error", lambda model, val, max_steps: scores[model])
+    ignore = _val(1.0, [1.0, 1.0, 1.0])
+    three = MachineSpec(
+        joints=(*SPEC2.joints, JointSpec("bucket")), rate_hz=20.0, inputs=SPEC2.inputs
+    )
+    use = [type("S", (), {"spec": three})()]
+    # the inputs help the first two joints and hurt the third
+    vals = {"use": _val(0.9, [0.5, 0.8, 1.5]), "ignore": ignore}
+    scores[(True, True, False)] = _val(0.7, [0.5, 0.8, 1.02])
+    scores[(True, False, False)] = _val(0.8, [0.5, 1.0, 1.0])
+    scores[(False, True, False)] = _val(0.9, [1.0, 0.8, 1.0])
+    joints, tried = variants.choose_input_joints(use, use, vals, [])
+    assert joints == [True, True, False]
+    assert [t["joints"] for t in tried] == [["boom", "arm"], ["boom"], ["arm"]]
+    assert [t["kept"] for t in tried] == [True, True, True]
+    # together they hurt the bucket (it reads their angles): the best single one wins
+    scores[(True, True, False)] = _val(0.6, [0.5, 0.8, 1.2])
+    joints, tried = variants.choose_input_joints(use, use, vals, [])
+    assert joints == [True, False, False] and [t["kept"] for t in tried] == [False, True, True]
+    # no set beats the ignoring half by the margin: none
+    for k in list(scores):
+        scores[k] = _val(1.0 - INPUT_MARGIN / 2, [1.0, 1.0, 1.0])
+    assert variants.choose_input_joints(use, use, vals, [])[0] is None
+    # better on every joint: the whole half (refused by the caller) is no set of its own
+    vals_all = {"use": _val(0.9, [0.5, 0.8, 0.9]), "ignore": ignore}
+    scores[(False, False, True)] = _val(0.9, [1.0, 1.0, 0.9])
+    joints, tried = variants.choose_input_joints(use, use, vals_all, [])
+    assert [t["joints"] for t in tried] == [["boom"], ["arm"], ["bucket"]]
+
+
+def test_choose_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypatch):
+    """The whole half that uses the gear is refused (forced here); the boom, where it helps,
+    takes it alone: the model pairs each seed's two networks, and the rest of the budget
+    trains one more pair."""
+    from excavator_surrogate.training import variants
+
+    calls: list = []
+
+    def rule(use, ignore):  # the whole half refused, the sets judged as usual
+        calls.append(use)
+        return (False, "refused (test)") if len(calls) == 1 else (True, "kept")
+
+    monkeypatch.setattr(variants, "choose_inputs", rule)
+    monkeypatch.setattr(variants, "input_joints", lambda use, ignore: [True, False])
+    ds = _dataset2()
+    cfg = _cfg(exogenous="choose", members=4, member_workers=1)
+    best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
+    ck = read_checkpoint(best)
+    record = ck["metrics"]["training"]["exogenous"]
+    assert record["kept"] and record["per_joint"] and record["joints"] == ["boom"]
+    assert [t["joints"] for t in record["tried"]] == [["boom"]] and "boom take" in record["why"]
+    assert ck["train_config"]["exogenous"] == "use"
+    for w in ("use", "ignore"):
+        for i in range(3):  # 2 + 2 for the choice, then one more pair
+            assert (tmp_path / "m" / w / f"member_{i}" / "best.pt").is_file()
+    assert not (tmp_path / "m" / "member_0").exists()
+    rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
+    assert [r["exogenous"] for r in rows] == ["use"] * 3 + ["ignore"] * 3 + ["per joint"]
+    model = load_checkpoint(best)
+    ep = _episode2(9)
+    use = [load_checkpoint(tmp_path / "m" / "use" / f"member_{i}" / "best.pt") for i in range(3)]
+    ign = [load_checkpoint(tmp_path / "m" / "ignore" / f"member_{i}" / "best.pt") for i in range(3)]
+    want = torch.stack(
+        [
+            torch.stack([_omega(n, ep)[:, 0] for n in use]).mean(0),
+            torch.stack([_omega(n, ep)[:, 1] for n in ign]).mean(0),
+        ],
+        dim=-1,
+    )
+    torch.testing.assert_close(_omega(model, ep), want, rtol=1e-4, atol=1e-5)
+    notes = tomllib.loads((tmp_path / "m" / "config.toml").read_text())
+    assert notes["exogenous"]["joints"] == ["boom"]

@@ -215,9 +215,16 @@ def _inputs_markdown(record: Mapping[str, Any] | None) -> str:
     if not isinstance(record, Mapping) or "kept" not in record:
         return ""
     names = ", ".join(record.get("inputs") or []) or "the exogenous inputs"
+    joints = list(record.get("joints") or [])
+    if not record["kept"]:
+        how = "ignored by the model"
+    elif record.get("per_joint") and joints:
+        how = f"used by {', '.join(joints)} only (the other joints ignore them)"
+    else:
+        how = "used by the model"
     return (
-        f"\nExogenous inputs ({names}): {'used' if record['kept'] else 'ignored'} by the "
-        f"model, chosen on the validation free run ({record.get('why', '')}).\n"
+        f"\nExogenous inputs ({names}): {how}, chosen on the validation free run "
+        f"({record.get('why', '')}).\n"
     )
 
 

@@ -203,7 +203,9 @@ def auto_config(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
             f"ignore them (same seeds); they are kept only if better on validation, overall "
             f"and on every joint, and the other {members - half} member(s) train the chosen "
-            f"way ({trainings(members, choose=True)} trainings in the budget)"
+            f"way ({trainings(members, choose=True)} trainings in the budget); where they "
+            "help some joints only, those joints may take them alone (each seed's two "
+            "networks joint by joint, kept on the same terms)"
         )
     if kinds:
         why.append(

@@ -12,11 +12,26 @@ the chosen way and merged with the winning half, so the result is an ensemble of
 kind choice's map-correcting networks (:mod:`.kinds`) train beside the rest, the chosen
 way, and the kinds are chosen per joint on the result.
 
+**Per joint** (``[train] inputs_per_joint``, default true, without ``prior_choice``): an
+input can help one joint and hurt another (the wheel loader's throttle and gear helped its
+boom and hurt its bucket).  When the whole ``use`` half is refused, the joints on which it
+beats the ``ignore`` half by the margin (:func:`input_joints`) are candidates to take the
+inputs alone.  Each seed's two networks, the one that uses the inputs and the one that
+ignores them, become one (:func:`paired`: joint ``j`` is the first's where ``j`` takes the
+inputs, the second's elsewhere), and the seeds' pairs are merged as an ensemble.  The
+candidates together, and each alone, are scored by that model's validation free run, and a
+set is kept under the same rule as the whole ``use`` half against the ``ignore`` half
+(:func:`choose_inputs`: better by the margin overall, no joint worse by more; a joint's
+choice moves the angles the others read).  The lowest kept set wins; the rest of the budget
+then trains pairs (one network each way, the same seed), so the model is an ensemble of
+``half + (members - half) // 2`` pairs.
+
 Layout: ``OUT/member_*`` (the ensemble's members, as for any ensemble: the winning half,
 then the rest), ``OUT/use/member_*`` or ``OUT/ignore/member_*`` (the losing half),
 ``OUT/prior/member_*`` (with ``prior_choice``), ``OUT/best.pt`` (the merged ensemble,
 ``metrics.training.exogenous`` and ``kinds`` say what was chosen and why),
-``OUT/config.toml`` (``[exogenous]``, ``[kinds]``: the same).
+``OUT/config.toml`` (``[exogenous]``, ``[kinds]``: the same).  With the inputs on some
+joints: ``OUT/use/member_*`` and ``OUT/ignore/member_*``, the pairs' two networks.
 """
 
 from __future__ import annotations
@@ -24,7 +39,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +47,7 @@ from typing import Any
 from ..data.dataset import Dataset
 from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.ensemble import merge
+from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
@@ -76,6 +92,80 @@ def choose_inputs(use: Mapping[str, Any], ignore: Mapping[str, Any]) -> tuple[bo
     return keep, why
 
 
+def input_joints(use: Mapping[str, Any], ignore: Mapping[str, Any]) -> list[bool]:
+    """Per joint: does the half that uses the inputs beat the half that ignores them by
+    :data:`INPUT_MARGIN` on its validation angle RMSE?  (A NaN is no.)"""
+    m = INPUT_MARGIN
+    return [bool(a < (1 - m) * b) for a, b in zip(use["theta_rmse"], ignore["theta_rmse"])]
+
+
+def paired(
+    use: Sequence[Surrogate], ignore: Sequence[Surrogate], joints: Sequence[bool]
+) -> Surrogate:
+    """The ensemble of the seeds' pairs: pair ``i`` is one network whose joint ``j`` is
+    ``use[i]``'s where ``joints[j]``, else ``ignore[i]``'s (a composite,
+    :func:`~excavator_surrogate.surrogate.ensemble.merge` with ``joint_weights``); the pairs
+    are merged as the ensemble's members.
+
+    Args:
+        use, ignore: as many networks each, trained with the inputs used and ignored (pair
+            ``i`` on the same seed).
+        joints: (n_joint,) the joints that take the inputs.
+    """
+    if len(use) != len(ignore) or not use:
+        raise ValueError(f"{len(use)} and {len(ignore)} networks do not pair up")
+    a = [1.0 if j else 0.0 for j in joints]
+    pairs = [
+        merge([u, i], joint_weights=[a, [1.0 - x for x in a]], name=f"{u.name}-inputs-paired")
+        for u, i in zip(use, ignore)
+    ]
+    return merge(pairs) if len(pairs) > 1 else pairs[0]
+
+
+def choose_input_joints(
+    use: Sequence[Surrogate],
+    ignore: Sequence[Surrogate],
+    vals: Mapping[str, Mapping[str, Any]],
+    val: Sequence[Any],
+    *,
+    max_steps: int | None = None,
+) -> tuple[list[bool] | None, list[dict[str, Any]]]:
+    """The joints that take the inputs alone (see the module docstring), or None.
+
+    Args:
+        use, ignore: the two halves' networks (pair ``i`` on the same seed).
+        vals: ``{"use": ..., "ignore": ...}``, each half's merged validation free run.
+        val: the validation episodes.
+        max_steps: validation free-run length cap.
+
+    Returns:
+        ``(joints or None, tried)``: the kept set of lowest validation error, and one entry
+        per set tried (its joints' names, validation error and angle RMSE, kept or not).
+    """
+    cand = input_joints(vals["use"], vals["ignore"])
+    n_joint = len(cand)
+    sets = [cand] if 0 < sum(cand) < n_joint else []  # all joints: the whole half, refused
+    if sum(cand) > 1:
+        sets += [[k == j for k in range(n_joint)] for j, c in enumerate(cand) if c]
+    names = list(use[0].spec.names)
+    tried: list[dict[str, Any]] = []
+    best: tuple[float, list[bool]] | None = None
+    for joints in sets:
+        got = free_run_error(paired(use, ignore, joints), list(val), max_steps=max_steps)
+        ok, _ = choose_inputs(got, vals["ignore"])
+        tried.append(
+            {
+                "joints": [n for n, p in zip(names, joints) if p],
+                "val_error": got["val_error"],
+                "val_theta_rmse": got["theta_rmse"],
+                "kept": ok,
+            }
+        )
+        if ok and (best is None or got["val_error"] < best[0]):
+            best = (got["val_error"], joints)
+    return (None if best is None else best[1]), tried
+
+
 def train_choosing_inputs(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -100,10 +190,50 @@ def train_choosing_inputs(
     base = replace(cfg, prior_choice=False, static_map=False)  # single networks
     cfgs = {w: member_configs(replace(base, exogenous=w))[:half] for w in ways}
     halves = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
-    vals = {
-        w: free_run_error(merge(halves[w]), val_eps, max_steps=cfg.val_steps or None) for w in ways
-    }
+    max_steps = cfg.val_steps or None
+    vals = {w: free_run_error(merge(halves[w]), val_eps, max_steps=max_steps) for w in ways}
     keep, why = choose_inputs(vals["use"], vals["ignore"])
+    joints, tried = None, []
+    if not keep and cfg.inputs_per_joint and not n_prior:
+        joints, tried = choose_input_joints(
+            halves["use"], halves["ignore"], vals, val_eps, max_steps=max_steps
+        )
+    record = {
+        "inputs": names,
+        "kept": keep or joints is not None,
+        "joints": list(dataset.spec.names) if keep else [],
+        "per_joint": joints is not None,
+        "why": why,
+        "val_error_use": vals["use"]["val_error"],
+        "val_error_ignore": vals["ignore"]["val_error"],
+        "theta_rmse_use": vals["use"]["theta_rmse"],
+        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
+        "members_per_way": half,
+        "tried": tried,
+    }
+    if joints is not None:
+        taken = [n for n, p in zip(dataset.spec.names, joints) if p]
+        got = next(t for t in tried if t["joints"] == taken)
+        record["joints"] = taken
+        record["why"] = why = (
+            f"{why}; {', '.join(taken)} take them alone: validation error "
+            f"{got['val_error']:.4g} (each seed's networks with and without them, joint by joint)"
+        )
+        _log.info(f"exogenous inputs {names}: {why}")
+        return _train_pairs(
+            cfg,
+            dataset,
+            halves,
+            cfgs,
+            joints,
+            record,
+            val_eps=val_eps,
+            out=out,
+            t0=t0,
+            workers=workers,
+            show_progress=show_progress,
+            notes=notes,
+        )
     way = "use" if keep else "ignore"
     _log.info(f"exogenous inputs {names}: {why}")
     for i in range(half):  # the winning half becomes the ensemble's first members
@@ -129,16 +259,6 @@ def train_choosing_inputs(
         workers=min(workers, max(1, len(rest_jobs))),
         show_progress=show_progress,
     )
-    record = {
-        "inputs": names,
-        "kept": keep,
-        "why": why,
-        "val_error_use": vals["use"]["val_error"],
-        "val_error_ignore": vals["ignore"]["val_error"],
-        "theta_rmse_use": vals["use"]["theta_rmse"],
-        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
-        "members_per_way": half,
-    }
     training: dict[str, Any] = {"exogenous": record}
     lost = "ignore" if keep else "use"
     if any((m.metrics or {}).get("training", {}).get("budget_cut") for m in halves[lost]):
@@ -149,8 +269,8 @@ def train_choosing_inputs(
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
-        joints = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
-        model, kinds = choose_kinds(plains, prior_nets, val_eps, **joints, **choice_options(cfg))
+        per_joint = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
+        model, kinds = choose_kinds(plains, prior_nets, val_eps, **per_joint, **choice_options(cfg))
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
         column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
@@ -167,4 +287,62 @@ def train_choosing_inputs(
     )
     chosen = {k: training[k] for k in ("exogenous", "kinds") if k in training}  # the records
     write_config(out, cfg, notes={**(notes or {}), **chosen})
+    return best
+
+
+def _train_pairs(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    halves: Mapping[str, list[Surrogate]],
+    cfgs: Mapping[str, list[TrainConfig]],
+    joints: Sequence[bool],
+    record: dict[str, Any],
+    *,
+    val_eps: list[Any],
+    out: Path,
+    t0: float,
+    workers: int,
+    show_progress: bool | None,
+    notes: Mapping[str, Any] | None,
+) -> Path:
+    """The inputs on some joints (:func:`choose_input_joints`): the rest of the budget trains
+    ``(members - half) // 2`` more pairs (each way, the same seeds), and the model is
+    :func:`paired` over every pair; returns ``OUT/best.pt``."""
+    half = len(halves["use"])
+    n_more = (cfg.members - half) // 2
+    base = replace(cfg, prior_choice=False, static_map=False)
+    rest = {
+        w: member_configs(replace(base, exogenous=w))[half : half + n_more]
+        for w in ("use", "ignore")
+    }
+    jobs = [
+        TrainJob(
+            cfg=c, dataset=dataset, out=out / w / f"member_{half + i}", tag=f"exsur {w} {half + i}"
+        )
+        for w, cs in rest.items()
+        for i, c in enumerate(cs)
+    ]
+    paths = (
+        run_jobs(
+            train_member, jobs, workers=min(workers, max(1, len(jobs))), show_progress=show_progress
+        )
+        if jobs
+        else []
+    )
+    more = [load_checkpoint(p) for p in paths]
+    use = list(halves["use"]) + more[:n_more]
+    ignore = list(halves["ignore"]) + more[n_more:]
+    final_cfgs = list(cfgs["use"]) + rest["use"] + list(cfgs["ignore"]) + rest["ignore"]
+    best = merge_members(
+        replace(cfg, exogenous="use"),
+        final_cfgs,
+        use + ignore,
+        val_eps,
+        out=out,
+        t0=t0,
+        training={"exogenous": record},
+        merged=paired(use, ignore, joints),
+        column=("exogenous", [c.exogenous for c in final_cfgs], "per joint"),
+    )
+    write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
     return best
