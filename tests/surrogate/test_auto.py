@@ -8,7 +8,7 @@ import pytest
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
-from excavator_surrogate.training.auto import WINDOW, auto_config
+from excavator_surrogate.training.auto import POST_SHARE, WINDOW, auto_config
 from excavator_surrogate.training.batches import split_episodes as _episodes
 
 
@@ -45,12 +45,16 @@ def test_members_and_budget_follow_the_cpus():
     ds = _dataset([8000])  # one long log: its planned epochs fill the fewest members' budget
     two, _ = auto_config(ds, cpus=2, budget_s=600)
     one, _ = auto_config(ds, cpus=1, budget_s=600)
-    # 4 plain members and 2 map-correcting networks, 2 at a time: 600 s x 2 / 6
-    assert (two.members, two.member_workers, two.max_train_seconds) == (4, 2, 200)
+    # 4 plain members and 2 map-correcting networks, 2 at a time: 600 s x 2 / 6, less the
+    # share held back for the choices after training
+    rest = 1 - POST_SHARE
+    assert (two.members, two.member_workers) == (4, 2)
+    assert two.max_train_seconds == pytest.approx(200 * rest)
     # 2 plain and 1 map-correcting network, one at a time: 600 s / 3
-    assert (one.members, one.member_workers, one.max_train_seconds) == (2, 1, 200)
+    assert (one.members, one.member_workers) == (2, 1)
+    assert one.max_train_seconds == pytest.approx(200 * rest)
     plain, _ = auto_config(ds, cpus=2, budget_s=600, overrides={"prior_choice": False})
-    assert (plain.members, plain.max_train_seconds) == (4, 300)
+    assert plain.members == 4 and plain.max_train_seconds == pytest.approx(300 * rest)
 
 
 def test_cheap_epochs_buy_more_members_within_the_budget():
@@ -66,10 +70,12 @@ def test_cheap_epochs_buy_more_members_within_the_budget():
     plain = {"prior_choice": False}  # the plain ensemble alone: 8 trainings fit
     cfg, why = auto_config(many, cpus=2, budget_s=600, overrides=plain)
     assert (cfg.members, cfg.member_workers) == (MAX_MEMBERS, 2)
-    assert cfg.max_train_seconds == 600 * 2 / MAX_MEMBERS
+    share = 600 * 2 / MAX_MEMBERS
+    assert cfg.max_train_seconds == pytest.approx((1 - POST_SHARE) * share)
     n_seq = count_sequences(np.array([600] * 100), seq_len=cfg.seq_len, burn_in=cfg.burn_in)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=200)
-    assert cfg.epochs * cost <= PLAN_SHARE * cfg.max_train_seconds  # the plan still fits
+    assert cfg.epochs * cost <= PLAN_SHARE * share  # the plan still fits, within the cap
+    assert PLAN_SHARE * share < cfg.max_train_seconds
     assert any("as many members as the budget fits" in w for w in why)
     one, _ = auto_config(many, cpus=1, budget_s=600, overrides=plain)
     assert one.members == MAX_MEMBERS // 2
@@ -158,10 +164,10 @@ def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
     lengths = np.array([8000])
     n_seq = count_sequences(lengths, seq_len=cfg1.seq_len, burn_in=cfg1.burn_in)
     cost = epoch_cost_s(n_seq, seq_len=cfg1.seq_len, seq_batch=cfg1.seq_batch, val_steps=200)
-    assert cfg1.epochs * cost <= PLAN_SHARE * cfg1.max_train_seconds + cost
+    assert cfg1.epochs * cost <= PLAN_SHARE * cfg1.max_train_seconds / (1 - POST_SHARE) + cost
     small, _ = auto_config(one, cpus=2, overrides={"max_train_seconds": 60})
-    assert (
-        small.epochs < cfg1.epochs and small.max_train_seconds == 20
+    assert small.epochs < cfg1.epochs and small.max_train_seconds == pytest.approx(
+        20 * (1 - POST_SHARE)
     )  # 60 s for 4 members and 2 map-correcting networks, 2 at a time
     assert auto_config(one, cpus=2)[0] == cfg1  # planned from the data: the same every time
 
@@ -225,11 +231,11 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
     # the input choice, not the kind choice (both together: prior_choice = true)
     assert not cfg.prior_choice and any("one kind of network" in w for w in why)
     # 4 members + 2 that ignore the inputs share the budget: 540 s x 2 workers / 6 trainings
-    assert cfg.max_train_seconds == pytest.approx(180)
+    assert cfg.max_train_seconds == pytest.approx(180 * (1 - POST_SHARE))
     assert any("must not hurt" in w for w in why)
     both, why = auto_config(ds, cpus=2, overrides={"prior_choice": True})
     # 4 members + 2 that ignore the inputs + 2 map-correcting networks: 540 s x 2 / 8
-    assert both.prior_choice and both.max_train_seconds == pytest.approx(135)
+    assert both.prior_choice and both.max_train_seconds == pytest.approx(135 * (1 - POST_SHARE))
     assert any("8 trainings" in w for w in why)
     forced, _ = auto_config(ds, cpus=2, overrides={"exogenous": "use"})
     # using the inputs outright, the run chooses the kinds instead, as without inputs
@@ -245,7 +251,8 @@ def test_the_kind_choice_is_the_recipes_and_is_planned_within_the_same_budget():
     without, why_not = auto_config(ds, cpus=2, overrides={"prior_choice": False})
     assert cfg.prior_choice and not without.prior_choice
     assert cfg.members == without.members == 4
-    assert cfg.max_train_seconds == pytest.approx(540 * 2 / 6) and cfg.epochs < without.epochs
+    assert cfg.max_train_seconds == pytest.approx(540 * 2 / 6 * (1 - POST_SHARE))
+    assert cfg.epochs < without.epochs
     assert any("2 correct the static valve map" in w and "6 trainings" in w for w in why)
     assert not any("two kinds" in w for w in why_not)
 
