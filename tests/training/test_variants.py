@@ -276,6 +276,9 @@ def test_choose_input_joints_keeps_the_best_set_that_passes_the_whole_rule(monke
     scores[(True, True, False)] = _val(0.6, [0.5, 0.8, 1.2])
     joints, tried = variants.choose_input_joints(use, use, vals, [])
     assert joints == [True, False, False] and [t["kept"] for t in tried] == [False, True, True]
+    # a joint the static map drives anyway is no candidate
+    joints, tried = variants.choose_input_joints(use, use, vals, [], pinned=[True, False, False])
+    assert joints == [False, True, False] and [t["joints"] for t in tried] == [["arm"]]
     # no set beats the ignoring half by the margin: none
     for k in list(scores):
         scores[k] = _val(1.0 - INPUT_MARGIN / 2, [1.0, 1.0, 1.0])

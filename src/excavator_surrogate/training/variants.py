@@ -16,7 +16,8 @@ way, and the kinds are chosen per joint on the result.
 input can help one joint and hurt another (the wheel loader's throttle and gear helped its
 boom and hurt its bucket).  When the whole ``use`` half is refused, the joints on which it
 beats the ``ignore`` half by the margin (:func:`input_joints`) are candidates to take the
-inputs alone.  Each seed's two networks, the one that uses the inputs and the one that
+inputs alone, but for a joint the static map choice will drive whatever the networks
+(:func:`~.kinds.map_pinned`: its gain would not last).  Each seed's two networks, the one that uses the inputs and the one that
 ignores them, become one (:func:`paired`: joint ``j`` is the first's where ``j`` takes the
 inputs, the second's elsewhere), and the seeds' pairs are merged as an ensemble.  The
 candidates together, and each alone, are scored by that model's validation free run, and a
@@ -53,7 +54,14 @@ from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .jobs import TrainJob, run_jobs
-from .kinds import choice_joints, choice_options, choose_kinds, model_kind, prior_members
+from .kinds import (
+    choice_joints,
+    choice_options,
+    choose_kinds,
+    map_pinned,
+    model_kind,
+    prior_members,
+)
 from .records import write_config
 
 _log = logging.getLogger(__name__)
@@ -129,6 +137,7 @@ def choose_input_joints(
     val: Sequence[Any],
     *,
     max_steps: int | None = None,
+    pinned: Sequence[bool] | None = None,
 ) -> tuple[list[bool] | None, list[dict[str, Any]]]:
     """The joints that take the inputs alone (see the module docstring), or None.
 
@@ -137,12 +146,16 @@ def choose_input_joints(
         vals: ``{"use": ..., "ignore": ...}``, each half's merged validation free run.
         val: the validation episodes.
         max_steps: validation free-run length cap.
+        pinned: (n_joint,) joints the static map choice will drive whatever the networks
+            (:func:`~.kinds.map_pinned`): no candidates, since their own gain would not last.
 
     Returns:
         ``(joints or None, tried)``: the kept set of lowest validation error, and one entry
         per set tried (its joints' names, validation error and angle RMSE, kept or not).
     """
     cand = input_joints(vals["use"], vals["ignore"])
+    if pinned is not None:
+        cand = [c and not p for c, p in zip(cand, pinned)]
     n_joint = len(cand)
     sets = [cand] if 0 < sum(cand) < n_joint else []  # all joints: the whole half, refused
     if sum(cand) > 1:
@@ -195,8 +208,14 @@ def train_choosing_inputs(
     keep, why = choose_inputs(vals["use"], vals["ignore"])
     joints, tried = None, []
     if not keep and cfg.inputs_per_joint and not n_prior:
+        train_eps = split_episodes(cfg, dataset)[0]
         joints, tried = choose_input_joints(
-            halves["use"], halves["ignore"], vals, val_eps, max_steps=max_steps
+            halves["use"],
+            halves["ignore"],
+            vals,
+            val_eps,
+            max_steps=max_steps,
+            pinned=map_pinned(cfg, halves["ignore"][0], train_eps, val_eps),
         )
     record = {
         "inputs": names,
