@@ -45,7 +45,8 @@ def train(
     resuming), ``log.csv`` (one row per epoch), ``config.toml`` and ``tb/`` (TensorBoard).
     With ``cfg.members > 1``: a seed ensemble (:func:`~.ensembles.train_ensemble`); with
     ``cfg.exogenous = "choose"`` and exogenous inputs in the data: members that use them and
-    members that ignore them, the better way kept (:func:`~.variants.train_choosing_inputs`).  With
+    members that ignore them, the better way kept, or per joint where the inputs help some
+    joints only (:func:`~.variants.train_choosing_inputs`).  With
     ``cfg.static_map``, joints that the static valve map drives better on validation follow it
     (:mod:`.map_joints`).  Then ``best.pt`` gets the training data's coverage record and, for an ensemble, its
     uncertainty bands calibrated on the validation free runs (:mod:`.calibration`).

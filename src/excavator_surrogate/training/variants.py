@@ -17,9 +17,10 @@ input can help one joint and hurt another (the wheel loader's throttle and gear 
 boom and hurt its bucket).  When the whole ``use`` half is refused, the joints on which it
 beats the ``ignore`` half by the margin (:func:`input_joints`) are candidates to take the
 inputs alone, but for a joint the static map choice will drive whatever the networks
-(:func:`~.kinds.map_pinned`: its gain would not last).  Each seed's two networks, the one that uses the inputs and the one that
-ignores them, become one (:func:`paired`: joint ``j`` is the first's where ``j`` takes the
-inputs, the second's elsewhere), and the seeds' pairs are merged as an ensemble.  The
+(:func:`~.kinds.map_pinned`: its gain would not last).  Each seed's two networks, the one
+that uses the inputs and the one that ignores them, become one (:func:`paired`: joint ``j``
+is the first's where ``j`` takes the inputs, the second's elsewhere), and the seeds' pairs
+are merged as an ensemble.  The
 candidates together, and each alone, are scored by that model's validation free run, and a
 set is kept under the same rule as the whole ``use`` half against the ``ignore`` half
 (:func:`choose_inputs`: better by the margin overall, no joint worse by more; a joint's
