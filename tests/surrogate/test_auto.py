@@ -228,15 +228,17 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
         ]
     cfg, why = auto_config(ds, cpus=2)
     assert cfg.exogenous == "choose" and cfg.members == without.members == 4
-    # the input choice, not the kind choice (both together: prior_choice = true)
-    assert not cfg.prior_choice and any("one kind of network" in w for w in why)
-    # 4 members + 2 that ignore the inputs share the budget: 540 s x 2 workers / 6 trainings
-    assert cfg.max_train_seconds == pytest.approx(180 * (1 - POST_SHARE))
-    assert any("must not hurt" in w for w in why)
-    both, why = auto_config(ds, cpus=2, overrides={"prior_choice": True})
-    # 4 members + 2 that ignore the inputs + 2 map-correcting networks: 540 s x 2 / 8
-    assert both.prior_choice and both.max_train_seconds == pytest.approx(135 * (1 - POST_SHARE))
-    assert any("8 trainings" in w for w in why)
+    # the input choice and the kind choice: 4 members + 2 that ignore the inputs + 2
+    # map-correcting networks share the budget: 540 s x 2 workers / 8 trainings
+    assert cfg.prior_choice and not any("one kind of network" in w for w in why)
+    assert cfg.max_train_seconds == pytest.approx(135 * (1 - POST_SHARE))
+    assert any("must not hurt" in w and "8 trainings" in w for w in why)
+    alone, why = auto_config(ds, cpus=2, overrides={"prior_choice": False})
+    # the input choice alone: 4 members + 2 that ignore the inputs, 540 s x 2 / 6; and
+    # there the inputs may go to some joints only
+    assert not alone.prior_choice
+    assert alone.max_train_seconds == pytest.approx(180 * (1 - POST_SHARE))
+    assert any("some joints only" in w for w in why)
     forced, _ = auto_config(ds, cpus=2, overrides={"exogenous": "use"})
     # using the inputs outright, the run chooses the kinds instead, as without inputs
     assert forced.exogenous == "use" and forced.prior_choice
@@ -244,7 +246,7 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
 
 
 def test_the_kind_choice_is_the_recipes_and_is_planned_within_the_same_budget():
-    """prior_choice (the recipe's, unless the run chooses its inputs): 4 plain members and 2
+    """prior_choice (the recipe's where validation spans a joint's commands): 4 plain members and 2
     map-correcting networks share the budget; off, the 4 plain members have it alone."""
     ds = _dataset([8000])
     cfg, why = auto_config(ds, cpus=2)

@@ -34,10 +34,10 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
 - two kinds of network (:mod:`.kinds`): beside the plain members, half as many that correct
   the static valve map (dead zone, gain per direction, delay); per joint, the kind whose
   ensemble validates better drives it, or the even blend of both where that validates
-  better still.  Not when the run chooses its exogenous inputs
-  (:mod:`.variants`): both together cut every network's epochs further, and on the
-  continuous case with its throttle they scored worse than the input choice alone
-  (docs/real.md); ``prior_choice = true`` still runs both;
+  better still.  Also when the run chooses its exogenous inputs (:mod:`.variants`): the
+  inputs are chosen first, then the rest of the plain members and the map-correcting
+  networks train the chosen way (8 trainings in the budget instead of 6); on the sessions
+  case with its throttle the bucket lost 1.8x without them (docs/real-history.md);
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
@@ -175,13 +175,13 @@ def auto_config(
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
     choose = bool(inputs) and exogenous == "choose"
-    # the kind choice is the recipe's unless the run chooses its inputs (both: measured
-    # worse), or validation spans too little of any joint's command range to choose a kind
+    # the kind choice is the recipe's, beside the input choice too, unless validation spans
+    # too little of any joint's command range to choose a kind
     min_span = float(overrides.get("choice_min_span", TrainConfig.choice_min_span))
     spans, spanned = joint_spans(
         dataset.train, dataset.val or dataset.train, dataset.spec, min_span=min_span
     )
-    kinds = bool(overrides.get("prior_choice", not choose and any(spanned)))
+    kinds = bool(overrides.get("prior_choice", any(spanned)))
     n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
     val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
@@ -213,9 +213,13 @@ def auto_config(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
             f"ignore them (same seeds); they are kept only if better on validation, overall "
             f"and on every joint, and the other {members - half} member(s) train the chosen "
-            f"way ({trainings(members, choose=True)} trainings in the budget); where they "
-            "help some joints only, those joints may take them alone (each seed's two "
-            "networks joint by joint, kept on the same terms)"
+            f"way ({trainings(members, choose=True, kinds=kinds)} trainings in the budget)"
+            + (
+                "; the map-correcting networks of the kind choice train the chosen way too"
+                if kinds
+                else "; where they help some joints only, those joints may take them alone "
+                "(each seed's two networks joint by joint, kept on the same terms)"
+            )
         )
     if kinds:
         why.append(
@@ -223,11 +227,6 @@ def auto_config(
             f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
             "the kind whose ensemble validates better drives it, or the even blend of both "
             f"({trainings(members, choose=choose, kinds=True)} trainings in the budget)"
-        )
-    elif choose and "prior_choice" not in overrides:
-        why.append(
-            "one kind of network (plain): the run chooses its exogenous inputs, and both "
-            "choices together leave each network too few epochs (prior_choice = true runs both)"
         )
     elif spans is not None and not any(spanned) and "prior_choice" not in overrides:
         why.append(

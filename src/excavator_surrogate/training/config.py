@@ -118,10 +118,11 @@ class TrainConfig(PresetConfig, table="train"):
     members each way, keep the way whose merged members score better on validation (``use``
     only if better by :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
     inputs_per_joint: bool = True
-    """With ``exogenous = "choose"``: where the inputs' members beat the others on some joints
-    and not on all, those joints may take them alone: each seed's two networks become one
-    whose joint is the one's or the other's, kept if it beats the members that ignore the
-    inputs as the whole ``use`` must (:mod:`.variants`; false: all joints or none)."""
+    """With ``exogenous = "choose"`` and without ``prior_choice``: where the inputs' members
+    beat the others on some joints and not on all, those joints may take them alone: each
+    seed's two networks become one whose joint is the one's or the other's, kept if it beats
+    the members that ignore the inputs as the whole ``use`` must (:mod:`.variants`; false:
+    all joints or none)."""
     max_train_seconds: float = 0.0
     """Wall-time cap for training incl. validation [s] (0 = none): it only stops a slow or busy
     computer before the planned ``epochs``, and the run then says so (log, ``best.pt`` metrics
@@ -181,7 +182,7 @@ class TrainConfig(PresetConfig, table="train"):
     """Beside the ``members`` plain networks, about half as many more correct the static map
     (as with ``prior``, the same seeds); per joint, the kind whose ensemble validates better
     (or their even blend, ``prior_blend``) drives it (:mod:`.kinds`; ours; the recipe turns
-    it on unless it chooses exogenous inputs)."""
+    it on where validation spans a joint's commands, ``choice_min_span``)."""
     prior_margin: float = 0.05
     """With ``prior_choice``: a joint is a candidate for the map-correcting networks when their
     validation angle RMSE on it is below ``1 - prior_margin`` times the plain ensemble's (a near
