@@ -37,7 +37,7 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   better still.  Also when the run chooses its exogenous inputs (:mod:`.variants`): the
   inputs are chosen first, then the rest of the plain members and the map-correcting
   networks train the chosen way (8 trainings in the budget instead of 6); on the sessions
-  case with its throttle the bucket lost 1.8x without them (docs/real-history.md);
+  case with its throttle the bucket lost 1.4-2.9x without them (docs/real-history.md);
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
