@@ -208,7 +208,9 @@ def train_choosing_inputs(
     vals = {w: free_run_error(merge(halves[w]), val_eps, max_steps=max_steps) for w in ways}
     keep, why = choose_inputs(vals["use"], vals["ignore"])
     joints, tried = None, []
-    if not keep and cfg.inputs_per_joint and not n_prior:
+    # the pinned joints cost a map free run: only where some joint is a candidate at all
+    some = any(input_joints(vals["use"], vals["ignore"]))
+    if not keep and cfg.inputs_per_joint and not n_prior and some:
         train_eps = split_episodes(cfg, dataset)[0]
         joints, tried = choose_input_joints(
             halves["use"],
