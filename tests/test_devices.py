@@ -70,3 +70,19 @@ def test_train_rollout_and_env_on_cuda(tmp_path: Path) -> None:
         th_g, _ = rollout(gpu, ep.theta[None], ep.u[None])
         th_c, _ = rollout(cpu, ep.theta[None], ep.u[None])
         np.testing.assert_allclose(th_g, th_c, atol=1e-4)
+
+
+def test_torch_threads_sets_and_restores_the_count() -> None:
+    prev = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with devices.torch_threads(1):
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with devices.torch_threads(0):  # 0: unchanged
+            assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError), devices.torch_threads(1):
+            raise RuntimeError("restored on the way out too")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(prev)

@@ -10,6 +10,8 @@ chosen by ``auto`` (the LSTM kernels there are not faster than the CPU for these
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import torch
 
@@ -95,6 +97,23 @@ def usable_cpus() -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Run the block with ``n`` torch intra-op threads (0: torch's count unchanged), restored after.
+
+    Small-batch free runs gain little from a second thread, and on a busy computer OpenMP
+    barriers waiting for a descheduled thread made them up to 4x slower than one thread.
+    """
+    prev = torch.get_num_threads()
+    if n > 0 and n != prev:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != prev:
+            torch.set_num_threads(prev)
 
 
 def available_memory() -> int | None:

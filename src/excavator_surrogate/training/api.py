@@ -9,7 +9,7 @@ from typing import Any
 
 from .. import numerics
 from ..data.dataset import Dataset
-from ..devices import usable_cpus
+from ..devices import torch_threads, usable_cpus
 from ..errors import ConfigError
 from .batches import split_episodes
 from .calibration import calibrate_best
@@ -49,7 +49,9 @@ def train(
     joints only (:func:`~.variants.train_choosing_inputs`).  With
     ``cfg.static_map``, joints that the static valve map drives better on validation follow it
     (:mod:`.map_joints`).  Then ``best.pt`` gets the training data's coverage record and, for an ensemble, its
-    uncertainty bands calibrated on the validation free runs (:mod:`.calibration`).
+    uncertainty bands calibrated on the validation free runs (:mod:`.calibration`).  This
+    process's own free runs (the merge, the choices, the bands) run with ``cfg.num_threads``
+    torch threads, restored on return.
 
     Args:
         cfg: training options.
@@ -74,6 +76,32 @@ def train(
         CheckpointError: bad ``resume`` file.
     """
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
+    with torch_threads(cfg.num_threads):  # this process's free runs too: one thread by default
+        return _train(
+            cfg,
+            dataset,
+            out=out,
+            resume=resume,
+            show_progress=show_progress,
+            on_epoch=on_epoch,
+            dist=dist,
+            loss=loss,
+            notes=notes,
+        )
+
+
+def _train(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    out: str | Path,
+    resume: str | Path | None,
+    show_progress: bool | None,
+    on_epoch: EpochCallback | None,
+    dist: Parallel | None,
+    loss: LossFn | None,
+    notes: Mapping[str, Any] | None,
+) -> Path:
     check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
     choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
     if cfg.members > 1 or choosing or cfg.prior_choice:  # several trainings
