@@ -111,6 +111,41 @@ def test_a_composite_takes_each_joint_from_its_member() -> None:
         merge([plains[0], plains[1]], joint_weights=[[0.5, 1.0], [0.2, 0.0]])
 
 
+def test_a_composite_with_twins_takes_each_joints_plain_share_from_its_way() -> None:
+    """With the plain side as pairs (the inputs on some joints, :mod:`.variants`): joint j
+    is a_j times the map-correcting networks' mean plus 1 - a_j times the mean of the twins
+    (where they take joint j) or of the plain networks, against the plain loop over the
+    networks; a network left with no weight is not in the model."""
+    ep = _episode(9)
+    plains = [_plain_net(s) for s in (0, 1)]
+    twins = [_plain_net(s) for s in (20, 21)]
+    priors = [_prior_net(s + 10, exact=(False, False)) for s in (0, 1)]
+    om = {k: [_omega(n, ep) for n in nets] for k, nets in (("p", plains), ("t", twins))}
+    om["b"] = [_omega(n, ep) for n in priors]
+
+    def mean(k: str, j: int) -> np.ndarray:
+        return np.mean([o[:, j] for o in om[k]], axis=0)
+
+    for a in ([0.5, 0.0], [0.0, 1.0], [0.5, 0.5], [0.0, 0.0]):
+        got = _omega(composite(plains, priors, a, twins=twins, twin_joints=[True, False]), ep)
+        want = np.stack(
+            [
+                a[0] * mean("b", 0) + (1 - a[0]) * mean("t", 0),
+                a[1] * mean("b", 1) + (1 - a[1]) * mean("p", 1),
+            ],
+            axis=1,
+        )
+        np.testing.assert_allclose(got, want, atol=1e-5, err_msg=f"a = {a}")
+    # joint 0 on the map-correcting networks: the twins (joint 0 only) carry no weight
+    model = composite(plains, priors, [1.0, 0.0], twins=twins, twin_joints=[True, False])
+    one = sum(n.model_cfg.hidden for n in (plains[0], priors[0]))
+    assert model.model_cfg.hidden == len(priors) * one
+    with pytest.raises(ValueError, match="pair up"):
+        composite(plains, priors, [0.5, 0.0], twins=twins[:1], twin_joints=[True, False])
+    with pytest.raises(ValueError, match="one flag per joint"):
+        composite(plains, priors, [0.5, 0.0], twins=twins, twin_joints=[True])
+
+
 def test_the_choice_takes_each_joint_from_the_kind_that_drives_it() -> None:
     """'Plain' networks exact on joint b (it follows the map), map-correcting ones exact on
     joint a: the choice takes a from the map-correcting ones, and the composite drives the

@@ -212,6 +212,15 @@ def _omega(sur, ep: Episode, *, flip_gear: bool = False) -> torch.Tensor:
     return y[0]
 
 
+def _rad_s(sur, ep: Episode) -> torch.Tensor:
+    """The net's one-step omega (n_step, n_joint) [rad/s] on ``ep`` (teacher-forced)."""
+    th, u = torch.tensor(ep.theta, dtype=torch.float32), torch.tensor(ep.u, dtype=torch.float32)
+    z = sur.norm.play_seq(sur.norm.play_rest(1), u[None])[0] if sur.norm.n_state else None
+    with torch.no_grad():
+        y, _ = sur.net.forward_seq(sur.norm.encode(th, u, z)[None])
+    return sur.norm.omega(y)[0]
+
+
 def test_paired_takes_each_joint_from_its_way_and_averages_the_seeds(tmp_path):
     from excavator_surrogate.training.variants import paired
 
@@ -332,3 +341,55 @@ def test_choose_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypatch):
     torch.testing.assert_close(_omega(model, ep), want, rtol=1e-4, atol=1e-5)
     notes = tomllib.loads((tmp_path / "m" / "config.toml").read_text())
     assert notes["exogenous"]["joints"] == ["boom"]
+
+
+def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
+    """As above with ``prior_choice``: the choice's two pairs and two map-correcting networks
+    that ignore the gear (they must divide the pairs: the pair planned after them is not
+    trained); the kinds are chosen with the pairs as the plain side, and the model is, joint
+    by joint, the chosen share of the map-correcting networks' mean plus the rest from the
+    networks of the joint's way (the plain loop over the saved networks)."""
+    from excavator_surrogate.training import variants
+
+    calls: list = []
+
+    def rule(use, ignore):
+        calls.append(use)
+        return (False, "refused (test)") if len(calls) == 1 else (True, "kept")
+
+    monkeypatch.setattr(variants, "choose_inputs", rule)
+    monkeypatch.setattr(variants, "input_joints", lambda use, ignore: [True, False])
+    ds = _dataset2()
+    cfg = _cfg(exogenous="choose", prior_choice=True, members=4, member_workers=1)
+    best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
+    ck = read_checkpoint(best)
+    training = ck["metrics"]["training"]
+    assert training["exogenous"]["per_joint"] and training["exogenous"]["joints"] == ["boom"]
+    kinds = training["kinds"]
+    assert set(kinds) >= {"candidates", "chosen", "weights", "why"}
+    m = tmp_path / "m"
+    for d in ("use", "ignore", "prior"):
+        assert sorted(p.name for p in (m / d).iterdir()) == ["member_0", "member_1"]
+    rows = list(csv.DictReader((m / "log.csv").open()))
+    assert [r["exogenous"] for r in rows] == (
+        ["use"] * 2 + ["ignore"] * 2 + ["ignore (map-correcting)"] * 2 + ["per joint"]
+    )
+    nets = {
+        d: [load_checkpoint(m / d / f"member_{i}" / "best.pt") for i in (0, 1)]
+        for d in ("use", "ignore", "prior")
+    }
+    assert all(n.train_config["exogenous"] == "ignore" for n in nets["prior"])
+    ep = _episode2(9)
+
+    def mean(d: str, j: int) -> torch.Tensor:  # in rad/s: the kinds normalise differently
+        return torch.stack([_rad_s(n, ep)[:, j] for n in nets[d]]).mean(0)
+
+    a = kinds["weights"]
+    want = torch.stack(
+        [
+            a[j] * mean("prior", j) + (1 - a[j]) * mean("use" if j == 0 else "ignore", j)
+            for j in (0, 1)
+        ],
+        dim=-1,
+    )
+    torch.testing.assert_close(_rad_s(load_checkpoint(best), ep), want, rtol=1e-4, atol=1e-5)

@@ -214,11 +214,13 @@ def auto_config(
             f"ignore them (same seeds); they are kept only if better on validation, overall "
             f"and on every joint, and the other {members - half} member(s) train the chosen "
             f"way ({trainings(members, choose=True, kinds=kinds)} trainings in the budget)"
+            + "; where they help some joints only, those joints may take them alone "
+            "(each seed's two networks joint by joint, kept on the same terms)"
             + (
-                "; the map-correcting networks of the kind choice train the chosen way too"
+                "; the map-correcting networks of the kind choice train the chosen way (if "
+                "some joints take them: ignoring them)"
                 if kinds
-                else "; where they help some joints only, those joints may take them alone "
-                "(each seed's two networks joint by joint, kept on the same terms)"
+                else ""
             )
         )
     if kinds:

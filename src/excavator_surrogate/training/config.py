@@ -118,11 +118,11 @@ class TrainConfig(PresetConfig, table="train"):
     members each way, keep the way whose merged members score better on validation (``use``
     only if better by :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
     inputs_per_joint: bool = True
-    """With ``exogenous = "choose"`` and without ``prior_choice``: where the inputs' members
-    beat the others on some joints and not on all, those joints may take them alone: each
-    seed's two networks become one whose joint is the one's or the other's, kept if it beats
-    the members that ignore the inputs as the whole ``use`` must (:mod:`.variants`; false:
-    all joints or none)."""
+    """With ``exogenous = "choose"``: where the inputs' members beat the others on some
+    joints and not on all, those joints may take them alone: each seed's two networks become
+    one whose joint is the one's or the other's, kept if it beats the members that ignore the
+    inputs as the whole ``use`` must; with ``prior_choice`` the kinds are then chosen with
+    these pairs as the plain networks (:mod:`.variants`; false: all joints or none)."""
     max_train_seconds: float = 0.0
     """Wall-time cap for training incl. validation [s] (0 = none): it only stops a slow or busy
     computer before the planned ``epochs``, and the run then says so (log, ``best.pt`` metrics

@@ -99,8 +99,43 @@ def prior_members(members: int) -> int:
     return max([p for p in range(1, members // 2 + 1) if members % p == 0], default=1)
 
 
+def plain_ensemble(
+    plains: Sequence[Surrogate],
+    *,
+    twins: Sequence[Surrogate] | None = None,
+    twin_joints: Sequence[bool] | None = None,
+) -> Surrogate:
+    """The plain networks' ensemble: their merge.  With ``twins`` (network ``i``'s twin: the
+    same seed, trained the other way on the exogenous inputs, :mod:`.variants`), each seed's
+    two networks first become one whose joint ``j`` is the twin's where ``twin_joints[j]``,
+    else the plain one's (:func:`~excavator_surrogate.surrogate.ensemble.merge` with
+    ``joint_weights``), and the seeds' pairs are merged as the ensemble's members."""
+    if twins is None:
+        return merge(list(plains))
+    if len(twins) != len(plains) or not plains:
+        raise ValueError(f"{len(twins)} and {len(plains)} networks do not pair up")
+    s = [1.0 if j else 0.0 for j in _twin_joints(twin_joints, plains)]
+    pairs = [
+        merge([t, p], joint_weights=[s, [1.0 - x for x in s]], name=f"{t.name}-inputs-paired")
+        for t, p in zip(twins, plains)
+    ]
+    return merge(pairs) if len(pairs) > 1 else pairs[0]
+
+
+def _twin_joints(twin_joints: Sequence[bool] | None, plains: Sequence[Surrogate]) -> list[bool]:
+    n_joint = plains[0].spec.n_joint
+    if twin_joints is None or len(twin_joints) != n_joint:
+        raise ValueError(f"twin_joints {twin_joints} is not one flag per joint ({n_joint})")
+    return list(twin_joints)
+
+
 def composite(
-    plains: Sequence[Surrogate], priors: Sequence[Surrogate], use_prior: Sequence[float]
+    plains: Sequence[Surrogate],
+    priors: Sequence[Surrogate],
+    use_prior: Sequence[float],
+    *,
+    twins: Sequence[Surrogate] | None = None,
+    twin_joints: Sequence[bool] | None = None,
 ) -> Surrogate:
     """The ensemble whose joint ``j`` is ``a_j`` times the map-correcting networks' mean plus
     ``1 - a_j`` times the plain networks' mean, ``a = use_prior``.
@@ -109,33 +144,45 @@ def composite(
         plains: K plain networks; priors: P map-correcting networks, P dividing K.
         use_prior: (n_joint,) the map-correcting networks' weight ``a_j`` in [0, 1] per joint
             (a bool: which joints they drive; 1/2: the even blend of both kinds).
+        twins, twin_joints: the plain side as :func:`plain_ensemble` pairs: plain network
+            ``i``'s share of joint ``j`` goes to ``twins[i]`` where ``twin_joints[j]``.
 
     Returns:
-        All 0 or all 1: the plain or the map-correcting ensemble.  Else the merge of P
-        composites, group ``g`` = plain networks ``g, g + P, ...`` (weight
-        ``(1 - a_j) P / K`` each on joint ``j``) and map-correcting network ``g`` (weight
-        ``a_j``).
+        All 0 or all 1: the plain (:func:`plain_ensemble`) or the map-correcting ensemble.
+        Else the merge of P composites, group ``g`` = plain networks ``g, g + P, ...``
+        (weight ``(1 - a_j) P / K`` each on joint ``j``; with twins, that weight goes to
+        the network of the pair that drives joint ``j``, and a network with no weight left
+        is left out) and map-correcting network ``g`` (weight ``a_j``).
     """
     a = [float(x) for x in use_prior]
     if not all(0.0 <= x <= 1.0 for x in a):
         raise ValueError(f"the map-correcting networks' weights {a} are not in [0, 1]")
     if not any(a):
-        return merge(list(plains))
+        return plain_ensemble(plains, twins=twins, twin_joints=twin_joints)
     if all(x == 1.0 for x in a):
         return merge(list(priors))
     n_prior = len(priors)
     if len(plains) % n_prior:
         raise ValueError(f"{len(priors)} map-correcting networks do not divide {len(plains)}")
-    n_group = len(plains) // n_prior  # plain networks per group
+    if twins is not None and len(twins) != len(plains):
+        raise ValueError(f"{len(twins)} and {len(plains)} networks do not pair up")
+    n_group = len(plains) // n_prior  # plain networks (or pairs) per group
     w_plain = [(1.0 - x) / n_group for x in a]
-    groups = [
-        merge(
-            [in_prior_form(p, b) for p in plains[g::n_prior]] + [b],
-            joint_weights=[w_plain] * n_group + [a],
-            name=f"{b.name}-composite",
-        )
-        for g, b in enumerate(priors)
-    ]
+    # each plain network's share of its seed's plain weight, per joint (with its twin's)
+    shares: list[tuple[Sequence[Surrogate], list[float]]] = [(plains, [1.0] * len(a))]
+    if twins is not None:
+        s = [1.0 if j else 0.0 for j in _twin_joints(twin_joints, plains)]
+        shares = [(plains, [1.0 - x for x in s]), (twins, s)]
+    groups = []
+    for g, b in enumerate(priors):
+        nets, weights = [], []
+        for i in range(g, len(plains), n_prior):
+            for side, share in shares:
+                w = [wp * x for wp, x in zip(w_plain, share)]
+                if twins is None or any(w):
+                    nets.append(in_prior_form(side[i], b))
+                    weights.append(w)
+        groups.append(merge([*nets, b], joint_weights=[*weights, a], name=f"{b.name}-composite"))
     return merge(groups)
 
 
@@ -191,6 +238,8 @@ def choose_kinds(
     blend: bool = PRIOR_BLEND,
     pinned: Sequence[bool] | None = None,
     spanned: Sequence[bool] | None = None,
+    twins: Sequence[Surrogate] | None = None,
+    twin_joints: Sequence[bool] | None = None,
 ) -> tuple[Surrogate, dict[str, Any]]:
     """The model of the two ensembles (see the module docstring) and the record of the choice.
 
@@ -206,6 +255,8 @@ def choose_kinds(
             (:func:`map_pinned`): they cannot refuse a set (``best_set``'s ``ignore``).
         spanned: (n_joint,) joints whose validation commands span enough of the training's
             command range (:func:`~.span.joint_spans`); the others stay plain (default: all).
+        twins, twin_joints: the plain side as pairs (:func:`plain_ensemble`): the joints
+            ``twin_joints`` take the exogenous inputs, from ``twins`` (:mod:`.variants`).
 
     Returns:
         ``(model, record)``; ``record`` holds both ensembles' validation scores, the
@@ -213,9 +264,10 @@ def choose_kinds(
     """
     names = list(plains[0].spec.names)
     n_joint = len(names)
-    merged = {"plain": merge(list(plains)), "prior": merge(list(priors))}
+    sides: dict[str, Any] = {"twins": twins, "twin_joints": twin_joints}  # the pairs, if any
+    merged = {"plain": plain_ensemble(plains, **sides), "prior": merge(list(priors))}
     if blend:
-        merged["blend"] = composite(plains, priors, [BLEND] * n_joint)
+        merged["blend"] = composite(plains, priors, [BLEND] * n_joint, **sides)
     vals = {k: free_run_error(m, list(val), max_steps=max_steps) for k, m in merged.items()}
     base = vals["plain"]
     # per joint, the map-correcting networks' weight: the option (1 = their ensemble, 1/2 =
@@ -270,7 +322,7 @@ def choose_kinds(
         return [w if p else 0.0 for w, p in zip(weights, joints)]
 
     def build(joints: Sequence[bool]) -> Surrogate:  # joints -> the composite taking them
-        return composite(plains, priors, weights_of(joints))
+        return composite(plains, priors, weights_of(joints), **sides)
 
     # the set of every joint at one weight is an ensemble scored above: not run again
     uniform = len(set(weights)) == 1 and weights[0] in scored

@@ -12,7 +12,7 @@ the chosen way and merged with the winning half, so the result is an ensemble of
 kind choice's map-correcting networks (:mod:`.kinds`) train beside the rest, the chosen
 way, and the kinds are chosen per joint on the result.
 
-**Per joint** (``[train] inputs_per_joint``, default true, without ``prior_choice``): an
+**Per joint** (``[train] inputs_per_joint``, default true): an
 input can help one joint and hurt another (the wheel loader's throttle and gear helped its
 boom and hurt its bucket).  When the whole ``use`` half is refused, the joints on which it
 beats the ``ignore`` half by the margin (:func:`input_joints`) are candidates to take the
@@ -26,14 +26,19 @@ set is kept under the same rule as the whole ``use`` half against the ``ignore``
 (:func:`choose_inputs`: better by the margin overall, no joint worse by more; a joint's
 choice moves the angles the others read).  The lowest kept set wins; the rest of the budget
 then trains pairs (one network each way, the same seed), so the model is an ensemble of
-``half + (members - half) // 2`` pairs.
+``half + (members - half) // 2`` pairs.  With ``prior_choice`` the map-correcting networks
+train instead of some of those pairs (they ignore the inputs, and must divide the pairs
+evenly: :func:`more_pairs`; 4 members: the choice's 2 pairs and 2 map-correcting networks),
+and the kind choice runs with the pairs as its plain side (:func:`~.kinds.choose_kinds`'s
+``twins``).
 
 Layout: ``OUT/member_*`` (the ensemble's members, as for any ensemble: the winning half,
 then the rest), ``OUT/use/member_*`` or ``OUT/ignore/member_*`` (the losing half),
 ``OUT/prior/member_*`` (with ``prior_choice``), ``OUT/best.pt`` (the merged ensemble,
 ``metrics.training.exogenous`` and ``kinds`` say what was chosen and why),
 ``OUT/config.toml`` (``[exogenous]``, ``[kinds]``: the same).  With the inputs on some
-joints: ``OUT/use/member_*`` and ``OUT/ignore/member_*``, the pairs' two networks.
+joints: ``OUT/use/member_*`` and ``OUT/ignore/member_*``, the pairs' two networks (and
+``OUT/prior/member_*`` with ``prior_choice``).
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ from .kinds import (
     choose_kinds,
     map_pinned,
     model_kind,
+    plain_ensemble,
     prior_members,
 )
 from .records import write_config
@@ -121,14 +127,17 @@ def paired(
             ``i`` on the same seed).
         joints: (n_joint,) the joints that take the inputs.
     """
-    if len(use) != len(ignore) or not use:
-        raise ValueError(f"{len(use)} and {len(ignore)} networks do not pair up")
-    a = [1.0 if j else 0.0 for j in joints]
-    pairs = [
-        merge([u, i], joint_weights=[a, [1.0 - x for x in a]], name=f"{u.name}-inputs-paired")
-        for u, i in zip(use, ignore)
-    ]
-    return merge(pairs) if len(pairs) > 1 else pairs[0]
+    return plain_ensemble(ignore, twins=use, twin_joints=joints)
+
+
+def more_pairs(members: int, half: int, n_prior: int) -> int | None:
+    """Pairs to train after the choice's ``half``: as many as the rest of the budget buys
+    (``(members - half) // 2``, each pair two trainings), with the kind choice's
+    ``n_prior`` map-correcting networks as many fewer as it takes for them to divide the
+    pairs evenly (:func:`~.kinds.composite`); None if no count does."""
+    limit = (members - half) // 2
+    fits = [n for n in range(limit + 1) if not n_prior or (half + n) % n_prior == 0]
+    return max(fits) if fits else None
 
 
 def choose_input_joints(
@@ -210,15 +219,23 @@ def train_choosing_inputs(
     joints, tried = None, []
     # the pinned joints cost a map free run: only where some joint is a candidate at all
     some = any(input_joints(vals["use"], vals["ignore"]))
-    if not keep and cfg.inputs_per_joint and not n_prior and some:
+    fits = more_pairs(cfg.members, half, n_prior) is not None
+    per_joint: dict[str, Any] = {}  # the kind choice's options per joint, found once
+    if not keep and cfg.inputs_per_joint and some and fits:
         train_eps = split_episodes(cfg, dataset)[0]
+        carrier = halves["ignore"][0]
+        per_joint = (
+            choice_joints(cfg, carrier, train_eps, val_eps)
+            if n_prior
+            else {"pinned": map_pinned(cfg, carrier, train_eps, val_eps)}
+        )
         joints, tried = choose_input_joints(
             halves["use"],
             halves["ignore"],
             vals,
             val_eps,
             max_steps=max_steps,
-            pinned=map_pinned(cfg, halves["ignore"][0], train_eps, val_eps),
+            pinned=per_joint["pinned"],
         )
     record = {
         "inputs": names,
@@ -249,6 +266,7 @@ def train_choosing_inputs(
             cfgs,
             joints,
             record,
+            per_joint=per_joint,
             val_eps=val_eps,
             out=out,
             t0=t0,
@@ -320,6 +338,7 @@ def _train_pairs(
     joints: Sequence[bool],
     record: dict[str, Any],
     *,
+    per_joint: Mapping[str, Any],
     val_eps: list[Any],
     out: Path,
     t0: float,
@@ -328,21 +347,39 @@ def _train_pairs(
     notes: Mapping[str, Any] | None,
 ) -> Path:
     """The inputs on some joints (:func:`choose_input_joints`): the rest of the budget trains
-    ``(members - half) // 2`` more pairs (each way, the same seeds), and the model is
-    :func:`paired` over every pair; returns ``OUT/best.pt``."""
+    :func:`more_pairs` more pairs (each way, the same seeds) and, with ``prior_choice``, the
+    kind choice's map-correcting networks (ignoring the inputs: a tie keeps the model that
+    cannot depend on them).  The model is :func:`paired` over every pair, or the kind
+    choice's model with the pairs as its plain side (``per_joint``: its
+    :func:`~.kinds.choice_joints` options); returns ``OUT/best.pt``."""
     half = len(halves["use"])
-    n_more = (cfg.members - half) // 2
+    n_prior = prior_members(cfg.members) if cfg.prior_choice else 0
+    n_more = more_pairs(cfg.members, half, n_prior) or 0
     base = replace(cfg, prior_choice=False, static_map=False)
     rest = {
         w: member_configs(replace(base, exogenous=w))[half : half + n_more]
         for w in ("use", "ignore")
     }
+    priors = (
+        member_configs(replace(base, exogenous="ignore", prior=True, members=n_prior))
+        if n_prior
+        else []
+    )
+    if n_prior and n_more < (cfg.members - half) // 2:
+        _log.info(
+            f"exogenous inputs: {n_more} more pair(s) and {n_prior} map-correcting network(s): "
+            f"{n_prior} must divide the {half + n_more} pairs, so "
+            f"{2 * ((cfg.members - half) // 2 - n_more)} planned training(s) are not run"
+        )
     jobs = [
         TrainJob(
             cfg=c, dataset=dataset, out=out / w / f"member_{half + i}", tag=f"exsur {w} {half + i}"
         )
         for w, cs in rest.items()
         for i, c in enumerate(cs)
+    ] + [
+        TrainJob(cfg=c, dataset=dataset, out=out / "prior" / f"member_{i}", tag=f"exsur prior {i}")
+        for i, c in enumerate(priors)
     ]
     paths = (
         run_jobs(
@@ -353,18 +390,37 @@ def _train_pairs(
     )
     more = [load_checkpoint(p) for p in paths]
     use = list(halves["use"]) + more[:n_more]
-    ignore = list(halves["ignore"]) + more[n_more:]
+    ignore = list(halves["ignore"]) + more[n_more : 2 * n_more]
+    prior_nets = more[2 * n_more :]
     final_cfgs = list(cfgs["use"]) + rest["use"] + list(cfgs["ignore"]) + rest["ignore"]
+    training: dict[str, Any] = {"exogenous": record}
+    model = paired(use, ignore, joints)
+    if n_prior:  # the kinds, per joint, with the pairs as the plain side
+        model, kinds = choose_kinds(
+            ignore,
+            prior_nets,
+            val_eps,
+            twins=use,
+            twin_joints=joints,
+            **per_joint,
+            **choice_options(cfg),
+        )
+        _log.info(f"two kinds of network: {kinds['why']}")
+        training["kinds"] = kinds
     best = merge_members(
         replace(cfg, exogenous="use"),
-        final_cfgs,
-        use + ignore,
+        final_cfgs + priors,
+        use + ignore + prior_nets,
         val_eps,
         out=out,
         t0=t0,
-        training={"exogenous": record},
-        merged=paired(use, ignore, joints),
-        column=("exogenous", [c.exogenous for c in final_cfgs], "per joint"),
+        training=training,
+        merged=model,
+        column=(
+            "exogenous",
+            [c.exogenous for c in final_cfgs] + ["ignore (map-correcting)"] * n_prior,
+            "per joint",
+        ),
     )
-    write_config(out, cfg, notes={**(notes or {}), "exogenous": record})
+    write_config(out, cfg, notes={**(notes or {}), **training})
     return best
