@@ -88,6 +88,9 @@ def test_the_kind_and_input_choices_are_named():
     some = {**rec, "kept": True, "per_joint": True, "joints": ["boom"]}
     text = training_markdown({"epochs_planned": 30, "exogenous": some})
     assert "Exogenous inputs (u_throttle): used by boom only (the other joints ignore" in text
+    assert "so do the networks that correct" not in text
+    both = training_markdown({"epochs_planned": 30, "exogenous": some, "kinds": kinds})
+    assert "ignore them; so do the networks that correct the static valve map)" in both
     whole = {**rec, "kept": True, "per_joint": False, "joints": ["swing", "boom"]}
     assert "used by the model" in training_markdown({"epochs_planned": 30, "exogenous": whole})
     assert "Two kinds" not in text and "Exogenous" not in training_markdown({"epochs_planned": 3})

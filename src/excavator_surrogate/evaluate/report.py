@@ -204,14 +204,15 @@ def training_markdown(training: Mapping[str, Any] | None) -> str:
         return ""
     return (
         _budget_markdown(training)
-        + _inputs_markdown(training.get("exogenous"))
+        + _inputs_markdown(training.get("exogenous"), kinds="kinds" in training)
         + _kinds_markdown(training.get("kinds"))
         + _map_markdown(training.get("static_map"))
     )
 
 
-def _inputs_markdown(record: Mapping[str, Any] | None) -> str:
-    """One line on the exogenous-input choice (``training.exogenous``)."""
+def _inputs_markdown(record: Mapping[str, Any] | None, *, kinds: bool = False) -> str:
+    """One line on the exogenous-input choice (``training.exogenous``; ``kinds``: the run
+    chose the kinds too, whose map-correcting networks ignore inputs taken per joint)."""
     if not isinstance(record, Mapping) or "kept" not in record:
         return ""
     names = ", ".join(record.get("inputs") or []) or "the exogenous inputs"
@@ -219,7 +220,9 @@ def _inputs_markdown(record: Mapping[str, Any] | None) -> str:
     if not record["kept"]:
         how = "ignored by the model"
     elif record.get("per_joint") and joints:
-        how = f"used by {', '.join(joints)} only (the other joints ignore them)"
+        how = f"used by {', '.join(joints)} only (the other joints ignore them" + (
+            "; so do the networks that correct the static valve map)" if kinds else ")"
+        )
     else:
         how = "used by the model"
     return (

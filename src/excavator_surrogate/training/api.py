@@ -77,77 +77,54 @@ def train(
     """
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
     with torch_threads(cfg.num_threads):  # this process's free runs too: one thread by default
-        return _train(
-            cfg,
-            dataset,
-            out=out,
-            resume=resume,
-            show_progress=show_progress,
-            on_epoch=on_epoch,
-            dist=dist,
-            loss=loss,
-            notes=notes,
-        )
-
-
-def _train(
-    cfg: TrainConfig,
-    dataset: Dataset,
-    *,
-    out: str | Path,
-    resume: str | Path | None,
-    show_progress: bool | None,
-    on_epoch: EpochCallback | None,
-    dist: Parallel | None,
-    loss: LossFn | None,
-    notes: Mapping[str, Any] | None,
-) -> Path:
-    check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
-    choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
-    if cfg.members > 1 or choosing or cfg.prior_choice:  # several trainings
-        for given, what in (
-            (resume, "resume"),
-            (dist, "data-parallel training"),
-            (on_epoch, "on_epoch"),
-            (loss, "a custom loss"),
-        ):
-            if given is not None:
-                raise ConfigError(
-                    f"[train] members = {cfg.members}"
-                    + (', exogenous = "choose"' if choosing else "")
-                    + (", prior_choice = true" if cfg.prior_choice else "")
-                    + f": {what} works per member; train each member as a single network "
-                    "(members = 1"
-                    + (', exogenous = "use" or "ignore"' if choosing else "")
-                    + (", prior_choice = false" if cfg.prior_choice else "")
-                    + ") and merge them with 'exsur merge'"
-                )
-    if choosing:  # the inputs first; then, with prior_choice, the kinds too
-        best = train_choosing_inputs(
-            cfg, dataset, out=out, show_progress=show_progress, notes=notes
-        )
-    elif cfg.prior_choice:
-        best = train_choosing_kinds(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
-    elif cfg.members > 1:
-        best = train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
-    else:
-        best = train_network(
-            cfg,
-            dataset,
-            out=out,
-            resume=resume,
-            show_progress=show_progress,
-            on_epoch=on_epoch,
-            par=dist,
-            loss=loss,
-            notes=notes,
-        )
-    if dist is None or dist.is_main:
-        if cfg.static_map:  # joints on the static valve map, if validation says so
-            train_eps, val_eps = split_episodes(cfg, dataset)
-            apply_map_choice(best, train_eps, val_eps, **map_options(cfg))
-        calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
-    return best
+        check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
+        choosing = cfg.exogenous == "choose" and dataset.spec.n_input > 0
+        if cfg.members > 1 or choosing or cfg.prior_choice:  # several trainings
+            for given, what in (
+                (resume, "resume"),
+                (dist, "data-parallel training"),
+                (on_epoch, "on_epoch"),
+                (loss, "a custom loss"),
+            ):
+                if given is not None:
+                    raise ConfigError(
+                        f"[train] members = {cfg.members}"
+                        + (', exogenous = "choose"' if choosing else "")
+                        + (", prior_choice = true" if cfg.prior_choice else "")
+                        + f": {what} works per member; train each member as a single network "
+                        "(members = 1"
+                        + (', exogenous = "use" or "ignore"' if choosing else "")
+                        + (", prior_choice = false" if cfg.prior_choice else "")
+                        + ") and merge them with 'exsur merge'"
+                    )
+        if choosing:  # the inputs first; then, with prior_choice, the kinds too
+            best = train_choosing_inputs(
+                cfg, dataset, out=out, show_progress=show_progress, notes=notes
+            )
+        elif cfg.prior_choice:
+            best = train_choosing_kinds(
+                cfg, dataset, out=out, show_progress=show_progress, notes=notes
+            )
+        elif cfg.members > 1:
+            best = train_ensemble(cfg, dataset, out=out, show_progress=show_progress, notes=notes)
+        else:
+            best = train_network(
+                cfg,
+                dataset,
+                out=out,
+                resume=resume,
+                show_progress=show_progress,
+                on_epoch=on_epoch,
+                par=dist,
+                loss=loss,
+                notes=notes,
+            )
+        if dist is None or dist.is_main:
+            if cfg.static_map:  # joints on the static valve map, if validation says so
+                train_eps, val_eps = split_episodes(cfg, dataset)
+                apply_map_choice(best, train_eps, val_eps, **map_options(cfg))
+            calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
+        return best
 
 
 def _train_job(job: TrainJob, show_progress: bool | None) -> Path:

@@ -220,7 +220,9 @@ def train_choosing_inputs(
     # the pinned joints cost a map free run: only where some joint is a candidate at all
     some = any(input_joints(vals["use"], vals["ignore"]))
     fits = more_pairs(cfg.members, half, n_prior) is not None
-    per_joint: dict[str, Any] = {}  # the kind choice's options per joint, found once
+    # the kind choice's options per joint, found once (they read the data and the networks'
+    # window, spec and end stops only: the same for every network of the run)
+    per_joint: dict[str, Any] = {}
     if not keep and cfg.inputs_per_joint and some and fits:
         train_eps = split_episodes(cfg, dataset)[0]
         carrier = halves["ignore"][0]
@@ -309,7 +311,8 @@ def train_choosing_inputs(
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
-        per_joint = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
+        if "spanned" not in per_joint:  # not found for the inputs per joint above
+            per_joint = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
         model, kinds = choose_kinds(plains, prior_nets, val_eps, **per_joint, **choice_options(cfg))
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
