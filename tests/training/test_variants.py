@@ -364,9 +364,12 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
     best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
     ck = read_checkpoint(best)
     training = ck["metrics"]["training"]
-    assert training["exogenous"]["per_joint"] and training["exogenous"]["joints"] == ["boom"]
     kinds = training["kinds"]
     assert set(kinds) >= {"candidates", "chosen", "weights", "why"}
+    exo = training["exogenous"]  # the boom reads the gear unless the kinds took it wholly
+    reads = kinds["weights"][0] < 1.0
+    assert exo["per_joint"] and exo["joints"] == (["boom"] if reads else [])
+    assert exo["kept"] is reads
     m = tmp_path / "m"
     for d in ("use", "ignore", "prior"):
         assert sorted(p.name for p in (m / d).iterdir()) == ["member_0", "member_1"]
@@ -393,3 +396,22 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
         dim=-1,
     )
     torch.testing.assert_close(_rad_s(load_checkpoint(best), ep), want, rtol=1e-4, atol=1e-5)
+
+
+def test_a_joint_the_map_correcting_networks_drive_alone_reads_no_input():
+    from excavator_surrogate.training.variants import inputs_after_kinds
+
+    def record(joints):
+        return {"joints": list(joints), "kept": True, "why": "boom, arm take them alone"}
+
+    names = ["swing", "boom", "arm"]
+    rec = record(["boom", "arm"])
+    inputs_after_kinds(rec, {"names": names, "weights": [1.0, 1.0, 0.5]})
+    assert rec["joints"] == ["arm"] and rec["kept"]
+    assert rec["why"].endswith("drive swing, boom: arm read them")
+    rec = record(["boom"])
+    inputs_after_kinds(rec, {"names": names, "weights": [0.0, 1.0, 0.0]})
+    assert rec["joints"] == [] and not rec["kept"] and rec["why"].endswith("no joint reads them")
+    rec = record(["boom", "arm"])  # a blend, or the plain networks: unchanged
+    inputs_after_kinds(rec, {"names": names, "weights": [1.0, 0.5, 0.0]})
+    assert rec == record(["boom", "arm"])

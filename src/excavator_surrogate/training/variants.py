@@ -333,6 +333,25 @@ def train_choosing_inputs(
     return best
 
 
+def inputs_after_kinds(record: dict[str, Any], kinds: Mapping[str, Any]) -> None:
+    """Update the input choice's ``record`` in place after the kind choice (``kinds``, its
+    record): a joint that the map-correcting networks, which ignore the inputs, drive alone
+    (weight 1) no longer reads them; with none left the inputs are not ``kept``."""
+    alone = [n for n, w in zip(kinds["names"], kinds["weights"]) if w >= 1.0]
+    if not any(n in alone for n in record["joints"]):
+        return
+    record["joints"] = [n for n in record["joints"] if n not in alone]
+    record["kept"] = bool(record["joints"])
+    record["why"] += (
+        f"; the map-correcting networks, which ignore them, drive {', '.join(alone)}"
+        + (
+            f": {', '.join(record['joints'])} read them"
+            if record["joints"]
+            else ": no joint reads them"
+        )
+    )
+
+
 def _train_pairs(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -410,6 +429,7 @@ def _train_pairs(
         )
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
+        inputs_after_kinds(record, kinds)
     best = merge_members(
         replace(cfg, exogenous="use"),
         final_cfgs + priors,
