@@ -209,6 +209,13 @@ def test_selection_is_sound_on_a_short_validation_split_and_unchanged_on_many_ru
     cfg, why = auto_config(many, cpus=2)
     assert (cfg.select_after, cfg.select_smooth) == (0.0, 0)  # as before
     assert not any("(short)" in w for w in why)
+    # a validation run too short to free-run after the warm-up is skipped in training, so
+    # it does not count here either: the runs left are a short split
+    many.episodes["val"][0] = synthetic_episode(many.spec, kind="step", n_step=WINDOW, seed=89)
+    assert len(_episodes(cfg, many)[1]) == SHORT_VAL_EPISODES - 1
+    cfg, why = auto_config(many, cpus=2)
+    assert (cfg.select_after, cfg.select_smooth) == (SELECT_AFTER, SELECT_SMOOTH)
+    assert any(f"selection on {SHORT_VAL_EPISODES - 1} validation" in w for w in why)
 
 
 def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():

@@ -62,6 +62,7 @@ from ..config import from_dict, to_dict
 from ..data.dataset import Dataset
 from ..devices import usable_cpus
 from ..errors import ConfigError, DataError
+from .batches import val_min_steps
 from .config import TrainConfig
 from .kinds import prior_members
 from .map_joints import PERIODIC_MAP_R2
@@ -178,12 +179,14 @@ def auto_config(
     # the kind choice is the recipe's, beside the input choice too, unless validation spans
     # too little of any joint's command range to choose a kind
     min_span = float(overrides.get("choice_min_span", TrainConfig.choice_min_span))
+    # the validation episodes the training will free-run (too short ones are skipped there)
+    val = [e for e in dataset.val if e.n_step >= val_min_steps(window)]
     spans, spanned = joint_spans(
-        dataset.train, dataset.val or dataset.train, dataset.spec, min_span=min_span
+        dataset.train, val or dataset.train, dataset.spec, min_span=min_span
     )
     kinds = bool(overrides.get("prior_choice", any(spanned)))
     n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
-    val_len = max((e.n_step for e in dataset.val), default=int(lengths.max()))
+    val_len = max((e.n_step for e in val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
     asked = overrides.get("members")
     members = (
@@ -237,7 +240,7 @@ def auto_config(
             f"range beyond the dead zone (below {100 * min_span:.0f} %), too little to choose the "
             "map-correcting networks or the map for any joint; the budget trains plain members"
         )
-    n_val = len(dataset.val)
+    n_val = len(val)
     short_val = n_val < SHORT_VAL_EPISODES
     if short_val:
         why.append(

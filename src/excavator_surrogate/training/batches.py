@@ -133,6 +133,12 @@ def global_batches(order: np.ndarray, size: int) -> list[np.ndarray]:
     return [order[b : b + size] for b in range(0, len(order), size)]
 
 
+def val_min_steps(window: int) -> int:
+    """The fewest samples a validation episode needs to be free-run after a ``window``-sample
+    warm-up (shorter ones are skipped)."""
+    return window + 2
+
+
 def _usable(episodes: list[Episode], n_min: int, split: str) -> list[Episode]:
     keep = [e for e in episodes if e.n_step >= n_min]
     if len(keep) < len(episodes):
@@ -164,7 +170,7 @@ def split_episodes(cfg: TrainConfig, dataset: Dataset) -> tuple[list[Episode], l
             f"no training episode with at least {n_min} samples",
             fix="add training episodes or lower window/horizon",
         )
-    val_eps = _usable(dataset.val, cfg.window + 2, "val")
+    val_eps = _usable(dataset.val, val_min_steps(cfg.window), "val")
     if not val_eps:
         _log.warning(
             "no usable validation episodes: validating on the training episodes "
