@@ -102,7 +102,8 @@ def test_every_round_of_the_pool_fits_the_budget():
     assert trainings(6, choose=False, kinds=True) == 9
     assert member_budget_s(6, 600, cpus=2, choose=False, kinds=True) == pytest.approx(120)
     assert member_budget_s(4, 600, cpus=2, choose=False, kinds=True) == pytest.approx(200)
-    assert member_budget_s(6, 600, cpus=2, choose=True) == pytest.approx(120)  # 6 + 3
+    assert member_budget_s(6, 600, cpus=2, choose=True) == pytest.approx(150)  # 6 + 2
+    assert member_budget_s(9, 600, cpus=2, choose=True) == pytest.approx(100)  # 9 + 2
     assert member_budget_s(8, 600, cpus=2, choose=False, kinds=True) == pytest.approx(100)
     assert member_budget_s(2, 600, cpus=1, choose=False, kinds=True) == pytest.approx(200)
     # the plan reads the same cap: h1-dev's 72 s members fit 6 + 3 in 2 x 600 / 9 = 133 s
@@ -250,6 +251,35 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
     # using the inputs outright, the run chooses the kinds instead, as without inputs
     assert forced.exogenous == "use" and forced.prior_choice
     assert forced.max_train_seconds == without.max_train_seconds
+
+
+def test_the_input_choice_costs_two_trainings_however_many_members():
+    """The choice's probe is 2 networks per way: a many-run log (8 members without inputs)
+    keeps 6 with them, in the same 4 rounds of two (before: half the members each way, so 4
+    members in 3 rounds)."""
+    from dataclasses import replace
+
+    from excavator_surrogate.spec import InputSpec
+    from excavator_surrogate.training.variants import probe_members
+
+    plain = _dataset([110] * 119)
+    plain.episodes["val"] = [
+        synthetic_episode(plain.spec, kind="step", n_step=200, seed=900 + i) for i in range(6)
+    ]
+    over = {"prior_choice": False, "max_train_seconds": 600}
+    without, _ = auto_config(plain, cpus=2, overrides=over)
+    spec = replace(plain.spec, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
+    ds = Dataset(spec=spec)
+    for split, eps in plain.episodes.items():
+        ds.episodes[split] = [
+            e.replace(spec=spec, u=np.concatenate([e.u, np.zeros((e.n_step, 1))], axis=1))
+            for e in eps
+        ]
+    cfg, why = auto_config(ds, cpus=2, overrides=over)
+    assert (without.members, cfg.members) == (8, 6)
+    assert cfg.max_train_seconds == without.max_train_seconds  # 8 trainings, 4 rounds
+    assert any("2 member(s) use them and 2 ignore them" in w and "8 trainings" in w for w in why)
+    assert [probe_members(m) for m in (1, 2, 3, 4, 6, 8)] == [1, 1, 1, 2, 2, 2]
 
 
 def test_the_kind_choice_is_the_recipes_and_is_planned_within_the_same_budget():

@@ -67,6 +67,7 @@ from .config import TrainConfig
 from .kinds import prior_members
 from .map_joints import PERIODIC_MAP_R2
 from .span import joint_spans, span_note
+from .variants import probe_members
 
 TRAIN_BUDGET_S = 540.0
 """Wall time of the whole training (every member) on the reference 2-core machine [s]."""
@@ -211,7 +212,7 @@ def auto_config(
         )
     )
     if choose:
-        half = max(1, members // 2)
+        half = probe_members(members)
         why.append(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
             f"ignore them (same seeds); they are kept only if better on validation, overall "
@@ -350,10 +351,11 @@ def max_members(cpus: int) -> int:
 
 
 def trainings(members: int, *, choose: bool, kinds: bool = False) -> int:
-    """Trainings an ensemble of ``members`` costs: one per member, plus half as many again
-    when an exogenous input is chosen (the members that ignore it), plus the map-correcting
-    networks of the kind choice (:func:`~.kinds.prior_members`)."""
-    extra = max(1, members // 2) if choose else 0
+    """Trainings an ensemble of ``members`` costs: one per member, plus the losing way's
+    networks when an exogenous input is chosen (:func:`~.variants.probe_members`: 2, at most
+    half the members), plus the map-correcting networks of the kind choice
+    (:func:`~.kinds.prior_members`)."""
+    extra = probe_members(members) if choose else 0
     return members + extra + (prior_members(members) if kinds else 0)
 
 

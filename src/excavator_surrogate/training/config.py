@@ -114,8 +114,8 @@ class TrainConfig(PresetConfig, table="train"):
     epoch in a noisy stretch cannot win."""
     exogenous: Literal["use", "ignore", "choose"] = "use"
     """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
-    are held at zero, so the model cannot depend on them); or ``choose``: train half the
-    members each way, keep the way whose merged members score better on validation (``use``
+    are held at zero, so the model cannot depend on them); or ``choose``: train 2 networks
+    each way (at most half the members, :func:`~.variants.probe_members`), keep the way whose merged members score better on validation (``use``
     only if better by :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
     inputs_per_joint: bool = True
     """With ``exogenous = "choose"``: where the inputs' members beat the others on some

@@ -2,13 +2,13 @@
 
 A throttle, a gear or a run condition (``spec.inputs``) may help one joint and hurt
 another on held-out data.  With ``choose`` the ensemble's members are trained in two ways
-on the same seeds: half of them use the inputs, half ignore them (their input weights held
-at zero, :func:`~.loop.blind_inputs`).  Each half is merged and scored by its validation
-free run; the inputs are kept only if that half is better by :data:`INPUT_MARGIN` overall
-and no joint's angle RMSE is worse by more than it.  The remaining members are then trained
-the chosen way and merged with the winning half, so the result is an ensemble of
-``members`` networks, as without inputs (the recipe plans the epochs for the
-``members + members // 2`` trainings within the same budget).  With ``prior_choice`` the
+on the same seeds: :func:`probe_members` of them (2, at most half) use the inputs, as many
+ignore them (their input weights held at zero, :func:`~.loop.blind_inputs`).  Each half is
+merged and scored by its validation free run; the inputs are kept only if that half is
+better by :data:`INPUT_MARGIN` overall and no joint's angle RMSE is worse by more than it.
+The remaining members are then trained the chosen way and merged with the winning half, so
+the result is an ensemble of ``members`` networks, as without inputs (the recipe plans the
+epochs for the ``members + probe_members(members)`` trainings within the same budget).  With ``prior_choice`` the
 kind choice's map-correcting networks (:mod:`.kinds`) train beside the rest, the chosen
 way, and the kinds are chosen per joint on the result.
 
@@ -73,10 +73,21 @@ from .records import write_config
 
 _log = logging.getLogger(__name__)
 
+INPUT_PROBE = 2
+"""Networks per way (using the inputs, ignoring them) that decide the input choice, at most
+half the members (:func:`probe_members`): the losing way's networks are the choice's cost,
+so it stays the same however many members the budget buys."""
+
 INPUT_MARGIN = 0.05
 """Relative margin by which the members that use the exogenous inputs must beat those that
 ignore them on validation (overall, and no joint worse by more): a tie keeps the model that
 cannot depend on them."""
+
+
+def probe_members(members: int) -> int:
+    """Networks per way that decide the input choice of an ensemble of ``members``:
+    :data:`INPUT_PROBE`, at most half of them, at least 1."""
+    return max(1, min(INPUT_PROBE, members // 2))
 
 
 def choose_inputs(use: Mapping[str, Any], ignore: Mapping[str, Any]) -> tuple[bool, str]:
@@ -199,7 +210,7 @@ def train_choosing_inputs(
 ) -> Path:
     """Train ``cfg.members`` networks with the exogenous inputs used or ignored, whichever
     validates better (see the module docstring); returns ``OUT/best.pt``."""
-    half = max(1, cfg.members // 2)
+    half = probe_members(cfg.members)
     n_prior = prior_members(cfg.members) if cfg.prior_choice else 0
     val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=2 * half)
     names = list(dataset.spec.u_names[dataset.spec.n_joint :])
