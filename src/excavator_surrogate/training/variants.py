@@ -8,12 +8,12 @@ merged and scored by its validation free run; the inputs are kept only if that h
 better by :data:`INPUT_MARGIN` overall and no joint's angle RMSE is worse by more than it.
 The remaining members are then trained the chosen way and merged with the winning half, so
 the result is an ensemble of ``members`` networks, as without inputs (the recipe plans the
-epochs for the ``members + probe_members(members)`` trainings within the same budget).  With ``prior_choice`` the
-kind choice's map-correcting networks (:mod:`.kinds`) train beside the rest, the chosen
-way, and the kinds are chosen per joint on the result.
+epochs for the ``members + probe_members(members)`` trainings within the same budget).
+With ``prior_choice`` the kind choice's map-correcting networks (:mod:`.kinds`) train
+beside the rest, the chosen way, and the kinds are chosen per joint on the result.
 
-**Per joint** (``[train] inputs_per_joint``, default true): an
-input can help one joint and hurt another (the wheel loader's throttle and gear helped its
+**Per joint** (``[train] inputs_per_joint``, default true): an input can help one joint
+and hurt another (the wheel loader's throttle and gear helped its
 boom and hurt its bucket).  When the whole ``use`` half is refused, the joints on which it
 beats the ``ignore`` half by the margin (:func:`input_joints`) are candidates to take the
 inputs alone, but for a joint the static map choice will drive whatever the networks
@@ -427,8 +427,9 @@ def _train_pairs(
     prior_nets = more[2 * n_more :]
     final_cfgs = list(cfgs["use"]) + rest["use"] + list(cfgs["ignore"]) + rest["ignore"]
     training: dict[str, Any] = {"exogenous": record}
-    model = paired(use, ignore, joints)
-    if n_prior:  # the kinds, per joint, with the pairs as the plain side
+    if not n_prior:
+        model = paired(use, ignore, joints)
+    else:  # the kinds, per joint, with the pairs as the plain side
         model, kinds = choose_kinds(
             ignore,
             prior_nets,
