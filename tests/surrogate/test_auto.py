@@ -219,14 +219,12 @@ def test_selection_is_sound_on_a_short_validation_split_and_unchanged_on_many_ru
     assert any(f"selection on {SHORT_VAL_EPISODES - 1} validation" in w for w in why)
 
 
-def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
+def _with_gear(plain: Dataset) -> Dataset:
+    """``plain`` with an exogenous input column (``gear``, all zeros)."""
     from dataclasses import replace
 
     from excavator_surrogate.spec import InputSpec
 
-    plain = _dataset([8000])
-    without, _ = auto_config(plain, cpus=2)
-    assert without.exogenous == "use"  # nothing to choose
     spec = replace(plain.spec, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
     ds = Dataset(spec=spec)
     for split, eps in plain.episodes.items():
@@ -234,6 +232,14 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
             e.replace(spec=spec, u=np.concatenate([e.u, np.zeros((e.n_step, 1))], axis=1))
             for e in eps
         ]
+    return ds
+
+
+def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
+    plain = _dataset([8000])
+    without, _ = auto_config(plain, cpus=2)
+    assert without.exogenous == "use"  # nothing to choose
+    ds = _with_gear(plain)
     cfg, why = auto_config(ds, cpus=2)
     assert cfg.exogenous == "choose" and cfg.members == without.members == 4
     # the input choice and the kind choice: 4 members + 2 that ignore the inputs + 2
@@ -257,9 +263,6 @@ def test_the_input_choice_costs_two_trainings_however_many_members():
     """The choice's probe is 2 networks per way: a many-run log (8 members without inputs)
     keeps 6 with them, in the same 4 rounds of two (before: half the members each way, so 4
     members in 3 rounds)."""
-    from dataclasses import replace
-
-    from excavator_surrogate.spec import InputSpec
     from excavator_surrogate.training.variants import probe_members
 
     plain = _dataset([110] * 119)
@@ -268,13 +271,7 @@ def test_the_input_choice_costs_two_trainings_however_many_members():
     ]
     over = {"prior_choice": False, "max_train_seconds": 600}
     without, _ = auto_config(plain, cpus=2, overrides=over)
-    spec = replace(plain.spec, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
-    ds = Dataset(spec=spec)
-    for split, eps in plain.episodes.items():
-        ds.episodes[split] = [
-            e.replace(spec=spec, u=np.concatenate([e.u, np.zeros((e.n_step, 1))], axis=1))
-            for e in eps
-        ]
+    ds = _with_gear(plain)
     cfg, why = auto_config(ds, cpus=2, overrides=over)
     assert (without.members, cfg.members) == (8, 6)
     assert cfg.max_train_seconds == without.max_train_seconds  # 8 trainings, 4 rounds
