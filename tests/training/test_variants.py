@@ -344,12 +344,11 @@ def test_choose_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypatch):
 
 
 def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
-    """As above with ``prior_choice``: the choice's two pairs, and four map-correcting
-    networks that ignore the gear (a third pair would not divide the two planned ones, so
-    its two trainings are map-correcting networks); the kinds are chosen with the pairs as
-    the plain side, and the model is, joint by joint, the chosen share of the map-correcting
-    networks' mean plus the rest from the networks of the joint's way (the plain loop over
-    the saved networks)."""
+    """As above with ``prior_choice``: the choice's two pairs and two map-correcting networks
+    that ignore the gear (they must divide the pairs: the pair planned after them is not
+    trained); the kinds are chosen with the pairs as the plain side, and the model is, joint
+    by joint, the chosen share of the map-correcting networks' mean plus the rest from the
+    networks of the joint's way (the plain loop over the saved networks)."""
     from excavator_surrogate.training import variants
 
     calls: list = []
@@ -372,15 +371,15 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
     assert exo["per_joint"] and exo["joints"] == (["boom"] if reads else [])
     assert exo["kept"] is reads
     m = tmp_path / "m"
-    for d, n in (("use", 2), ("ignore", 2), ("prior", 4)):
-        assert sorted(p.name for p in (m / d).iterdir()) == [f"member_{i}" for i in range(n)]
+    for d in ("use", "ignore", "prior"):
+        assert sorted(p.name for p in (m / d).iterdir()) == ["member_0", "member_1"]
     rows = list(csv.DictReader((m / "log.csv").open()))
     assert [r["exogenous"] for r in rows] == (
-        ["use"] * 2 + ["ignore"] * 2 + ["ignore (map-correcting)"] * 4 + ["per joint"]
+        ["use"] * 2 + ["ignore"] * 2 + ["ignore (map-correcting)"] * 2 + ["per joint"]
     )
     nets = {
-        d: [load_checkpoint(m / d / f"member_{i}" / "best.pt") for i in range(n)]
-        for d, n in (("use", 2), ("ignore", 2), ("prior", 4))
+        d: [load_checkpoint(m / d / f"member_{i}" / "best.pt") for i in (0, 1)]
+        for d in ("use", "ignore", "prior")
     }
     assert all(n.train_config["exogenous"] == "ignore" for n in nets["prior"])
     ep = _episode2(9)
@@ -416,24 +415,3 @@ def test_a_joint_the_map_correcting_networks_drive_alone_reads_no_input():
     rec = record(["boom", "arm"])  # a blend, or the plain networks: unchanged
     inputs_after_kinds(rec, {"names": names, "weights": [1.0, 0.5, 0.0]})
     assert rec == record(["boom", "arm"])
-
-
-def test_the_pairs_and_map_correcting_networks_fit_the_planned_trainings():
-    """After the choice's 2 pairs: as many pairs as the rest buys; with the kind choice, one
-    count must divide the other, and the trainings a dropped pair frees go to more
-    map-correcting networks where the counts still divide."""
-    from excavator_surrogate.training.kinds import prior_members
-    from excavator_surrogate.training.variants import pair_plan, probe_members
-
-    def plan(m: int, kinds: bool = True):
-        return pair_plan(m, probe_members(m), prior_members(m) if kinds else 0)
-
-    assert plan(4, kinds=False) == (1, 0)  # 2 + 2, then one more pair: 6 trainings
-    assert plan(4) == (0, 4)  # a third pair would not divide 2: 4 map-correcting instead
-    assert [plan(m) for m in (3, 6, 8)] == [(1, 1), (1, 3), (2, 4)]
-    for m in range(2, 11):
-        n_more, n_prior = plan(m)
-        k = probe_members(m) + n_more
-        assert k % n_prior == 0 or n_prior % k == 0
-        planned = m + probe_members(m) + prior_members(m)  # auto.trainings with both choices
-        assert 2 * k + n_prior <= planned

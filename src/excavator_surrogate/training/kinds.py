@@ -141,8 +141,7 @@ def composite(
     ``1 - a_j`` times the plain networks' mean, ``a = use_prior``.
 
     Args:
-        plains: K plain networks; priors: P map-correcting networks, P dividing K or K
-            dividing P.
+        plains: K plain networks; priors: P map-correcting networks, P dividing K.
         use_prior: (n_joint,) the map-correcting networks' weight ``a_j`` in [0, 1] per joint
             (a bool: which joints they drive; 1/2: the even blend of both kinds).
         twins, twin_joints: the plain side as :func:`plain_ensemble` pairs: plain network
@@ -150,11 +149,10 @@ def composite(
 
     Returns:
         All 0 or all 1: the plain (:func:`plain_ensemble`) or the map-correcting ensemble.
-        Else the merge of ``G = min(K, P)`` composites, group ``g`` = plain networks ``g,
-        g + G, ...`` (weight ``(1 - a_j) G / K`` each on joint ``j``; with twins, that
-        weight goes to the network of the pair that drives joint ``j``, and a network with
-        no weight left is left out) and map-correcting networks ``g, g + G, ...`` (weight
-        ``a_j G / P`` each).
+        Else the merge of P composites, group ``g`` = plain networks ``g, g + P, ...``
+        (weight ``(1 - a_j) P / K`` each on joint ``j``; with twins, that weight goes to
+        the network of the pair that drives joint ``j``, and a network with no weight left
+        is left out) and map-correcting network ``g`` (weight ``a_j``).
     """
     a = [float(x) for x in use_prior]
     if not all(0.0 <= x <= 1.0 for x in a):
@@ -163,39 +161,28 @@ def composite(
         return plain_ensemble(plains, twins=twins, twin_joints=twin_joints)
     if all(x == 1.0 for x in a):
         return merge(list(priors))
-    n_plain, n_prior = len(plains), len(priors)
-    if n_plain % n_prior and n_prior % n_plain:
-        raise ValueError(
-            f"{n_prior} map-correcting networks and {n_plain} plain ones: neither count divides "
-            "the other"
-        )
-    if twins is not None and len(twins) != n_plain:
-        raise ValueError(f"{len(twins)} and {n_plain} networks do not pair up")
-    n_group = min(n_plain, n_prior)  # groups; each holds the same share of either kind
-    w_plain = [(1.0 - x) / (n_plain // n_group) for x in a]
-    w_prior = [x / (n_prior // n_group) for x in a]
+    n_prior = len(priors)
+    if len(plains) % n_prior:
+        raise ValueError(f"{len(priors)} map-correcting networks do not divide {len(plains)}")
+    if twins is not None and len(twins) != len(plains):
+        raise ValueError(f"{len(twins)} and {len(plains)} networks do not pair up")
+    n_group = len(plains) // n_prior  # plain networks (or pairs) per group
+    w_plain = [(1.0 - x) / n_group for x in a]
     # each plain network's share of its seed's plain weight, per joint (with its twin's)
     shares: list[tuple[Sequence[Surrogate], list[float]]] = [(plains, [1.0] * len(a))]
     if twins is not None:
         s = [1.0 if j else 0.0 for j in _twin_joints(twin_joints, plains)]
         shares = [(plains, [1.0 - x for x in s]), (twins, s)]
     groups = []
-    for g in range(n_group):
-        mine = list(priors[g::n_group])
+    for g, b in enumerate(priors):
         nets, weights = [], []
-        for i in range(g, n_plain, n_group):
+        for i in range(g, len(plains), n_prior):
             for side, share in shares:
                 w = [wp * x for wp, x in zip(w_plain, share)]
                 if twins is None or any(w):
-                    nets.append(in_prior_form(side[i], mine[0]))
+                    nets.append(in_prior_form(side[i], b))
                     weights.append(w)
-        groups.append(
-            merge(
-                [*nets, *mine],
-                joint_weights=[*weights, *[w_prior] * len(mine)],
-                name=f"{mine[0].name}-composite",
-            )
-        )
+        groups.append(merge([*nets, b], joint_weights=[*weights, a], name=f"{b.name}-composite"))
     return merge(groups)
 
 

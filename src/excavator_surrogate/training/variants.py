@@ -27,9 +27,8 @@ set is kept under the same rule as the whole ``use`` half against the ``ignore``
 choice moves the angles the others read).  The lowest kept set wins; the rest of the budget
 then trains pairs (one network each way, the same seed), so the model is an ensemble of
 ``half + (members - half) // 2`` pairs.  With ``prior_choice`` the map-correcting networks
-train instead of some of those pairs (they ignore the inputs, and one count must divide
-the other: :func:`pair_plan`; 4 members: the choice's 2 pairs and 4 map-correcting
-networks),
+train instead of some of those pairs (they ignore the inputs, and must divide the pairs
+evenly: :func:`more_pairs`; 4 members: the choice's 2 pairs and 2 map-correcting networks),
 and the kind choice runs with the pairs as its plain side (:func:`~.kinds.choose_kinds`'s
 ``twins``).
 
@@ -142,27 +141,14 @@ def paired(
     return plain_ensemble(ignore, twins=use, twin_joints=joints)
 
 
-def pair_plan(members: int, half: int, n_prior: int) -> tuple[int, int] | None:
-    """What the rest of the budget trains after the choice's ``half`` pairs, when some
-    joints take the inputs: ``(pairs, map-correcting networks)``.  As many pairs as it buys
-    (``(members - half) // 2``, two trainings each); with the kind choice's ``n_prior``
-    map-correcting networks, as many fewer as it takes for one count to divide the other
-    (:func:`~.kinds.composite`), and the trainings that frees go to more map-correcting
-    networks where the counts still divide.  None if no count fits."""
+def more_pairs(members: int, half: int, n_prior: int) -> int | None:
+    """Pairs to train after the choice's ``half``: as many as the rest of the budget buys
+    (``(members - half) // 2``, each pair two trainings), with the kind choice's
+    ``n_prior`` map-correcting networks as many fewer as it takes for them to divide the
+    pairs evenly (:func:`~.kinds.composite`); None if no count does."""
     limit = (members - half) // 2
-    if not n_prior:
-        return limit, 0
-    fits = [n for n in range(limit + 1) if _divides(half + n, n_prior)]
-    if not fits:
-        return None
-    n_more = max(fits)
-    spare = 2 * (limit - n_more)
-    more = n_prior + spare
-    return n_more, (more if spare and _divides(half + n_more, more) else n_prior)
-
-
-def _divides(a: int, b: int) -> bool:
-    return a % b == 0 or b % a == 0
+    fits = [n for n in range(limit + 1) if not n_prior or (half + n) % n_prior == 0]
+    return max(fits) if fits else None
 
 
 def choose_input_joints(
@@ -244,7 +230,7 @@ def train_choosing_inputs(
     joints, tried = None, []
     # the pinned joints cost a map free run: only where some joint is a candidate at all
     some = any(input_joints(vals["use"], vals["ignore"]))
-    fits = pair_plan(cfg.members, half, n_prior) is not None
+    fits = more_pairs(cfg.members, half, n_prior) is not None
     # the kind choice's options per joint, found once (they read the data and the networks'
     # window, spec and end stops only: the same for every network of the run)
     per_joint: dict[str, Any] = {}
@@ -394,14 +380,14 @@ def _train_pairs(
     notes: Mapping[str, Any] | None,
 ) -> Path:
     """The inputs on some joints (:func:`choose_input_joints`): the rest of the budget trains
-    :func:`pair_plan`'s pairs (each way, the same seeds) and, with ``prior_choice``, its
-    map-correcting networks (ignoring the inputs: a tie keeps the model that
+    :func:`more_pairs` more pairs (each way, the same seeds) and, with ``prior_choice``, the
+    kind choice's map-correcting networks (ignoring the inputs: a tie keeps the model that
     cannot depend on them).  The model is :func:`paired` over every pair, or the kind
     choice's model with the pairs as its plain side (``per_joint``: its
     :func:`~.kinds.choice_joints` options); returns ``OUT/best.pt``."""
     half = len(halves["use"])
-    planned = prior_members(cfg.members) if cfg.prior_choice else 0
-    n_more, n_prior = pair_plan(cfg.members, half, planned) or (0, planned)
+    n_prior = prior_members(cfg.members) if cfg.prior_choice else 0
+    n_more = more_pairs(cfg.members, half, n_prior) or 0
     base = replace(cfg, prior_choice=False, static_map=False)
     rest = {
         w: member_configs(replace(base, exogenous=w))[half : half + n_more]
@@ -412,13 +398,11 @@ def _train_pairs(
         if n_prior
         else []
     )
-    unused = 2 * ((cfg.members - half) // 2 - n_more) - (n_prior - planned)
     if n_prior and n_more < (cfg.members - half) // 2:
         _log.info(
-            f"exogenous inputs: {n_more} more pair(s) and {n_prior} map-correcting network(s) "
-            f"(one count must divide the other, over {half + n_more} pairs)"
-            + (f": {n_prior - planned} more than planned" if n_prior > planned else "")
-            + (f"; {unused} planned training(s) are not run" if unused else "")
+            f"exogenous inputs: {n_more} more pair(s) and {n_prior} map-correcting network(s): "
+            f"{n_prior} must divide the {half + n_more} pairs, so "
+            f"{2 * ((cfg.members - half) // 2 - n_more)} planned training(s) are not run"
         )
     jobs = [
         TrainJob(
