@@ -215,3 +215,14 @@ def free_run_checked(sur: Surrogate, ep: Episode, n_step: int = 80) -> np.ndarra
     w = sur.window
     np.testing.assert_allclose(om[0, w:], om_ref[w:], atol=1e-5)
     return om[0]
+
+
+def teacher_forced_omega(sur: Surrogate, ep: Episode, n_step: int | None = None) -> torch.Tensor:
+    """The network's one-step omega (n_step, n_joint) [rad/s] on the episode's first
+    ``n_step`` samples (all by default), teacher-forced on the measured angles."""
+    th = torch.tensor(ep.theta[:n_step], dtype=torch.float32)
+    u = torch.tensor(ep.u[:n_step], dtype=torch.float32)
+    z = sur.norm.play_seq(sur.norm.play_rest(1), u[None])[0] if sur.norm.n_state else None
+    with torch.no_grad():
+        y, _ = sur.net.forward_seq(sur.norm.encode(th, u, z)[None])
+    return sur.norm.omega(y)[0]

@@ -28,7 +28,7 @@ from excavator_surrogate.training.kinds import (
     prior_members,
 )
 from excavator_surrogate.training.resume import start
-from tests.helpers.surrogates import free_run_checked, tiny_surrogate
+from tests.helpers.surrogates import free_run_checked, teacher_forced_omega, tiny_surrogate
 from tests.helpers.training import tiny_train_config
 from tests.surrogate.test_structured import SPEC, _episode
 
@@ -64,13 +64,8 @@ def _plain_net(seed: int) -> Surrogate:
 
 
 def _omega(sur: Surrogate, ep, n: int = 80) -> np.ndarray:
-    """Teacher-forced omega (n - 1, n_joint) [rad/s] of ``sur`` on the episode's first samples."""
-    th, u = torch.tensor(ep.theta[:n]).float(), torch.tensor(ep.u[:n]).float()
-    z = sur.norm.play_seq(sur.norm.play_rest(1), u[None])[0] if sur.norm.n_state else None
-    x = sur.norm.encode(th, u, z)
-    with torch.no_grad():
-        y, _ = sur.net.forward_seq(x[None])
-    return sur.norm.omega(y)[0].numpy()
+    """Teacher-forced omega (n, n_joint) [rad/s] of ``sur`` on the episode's first samples."""
+    return teacher_forced_omega(sur, ep, n).numpy()
 
 
 def test_a_plain_network_in_prior_form_keeps_its_output() -> None:

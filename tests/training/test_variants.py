@@ -16,6 +16,7 @@ from excavator_surrogate.spec import InputSpec, JointSpec, MachineSpec
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, read_checkpoint
 from excavator_surrogate.training import train
 from excavator_surrogate.training.variants import INPUT_MARGIN, choose_inputs
+from tests.helpers.surrogates import teacher_forced_omega
 from tests.helpers.training import tiny_train_config
 
 SPEC = MachineSpec(
@@ -212,15 +213,6 @@ def _omega(sur, ep: Episode, *, flip_gear: bool = False) -> torch.Tensor:
     return y[0]
 
 
-def _rad_s(sur, ep: Episode) -> torch.Tensor:
-    """The net's one-step omega (n_step, n_joint) [rad/s] on ``ep`` (teacher-forced)."""
-    th, u = torch.tensor(ep.theta, dtype=torch.float32), torch.tensor(ep.u, dtype=torch.float32)
-    z = sur.norm.play_seq(sur.norm.play_rest(1), u[None])[0] if sur.norm.n_state else None
-    with torch.no_grad():
-        y, _ = sur.net.forward_seq(sur.norm.encode(th, u, z)[None])
-    return sur.norm.omega(y)[0]
-
-
 def test_paired_takes_each_joint_from_its_way_and_averages_the_seeds(tmp_path):
     from excavator_surrogate.training.variants import paired
 
@@ -385,7 +377,7 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
     ep = _episode2(9)
 
     def mean(d: str, j: int) -> torch.Tensor:  # in rad/s: the kinds normalise differently
-        return torch.stack([_rad_s(n, ep)[:, j] for n in nets[d]]).mean(0)
+        return torch.stack([teacher_forced_omega(n, ep)[:, j] for n in nets[d]]).mean(0)
 
     a = kinds["weights"]
     want = torch.stack(
@@ -395,7 +387,9 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
         ],
         dim=-1,
     )
-    torch.testing.assert_close(_rad_s(load_checkpoint(best), ep), want, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(
+        teacher_forced_omega(load_checkpoint(best), ep), want, rtol=1e-4, atol=1e-5
+    )
 
 
 def test_a_joint_the_map_correcting_networks_drive_alone_reads_no_input():

@@ -115,8 +115,9 @@ class TrainConfig(PresetConfig, table="train"):
     exogenous: Literal["use", "ignore", "choose"] = "use"
     """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
     are held at zero, so the model cannot depend on them); or ``choose``: train 2 networks
-    each way (at most half the members, :func:`~.variants.probe_members`), keep the way whose merged members score better on validation (``use``
-    only if better by :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
+    each way (at most half the members, :func:`~.variants.probe_members`), keep the way
+    whose merged members score better on validation (``use`` only if better by
+    :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
     inputs_per_joint: bool = True
     """With ``exogenous = "choose"``: where the inputs' members beat the others on some
     joints and not on all, those joints may take them alone: each seed's two networks become

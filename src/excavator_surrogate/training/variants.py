@@ -13,18 +13,17 @@ With ``prior_choice`` the kind choice's map-correcting networks (:mod:`.kinds`) 
 beside the rest, the chosen way, and the kinds are chosen per joint on the result.
 
 **Per joint** (``[train] inputs_per_joint``, default true): an input can help one joint
-and hurt another (the wheel loader's throttle and gear helped its
-boom and hurt its bucket).  When the whole ``use`` half is refused, the joints on which it
-beats the ``ignore`` half by the margin (:func:`input_joints`) are candidates to take the
-inputs alone, but for a joint the static map choice will drive whatever the networks
+and hurt another (the wheel loader's throttle and gear helped its boom and hurt its
+bucket).  When the whole ``use`` half is refused, the joints on which it beats the
+``ignore`` half by the margin (:func:`input_joints`) are candidates to take the inputs
+alone, but for a joint the static map choice will drive whatever the networks
 (:func:`~.kinds.map_pinned`: its gain would not last).  Each seed's two networks, the one
 that uses the inputs and the one that ignores them, become one (:func:`paired`: joint ``j``
 is the first's where ``j`` takes the inputs, the second's elsewhere), and the seeds' pairs
-are merged as an ensemble.  The
-candidates together, and each alone, are scored by that model's validation free run, and a
-set is kept under the same rule as the whole ``use`` half against the ``ignore`` half
-(:func:`choose_inputs`: better by the margin overall, no joint worse by more; a joint's
-choice moves the angles the others read).  The lowest kept set wins; the rest of the budget
+are merged as an ensemble.  The candidates together, and each alone, are scored by that
+model's validation free run, and a set is kept under the same rule as the whole ``use``
+half against the ``ignore`` half (:func:`choose_inputs`: better by the margin overall, no
+joint worse by more; a joint's choice moves the angles the others read).  The lowest kept set wins; the rest of the budget
 then trains pairs (one network each way, the same seed), so the model is an ensemble of
 ``half + (members - half) // 2`` pairs.  With ``prior_choice`` the map-correcting networks
 train instead of some of those pairs (they ignore the inputs, and must divide the pairs
@@ -322,7 +321,7 @@ def train_choosing_inputs(
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
     if n_prior:  # the kinds, per joint, among the networks trained the chosen way
-        if "spanned" not in per_joint:  # not found for the inputs per joint above
+        if not per_joint:  # not found for the inputs per joint above
             per_joint = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
         model, kinds = choose_kinds(plains, prior_nets, val_eps, **per_joint, **choice_options(cfg))
         _log.info(f"two kinds of network: {kinds['why']}")
