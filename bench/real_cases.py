@@ -177,20 +177,23 @@ def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode],
 
 def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
     """The more test data that ``python bench/real.py --work WORK`` simulated for the shape
-    ``name`` (``WORK/<name>_more``; none for h1 and stroke), as a dataset of ``spec`` holds
-    them, without simulating anything."""
-    if name not in MORE_TEST or not (work / f"{name}_more").is_dir():
+    ``name`` (``WORK/<name>_more``, the loader's the continuous log's; none for h1 and
+    stroke), as a dataset of ``spec`` holds them, without simulating anything."""
+    base = "continuous" if name == "loader" else name
+    if base not in MORE_TEST or not (work / f"{base}_more").is_dir():
         return []
     from excavator_surrogate.simulate.config import SimulateConfig
 
-    more = load_dataset(work / f"{name}_more")
-    if name == "sessions":
+    more = load_dataset(work / f"{base}_more")
+    if base == "sessions":
         return as_spec(more.test[1:], spec)
-    preset = {"continuous": "continuous-dig"}[name]
-    cfg = SimulateConfig.from_preset(load_preset(preset), seed=sim_seed)
+    cfg = SimulateConfig.from_preset(load_preset("continuous-dig"), seed=sim_seed)
     (ep,) = more.train
     n_test = round(cfg.test_s * cfg.rate_hz)
-    return as_spec(_segments(cfg, ep, (len(ep.theta) - cfg.steps_train) // n_test), spec)
+    segments = _segments(cfg, ep, (len(ep.theta) - cfg.steps_train) // n_test)
+    if name == "loader":
+        segments = _observed(segments, spec, LOADER_JOINTS)
+    return as_spec(segments, spec)
 
 
 def as_spec(episodes: Sequence[Episode], spec) -> list[Episode]:
@@ -215,6 +218,58 @@ def _by_session(cfg) -> str:
 
 def _continuous(work: Path, args: argparse.Namespace) -> Case:
     return _simulated(work, args, "continuous-dig", "continuous", _in_time, _more_in_time)
+
+
+def _observed(episodes: Sequence[Episode], spec, keep: Sequence[int]) -> list[Episode]:
+    """``episodes`` with only the joints ``keep`` (their angles and commands; every exogenous
+    input column stays, for :func:`as_spec` to keep or drop), as joints of ``spec``."""
+
+    def cols(e: Episode) -> list[int]:
+        return [*keep, *range(e.spec.n_joint, e.u.shape[1])]
+
+    def cut(a: np.ndarray | None) -> np.ndarray | None:
+        return None if a is None else a[:, list(keep)]
+
+    return [
+        e.replace(
+            spec=spec,
+            u=e.u[:, cols(e)],
+            theta=e.theta[:, list(keep)],
+            omega=e.omega[:, list(keep)],
+            theta_true=cut(e.theta_true),
+            omega_true=cut(e.omega_true),
+            trusted=cut(e.trusted),
+        )
+        for e in episodes
+    ]
+
+
+def _two_joints(src: Dataset, out: Path, keep: Sequence[int]) -> Dataset:
+    """``src`` with only the joints ``keep`` observed and commanded (the others still move)."""
+    spec = dataclasses.replace(src.spec, joints=tuple(src.spec.joints[i] for i in keep))
+    items = [
+        (ep, s) for s in ("train", "val", "test") for ep in _observed(src.split(s), spec, keep)
+    ]
+    write_dataset(out, items, config=src.manifest.get("config") or None)
+    return load_dataset(out)
+
+
+LOADER_JOINTS = (1, 3)
+"""The joints the loader shape observes: boom and bucket (a wheel loader's two)."""
+
+
+def _loader(work: Path, args: argparse.Namespace) -> Case:
+    case = _continuous(work, args)
+    data = _two_joints(case.dataset, work / "loader", LOADER_JOINTS)
+    cond = case.condition
+    assert cond is not None
+    return dataclasses.replace(
+        case,
+        dataset=data,
+        split=f"{case.split}; only the boom and the bucket observed (the swing and arm move)",
+        condition=lambda: _two_joints(cond(), work / "loader_throttle", LOADER_JOINTS),
+        more=_observed(case.more, data.spec, LOADER_JOINTS),
+    )
 
 
 def _sessions(work: Path, args: argparse.Namespace) -> Case:
@@ -249,5 +304,6 @@ CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
     "continuous": _continuous,
     "sessions": _sessions,
     "stroke": _stroke,
+    "loader": _loader,
 }
 """Data shapes by name: ``builder(work_dir, args) -> Case`` (or a reason to skip it)."""
