@@ -161,13 +161,11 @@ def test_the_choice_takes_each_joint_from_the_kind_that_drives_it() -> None:
 def test_when_every_joint_prefers_the_map_the_known_score_is_not_run_again(monkeypatch) -> None:
     """Map-correcting networks exact on both joints: both are candidates; the set of both is
     the map-correcting ensemble, already scored, so only the two single-joint sets run."""
-    import excavator_surrogate.training.map_joints as map_joints
+    import excavator_surrogate.training.sets as sets
 
     runs = []
-    real = map_joints.free_run_error
-    monkeypatch.setattr(
-        map_joints, "free_run_error", lambda *a, **k: runs.append(1) or real(*a, **k)
-    )
+    real = sets.free_run_error
+    monkeypatch.setattr(sets, "free_run_error", lambda *a, **k: runs.append(1) or real(*a, **k))
     plains = [_plain_net(s) for s in (0, 1)]
     priors = [_prior_net(s + 10, exact=(True, True)) for s in (0, 1)]
     model, record = choose_kinds(plains, priors, [_episode(7)])

@@ -17,9 +17,7 @@ from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.map_joints import (
     PERIODIC_MAP_R2,
     apply_map_choice,
-    best_set,
     choose_map_joints,
-    joint_allowance,
     pinned_joints,
 )
 from tests.helpers.surrogates import make_surrogate, tiny_surrogate
@@ -158,65 +156,6 @@ def test_a_map_joints_spread_grows_with_the_distance_the_map_moved_it(spec, epis
     assert any("gain spread" in n for n in pred.notes)
 
 
-def _pick(scores: dict[tuple[bool, ...], tuple[float, list[float]]]) -> tuple[list[str], list]:
-    """``best_set`` over three joints with every set's validation scores given (``known``):
-    the chosen joints' names and the record of the sets tried."""
-    base = {"val_error": 1.0, "theta_rmse": [1.0, 1.0, 1.0]}
-    known = {k: {"val_error": e, "theta_rmse": t} for k, (e, t) in scores.items()}
-    record: dict = {"names": ["a", "b", "c"], "tried": []}
-    got = best_set([True, True, False], lambda j: j, base, [], record=record, known=known)
-    chosen = [] if got is None else [n for n, p in zip("abc", got[2]) if p]
-    return chosen, record["tried"]
-
-
-def test_a_set_may_cost_a_joint_what_the_whole_gains_and_no_more() -> None:
-    """The whole 20 % better buys one joint 12 % worse (kept); 5 % better does not buy 8 %."""
-    chosen, tried = _pick(
-        {
-            (True, True, False): (0.80, [0.5, 0.9, 1.12]),
-            (True, False, False): (0.95, [0.8, 1.0, 1.08]),
-            (False, True, False): (0.98, [1.0, 0.95, 1.0]),
-        }
-    )
-    assert chosen == ["a", "b"]
-    assert [t["kept"] for t in tried] == [True, False, True]
-    assert tried[0]["joint_allowance"] == joint_allowance(0.80, 1.0)
-    assert abs(joint_allowance(0.80, 1.0) - 0.20) < 1e-12
-    assert joint_allowance(0.99, 1.0) == joint_allowance(1.03, 1.0) == 0.05
-    assert joint_allowance(0.0, 0.0) == joint_allowance(float("nan"), 1.0) == 0.05
-    # the same whole gain cannot buy a joint 25 % worse: the next best set is kept
-    chosen, tried = _pick(
-        {
-            (True, True, False): (0.80, [0.5, 0.9, 1.25]),
-            (True, False, False): (0.95, [0.8, 1.0, 1.08]),
-            (False, True, False): (0.98, [1.0, 0.95, 1.0]),
-        }
-    )
-    assert chosen == ["b"] and [t["kept"] for t in tried] == [False, False, True]
-
-
-def test_a_joint_that_another_choice_drives_cannot_refuse_a_set() -> None:
-    """Joint ``a`` on the other kind halves its error and moves ``c``, which another choice
-    drives anyway, 40 % worse; the whole error is 3 % lower: refused when every joint is
-    checked, kept when ``c`` is not (it still counts in the whole error)."""
-    base = {"val_error": 1.0, "theta_rmse": [1.0, 1.0, 1.0]}
-    got = {"val_error": 2.9 / 3, "theta_rmse": [0.5, 1.0, 1.4]}
-    known = {(True, False, False): got}
-
-    def pick(ignore):
-        record: dict = {"names": ["a", "b", "c"], "tried": []}
-        best = best_set(
-            [True, False, False], lambda j: j, base, [], record=record, known=known, ignore=ignore
-        )
-        return best, record["tried"][0]
-
-    refused, tried = pick(None)
-    assert refused is None and not tried["kept"]
-    best, tried = pick([False, False, True])
-    assert best is not None and best[2] == [True, False, False] and tried["kept"]
-    assert tried["val_error"] == got["val_error"] and tried["joint_allowance"] == 0.05
-
-
 def _periodic_case(gain: float):
     """Joint ``a`` periodic (a swing); training from the plant, validation from one ``gain``
     times as fast; the "network" is the validation's own map, exact there."""
@@ -272,6 +211,7 @@ def test_the_all_map_set_reuses_the_all_map_free_run(monkeypatch) -> None:
     """With every joint a candidate on one map, the set of all of them is the all-map free run
     that scored the candidates: it is not run again, and it scores as a fresh run of it."""
     import excavator_surrogate.training.map_joints as mj
+    import excavator_surrogate.training.sets as sets
 
     calls = []
     real = mj.free_run_error
@@ -280,7 +220,8 @@ def test_the_all_map_set_reuses_the_all_map_free_run(monkeypatch) -> None:
         calls.append(sur)
         return real(sur, episodes, **kw)
 
-    monkeypatch.setattr(mj, "free_run_error", counting)
+    monkeypatch.setattr(mj, "free_run_error", counting)  # the candidates' runs
+    monkeypatch.setattr(sets, "free_run_error", counting)  # the sets' runs
     train = [_static_episode(s) for s in range(3)]
     val = [_static_episode(s) for s in (7, 8)]
     net = _net()

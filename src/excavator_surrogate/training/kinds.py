@@ -29,7 +29,7 @@ trainings, which the recipe plans the epochs for within the same budget
    blended joint the mean of the two;
 3. the best set whose validation error is at most :data:`SET_MARGIN` above the plain
    ensemble's overall, and on every joint within the static map choice's allowance
-   (:func:`~excavator_surrogate.training.map_joints.joint_allowance`), is kept (a joint's
+   (:func:`~excavator_surrogate.training.sets.joint_allowance`), is kept (a joint's
    choice changes the angles the others read); if none, or no candidate, the plain ensemble
    is the model, as without the option.  A joint the static map choice will put on the map
    whatever the networks (:func:`map_pinned`, ``[train] prior_skip_pinned``) cannot refuse
@@ -62,8 +62,9 @@ from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups
-from .map_joints import SET_MARGIN, best_set, map_options, pinned_joints
+from .map_joints import map_options, pinned_joints
 from .records import write_config
+from .sets import SET_MARGIN, best_set
 from .span import joint_spans
 
 _log = logging.getLogger(__name__)

@@ -20,7 +20,7 @@ per joint, chosen on the validation free run like an epoch is:
    those joints follow the map, the others keep the network's output exactly);
 4. keep the best set whose validation error is at most :data:`SET_MARGIN` above the
    network's overall, and on no joint more than :data:`SET_MARGIN` above it, or more than the
-   share by which the whole fell (:func:`joint_allowance`); else the network stays as it was.
+   share by which the whole fell (:func:`~.sets.joint_allowance`); else the network stays as it was.
 
 A **periodic joint** (the swing) is the exception (``periodic``, ``[train] map_periodic``): no
 end stop ever resets its free-run error, so every speed error adds up for the whole run, and a
@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +76,7 @@ from ..surrogate.structured import (
 )
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
+from .sets import SET_MARGIN, best_set
 from .span import joint_spans, span_note
 
 _log = logging.getLogger(__name__)
@@ -84,12 +85,6 @@ MAP_TIE = 0.05
 """A joint is a candidate when the map's validation angle RMSE is at most this share above
 the network's: on the continuous case a swing whose network tied the map on validation
 (7.6 against 7.2 deg) drifted 2x the map's error on the test."""
-SET_MARGIN = 0.05
-"""A set of map joints is kept when its validation error is at most this share above the
-network's, overall and on every joint (the other joints now read the map joints' angles),
-unless the whole gains more (:func:`joint_allowance`)."""
-
-
 MIN_SPAN = TrainConfig.choice_min_span
 """Default: the share of the training's command range a joint's validation commands must
 span for the joint to be a candidate (:mod:`.span`)."""
@@ -101,22 +96,6 @@ simulated operator logs the swing's map scored 0.97-0.99 there and was the best 
 their more test data, or within 10 % of it, where networks validated up to 2.3x better than it
 and drifted up to 4.9x further; on the stroke case's lab runs it scored 0.02
 (docs/real-history.md)."""
-
-
-def joint_allowance(val_error: float, base_error: float) -> float:
-    """How much worse than ``base`` [share] a joint's validation error may get in a kept set
-    whose whole validation error is ``val_error`` against ``base_error``:
-
-        allowance = max(SET_MARGIN, 1 - val_error / base_error)
-
-    A set that lowers the whole error by 20 % may cost one joint up to 20 %, never more than
-    the whole gains; one that gains less may cost a joint :data:`SET_MARGIN` at most.  (On the
-    sessions case, the arm on the map lowered the whole validation error by 20 % and moved the
-    bucket, which reads the arm's angle, 13 % worse; on 12 more test sessions the arm was
-    24-29 % better and the bucket 2-7 % worse, over 3 seeds.  docs/real-history.md.)"""
-    if not (math.isfinite(val_error) and math.isfinite(base_error) and base_error > 0):
-        return SET_MARGIN  # nothing to share out (a perfect or failed base)
-    return max(SET_MARGIN, 1.0 - val_error / base_error)
 
 
 def map_end_stops(train: Sequence[Episode]) -> tuple[Any, Any]:
@@ -442,65 +421,6 @@ def _chosen(model: Surrogate | None, got: Mapping[str, Any]) -> Surrogate | None
             "best_val_error": got["val_error"],
         }
     return model
-
-
-def best_set(
-    cand: Sequence[bool],
-    build: Callable[[list[bool]], Surrogate],
-    base: Mapping[str, Any],
-    val: Sequence[Episode],
-    *,
-    record: dict[str, Any],
-    max_steps: int | None = None,
-    known: Mapping[tuple[bool, ...], Mapping[str, Any]] | None = None,
-    ignore: Sequence[bool] | None = None,
-) -> tuple[Surrogate, dict[str, Any], list[bool]] | None:
-    """The best set of joints to change, or None: the candidates ``cand`` together and each
-    alone, each model ``build(joints)`` scored on the validation free run and kept if within
-    :data:`SET_MARGIN` of ``base`` (a :func:`free_run_error` result) overall and within
-    :func:`joint_allowance` of it on every joint (a joint's change moves the angles the others
-    read).  ``known``: sets whose validation free run the caller has already scored (not run
-    again).  ``ignore``: (n_joint,) joints that cannot refuse a set (another choice drives
-    them whatever this one keeps): they still count in the whole error, which ranks the sets,
-    but are not checked one by one.
-
-    Returns:
-        ``(model, its free_run_error, joints)`` of the lowest kept validation error; each set
-        tried is appended to ``record["tried"]`` (``record["names"]``: the joints' names).
-    """
-    n_joint, names = len(cand), record["names"]
-    skip = list(ignore) if ignore is not None else [False] * n_joint
-    sets = [list(cand)]
-    if sum(cand) > 1:
-        sets += [[k == j for k in range(n_joint)] for j, c in enumerate(cand) if c]
-    best: tuple[float, Surrogate, dict[str, Any], list[bool]] | None = None
-    for joints in sets:
-        model = build(joints)
-        done = (known or {}).get(tuple(joints))
-        got = (
-            dict(done)
-            if done is not None
-            else free_run_error(model, list(val), max_steps=max_steps)
-        )
-        allow = joint_allowance(got["val_error"], base["val_error"])
-        worse = [
-            names[j]
-            for j, (a, b) in enumerate(zip(got["theta_rmse"], base["theta_rmse"]))
-            if not skip[j] and not a <= (1 + allow) * b
-        ]
-        ok = got["val_error"] <= (1 + SET_MARGIN) * base["val_error"] and not worse
-        record["tried"].append(
-            {
-                "joints": [n for n, p in zip(names, joints) if p],
-                "val_error": got["val_error"],
-                "val_theta_rmse": got["theta_rmse"],
-                "joint_allowance": allow,
-                "kept": bool(ok),
-            }
-        )
-        if ok and (best is None or got["val_error"] < best[0]):
-            best = (got["val_error"], model, got, joints)
-    return None if best is None else best[1:]
 
 
 def apply_map_choice(
