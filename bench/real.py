@@ -176,8 +176,8 @@ def print_table(title: str, head: str, rows: dict[str, dict], median, n_seeds: i
     print(f"| model | {head} |" + (" train [s] |" if train else ""))
     print("|---|" + "---|" * (len(median) + train))
     for label, r in rows.items():
-        cells = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(r["rmse"], r["r2"]))
-        print(f"| {label} | {cells} |" + (f" {r.get('train_s', '-')} |" if train else ""))
+        row = " | ".join(f"{e:.2f} ({q:.3f})" for e, q in zip(r["rmse"], r["r2"]))
+        print(f"| {label} | {row} |" + (f" {r.get('train_s', '-')} |" if train else ""))
     print(f"| default recipe, median of {n_seeds} | {cells(median)} |" + (" |" if train else ""))
 
 

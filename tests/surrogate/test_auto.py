@@ -8,7 +8,7 @@ import pytest
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
-from excavator_surrogate.training.auto import POST_SHARE, WINDOW, auto_config
+from excavator_surrogate.training.auto import POST_SHARE, WINDOW, auto_config, held_inputs
 from excavator_surrogate.training.batches import split_episodes as _episodes
 
 
@@ -219,8 +219,9 @@ def test_selection_is_sound_on_a_short_validation_split_and_unchanged_on_many_ru
     assert any(f"selection on {SHORT_VAL_EPISODES - 1} validation" in w for w in why)
 
 
-def _with_gear(plain: Dataset) -> Dataset:
-    """``plain`` with an exogenous input column (``gear``, all zeros)."""
+def _with_gear(plain: Dataset, *, held: bool = False) -> Dataset:
+    """``plain`` with an exogenous input column (``gear``: -1 / +1 by turns of 40 samples,
+    or 1 throughout with ``held``)."""
     from dataclasses import replace
 
     from excavator_surrogate.spec import InputSpec
@@ -229,10 +230,30 @@ def _with_gear(plain: Dataset) -> Dataset:
     ds = Dataset(spec=spec)
     for split, eps in plain.episodes.items():
         ds.episodes[split] = [
-            e.replace(spec=spec, u=np.concatenate([e.u, np.zeros((e.n_step, 1))], axis=1))
+            e.replace(spec=spec, u=np.concatenate([e.u, _gear(e.n_step, held)], axis=1))
             for e in eps
         ]
     return ds
+
+
+def _gear(n_step: int, held: bool) -> np.ndarray:
+    if held:
+        return np.ones((n_step, 1))
+    return np.where(np.arange(n_step) // 40 % 2 == 0, -1.0, 1.0)[:, None]
+
+
+def test_an_input_that_never_changes_in_training_is_ignored_without_a_trial():
+    """A gear never shifted: the run ignores it and plans as without the column."""
+    plain = _dataset([8000])
+    without, _ = auto_config(plain, cpus=2)
+    cfg, why = auto_config(_with_gear(plain, held=True), cpus=2)
+    assert cfg.exogenous == "ignore"
+    for name in ("members", "epochs", "max_train_seconds", "prior_choice"):
+        assert getattr(cfg, name) == getattr(without, name), name
+    assert any("gear = 1 never change" in w and "without a trial" in w for w in why)
+    assert not any("must not hurt" in w for w in why)
+    assert held_inputs(_with_gear(plain, held=True)) == {"gear": 1.0}
+    assert held_inputs(_with_gear(plain)) == {}
 
 
 def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():

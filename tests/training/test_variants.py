@@ -409,3 +409,40 @@ def test_a_joint_the_map_correcting_networks_drive_alone_reads_no_input():
     rec = record(["boom", "arm"])  # a blend, or the plain networks: unchanged
     inputs_after_kinds(rec, {"names": names, "weights": [1.0, 0.5, 0.0]})
     assert rec == record(["boom", "arm"])
+
+
+def _without_gear(ds: Dataset) -> Dataset:
+    spec = MachineSpec(joints=SPEC.joints, rate_hz=SPEC.rate_hz, name=SPEC.name)
+    out = Dataset(spec=spec)
+    for split, eps in ds.episodes.items():
+        out.episodes[split] = [e.replace(spec=spec, u=e.u[:, :1]) for e in eps]
+    return out
+
+
+@pytest.mark.parametrize("prior", [False, True])
+def test_a_network_that_ignores_its_inputs_trains_as_one_without_them(tmp_path, prior) -> None:
+    """A held gear column (1 everywhere) and ``exogenous = "ignore"``: the network starts as
+    the one trained on the data without the column (its input weights zero, the others drawn
+    the same) and trains to the same model, plain or map-correcting."""
+    with_gear = _dataset(informative=False)
+    for eps in with_gear.episodes.values():
+        for e in eps:
+            e.u[:, 1] = 1.0
+    cfg = _cfg(members=1, exogenous="ignore", prior=prior, seed=3)
+    got = load_checkpoint(train(cfg, with_gear, out=tmp_path / "gear", show_progress=False))
+    ref = load_checkpoint(
+        train(cfg, _without_gear(with_gear), out=tmp_path / "none", show_progress=False)
+    )
+    w_got = dict(got.net.named_parameters())
+    for name, w in ref.net.named_parameters():
+        if name == "rnn.weight_ih_l0":
+            assert torch.all(w_got[name][:, 1 + 1] == 0)  # theta, u_boom, then the gear
+            kept = torch.cat([w_got[name][:, :2], w_got[name][:, 3:]], 1)
+            torch.testing.assert_close(kept, w, rtol=1e-4, atol=1e-5)
+        else:
+            torch.testing.assert_close(w_got[name], w, rtol=1e-4, atol=1e-5)
+    ep = with_gear.val[0]
+    ref_ep = _without_gear(with_gear).val[0]
+    torch.testing.assert_close(
+        teacher_forced_omega(got, ep), teacher_forced_omega(ref, ref_ep), rtol=1e-4, atol=1e-5
+    )

@@ -175,7 +175,11 @@ def auto_config(
         capped = given > 0
         budget_s = given if capped else budget_s
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
-    exogenous = str(overrides.get("exogenous", "choose" if inputs else "use"))
+    held = held_inputs(dataset)
+    # inputs that never change in training teach nothing: ignored without a trial, and the
+    # plan is the one without them (each network starts as it would without the columns)
+    default_exogenous = ("ignore" if len(held) == len(inputs) else "choose") if inputs else "use"
+    exogenous = str(overrides.get("exogenous", default_exogenous))
     choose = bool(inputs) and exogenous == "choose"
     # the kind choice is the recipe's, beside the input choice too, unless validation spans
     # too little of any joint's command range to choose a kind
@@ -211,6 +215,17 @@ def auto_config(
             f"{min_members(cpus)}-{max_members(cpus)}"
         )
     )
+    if held and "exogenous" not in overrides:
+        why.append(
+            f"exogenous input(s) {', '.join(f'{k} = {v:g}' for k, v in held.items())} never "
+            "change in the training data: nothing to learn from them, so "
+            + (
+                "they are ignored without a trial and the budget plans as without them (each "
+                "network starts as it would without the columns)"
+                if default_exogenous == "ignore"
+                else "they add nothing to the inputs the choice below weighs"
+            )
+        )
     if choose:
         half = probe_members(members)
         why.append(
@@ -300,7 +315,7 @@ def auto_config(
         end_stops=True,
         select_after=SELECT_AFTER if short_val else 0.0,
         select_smooth=SELECT_SMOOTH if short_val else 0,
-        exogenous="choose" if inputs else "use",
+        exogenous=default_exogenous,
         periodic_offsets=bool(turning),
         static_map=True,
         prior_choice=kinds,
@@ -314,6 +329,21 @@ def auto_config(
         cfg = from_dict(TrainConfig, merged, where="[train]")
         why.append("overridden: " + ", ".join(f"{k} = {v!r}" for k, v in overrides.items()))
     return cfg, why
+
+
+def held_inputs(dataset: Dataset) -> dict[str, float]:
+    """The exogenous inputs whose value never changes over the training episodes, with it
+    (``{name: value}``; e.g. a throttle left at full, a gear never shifted)."""
+    spec = dataset.spec
+    if not spec.n_input or not dataset.train:
+        return {}
+    u = np.concatenate([e.u[:, spec.n_joint :] for e in dataset.train])
+    lo, hi = u.min(axis=0), u.max(axis=0)
+    return {
+        name: float(a)
+        for name, a, b in zip(spec.u_names[spec.n_joint :], lo, hi)
+        if np.isfinite(a) and a == b
+    }
 
 
 def count_sequences(lengths: np.ndarray, *, seq_len: int, burn_in: int) -> int:

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from ..data.episode import Episode
 from ..errors import CheckpointError
 from ..spec import MachineSpec
@@ -71,6 +73,30 @@ class Start:
         return float(self.train_state.get("elapsed_s", 0.0)) if self.train_state else 0.0
 
 
+def fresh_net(mcfg: ModelConfig, *, blind: tuple[int, int] | None = None) -> SurrogateNet:
+    """A new net from the current torch seed; with ``blind = (lo, hi)``, the feature columns
+    ``lo:hi`` (the exogenous inputs) get zero input weights, and every other weight is drawn
+    as for a net without those columns, with the torch seed left where that net leaves it:
+    a network that ignores its inputs starts as the one trained on the data without them.
+
+        W_ih = [W_narrow[:, :lo], 0, W_narrow[:, lo:]]
+    """
+    if blind is None:
+        return SurrogateNet(mcfg)
+    lo, hi = blind
+    narrow = SurrogateNet(replace(mcfg, n_feature=mcfg.n_feature - (hi - lo)))
+    drawn = torch.random.get_rng_state()
+    net = SurrogateNet(mcfg)
+    torch.random.set_rng_state(drawn)
+    state = narrow.state_dict()
+    w = state["rnn.weight_ih_l0"]
+    state["rnn.weight_ih_l0"] = torch.cat(
+        [w[:, :lo], w.new_zeros(w.shape[0], hi - lo), w[:, lo:]], 1
+    )
+    net.load_state_dict(state)
+    return net
+
+
 def start(
     cfg: TrainConfig,
     mcfg: ModelConfig,
@@ -79,11 +105,18 @@ def start(
     resume: str | Path | None,
 ) -> Start:
     """A fresh net (weights from the current torch seed, normalisation fitted on ``train_eps``)
-    or the state of checkpoint ``resume``.
+    or the state of checkpoint ``resume``.  With ``[train] exogenous = "ignore"``, the fresh
+    net's input weights of the exogenous inputs are zero and the rest as without them
+    (:func:`fresh_net`).
 
     Raises:
         CheckpointError: ``resume`` has another architecture or other joints.
     """
+    blind = (
+        (spec.n_feature - spec.n_input, spec.n_feature)
+        if cfg.exogenous == "ignore" and spec.n_input
+        else None
+    )
     if resume is None:
         derived: list[str] = []
         if cfg.end_stops:
@@ -115,7 +148,7 @@ def start(
                 norm = norm.with_lags(fit["delay"])
                 cols = [norm.lag_start + j for j in range(spec.n_joint)]
                 mcfg = replace(mcfg, n_feature=norm.n_feature)
-            net = SurrogateNet(mcfg)
+            net = fresh_net(mcfg, blind=blind)
             assert net.prior is not None
             net.prior.load_fit(
                 **{k: fit[k] for k in PRIOR_MAP if k != "cols"}, cols=cols, norm=norm
@@ -135,7 +168,7 @@ def start(
                 )
             ]
         else:
-            net = SurrogateNet(mcfg)
+            net = fresh_net(mcfg, blind=blind)
         return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived)
     ck = read_checkpoint(resume)
     old = surrogate_from_dict(ck, where=str(resume))
