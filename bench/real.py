@@ -421,19 +421,19 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         median,
         len(recipe),
     )
-    print(
-        "seed spread (min-max): "
-        + ", ".join(
-            f"{n} {a:.2f}-{b:.2f} {u}" for n, a, b, u in zip(names, rmse.min(0), rmse.max(0), units)
-        )
-    )
-
     cond_median = cond_more = None
     if with_cond:
         cond_median = np.median(np.array([r["rmse"] for r in with_cond]), axis=0)
         print(
             f"| recipe with {case.condition_name}, median of {len(with_cond)} | {cells(cond_median)} | |"
         )
+
+    print(
+        "seed spread (min-max): "
+        + ", ".join(
+            f"{n} {a:.2f}-{b:.2f} {u}" for n, a, b, u in zip(names, rmse.min(0), rmse.max(0), units)
+        )
+    )
 
     more_median, more_rows = None, {}
     if case.more:
