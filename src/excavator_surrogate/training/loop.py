@@ -138,8 +138,8 @@ def train_network(
     net, history = st.net, st.history
     for line in st.derived:
         say(line)
-    if cfg.exogenous == "ignore" and spec.n_input:  # before the EMA copy is made
-        blind_inputs(net, spec.n_feature - spec.n_input, spec.n_feature)
+    if st.blind is not None:  # before the EMA copy is made
+        blind_inputs(net, *st.blind)
         say(f"ignoring the exogenous inputs {list(spec.u_names[spec.n_joint :])}")
     net.to(par.device).train()
     sur = Surrogate(

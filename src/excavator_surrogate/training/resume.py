@@ -51,6 +51,9 @@ class Start:
     """``last.pt``'s optimiser/scheduler/bookkeeping state (None: fresh run)."""
     history: list[dict[str, Any]] = field(default_factory=list)
     """``log.csv`` rows of the epochs already trained."""
+    blind: tuple[int, int] | None = None
+    """The feature columns ``lo:hi`` of the exogenous inputs the net ignores (``[train]
+    exogenous = "ignore"``; :func:`~.loop.blind_inputs`), or None."""
 
     @property
     def epoch(self) -> int:
@@ -169,7 +172,7 @@ def start(
             ]
         else:
             net = fresh_net(mcfg, blind=blind)
-        return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived)
+        return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived, blind=blind)
     ck = read_checkpoint(resume)
     old = surrogate_from_dict(ck, where=str(resume))
     if old.norm.own is not None:  # training runs the network alone, not beside a map
@@ -195,4 +198,5 @@ def start(
         model_cfg=old.model_cfg,
         train_state=ck.get("train_state") or None,
         history=list(ck.get("history") or []),
+        blind=blind,
     )
