@@ -1,6 +1,9 @@
-"""Independent trainings side by side: the process path equals the in-process loop."""
+"""Independent trainings side by side: the process path equals the in-process loop, and a
+capped pool of single networks shares one deadline."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 import torch
@@ -8,6 +11,8 @@ import torch
 from excavator_surrogate.errors import ExsurError
 from excavator_surrogate.surrogate.checkpoint import read_checkpoint
 from excavator_surrogate.training import TrainJob, train_parallel
+from excavator_surrogate.training import jobs as jobs_module
+from excavator_surrogate.training.jobs import job_cap, run_jobs, with_deadlines
 from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
@@ -46,3 +51,46 @@ def test_a_user_error_in_a_worker_names_the_job(tmp_path) -> None:
     ]
     with pytest.raises(ExsurError, match=r"^exsur lstm-raw: .*seq_len"):
         train_parallel(jobs, cpus=2)
+
+
+def _job(tmp_path, name: str, *, cap: float, members: int = 1) -> TrainJob:
+    cfg = tiny_train_config(epochs=1, max_train_seconds=cap, members=members)
+    return TrainJob(cfg, tiny_dataset(n_train=1, n_step=60), tmp_path / name, tag=name)
+
+
+def test_a_capped_pool_shares_one_deadline_of_its_rounds(tmp_path) -> None:
+    jobs = [_job(tmp_path, f"m{i}", cap=100.0) for i in range(5)]
+    got = with_deadlines(jobs, workers=2, now=1000.0)
+    # 5 jobs on 2 workers: 3 rounds; the first round starts on time and keeps its caps
+    assert [j.deadline for j in got] == [None, None] + [1300.0] * 3
+    one = with_deadlines(jobs[:3], workers=1, now=1000.0)
+    assert [j.deadline for j in one] == [None, 1300.0, 1300.0]  # one after the other
+    # no cap, or a whole ensemble that plans its own rounds: no deadline
+    free = with_deadlines([_job(tmp_path, "f", cap=0.0)], workers=2, now=1000.0)
+    whole = with_deadlines([_job(tmp_path, "e", cap=100.0, members=4)], workers=2, now=1000.0)
+    assert free[0].deadline is None and whole[0].deadline is None
+
+
+def test_a_job_starting_late_gets_what_is_left_of_the_deadline() -> None:
+    # cap' = max(0.1 cap, min(cap, deadline - now))
+    assert job_cap(100.0, 1300.0, now=1000.0) == 100.0  # on time: its own cap
+    assert job_cap(100.0, 1300.0, now=1230.0) == 70.0  # the last round, 30 s late
+    assert job_cap(100.0, 1300.0, now=1400.0) == pytest.approx(10.0)  # past it: 10 %
+    assert job_cap(100.0, None, now=5000.0) == 100.0
+    assert job_cap(0.0, 1300.0, now=5000.0) == 0.0  # no cap stays none
+
+
+def test_the_jobs_run_with_the_caps_left_at_their_start(tmp_path, monkeypatch) -> None:
+    clock = iter([1000.0, 1000.0, 1180.0, 1260.0])  # the pool, then each job's start
+    monkeypatch.setattr(jobs_module, "wall_time", lambda: next(clock))
+    caps: list[float] = []
+
+    def fake(job: TrainJob, show_progress) -> Path:
+        caps.append(job.cfg.max_train_seconds)
+        return job.out / "best.pt"
+
+    jobs = [_job(tmp_path, f"m{i}", cap=100.0) for i in range(3)]
+    run_jobs(fake, jobs, workers=1)
+    # deadline 1300: the first starts on time, the second 80 s late, the third 160 s late
+    assert caps == [100.0, 100.0, 40.0]
+    assert jobs[2].cfg.max_train_seconds == 100.0  # the caller's jobs are left as they were
