@@ -3,6 +3,8 @@ capped pool of single networks shares one deadline."""
 
 from __future__ import annotations
 
+import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,7 @@ from excavator_surrogate.errors import ExsurError
 from excavator_surrogate.surrogate.checkpoint import read_checkpoint
 from excavator_surrogate.training import TrainJob, train_parallel
 from excavator_surrogate.training import jobs as jobs_module
+from excavator_surrogate.training.ensembles import train_member
 from excavator_surrogate.training.jobs import job_cap, run_jobs, with_deadlines
 from tests.helpers.training import tiny_dataset, tiny_train_config
 
@@ -94,3 +97,20 @@ def test_the_jobs_run_with_the_caps_left_at_their_start(tmp_path, monkeypatch) -
     # deadline 1300: the first starts on time, the second 80 s late, the third 160 s late
     assert caps == [100.0, 100.0, 40.0]
     assert jobs[2].cfg.max_train_seconds == 100.0  # the caller's jobs are left as they were
+
+
+def test_a_later_round_in_a_worker_starts_with_the_deadline_left(tmp_path) -> None:
+    # 3 single networks on 2 workers are 2 rounds of a 1-ms cap: the pool's deadline passes
+    # while the first round starts its processes, so the third job gets the floor, 10 %
+    ds = tiny_dataset(n_train=1, n_step=120)
+    cfg = tiny_train_config(epochs=2, max_train_seconds=1e-3)
+    jobs = [TrainJob(replace(cfg, seed=i), ds, tmp_path / f"m{i}", tag=f"m{i}") for i in range(3)]
+    run_jobs(train_member, jobs, workers=2)
+    caps = [
+        tomllib.loads((tmp_path / f"m{i}" / "config.toml").read_text())["train"][
+            "max_train_seconds"
+        ]
+        for i in range(3)
+    ]
+    assert caps[:2] == [1e-3, 1e-3]
+    assert caps[2] == pytest.approx(1e-4)
