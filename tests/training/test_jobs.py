@@ -94,7 +94,8 @@ def test_the_jobs_run_with_the_caps_left_at_their_start(tmp_path, monkeypatch) -
 
     jobs = [_job(tmp_path, f"m{i}", cap=100.0) for i in range(3)]
     run_jobs(fake, jobs, workers=1)
-    # deadline 1300: the first starts on time, the second 80 s late, the third 160 s late
+    # deadline 1300: the second starts at 1180 (120 s left, more than its cap), the third at
+    # 1260 (40 s left)
     assert caps == [100.0, 100.0, 40.0]
     assert jobs[2].cfg.max_train_seconds == 100.0  # the caller's jobs are left as they were
 
