@@ -84,7 +84,7 @@ def test_a_job_starting_late_gets_what_is_left_of_the_deadline() -> None:
 
 
 def test_the_jobs_run_with_the_caps_left_at_their_start(tmp_path, monkeypatch) -> None:
-    clock = iter([1000.0, 1000.0, 1180.0, 1260.0])  # the pool, then each job's start
+    clock = iter([1000.0, 1180.0, 1260.0])  # the pool, then each later job's start
     monkeypatch.setattr(jobs_module, "wall_time", lambda: next(clock))
     caps: list[float] = []
 

@@ -96,11 +96,13 @@ def job_cap(cap: float, deadline: float | None, *, now: float) -> float:
     return max(MIN_CAP_SHARE * cap, min(cap, deadline - now))
 
 
-def started(job: TrainJob, *, now: float | None = None) -> TrainJob:
-    """``job`` as it starts (at ``now``, default the wall clock): its cap shortened to its
-    deadline (:func:`job_cap`), which the job's log says."""
+def started(job: TrainJob) -> TrainJob:
+    """``job`` as it starts (now, on the wall clock): its cap shortened to its deadline
+    (:func:`job_cap`), which the job's log says."""
+    if job.deadline is None:
+        return job
     cap = job.cfg.max_train_seconds
-    new = job_cap(cap, job.deadline, now=wall_time() if now is None else now)
+    new = job_cap(cap, job.deadline, now=wall_time())
     if new == cap:
         return job
     _log.warning(

@@ -88,9 +88,8 @@ def fresh_net(mcfg: ModelConfig, *, blind: tuple[int, int] | None = None) -> Sur
         return SurrogateNet(mcfg)
     lo, hi = blind
     narrow = SurrogateNet(replace(mcfg, n_feature=mcfg.n_feature - (hi - lo)))
-    drawn = torch.random.get_rng_state()
-    net = SurrogateNet(mcfg)
-    torch.random.set_rng_state(drawn)
+    with torch.random.fork_rng(devices=[]):  # the wide net only holds the narrow one's weights
+        net = SurrogateNet(mcfg)
     state = narrow.state_dict()
     w = state["rnn.weight_ih_l0"]
     state["rnn.weight_ih_l0"] = torch.cat(
