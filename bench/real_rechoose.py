@@ -48,8 +48,9 @@ from excavator_surrogate.training.kinds import choice_joints, choice_options, ch
 from excavator_surrogate.training.map_joints import choose_map_joints, map_options
 
 sys.path.insert(0, str(Path(__file__).parent))
-from real import WARMUP, score, shown
+from real import WARMUP
 from real_cases import CASES, saved_more
+from real_scores import score, shown
 
 STRUCTURED = "structured (dead zone, gain, delay, end stops)"
 
