@@ -359,19 +359,34 @@ def rollout_episodes(
     if not episodes:
         return []
     warmup = sur.window if warmup is None else int(warmup)
-    thetas, lengths, th0, pad_u = batch_episodes(
+    thetas, _, th0, pad_u = batch_episodes(
         episodes, reference=reference, warmup=warmup, max_steps=max_steps
     )
     th_hat, om_hat = rollout(sur, th0, pad_u, warmup=warmup, mode=mode)
+    return episode_rollouts(episodes, thetas, th_hat, om_hat, sur=sur, warmup=warmup)
+
+
+def episode_rollouts(
+    episodes: Sequence[Episode],
+    thetas: list[np.ndarray],
+    theta_hat: np.ndarray,
+    omega_hat: np.ndarray,
+    *,
+    sur: Surrogate,
+    warmup: int,
+) -> list[EpisodeRollout]:
+    """Each episode's :class:`EpisodeRollout` from a padded batch free run
+    (``theta_hat``, ``omega_hat``: (n_batch, n_max, n_joint)) and the reference angles
+    ``thetas`` of :func:`batch_episodes`."""
     out = []
     for i, ep in enumerate(episodes):
-        n = lengths[i]
+        n = len(thetas[i])
         out.append(
             EpisodeRollout(
                 name=ep.name,
                 time=ep.time[:n],
-                theta_hat=th_hat[i, :n],
-                omega_hat=om_hat[i, :n],
+                theta_hat=theta_hat[i, :n],
+                omega_hat=omega_hat[i, :n],
                 theta_ref=thetas[i],
                 omega_ref=omega_target(thetas[i], sur.spec),
                 warmup=warmup,

@@ -3,7 +3,8 @@
 Model selection (training, baselines, sweeps) ranks candidates by it: the model is rolled out
 in closed loop on the validation episodes; ``val_error`` = mean over joints of
 RMSE(theta) / std(theta_ref) after the warm-up.  :func:`free_run_errors` scores several
-candidates of one architecture in one batched free run (:mod:`.stacked`).
+candidates of one architecture in one batched free run (:mod:`.stacked`), stepped in NumPy
+(:mod:`.numpy_loop`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 from ..data.episode import Episode
 from .angles import unwrap_periodic
 from .model import Surrogate
+from .numpy_loop import numpy_capable, rollout_episodes_numpy
 from .rollout import EpisodeRollout, rollout_episodes
 from .stacked import stack, stackable
 
@@ -38,13 +40,16 @@ def free_run_errors(
 ) -> list[dict[str, Any]]:
     """:func:`free_run_error` of each of ``surs``: in one batched free run when they differ
     only in their weights (:func:`~.stacked.stackable`, e.g. a training's raw and averaged
-    weights), else one after the other.  The batched scores equal the separate ones to
-    float32 rounding; a candidate that diverges scores ``inf`` without touching the others
-    (no operation mixes two candidates' rows)."""
+    weights), else one after the other.  The batched run steps in NumPy where it can
+    (:mod:`.numpy_loop`: about 3x faster on a long segment).  The batched scores equal the
+    separate ones to float32 rounding; a candidate that diverges scores ``inf`` without
+    touching the others (no operation mixes two candidates' rows)."""
     if not stackable(surs):
         return [free_run_error(s, episodes, max_steps=max_steps) for s in surs]
     n = len(episodes)
-    runs = rollout_episodes(stack(surs), list(episodes) * len(surs), max_steps=max_steps)
+    stacked = stack(surs)
+    run = rollout_episodes_numpy if numpy_capable(stacked) else rollout_episodes
+    runs = run(stacked, list(episodes) * len(surs), max_steps=max_steps)
     return [score_runs(runs[c * n : (c + 1) * n], s) for c, s in enumerate(surs)]
 
 
