@@ -182,10 +182,10 @@ def rollout_numpy(
     prior = None if prior_t is None else prior_t.cpu().numpy().transpose(1, 0, 2)
     ws, bs, (w1, w2), (b1, b2) = _weights(nets, sur.dtype)
     norm = loop.norm
-    lo_a, n_ang, hi_c = 0, norm.n_angle, _n_cmd_end(sur)
+    n_ang, hi_c = norm.n_angle, _n_cmd_end(sur)
     x_mean = norm.x_mean.cpu().numpy()
     x_std = norm.x_std.cpu().numpy()
-    a_mean, a_std = x_mean[lo_a:n_ang], x_std[lo_a:n_ang]
+    a_mean, a_std = x_mean[:n_ang], x_std[:n_ang]
     w_mean, w_std = x_mean[hi_c:], x_std[hi_c:]
     y_mean, y_std = norm.y_mean.cpu().numpy(), norm.y_std.cpu().numpy()
     limits = sur.limits_np()
