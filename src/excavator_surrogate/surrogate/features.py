@@ -69,6 +69,17 @@ def _play_from_rest(u: np.ndarray, spec: MachineSpec, play: Sequence[float]) -> 
     return play_np(scale_commands_np(u, spec)[..., : spec.n_joint], play)
 
 
+def angle_columns_np(theta: np.ndarray, periodic: Sequence[bool]) -> np.ndarray:
+    """The angle columns of the features before normalisation, in ``theta``'s dtype:
+    ``(..., n_joint)`` [rad] -> ``(..., n_angle)``, sin and cos of a periodic joint, else
+    the angle."""
+    parts = []
+    for j, p in enumerate(periodic):
+        th = theta[..., j]
+        parts += [np.sin(th), np.cos(th)] if p else [th]
+    return np.stack(parts, axis=-1)
+
+
 def encode_np(
     theta: np.ndarray,
     u: np.ndarray,
@@ -98,14 +109,8 @@ def encode_np(
     """
     theta = np.asarray(theta, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
-    parts = []
-    for j, js in enumerate(spec.joints):
-        if js.periodic:
-            parts += [np.sin(theta[..., j]), np.cos(theta[..., j])]
-        else:
-            parts.append(theta[..., j])
     us = scale_commands_np(u, spec)
-    out = [np.stack(parts, axis=-1), us]
+    out = [angle_columns_np(theta, [js.periodic for js in spec.joints]), us]
     if len(play):
         if z is None:
             raise ValueError("encode_np: play features need the play states z")

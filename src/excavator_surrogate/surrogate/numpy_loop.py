@@ -35,6 +35,8 @@ import numpy as np
 import torch
 
 from ..data.episode import Episode
+from .angles import integrate_np
+from .features import angle_columns_np
 from .model import Surrogate, SurrogateNet
 from .rollout import ClosedLoop, EpisodeRollout, batch_episodes, episode_rollouts
 from .stacked import StackedNet
@@ -72,27 +74,6 @@ def numpy_capable(sur: Surrogate) -> bool:
     return True
 
 
-def _weights(nets: list[SurrogateNet], dtype: torch.dtype) -> tuple[list[torch.Tensor], ...]:
-    """Per layer ``W (C, n_in + hidden, 4 hidden) = [W_ih ; W_hh]^T`` and ``b (C, 1, 4
-    hidden)``; the head's ``(C, hidden, head_hidden)``, ``(C, head_hidden, n_joint)`` and their
-    ``(C, 1, ·)`` biases (contiguous CPU copies)."""
-
-    def stack(ts: list[torch.Tensor]) -> torch.Tensor:
-        return torch.stack(ts).detach().to("cpu", dtype).contiguous()
-
-    ws, bs = [], []
-    for k in range(nets[0].cfg.n_layer):
-        w_ih = [n.rnn.get_parameter(f"weight_ih_l{k}") for n in nets]
-        w_hh = [n.rnn.get_parameter(f"weight_hh_l{k}") for n in nets]
-        ws.append(stack([torch.cat([a, b], 1).T for a, b in zip(w_ih, w_hh, strict=True)]))
-        b_ih = [n.rnn.get_parameter(f"bias_ih_l{k}") for n in nets]
-        b_hh = [n.rnn.get_parameter(f"bias_hh_l{k}") for n in nets]
-        bs.append(stack([(a + b)[None] for a, b in zip(b_ih, b_hh, strict=True)]))
-    head_w = [stack([n.head[i].weight.T for n in nets]) for i in (0, 2)]
-    head_b = [stack([n.head[i].bias[None] for n in nets]) for i in (0, 2)]
-    return ws, bs, head_w, head_b
-
-
 def _affine(x: np.ndarray, w: torch.Tensor, b: torch.Tensor) -> np.ndarray:
     """``x @ w + b`` per candidate: ``x (C, n, k)``, ``w (C, k, m)``, ``b (C, 1, m)`` ->
     ``(C, n, m)``.  In torch, on the caller's threads: NumPy's BLAS would start threads of
@@ -128,16 +109,6 @@ def _commands(
     rows = x.chunk(len(nets))
     prior = torch.cat([n.prior(r) for n, r in zip(nets, rows, strict=True)])
     return cmd, prior
-
-
-def _angle_np(theta: np.ndarray, periodic: tuple[bool, ...]) -> np.ndarray:
-    """The angle columns before normalisation: ``(n_batch, n_joint)`` [rad] ->
-    ``(n_batch, n_angle)``, sin and cos of a periodic joint, else the angle."""
-    parts = []
-    for j, p in enumerate(periodic):
-        th = theta[:, j]
-        parts += [np.sin(th), np.cos(th)] if p else [th]
-    return np.stack(parts, axis=-1)
 
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
@@ -180,7 +151,12 @@ def rollout_numpy(
     dt_np = np.dtype(str(sur.dtype).removeprefix("torch."))
     cmd = np.ascontiguousarray(cmd_t.cpu().numpy().transpose(1, 0, 2))  # (n_run, n_batch, ·)
     prior = None if prior_t is None else prior_t.cpu().numpy().transpose(1, 0, 2)
-    ws, bs, (w1, w2), (b1, b2) = _weights(nets, sur.dtype)
+    # per layer W (C, n_in + hidden, 4 hidden) = [W_ih ; W_hh]^T and b (C, 1, 4 hidden), then
+    # the head's two layers: the stacked candidates' own copies (a single network's built)
+    cfg = nets[0].cfg
+    stacked = sur.net if isinstance(sur.net, StackedNet) else StackedNet(nets)
+    ws, (w1, w2) = stacked._w[: cfg.n_layer], stacked._w[cfg.n_layer :]
+    bs, (b1, b2) = stacked._b[: cfg.n_layer], stacked._b[cfg.n_layer :]
     norm = loop.norm
     n_ang, hi_c = norm.n_angle, _n_cmd_end(sur)
     x_mean = norm.x_mean.cpu().numpy()
@@ -191,7 +167,6 @@ def rollout_numpy(
     limits = sur.limits_np()
     limits = None if limits is None else tuple(np.asarray(v, dtype=dt_np) for v in limits)
     dt = dt_np.type(sur.spec.dt)
-    cfg = nets[0].cfg
     h0, c0 = loop._state  # each (n_layer, n_batch, hidden)
     h = [h0[k].cpu().numpy().reshape(n_cand, -1, cfg.hidden) for k in range(cfg.n_layer)]
     c = [c0[k].cpu().numpy().reshape(n_cand, -1, cfg.hidden) for k in range(cfg.n_layer)]
@@ -204,7 +179,7 @@ def rollout_numpy(
     with np.errstate(over="ignore", invalid="ignore"):
         for t in range(n_step - warmup):
             # x = [(a(theta) - mean) / std, cmd, (omega - mean) / std]       (n_batch, n_feature)
-            parts = [(_angle_np(th, norm.periodic) - a_mean) / a_std, cmd[t]]
+            parts = [(angle_columns_np(th, norm.periodic) - a_mean) / a_std, cmd[t]]
             if norm.omega_in:
                 parts.append((om - w_mean) / w_std)
             x = np.concatenate(parts, axis=-1)
@@ -225,17 +200,7 @@ def rollout_numpy(
             if prior is not None:
                 y = y + prior[t]
             # omega[k+1] = y std + mean, then the speed bound and the end stops
-            om = y * y_std + y_mean
-            if limits is None:
-                th = th + dt * om
-            else:
-                if len(limits) == 3:
-                    om = np.minimum(np.maximum(om, -limits[2]), limits[2])
-                nxt = th + dt * om
-                stopped = np.minimum(np.maximum(nxt, limits[0]), limits[1])
-                # at a stop, omega is what was travelled: (theta[k+1] - theta[k]) / T_s
-                om = np.where(stopped != nxt, (stopped - th) / dt, om)
-                th = stopped
+            th, om = integrate_np(th, y * y_std + y_mean, dt=dt, limits=limits)
             th_out[:, warmup + t] = th
             om_out[:, warmup + t] = om
     return th_out, om_out
