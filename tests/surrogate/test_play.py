@@ -14,7 +14,12 @@ from excavator_surrogate.surrogate.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from excavator_surrogate.surrogate.command_state import play_np, play_step
+from excavator_surrogate.surrogate.command_state import (
+    command_rows_seq,
+    command_rows_step,
+    play_np,
+    play_step,
+)
 from excavator_surrogate.surrogate.features import Normalization, encode_np, scale_commands_np
 from excavator_surrogate.surrogate.rollout import window_rollout
 from excavator_surrogate.training import TrainConfig
@@ -64,6 +69,35 @@ def test_play_np_equals_one_sample_at_a_time_to_the_bit(rng):
     # a state shared by every episode broadcasts over them
     shared = play_np(us, PLAY, z0=z0[0, 0])
     assert np.array_equal(shared[1, 2], play_np(us[1, 2], PLAY, z0=z0[0, 0]))
+
+
+@pytest.mark.parametrize("n_step", [0, 1, 40])
+@pytest.mark.parametrize(
+    ("widths", "n_line", "n_rest"),
+    [
+        (PLAY, 0, 0),
+        ((), 4, 0),
+        (PLAY, 3, 0),
+        ((), 1, 2),
+        (PLAY, 2, 2),
+        ((), 0, 2),
+    ],
+)
+def test_command_rows_seq_equals_one_sample_at_a_time_to_the_bit(
+    rng, n_step, widths, n_line, n_rest
+):
+    # the delay line is a window of the commands and the rows after it pass through: copies,
+    # so the whole sequence at once equals the sample-by-sample step exactly
+    b = torch.tensor(widths, dtype=torch.float32)
+    n_command = len(widths) + n_line
+    us = torch.as_tensor(rng.uniform(-1, 1, (3, n_step, 4)), dtype=torch.float32)
+    z0 = torch.as_tensor(rng.uniform(-1, 1, (3, n_command + n_rest, 4)), dtype=torch.float32)
+    out = command_rows_seq(z0, us, b, n_command)
+    assert out.shape == (3, n_step, n_command + n_rest, 4)
+    z = z0
+    for k in range(n_step):
+        z = command_rows_step(z, us[:, k], b, n_command)
+        assert torch.equal(out[:, k], z)
 
 
 def test_encode_with_play_matches_numpy_and_widens_the_input(spec, episodes):

@@ -10,7 +10,8 @@ runtime carries that history as one tensor ``z: (..., Q + L, n_joint)`` of scale
 - rows ``Q..Q+L-1``: the last ``L`` commands, oldest first; their features are each joint's
   command ``d_j`` samples back, row ``L - 1 - d_j`` (``lag_index``).
 
-:func:`command_step` (:func:`command_rows_step` with rows after the command state),
+:func:`command_step` (:func:`command_rows_step` with rows after the command state, and
+:func:`command_rows_seq` over a whole sequence),
 :func:`command_features` and :func:`delayed_commands` are the only torch code that knows
 this layout; :class:`.features.Normalization`, the fused step and the
 ONNX graphs call them.
@@ -120,6 +121,36 @@ def command_rows_step(
         return command_step(z, us, widths)
     rest = z[..., n_command:, :]
     return torch.cat([command_step(z[..., :n_command, :], us, widths), rest], dim=-2)
+
+
+def command_rows_seq(
+    z: torch.Tensor, us: torch.Tensor, widths: torch.Tensor, n_command: int
+) -> torch.Tensor:
+    """:func:`command_rows_step` over every sample of ``us: (n_batch, n_step, n_joint)`` from
+    ``z: (n_batch, Q + L + R, n_joint)``; returns the states after each sample, ``(n_batch,
+    n_step, Q + L + R, n_joint)``.  Only the play operators need a loop over the samples: the
+    delay line after sample k is a window of the commands, and the R rows pass through."""
+    n_batch, n_step, n_joint = us.shape
+    q = widths.numel()
+    parts = []
+    if q:
+        p, ps = z[:, :q, :], []
+        for k in range(n_step):
+            p = play_step(p, us[:, k], widths)
+            ps.append(p)
+        parts.append(torch.stack(ps, dim=1) if ps else z.new_zeros(n_batch, 0, q, n_joint))
+    n_line = n_command - q
+    if n_line:
+        # line[k] = us[k-L+1..k], the L commands up to sample k, oldest first: a window of
+        # full = [line before the first sample, us]
+        full = torch.cat([z[:, q:n_command, :], us], dim=1)  # (n_batch, L + n_step, n_joint)
+        windows = full.unfold(1, n_line, 1)[:, 1:]  # (n_batch, n_step, n_joint, L)
+        parts.append(windows.transpose(-1, -2))
+    if z.shape[-2] > n_command:
+        parts.append(z[:, None, n_command:, :].expand(n_batch, n_step, -1, n_joint))
+    if not parts:
+        return z.new_zeros(n_batch, n_step, 0, n_joint)
+    return torch.cat(parts, dim=-2) if len(parts) > 1 else parts[0].contiguous()
 
 
 def command_features(

@@ -45,6 +45,7 @@ from ..spec import MachineSpec
 from .angles import omega_in_np, omega_target
 from .command_state import (
     command_features,
+    command_rows_seq,
     command_rows_step,
     line_from_rest_np,
     play_features_np,
@@ -401,13 +402,11 @@ class Normalization:
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Command states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch,
         P + L, n_joint)``; returns ``(n_batch, n_step, P + L, n_joint)``."""
-        zs = []
-        for k in range(u.shape[1]):
-            z = self.play_update(z, u[:, k])
-            zs.append(z)
-        if not zs:
-            return z.new_zeros(z.shape[0], 0, *z.shape[1:])
-        return torch.stack(zs, dim=1)
+        if not self.n_command:
+            return z[:, None].expand(z.shape[0], u.shape[1], *z.shape[1:]).contiguous()
+        nj = len(self.periodic)
+        us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
+        return command_rows_seq(z, us, self.play, self.n_command)
 
     # ---- velocity feature -------------------------------------------------------------------
 
