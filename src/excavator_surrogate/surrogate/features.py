@@ -400,8 +400,10 @@ class Normalization:
         return command_rows_step(z, us, self.play, self.n_command)
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
-        """Command states after each of ``u: (n_batch, n_step, n_joint)`` from ``z: (n_batch,
-        P + L, n_joint)``; returns ``(n_batch, n_step, P + L, n_joint)``."""
+        """Command states after each of ``u: (n_batch, n_step, n_u)`` from ``z: (n_batch,
+        P + L [+ 2], n_joint)`` (:meth:`play_update` one sample at a time, to the bit: the
+        delay line is a window of the commands, only play operators loop); returns
+        ``(n_batch, n_step, P + L [+ 2], n_joint)``."""
         if not self.n_command:
             return z[:, None].expand(z.shape[0], u.shape[1], *z.shape[1:]).contiguous()
         nj = len(self.periodic)
