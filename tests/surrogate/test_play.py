@@ -81,6 +81,7 @@ def test_play_np_equals_one_sample_at_a_time_to_the_bit(rng):
         ((), 1, 2),
         (PLAY, 2, 2),
         ((), 0, 2),
+        ((), 0, 0),
     ],
 )
 def test_command_rows_seq_equals_one_sample_at_a_time_to_the_bit(

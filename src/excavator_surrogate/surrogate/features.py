@@ -395,20 +395,20 @@ class Normalization:
         network's own angle and velocity, passed through: :meth:`own_advance` moves them)."""
         if not self.n_command:
             return z
-        nj = len(self.periodic)
-        us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
-        return command_rows_step(z, us, self.play, self.n_command)
+        return command_rows_step(z, self._joint_commands(u), self.play, self.n_command)
 
     def play_seq(self, z: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
         """Command states after each of ``u: (n_batch, n_step, n_u)`` from ``z: (n_batch,
         P + L [+ 2], n_joint)`` (:meth:`play_update` one sample at a time, to the bit: the
         delay line is a window of the commands, only play operators loop); returns
         ``(n_batch, n_step, P + L [+ 2], n_joint)``."""
-        if not self.n_command:
-            return z[:, None].expand(z.shape[0], u.shape[1], *z.shape[1:]).contiguous()
+        return command_rows_seq(z, self._joint_commands(u), self.play, self.n_command)
+
+    def _joint_commands(self, u: torch.Tensor) -> torch.Tensor:
+        """The joints' scaled commands ``us = (u - u_center) / u_scale``, which drive the
+        command state: ``u: (..., n_u)`` -> ``(..., n_joint)``."""
         nj = len(self.periodic)
-        us = (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
-        return command_rows_seq(z, us, self.play, self.n_command)
+        return (u[..., :nj] - self.u_center[:nj]) / self.u_scale[:nj]
 
     # ---- velocity feature -------------------------------------------------------------------
 
