@@ -1,6 +1,6 @@
-"""Real-machine fidelity: the default recipe on six data shapes, next to its baselines.
+"""Real-machine fidelity: the default recipe on seven data shapes, next to its baselines.
 
-Six cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
+Seven cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
 add a shape by adding a builder):
 
 - ``h1``: the h1-dev development set (``../shared/real/h1-dev``: 143 valve-duty step runs of a
@@ -27,6 +27,9 @@ add a shape by adding a builder):
 - ``loader``: the continuous log with only the boom and the bucket observed and commanded,
   as a wheel loader's two joints: the swing and the arm still move, unseen, and load the
   others (scored like the continuous log, with its more test data and its throttle).
+- ``loader-7min``: the loader shape at the issue's wheel loader's own length: a 7-minute log
+  (the first 420 s of the same seed's continuous log), 160 s train, the next 100 s validate,
+  the last 160 s test; its more test data is the log's continuation.
 
 For each shape, in one run on the same data:
 
@@ -62,7 +65,7 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 median beats each baseline there too (``more_median_beats_*``).  A shape whose data is missing
 (h1 without ``../shared``) is reported as skipped.  Usage::
 
-    python bench/real.py [--shape h1|h1-duty80|continuous|sessions|stroke|loader|all] [--seeds 0,10,20] [--plain-epochs 30]
+    python bench/real.py [--shape h1|h1-duty80|continuous|sessions|stroke|loader|loader-7min|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
                          [--more-test N] [--sim-seed S]
                          [--set train.KEY=VALUE ...]

@@ -24,9 +24,21 @@ MAPPING_CONDITION = REPO / "examples" / "real_excavator_condition.toml"
 """The same mapping plus the run names' H/L condition as a per-run input."""
 STROKE_EXAMPLE = REPO / "examples" / "stroke_make_logs.py"
 """Writes the stroke-sensing machine's logs and mapping (``make_logs``)."""
-MORE_TEST = {"continuous": 8, "sessions": 12}
-"""More test segments per simulated shape (``--more-test`` default): 8 x 160 s of the log's
+MORE_TEST = {"continuous": 8, "continuous-7min": 8, "sessions": 12}
+"""More test segments per simulated log (``--more-test`` default): 8 x 160 s of the log's
 continuation, 12 more sessions of 180 s."""
+SHORT_LOG_S = 420.0
+"""``loader-7min``: the wheel loader's own log length (7 min at 20 Hz: 160 s train | 100 s
+validate | 160 s test), the first 420 s of the continuous log of the same seed."""
+SIMULATED = {
+    "continuous": ("continuous-dig", None),
+    "continuous-7min": ("continuous-dig", SHORT_LOG_S),
+    "sessions": ("sessions-dig", None),
+}
+"""The simulated logs by name: their preset, and the length of the whole log in seconds where
+it is not the preset's (train, validation and test together)."""
+LOADER_BASE = {"loader": "continuous", "loader-7min": "continuous-7min"}
+"""Each loader shape's simulated log (with four joints observed)."""
 
 
 @dataclass
@@ -109,21 +121,31 @@ def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
     return load_dataset(out)
 
 
+def sim_config(name: str, sim_seed: int):
+    """The simulate config of the simulated log ``name`` (:data:`SIMULATED`), seed ``sim_seed``."""
+    from excavator_surrogate.simulate.config import SimulateConfig
+
+    preset, total_s = SIMULATED[name]
+    cfg = SimulateConfig.from_preset(load_preset(preset), seed=sim_seed)
+    if total_s is not None:
+        cfg = dataclasses.replace(cfg, steps_train=round(total_s * cfg.rate_hz))
+    return cfg
+
+
 def _simulated(
     work: Path,
     args: argparse.Namespace,
-    preset: str,
     name: str,
     split: Callable[..., str],
     more: Callable[..., tuple[list[Episode], str]],
 ) -> Case:
-    """A stand-in log of ``preset`` (seed ``--sim-seed``) as imported (``_as_logged``), its
-    engine throttle as the condition variant; ``split(cfg)`` says how it is split, and
-    ``more(cfg, sim, n, out)`` simulates ``n`` more test segments (``--more-test``)."""
-    from excavator_surrogate.simulate.config import SimulateConfig
+    """The stand-in log ``name`` (:data:`SIMULATED`, seed ``--sim-seed``) as imported
+    (``_as_logged``), its engine throttle as the condition variant; ``split(cfg)`` says how it
+    is split, and ``more(cfg, sim, n, out)`` simulates ``n`` more test segments
+    (``--more-test``)."""
     from excavator_surrogate.simulate.generate import simulate_dataset
 
-    cfg = SimulateConfig.from_preset(load_preset(preset), seed=args.sim_seed)
+    cfg = sim_config(name, args.sim_seed)
     simulate_dataset(cfg, out=work / f"{name}_sim")
     sim = load_dataset(work / f"{name}_sim")
     n_more = MORE_TEST[name] if args.more_test is None else args.more_test
@@ -179,19 +201,17 @@ def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
     """The more test data that ``python bench/real.py --work WORK`` simulated for the shape
     ``name`` (``WORK/<name>_more``, the loader's the continuous log's; none for h1 and
     stroke), as a dataset of ``spec`` holds them, without simulating anything."""
-    base = "continuous" if name == "loader" else name
+    base = LOADER_BASE.get(name, name)
     if base not in MORE_TEST or not (work / f"{base}_more").is_dir():
         return []
-    from excavator_surrogate.simulate.config import SimulateConfig
-
     more = load_dataset(work / f"{base}_more")
     if base == "sessions":
         return as_spec(more.test[1:], spec)
-    cfg = SimulateConfig.from_preset(load_preset("continuous-dig"), seed=sim_seed)
+    cfg = sim_config(base, sim_seed)
     (ep,) = more.train
     n_test = round(cfg.test_s * cfg.rate_hz)
     segments = _segments(cfg, ep, (len(ep.theta) - cfg.steps_train) // n_test)
-    if name == "loader":
+    if name in LOADER_BASE:
         segments = _observed(segments, spec, LOADER_JOINTS)
     return as_spec(segments, spec)
 
@@ -217,7 +237,7 @@ def _by_session(cfg) -> str:
 
 
 def _continuous(work: Path, args: argparse.Namespace) -> Case:
-    return _simulated(work, args, "continuous-dig", "continuous", _in_time, _more_in_time)
+    return _simulated(work, args, "continuous", _in_time, _more_in_time)
 
 
 def _observed(episodes: Sequence[Episode], spec, keep: Sequence[int]) -> list[Episode]:
@@ -258,22 +278,33 @@ LOADER_JOINTS = (1, 3)
 """The joints the loader shape observes: boom and bucket (a wheel loader's two)."""
 
 
-def _loader(work: Path, args: argparse.Namespace) -> Case:
-    case = _continuous(work, args)
-    data = _two_joints(case.dataset, work / "loader", LOADER_JOINTS)
+def _loader_of(name: str, work: Path, args: argparse.Namespace) -> Case:
+    """The loader shape ``name``: its simulated log (:data:`LOADER_BASE`) with only the
+    :data:`LOADER_JOINTS` observed and commanded."""
+    case = _simulated(work, args, LOADER_BASE[name], _in_time, _more_in_time)
+    data = _two_joints(case.dataset, work / name, LOADER_JOINTS)
     cond = case.condition
     assert cond is not None
     return dataclasses.replace(
         case,
         dataset=data,
         split=f"{case.split}; only the boom and the bucket observed (the swing and arm move)",
-        condition=lambda: _two_joints(cond(), work / "loader_throttle", LOADER_JOINTS),
+        condition=lambda: _two_joints(cond(), work / f"{name}_throttle", LOADER_JOINTS),
         more=_observed(case.more, data.spec, LOADER_JOINTS),
     )
 
 
+def _loader(work: Path, args: argparse.Namespace) -> Case:
+    return _loader_of("loader", work, args)
+
+
+def _loader_7min(work: Path, args: argparse.Namespace) -> Case:
+    """The loader shape at the wheel loader's own length: 160 s train | 100 s | 160 s."""
+    return _loader_of("loader-7min", work, args)
+
+
 def _sessions(work: Path, args: argparse.Namespace) -> Case:
-    return _simulated(work, args, "sessions-dig", "sessions", _by_session, _more_sessions)
+    return _simulated(work, args, "sessions", _by_session, _more_sessions)
 
 
 def _stroke(work: Path, args: argparse.Namespace) -> Case:
@@ -305,5 +336,6 @@ CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
     "sessions": _sessions,
     "stroke": _stroke,
     "loader": _loader,
+    "loader-7min": _loader_7min,
 }
 """Data shapes by name: ``builder(work_dir, args) -> Case`` (or a reason to skip it)."""
