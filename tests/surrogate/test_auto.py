@@ -12,13 +12,23 @@ from excavator_surrogate.training.auto import POST_SHARE, WINDOW, auto_config, h
 from excavator_surrogate.training.batches import split_episodes as _episodes
 
 
-def _dataset(lengths: list[int]) -> Dataset:
+def _dataset(lengths: list[int], *, val_n_step: int = 200) -> Dataset:
     spec = synthetic_spec(3)
     ds = Dataset(spec=spec)
     for i, n in enumerate(lengths):
         ds.episodes["train"].append(synthetic_episode(spec, kind="step", n_step=n, seed=i))
-    ds.episodes["val"].append(synthetic_episode(spec, kind="step", n_step=200, seed=99))
+    ds.episodes["val"].append(synthetic_episode(spec, kind="step", n_step=val_n_step, seed=99))
     return ds
+
+
+LONG_VAL = 2000
+"""The long log's validation segment [samples]: 100 s at 20 Hz, as the continuous case's."""
+
+
+def _long_log() -> Dataset:
+    """One 400-s log at 20 Hz validated on the next 100 s: its planned epochs fill the
+    fewest members' budget (the continuous case's shape)."""
+    return _dataset([8000], val_n_step=LONG_VAL)
 
 
 def test_short_runs_that_end_at_a_stop_are_all_trained_on():
@@ -42,7 +52,7 @@ def test_long_episodes_use_the_longest_sequence_and_very_short_ones_shrink_the_w
 
 
 def test_members_and_budget_follow_the_cpus():
-    ds = _dataset([8000])  # one long log: its planned epochs fill the fewest members' budget
+    ds = _long_log()  # one long log: its planned epochs fill the fewest members' budget
     two, _ = auto_config(ds, cpus=2, budget_s=600)
     one, _ = auto_config(ds, cpus=1, budget_s=600)
     # 4 plain members and 2 map-correcting networks, 2 at a time: 600 s x 2 / 6, less the
@@ -159,18 +169,46 @@ def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
     cfg, why = auto_config(many, cpus=2)
     assert cfg.epochs == cfg.patience == MIN_EPOCHS
     assert any("epochs planned" in w for w in why)
-    one = _dataset([8000])  # one continuous log: more passes, within the budget
+    one = _long_log()  # one continuous log: more passes, within the budget
     cfg1, _ = auto_config(one, cpus=2)
     assert cfg1.epochs > MIN_EPOCHS
     lengths = np.array([8000])
     n_seq = count_sequences(lengths, seq_len=cfg1.seq_len, burn_in=cfg1.burn_in)
-    cost = epoch_cost_s(n_seq, seq_len=cfg1.seq_len, seq_batch=cfg1.seq_batch, val_steps=200)
+    cost = epoch_cost_s(n_seq, seq_len=cfg1.seq_len, seq_batch=cfg1.seq_batch, val_steps=LONG_VAL)
     assert cfg1.epochs * cost <= PLAN_SHARE * cfg1.max_train_seconds / (1 - POST_SHARE) + cost
     small, _ = auto_config(one, cpus=2, overrides={"max_train_seconds": 60})
     assert small.epochs < cfg1.epochs and small.max_train_seconds == pytest.approx(
         20 * (1 - POST_SHARE)
     )  # 60 s for 4 members and 2 map-correcting networks, 2 at a time
     assert auto_config(one, cpus=2)[0] == cfg1  # planned from the data: the same every time
+
+
+def test_a_short_log_plans_fewer_epochs_than_its_budget_fits():
+    """160 s of training (the wheel loader's 7-minute log): at most EPOCHS_PER_SEQUENCE epochs
+    per sub-sequence, where the budget would fit about twice as many; longer data and many
+    runs plan as before."""
+    from excavator_surrogate.training.auto import (
+        EPOCHS_PER_SEQUENCE,
+        MIN_EPOCHS,
+        PLAN_SHARE,
+        count_sequences,
+        epoch_cost_s,
+        want_epochs,
+    )
+
+    short = _dataset([3200], val_n_step=LONG_VAL)
+    cfg, why = auto_config(short, cpus=2, budget_s=600)
+    n_seq = count_sequences(np.array([3200]), seq_len=cfg.seq_len, burn_in=cfg.burn_in)
+    assert n_seq == 26 and cfg.epochs == cfg.patience == int(EPOCHS_PER_SEQUENCE * n_seq) == 45
+    assert any("45 epochs planned" in w and "per sub-sequence" in w for w in why)
+    cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=LONG_VAL)
+    share = cfg.max_train_seconds / (1 - POST_SHARE)
+    assert int(PLAN_SHARE * share / cost) > cfg.epochs  # the budget is not what limits it
+    # the rule sits between the floor and the passes: it binds on short logs only
+    assert want_epochs(26) == 45 and want_epochs(55) == 96 and want_epochs(453) == MIN_EPOCHS
+    assert want_epochs(10) == MIN_EPOCHS  # a few sub-sequences still train the floor
+    longer, why = auto_config(_long_log(), cpus=2, budget_s=600)
+    assert longer.epochs > 45 and not any("per sub-sequence" in w for w in why)
 
 
 def test_max_seconds_zero_plans_for_the_default_budget_without_a_cap():
@@ -198,7 +236,7 @@ def test_sequences_are_counted_as_the_epoch_tiles_them():
 def test_selection_is_sound_on_a_short_validation_split_and_unchanged_on_many_runs():
     from excavator_surrogate.training.auto import SELECT_AFTER, SELECT_SMOOTH, SHORT_VAL_EPISODES
 
-    one_segment = _dataset([8000])  # a continuous log: one validation segment
+    one_segment = _long_log()  # a continuous log: one validation segment
     cfg, why = auto_config(one_segment, cpus=2)
     assert (cfg.select_after, cfg.select_smooth) == (SELECT_AFTER, SELECT_SMOOTH)
     assert any("(short)" in w for w in why)
@@ -244,7 +282,7 @@ def _gear(n_step: int, held: bool) -> np.ndarray:
 
 def test_an_input_that_never_changes_in_training_is_ignored_without_a_trial():
     """A gear never shifted: the run ignores it and plans as without the column."""
-    plain = _dataset([8000])
+    plain = _long_log()
     without, _ = auto_config(plain, cpus=2)
     cfg, why = auto_config(_with_gear(plain, held=True), cpus=2)
     assert cfg.exogenous == "ignore"
@@ -257,7 +295,7 @@ def test_an_input_that_never_changes_in_training_is_ignored_without_a_trial():
 
 
 def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
-    plain = _dataset([8000])
+    plain = _long_log()
     without, _ = auto_config(plain, cpus=2)
     assert without.exogenous == "use"  # nothing to choose
     ds = _with_gear(plain)
@@ -303,7 +341,7 @@ def test_the_input_choice_costs_two_trainings_however_many_members():
 def test_the_kind_choice_is_the_recipes_and_is_planned_within_the_same_budget():
     """prior_choice (the recipe's where validation spans a joint's commands): 4 plain members and 2
     map-correcting networks share the budget; off, the 4 plain members have it alone."""
-    ds = _dataset([8000])
+    ds = _long_log()
     cfg, why = auto_config(ds, cpus=2)
     without, why_not = auto_config(ds, cpus=2, overrides={"prior_choice": False})
     assert cfg.prior_choice and not without.prior_choice
