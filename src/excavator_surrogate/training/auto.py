@@ -88,9 +88,9 @@ EPOCHS_PER_SEQUENCE = 1.75
 """Most planned epochs per sub-sequence of an epoch (above :data:`MIN_EPOCHS`): the fewer the
 data, the sooner the networks fit them instead of the machine.  It binds on a short log only:
 a 7-minute log's 160 s of training (26 sub-sequences) plans 45 epochs, where the budget fits
-89, and its boom's test error was 6.24 against 9.05 deg on one simulated log and 2.38
-against 2.50 on another (docs/real-history.md); a 10-minute log (55) keeps its budget's
-81, h1-dev (453) its 40."""
+89, and its boom's test error went from 9.05 to 6.43 deg on one simulated log and from 2.50
+to 2.42 on another (docs/real-history.md); a 10-minute log (55) keeps its budget's 81,
+h1-dev (453) its 40."""
 PLAN_SHARE = 0.6
 """Share of each member's wall-time budget the planned epochs fill on the reference machine
 (the rest is headroom: only a computer this much slower, or busier, hits the cap)."""
