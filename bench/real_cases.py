@@ -199,8 +199,9 @@ def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode],
 
 def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
     """The more test data that ``python bench/real.py --work WORK`` simulated for the shape
-    ``name`` (``WORK/<name>_more``, the loader's the continuous log's; none for h1 and
-    stroke), as a dataset of ``spec`` holds them, without simulating anything."""
+    ``name`` (``WORK/<log>_more`` of its simulated log, a loader shape's its
+    :data:`LOADER_BASE`; none for h1 and stroke), as a dataset of ``spec`` holds them,
+    without simulating anything."""
     base = LOADER_BASE.get(name, name)
     if base not in MORE_TEST or not (work / f"{base}_more").is_dir():
         return []

@@ -172,7 +172,7 @@ def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
     one = _long_log()  # one continuous log: more passes, within the budget
     cfg1, _ = auto_config(one, cpus=2)
     assert cfg1.epochs > MIN_EPOCHS
-    lengths = np.array([8000])
+    lengths = np.array([e.n_step for e in one.train])
     n_seq = count_sequences(lengths, seq_len=cfg1.seq_len, burn_in=cfg1.burn_in)
     cost = epoch_cost_s(n_seq, seq_len=cfg1.seq_len, seq_batch=cfg1.seq_batch, val_steps=LONG_VAL)
     assert cfg1.epochs * cost <= PLAN_SHARE * cfg1.max_train_seconds / (1 - POST_SHARE) + cost
@@ -198,7 +198,8 @@ def test_a_short_log_plans_fewer_epochs_than_its_budget_fits():
 
     short = _dataset([3200], val_n_step=LONG_VAL)
     cfg, why = auto_config(short, cpus=2, budget_s=600)
-    n_seq = count_sequences(np.array([3200]), seq_len=cfg.seq_len, burn_in=cfg.burn_in)
+    lengths = np.array([e.n_step for e in short.train])
+    n_seq = count_sequences(lengths, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
     assert n_seq == 26 and cfg.epochs == cfg.patience == int(EPOCHS_PER_SEQUENCE * n_seq) == 45
     assert any("45 epochs planned" in w and "per sub-sequence" in w for w in why)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=LONG_VAL)
@@ -207,6 +208,7 @@ def test_a_short_log_plans_fewer_epochs_than_its_budget_fits():
     # the rule sits between the floor and the passes: it binds on short logs only
     assert want_epochs(26) == 45 and want_epochs(55) == 96 and want_epochs(453) == MIN_EPOCHS
     assert want_epochs(10) == MIN_EPOCHS  # a few sub-sequences still train the floor
+    assert max(want_epochs(n) for n in range(1, 5000)) == want_epochs(102) == 177  # the most
     longer, why = auto_config(_long_log(), cpus=2, budget_s=600)
     assert longer.epochs > 45 and not any("per sub-sequence" in w for w in why)
 
