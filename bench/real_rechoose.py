@@ -16,6 +16,11 @@ Usage::
     python bench/real_rechoose.py --work DIR --shape continuous [--seeds 0,10,20] [--sim-seed N]
                                   [--set train.KEY=VALUE ...]
 
+A run that trained more networks than today's plan has stands in for it: the plan's first
+``members`` plain and ``prior_members(members)`` map-correcting networks are the ones a run of
+the plan trains (a member's seed and training do not depend on how many there are, as long
+as no wall-time cap cut them).
+
 ``--set`` changes the ``[train]`` fields the choices read (``prior_choice``, ``prior_margin``,
 ``prior_blend``, ``prior_skip_pinned``, ``static_map``, ``map_periodic``, ``map_parallel``;
 e.g. ``--set train.prior_blend=false``).  ``--sim-seed`` must be the one the
@@ -44,7 +49,12 @@ from excavator_surrogate.surrogate.structured import fit_structured
 from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.batches import split_episodes
-from excavator_surrogate.training.kinds import choice_joints, choice_options, choose_kinds
+from excavator_surrogate.training.kinds import (
+    choice_joints,
+    choice_options,
+    choose_kinds,
+    prior_members,
+)
 from excavator_surrogate.training.map_joints import choose_map_joints, map_options
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -56,10 +66,11 @@ STRUCTURED = "structured (dead zone, gain, delay, end stops)"
 
 
 def members(run: Path, kind: str) -> list:
-    """The saved networks of one kind (``plain`` / ``prior``) of a recipe run."""
-    paths = sorted((run / kind).glob("member_*/best.pt"))
+    """The saved networks of one kind (``plain`` / ``prior``) of a recipe run, in member order."""
+    paths = list((run / kind).glob("member_*/best.pt"))
     if not paths and kind == "plain":  # a run without the kind choice
-        paths = sorted(run.glob("member_*/best.pt"))
+        paths = list(run.glob("member_*/best.pt"))
+    paths.sort(key=lambda p: int(p.parent.name.removeprefix("member_")))
     return [load_checkpoint(p) for p in paths]
 
 
@@ -67,7 +78,10 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     """The model ``exsur train`` would make from the networks saved in ``run`` under ``cfg``'s
     choice fields (fitted on ``train_eps``, chosen on ``val_eps``: ``split_episodes``), and
     the two choices' records (None where a choice is off)."""
-    plains, priors = members(run, "plain"), members(run, "prior")
+    # a plan of fewer members trains the first networks of one of more (a member's seed and
+    # training do not depend on how many there are), so a run of more stands in for it
+    plains = members(run, "plain")[: cfg.members]
+    priors = members(run, "prior")[: prior_members(cfg.members)]
     if not plains:
         raise SystemExit(f"{run}: no saved networks (member_*/best.pt); run bench/real.py --work")
     kinds = None
