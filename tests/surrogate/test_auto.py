@@ -192,8 +192,8 @@ def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
 
 def test_a_short_log_plans_fewer_epochs_than_its_budget_fits():
     """160 s of training (the wheel loader's 7-minute log): at most EPOCHS_PER_SEQUENCE epochs
-    per sub-sequence, where the budget would fit more (89 with the 4 + 2 networks it planned
-    before, 53 with the 6 + 3 it fits now); longer data and many runs plan as before."""
+    per sub-sequence, where the budget would fit more (89 with the 4 + 2 networks it plans);
+    longer data and many runs plan as before."""
     from excavator_surrogate.training.auto import (
         EPOCHS_PER_SEQUENCE,
         MIN_EPOCHS,

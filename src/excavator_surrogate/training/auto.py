@@ -27,7 +27,8 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
 - an exponential moving average of the weights, so the selected checkpoint does not depend on
   one lucky epoch; selection by the whole-episode validation free run;
 - a seed ensemble of ``members`` networks trained side by side, one per core: 4, or up to 8
-  when the planned epochs are cheap enough that the budget fits more (:func:`plan_members`);
+  when the planned epochs are cheap enough that the budget fits more, even on a computer
+  :data:`MEMBER_HEADROOM` times slower than the reference (:func:`plan_members`);
 - the envelope (end stops and speed bounds) from the spec, else from the training data;
 - periodic joints (the swing) turned by a random offset per training sub-sequence, so the
   network does not tie the dynamics to where the machine points (it did: on the continuous
@@ -86,8 +87,9 @@ EPOCHS_PER_SEQUENCE = 1.75
 """Most planned epochs per sub-sequence of an epoch (above :data:`MIN_EPOCHS`): the fewer the
 data, the sooner the networks fit them instead of the machine.  It binds on a short log only:
 a 7-minute log's 160 s of training (26 sub-sequences) plans 45 epochs, where the budget fits
-89, and its boom's test error went from 9.05 to 6.43 deg on one simulated log and from 2.50
-to 2.42 on another (docs/real-history.md); a 10-minute log (55) keeps its budget's 81,
+89, and its boom's test error went from 9.05 to 6.24 deg on one simulated log and from 2.50
+to 2.38 on another, with the same 4 + 2 networks (docs/real-history.md); a 10-minute log
+(55) keeps its budget's 81,
 h1-dev (453) its 40.  With :data:`TARGET_PASSES` it also bounds every plan: the two meet at
 102 sub-sequences, 177 epochs, the most any data plans."""
 PLAN_SHARE = 0.6
@@ -228,7 +230,8 @@ def auto_config(
             ""
             if asked
             else "; as many members as the budget fits at the planned epochs, "
-            f"{min_members(cpus)}-{max_members(cpus)}"
+            f"{min_members(cpus)}-{max_members(cpus)}, with room for a computer "
+            f"{MEMBER_HEADROOM:g}x slower than the reference to train each whole"
         )
     )
     if held and "exogenous" not in overrides:
