@@ -120,9 +120,10 @@ the reference machine still trains every planned network whole: each training's 
 time, times this, fits its wall-time cap.  A network the cap cuts is not the one an idle
 computer trains, so a cap that binds changes the model.  On h1-dev computer D (AVX2 only)
 needs 1.5-1.7x the reference's time; the 8 members that :data:`PLAN_SHARE` alone fitted
-left it 6-16 % of their caps, and with other work on the machine the caps cut every member
-(validation RMSE up to 1.3x).  6 members leave D half its time to spare, and on h1-dev's
-validation runs 6 members of the same seeds scored as 8 did (docs/real-history.md)."""
+left it 6-16 % of their caps, and beside other work the caps cut every seed (seed 0's
+bucket 1.41x worse on validation).  6 members leave D a third of each cap (1.5x its
+time), and on h1-dev's validation runs 6 members of the same seeds scored as 8 did
+(docs/real-history.md)."""
 MAX_MEMBERS = 8
 """Most seed-ensemble members the recipe trains (half as many on one CPU): when the planned
 epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
