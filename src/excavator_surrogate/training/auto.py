@@ -89,8 +89,7 @@ data, the sooner the networks fit them instead of the machine.  It binds on a sh
 a 7-minute log's 160 s of training (26 sub-sequences) plans 45 epochs, where the budget fits
 89, and its boom's test error went from 9.05 to 6.24 deg on one simulated log and from 2.50
 to 2.38 on another, with the same 4 + 2 networks (docs/real-history.md); a 10-minute log
-(55) keeps its budget's 81,
-h1-dev (453) its 40.  With :data:`TARGET_PASSES` it also bounds every plan: the two meet at
+(55) keeps its budget's 81, h1-dev (453) its 40.  With :data:`TARGET_PASSES` it also bounds every plan: the two meet at
 102 sub-sequences, 177 epochs, the most any data plans."""
 PLAN_SHARE = 0.6
 """Share of each member's wall-time budget the planned epochs fill on the reference machine
@@ -222,7 +221,7 @@ def auto_config(
     )
     workers = min(members, cpus)
     per_member = member_budget_s(members, budget_s, cpus=cpus, choose=choose, kinds=kinds)
-    cap = (1.0 - POST_SHARE) * per_member  # the rest: the choices after training
+    cap = training_cap_s(per_member)
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {cap:.0f} s "
         f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s), {POST_SHARE:.0%} of it "
@@ -428,13 +427,20 @@ def member_budget_s(
     return budget_s / rounds
 
 
+def training_cap_s(share_s: float) -> float:
+    """Each training's wall-time cap [s] from its share of the budget
+    (:func:`member_budget_s`): the share less :data:`POST_SHARE`, held back for the work after
+    training (merging, the choices, the bands)."""
+    return (1.0 - POST_SHARE) * share_s
+
+
 def plan_members(
     member_s: float, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
 ) -> int:
     """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
     steps of the parallel workers, whose planned training (``member_s`` each on the reference
     machine) a computer :data:`MEMBER_HEADROOM` times slower still finishes within each
-    training's cap (its share of ``budget_s`` less :data:`POST_SHARE`)::
+    training's cap (:func:`training_cap_s`, the one :func:`auto_config` sets)::
 
         MEMBER_HEADROOM * member_s <= (1 - POST_SHARE) * member_budget_s(n)
     """
@@ -443,7 +449,7 @@ def plan_members(
     while members + step <= max_members(cpus):
         n = members + step
         share = member_budget_s(n, budget_s, cpus=cpus, choose=choose, kinds=kinds)
-        if MEMBER_HEADROOM * member_s > (1.0 - POST_SHARE) * share:
+        if MEMBER_HEADROOM * member_s > training_cap_s(share):
             break
         members = n
     return members
