@@ -8,8 +8,9 @@ import pytest
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
-from excavator_surrogate.training.auto import POST_SHARE, WINDOW, auto_config, held_inputs
+from excavator_surrogate.training.auto import WINDOW, auto_config, held_inputs
 from excavator_surrogate.training.batches import split_episodes as _episodes
+from excavator_surrogate.training.plan import POST_SHARE
 
 
 def _dataset(lengths: list[int], *, val_n_step: int = 200) -> Dataset:
@@ -71,7 +72,7 @@ def test_cheap_epochs_buy_more_members_within_the_budget():
     """Members beyond MEMBERS are planned only where a computer HEADROOM times slower
     than the reference still trains each whole within its cap: the h1 shape fits 6 of them
     in 600 s (8 would leave such a computer short), and 8 in a larger budget."""
-    from excavator_surrogate.training.auto import (
+    from excavator_surrogate.training.plan import (
         HEADROOM,
         MAX_MEMBERS,
         MEMBERS,
@@ -109,31 +110,6 @@ def test_cheap_epochs_buy_more_members_within_the_budget():
     assert given.members == 3 and not any("as many members" in w for w in why)
 
 
-def test_every_round_of_the_pool_fits_the_budget():
-    """Two workers run the trainings in rounds: an odd count leaves one idle in the last
-    round, so 6 members and 3 map-correcting networks take 5 rounds, and each training's cap
-    is a fifth of the budget (not 2 / 9 of it, which a computer that needed the whole cap ran
-    11 % past the budget).  One worker: one round per training."""
-    from excavator_surrogate.training.auto import member_budget_s, plan_members, trainings
-
-    assert trainings(6, choose=False, kinds=True) == 9
-    assert member_budget_s(6, 600, cpus=2, choose=False, kinds=True) == pytest.approx(120)
-    assert member_budget_s(4, 600, cpus=2, choose=False, kinds=True) == pytest.approx(200)
-    assert member_budget_s(6, 600, cpus=2, choose=True) == pytest.approx(150)  # 6 + 2
-    assert member_budget_s(9, 600, cpus=2, choose=True) == pytest.approx(100)  # 9 + 2
-    assert member_budget_s(8, 600, cpus=2, choose=False, kinds=True) == pytest.approx(100)
-    assert member_budget_s(2, 600, cpus=1, choose=False, kinds=True) == pytest.approx(200)
-    # the plan reads the same cap: h1-dev's 72 s members fit 6 + 3 in 2 x 600 / 9 = 133 s
-    # at 60 %, but not twice over in the fifth of it the five rounds leave; in 900 s they do
-    assert plan_members(72.3, 600, cpus=2, choose=False, kinds=True) == 4
-    assert plan_members(72.3, 900, cpus=2, choose=False, kinds=True) == 6
-    for members in (4, 6, 8):
-        for choose, kinds in ((False, False), (True, False), (False, True), (True, True)):
-            cap = member_budget_s(members, 600, cpus=2, choose=choose, kinds=kinds)
-            rounds = -(-trainings(members, choose=choose, kinds=kinds) // 2)
-            assert rounds * cap <= 600 + 1e-9
-
-
 def test_overrides_are_strict():
     ds = _dataset([300, 300])
     cfg, why = auto_config(ds, overrides={"members": 1, "seed": 7}, cpus=2)
@@ -165,7 +141,7 @@ def test_recipe_reasons_are_written_next_to_the_config_once(tmp_path):
 
 
 def test_the_amount_of_training_follows_the_data_and_the_budget_not_the_clock():
-    from excavator_surrogate.training.auto import (
+    from excavator_surrogate.training.plan import (
         MIN_EPOCHS,
         PLAN_SHARE,
         count_sequences,
@@ -195,7 +171,7 @@ def test_epochs_that_fill_the_budget_are_as_many_as_a_computer_twice_as_slow_tra
     the share fits more epochs than a computer HEADROOM times slower trains within the cap,
     so the plan is the fewer, and says so; the long log, whose epochs are more validation
     than training, keeps PLAN_SHARE's plan."""
-    from excavator_surrogate.training.auto import (
+    from excavator_surrogate.training.plan import (
         HEADROOM,
         count_sequences,
         epoch_cost_s,
@@ -233,26 +209,11 @@ def test_epochs_that_fill_the_budget_are_as_many_as_a_computer_twice_as_slow_tra
     assert not any("whole within" in w for w in why)
 
 
-def test_the_run_time_counts_the_epochs_the_training_loop_validates():
-    """run_s against a plain loop over the epochs, validated as training/loop.py does."""
-    from excavator_surrogate.training.auto import VAL_PAIR_SHARE, run_s
-    from excavator_surrogate.training.selection import first_validated
-
-    for epochs in (1, 5, 7, 10, 40, 81):
-        for select_after, smooth in ((0.0, 0), (0.5, 4), (0.5, 0)):
-            start = first_validated(epochs, select_after, smooth=smooth, plateau=False)
-            total = 0.0
-            for epoch in range(epochs):
-                total += 2.0 + (VAL_PAIR_SHARE * 3.0 if epoch >= start else 0.0)
-            got = run_s(epochs, train_s=2.0, val_s=3.0, select_after=select_after, smooth=smooth)
-            assert got == pytest.approx(total)
-
-
 def test_a_short_log_plans_fewer_epochs_than_its_budget_fits():
     """160 s of training (the wheel loader's 7-minute log): at most EPOCHS_PER_SEQUENCE epochs
     per sub-sequence, where the budget would fit more (89 with the 4 + 2 networks it plans);
     longer data and many runs plan as before."""
-    from excavator_surrogate.training.auto import (
+    from excavator_surrogate.training.plan import (
         EPOCHS_PER_SEQUENCE,
         MIN_EPOCHS,
         PLAN_SHARE,
@@ -283,21 +244,6 @@ def test_max_seconds_zero_plans_for_the_default_budget_without_a_cap():
     assert cfg.max_train_seconds == 0 and cfg.epochs >= 1
     with pytest.raises(ConfigError, match="max_train_seconds"):
         auto_config(_dataset([300, 300]), cpus=2, overrides={"max_train_seconds": -1})
-
-
-def test_sequences_are_counted_as_the_epoch_tiles_them():
-    from excavator_surrogate.training.auto import count_sequences
-    from excavator_surrogate.training.batches import sequence_starts
-
-    class _Data:
-        starts = np.array([0, 500, 700])
-        lengths = np.array([500, 200, 60])
-
-    n = count_sequences(_Data.lengths, seq_len=50, burn_in=10)
-    rng = np.random.default_rng(0)
-    assert len(sequence_starts(_Data, 50, 10, rng)) <= n
-    zero_offset = sum(max(0, (int(L) - 1 - 50) // 41 + 1) for L in _Data.lengths)
-    assert n == zero_offset
 
 
 def test_selection_is_sound_on_a_short_validation_split_and_unchanged_on_many_runs():

@@ -8,7 +8,7 @@ on validation and on the test day, the plain ones the arm (docs/real-history.md)
 ``seed, seed + 1, ...``, as without the option) and :func:`prior_members` more that
 correct the map (seeds ``seed, seed + 1, ...``): ``members + prior_members(members)``
 trainings, which the recipe plans the epochs for within the same budget
-(:func:`~.auto.trainings`).  Both ensembles are scored by their validation free run, and:
+(:func:`~.plan.trainings`).  Both ensembles are scored by their validation free run, and:
 
 1. a joint is a candidate for the map-correcting networks if their validation angle RMSE
    on it is below ``1 - margin`` times the plain ensemble's (``[train] prior_margin``,
