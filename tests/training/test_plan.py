@@ -1,4 +1,4 @@
-"""The amount of training and the budget: rounds, caps, sub-sequences and run time
+"""The amount of training and the budget: rounds, caps and sub-sequences
 (``training/plan.py``; the recipe that uses them: ``tests/surrogate/test_auto.py``)."""
 
 from __future__ import annotations
@@ -45,31 +45,3 @@ def test_sequences_are_counted_as_the_epoch_tiles_them():
     assert len(sequence_starts(_Data, 50, 10, rng)) <= n
     zero_offset = sum(max(0, (int(L) - 1 - 50) // 41 + 1) for L in _Data.lengths)
     assert n == zero_offset
-
-
-def test_the_run_time_counts_the_epochs_the_training_loop_validates():
-    """run_s against a plain loop over the epochs, validated as training/loop.py does."""
-    from excavator_surrogate.training.plan import VAL_PAIR_SHARE, run_s
-    from excavator_surrogate.training.selection import first_validated
-
-    for epochs in (1, 5, 7, 10, 40, 81):
-        for select_after, smooth in ((0.0, 0), (0.5, 4), (0.5, 0)):
-            start = first_validated(epochs, select_after, smooth=smooth, plateau=False)
-            total = 0.0
-            for epoch in range(epochs):
-                total += 2.0 + (VAL_PAIR_SHARE * 3.0 if epoch >= start else 0.0)
-            got = run_s(epochs, train_s=2.0, val_s=3.0, select_after=select_after, smooth=smooth)
-            assert got == pytest.approx(total)
-
-
-def test_whole_epochs_are_the_most_a_computer_twice_as_slow_trains_within_the_cap():
-    """The stroke case's epoch (150 batches of 150 steps, two 2000-step validation runs):
-    the share fits 10 at 60 %, a computer HEADROOM times slower trains 7 within 170 s."""
-    from excavator_surrogate.training.plan import HEADROOM, run_s, whole_epochs
-
-    kw = dict(train_s=150 * 150 * 4.5e-4, val_s=2 * 1998 * 3e-4, select_after=0.5, smooth=4)
-    n = whole_epochs(10, cap_s=170.0, **kw)
-    assert n == 7
-    assert HEADROOM * run_s(n, **kw) <= 170.0 < HEADROOM * run_s(n + 1, **kw)
-    assert whole_epochs(10, cap_s=1e6, **kw) == 10  # never more than the plan
-    assert whole_epochs(10, cap_s=1.0, **kw) == 1  # never fewer than one

@@ -17,12 +17,12 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   lengths so that no short run is dropped;
 - a planned amount of training, fixed before it starts from the data and the budget
   (:mod:`.plan`): about 18,000 sub-sequence passes, at least 40 epochs, on a short log at
-  most 1.75 epochs per sub-sequence, no more than fits 60 % of each member's budget at the
-  reference machine's speed, and no more than a computer twice as slow trains whole within
-  its cap; the cosine schedule runs over those epochs, and the wall-time budget is only a cap
-  that stops a much slower or busier computer early (and says so), with 15 % of it held
-  back for the choices after training, so such a computer still ends within the budget.
-  So the same data, seed and machine give the same model on an idle or a busy computer;
+  most 1.75 epochs per sub-sequence, and no more than fits 60 % of each member's budget at
+  the reference machine's speed; the cosine schedule runs over those epochs, and the
+  wall-time budget is only a cap that stops a much slower or busier computer early (and
+  says so), with 15 % of it held back for the choices after training, so such a computer
+  still ends within the budget.  So the same data, seed and machine give the same model on
+  an idle or a busy computer;
 - an exponential moving average of the weights, so the selected checkpoint does not depend on
   one lucky epoch; selection by the whole-episode validation free run;
 - a seed ensemble of ``members`` networks trained side by side, one per core: 4, or up to 8
@@ -68,11 +68,10 @@ from .config import TrainConfig
 from .kinds import prior_members
 from .map_joints import PERIODIC_MAP_R2
 from .plan import (
-    HEADROOM,
+    MEMBER_HEADROOM,
     POST_SHARE,
     count_sequences,
     epoch_cost_s,
-    epoch_costs_s,
     max_members,
     member_budget_s,
     min_members,
@@ -81,7 +80,6 @@ from .plan import (
     training_cap_s,
     trainings,
     want_epochs,
-    whole_epochs,
 )
 from .span import joint_spans, span_note
 from .variants import probe_members
@@ -196,7 +194,7 @@ def auto_config(
             if asked
             else "; as many members as the budget fits at the planned epochs, "
             f"{min_members(cpus)}-{max_members(cpus)}, with room for a computer "
-            f"{HEADROOM:g}x slower than the reference to train each whole"
+            f"{MEMBER_HEADROOM:g}x slower than the reference to train each whole"
         )
     )
     if held and "exogenous" not in overrides:
@@ -253,23 +251,6 @@ def auto_config(
             f"selection: the epoch with the lowest free-run error on {n_val} validation episodes"
         )
     epochs, limit = plan_epochs(n_seq, cost, budget_s=per_member)
-    train_s, val_s = epoch_costs_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
-    select_after = SELECT_AFTER if short_val else 0.0
-    select_smooth = SELECT_SMOOTH if short_val else 0
-    whole = whole_epochs(
-        epochs,
-        train_s=train_s,
-        val_s=val_s,
-        cap_s=cap,
-        select_after=select_after,
-        smooth=select_smooth,
-    )
-    if whole < epochs:
-        limit = (
-            f"{limit} fits {epochs}; a computer {HEADROOM:g}x slower than the reference "
-            f"trains {whole} whole within the {cap:.0f}-s cap"
-        )
-        epochs = whole
     why.append(
         f"{epochs} epochs planned: {n_seq} sub-sequences per epoch, about {epochs * cost:.0f} s "
         f"per member on the reference machine ({limit}); the budget only caps it"
@@ -314,8 +295,8 @@ def auto_config(
         member_workers=workers,
         max_train_seconds=cap if capped else 0.0,
         end_stops=True,
-        select_after=select_after,
-        select_smooth=select_smooth,
+        select_after=SELECT_AFTER if short_val else 0.0,
+        select_smooth=SELECT_SMOOTH if short_val else 0,
         exogenous=default_exogenous,
         periodic_offsets=bool(turning),
         static_map=True,

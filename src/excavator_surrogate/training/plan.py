@@ -8,12 +8,11 @@ computer's clock, so the same data plan the same training on every computer, idl
 The wall-time budget is a cap on top of the plan, and the plan leaves room under it:
 
 - epochs: about :data:`TARGET_PASSES` sub-sequence passes, at least :data:`MIN_EPOCHS`, at
-  most :data:`EPOCHS_PER_SEQUENCE` per sub-sequence, no more than :data:`PLAN_SHARE` of each
-  training's share of the budget fits (:func:`plan_epochs`), and no more than a computer
-  :data:`HEADROOM` times slower than the reference trains whole within its cap
-  (:func:`whole_epochs`);
-- members: :data:`MEMBERS` up to :data:`MAX_MEMBERS`, where that slower computer still trains
-  each whole (:func:`plan_members`);
+  most :data:`EPOCHS_PER_SEQUENCE` per sub-sequence, and no more than :data:`PLAN_SHARE` of
+  each training's share of the budget fits at the reference's speed (:func:`plan_epochs`);
+- members: :data:`MEMBERS` up to :data:`MAX_MEMBERS`, where a computer
+  :data:`MEMBER_HEADROOM` times slower than the reference still trains each whole
+  (:func:`plan_members`);
 - caps: the budget over the pool's rounds (:func:`member_budget_s`), less :data:`POST_SHARE`
   for the work after training (:func:`training_cap_s`).
 
@@ -27,7 +26,6 @@ import math
 import numpy as np
 
 from .kinds import prior_members
-from .selection import first_validated
 from .variants import probe_members
 
 MIN_EPOCHS = 40
@@ -64,22 +62,16 @@ log's member finishes well within its estimate.  The plan keeps it: more epochs 
 budget did not pay on one long log (docs/real-history.md, "Faster, not longer")."""
 MEMBERS = 4
 """Fewest seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
-HEADROOM = 2.0
-"""A computer this many times slower than the reference machine still trains every planned
-network whole: the ensemble grows past :data:`MEMBERS` only where each training's planned
-time, times this, fits its wall-time cap (:func:`plan_members`), and the planned epochs are
-no more than that time allows (:func:`whole_epochs`).  A network the cap cuts is not the one
-an idle computer trains, so a cap that binds changes the model.  On h1-dev computer D (AVX2
-only) needs 1.5-1.7x the reference's time; the 8 members that :data:`PLAN_SHARE` alone
-fitted left it 6-16 % of their caps, and beside other work the caps cut every seed (seed
-0's bucket 1.41x worse on validation).  6 members leave D a third of each cap (1.5x its
+MEMBER_HEADROOM = 2.0
+"""The ensemble grows past :data:`MEMBERS` only where a computer this many times slower than
+the reference machine still trains every planned network whole: each training's planned
+time, times this, fits its wall-time cap.  A network the cap cuts is not the one an idle
+computer trains, so a cap that binds changes the model.  On h1-dev computer D (AVX2 only)
+needs 1.5-1.7x the reference's time; the 8 members that :data:`PLAN_SHARE` alone fitted
+left it 6-16 % of their caps, and beside other work the caps cut every seed (seed 0's
+bucket 1.41x worse on validation).  6 members leave D a third of each cap (1.5x its
 time), and on h1-dev's validation runs 6 members of the same seeds scored as 8 did
-(docs/real-history.md).  D's training steps of 150 samples take 1.9-2.1x :data:`STEP_S`:
-the stroke case's 10 epochs, all training, were cut at 8-9 on D."""
-VAL_PAIR_SHARE = 0.7
-"""Wall time of one validated epoch's two free runs (raw and averaged weights, stepped
-together) as a share of two separate runs (:data:`VAL_STEP_S`): what :func:`whole_epochs`
-counts, where the plan counts both runs in full (the plan's constant)."""
+(docs/real-history.md)."""
 MAX_MEMBERS = 8
 """Most seed-ensemble members the recipe trains (half as many on one CPU): when the planned
 epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
@@ -97,62 +89,13 @@ def count_sequences(lengths: np.ndarray, *, seq_len: int, burn_in: int) -> int:
 
 
 def epoch_cost_s(n_seq: int, *, seq_len: int, seq_batch: int, val_steps: int) -> float:
-    """Estimated wall time of one epoch on the reference machine [s], as the plan counts it:
-    the sum of :func:`epoch_costs_s`."""
-    return sum(epoch_costs_s(n_seq, seq_len=seq_len, seq_batch=seq_batch, val_steps=val_steps))
-
-
-def epoch_costs_s(
-    n_seq: int, *, seq_len: int, seq_batch: int, val_steps: int
-) -> tuple[float, float]:
-    """Estimated wall time of one epoch's training and of its validation on the reference
-    machine [s]:
+    """Estimated wall time of one epoch on the reference machine [s]:
 
       n_batch * seq_len * STEP_S          training (one recurrent step per sample of a batch)
-      2 * val_steps * VAL_STEP_S          free-run validation of the raw and averaged weights
+    + 2 * val_steps * VAL_STEP_S          free-run validation of the raw and averaged weights
     """
     n_batch = math.ceil(max(n_seq, 1) / seq_batch)
-    return n_batch * seq_len * STEP_S, 2 * val_steps * VAL_STEP_S
-
-
-def run_s(epochs: int, *, train_s: float, val_s: float, select_after: float, smooth: int) -> float:
-    """Wall time of ``epochs`` planned epochs as they run on the reference machine [s]: every
-    epoch trains (``train_s``); those from :func:`~.selection.first_validated` on validate
-    both candidates together (``val_s`` of two runs, :data:`VAL_PAIR_SHARE` of it)::
-
-        epochs * train_s + (epochs - first_validated) * VAL_PAIR_SHARE * val_s
-    """
-    validated = epochs - first_validated(epochs, select_after, smooth=smooth, plateau=False)
-    return epochs * train_s + validated * VAL_PAIR_SHARE * val_s
-
-
-def whole_epochs(
-    epochs: int,
-    *,
-    train_s: float,
-    val_s: float,
-    cap_s: float,
-    select_after: float,
-    smooth: int,
-) -> int:
-    """The most epochs, up to ``epochs`` (and at least 1), that a computer :data:`HEADROOM`
-    times slower than the reference trains whole within each training's cap ``cap_s``
-    (:func:`run_s` for the time)::
-
-        HEADROOM * run_s(n) <= cap_s
-
-    Where it binds (training steps that fill the budget: the stroke case), the plan is fewer
-    epochs, each the same on an idle and on a slower or busier computer, instead of more
-    that the cap cuts."""
-    n = epochs
-    while (
-        n > 1
-        and HEADROOM
-        * run_s(n, train_s=train_s, val_s=val_s, select_after=select_after, smooth=smooth)
-        > cap_s
-    ):
-        n -= 1
-    return n
+    return n_batch * seq_len * STEP_S + 2 * val_steps * VAL_STEP_S
 
 
 def want_epochs(n_seq: int) -> int:
@@ -211,18 +154,17 @@ def plan_members(
 ) -> int:
     """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
     steps of the parallel workers, whose planned training (``member_s`` each on the reference
-    machine, every epoch validated as the plan counts it) a computer :data:`HEADROOM` times
-    slower still finishes within each training's cap (:func:`training_cap_s`, the one
-    :func:`auto_config` sets)::
+    machine) a computer :data:`MEMBER_HEADROOM` times slower still finishes within each
+    training's cap (:func:`training_cap_s`, the one :func:`auto_config` sets)::
 
-        HEADROOM * member_s <= (1 - POST_SHARE) * member_budget_s(n)
+        MEMBER_HEADROOM * member_s <= (1 - POST_SHARE) * member_budget_s(n)
     """
     members = min_members(cpus)
     step = min(cpus, members)
     while members + step <= max_members(cpus):
         n = members + step
         share = member_budget_s(n, budget_s, cpus=cpus, choose=choose, kinds=kinds)
-        if HEADROOM * member_s > training_cap_s(share):
+        if MEMBER_HEADROOM * member_s > training_cap_s(share):
             break
         members = n
     return members
