@@ -4,8 +4,9 @@ the data, these turn its sizes into numbers).
 
 Everything here is fixed before training starts, from the data's sizes and the budget, at
 the speed of a *reference machine* (:data:`STEP_S`, :data:`VAL_STEP_S`): nothing reads this
-computer's clock, so the same data plan the same training on every computer, idle or busy.
-The wall-time budget is a cap on top of the plan, and the plan leaves room under it:
+computer's clock, so the same data and CPU count plan the same training on every computer,
+idle or busy.  The wall-time budget is a cap on top of the plan, and the plan leaves room
+under it:
 
 - epochs: about :data:`TARGET_PASSES` sub-sequence passes, at least :data:`MIN_EPOCHS`, at
   most :data:`EPOCHS_PER_SEQUENCE` per sub-sequence, and no more than :data:`PLAN_SHARE` of
