@@ -16,18 +16,21 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   costs about one recurrent step per sample); the sub-sequence length follows the episode
   lengths so that no short run is dropped;
 - a planned amount of training, fixed before it starts from the data and the budget
-  (:mod:`.plan`): about 18,000 sub-sequence passes, at least 40 epochs, on a short log at
-  most 1.75 epochs per sub-sequence, and no more than fits 60 % of each member's budget at
-  the reference machine's speed; the cosine schedule runs over those epochs, and the
-  wall-time budget is only a cap that stops a much slower or busier computer early (and
-  says so), with 15 % of it held back for the choices after training, so such a computer
-  still ends within the budget.  So the same data, seed and machine give the same model on
-  an idle or a busy computer;
+  (:mod:`.plan`): about :data:`~.plan.TARGET_PASSES` sub-sequence passes (at least
+  :data:`~.plan.MIN_EPOCHS` epochs, and on a short log at most
+  :data:`~.plan.EPOCHS_PER_SEQUENCE` epochs per sub-sequence), no more than fits
+  :data:`~.plan.PLAN_SHARE` of each member's budget at the reference machine's speed; the
+  cosine schedule runs over those epochs, and the wall-time budget is only a cap that stops
+  a much slower or busier computer early (and says so), with :data:`~.plan.POST_SHARE` of
+  it held back for the choices after training, so such a computer still ends within the
+  budget.  So the same data, seed and machine give the same model on an idle or a busy
+  computer;
 - an exponential moving average of the weights, so the selected checkpoint does not depend on
   one lucky epoch; selection by the whole-episode validation free run;
 - a seed ensemble of ``members`` networks trained side by side, one per core: 4, or up to 8
   when the planned epochs are cheap enough that the budget fits more, even on a computer
-  twice as slow as the reference (:func:`~.plan.plan_members`);
+  :data:`~.plan.MEMBER_HEADROOM` times slower than the reference
+  (:func:`~.plan.plan_members`);
 - the envelope (end stops and speed bounds) from the spec, else from the training data;
 - periodic joints (the swing) turned by a random offset per training sub-sequence, so the
   network does not tie the dynamics to where the machine points (it did: on the continuous
