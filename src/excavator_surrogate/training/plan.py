@@ -39,8 +39,8 @@ data, the sooner the networks fit them instead of the machine.  It binds on a sh
 a 7-minute log's 160 s of training (26 sub-sequences) plans 45 epochs, where the budget fits
 89, and its boom's test error went from 9.05 to 6.24 deg on one simulated log and from 2.50
 to 2.38 on another, with the same 4 + 2 networks (docs/real-history.md); a 10-minute log
-(55) keeps its budget's 81, h1-dev (453) its 40.  With :data:`TARGET_PASSES` it also bounds every plan: the two meet at
-102 sub-sequences, 177 epochs, the most any data plans."""
+(55) keeps its budget's 81, h1-dev (453) its 40.  With :data:`TARGET_PASSES` it also bounds
+every plan: the two meet at 102 sub-sequences, 177 epochs, the most any data plans."""
 PLAN_SHARE = 0.6
 """Share of each member's wall-time budget the planned epochs fill on the reference machine
 (the rest is headroom: only a computer this much slower, or busier, hits the cap)."""
@@ -134,11 +134,12 @@ def trainings(members: int, *, choose: bool, kinds: bool = False) -> int:
 def member_budget_s(
     members: int, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
 ) -> float:
-    """Each training's wall-time cap [s]: the trainings (:func:`trainings`) run
-    ``min(members, cpus)`` at a time, so they take ``ceil(trainings / workers)`` rounds, and
-    every round must fit ``budget_s``.  An odd count on two workers leaves one worker idle in
-    the last round: 9 trainings are 5 rounds, not 4.5 (the cap was ``budget_s * 2 / 9``, and
-    a computer that needed it all ran 11 % past the budget)."""
+    """Each training's share of the budget [s] (its cap is :func:`training_cap_s` of it):
+    the trainings (:func:`trainings`) run ``min(members, cpus)`` at a time, so they take
+    ``ceil(trainings / workers)`` rounds, and every round must fit ``budget_s``.  An odd count
+    on two workers leaves one worker idle in the last round: 9 trainings are 5 rounds, not 4.5
+    (the share was ``budget_s * 2 / 9``, and a computer that needed it all ran 11 % past the
+    budget)."""
     rounds = math.ceil(trainings(members, choose=choose, kinds=kinds) / min(members, cpus))
     return budget_s / rounds
 
@@ -156,7 +157,7 @@ def plan_members(
     """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
     steps of the parallel workers, whose planned training (``member_s`` each on the reference
     machine) a computer :data:`MEMBER_HEADROOM` times slower still finishes within each
-    training's cap (:func:`training_cap_s`, the one :func:`auto_config` sets)::
+    training's cap (:func:`training_cap_s`, the one :func:`~.auto.auto_config` sets)::
 
         MEMBER_HEADROOM * member_s <= (1 - POST_SHARE) * member_budget_s(n)
     """
