@@ -273,9 +273,18 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
     assert cfg.exogenous == "choose" and cfg.members == without.members == 4
     # the input choice and the kind choice: 4 members + 2 that ignore the inputs + 2
     # map-correcting networks share the budget: 540 s x 2 workers / 8 trainings
+    assert cfg.input_dropout == 0.0
     assert cfg.prior_choice and not any("one kind of network" in w for w in why)
     assert cfg.max_train_seconds == pytest.approx(135 * (1 - POST_SHARE))
     assert any("must not hurt" in w and "8 trainings" in w for w in why)
+    dual, why = auto_config(ds, cpus=2, overrides={"input_dropout": 0.5})
+    # every network learning both ways (dual.py), the choice costs no training: the plan
+    # is the one without inputs (4 members + 2 map-correcting networks)
+    assert dual.input_dropout == 0.5 and dual.exogenous == "choose"
+    for name in ("members", "epochs", "max_train_seconds"):
+        assert getattr(dual, name) == getattr(without, name), name
+    assert any("must not hurt" in w and "no training is spent" in w for w in why)
+    assert any("some joints only" in w for w in why)
     alone, why = auto_config(ds, cpus=2, overrides={"prior_choice": False})
     # the input choice alone: 4 members + 2 that ignore the inputs, 540 s x 2 / 6; and
     # there the inputs may go to some joints only
@@ -306,6 +315,8 @@ def test_the_input_choice_costs_two_trainings_however_many_members():
     assert cfg.max_train_seconds == without.max_train_seconds  # 8 trainings, 4 rounds
     assert any("2 member(s) use them and 2 ignore them" in w and "8 trainings" in w for w in why)
     assert [probe_members(m) for m in (1, 2, 3, 4, 6, 8)] == [1, 1, 1, 2, 2, 2]
+    dual, _ = auto_config(ds, cpus=2, overrides={**over, "input_dropout": 0.5})  # no probe
+    assert dual.members == 8 and dual.max_train_seconds == without.max_train_seconds
 
 
 def test_the_kind_choice_is_the_recipes_and_is_planned_within_the_same_budget():

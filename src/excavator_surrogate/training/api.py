@@ -14,6 +14,7 @@ from ..errors import ConfigError
 from .batches import split_episodes
 from .calibration import calibrate_best
 from .config import TrainConfig
+from .dual import train_dual_inputs
 from .ensembles import train_ensemble
 from .guards import check_excitation
 from .jobs import TrainJob, run_jobs
@@ -97,7 +98,11 @@ def train(
                         + (", prior_choice = false" if cfg.prior_choice else "")
                         + ") and merge them with 'exsur merge'"
                     )
-        if choosing:  # the inputs first; then, with prior_choice, the kinds too
+        if choosing and cfg.input_dropout > 0:  # the same networks both ways
+            best = train_dual_inputs(
+                cfg, dataset, out=out, show_progress=show_progress, notes=notes
+            )
+        elif choosing:  # the inputs first; then, with prior_choice, the kinds too
             best = train_choosing_inputs(
                 cfg, dataset, out=out, show_progress=show_progress, notes=notes
             )

@@ -41,7 +41,10 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   better still.  Also when the run chooses its exogenous inputs (:mod:`.variants`): the
   inputs are chosen first, then the rest of the plain members and the map-correcting
   networks train the chosen way (8 trainings in the budget instead of 6); on the sessions
-  case with its throttle the bucket lost 1.4-2.9x without them (docs/real-history.md);
+  case with its throttle the bucket lost 1.4-2.9x without them (docs/real-history.md).
+  With ``input_dropout`` > 0 (not the recipe's) every network learns both ways instead
+  and the choice is made on the same networks (:mod:`.dual`): the plan is then the one
+  without inputs;
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
@@ -165,6 +168,10 @@ def auto_config(
     default_exogenous = ("ignore" if len(held) == len(inputs) else "choose") if inputs else "use"
     exogenous = str(overrides.get("exogenous", default_exogenous))
     choose = bool(inputs) and exogenous == "choose"
+    # input_dropout > 0 (an override, not the recipe's): every network learns both ways and
+    # the choice costs no training (dual.py); else 2 more networks decide it (variants.py)
+    dropout = float(overrides.get("input_dropout", 0.0)) if choose else 0.0
+    probe = choose and dropout == 0  # networks trained only to decide the choice
     # the kind choice is the recipe's, beside the input choice too, unless validation spans
     # too little of any joint's command range to choose a kind
     min_span = float(overrides.get("choice_min_span", TrainConfig.choice_min_span))
@@ -181,12 +188,10 @@ def auto_config(
     members = (
         int(asked)
         if asked
-        else plan_members(
-            cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=choose, kinds=kinds
-        )
+        else plan_members(cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=probe, kinds=kinds)
     )
     workers = min(members, cpus)
-    per_member = member_budget_s(members, budget_s, cpus=cpus, choose=choose, kinds=kinds)
+    per_member = member_budget_s(members, budget_s, cpus=cpus, choose=probe, kinds=kinds)
     cap = training_cap_s(per_member)
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {cap:.0f} s "
@@ -211,7 +216,23 @@ def auto_config(
                 else "they add nothing to the inputs the choice below weighs"
             )
         )
-    if choose:
+    if choose and not probe:
+        why.append(
+            f"exogenous inputs {inputs} must not hurt: every network learns with and without "
+            f"them ({dropout:.0%} of its training sub-sequences blanked) and runs both ways; "
+            "they are kept only if the ensemble that uses them is better on validation, overall "
+            "and on every joint, than the same networks with their input weights zeroed; where "
+            "they help some joints only, those joints may take them alone (each network's two "
+            "ways joint by joint, kept on the same terms); no training is spent on the losing "
+            "way"
+            + (
+                "; the map-correcting networks of the kind choice learn the same way and follow "
+                "the chosen way (if some joints take them: ignoring them)"
+                if kinds
+                else ""
+            )
+        )
+    if probe:
         half = probe_members(members)
         why.append(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
@@ -232,7 +253,7 @@ def auto_config(
             f"two kinds of network: beside the {members} plain member(s), "
             f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
             "the kind whose ensemble validates better drives it, or the even blend of both "
-            f"({trainings(members, choose=choose, kinds=True)} trainings in the budget)"
+            f"({trainings(members, choose=probe, kinds=True)} trainings in the budget)"
         )
     elif spans is not None and not any(spanned) and "prior_choice" not in overrides:
         why.append(
@@ -301,6 +322,7 @@ def auto_config(
         select_after=SELECT_AFTER if short_val else 0.0,
         select_smooth=SELECT_SMOOTH if short_val else 0,
         exogenous=default_exogenous,
+        input_dropout=dropout,
         periodic_offsets=bool(turning),
         static_map=True,
         prior_choice=kinds,

@@ -28,6 +28,7 @@ MODE_FIELDS: dict[str, tuple[str, ...]] = {
         "fused_backward",
         "periodic_offsets",
         "angle_noise",
+        "input_dropout",
     ),
 }
 """Fields read by one training mode only (every other field is read by both)."""
@@ -114,10 +115,18 @@ class TrainConfig(PresetConfig, table="train"):
     epoch in a noisy stretch cannot win."""
     exogenous: Literal["use", "ignore", "choose"] = "use"
     """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
-    are held at zero, so the model cannot depend on them); or ``choose``: train 2 networks
-    each way (at most half the members, :func:`~.variants.probe_members`), keep the way
-    whose merged members score better on validation (``use`` only if better by
-    :data:`~.variants.INPUT_MARGIN`), then train the rest that way."""
+    are held at zero, so the model cannot depend on them); or ``choose`` the way that scores
+    better on validation (``use`` only if better by :data:`~.variants.INPUT_MARGIN`): with
+    ``input_dropout`` > 0 on the same networks run both ways (:mod:`.dual`), else train 2
+    networks each way (at most half the members, :func:`~.variants.probe_members`), then
+    the rest the chosen way."""
+    input_dropout: float = 0.0
+    """Share of the training sub-sequences whose exogenous inputs are blanked (held at their
+    training mean, feature 0: what a network that ignores them sees), teacher-forced stateful
+    mode only.  One network then runs both ways: with the inputs, and with their input weights
+    zeroed.  With ``exogenous = "choose"`` and > 0 every member trains so and the choice is
+    made on the same networks (:mod:`.dual`: no network is trained only to lose the choice);
+    0 (the recipe's): the choice trains networks each way (:mod:`.variants`)."""
     inputs_per_joint: bool = True
     """With ``exogenous = "choose"``: where the inputs' members beat the others on some
     joints and not on all, those joints may take them alone: each seed's two networks become
@@ -309,6 +318,16 @@ class TrainConfig(PresetConfig, table="train"):
             (
                 self.exogenous in ("use", "ignore", "choose"),
                 f"exogenous = {self.exogenous!r} must be use, ignore or choose",
+            ),
+            (
+                0 <= self.input_dropout < 1,
+                f"input_dropout = {self.input_dropout!r} must be in [0, 1) (a share of the "
+                "training sub-sequences)",
+            ),
+            (
+                self.input_dropout == 0 or self.feedback == "teacher",
+                f"input_dropout = {self.input_dropout!r} blanks the inputs of teacher-forced "
+                'sub-sequences: set feedback = "teacher" or input_dropout = 0',
             ),
         ]
         for ok, msg in checks:

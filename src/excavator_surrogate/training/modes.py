@@ -187,6 +187,21 @@ class Stateful:
             x[:, b0:, col] += walk_t[..., m]
         return x
 
+    def _blanked(self, x: torch.Tensor, index: np.ndarray, epoch: int) -> torch.Tensor:
+        """``x`` (n_batch, n_step, n_feature) with the exogenous inputs' features set to 0
+        (their training mean) over the whole of each sub-sequence drawn with probability
+        ``input_dropout``, from the seed, the epoch and the sub-sequence's start (the same on
+        every machine): what the network sees with its input weights of them zeroed."""
+        spec = self.sur.spec
+        if self.cfg.input_dropout <= 0 or not spec.n_input:
+            return x
+        lo, hi = spec.n_feature - spec.n_input, spec.n_feature  # as resume.start's blind
+        rng = np.random.default_rng([self.cfg.seed, epoch, *(int(i) for i in index[:1]), 2])
+        off = torch.as_tensor(rng.random(len(index)) < self.cfg.input_dropout)
+        x = x.clone()
+        x[off, :, lo:hi] = 0.0
+        return x
+
     def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:
         """Shuffled sub-sequence starts, capped at ``epoch_samples``, ``seq_batch * world`` per batch."""
         cfg = self.cfg
@@ -206,7 +221,7 @@ class Stateful:
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
         x_seq, th_seq = self._turned(x_seq, th_seq, index, epoch)
         if teacher:
-            x_seq = self._drifted(x_seq, index, epoch)
+            x_seq = self._blanked(self._drifted(x_seq, index, epoch), index, epoch)
         z_seq, w_seq = data.z[g], data.w[g]
         state = net.init_state(len(s))
         b0 = cfg.burn_in - 1  # first step whose output is in the loss

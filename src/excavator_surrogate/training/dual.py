@@ -1,0 +1,199 @@
+"""Exogenous inputs chosen on networks that learned both ways (``exogenous = "choose"`` with
+``input_dropout`` > 0; an option, not the recipe's: docs/real-history.md, session 49).
+
+Every member trains with the inputs, and on ``input_dropout`` of its sub-sequences with them
+blanked (feature 0, their training mean: :meth:`~.modes.Stateful._blanked`).  Each network
+then runs both ways: as trained, and :func:`blinded`, its input weights of the inputs
+zeroed, so it cannot depend on them.  The choice of :mod:`.variants` is made on these two
+ways of the same networks, under the same rule (:func:`~.variants.choose_inputs`: the
+inputs are kept only if the ensemble that uses them is better on validation by
+:data:`~.variants.INPUT_MARGIN` overall and no joint is worse by more; else, per joint,
+:func:`~.variants.choose_input_joints`).  No network is trained only to lose the choice: the
+budget's trainings all go to the ensemble, as many as without inputs (the probe of
+:mod:`.variants` spent 2 of 6 on the losing way, and h1-dev's bucket with the H/L condition
+scored as 4 members instead of 6).
+
+With ``prior_choice`` the kind choice's map-correcting networks train the same way beside
+the plain ones, and follow the chosen way: as trained where the inputs are kept, blinded
+where they are refused or go to some joints only (there the plain networks' two ways are
+the pairs, :func:`~.variants.paired`, as in :mod:`.variants`).
+
+Layout: ``OUT/member_*`` (every network, as trained; with ``prior_choice`` the kind
+choice's ``OUT/plain/member_*`` and ``OUT/prior/member_*``), ``OUT/best.pt`` (the chosen
+model; ``metrics.training.exogenous`` says what was chosen and why, with ``"dual": true``),
+``OUT/config.toml`` (``[exogenous]``).
+
+Measured (session 49, h1-dev with its H/L condition and the 7-minute loader log with its
+throttle): better on the validation the choices are made on, but not on held-out data: on
+h1-dev's held-out duty 80 the bucket scored 9.89 against 8.76 deg for the probe, and on
+the loader's test the boom 5.65 against 5.36 deg (medians of three seeds).
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ..data.dataset import Dataset
+from ..surrogate.checkpoint import load_checkpoint
+from ..surrogate.ensemble import merge
+from ..surrogate.model import Surrogate
+from ..surrogate.validation import free_run_error
+from .batches import split_episodes
+from .config import TrainConfig
+from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
+from .jobs import TrainJob, run_jobs
+from .kinds import (
+    choice_joints,
+    choice_options,
+    choose_kinds,
+    map_pinned,
+    model_kind,
+    plain_ensemble,
+    prior_members,
+)
+from .records import write_config
+from .variants import choose_input_joints, choose_inputs, input_joints, inputs_after_kinds
+
+_log = logging.getLogger(__name__)
+
+
+def blinded(sur: Surrogate) -> Surrogate:
+    """A copy of ``sur`` that cannot depend on its exogenous inputs: their columns of the
+    first recurrent layer's input weights are zero (what a network trained with
+    ``input_dropout`` saw on its blanked sub-sequences, feature 0)::
+
+        W_ih[:, lo:hi] = 0,   lo:hi = the exogenous inputs' feature columns
+    """
+    spec = sur.spec
+    lo, hi = spec.n_feature - spec.n_input, spec.n_feature  # as resume.start's blind
+    net = copy.deepcopy(sur.net)
+    with torch.no_grad():
+        net.rnn.weight_ih_l0[:, lo:hi] = 0.0
+    return replace(sur, net=net)
+
+
+def train_dual_inputs(
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    out: str | Path,
+    show_progress: bool | None = None,
+    notes: Mapping[str, Any] | None = None,
+) -> Path:
+    """Train ``cfg.members`` networks (and, with ``prior_choice``, the map-correcting ones)
+    that learn both ways, then keep the exogenous inputs, refuse them or give them to some
+    joints on validation (see the module docstring); returns ``OUT/best.pt``."""
+    n_prior = prior_members(cfg.members) if cfg.prior_choice else 0
+    val_eps, out, workers = open_run(
+        cfg, dataset, out, notes=notes, trainings=cfg.members + n_prior
+    )
+    names = list(dataset.spec.u_names[dataset.spec.n_joint :])
+    _log.info(
+        f"exogenous inputs {names}: {cfg.members} member(s)"
+        + (f" and {n_prior} network(s) correcting the static map" if n_prior else "")
+        + f" learn with and without them ({cfg.input_dropout:.0%} of the sub-sequences "
+        f"blanked), {workers} in parallel; then each way is scored on validation"
+    )
+    t0 = time.monotonic()
+    base = replace(cfg, prior_choice=False, static_map=False, exogenous="use")
+    cfgs = {"plain": member_configs(base)}
+    if n_prior:  # the kind choice's layout: OUT/plain/member_*, OUT/prior/member_*
+        cfgs["prior"] = member_configs(replace(base, prior=True, members=n_prior))
+        nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
+        use, priors = nets["plain"], nets["prior"]
+    else:  # a seed ensemble's: OUT/member_*
+        jobs = [
+            TrainJob(cfg=c, dataset=dataset, out=out / f"member_{i}", tag=f"exsur member {i}")
+            for i, c in enumerate(cfgs["plain"])
+        ]
+        paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
+        use, priors = [load_checkpoint(p) for p in paths], []
+    ignore = [blinded(s) for s in use]
+    max_steps = cfg.val_steps or None
+    vals = {
+        "use": free_run_error(merge(use), val_eps, max_steps=max_steps),
+        "ignore": free_run_error(merge(ignore), val_eps, max_steps=max_steps),
+    }
+    keep, why = choose_inputs(vals["use"], vals["ignore"])
+    joints: list[bool] | None = None
+    tried: list[dict[str, Any]] = []
+    per_joint: dict[str, Any] = {}
+    train_eps = split_episodes(cfg, dataset)[0]
+    if not keep and cfg.inputs_per_joint and any(input_joints(vals["use"], vals["ignore"])):
+        per_joint = (
+            choice_joints(cfg, ignore[0], train_eps, val_eps)
+            if n_prior
+            else {"pinned": map_pinned(cfg, ignore[0], train_eps, val_eps)}
+        )
+        joints, tried = choose_input_joints(
+            use, ignore, vals, val_eps, max_steps=max_steps, pinned=per_joint["pinned"]
+        )
+    record: dict[str, Any] = {
+        "inputs": names,
+        "kept": keep or joints is not None,
+        "joints": list(dataset.spec.names) if keep else [],
+        "per_joint": joints is not None,
+        "why": why,
+        "val_error_use": vals["use"]["val_error"],
+        "val_error_ignore": vals["ignore"]["val_error"],
+        "theta_rmse_use": vals["use"]["theta_rmse"],
+        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
+        "dual": True,
+        "input_dropout": cfg.input_dropout,
+        "tried": tried,
+    }
+    if joints is not None:
+        taken = [n for n, p in zip(dataset.spec.names, joints) if p]
+        got = next(t for t in tried if t["joints"] == taken)
+        record["joints"] = taken
+        record["why"] = why = (
+            f"{why}; {', '.join(taken)} take them alone: validation error "
+            f"{got['val_error']:.4g} (each network with and without them, joint by joint)"
+        )
+    _log.info(f"exogenous inputs {names}: {why}")
+    way = "use" if keep else ("per joint" if joints is not None else "ignore")
+    plains = use if keep else ignore
+    prior_nets = priors if keep else [blinded(s) for s in priors]
+    training: dict[str, Any] = {"exogenous": record}
+    model: Surrogate | None = None
+    if n_prior:  # the kinds, per joint, among the networks the chosen way (pairs per joint)
+        if not per_joint:
+            per_joint = choice_joints(cfg, plains[0], train_eps, val_eps)
+        twins = {"twins": use, "twin_joints": joints} if joints is not None else {}
+        model, kinds = choose_kinds(
+            plains, prior_nets, val_eps, **twins, **per_joint, **choice_options(cfg)
+        )
+        _log.info(f"two kinds of network: {kinds['why']}")
+        training["kinds"] = kinds
+        if joints is not None:
+            inputs_after_kinds(record, kinds)
+    elif joints is not None:
+        model = plain_ensemble(ignore, twins=use, twin_joints=joints)
+    elif not keep:
+        model = merge(ignore)
+    column: tuple[str, Sequence[Any], Any] = (
+        ("kind", ["plain"] * len(use) + ["prior"] * len(priors), model_kind(training["kinds"]))
+        if n_prior
+        else ("exogenous", [way] * len(use), way)
+    )
+    best = merge_members(
+        replace(cfg, exogenous="use" if keep or joints is not None else "ignore"),
+        cfgs["plain"] + cfgs.get("prior", []),
+        use + priors,
+        val_eps,
+        out=out,
+        t0=t0,
+        training=training,
+        merged=model,
+        column=column,
+    )
+    write_config(out, cfg, notes={**(notes or {}), **training})
+    return best
