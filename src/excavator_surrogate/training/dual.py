@@ -60,7 +60,13 @@ from .kinds import (
     prior_members,
 )
 from .records import write_config
-from .variants import choose_input_joints, choose_inputs, input_joints, inputs_after_kinds
+from .variants import (
+    choice_record,
+    choose_input_joints,
+    choose_inputs,
+    input_joints,
+    inputs_after_kinds,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -136,29 +142,19 @@ def train_dual_inputs(
         joints, tried = choose_input_joints(
             use, ignore, vals, val_eps, max_steps=max_steps, pinned=per_joint["pinned"]
         )
-    record: dict[str, Any] = {
-        "inputs": names,
-        "kept": keep or joints is not None,
-        "joints": list(dataset.spec.names) if keep else [],
-        "per_joint": joints is not None,
-        "why": why,
-        "val_error_use": vals["use"]["val_error"],
-        "val_error_ignore": vals["ignore"]["val_error"],
-        "theta_rmse_use": vals["use"]["theta_rmse"],
-        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
-        "dual": True,
-        "input_dropout": cfg.input_dropout,
-        "tried": tried,
-    }
-    if joints is not None:
-        taken = [n for n, p in zip(dataset.spec.names, joints) if p]
-        got = next(t for t in tried if t["joints"] == taken)
-        record["joints"] = taken
-        record["why"] = why = (
-            f"{why}; {', '.join(taken)} take them alone: validation error "
-            f"{got['val_error']:.4g} (each network with and without them, joint by joint)"
-        )
-    _log.info(f"exogenous inputs {names}: {why}")
+    record = choice_record(
+        names,
+        list(dataset.spec.names),
+        vals,
+        keep=keep,
+        why=why,
+        joints=joints,
+        tried=tried,
+        pairs="each network",
+        dual=True,
+        input_dropout=cfg.input_dropout,
+    )
+    _log.info(f"exogenous inputs {names}: {record['why']}")
     way = "use" if keep else ("per joint" if joints is not None else "ignore")
     plains = use if keep else ignore
     prior_nets = priors if keep else [blinded(s) for s in priors]

@@ -199,6 +199,53 @@ def choose_input_joints(
     return (None if best is None else best[1]), tried
 
 
+def choice_record(
+    names: Sequence[str],
+    joint_names: Sequence[str],
+    vals: Mapping[str, Mapping[str, Any]],
+    *,
+    keep: bool,
+    why: str,
+    joints: Sequence[bool] | None,
+    tried: list[dict[str, Any]],
+    pairs: str,
+    **extra: Any,
+) -> dict[str, Any]:
+    """The input choice's record (``metrics.training.exogenous``, ``[exogenous]``).
+
+    Args:
+        names: the exogenous inputs; ``joint_names``: the machine's joints.
+        vals: ``{"use": ..., "ignore": ...}``, each way's merged validation free run.
+        keep: the inputs kept on every joint; ``why``: :func:`choose_inputs`'s reason.
+        joints: (n_joint,) the joints that take them alone (:func:`choose_input_joints`), or
+            None; ``tried``: its sets.
+        pairs: what each joint-by-joint network is made of, for the reason.
+        extra: more entries (how the ways were trained).
+    """
+    record = {
+        "inputs": list(names),
+        "kept": keep or joints is not None,
+        "joints": list(joint_names) if keep else [],
+        "per_joint": joints is not None,
+        "why": why,
+        "val_error_use": vals["use"]["val_error"],
+        "val_error_ignore": vals["ignore"]["val_error"],
+        "theta_rmse_use": vals["use"]["theta_rmse"],
+        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
+        **extra,
+        "tried": tried,
+    }
+    if joints is not None:
+        taken = [n for n, p in zip(joint_names, joints) if p]
+        got = next(t for t in tried if t["joints"] == taken)
+        record["joints"] = taken
+        record["why"] = (
+            f"{why}; {', '.join(taken)} take them alone: validation error "
+            f"{got['val_error']:.4g} ({pairs} with and without them, joint by joint)"
+        )
+    return record
+
+
 def train_choosing_inputs(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -249,27 +296,19 @@ def train_choosing_inputs(
             max_steps=max_steps,
             pinned=per_joint["pinned"],
         )
-    record = {
-        "inputs": names,
-        "kept": keep or joints is not None,
-        "joints": list(dataset.spec.names) if keep else [],
-        "per_joint": joints is not None,
-        "why": why,
-        "val_error_use": vals["use"]["val_error"],
-        "val_error_ignore": vals["ignore"]["val_error"],
-        "theta_rmse_use": vals["use"]["theta_rmse"],
-        "theta_rmse_ignore": vals["ignore"]["theta_rmse"],
-        "members_per_way": half,
-        "tried": tried,
-    }
+    record = choice_record(
+        names,
+        list(dataset.spec.names),
+        vals,
+        keep=keep,
+        why=why,
+        joints=joints,
+        tried=tried,
+        pairs="each seed's networks",
+        members_per_way=half,
+    )
+    why = record["why"]
     if joints is not None:
-        taken = [n for n, p in zip(dataset.spec.names, joints) if p]
-        got = next(t for t in tried if t["joints"] == taken)
-        record["joints"] = taken
-        record["why"] = why = (
-            f"{why}; {', '.join(taken)} take them alone: validation error "
-            f"{got['val_error']:.4g} (each seed's networks with and without them, joint by joint)"
-        )
         _log.info(f"exogenous inputs {names}: {why}")
         return _train_pairs(
             cfg,
