@@ -305,6 +305,13 @@ class MachineSpec:
         return self.n_angle_feature + self.n_u
 
     @property
+    def input_features(self) -> slice:
+        """The exogenous inputs' columns of the surrogate input: the last :attr:`n_input` of
+        its :attr:`n_feature` base columns (the columns a network that ignores them holds at
+        zero weight)."""
+        return slice(self.n_feature - self.n_input, self.n_feature)
+
+    @property
     def any_linear(self) -> bool:
         """True if some joint is linear (its θ a stroke in m)."""
         return any(j.linear for j in self.joints)

@@ -42,31 +42,21 @@ from typing import Any
 import torch
 
 from ..data.dataset import Dataset
-from ..surrogate.checkpoint import load_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
-from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
-from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
-from .jobs import TrainJob, run_jobs
+from .ensembles import member_configs, merge_members, open_run, train_groups, train_members
 from .kinds import (
     choice_joints,
     choice_options,
     choose_kinds,
-    map_pinned,
     model_kind,
     plain_ensemble,
     prior_members,
 )
 from .records import write_config
-from .variants import (
-    choice_record,
-    choose_input_joints,
-    choose_inputs,
-    input_joints,
-    inputs_after_kinds,
-)
+from .variants import choice_record, decide_inputs, inputs_after_kinds
 
 _log = logging.getLogger(__name__)
 
@@ -76,13 +66,11 @@ def blinded(sur: Surrogate) -> Surrogate:
     first recurrent layer's input weights are zero (what a network trained with
     ``input_dropout`` saw on its blanked sub-sequences, feature 0)::
 
-        W_ih[:, lo:hi] = 0,   lo:hi = the exogenous inputs' feature columns
+        W_ih[:, spec.input_features] = 0
     """
-    spec = sur.spec
-    lo, hi = spec.n_feature - spec.n_input, spec.n_feature  # as resume.start's blind
     net = copy.deepcopy(sur.net)
     with torch.no_grad():
-        net.rnn.weight_ih_l0[:, lo:hi] = 0.0
+        net.rnn.weight_ih_l0[:, sur.spec.input_features] = 0.0
     return replace(sur, net=net)
 
 
@@ -116,32 +104,14 @@ def train_dual_inputs(
         nets = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
         use, priors = nets["plain"], nets["prior"]
     else:  # a seed ensemble's: OUT/member_*
-        jobs = [
-            TrainJob(cfg=c, dataset=dataset, out=out / f"member_{i}", tag=f"exsur member {i}")
-            for i, c in enumerate(cfgs["plain"])
-        ]
-        paths = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
-        use, priors = [load_checkpoint(p) for p in paths], []
+        use = train_members(
+            cfgs["plain"], dataset, out=out, workers=workers, show_progress=show_progress
+        )
+        priors = []
     ignore = [blinded(s) for s in use]
-    max_steps = cfg.val_steps or None
-    vals = {
-        "use": free_run_error(merge(use), val_eps, max_steps=max_steps),
-        "ignore": free_run_error(merge(ignore), val_eps, max_steps=max_steps),
-    }
-    keep, why = choose_inputs(vals["use"], vals["ignore"])
-    joints: list[bool] | None = None
-    tried: list[dict[str, Any]] = []
-    per_joint: dict[str, Any] = {}
-    train_eps = split_episodes(cfg, dataset)[0]
-    if not keep and cfg.inputs_per_joint and any(input_joints(vals["use"], vals["ignore"])):
-        per_joint = (
-            choice_joints(cfg, ignore[0], train_eps, val_eps)
-            if n_prior
-            else {"pinned": map_pinned(cfg, ignore[0], train_eps, val_eps)}
-        )
-        joints, tried = choose_input_joints(
-            use, ignore, vals, val_eps, max_steps=max_steps, pinned=per_joint["pinned"]
-        )
+    vals, keep, why, joints, tried, per_joint = decide_inputs(
+        cfg, use, ignore, val_eps, dataset=dataset, n_prior=n_prior
+    )
     record = choice_record(
         names,
         list(dataset.spec.names),
@@ -162,6 +132,7 @@ def train_dual_inputs(
     model: Surrogate | None = None
     if n_prior:  # the kinds, per joint, among the networks the chosen way (pairs per joint)
         if not per_joint:
+            train_eps = split_episodes(cfg, dataset)[0]
             per_joint = choice_joints(cfg, plains[0], train_eps, val_eps)
         twins = {"twins": use, "twin_joints": joints} if joints is not None else {}
         model, kinds = choose_kinds(

@@ -100,7 +100,6 @@ def train_ensemble(
     """
     val_eps, out, workers = open_run(cfg, dataset, out, notes=notes, trainings=cfg.members)
     cfgs = member_configs(cfg)
-    dirs = [out / f"member_{i}" for i in range(cfg.members)]
     _log.info(
         f"seed ensemble: {cfg.members} members (seeds {cfg.seed}..{cfg.seed + cfg.members - 1}"
         + ("; each on its own bootstrap resample of the training episodes" if cfg.bootstrap else "")
@@ -108,13 +107,27 @@ def train_ensemble(
         f"{workers} in parallel, into {out}/member_*"
     )
     t0 = time.monotonic()
+    members = train_members(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
+    return merge_members(cfg, cfgs, members, val_eps, out=out, t0=t0)
+
+
+def train_members(
+    cfgs: Sequence[TrainConfig],
+    dataset: Dataset,
+    *,
+    out: Path,
+    workers: int,
+    show_progress: bool | None = None,
+) -> list[Surrogate]:
+    """Train the single-network configs side by side (up to ``workers`` processes), the
+    ``i``-th into ``out/member_i`` (log tag ``exsur member i``), and return their selected
+    networks, loaded, in order."""
     jobs = [
-        TrainJob(cfg=c, dataset=dataset, out=d, tag=f"exsur member {i}")
-        for i, (c, d) in enumerate(zip(cfgs, dirs))
+        TrainJob(cfg=c, dataset=dataset, out=out / f"member_{i}", tag=f"exsur member {i}")
+        for i, c in enumerate(cfgs)
     ]
     bests = run_jobs(train_member, jobs, workers=workers, show_progress=show_progress)
-    members = [load_checkpoint(b) for b in bests]
-    return merge_members(cfg, cfgs, members, val_eps, out=out, t0=t0)
+    return [load_checkpoint(b) for b in bests]
 
 
 def merge_members(

@@ -195,11 +195,10 @@ class Stateful:
         spec = self.sur.spec
         if self.cfg.input_dropout <= 0 or not spec.n_input:
             return x
-        lo, hi = spec.n_feature - spec.n_input, spec.n_feature  # as resume.start's blind
         rng = np.random.default_rng([self.cfg.seed, epoch, *(int(i) for i in index[:1]), 2])
         off = torch.as_tensor(rng.random(len(index)) < self.cfg.input_dropout)
         x = x.clone()
-        x[off, :, lo:hi] = 0.0
+        x[off, :, spec.input_features] = 0.0
         return x
 
     def batches(self, rng: np.random.Generator, world: int) -> list[np.ndarray]:

@@ -114,11 +114,8 @@ def start(
     Raises:
         CheckpointError: ``resume`` has another architecture or other joints.
     """
-    blind = (
-        (spec.n_feature - spec.n_input, spec.n_feature)
-        if cfg.exogenous == "ignore" and spec.n_input
-        else None
-    )
+    cols = spec.input_features
+    blind = (cols.start, cols.stop) if cfg.exogenous == "ignore" and spec.n_input else None
     if resume is None:
         derived: list[str] = []
         if cfg.end_stops:

@@ -199,6 +199,66 @@ def choose_input_joints(
     return (None if best is None else best[1]), tried
 
 
+def decide_inputs(
+    cfg: TrainConfig,
+    use: Sequence[Surrogate],
+    ignore: Sequence[Surrogate],
+    val_eps: list[Any],
+    *,
+    dataset: Dataset,
+    n_prior: int,
+    per_joint: bool = True,
+) -> tuple[
+    dict[str, dict[str, Any]], bool, str, list[bool] | None, list[dict[str, Any]], dict[str, Any]
+]:
+    """The input choice on validation: the whole way (:func:`choose_inputs`), then, where it
+    is refused, ``cfg.inputs_per_joint`` and ``per_joint`` allow and some joint is a
+    candidate, the joints that take the inputs alone (:func:`choose_input_joints`).
+
+    Args:
+        use, ignore: networks with the inputs used and ignored (network ``i`` of each on the
+            same seed, or the same network both ways).
+        val_eps: the validation episodes; ``dataset``: the run's (its training split).
+        n_prior: the kind choice's map-correcting networks (0: no kind choice).
+
+    Returns:
+        ``(vals, keep, why, joints, tried, options)``: each way's merged validation free run,
+        :func:`choose_inputs`'s verdict, :func:`choose_input_joints`'s (None, [] where not
+        tried), and the kind choice's per-joint options found on the way
+        (:func:`~.kinds.choice_joints` with ``n_prior``, else ``{"pinned": ...}``; empty
+        where not needed).
+    """
+    max_steps = cfg.val_steps or None
+    vals = {
+        "use": free_run_error(merge(list(use)), val_eps, max_steps=max_steps),
+        "ignore": free_run_error(merge(list(ignore)), val_eps, max_steps=max_steps),
+    }
+    keep, why = choose_inputs(vals["use"], vals["ignore"])
+    joints: list[bool] | None = None
+    tried: list[dict[str, Any]] = []
+    # the kind choice's options per joint, found once (they read the data and the networks'
+    # window, spec and end stops only: the same for every network of the run)
+    options: dict[str, Any] = {}
+    # the pinned joints cost a map free run: only where some joint is a candidate at all
+    if (
+        not keep
+        and cfg.inputs_per_joint
+        and per_joint
+        and any(input_joints(vals["use"], vals["ignore"]))
+    ):
+        train_eps = split_episodes(cfg, dataset)[0]
+        carrier = ignore[0]
+        options = (
+            choice_joints(cfg, carrier, train_eps, val_eps)
+            if n_prior
+            else {"pinned": map_pinned(cfg, carrier, train_eps, val_eps)}
+        )
+        joints, tried = choose_input_joints(
+            use, ignore, vals, val_eps, max_steps=max_steps, pinned=options["pinned"]
+        )
+    return vals, keep, why, joints, tried, options
+
+
 def choice_record(
     names: Sequence[str],
     joint_names: Sequence[str],
@@ -270,32 +330,16 @@ def train_choosing_inputs(
     base = replace(cfg, prior_choice=False, static_map=False)  # single networks
     cfgs = {w: member_configs(replace(base, exogenous=w))[:half] for w in ways}
     halves = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
-    max_steps = cfg.val_steps or None
-    vals = {w: free_run_error(merge(halves[w]), val_eps, max_steps=max_steps) for w in ways}
-    keep, why = choose_inputs(vals["use"], vals["ignore"])
-    joints, tried = None, []
-    # the pinned joints cost a map free run: only where some joint is a candidate at all
-    some = any(input_joints(vals["use"], vals["ignore"]))
     fits = more_pairs(cfg.members, half, n_prior) is not None
-    # the kind choice's options per joint, found once (they read the data and the networks'
-    # window, spec and end stops only: the same for every network of the run)
-    per_joint: dict[str, Any] = {}
-    if not keep and cfg.inputs_per_joint and some and fits:
-        train_eps = split_episodes(cfg, dataset)[0]
-        carrier = halves["ignore"][0]
-        per_joint = (
-            choice_joints(cfg, carrier, train_eps, val_eps)
-            if n_prior
-            else {"pinned": map_pinned(cfg, carrier, train_eps, val_eps)}
-        )
-        joints, tried = choose_input_joints(
-            halves["use"],
-            halves["ignore"],
-            vals,
-            val_eps,
-            max_steps=max_steps,
-            pinned=per_joint["pinned"],
-        )
+    vals, keep, why, joints, tried, per_joint = decide_inputs(
+        cfg,
+        halves["use"],
+        halves["ignore"],
+        val_eps,
+        dataset=dataset,
+        n_prior=n_prior,
+        per_joint=fits,
+    )
     record = choice_record(
         names,
         list(dataset.spec.names),
