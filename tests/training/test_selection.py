@@ -1,4 +1,6 @@
-"""Selection that stays sound on a short validation split (``select_after``, ``select_smooth``)."""
+"""Selection that stays sound on a short validation split (``select_after``, ``select_smooth``),
+and the selected epoch averaged with the last where validation cannot vouch for the other
+commands (``average_last``)."""
 
 from __future__ import annotations
 
@@ -8,13 +10,16 @@ import pytest
 import torch
 
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.surrogate.checkpoint import read_checkpoint
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint, read_checkpoint
+from excavator_surrogate.surrogate.validation import free_run_errors
 from excavator_surrogate.training import loop, train
 from excavator_surrogate.training.selection import (
+    averaged,
     first_eligible,
     first_validated,
     selection_score,
 )
+from tests.helpers.surrogates import tiny_surrogate
 from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
@@ -84,8 +89,50 @@ def test_only_epochs_after_select_after_compete(tmp_path):
         assert rows[k]["select_score"] == pytest.approx(want, rel=1e-12)
 
 
+def test_averaged_is_the_mean_of_the_two_weights_parameter_by_parameter():
+    a, b = tiny_surrogate(seed=0), tiny_surrogate(seed=1)
+    before = {k: v.clone() for k, v in a.net.state_dict().items()}
+    avg = averaged(a, b)
+    for (name, p), q, r in zip(a.net.named_parameters(), b.net.parameters(), avg.net.parameters()):
+        torch.testing.assert_close(r, (p + q) / 2, rtol=0, atol=1e-7, msg=name)
+    for k, v in a.net.state_dict().items():  # the inputs are untouched
+        assert torch.equal(v, before[k]), k
+    assert avg.norm is not a.norm  # a copy
+
+
+def test_average_last_writes_the_selected_epoch_averaged_with_the_last(tmp_path):
+    data = tiny_dataset(2, n_train=2, n_step=120)
+    kw = dict(epochs=4, ema_decay=0.9, lr_schedule="cosine")
+    plain = train(tiny_train_config(**kw), data, out=tmp_path / "plain", show_progress=False)
+    sel, last = load_checkpoint(plain), load_checkpoint(tmp_path / "plain" / "last.pt")
+    best = train(
+        tiny_train_config(average_last=True, **kw), data, out=tmp_path / "avg", show_progress=False
+    )
+    got = load_checkpoint(best)
+    # the same training (same data and seed): the average of the plain run's two checkpoints
+    for name, p in got.net.named_parameters():
+        want = (
+            dict(sel.net.named_parameters())[name] + dict(last.net.named_parameters())[name]
+        ) / 2
+        torch.testing.assert_close(p, want, rtol=0, atol=1e-6, msg=name)
+    rec = got.metrics["averaged_with_last"]
+    assert rec["epoch"] == sel.metrics["epoch"] and rec["last_epoch"] == 3
+    assert rec["val_error"] == sel.metrics["val_error"]
+    # its metrics are the average's own validation free run
+    val_eps = data.val
+    want = free_run_errors([got], val_eps)[0]["val_error"]
+    assert got.metrics["val_error"] == pytest.approx(want, rel=1e-5)
+    assert read_checkpoint(best)["history"] == read_checkpoint(plain)["history"]
+
+
 @pytest.mark.parametrize(
-    "bad", [{"select_after": 1.0}, {"select_after": float("nan")}, {"select_smooth": -1}]
+    "bad",
+    [
+        {"select_after": 1.0},
+        {"select_after": float("nan")},
+        {"select_smooth": -1},
+        {"average_last": 1},
+    ],
 )
 def test_bad_selection_options_are_one_line(bad):
     with pytest.raises(ConfigError, match=next(iter(bad))):

@@ -120,3 +120,30 @@ def test_the_recipe_trains_plain_members_when_validation_spans_no_joint():
     assert forced.prior_choice
     off, _ = auto_config(low, cpus=2, overrides={"choice_min_span": 0.0})
     assert off.prior_choice
+
+
+def test_validation_at_one_command_level_averages_the_selected_epoch_with_the_last():
+    """Many validation runs at one low duty (h1-dev's shape) cannot pick the epoch for the
+    other duties alone: the recipe averages it with the last and says why; validation over
+    the range, or one short segment, keeps the selected epoch, and an override wins."""
+    from excavator_surrogate.training.auto import SHORT_VAL_EPISODES
+
+    low = Dataset(spec=SPEC)
+    low.episodes["train"] = list(TRAIN)
+    low.episodes["val"] = [
+        _held([(400.0, 400.0), (-400.0, -400.0)], name=f"v{i}") for i in range(SHORT_VAL_EPISODES)
+    ]
+    cfg, why = auto_config(low, cpus=2)
+    assert cfg.average_last
+    assert any("averaged with the last epoch's" in w for w in why)
+    wide = Dataset(spec=SPEC)
+    wide.episodes["train"] = list(TRAIN)
+    wide.episodes["val"] = [_static_episode(7 + i) for i in range(SHORT_VAL_EPISODES)]
+    cfg, why = auto_config(wide, cpus=2)
+    assert not cfg.average_last and not any("averaged with" in w for w in why)
+    short = Dataset(spec=SPEC)
+    short.episodes["train"] = list(TRAIN)
+    short.episodes["val"] = list(LOW)  # one segment: the short split's rule alone
+    assert not auto_config(short, cpus=2)[0].average_last
+    off, why = auto_config(low, cpus=2, overrides={"average_last": False})
+    assert not off.average_last and not any("averaged with" in w for w in why)

@@ -113,6 +113,11 @@ class TrainConfig(PresetConfig, table="train"):
     """Score an epoch by the larger of its validation error and the median of the last
     ``select_smooth + 1`` epochs' (0 = its own error): on a short validation split one lucky
     epoch in a noisy stretch cannot win."""
+    average_last: bool = False
+    """``best.pt`` holds the selected epoch's weights averaged with the last epoch's (raw),
+    weight by weight: for validation that cannot vouch for the commands the model must
+    generalise to (the recipe sets it when validation spans too little of every joint's
+    command range, as at h1-dev's one duty level)."""
     exogenous: Literal["use", "ignore", "choose"] = "use"
     """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
     are held at zero, so the model cannot depend on them); or ``choose`` the way that scores
@@ -315,6 +320,10 @@ class TrainConfig(PresetConfig, table="train"):
                 f"select_after = {self.select_after!r} must be in [0, 1) (a share of epochs)",
             ),
             (self.select_smooth >= 0, f"select_smooth = {self.select_smooth} must be >= 0"),
+            (
+                isinstance(self.average_last, bool),
+                f"average_last = {self.average_last!r} must be true or false",
+            ),
             (
                 self.exogenous in ("use", "ignore", "choose"),
                 f"exogenous = {self.exogenous!r} must be use, ignore or choose",

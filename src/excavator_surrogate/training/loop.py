@@ -26,8 +26,9 @@ from ..data.dataset import Dataset
 from ..devices import resolve_device
 from ..errors import ConfigError
 from ..io_utils import mark_output, progress
-from ..surrogate.checkpoint import save_checkpoint
+from ..surrogate.checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
 from ..surrogate.model import Surrogate
+from ..surrogate.validation import free_run_errors
 from .batches import make_data, split_episodes
 from .config import TrainConfig
 from .guards import check_finite
@@ -50,6 +51,7 @@ from .records import (
 )
 from .resume import start
 from .selection import (
+    averaged,
     choose,
     first_eligible,
     first_validated,
@@ -306,6 +308,8 @@ def train_network(
             tb.close()
     if main and not best_path.exists():  # every epoch diverged: keep the last one
         save_checkpoint(best_path, sur, history=untimed(history), train_state=None)
+    if main and cfg.average_last:
+        average_with_last(best_path, sur, val_eps, max_steps=val_steps, say=say)
     if main:
         record_training(
             best_path,
@@ -315,6 +319,37 @@ def train_network(
         )
     par.barrier()  # best.pt is complete before any rank returns its path
     return best_path
+
+
+def average_with_last(
+    best_path: Path,
+    last: Surrogate,
+    val_eps: list,
+    *,
+    max_steps: int | None,
+    say: Callable[[str], None],
+) -> None:
+    """Rewrite ``best_path`` with its weights averaged with ``last``'s (:func:`averaged`),
+    scored again on ``val_eps`` (its ``metrics`` are the average's), with the selected
+    epoch recorded as ``metrics["averaged_with_last"]``."""
+    ck = read_checkpoint(best_path)
+    sel = load_checkpoint(best_path, device=next(last.net.parameters()).device)
+    avg = averaged(sel, last)
+    val = free_run_errors([avg], val_eps, max_steps=max_steps)[0] if val_eps else None
+    epoch, last_epoch = sel.metrics.get("epoch"), last.metrics.get("epoch")
+    avg.metrics = {
+        **sel.metrics,
+        "averaged_with_last": {
+            "epoch": epoch,
+            "last_epoch": last_epoch,
+            "val_error": sel.metrics.get("val_error"),
+        },
+    }
+    if val is not None:
+        avg.metrics.update(val_error=val["val_error"], val=val)
+    save_checkpoint(best_path, avg, history=ck.get("history"), train_state=ck.get("train_state"))
+    note = f": val_error {val['val_error']:.4g}" if val is not None else ""
+    say(f"best.pt: epoch {epoch}'s weights averaged with the last epoch's ({last_epoch}){note}")
 
 
 def blind_inputs(net: torch.nn.Module, lo: int, hi: int) -> None:
