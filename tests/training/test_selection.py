@@ -123,6 +123,16 @@ def test_average_last_writes_the_selected_epoch_averaged_with_the_last(tmp_path)
     want = free_run_errors([got], val_eps)[0]["val_error"]
     assert got.metrics["val_error"] == pytest.approx(want, rel=1e-5)
     assert read_checkpoint(best)["history"] == read_checkpoint(plain)["history"]
+    # resumed after the plan (no epoch left): best.pt is not averaged a second time
+    again = train(
+        tiny_train_config(average_last=True, **kw),
+        data,
+        out=tmp_path / "avg",
+        resume=tmp_path / "avg" / "last.pt",
+        show_progress=False,
+    )
+    for p, q in zip(load_checkpoint(again).net.parameters(), got.net.parameters()):
+        assert torch.equal(p, q)
 
 
 @pytest.mark.parametrize(

@@ -331,9 +331,17 @@ def average_with_last(
 ) -> None:
     """Rewrite ``best_path`` with its weights averaged with ``last``'s (:func:`averaged`),
     scored again on ``val_eps`` (its ``metrics`` are the average's), with the selected
-    epoch recorded as ``metrics["averaged_with_last"]``."""
+    epoch recorded as ``metrics["averaged_with_last"]``.  A ``best.pt`` that already holds
+    an average is kept: a resumed run whose later epochs did not beat the selected one
+    keeps the average with the last epoch of its first part."""
     ck = read_checkpoint(best_path)
     sel = load_checkpoint(best_path, device=next(last.net.parameters()).device)
+    if "averaged_with_last" in sel.metrics:
+        say(
+            f"best.pt already averages epochs {sel.metrics['averaged_with_last']['epoch']} and "
+            f"{sel.metrics['averaged_with_last']['last_epoch']}: kept"
+        )
+        return
     avg = averaged(sel, last)
     val = free_run_errors([avg], val_eps, max_steps=max_steps)[0] if val_eps else None
     epoch, last_epoch = sel.metrics.get("epoch"), last.metrics.get("epoch")
