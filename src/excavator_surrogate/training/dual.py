@@ -56,7 +56,7 @@ from .kinds import (
     prior_members,
 )
 from .records import write_config
-from .variants import choice_record, decide_inputs, inputs_after_kinds
+from .variants import decide_inputs, inputs_after_kinds
 
 _log = logging.getLogger(__name__)
 
@@ -109,17 +109,13 @@ def train_dual_inputs(
         )
         priors = []
     ignore = [blinded(s) for s in use]
-    vals, keep, why, joints, tried, per_joint = decide_inputs(
-        cfg, use, ignore, val_eps, dataset=dataset, n_prior=n_prior
-    )
-    record = choice_record(
-        names,
-        list(dataset.spec.names),
-        vals,
-        keep=keep,
-        why=why,
-        joints=joints,
-        tried=tried,
+    record, keep, joints, per_joint = decide_inputs(
+        cfg,
+        use,
+        ignore,
+        val_eps,
+        dataset=dataset,
+        n_prior=n_prior,
         pairs="each network",
         dual=True,
         input_dropout=cfg.input_dropout,

@@ -23,10 +23,11 @@ import torch
 from .. import numerics
 from ..config import to_dict
 from ..data.dataset import Dataset
+from ..data.episode import Episode
 from ..devices import resolve_device
 from ..errors import ConfigError
 from ..io_utils import mark_output, progress
-from ..surrogate.checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
+from ..surrogate.checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
 from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_errors
 from .batches import make_data, split_episodes
@@ -324,7 +325,7 @@ def train_network(
 def average_with_last(
     best_path: Path,
     last: Surrogate,
-    val_eps: list,
+    val_eps: list[Episode],
     *,
     max_steps: int | None,
     say: Callable[[str], None],
@@ -334,8 +335,8 @@ def average_with_last(
     epoch recorded as ``metrics["averaged_with_last"]``.  A ``best.pt`` that already holds
     an average is kept: a resumed run whose later epochs did not beat the selected one
     keeps the average with the last epoch of its first part."""
-    ck = read_checkpoint(best_path)
-    sel = load_checkpoint(best_path, device=next(last.net.parameters()).device)
+    ck = read_checkpoint(best_path)  # read once: its weights, history and train state
+    sel = surrogate_from_dict(ck, where=str(best_path)).to(next(last.net.parameters()).device)
     if "averaged_with_last" in sel.metrics:
         say(
             f"best.pt already averages epochs {sel.metrics['averaged_with_last']['epoch']} and "

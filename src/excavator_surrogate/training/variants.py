@@ -207,10 +207,10 @@ def decide_inputs(
     *,
     dataset: Dataset,
     n_prior: int,
+    pairs: str,
     per_joint: bool = True,
-) -> tuple[
-    dict[str, dict[str, Any]], bool, str, list[bool] | None, list[dict[str, Any]], dict[str, Any]
-]:
+    **extra: Any,
+) -> tuple[dict[str, Any], bool, list[bool] | None, dict[str, Any]]:
     """The input choice on validation: the whole way (:func:`choose_inputs`), then, where it
     is refused, ``cfg.inputs_per_joint`` and ``per_joint`` allow and some joint is a
     candidate, the joints that take the inputs alone (:func:`choose_input_joints`).
@@ -220,11 +220,12 @@ def decide_inputs(
             same seed, or the same network both ways).
         val_eps: the validation episodes; ``dataset``: the run's (its training split).
         n_prior: the kind choice's map-correcting networks (0: no kind choice).
+        pairs, extra: for the record (:func:`choice_record`).
 
     Returns:
-        ``(vals, keep, why, joints, tried, options)``: each way's merged validation free run,
-        :func:`choose_inputs`'s verdict, :func:`choose_input_joints`'s (None, [] where not
-        tried), and the kind choice's per-joint options found on the way
+        ``(record, keep, joints, options)``: the choice's record (:func:`choice_record`),
+        :func:`choose_inputs`'s verdict, :func:`choose_input_joints`'s joints (None where
+        not tried), and the kind choice's per-joint options found on the way
         (:func:`~.kinds.choice_joints` with ``n_prior``, else ``{"pinned": ...}``; empty
         where not needed).
     """
@@ -256,7 +257,19 @@ def decide_inputs(
         joints, tried = choose_input_joints(
             use, ignore, vals, val_eps, max_steps=max_steps, pinned=options["pinned"]
         )
-    return vals, keep, why, joints, tried, options
+    spec = dataset.spec
+    record = choice_record(
+        spec.u_names[spec.n_joint :],
+        spec.names,
+        vals,
+        keep=keep,
+        why=why,
+        joints=joints,
+        tried=tried,
+        pairs=pairs,
+        **extra,
+    )
+    return record, keep, joints, options
 
 
 def choice_record(
@@ -331,24 +344,15 @@ def train_choosing_inputs(
     cfgs = {w: member_configs(replace(base, exogenous=w))[:half] for w in ways}
     halves = train_groups(cfgs, dataset, out=out, workers=workers, show_progress=show_progress)
     fits = more_pairs(cfg.members, half, n_prior) is not None
-    vals, keep, why, joints, tried, per_joint = decide_inputs(
+    record, keep, joints, per_joint = decide_inputs(
         cfg,
         halves["use"],
         halves["ignore"],
         val_eps,
         dataset=dataset,
         n_prior=n_prior,
-        per_joint=fits,
-    )
-    record = choice_record(
-        names,
-        list(dataset.spec.names),
-        vals,
-        keep=keep,
-        why=why,
-        joints=joints,
-        tried=tried,
         pairs="each seed's networks",
+        per_joint=fits,
         members_per_way=half,
     )
     why = record["why"]
