@@ -14,21 +14,21 @@ def test_every_round_of_the_pool_fits_the_budget():
     11 % past the budget).  One worker: one round per training."""
     from excavator_surrogate.training.plan import member_budget_s, plan_members, trainings
 
-    assert trainings(6, choose=False, kinds=True) == 9
-    assert member_budget_s(6, 600, cpus=2, choose=False, kinds=True) == pytest.approx(120)
-    assert member_budget_s(4, 600, cpus=2, choose=False, kinds=True) == pytest.approx(200)
-    assert member_budget_s(6, 600, cpus=2, choose=True) == pytest.approx(150)  # 6 + 2
-    assert member_budget_s(9, 600, cpus=2, choose=True) == pytest.approx(100)  # 9 + 2
-    assert member_budget_s(8, 600, cpus=2, choose=False, kinds=True) == pytest.approx(100)
-    assert member_budget_s(2, 600, cpus=1, choose=False, kinds=True) == pytest.approx(200)
+    assert trainings(6, probe=False, kinds=True) == 9
+    assert member_budget_s(6, 600, cpus=2, probe=False, kinds=True) == pytest.approx(120)
+    assert member_budget_s(4, 600, cpus=2, probe=False, kinds=True) == pytest.approx(200)
+    assert member_budget_s(6, 600, cpus=2, probe=True) == pytest.approx(150)  # 6 + 2
+    assert member_budget_s(9, 600, cpus=2, probe=True) == pytest.approx(100)  # 9 + 2
+    assert member_budget_s(8, 600, cpus=2, probe=False, kinds=True) == pytest.approx(100)
+    assert member_budget_s(2, 600, cpus=1, probe=False, kinds=True) == pytest.approx(200)
     # the plan reads the same cap: h1-dev's 72 s members fit 6 + 3 in 2 x 600 / 9 = 133 s
     # at 60 %, but not twice over in the fifth of it the five rounds leave; in 900 s they do
-    assert plan_members(72.3, 600, cpus=2, choose=False, kinds=True) == 4
-    assert plan_members(72.3, 900, cpus=2, choose=False, kinds=True) == 6
+    assert plan_members(72.3, 600, cpus=2, probe=False, kinds=True) == 4
+    assert plan_members(72.3, 900, cpus=2, probe=False, kinds=True) == 6
     for members in (4, 6, 8):
-        for choose, kinds in ((False, False), (True, False), (False, True), (True, True)):
-            cap = member_budget_s(members, 600, cpus=2, choose=choose, kinds=kinds)
-            rounds = -(-trainings(members, choose=choose, kinds=kinds) // 2)
+        for probe, kinds in ((False, False), (True, False), (False, True), (True, True)):
+            cap = member_budget_s(members, 600, cpus=2, probe=probe, kinds=kinds)
+            rounds = -(-trainings(members, probe=probe, kinds=kinds) // 2)
             assert rounds * cap <= 600 + 1e-9
 
 

@@ -188,10 +188,10 @@ def auto_config(
     members = (
         int(asked)
         if asked
-        else plan_members(cost * want_epochs(n_seq), budget_s, cpus=cpus, choose=probe, kinds=kinds)
+        else plan_members(cost * want_epochs(n_seq), budget_s, cpus=cpus, probe=probe, kinds=kinds)
     )
     workers = min(members, cpus)
-    per_member = member_budget_s(members, budget_s, cpus=cpus, choose=probe, kinds=kinds)
+    per_member = member_budget_s(members, budget_s, cpus=cpus, probe=probe, kinds=kinds)
     cap = training_cap_s(per_member)
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {cap:.0f} s "
@@ -238,7 +238,7 @@ def auto_config(
             f"exogenous inputs {inputs} must not hurt: {half} member(s) use them and {half} "
             f"ignore them (same seeds); they are kept only if better on validation, overall "
             f"and on every joint, and the other {members - half} member(s) train the chosen "
-            f"way ({trainings(members, choose=True, kinds=kinds)} trainings in the budget)"
+            f"way ({trainings(members, probe=True, kinds=kinds)} trainings in the budget)"
             + "; where they help some joints only, those joints may take them alone "
             "(each seed's two networks joint by joint, kept on the same terms)"
             + (
@@ -253,7 +253,7 @@ def auto_config(
             f"two kinds of network: beside the {members} plain member(s), "
             f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
             "the kind whose ensemble validates better drives it, or the even blend of both "
-            f"({trainings(members, choose=probe, kinds=True)} trainings in the budget)"
+            f"({trainings(members, probe=probe, kinds=True)} trainings in the budget)"
         )
     elif spans is not None and not any(spanned) and "prior_choice" not in overrides:
         why.append(

@@ -122,17 +122,18 @@ def max_members(cpus: int) -> int:
     return MAX_MEMBERS if cpus >= 2 else MAX_MEMBERS // 2
 
 
-def trainings(members: int, *, choose: bool, kinds: bool = False) -> int:
+def trainings(members: int, *, probe: bool, kinds: bool = False) -> int:
     """Trainings an ensemble of ``members`` costs: one per member, plus the losing way's
-    networks when an exogenous input is chosen (:func:`~.variants.probe_members`: 2, at most
-    half the members), plus the map-correcting networks of the kind choice
+    networks when an exogenous input is chosen by probe trainings (``probe``;
+    :func:`~.variants.probe_members`: 2, at most half the members; none when every network
+    learns both ways, ``training/dual.py``), plus the map-correcting networks of the kind choice
     (:func:`~.kinds.prior_members`)."""
-    extra = probe_members(members) if choose else 0
+    extra = probe_members(members) if probe else 0
     return members + extra + (prior_members(members) if kinds else 0)
 
 
 def member_budget_s(
-    members: int, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
+    members: int, budget_s: float, *, cpus: int, probe: bool, kinds: bool = False
 ) -> float:
     """Each training's share of the budget [s] (its cap is :func:`training_cap_s` of it):
     the trainings (:func:`trainings`) run ``min(members, cpus)`` at a time, so they take
@@ -140,7 +141,7 @@ def member_budget_s(
     on two workers leaves one worker idle in the last round: 9 trainings are 5 rounds, not 4.5
     (the share was ``budget_s * 2 / 9``, and a computer that needed it all ran 11 % past the
     budget)."""
-    rounds = math.ceil(trainings(members, choose=choose, kinds=kinds) / min(members, cpus))
+    rounds = math.ceil(trainings(members, probe=probe, kinds=kinds) / min(members, cpus))
     return budget_s / rounds
 
 
@@ -152,7 +153,7 @@ def training_cap_s(share_s: float) -> float:
 
 
 def plan_members(
-    member_s: float, budget_s: float, *, cpus: int, choose: bool, kinds: bool = False
+    member_s: float, budget_s: float, *, cpus: int, probe: bool, kinds: bool = False
 ) -> int:
     """Seed-ensemble members: the most, from :func:`min_members` up to :func:`max_members` in
     steps of the parallel workers, whose planned training (``member_s`` each on the reference
@@ -165,7 +166,7 @@ def plan_members(
     step = min(cpus, members)
     while members + step <= max_members(cpus):
         n = members + step
-        share = member_budget_s(n, budget_s, cpus=cpus, choose=choose, kinds=kinds)
+        share = member_budget_s(n, budget_s, cpus=cpus, probe=probe, kinds=kinds)
         if MEMBER_HEADROOM * member_s > training_cap_s(share):
             break
         members = n
