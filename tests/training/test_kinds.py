@@ -13,6 +13,7 @@ import torch
 
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.evaluate.report import choices_markdown
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.model import Surrogate
@@ -189,6 +190,9 @@ def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) ->
     rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
     assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind(record)]
     assert "kinds" in (tmp_path / "m" / "config.toml").read_text()
+    table = choices_markdown(sur.metrics["training"], spec=sur.spec)  # the evaluation's table
+    rows = [ln for ln in table.splitlines() if ln.startswith("| ") and "Joint" not in ln]
+    assert len(rows) == len(SPEC.names) and all(r.count("**") == 2 for r in rows)
     with pytest.raises(ConfigError, match="prior_choice trains both kinds"):
         tiny_train_config(prior_choice=True, prior=True, members=2)
 

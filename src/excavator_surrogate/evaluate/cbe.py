@@ -232,7 +232,7 @@ def evaluate_checkpoint(
             report_markdown(
                 metrics, primary=primary, run=run_info, paper=paper, spec=sur.spec, linkage=link
             )
-            + training_markdown(result["training"])
+            + training_markdown(result["training"], spec=sur.spec)
             + "\n"
             + uncertainty_markdown(result["uncertainty"], sur.spec.names),
         )

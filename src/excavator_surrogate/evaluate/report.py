@@ -193,9 +193,19 @@ def linkage_markdown(linkage: Mapping[str, Mapping[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def training_markdown(training: Mapping[str, Any] | None) -> str:
+CLOSE_CALL = 0.10
+"""A joint's choice is a close call when the best other option's validation angle RMSE is
+less than this share above the option that drives it (or below it: a set rule kept the
+driver): another seed, or other validation data, may choose otherwise."""
+
+
+def training_markdown(
+    training: Mapping[str, Any] | None, *, spec: MachineSpec | None = None
+) -> str:
     """One paragraph on how the model's training ended against its plan (``best.pt`` metrics
-    ``training``; empty for checkpoints that do not record it).
+    ``training``; empty for checkpoints that do not record it), the choices made after
+    training, and how close each joint's choice was on validation (:func:`choices_markdown`;
+    ``spec`` prints linear joints in their own unit).
 
     A model the wall-time cap cut short depends on the computer's speed and load: the report
     says so, so nobody takes it for the planned (reproducible) model.
@@ -207,7 +217,102 @@ def training_markdown(training: Mapping[str, Any] | None) -> str:
         + _inputs_markdown(training.get("exogenous"), kinds="kinds" in training)
         + _kinds_markdown(training.get("kinds"))
         + _map_markdown(training.get("static_map"))
+        + choices_markdown(training, spec=spec)
     )
+
+
+def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = None) -> str:
+    """Per joint, each option's validation angle RMSE (the plain networks, the map-correcting
+    ones, their even blend, the static map: those the run scored), which one drives the
+    joint, and whether that was a close call (:data:`CLOSE_CALL`).  Empty when the run
+    compared fewer than two options.
+
+    The kind choice scores each kind's whole ensemble, and the map choice the map against
+    the network the kind choice built; the set rules (``training/sets.py``) may keep an
+    option that is not the lowest on its own joint, because the other joints read its
+    angle.  Values in the stored unit (rad, or a linear joint's unit through ``spec``)."""
+    kinds = training.get("kinds") if isinstance(training.get("kinds"), Mapping) else None
+    smap = training.get("static_map")
+    smap = smap if isinstance(smap, Mapping) else None
+    names = list((kinds or smap or {}).get("names") or [])
+    cols: dict[str, list[float]] = {}
+    if kinds and kinds.get("val_theta_rmse_plain") and kinds.get("val_theta_rmse_prior"):
+        cols["plain networks"] = list(kinds["val_theta_rmse_plain"])
+        cols["map-correcting networks"] = list(kinds["val_theta_rmse_prior"])
+        if kinds.get("val_theta_rmse_blend"):
+            cols["even blend"] = list(kinds["val_theta_rmse_blend"])
+    elif smap and smap.get("val_theta_rmse_network"):
+        cols["network"] = list(smap["val_theta_rmse_network"])
+    if smap and smap.get("val_theta_rmse_map"):
+        cols["static map"] = list(smap["val_theta_rmse_map"])
+    if len(cols) < 2 or not names or any(len(v) != len(names) for v in cols.values()):
+        return ""
+    weights = list((kinds or {}).get("weights") or [0.0] * len(names))
+    on_map = set((smap or {}).get("chosen") or [])
+    # joints whose validation spans too little of their commands: only the networks compete
+    unspanned = set((kinds or {}).get("unspanned") or []) | set((smap or {}).get("unspanned") or [])
+    simple = {"map-correcting networks", "even blend", "static map"}
+    lines = [
+        "",
+        (
+            "Validation position RMSE of each option, per joint, in the joint's unit"
+            if spec is not None and spec.any_linear
+            else "Validation angle RMSE [rad] of each option, per joint"
+        )
+        + " (the bold one drives the joint):",
+        "",
+        "| Joint | " + " | ".join(cols) + " | next best / driver |",
+        "|---|" + "---:|" * len(cols) + "---:|",
+    ]
+    close = []
+    for j, name in enumerate(names):
+        if name in on_map:
+            driver = "static map"
+        elif "network" in cols:
+            driver = "network"
+        else:
+            w = float(weights[j]) if j < len(weights) else 0.0
+            driver = (
+                "plain networks"
+                if w == 0.0
+                else "map-correcting networks"
+                if w == 1.0
+                else "even blend"
+            )
+        label, f = _row_label(spec, "theta", name)
+        allowed = [k for k in cols if not (name in unspanned and k in simple)]
+        mine = cols[driver][j]
+        others = [cols[k][j] for k in allowed if k != driver]
+        ratio = min(others) / mine if others and mine > 0 else None
+        if ratio is not None and ratio < 1.0 + CLOSE_CALL:
+            close.append(name)
+        cells = [
+            f"**{_fmt(v[j], f)}**"
+            if k == driver
+            else _fmt(v[j], f)
+            if k in allowed
+            else f"({_fmt(v[j], f)})"
+            for k, v in cols.items()
+        ]
+        tail = "—" if ratio is None else f"{ratio:.2f}"
+        lines.append(f"| {label} | " + " | ".join(cells) + f" | {tail} |")
+    if unspanned & set(names):
+        lines += [
+            "",
+            "(In parentheses: not an option there. The joint's validation commands span too "
+            "little of its training command range to vouch for a simpler model, so the "
+            "networks drive it.)",
+        ]
+    if close:
+        lines += [
+            "",
+            f"Close call on {', '.join(close)}: another option validated within "
+            f"{CLOSE_CALL:.0%} of the one that drives it, or better (a near tie goes to the "
+            "simpler model, and a joint keeps what the joints reading its angle need). Another "
+            "seed may choose otherwise there; compare seeds, or add validation data that "
+            "drives those joints.",
+        ]
+    return "\n".join(lines) + "\n"
 
 
 def _inputs_markdown(record: Mapping[str, Any] | None, *, kinds: bool = False) -> str:
