@@ -38,6 +38,14 @@ def test_each_option_per_joint_the_driver_in_bold_and_the_close_calls() -> None:
     assert "boom, arm:" in close and f"{CLOSE_CALL:.0%}" in close and "bucket" not in close
 
 
+def test_a_record_from_before_the_blend_takes_its_drivers_from_the_chosen_joints() -> None:
+    old = {k: v for k, v in KINDS.items() if k not in ("weights", "val_theta_rmse_blend")}
+    text = choices_markdown({"kinds": {**old, "chosen": ["boom"]}})
+    assert "even blend" not in text
+    assert _row(text, "Boom") == ["0.0826", "**0.0578**", "1.43"]
+    assert _row(text, "Arm") == ["**0.2300**", "0.2100", "0.91"]
+
+
 def test_a_joint_validation_cannot_vouch_for_keeps_the_networks_and_no_close_call() -> None:
     names = ["boom", "arm"]
     smap = {

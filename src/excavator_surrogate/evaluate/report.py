@@ -247,7 +247,8 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
         cols["static map"] = list(smap["val_theta_rmse_map"])
     if len(cols) < 2 or not names or any(len(v) != len(names) for v in cols.values()):
         return ""
-    weights = list((kinds or {}).get("weights") or [0.0] * len(names))
+    chosen = set((kinds or {}).get("chosen") or [])  # records before the blend: no weights
+    weights = list((kinds or {}).get("weights") or [float(n in chosen) for n in names])
     on_map = set((smap or {}).get("chosen") or [])
     # joints whose validation spans too little of their commands: only the networks compete
     unspanned = set((kinds or {}).get("unspanned") or []) | set((smap or {}).get("unspanned") or [])
