@@ -316,8 +316,8 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
         lines += [
             "",
             f"Close call on {', '.join(close)}: another kind of network validated within "
-            f"{CLOSE_CALL:.0%} of the one that drives it, or better (a near tie goes to the "
-            "simpler model, and a joint keeps what the joints reading its angle need). Another "
+            f"{CLOSE_CALL:.0%} of the one that drives it, or better (a near tie stays with the "
+            "plain networks, and a joint keeps what the joints reading its angle need). Another "
             "seed may choose otherwise there; compare seeds, or add validation data that "
             "drives those joints.",
         ]
