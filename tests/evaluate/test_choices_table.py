@@ -73,6 +73,8 @@ def test_nothing_to_compare_gives_no_table_and_old_records_too() -> None:
     assert choices_markdown({"static_map": {"names": NAMES, "chosen": []}}) == ""
     short = {"names": NAMES, "val_theta_rmse_network": [0.1] * 3, "val_theta_rmse_map": [0.2] * 4}
     assert choices_markdown({"static_map": short}) == ""  # lengths disagree: not guessed
+    no_blend = {k: v for k, v in KINDS.items() if k != "val_theta_rmse_blend"}
+    assert choices_markdown({"kinds": no_blend}) == ""  # the arm's blend was not scored
     text = training_markdown({"kinds": KINDS, "epochs_planned": 3})
     assert "Validation angle RMSE [rad] of each option" in text
 

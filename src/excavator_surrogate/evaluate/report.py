@@ -283,6 +283,8 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
                 if w == 1.0
                 else "even blend"
             )
+        if driver not in cols:  # a record that lacks its driver's scores: nothing to show
+            return ""
         label, f = _row_label(spec, "theta", name)
         allowed = [k for k in cols if not (name in unspanned and k in simple)]
         mine = cols[driver][j]
