@@ -44,7 +44,8 @@ def test_each_option_per_joint_the_driver_in_bold_and_the_close_calls() -> None:
 
 
 def test_a_record_from_before_the_blend_takes_its_drivers_from_the_chosen_joints() -> None:
-    old = {k: v for k, v in KINDS.items() if k not in ("weights", "val_theta_rmse_blend")}
+    gone = ("weights", "blended", "val_theta_rmse_blend")  # keys the blend added
+    old = {k: v for k, v in KINDS.items() if k not in gone}
     text = choices_markdown({"kinds": {**old, "chosen": ["boom"]}})
     assert "even blend" not in text
     assert _row(text, "Boom") == ["0.0826", "**0.0578**", "1.43"]
@@ -88,6 +89,7 @@ def test_linear_joints_print_in_their_own_unit() -> None:
         "val_theta_rmse_plain": [0.13, 0.0547],
         "val_theta_rmse_prior": [0.12, 0.0431],
         "weights": [0.0, 1.0],
+        "chosen": ["boom"],
     }
     text = choices_markdown({"kinds": kinds}, spec=spec)
     assert "in the joint's unit" in text

@@ -191,8 +191,8 @@ def test_a_short_run_trains_both_kinds_and_records_the_choice(tmp_path: Path) ->
     assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind(record)]
     assert "kinds" in (tmp_path / "m" / "config.toml").read_text()
     table = choices_markdown(sur.metrics["training"], spec=sur.spec)  # the evaluation's table
-    rows = [ln for ln in table.splitlines() if ln.startswith("| ") and "Joint" not in ln]
-    assert len(rows) == len(SPEC.names) and all(r.count("**") == 2 for r in rows)
+    joint_rows = [ln for ln in table.splitlines() if ln.startswith("| ") and "Joint" not in ln]
+    assert len(joint_rows) == len(SPEC.names) and all(r.count("**") == 2 for r in joint_rows)
     with pytest.raises(ConfigError, match="prior_choice trains both kinds"):
         tiny_train_config(prior_choice=True, prior=True, members=2)
 

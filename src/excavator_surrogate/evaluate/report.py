@@ -250,8 +250,10 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
         cols["static map"] = list(smap["val_theta_rmse_map"])
     if len(cols) < 2 or not names or any(len(v) != len(names) for v in cols.values()):
         return ""
-    chosen = set((kinds or {}).get("chosen") or [])  # records before the blend: no weights
-    weights = list((kinds or {}).get("weights") or [float(n in chosen) for n in names])
+    # which kind drives a joint, read as _kinds_markdown reads it (records before the blend
+    # have no "blended")
+    chosen = set((kinds or {}).get("chosen") or [])
+    blended = set((kinds or {}).get("blended") or [])
     on_map = set((smap or {}).get("chosen") or [])
     # joints whose validation spans too little of their commands: only the networks compete
     unspanned = set((kinds or {}).get("unspanned") or []) | set((smap or {}).get("unspanned") or [])
@@ -274,15 +276,12 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
             driver = "static map"
         elif "network" in cols:
             driver = "network"
+        elif name in blended:
+            driver = "even blend"
+        elif name in chosen:
+            driver = "map-correcting networks"
         else:
-            w = float(weights[j]) if j < len(weights) else 0.0
-            driver = (
-                "plain networks"
-                if w == 0.0
-                else "map-correcting networks"
-                if w == 1.0
-                else "even blend"
-            )
+            driver = "plain networks"
         if driver not in cols:  # a record that lacks its driver's scores: nothing to show
             return ""
         label, f = _row_label(spec, "theta", name)
