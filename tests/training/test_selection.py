@@ -43,6 +43,30 @@ def test_first_eligible_epoch():
     assert first_eligible(3, 0.5) == 1
 
 
+def test_validation_trained_on_lets_only_the_last_epoch_compete():
+    assert first_eligible(110, 0.5, last_only=True) == 109
+    assert first_eligible(1, 0.0, last_only=True) == 0
+    assert first_validated(110, 0.0, smooth=0, plateau=False, last_only=True) == 109
+    assert first_validated(110, 0.0, smooth=4, plateau=False, last_only=True) == 105
+
+
+def test_train_on_val_trains_on_validation_and_keeps_the_last_epoch(tmp_path):
+    """The validation episodes are training data too; only the last epoch is validated and
+    competes, so best.pt holds it (the better of its raw and averaged weights)."""
+    data = tiny_dataset(2, n_train=2, n_step=120)
+    kw = dict(epochs=4, ema_decay=0.9, lr_schedule="cosine")
+    best = train(
+        tiny_train_config(train_on_val=True, **kw), data, out=tmp_path / "on", show_progress=False
+    )
+    ck = read_checkpoint(best)
+    rows = ck["history"]
+    assert [r["validated"] for r in rows] == [0, 0, 0, 1]
+    assert [r["best"] for r in rows] == [0, 0, 0, 1] and ck["metrics"]["epoch"] == 3
+    off = read_checkpoint(train(tiny_train_config(**kw), data, out=tmp_path / "off"))
+    # more training samples per epoch than without validation
+    assert rows[0]["n_sample"] > off["history"][0]["n_sample"]
+
+
 def test_first_validated_epoch():
     # the first competitor's score reads the `smooth` epochs before it, no earlier one
     assert first_validated(110, 0.5, smooth=4, plateau=False) == 51

@@ -147,3 +147,55 @@ def test_validation_at_one_command_level_averages_the_selected_epoch_with_the_la
     assert not auto_config(short, cpus=2)[0].average_last
     off, why = auto_config(low, cpus=2, overrides={"average_last": False})
     assert not off.average_last and not any("averaged with" in w for w in why)
+
+
+def test_validation_at_one_command_level_is_trained_on_too():
+    """Validation runs at one command level vouch for no other command, so they only rank the
+    epochs: the recipe trains on them too, counts their sub-sequences in the plan and says
+    so; validation over the range, or one short segment, is not trained on, and an override
+    wins."""
+    from excavator_surrogate.training.auto import SHORT_VAL_EPISODES
+    from excavator_surrogate.training.batches import split_episodes
+
+    low = Dataset(spec=SPEC)
+    low.episodes["train"] = list(TRAIN)
+    low.episodes["val"] = [
+        _held([(400.0, 400.0), (-400.0, -400.0)], name=f"v{i}") for i in range(SHORT_VAL_EPISODES)
+    ]
+    cfg, why = auto_config(low, cpus=2)
+    assert cfg.train_on_val
+    assert any(f"the {SHORT_VAL_EPISODES} validation episodes are trained on too" in w for w in why)
+    train_eps, val_eps = split_episodes(cfg, low)
+    assert [e.name for e in val_eps] == [e.name for e in low.val]
+    assert [e.name for e in train_eps] == [e.name for e in low.train + low.val]
+    off, why_off = auto_config(low, cpus=2, overrides={"train_on_val": False})
+    assert not off.train_on_val and not any("trained on too" in w for w in why_off)
+    assert [e.name for e in split_episodes(off, low)[0]] == [e.name for e in low.train]
+
+    def planned(w: list[str]) -> int:  # sub-sequences per epoch, from the plan's line
+        (line,) = [x for x in w if "sub-sequences per epoch" in x]
+        return int(line.split(": ")[1].split(" sub-sequences")[0])
+
+    assert planned(why) > planned(why_off)
+    wide = Dataset(spec=SPEC)
+    wide.episodes["train"] = list(TRAIN)
+    wide.episodes["val"] = [_static_episode(7 + i) for i in range(SHORT_VAL_EPISODES)]
+    assert not auto_config(wide, cpus=2)[0].train_on_val
+    short = Dataset(spec=SPEC)
+    short.episodes["train"] = list(TRAIN)
+    short.episodes["val"] = list(LOW)  # one segment: the short split's rule alone
+    assert not auto_config(short, cpus=2)[0].train_on_val
+
+
+def test_validation_too_short_to_train_on_still_scores():
+    """A validation episode shorter than a training sub-sequence is scored, not trained on."""
+    from excavator_surrogate.training.batches import split_episodes
+    from tests.helpers.training import tiny_train_config
+
+    ds = Dataset(spec=SPEC)
+    ds.episodes["train"] = list(TRAIN)
+    ds.episodes["val"] = [LOW[0], LOW[0].slice(0, 40).replace(name="short")]
+    cfg = tiny_train_config(train_on_val=True, mode="stateful", seq_len=60, window=10)
+    train_eps, val_eps = split_episodes(cfg, ds)
+    assert [e.name for e in val_eps] == ["v", "short"]
+    assert [e.name for e in train_eps] == [e.name for e in TRAIN] + ["v"]

@@ -181,7 +181,16 @@ def auto_config(
         dataset.train, val or dataset.train, dataset.spec, min_span=min_span
     )
     kinds = bool(overrides.get("prior_choice", any(spanned)))
-    n_seq = count_sequences(lengths, seq_len=seq_len, burn_in=window)
+    short_val = len(val) < SHORT_VAL_EPISODES
+    # validation at one command level (a step-test rig's one duty) vouches for no other
+    # command: it only ranks epochs.  Its runs are data the other levels lack, so the networks
+    # train on them too, and the epoch it selects is averaged with the last (one long log's
+    # short validation keeps its own rule: there it chooses kinds and maps too)
+    one_level = not short_val and spans is not None and not any(spanned)
+    average = bool(overrides.get("average_last", one_level))
+    on_val = bool(overrides.get("train_on_val", one_level))
+    trained = np.concatenate([lengths, [e.n_step for e in val]]) if on_val else lengths
+    n_seq = count_sequences(trained, seq_len=seq_len, burn_in=window)
     val_len = max((e.n_step for e in val), default=int(lengths.max()))
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
     asked = overrides.get("members")
@@ -263,13 +272,6 @@ def auto_config(
             "map-correcting networks or the map for any joint; the budget trains plain members"
         )
     n_val = len(val)
-    short_val = n_val < SHORT_VAL_EPISODES
-    # validation at one command level (a step-test rig's one duty) ranks epochs by how they do
-    # there: the selected epoch is averaged with the last (one long log's short validation
-    # keeps its own rule)
-    average = bool(
-        overrides.get("average_last", not short_val and spans is not None and not any(spanned))
-    )
     if short_val:
         why.append(
             f"selection on {n_val or 'no'} validation episode(s) (short): only epochs after "
@@ -287,6 +289,12 @@ def auto_config(
                 if average
                 else ""
             )
+        )
+    if on_val:
+        why.append(
+            f"the {n_val} validation episodes are trained on too (they still score the epochs, "
+            "so validation scores are in-sample): at one command level they vouch for no "
+            "joint's other commands, and their runs are data the training's levels lack"
         )
     epochs, limit = plan_epochs(n_seq, cost, budget_s=per_member)
     why.append(
@@ -336,6 +344,7 @@ def auto_config(
         select_after=SELECT_AFTER if short_val else 0.0,
         select_smooth=SELECT_SMOOTH if short_val else 0,
         average_last=average,
+        train_on_val=on_val,
         exogenous=default_exogenous,
         input_dropout=dropout,
         periodic_offsets=bool(turning),

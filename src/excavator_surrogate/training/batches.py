@@ -150,7 +150,8 @@ def _usable(episodes: list[Episode], n_min: int, split: str) -> list[Episode]:
 
 def split_episodes(cfg: TrainConfig, dataset: Dataset) -> tuple[list[Episode], list[Episode]]:
     """The training and validation episodes long enough for ``cfg`` (validation falls back to
-    the training episodes, with a warning).
+    the training episodes, with a warning); with ``cfg.train_on_val`` the validation episodes
+    long enough to train on are training episodes too (after the training split's).
 
     Raises:
         DataError: no training episode is long enough.
@@ -176,5 +177,7 @@ def split_episodes(cfg: TrainConfig, dataset: Dataset) -> tuple[list[Episode], l
             "no usable validation episodes: validating on the training episodes "
             "(model selection is optimistic)"
         )
-        val_eps = train_eps
+        return train_eps, train_eps
+    if cfg.train_on_val:  # they still score the epochs (cfg.train_on_val's doc)
+        train_eps = train_eps + [e for e in val_eps if e.n_step >= n_min]
     return train_eps, val_eps

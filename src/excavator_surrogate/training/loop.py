@@ -185,12 +185,20 @@ def train_network(
     done, stopped = st.epoch, "planned"
     say(f"planned: {cfg.epochs} epochs{budget_note(budget)}")
     validate_from = first_validated(
-        cfg.epochs, cfg.select_after, smooth=cfg.select_smooth, plateau=cfg.lr_schedule == "plateau"
+        cfg.epochs,
+        cfg.select_after,
+        smooth=cfg.select_smooth,
+        plateau=cfg.lr_schedule == "plateau",
+        last_only=cfg.train_on_val,
     )
     if validate_from > st.epoch:
         say(
             f"validating from epoch {validate_from} on: no earlier epoch competes for best.pt "
-            f"(select_after {cfg.select_after:g}, select_smooth {cfg.select_smooth})"
+            + (
+                "(train_on_val: validation is trained on, so only the last epoch competes)"
+                if cfg.train_on_val
+                else f"(select_after {cfg.select_after:g}, select_smooth {cfg.select_smooth})"
+            )
         )
     try:
         for epoch in range(st.epoch, cfg.epochs):
@@ -228,7 +236,9 @@ def train_network(
             score = selection_score(
                 [r["val_error"] for r in history] + [val["val_error"]], smooth=cfg.select_smooth
             )
-            eligible = epoch >= first_eligible(cfg.epochs, cfg.select_after)
+            eligible = epoch >= first_eligible(
+                cfg.epochs, cfg.select_after, last_only=cfg.train_on_val
+            )
             improved = eligible and is_better(score, best_val, min_delta=cfg.min_delta)
             row = epoch_row(
                 epoch,
@@ -240,7 +250,7 @@ def train_network(
                 improved=improved,
                 with_ema=optim.ema_sur is not None,
             )
-            if cfg.select_smooth or cfg.select_after:
+            if cfg.select_smooth or cfg.select_after or cfg.train_on_val:
                 row["select_score"] = score if eligible else math.nan
                 row["validated"] = int(validated)
             history.append(row)

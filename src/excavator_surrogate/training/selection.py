@@ -10,7 +10,10 @@ its recent neighbours (:func:`selection_score`).  When validation spans too litt
 commands to vouch for the others (one command level), the selected epoch's weights are
 averaged with the last epoch's (``average_last``, :func:`averaged`).  The epochs before them are not validated at all
 (:func:`first_validated`), except the few whose errors the first competitors' scores read:
-on a continuous log the validation free run costs several times the epoch's training.
+on a continuous log the validation free run costs several times the epoch's training.  When
+the networks train on the validation episodes too (``train_on_val``), only the last epoch
+competes: an in-sample score picks no epoch, it only says whether the weight average beats
+the raw weights there.
 """
 
 from __future__ import annotations
@@ -76,19 +79,24 @@ def is_better(val_error: float, best: float, *, min_delta: float) -> bool:
     return val_error < best * (1.0 - min_delta)
 
 
-def first_eligible(epochs: int, select_after: float) -> int:
-    """First epoch that may compete for ``best.pt``: ``floor(select_after * epochs)``."""
+def first_eligible(epochs: int, select_after: float, *, last_only: bool = False) -> int:
+    """First epoch that may compete for ``best.pt``: ``floor(select_after * epochs)``, or the
+    last planned one with ``last_only`` (validation is trained on: it can pick nothing)."""
+    if last_only:
+        return max(0, epochs - 1)
     return math.floor(select_after * epochs)
 
 
-def first_validated(epochs: int, select_after: float, *, smooth: int, plateau: bool) -> int:
+def first_validated(
+    epochs: int, select_after: float, *, smooth: int, plateau: bool, last_only: bool = False
+) -> int:
     """First epoch that is validated: the first that may compete (:func:`first_eligible`)
     less the ``smooth`` before it whose errors its score reads (:func:`selection_score`), so
     skipping the others changes no score; 0 for the ``plateau`` schedule, which steps on
     every epoch's validation error."""
     if plateau:
         return 0
-    return max(0, first_eligible(epochs, select_after) - smooth)
+    return max(0, first_eligible(epochs, select_after, last_only=last_only) - smooth)
 
 
 def not_validated(cands: list[tuple[str, Surrogate]], n_joint: int) -> Choice:
