@@ -133,9 +133,13 @@ def test_validation_at_one_command_level_averages_the_selected_epoch_with_the_la
     low.episodes["val"] = [
         _held([(400.0, 400.0), (-400.0, -400.0)], name=f"v{i}") for i in range(SHORT_VAL_EPISODES)
     ]
-    cfg, why = auto_config(low, cpus=2)
+    cfg, why = auto_config(low, cpus=2, overrides={"train_on_val": False})
     assert cfg.average_last
     assert any("averaged with the last epoch's" in w for w in why)
+    # trained on validation too (the recipe's default there): the last epoch is the selected one
+    cfg, why = auto_config(low, cpus=2)
+    assert cfg.average_last and cfg.train_on_val
+    assert any("averaged with the raw weights" in w for w in why)
     wide = Dataset(spec=SPEC)
     wide.episodes["train"] = list(TRAIN)
     wide.episodes["val"] = [_static_episode(7 + i) for i in range(SHORT_VAL_EPISODES)]
@@ -185,6 +189,13 @@ def test_validation_at_one_command_level_is_trained_on_too():
     short.episodes["train"] = list(TRAIN)
     short.episodes["val"] = list(LOW)  # one segment: the short split's rule alone
     assert not auto_config(short, cpus=2)[0].train_on_val
+    # a choice made on validation (the kinds, forced; the exogenous inputs) keeps validation
+    # out of training: in-sample scores would choose
+    assert not auto_config(low, cpus=2, overrides={"prior_choice": True})[0].train_on_val
+    from tests.surrogate.test_auto import _with_gear
+
+    geared, _ = auto_config(_with_gear(low), cpus=2)
+    assert geared.exogenous == "choose" and geared.average_last and not geared.train_on_val
 
 
 def test_validation_too_short_to_train_on_still_scores():
