@@ -95,17 +95,30 @@ def _h1_duty80(work: Path, args: argparse.Namespace) -> Case | str:
     got = _h1(work, args)
     if isinstance(got, str):
         return got
-    src = got.dataset
-    tag = f"-{HELD_OUT_DUTY}-"
-    items = [(ep, "test" if tag in ep.name else "train") for ep in src.train]
-    items += [(ep, "val") for ep in src.val]
-    write_dataset(work / "h1-duty80", items, config=src.manifest.get("config") or None)
+    cond = got.condition
+    assert cond is not None
+
+    def with_condition() -> Dataset:
+        return _held_out(cond(), work / f"h1c-duty{HELD_OUT_DUTY}")
+
     return Case(
-        load_dataset(work / "h1-duty80"),
+        _held_out(got.dataset, work / f"h1-duty{HELD_OUT_DUTY}"),
         "test",
         f"train: duty 40/60/90/100; val: duty 50; scored on test: duty {HELD_OUT_DUTY} (held out "
         "of h1-dev's training runs, a development stand-in for the hidden test's unseen duty)",
+        with_condition,
+        got.condition_name,
     )
+
+
+def _held_out(src: Dataset, out: Path) -> Dataset:
+    """``src`` (h1-dev, imported) with the :data:`HELD_OUT_DUTY` runs moved from training to
+    the test split, written to ``out``."""
+    tag = f"-{HELD_OUT_DUTY}-"
+    items = [(ep, "test" if tag in ep.name else "train") for ep in src.train]
+    items += [(ep, "val") for ep in src.val]
+    write_dataset(out, items, config=src.manifest.get("config") or None)
+    return load_dataset(out)
 
 
 def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:

@@ -39,8 +39,9 @@ data, the sooner the networks fit them instead of the machine.  It binds on a sh
 a 7-minute log's 160 s of training (26 sub-sequences) plans 45 epochs, where the budget fits
 89, and its boom's test error went from 9.05 to 6.24 deg on one simulated log and from 2.50
 to 2.38 on another, with the same 4 + 2 networks (docs/real-history.md); a 10-minute log
-(55) keeps its budget's 81, h1-dev (453) its 40.  With :data:`TARGET_PASSES` it also bounds
-every plan: the two meet at 102 sub-sequences, 177 epochs, the most any data plans."""
+(55) keeps its budget's 81, h1-dev (557 with its validation runs) its 40.  With
+:data:`TARGET_PASSES` it also bounds every plan: the two meet at 102 sub-sequences, 177
+epochs, the most any data plans."""
 PLAN_SHARE = 0.6
 """Share of each member's wall-time budget the planned epochs fill on the reference machine
 (the rest is headroom: only a computer this much slower, or busier, hits the cap)."""
