@@ -67,6 +67,18 @@ def test_train_on_val_trains_on_validation_and_keeps_the_last_epoch(tmp_path):
     assert rows[0]["n_sample"] > off["history"][0]["n_sample"]
 
 
+def test_train_on_val_cut_by_the_cap_validates_the_epoch_it_ends_on(tmp_path):
+    """A wall-time cap that ends training before the planned last epoch makes the epoch it
+    ends on the last: validated and kept, with its score, and the run says it was cut."""
+    data = tiny_dataset(2, n_train=2, n_step=120)
+    cfg = tiny_train_config(train_on_val=True, epochs=5, max_train_seconds=1e-3)
+    ck = read_checkpoint(train(cfg, data, out=tmp_path / "cut", show_progress=False))
+    (row,) = ck["history"]
+    assert row["validated"] == 1 and row["best"] == 1 and ck["metrics"]["epoch"] == 0
+    assert math.isfinite(ck["metrics"]["val_error"])
+    assert ck["metrics"]["training"]["budget_cut"] is True
+
+
 def test_first_validated_epoch():
     # the first competitor's score reads the `smooth` epochs before it, no earlier one
     assert first_validated(110, 0.5, smooth=4, plateau=False) == 51

@@ -119,10 +119,11 @@ class TrainConfig(PresetConfig, table="train"):
     generalise to (the recipe sets it when validation spans too little of every joint's
     command range, as at h1-dev's one duty level)."""
     train_on_val: bool = False
-    """The networks also train on the validation episodes, which still score every epoch: for
-    validation that vouches for no joint's other commands and so only picks the epoch (the
-    recipe sets it where it sets ``average_last``: h1-dev's one duty level, whose runs are data
-    the other duties lack).  Validation scores are then in-sample."""
+    """The networks also train on the validation episodes, and only the last epoch competes
+    (validation scores it alone): for validation that vouches for no joint's other commands
+    and so only picks the epoch (the recipe sets it where it sets ``average_last`` and nothing
+    else is chosen on validation: h1-dev's one duty level, whose runs are data the other
+    duties lack).  Validation scores are then in-sample."""
     exogenous: Literal["use", "ignore", "choose"] = "use"
     """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
     are held at zero, so the model cannot depend on them); or ``choose`` the way that scores

@@ -222,7 +222,11 @@ def train_network(
             t1 = time.monotonic()
             check_finite(net, epoch=epoch, lr=optim.lr)  # one line, before anything is saved
             loss, n = par.global_loss(loss, n)
-            validated = epoch >= validate_from
+            # train_on_val: an epoch the cap ends training after is the last, so it competes
+            cut_here = cfg.train_on_val and epoch + 1 < cfg.epochs and t1 > t_start + budget
+            if par.world_size > 1 and cfg.train_on_val:  # rank 0 decides for everyone
+                cut_here = bool(par.broadcast(cut_here))
+            validated = epoch >= validate_from or cut_here
             if validated:
                 choice = choose(cands, val_eps, par, max_steps=val_steps)
             else:
@@ -236,7 +240,7 @@ def train_network(
             score = selection_score(
                 [r["val_error"] for r in history] + [val["val_error"]], smooth=cfg.select_smooth
             )
-            eligible = epoch >= first_eligible(
+            eligible = cut_here or epoch >= first_eligible(
                 cfg.epochs, cfg.select_after, last_only=cfg.train_on_val
             )
             improved = eligible and is_better(score, best_val, min_delta=cfg.min_delta)
@@ -297,7 +301,7 @@ def train_network(
                 f"{t1 - t0:.1f}+{t2 - t1:.1f} s{' *' if improved else ''}"
             )
             stop_req = bool(on_epoch(epoch, dict(row))) if on_epoch is not None and main else False
-            over = time.monotonic() > t_start + budget
+            over = cut_here or time.monotonic() > t_start + budget
             if par.world_size > 1:  # rank 0 decides for everyone
                 stop_req, over = par.broadcast((stop_req, over))
             done = epoch + 1
@@ -368,7 +372,10 @@ def average_with_last(
         avg.metrics.update(val_error=val["val_error"], val=val)
     save_checkpoint(best_path, avg, history=ck.get("history"), train_state=ck.get("train_state"))
     note = f": val_error {val['val_error']:.4g}" if val is not None else ""
-    say(f"best.pt: epoch {epoch}'s weights averaged with the last epoch's ({last_epoch}){note}")
+    if epoch == last_epoch:  # train_on_val: the last epoch's validated weights and its raw ones
+        say(f"best.pt: the last epoch's ({epoch}) validated weights averaged with its raw{note}")
+    else:
+        say(f"best.pt: epoch {epoch}'s weights averaged with the last epoch's ({last_epoch}){note}")
 
 
 def blind_inputs(net: torch.nn.Module, lo: int, hi: int) -> None:
