@@ -403,7 +403,8 @@ def main() -> None:
     ap.add_argument(
         "--seeds",
         default="0,10,20",
-        help="comma-separated recipe seeds (members take seed .. seed + 3: keep them apart)",
+        help="comma-separated recipe seeds (members take seed .. seed + members - 1, up to 8: keep "
+        "them 8 apart, or neighbouring seeds share members)",
     )
     ap.add_argument("--sim-seed", type=int, default=0, help="seed of the simulated log")
     ap.add_argument(
