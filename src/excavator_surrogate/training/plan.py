@@ -73,7 +73,9 @@ needs 1.5-1.7x the reference's time; the 8 members that :data:`PLAN_SHARE` alone
 left it 6-16 % of their caps, and beside other work the caps cut every seed (seed 0's
 bucket 1.41x worse on validation).  6 members leave D a third of each cap (1.5x its
 time), and on h1-dev's validation runs 6 members of the same seeds scored as 8 did
-(docs/real-history.md)."""
+(docs/real-history.md).  The other way, 2.5 would give h1-dev 4 members and computer F
+(2x the reference's time) a third of each cap, but 4 members lost on 6 joints of 9 at the
+held-out duties 60, 80 and 90, by up to 19 % (session 54)."""
 MAX_MEMBERS = 8
 """Most seed-ensemble members the recipe trains (half as many on one CPU): when the planned
 epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
