@@ -18,7 +18,7 @@ TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 TORCH_SPEC ?= torch>=2.4,<2.14
 DOCS_SITE ?= build/site
 # Test processes (pytest-xdist): many tests already run two processes or threads, so 2 gives
-# about 1.3x on a 2-core computer.  TEST_WORKERS=0: one process, as plain `pytest`.
+# about 1.3-1.4x on a 2-core computer.  TEST_WORKERS=0: one process, as plain `pytest`.
 TEST_WORKERS ?= 2
 
 BIN := $(VENV)/bin
