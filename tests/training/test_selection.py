@@ -79,6 +79,36 @@ def test_train_on_val_cut_by_the_cap_validates_the_epoch_it_ends_on(tmp_path):
     assert ck["metrics"]["training"]["budget_cut"] is True
 
 
+def test_train_on_val_stops_only_on_the_cut_it_validated(tmp_path, monkeypatch):
+    """With train_on_val the stop for the cap is decided once, when the epoch's training
+    ends: a deadline passed later in the epoch's bookkeeping (after the check) does not stop
+    training after an epoch nobody validated; the next epoch is the cut one, validated and
+    kept."""
+    from types import SimpleNamespace
+
+    from excavator_surrogate.training import parallel
+
+    clock = {"now": 0.0}
+    fake = SimpleNamespace(monotonic=lambda: clock["now"])
+    monkeypatch.setattr(loop, "time", fake)
+    monkeypatch.setattr(parallel, "time", fake)
+
+    def late(epoch, row):  # the deadline passes after epoch 0's cut check, before its stop
+        clock["now"] = 1e9
+        return False
+
+    data = tiny_dataset(2, n_train=2, n_step=120)
+    cfg = tiny_train_config(
+        train_on_val=True, epochs=5, max_train_seconds=100.0, lr_schedule="cosine"
+    )
+    out = train(cfg, data, out=tmp_path / "late", show_progress=False, on_epoch=late)
+    ck = read_checkpoint(out)
+    rows = ck["history"]
+    assert [r["validated"] for r in rows] == [0, 1] and [r["best"] for r in rows] == [0, 1]
+    assert ck["metrics"]["epoch"] == 1 and math.isfinite(ck["metrics"]["val_error"])
+    assert ck["metrics"]["training"]["budget_cut"] is True
+
+
 def test_first_validated_epoch():
     # the first competitor's score reads the `smooth` epochs before it, no earlier one
     assert first_validated(110, 0.5, smooth=4, plateau=False) == 51

@@ -301,7 +301,9 @@ def train_network(
                 f"{t1 - t0:.1f}+{t2 - t1:.1f} s{' *' if improved else ''}"
             )
             stop_req = bool(on_epoch(epoch, dict(row))) if on_epoch is not None and main else False
-            over = cut_here or time.monotonic() > t_start + budget
+            # train_on_val: the cap's stop is the cut decided above (a deadline passed since
+            # would stop training after an epoch nobody validated)
+            over = cut_here if cfg.train_on_val else time.monotonic() > t_start + budget
             if par.world_size > 1:  # rank 0 decides for everyone
                 stop_req, over = par.broadcast((stop_req, over))
             done = epoch + 1
