@@ -88,8 +88,11 @@ kind and static map choices again on them with the code on the path (no training
 seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2
 plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
 budget (``0`` = no cap, the planned epochs always run).  Timings taken while other jobs share the
-cores are not the reference machine's: the JSON records ``load_avg_1min`` at the start and
-the end, and ``timings_under_load`` when either is above 1.5.
+cores are not the reference machine's: the JSON records ``foreign_cpu_cores``, the other
+processes' CPU time over the run in cores on average (``bench/foreign_cpu.py``: the machine's
+busy time less the bench's own and its members'), and ``timings_under_load`` when it is
+above 0.1 (where it cannot be read: when ``load_avg_1min`` at the start or the end is above
+1.5, which the bench's own two members also raise).
 
 Takes about 40 min for h1 on the 2-core reference machine (computer B, quiet, session 18:
 the recipe 289-395 s per seed, ``--condition`` about 4 min more per seed; with the kind
@@ -125,6 +128,7 @@ from excavator_surrogate.training import TrainConfig, train
 from excavator_surrogate.training.auto import auto_config
 
 sys.path.insert(0, str(Path(__file__).parent))
+from foreign_cpu import BUSY_SHARE, ForeignCpu
 from real_cases import CASES, DEFAULT_DATA, MORE_TEST, Case
 from real_scores import (
     beats_every_joint,
@@ -436,6 +440,7 @@ def main() -> None:
         args.plain_epochs = min(args.plain_epochs, 2)
     shapes = list(CASES) if args.shape == "all" else [args.shape]
     load0 = os.getloadavg()[0]
+    meter = ForeignCpu.start()
     result: dict = {"bench": "real", "shapes": {}, "skipped": {}}
     with tempfile.TemporaryDirectory(prefix="exsur-bench-real-") as tmp_name:
         work = args.work or Path(tmp_name)
@@ -447,9 +452,12 @@ def main() -> None:
                 continue
             result["shapes"][name] = run_shape(name, case, args, work)
     load1 = os.getloadavg()[0]
+    foreign = meter.share()
+    busy = max(load0, load1) > BUSY_LOAD if foreign is None else foreign > BUSY_SHARE
     result.update(
         load_avg_1min=[round(load0, 2), round(load1, 2)],
-        timings_under_load=bool(max(load0, load1) > BUSY_LOAD),
+        foreign_cpu_cores=None if foreign is None else round(foreign, 3),
+        timings_under_load=bool(busy),
         smoke=bool(args.smoke),
         recipe_set=args.recipe_set,
         sim_seed=args.sim_seed,
