@@ -43,8 +43,8 @@ def busy_cpu_seconds(stat: Path = _PROC_STAT) -> float | None:
     if not first or first[0] != "cpu":
         return None
     ticks = [int(v) for v in first[1:]]
-    # user nice system idle iowait irq softirq steal [guest guest_nice, already in user]
-    busy = sum(ticks[:8]) - ticks[3] - (ticks[4] if len(ticks) > 4 else 0)
+    # user nice system [idle iowait] irq softirq steal (guest, guest_nice: already in user)
+    busy = sum(ticks[:3]) + sum(ticks[5:8])
     return busy / os.sysconf("SC_CLK_TCK")
 
 
