@@ -128,3 +128,32 @@ def test_the_command_line_refuses_a_bad_setting_in_one_line():
         "exsur: error: EXSUR_NUMERICS='fast': use 'native' (the default) or 'portable' (the "
         "same trained bits on every x86-64 CPU with AVX2, slower)"
     ]
+
+
+def test_the_environment_names_the_computer_and_the_libraries(monkeypatch):
+    import numpy as np
+    import torch
+
+    monkeypatch.delenv(numerics.ENV, raising=False)
+    env = numerics.environment()
+    assert env["numerics"] == "native"
+    assert env["numpy"] == np.__version__
+    assert env["torch"].split("+")[0] == torch.__version__.split("+")[0]
+    assert env["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+    assert env["cpu"] and env["machine"] and env["python"].count(".") == 2
+    assert all(isinstance(f, str) for f in env["numpy_simd"])
+    assert set(numerics.numpy_avx512()) <= set(env["numpy_simd"])
+    json.dumps(env)  # it goes into manifest.json and metrics.json as it is
+    assert numerics.environment() == env  # no clock, no load: the same record every time
+
+
+def test_the_cpu_model_reads_the_first_processor_or_falls_back(tmp_path):
+    info = tmp_path / "cpuinfo"
+    info.write_text(
+        "processor\t: 0\nvendor_id\t: AuthenticAMD\ncpu family\t: 26\nmodel\t\t: 2\n"
+        "model name\t: AMD EPYC\nflags\t\t: fpu avx2\n\nprocessor\t: 1\nmodel name\t: Other\n"
+    )
+    assert numerics.cpu_model(cpuinfo=str(info)) == "AMD EPYC (family 26, model 2)"
+    info.write_text("processor\t: 0\nmodel name\t: Some CPU\n")
+    assert numerics.cpu_model(cpuinfo=str(info)) == "Some CPU"
+    assert numerics.cpu_model(cpuinfo=str(tmp_path / "missing"))  # the platform's string

@@ -30,11 +30,19 @@ asks :func:`fused_adam`. Spawned training workers inherit all of it. The price i
 speed (1.05-1.9x the time on an Intel AVX-512 computer, 1.3-1.4x on an AMD one);
 ``bench/portable.py`` measures it and checks the bits under an emulated AVX2 CPU. The
 default, ``native``, leaves NumPy and torch as they are.
+
+:func:`environment` names what a run's bits depend on besides its data, config and seed (the
+CPU, the numerics, the libraries' versions and kernel levels); simulated datasets and
+trainings record it.
 """
 
 from __future__ import annotations
 
 import os
+import platform
+import sys
+from importlib import metadata
+from typing import Any
 
 from .errors import ConfigError
 
@@ -141,11 +149,73 @@ def check() -> str:
     return chosen
 
 
-def numpy_avx512() -> list[str]:
-    """NumPy's AVX-512 dispatch targets in use in this process (empty when unknown)."""
+def numpy_simd() -> list[str]:
+    """NumPy's SIMD dispatch targets in use in this process, in its order (empty when
+    unknown)."""
     try:
         from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
     except ImportError:  # NumPy 1.x keeps them elsewhere; the pin is checked by the setting
         return []
+    return [f for f in __cpu_dispatch__ if __cpu_features__.get(f)]
+
+
+def numpy_avx512() -> list[str]:
+    """NumPy's AVX-512 dispatch targets in use in this process (empty when unknown)."""
     off = set(NUMPY_AVX512.split())
-    return [f for f in __cpu_dispatch__ if f in off and __cpu_features__.get(f)]
+    return [f for f in numpy_simd() if f in off]
+
+
+def cpu_model(*, cpuinfo: str = "/proc/cpuinfo") -> str:
+    """The CPU's model name, with its family and model numbers where Linux gives them
+    (``AMD EPYC (family 26, model 2)``); the platform's processor string elsewhere.
+    ``cpuinfo``: the file to read (the first processor's block)."""
+    fields: dict[str, str] = {}
+    try:
+        with open(cpuinfo, encoding="utf-8") as f:
+            for line in f:
+                if not line.strip():
+                    break  # the first processor's block is enough
+                key, _, value = line.partition(":")
+                fields.setdefault(key.strip(), value.strip())
+    except OSError:
+        pass
+    name = fields.get("model name") or platform.processor() or platform.machine() or "unknown"
+    if "cpu family" in fields and "model" in fields:
+        return f"{name} (family {fields['cpu family']}, model {fields['model']})"
+    return name
+
+
+def environment() -> dict[str, Any]:
+    """What a run's bits depend on besides its data, config and seed, for its record: the
+    numerics (:func:`mode`), the CPU, and the versions and kernel levels of the libraries
+    that compute them. Two computers that differ here may train or simulate other bits.
+
+    Keys: ``numerics``, ``cpu``, ``machine``, ``python``, ``numpy``, ``numpy_simd`` (its
+    dispatch targets in use), ``mujoco``, ``torch`` (None where not installed) and, once
+    torch is loaded, ``torch_cpu_capability`` (its element-wise kernels). Reads no clock and
+    no load, so the same computer gives the same record.
+
+    Raises:
+        ConfigError: a bad :data:`ENV` value.
+    """
+
+    def version(dist: str) -> str | None:
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            return None
+
+    env: dict[str, Any] = {
+        "numerics": mode(),
+        "cpu": cpu_model(),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+        "numpy": version("numpy"),
+        "numpy_simd": numpy_simd(),
+        "mujoco": version("mujoco"),
+        "torch": version("torch"),
+    }
+    torch = sys.modules.get("torch")  # not imported for it: a simulation needs no torch
+    if torch is not None:
+        env["torch_cpu_capability"] = str(torch.backends.cpu.get_cpu_capability())
+    return env

@@ -5,8 +5,9 @@ from __future__ import annotations
 import json
 
 from excavator_surrogate.evaluate.cbe import evaluate_checkpoint
-from excavator_surrogate.evaluate.report import training_markdown
+from excavator_surrogate.evaluate.report import environment_markdown, training_markdown
 from excavator_surrogate.training import train
+from excavator_surrogate.training.ensembles import ensemble_training
 from tests.helpers.training import tiny_dataset, tiny_train_config
 
 
@@ -23,7 +24,12 @@ def test_a_cut_run_is_reported_in_metrics_json_and_the_table(tmp_path):
     full = train(tiny_train_config(epochs=2), ds, out=tmp_path / "full")
     res = evaluate_checkpoint(full, ds, out=tmp_path / "ev_full", arx=False, figure=False)
     assert res["training"]["budget_cut"] is False
-    assert "planned 2 epochs ran" in (tmp_path / "ev_full" / "table.md").read_text()
+    table = (tmp_path / "ev_full" / "table.md").read_text()
+    assert "planned 2 epochs ran" in table
+    # the computer and libraries it trained with, in metrics.json and in the table
+    env = res["training"]["environment"]
+    assert env["torch"] and env["torch_cpu_capability"] and env["numerics"] == "native"
+    assert f"Trained on {env['cpu']}, torch {env['torch']} ({env['torch_cpu_capability']}" in table
 
 
 def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing():
@@ -34,6 +40,26 @@ def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing(
     text = training_markdown({"budget_cut": True, "epochs_planned": 30, "members": members})
     assert "1 of 2 network(s): 12 of 30 planned epochs" in text
     assert training_markdown(None) == ""
+
+
+def test_the_environment_line_and_an_ensembles_record():
+    env = {
+        "numerics": "portable",
+        "cpu": "AMD EPYC (family 26, model 2)",
+        "torch": "2.13.0+cpu",
+        "torch_cpu_capability": "AVX2",
+        "numpy": "2.4.6",
+        "numpy_simd": ["X86_V3"],
+        "mujoco": None,
+    }
+    assert environment_markdown(env) == (
+        "Trained on AMD EPYC (family 26, model 2), torch 2.13.0+cpu (AVX2 kernels), "
+        "NumPy 2.4.6 (X86_V3); portable numerics.\n"
+    )
+    assert environment_markdown(None) == "" and environment_markdown({}) == ""
+    members = [{"epochs_planned": 3, "environment": env}, {"epochs_planned": 3, "environment": env}]
+    assert ensemble_training(members)["environment"] == env
+    assert "environment" not in ensemble_training([{"epochs_planned": 3}])  # older members
 
 
 def test_joints_on_the_static_map_are_named():

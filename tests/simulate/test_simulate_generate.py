@@ -61,6 +61,9 @@ def test_cli_simulate_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["preset"] == "tiny" and manifest["config"]["simulate"]["seed"] == 5
     assert manifest["n_samples"] == {"train": 400, "val": 200, "test": 200}
+    # the computer's numerics and library versions, beside the config that made the data
+    assert manifest["environment"]["numpy"] == np.__version__
+    assert manifest["environment"]["mujoco"] and manifest["environment"]["cpu"]
     path = out / manifest["episodes"][0]["file"]
     table = pq.read_table(path)  # independent reader
     names = ("swing", "boom", "arm", "bucket")

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from excavator_surrogate import numerics
 from excavator_surrogate.surrogate import read_checkpoint
 from excavator_surrogate.training import train
 from excavator_surrogate.training.config import TrainConfig
@@ -77,6 +78,7 @@ def test_a_run_that_completes_its_plan_is_not_cut(tmp_path):
     cfg = tiny_train_config(epochs=2, patience=5)
     train(cfg, tiny_dataset(2, n_train=2, n_step=120), out=tmp_path / "d", show_progress=False)
     training = read_checkpoint(tmp_path / "d" / "best.pt")["metrics"]["training"]
+    assert training.pop("environment") == numerics.environment()  # the computer it ran on
     assert training == {
         "epochs_planned": 2,
         "epochs_done": 2,

@@ -217,6 +217,7 @@ def training_markdown(
         return ""
     return (
         _budget_markdown(training)
+        + environment_markdown(training.get("environment"))
         + _inputs_markdown(training.get("exogenous"), kinds="kinds" in training)
         + _kinds_markdown(training.get("kinds"))
         + _map_markdown(training.get("static_map"))
@@ -393,6 +394,25 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
         f"({record.get('why', '')}); its band comes from the map's gain spread over the "
         "training log, not from the members.\n"
     )
+
+
+def environment_markdown(env: Mapping[str, Any] | None, *, what: str = "Trained") -> str:
+    """One line naming the computer and libraries a run computed with
+    (:func:`excavator_surrogate.numerics.environment`; empty for records without it): where
+    two runs of the same data and seed differ, compare these first."""
+    if not env:
+        return ""
+    parts = [str(env.get("cpu", "an unknown CPU"))]
+    if env.get("torch"):
+        cap = env.get("torch_cpu_capability")
+        parts.append(f"torch {env['torch']}" + (f" ({cap} kernels)" if cap else ""))
+    if env.get("numpy"):
+        simd = ", ".join(env.get("numpy_simd") or [])
+        parts.append(f"NumPy {env['numpy']}" + (f" ({simd})" if simd else ""))
+    if env.get("mujoco"):
+        parts.append(f"MuJoCo {env['mujoco']}")
+    numerics = env.get("numerics", "native")
+    return f"{what} on {', '.join(parts)}; {numerics} numerics.\n"
 
 
 def _budget_markdown(training: Mapping[str, Any]) -> str:

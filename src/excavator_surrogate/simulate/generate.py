@@ -33,6 +33,7 @@ import mujoco
 import numpy as np
 
 from .. import config as config_mod
+from .. import numerics
 from ..data import Episode, write_dataset
 from ..data.timesplit import split_in_time
 from ..errors import ConfigError
@@ -390,6 +391,9 @@ def simulate_dataset(
             items += split_in_time(ep, val_s=cfg.val_s, test_s=cfg.test_s)
         else:
             items.append((ep, job.split))
+    # the computer's numerics and library versions: a closed-loop operator grows a last-bit
+    # difference between two computers into another log (docs/real.md)
+    extra = {"environment": numerics.environment(), **(extra or {})}
     path = write_dataset(out, items, config={"simulate": cfg_dict}, extra=extra)
     _log.info(f"simulate: wrote {path} in {time.perf_counter() - t0:.1f} s")
     return path

@@ -201,7 +201,10 @@ def ensemble_training(members: list[dict[str, Any] | None]) -> dict[str, Any]:
     """The ``training`` summary of a merged ensemble from its members' (``budget_cut`` if the
     wall-time cap cut any member; ``members`` keeps each one's)."""
     known = [m for m in members if m]
+    # the members train side by side on one computer: the first one's record stands for all
+    env = next((m["environment"] for m in known if "environment" in m), None)
     return {
+        **({"environment": env} if env is not None else {}),
         "budget_cut": any(m.get("budget_cut", False) for m in known),
         "epochs_planned": max((int(m.get("epochs_planned", 0)) for m in known), default=0),
         "numerics": "/".join(sorted({str(m.get("numerics", "native")) for m in known})) or "native",

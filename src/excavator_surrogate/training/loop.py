@@ -331,7 +331,12 @@ def train_network(
         record_training(
             best_path,
             training_summary(
-                cfg, epochs_done=done, stopped=stopped, budget=budget, numerics=numerics_mode
+                cfg,
+                epochs_done=done,
+                stopped=stopped,
+                budget=budget,
+                numerics=numerics_mode,
+                environment=numerics.environment(),
             ),
         )
     par.barrier()  # best.pt is complete before any rank returns its path

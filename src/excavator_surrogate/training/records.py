@@ -146,15 +146,23 @@ def budget_cut_message(budget: float, done: int, planned: int) -> str:
 
 
 def training_summary(
-    cfg: TrainConfig, *, epochs_done: int, stopped: str, budget: float, numerics: str = "native"
+    cfg: TrainConfig,
+    *,
+    epochs_done: int,
+    stopped: str,
+    budget: float,
+    numerics: str = "native",
+    environment: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What the run did against its plan (stored in ``best.pt`` metrics as ``training``).
 
     ``stopped``: ``planned`` (all epochs), ``early-stop`` (patience), ``budget`` (the wall-time
     cap cut it: ``budget_cut`` is True) or ``requested`` (a callback). ``numerics``: the
-    kernels it trained with (:mod:`excavator_surrogate.numerics`).
+    kernels it trained with (:mod:`excavator_surrogate.numerics`); ``environment``: the
+    computer and libraries (:func:`excavator_surrogate.numerics.environment`), if given.
     """
     return {
+        **({"environment": dict(environment)} if environment is not None else {}),
         "epochs_planned": int(cfg.epochs),
         "epochs_done": int(epochs_done),
         "stopped": stopped,
