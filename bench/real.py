@@ -92,7 +92,9 @@ cores are not the reference machine's: the JSON records ``foreign_cpu_cores``, t
 processes' CPU time over the run in cores on average (``bench/foreign_cpu.py``: the machine's
 busy time less the bench's own and its members'), and ``timings_under_load`` when it is
 above 0.1 (where it cannot be read: when ``load_avg_1min`` at the start or the end is above
-1.5, which the bench's own two members also raise).
+1.5, which the bench's own two members also raise). ``environment`` names the computer and
+libraries (``numerics.environment()``): the simulated shapes' logs are other draws on another
+computer (docs/real.md).
 
 Takes about 40 min for h1 on the 2-core reference machine (computer B, quiet, session 18:
 the recipe 289-395 s per seed, ``--condition`` about 4 min more per seed; with the kind
@@ -117,6 +119,7 @@ from pathlib import Path
 
 import numpy as np
 
+from excavator_surrogate import numerics
 from excavator_surrogate.config import parse_sets
 from excavator_surrogate.data import Dataset, Episode
 from excavator_surrogate.errors import ConfigError
@@ -461,6 +464,7 @@ def main() -> None:
         smoke=bool(args.smoke),
         recipe_set=args.recipe_set,
         sim_seed=args.sim_seed,
+        environment=numerics.environment(),  # simulated shapes draw other logs elsewhere
         goals={
             f"{name}/{goal}": ok
             for name, shape in result["shapes"].items()
