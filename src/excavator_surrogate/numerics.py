@@ -154,13 +154,14 @@ def numpy_simd() -> list[str]:
     unknown)."""
     try:
         from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
-    except ImportError:  # NumPy 1.x keeps them elsewhere; the pin is checked by the setting
+    except ImportError:  # NumPy 1.x keeps them elsewhere: unknown
         return []
     return [f for f in __cpu_dispatch__ if __cpu_features__.get(f)]
 
 
 def numpy_avx512() -> list[str]:
-    """NumPy's AVX-512 dispatch targets in use in this process (empty when unknown)."""
+    """NumPy's AVX-512 dispatch targets in use in this process (empty when unknown: with
+    NumPy 1.x the portable pin is checked by its setting alone)."""
     off = set(NUMPY_AVX512.split())
     return [f for f in numpy_simd() if f in off]
 

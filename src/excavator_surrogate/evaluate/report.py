@@ -396,7 +396,7 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
     )
 
 
-def environment_markdown(env: Mapping[str, Any] | None, *, what: str = "Trained") -> str:
+def environment_markdown(env: Mapping[str, Any] | None) -> str:
     """One line naming the computer and libraries a run computed with
     (:func:`excavator_surrogate.numerics.environment`; empty for records without it): where
     two runs of the same data and seed differ, compare these first."""
@@ -412,7 +412,7 @@ def environment_markdown(env: Mapping[str, Any] | None, *, what: str = "Trained"
     if env.get("mujoco"):
         parts.append(f"MuJoCo {env['mujoco']}")
     numerics = env.get("numerics", "native")
-    return f"{what} on {', '.join(parts)}; {numerics} numerics.\n"
+    return f"Trained on {', '.join(parts)}; {numerics} numerics.\n"
 
 
 def _budget_markdown(training: Mapping[str, Any]) -> str:
