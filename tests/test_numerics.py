@@ -64,6 +64,7 @@ print(json.dumps({
     "capability": torch.backends.cpu.get_cpu_capability(),
     "onednn": torch.backends.mkldnn.enabled,
     "pins": {k: os.environ.get(k) for k in numerics.PINS},
+    "blas": [b["kernels"] for b in numerics.blas_kernels()],
 }))
 """
 
@@ -75,6 +76,7 @@ def test_portable_reaches_torch_in_a_fresh_process():
     assert got["mode"] == "portable" and got["onednn"] is False
     assert got["capability"] in numerics.PORTABLE_CAPABILITIES
     assert got["pins"] == numerics.PINS
+    assert got["blas"] and set(got["blas"]) <= {None, "Haswell"}  # OpenBLAS's AVX2 kernels
     native = json.loads(_python(_PROBE).stdout.splitlines()[-1])
     assert native["mode"] == "native" and native["onednn"] is True
     assert native["pins"] == {k: None for k in numerics.PINS}
@@ -143,6 +145,8 @@ def test_the_environment_names_the_computer_and_the_libraries(monkeypatch):
     assert env["cpu"] and env["machine"] and env["python"].count(".") == 2
     assert all(isinstance(f, str) for f in env["numpy_simd"])
     assert set(numerics.numpy_avx512()) <= set(env["numpy_simd"])
+    blas = numerics.blas_kernels()
+    assert blas and env["numpy_blas"].startswith(blas[0]["library"])  # NumPy's, loaded
     json.dumps(env)  # it goes into manifest.json and metrics.json as it is
     assert numerics.environment() == env  # no clock, no load: the same record every time
 

@@ -3,7 +3,7 @@
 Training is bit-identical on one computer (``tests/training/test_reproducible.py``), not
 across CPUs: torch's CPU kernels pick their code by instruction set, round differently, and a
 free-run training grows the difference into other networks (docs/design.md, "Across CPUs").
-Five kernel families differ between CPUs, measured under an emulated AVX2-only Intel CPU,
+Six kernel families differ between CPUs, measured under an emulated AVX2-only Intel CPU,
 by turning the AVX-512 code off, or on an AMD CPU:
 
 - MKL's matrix products and vector maths (VML: ``exp``, ``sqrt``): pinned by
@@ -15,6 +15,10 @@ by turning the AVX-512 code off, or on an AMD CPU:
   ``ATEN_CPU_CAPABILITY=avx2``;
 - NumPy's AVX-512 loops (``sin``, ``exp`` in the simulator's data: the last bit of the
   simulated angles changed): turned off by ``NPY_DISABLE_CPU_FEATURES``;
+- OpenBLAS, NumPy's (and SciPy's) matrix library, which picks its kernels by CPU: AVX-512
+  ones on an Intel or a Zen 4 CPU, its Haswell (AVX2) ones on a Zen 5 or an AVX2-only CPU.
+  They round matrix products and solves differently (the ARX and the structured fits take
+  them): pinned to the Haswell kernels by ``OPENBLAS_CORETYPE=Haswell``;
 - oneDNN's LSTM, which ``nn.LSTM`` uses on the CPU: not pinnable
   (``ONEDNN_MAX_CPU_ISA=AVX2`` still gave other bits), so portable numerics turn oneDNN off
   and ``nn.LSTM`` runs torch's own kernels (MKL products, ATen functions).
@@ -23,7 +27,7 @@ by turning the AVX-512 code off, or on an AMD CPU:
   fifth of the results differently): portable numerics step Adam with torch's fused CPU kernel
   (:func:`fused_adam`), whose ``sqrt`` is the vector unit's, correctly rounded everywhere.
 
-``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all five. The
+``EXSUR_NUMERICS=portable``, set in the shell before Python starts, asks for all six. The
 package's ``__init__`` sets the variables (unless already set) before it imports NumPy or
 torch, :func:`apply` turns oneDNN off where a network is trained or run, and the optimiser
 asks :func:`fused_adam`. Spawned training workers inherit all of it. The price is training
@@ -60,8 +64,10 @@ PINS = {
     "MKL_CBWR": "COMPATIBLE,STRICT",
     "ATEN_CPU_CAPABILITY": "avx2",
     "NPY_DISABLE_CPU_FEATURES": NUMPY_AVX512,
+    "OPENBLAS_CORETYPE": "Haswell",
 }
-"""Environment settings of portable numerics (read by MKL, ATen and NumPy when they load)."""
+"""Environment settings of portable numerics (read by MKL, ATen, NumPy and OpenBLAS when they
+load)."""
 PORTABLE_CAPABILITIES = ("AVX2", "DEFAULT", "NO AVX")
 """ATen CPU capabilities whose element-wise kernels are the portable ones (or plainer)."""
 
@@ -140,6 +146,9 @@ def check() -> str:
         found.append(f"ATen runs {capability} kernels")
     if wide := numpy_avx512():
         found.append(f"NumPy runs {', '.join(wide)} loops")
+    blas = blas_kernels()
+    if any(b["kernels"] not in (None, PINS["OPENBLAS_CORETYPE"]) for b in blas):
+        found.append(f"OpenBLAS runs {', '.join(str(b['kernels']) for b in blas)} kernels")
     if found:
         raise ConfigError(
             f"{ENV}=portable: {'; '.join(found)}; set {ENV}=portable in the shell before Python "
@@ -164,6 +173,40 @@ def numpy_avx512() -> list[str]:
     NumPy 1.x the portable pin is checked by its setting alone)."""
     off = set(NUMPY_AVX512.split())
     return [f for f in numpy_simd() if f in off]
+
+
+def blas_kernels() -> list[dict[str, str | None]]:
+    """The BLAS libraries loaded in this process (NumPy's, and SciPy's once it is loaded), as
+    ``{"library", "version", "kernels"}``: ``kernels`` is the code path OpenBLAS picked for
+    this CPU (``Haswell``, ``SkylakeX``, ``Cooperlake``, ...), None where the library does not
+    say. Read by threadpoolctl, which inspects the loaded libraries and changes nothing."""
+    from threadpoolctl import threadpool_info
+
+    return [
+        {
+            "library": str(lib.get("internal_api")),
+            "version": lib.get("version"),
+            "kernels": lib.get("architecture"),
+            "path": str(lib.get("filepath")),
+        }
+        for lib in threadpool_info()
+        if lib.get("user_api") == "blas"
+    ]
+
+
+def numpy_blas() -> str | None:
+    """NumPy's matrix library and the kernels it picked for this CPU, e.g. ``openblas
+    0.3.31.188.0 (Haswell kernels)``; None where no BLAS library is found."""
+    import numpy as np
+
+    libs = blas_kernels()
+    home = os.path.dirname(os.path.dirname(np.__file__))
+    own = [b for b in libs if b["path"].startswith(home) and "numpy" in b["path"]]
+    if not (own or libs):
+        return None
+    lib = (own or libs)[0]
+    kernels = f" ({lib['kernels']} kernels)" if lib["kernels"] else ""
+    return f"{lib['library']} {lib['version'] or ''}".strip() + kernels
 
 
 def cpu_model(*, cpuinfo: str = "/proc/cpuinfo") -> str:
@@ -192,7 +235,8 @@ def environment() -> dict[str, Any]:
     that compute them. Two computers that differ here may train or simulate other bits.
 
     Keys: ``numerics``, ``cpu``, ``machine``, ``python``, ``numpy``, ``numpy_simd`` (its
-    dispatch targets in use), ``mujoco``, ``torch`` (None where not installed) and, once
+    dispatch targets in use), ``numpy_blas`` (:func:`numpy_blas`: its matrix library and the
+    kernels it picked), ``mujoco``, ``torch`` (None where not installed) and, once
     torch is loaded, ``torch_cpu_capability`` (its element-wise kernels). Reads no clock and
     no load, so the same computer gives the same record.
 
@@ -213,6 +257,7 @@ def environment() -> dict[str, Any]:
         "python": platform.python_version(),
         "numpy": version("numpy"),
         "numpy_simd": numpy_simd(),
+        "numpy_blas": numpy_blas(),
         "mujoco": version("mujoco"),
         "torch": version("torch"),
     }

@@ -50,12 +50,15 @@ def test_the_environment_line_and_an_ensembles_record():
         "torch_cpu_capability": "AVX2",
         "numpy": "2.4.6",
         "numpy_simd": ["X86_V3"],
+        "numpy_blas": "openblas 0.3.31.188.0 (Haswell kernels)",
         "mujoco": None,
     }
     assert environment_markdown(env) == (
         "Trained on AMD EPYC (family 26, model 2), torch 2.13.0+cpu (AVX2 kernels), "
-        "NumPy 2.4.6 (X86_V3); portable numerics.\n"
+        "NumPy 2.4.6 (X86_V3; openblas 0.3.31.188.0 (Haswell kernels)); portable numerics.\n"
     )
+    older = {k: v for k, v in env.items() if k != "numpy_blas"}  # a record of session 59
+    assert "NumPy 2.4.6 (X86_V3);" in environment_markdown(older)
     assert environment_markdown(None) == "" and environment_markdown({}) == ""
     members = [{"epochs_planned": 3, "environment": env}, {"epochs_planned": 3, "environment": env}]
     assert ensemble_training(members)["environment"] == env

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import mujoco
@@ -123,10 +126,12 @@ def test_runtime_mass_change_needs_no_mj_setconst() -> None:
     np.testing.assert_allclose(d1.qfrc_bias, d2.qfrc_bias, rtol=1e-9)
 
 
-def test_payload_inertia_is_consistent() -> None:
-    plant = build_plant(
-        SimulateConfig(plant="hydraulic", soil=SoilConfig(enabled=True)), EXCAVATOR, loop=True
-    )
+@pytest.mark.parametrize("payload_pos", [(0.9, 0.0, 0.3), (1.3, 0.2, 0.6)])
+def test_payload_inertia_is_consistent(payload_pos: tuple[float, float, float]) -> None:
+    """The default payload sits on the bucket's COM; the other one off it (a tensor with
+    off-diagonal terms, whose principal frame is rotated)."""
+    soil_cfg = SoilConfig(enabled=True, payload_pos=payload_pos)
+    plant = build_plant(SimulateConfig(plant="hydraulic", soil=soil_cfg), EXCAVATOR, loop=True)
     soil = _soil_hook(plant)
     assert isinstance(soil, SoilHook)
     plant.reset(theta0=ABOVE)
@@ -139,6 +144,34 @@ def test_payload_inertia_is_consistent() -> None:
     np.testing.assert_allclose(np.linalg.norm(m.body_iquat[b]), 1.0)
     com = (3500 * np.array([0.9, 0, 0.3]) + 5000 * np.array(soil.config.payload_pos)) / 8500
     np.testing.assert_allclose(m.body_ipos[b], com)
+    # the principal inertia and frame written give the composite tensor about the new COM:
+    # the empty bucket's and the payload box's, each shifted by the parallel-axis theorem
+    rot = np.empty(9)
+    mujoco.mju_quat2Mat(rot, m.body_iquat[b])
+    r = rot.reshape(3, 3)
+    half = 2 * np.array(soil.config.payload_half_m)
+    box = (
+        5000
+        / 12
+        * np.diag(
+            [half[1] ** 2 + half[2] ** 2, half[0] ** 2 + half[2] ** 2, half[0] ** 2 + half[1] ** 2]
+        )
+    )
+
+    def shift(mass: float, d: np.ndarray) -> np.ndarray:
+        return mass * (np.sum(d * d) * np.eye(3) - np.outer(d, d))
+
+    want = (
+        np.diag(soil._inertia0)  # the MJCF's bucket has its principal axes on the body's
+        + shift(3500, np.array([0.9, 0, 0.3]) - com)
+        + box
+        + shift(5000, np.array(soil.config.payload_pos) - com)
+    )
+    np.testing.assert_allclose(r @ np.diag(m.body_inertia[b]) @ r.T, want, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(r), 1.0)  # a rotation, not a reflection
+    soil._set_payload(plant.model, 0.0)  # empty again: the MJCF's own inertial
+    np.testing.assert_array_equal(m.body_inertia[b], soil._inertia0)
+    np.testing.assert_array_equal(m.body_iquat[b], soil._iquat0)
 
 
 def test_dig_operator_digs_and_dumps() -> None:
@@ -154,6 +187,62 @@ def test_dig_operator_digs_and_dumps() -> None:
     assert np.ptp(res["theta"][:, 0]) > np.deg2rad(45)
     with pytest.raises(ConfigError, match="closed-loop"):
         generate("dig_cycle", 0, 10, EXCAVATOR)
+
+
+_AVX512 = {"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"}
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return set()
+    line = next((x for x in text.splitlines() if x.startswith("flags")), "")
+    return set(line.partition(":")[2].split())
+
+
+def _numpy_blas() -> str:
+    deps = np.show_config(mode="dicts").get("Build Dependencies", {})
+    return str(deps.get("blas", {}).get("name", ""))
+
+
+_EPISODE = """
+import hashlib
+from excavator_surrogate.config import from_dict, load_preset
+from excavator_surrogate.simulate.config import SimulateConfig
+from excavator_surrogate.simulate.generate import EpisodeJob, simulate_episode
+from excavator_surrogate.spec import EXCAVATOR
+cfg = from_dict(SimulateConfig, load_preset("quick-compound")["simulate"])
+job = EpisodeJob("train", 0, "dig_cycle", 100, 12345)
+res = simulate_episode(job, cfg, spec=EXCAVATOR.with_rate(cfg.rate_hz))
+print(hashlib.sha256(res["theta"].tobytes() + res["u"].tobytes()).hexdigest())
+"""
+
+
+@pytest.mark.skipif(
+    "openblas" not in _numpy_blas().lower() or not _AVX512 <= _cpu_flags(),
+    reason="needs NumPy on OpenBLAS and an AVX-512 CPU (OpenBLAS's SkylakeX kernels)",
+)
+def test_a_digging_log_does_not_depend_on_numpys_blas_kernels() -> None:
+    """OpenBLAS picks its kernels by CPU (AVX-512 ones on an Intel or a Zen 4, AVX2 ones on a
+    Zen 5 or an AVX2 CPU), and they round matrix products differently. The closed-loop
+    operator grew such a last-bit difference of the soil hook's tip velocity and payload
+    inertia into another log. The hook takes them from MuJoCo's own routines, so the same
+    seed digs the same log under either kernel set (two processes on one CPU, nothing else
+    differing: MuJoCo and NumPy's element-wise loops run the same code in both)."""
+    base = {k: v for k, v in os.environ.items() if k != "OPENBLAS_CORETYPE"}
+    digests = []
+    for core in ("Haswell", "SkylakeX"):
+        done = subprocess.run(
+            [sys.executable, "-c", _EPISODE],
+            env={**base, "OPENBLAS_CORETYPE": core},
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        digests.append(done.stdout.strip().splitlines()[-1])
+    assert digests[0] == digests[1]
 
 
 def _check_stage2(path: Path, condition: str, rate_hz: float) -> None:

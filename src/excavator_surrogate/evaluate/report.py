@@ -407,8 +407,9 @@ def environment_markdown(env: Mapping[str, Any] | None) -> str:
         cap = env.get("torch_cpu_capability")
         parts.append(f"torch {env['torch']}" + (f" ({cap} kernels)" if cap else ""))
     if env.get("numpy"):
-        simd = ", ".join(env.get("numpy_simd") or [])
-        parts.append(f"NumPy {env['numpy']}" + (f" ({simd})" if simd else ""))
+        kinds = [", ".join(env.get("numpy_simd") or []), env.get("numpy_blas") or ""]
+        inner = "; ".join(k for k in kinds if k)
+        parts.append(f"NumPy {env['numpy']}" + (f" ({inner})" if inner else ""))
     if env.get("mujoco"):
         parts.append(f"MuJoCo {env['mujoco']}")
     numerics = env.get("numerics", "native")

@@ -24,6 +24,14 @@ matrix and bias forces from ``body_mass``/``body_inertia`` at every step (verifi
 recompiled model: identical dynamics to 1e-19 rad after 1 s); only ``body_subtreemass`` and
 hence ``data.subtree_com`` go stale, which no part of this plant uses.  ``mj_setConst`` would
 even reset ``data.qpos`` to ``qpos0``.  :meth:`SoilHook.reset` restores the empty bucket.
+
+The hook's matrix maths (the tip velocity ``J qvel``, the torques ``J^T F``, the inertia
+tensor and its principal axes) uses MuJoCo's own routines (``mju_mulMatVec``,
+``mju_mulMatTVec``, ``mju_mulMatMatT``, ``mju_eig3``), not NumPy's ``@`` and ``linalg``.
+NumPy hands those to OpenBLAS, which picks its kernels by CPU (AVX-512 ones on an Intel or a
+Zen 4 CPU, AVX2 ones on a Zen 5), and they round differently. The closed-loop digging
+operator grew that last bit into another log on another computer; MuJoCo's routines are the
+same code everywhere.
 """
 
 from __future__ import annotations
@@ -113,7 +121,7 @@ def _box_inertia(mass: float, half: np.ndarray) -> np.ndarray:
 
 def _shift(mass: float, d: np.ndarray) -> np.ndarray:
     """Parallel-axis term ``m (|d|^2 E - d d^T)``."""
-    return mass * (float(d @ d) * np.eye(3) - np.outer(d, d))
+    return mass * (mujoco.mju_dot3(d, d) * np.eye(3) - np.outer(d, d))
 
 
 class SoilHook:
@@ -154,8 +162,11 @@ class SoilHook:
         rot = np.empty(9)
         mujoco.mju_quat2Mat(rot, self._iquat0)
         r = rot.reshape(3, 3)
-        self._I0 = r @ np.diag(self._inertia0) @ r.T  # body-frame inertia tensor about ipos0
+        # I0 = R diag(I) R^T: the body-frame inertia tensor about ipos0
+        self._I0 = np.empty((3, 3))
+        mujoco.mju_mulMatMatT(self._I0, r * self._inertia0, r)
         self._jacp = np.zeros((3, model.nv))
+        self._v = np.zeros(3)
         self._f = np.zeros(3)
         self._model_id = id(model)
 
@@ -203,11 +214,9 @@ class SoilHook:
             + _box_inertia(mass, np.asarray(self.config.payload_half_m, dtype=np.float64))
             + _shift(mass, cp - com)
         )
-        val, vec = np.linalg.eigh(inertia)
-        if np.linalg.det(vec) < 0:
-            vec[:, 0] = -vec[:, 0]
-        quat = np.empty(4)
-        mujoco.mju_mat2Quat(quat, vec.reshape(-1))
+        # inertia = V diag(val) V^T, V the rotation of the principal frame (as quat)
+        val, vec, quat = np.empty(3), np.empty(9), np.empty(4)
+        mujoco.mju_eig3(val, vec, quat, inertia.reshape(-1))
         model.body_mass[b] = total
         model.body_ipos[b] = com
         model.body_iquat[b] = quat
@@ -227,7 +236,9 @@ class SoilHook:
             self.stats["below_ground_s"] += h
             jac = self._jacp
             mujoco.mj_jacSite(model, data, jac, None, self._tip)
-            vx, vy, vz = (jac @ data.qvel).tolist()  # tip velocity [m/s]
+            # v = J qvel: the tip velocity [m/s]
+            mujoco.mju_mulMatVec(self._v, jac, data.qvel)
+            vx, vy, vz = self._v.tolist()
             speed = math.sqrt(vx * vx + vy * vy + vz * vz)
             if c.resistance:
                 mag = min(
@@ -242,7 +253,8 @@ class SoilHook:
                 scale = -mag / math.sqrt(speed * speed + c.smooth_speed * c.smooth_speed)
                 self._f[0], self._f[1], self._f[2] = scale * vx, scale * vy, scale * vz
                 self.force = self._f
-                np.matmul(self._f, jac, out=data.qfrc_applied)  # J^T F
+                # qfrc_applied = J^T F
+                mujoco.mju_mulMatTVec(data.qfrc_applied, jac, self._f)
                 self._applied = True
             if c.payload and self.volume < c.capacity_m3:
                 dv = c.fill_efficiency * c.bucket_width_m * depth * speed * h
