@@ -106,6 +106,31 @@ except ConfigError as e:
         assert verdict == "refused" and "before Python starts" in rest
 
 
+def test_a_portable_simulation_is_refused_where_numpy_loaded_first(monkeypatch, tmp_path):
+    """This process imported NumPy natively: a portable simulation here runs the portable
+    loops and kernels only if they are the CPU's own (an AVX2-only CPU on OpenBLAS's Haswell
+    kernels); elsewhere it is refused in one line, before anything is simulated."""
+    from excavator_surrogate.config import load_preset
+    from excavator_surrogate.simulate.config import SimulateConfig
+    from excavator_surrogate.simulate.generate import simulate_dataset
+
+    monkeypatch.setenv(numerics.ENV, "portable")
+    for key, value in numerics.PINS.items():
+        monkeypatch.setenv(key, value)  # set, but after NumPy and OpenBLAS loaded
+    cfg = SimulateConfig.from_preset(load_preset("tiny"), seed=0)
+    wide = numerics.numpy_avx512() or [
+        b for b in numerics.blas_kernels() if b["kernels"] not in (None, "Haswell")
+    ]
+    if wide:
+        with pytest.raises(ConfigError, match="before Python starts"):
+            simulate_dataset(cfg, out=tmp_path / "ds")
+        assert not (tmp_path / "ds").exists()
+    else:
+        assert simulate_dataset(cfg, out=tmp_path / "ds").is_dir()
+    monkeypatch.setenv(numerics.ENV, "native")
+    assert numerics.check_numpy() == "native"  # native numerics check nothing
+
+
 def test_a_portable_training_records_it_in_every_member(tmp_path):
     code = f"""
 from excavator_surrogate.surrogate import read_checkpoint

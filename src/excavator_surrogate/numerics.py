@@ -127,11 +127,12 @@ def fused_adam() -> bool | None:
 
 
 def check() -> str:
-    """:func:`apply`, then check that the portable pins reached torch; returns the mode.
+    """:func:`apply`, then check that the portable pins reached torch, NumPy and OpenBLAS;
+    returns the mode.
 
     Raises:
-        ConfigError: portable numerics asked for, but ATen or NumPy already run wider
-            kernels (they were imported before the package set the pins) or a pin was
+        ConfigError: portable numerics asked for, but ATen, NumPy or OpenBLAS already run
+            wider kernels (they were imported before the package set the pins) or a pin was
             overridden with another value.
     """
     chosen = apply()
@@ -140,22 +141,47 @@ def check() -> str:
     import torch
 
     capability = torch.backends.cpu.get_cpu_capability()
-    wrong = {k: os.environ.get(k) for k, v in PINS.items() if os.environ.get(k) != v}
-    found = [f"found {wrong}"] if wrong else []
+    found = _pins_missed()
     if capability not in PORTABLE_CAPABILITIES:
         found.append(f"ATen runs {capability} kernels")
+    _refuse(found)
+    return chosen
+
+
+def check_numpy() -> str:
+    """:func:`check` for work that runs on NumPy alone (a simulation): the pins reached
+    NumPy and OpenBLAS; torch is neither imported nor checked. Returns the mode.
+
+    Raises:
+        ConfigError: as :func:`check`, for NumPy and OpenBLAS.
+    """
+    chosen = mode()
+    if chosen == "portable":
+        _refuse(_pins_missed())
+    return chosen
+
+
+def _pins_missed() -> list[str]:
+    """What of the portable pins did not reach this process: overridden settings, NumPy's
+    AVX-512 loops, OpenBLAS's other kernels."""
+    wrong = {k: os.environ.get(k) for k, v in PINS.items() if os.environ.get(k) != v}
+    found = [f"found {wrong}"] if wrong else []
     if wide := numpy_avx512():
         found.append(f"NumPy runs {', '.join(wide)} loops")
     blas = blas_kernels()
     if any(b["kernels"] not in (None, PINS["OPENBLAS_CORETYPE"]) for b in blas):
         found.append(f"OpenBLAS runs {', '.join(str(b['kernels']) for b in blas)} kernels")
+    return found
+
+
+def _refuse(found: list[str]) -> None:
+    """Raise the one-line refusal of a portable run that ``found`` says would not hold."""
     if found:
         raise ConfigError(
             f"{ENV}=portable: {'; '.join(found)}; set {ENV}=portable in the shell before Python "
-            f"starts (it must reach NumPy and torch before they load), and leave "
-            f"{', '.join(PINS)} unset (exsur sets them)"
+            f"starts and import excavator_surrogate before NumPy and torch (its pins must "
+            f"reach them before they load), and leave {', '.join(PINS)} unset (exsur sets them)"
         )
-    return chosen
 
 
 def numpy_simd() -> list[str]:

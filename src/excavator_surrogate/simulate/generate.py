@@ -323,10 +323,15 @@ def simulate_dataset(
 
     Returns:
         ``out`` as a Path.
+
+    Raises:
+        ConfigError: a bad option, or ``EXSUR_NUMERICS=portable`` that did not reach NumPy
+            or OpenBLAS (NumPy was imported before the package).
     """
     workers = cfg.workers if workers is None else int(workers)
     if workers < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
+    numerics.check_numpy()  # portable: NumPy's AVX2 loops and OpenBLAS's Haswell kernels
     spec = spec.with_rate(cfg.rate_hz) if spec.rate_hz != cfg.rate_hz else spec
     plant_spec = spec
     if cfg.inputs:
