@@ -203,9 +203,10 @@ def numpy_avx512() -> list[str]:
 
 def blas_kernels() -> list[dict[str, str | None]]:
     """The BLAS libraries loaded in this process (NumPy's, and SciPy's once it is loaded), as
-    ``{"library", "version", "kernels"}``: ``kernels`` is the code path OpenBLAS picked for
-    this CPU (``Haswell``, ``SkylakeX``, ``Cooperlake``, ...), None where the library does not
-    say. Read by threadpoolctl, which inspects the loaded libraries and changes nothing."""
+    ``{"library", "version", "kernels", "path"}``: ``kernels`` is the code path OpenBLAS
+    picked for this CPU (``Haswell``, ``SkylakeX``, ``Cooperlake``, ...), None where the
+    library does not say; ``path`` the shared library's file. Read by threadpoolctl, which
+    inspects the loaded libraries and changes nothing."""
     from threadpoolctl import threadpool_info
 
     return [
