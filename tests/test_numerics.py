@@ -41,7 +41,11 @@ def test_the_mode_is_native_unless_portable_is_asked_for(monkeypatch):
 
 def test_prepare_sets_the_pins_only_for_portable_and_never_overrides_the_user(monkeypatch):
     for key in numerics.PINS:
-        monkeypatch.delenv(key, raising=False)
+        # set, then removed: monkeypatch restores a variable it set (here: to absent) after the
+        # test, not one it found absent, and prepare_environment sets them behind its back;
+        # left set, they reach the spawned workers of later simulations in this process
+        monkeypatch.setenv(key, "")
+        monkeypatch.delenv(key)
     monkeypatch.setenv(numerics.ENV, "native")
     numerics.prepare_environment()
     assert not any(key in os.environ for key in numerics.PINS)
