@@ -123,7 +123,9 @@ def test_a_portable_simulation_is_refused_where_numpy_loaded_first(monkeypatch, 
         monkeypatch.setenv(key, value)  # set, but after NumPy and OpenBLAS loaded
     cfg = SimulateConfig.from_preset(load_preset("tiny"), seed=0)
     wide = numerics.numpy_avx512() or [
-        b for b in numerics.blas_kernels() if b["kernels"] not in (None, "Haswell")
+        b
+        for b in numerics.blas_kernels()
+        if b["kernels"] not in (None, numerics.PINS["OPENBLAS_CORETYPE"])
     ]
     if wide:
         with pytest.raises(ConfigError, match="before Python starts"):

@@ -227,8 +227,7 @@ def numpy_blas() -> str | None:
     import numpy as np
 
     libs = blas_kernels()
-    home = os.path.dirname(os.path.dirname(np.__file__))
-    own = [b for b in libs if b["path"].startswith(home) and "numpy" in b["path"]]
+    own = [b for b in libs if b["path"].startswith(os.path.dirname(np.__file__))]  # numpy.libs
     if not (own or libs):
         return None
     lib = (own or libs)[0]

@@ -13,6 +13,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from excavator_surrogate import numerics
 from excavator_surrogate.config import from_dict, load_preset
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.errors import ConfigError
@@ -201,11 +202,6 @@ def _cpu_flags() -> set[str]:
     return set(line.partition(":")[2].split())
 
 
-def _numpy_blas() -> str:
-    deps = np.show_config(mode="dicts").get("Build Dependencies", {})
-    return str(deps.get("blas", {}).get("name", ""))
-
-
 _EPISODE = """
 import hashlib
 from excavator_surrogate.config import from_dict, load_preset
@@ -220,7 +216,8 @@ print(hashlib.sha256(res["theta"].tobytes() + res["u"].tobytes()).hexdigest())
 
 
 @pytest.mark.skipif(
-    "openblas" not in _numpy_blas().lower() or not _AVX512 <= _cpu_flags(),
+    not any(b["library"] == "openblas" for b in numerics.blas_kernels())
+    or not _AVX512 <= _cpu_flags(),
     reason="needs NumPy on OpenBLAS and an AVX-512 CPU (OpenBLAS's SkylakeX kernels)",
 )
 def test_a_digging_log_does_not_depend_on_numpys_blas_kernels() -> None:
