@@ -109,6 +109,7 @@ steps_test = 300
     # --members 2: every trained model is a two-seed ensemble, scored next to its members
     assert set(m["ensemble_members"]) == {"ensemble", "member 0", "member 1"}
     assert "Seed ensemble: the merged network vs its members" in report
+    assert report.count("## Uncertainty and out-of-distribution") == 1  # not again in the table
     for model in ("model", "model_raw"):
         assert (out / model / "member_1" / "best.pt").exists()
     assert tomllib.loads((out / "config.toml").read_text())["train"]["members"] == 2

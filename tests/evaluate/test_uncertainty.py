@@ -96,6 +96,28 @@ def test_run_report_shows_the_uncertainty_section_only_when_scored():
     assert "any joint 25 %" in text
 
 
+def test_run_report_shows_the_uncertainty_section_once_beside_the_table_md_that_holds_it():
+    from excavator_surrogate.evaluate.run_report import ReportContext, render_run_report
+    from excavator_surrogate.evaluate.uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
+
+    unc = {"available": False, "notes": [NO_MEMBERS], "ood": {"a": 0.25, "any": 0.25}}
+    # table.md as evaluate_checkpoint writes it: the CBE table, then the uncertainty section
+    table_md = (
+        "# Closed-loop behavioural equivalence (CBE)\n\n| Type | Joint |\n|---|---|\n"
+        "| θ | a |\n\n" + uncertainty_markdown(unc, ["a"])
+    )
+    base = {
+        "theta": {"a": {"rmse": 0.1, "mae": 0.1, "r2": 0.9}},
+        "omega": {"a": {"rmse": 0.1, "mae": 0.1, "r2": 0.8}},
+        "run": {"split": "test"},
+        "uncertainty": unc,
+    }
+    text = render_run_report(base, ReportContext(name="tiny", spec_names=("a",), table_md=table_md))
+    assert text.count(UNCERTAINTY_HEADING) == 1
+    assert text.count("any joint 25 %") == 1
+    assert "| θ | a |" in text.split("## CBE table")[1]  # the table itself is still there
+
+
 def test_exsur_calibrate_stores_the_records_and_refuses_other_machines(
     tmp_path, dataset_dir, capsys
 ):

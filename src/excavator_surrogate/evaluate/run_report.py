@@ -15,7 +15,7 @@ from typing import Any
 from ..spec import LINEAR_UNITS
 from .metrics import min_r2
 from .report import PAPER_TABLE_III
-from .uncertainty import uncertainty_markdown
+from .uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
 
 
 @dataclass(frozen=True)
@@ -202,15 +202,12 @@ def _uncertainty(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
 
 
 def _cbe_table(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
-    """The CBE table (paper layout, baselines)."""
-    lines: list[str] = []
-    lines += [
-        "## CBE table",
-        "",
-        ctx.table_md.replace("# Closed-loop behavioural equivalence (CBE)", "").strip(),
-        "",
-    ]
-    return lines
+    """The CBE table (paper layout, baselines).  ``table.md`` ends with the uncertainty
+    section too; the report has that as its own section (:func:`_uncertainty`), so it is cut
+    here, not shown twice."""
+    table = ctx.table_md.replace("# Closed-loop behavioural equivalence (CBE)", "")
+    table = table.split(UNCERTAINTY_HEADING)[0]
+    return ["## CBE table", "", table.strip(), ""]
 
 
 def _files(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:

@@ -76,9 +76,13 @@ def _num(v: float | None) -> str:
     return "—" if v is None else f"{v:.4f}"
 
 
+UNCERTAINTY_HEADING = "## Uncertainty and out-of-distribution"
+"""The heading of :func:`uncertainty_markdown`'s section (``table.md`` and ``report.md``)."""
+
+
 def uncertainty_markdown(unc: Mapping[str, Any], names: Sequence[str]) -> str:
     """Markdown lines: per joint the bands' coverage and width and the flagged share."""
-    lines = ["## Uncertainty and out-of-distribution", ""]
+    lines = [UNCERTAINTY_HEADING, ""]
     for note in unc.get("notes") or []:
         lines.append(f"Note: {note}.")
     if unc.get("notes"):
