@@ -191,6 +191,7 @@ def test_train_marks_the_folder_and_every_member(tmp_path: Path, data_dir: Path)
     assert main([str(a) for a in [*argv, *extra]]) == 0
     for d in (out, out / "member_0", out / "member_1"):
         assert read_marker(d)["kind"] == "model", d
+    assert (out / "learning_curve.png").is_file()  # both members' epoch logs, one figure
     (out / "best.pt").unlink()  # as if killed while training member 1
     (out / "log.csv").unlink()
     shutil.rmtree(out / "member_1")

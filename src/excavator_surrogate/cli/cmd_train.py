@@ -21,7 +21,8 @@ def register(subparsers: Any) -> None:
         "train",
         help="train a surrogate on a dataset (best checkpoint by validation free-run)",
         description="Train a surrogate on DATASET's train split, select it by closed-loop error on the "
-        "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml and OUT/tb/.",
+        "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml, OUT/tb/ and "
+        "OUT/learning_curve.png (training loss and validation error per epoch).",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
     p.add_argument("--out", type=Path, required=True, help="output folder")
@@ -113,9 +114,27 @@ def run(args: argparse.Namespace) -> int:
         shutdown(dist)
     if dist is not None and not dist.is_main:
         return 0
+    _learning_curves(Path(args.out))
     m = read_checkpoint(best).get("metrics", {})
     ens = m.get("ensemble")
     which = f"{ens['n_member']}-member ensemble" if ens else f"epoch {m.get('epoch')}"
     log(f"best checkpoint: {best} ({which}, val_error {m.get('val_error', float('nan')):.4g})")
     print(best)
     return 0
+
+
+def _learning_curves(out: Path) -> None:
+    """Draw ``out/learning_curve.png`` from the epoch logs.  The checkpoints are already
+    final, so a figure that cannot be drawn is a warning, not a failed training."""
+    import logging
+
+    from ..errors import ExsurError
+    from ..io_utils import LOGGER_NAME, log
+    from ..plotting.training import plot_learning_curves
+
+    try:
+        png = plot_learning_curves(out, out=out / "learning_curve.png")
+    except (ExsurError, OSError, ValueError) as e:
+        logging.getLogger(LOGGER_NAME).warning(f"learning curves not drawn: {e}")
+    else:
+        log(f"learning curves: {png}")

@@ -1,0 +1,110 @@
+"""Learning curves of a training folder: the training loss and the validation free-run error per
+epoch, one line per network (a single network, or every member of an ensemble, of each input
+way or kind), with each network's lowest validation error marked (``exsur train`` writes it as
+``learning_curve.png`` next to ``best.pt``)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, DataError
+from ..io_utils import atomic_path
+from ..outdir import PNG_SOFTWARE
+
+NEEDED = ("epoch", "train_loss", "val_error")
+"""The columns of an epoch log (``log.csv`` of one network) the figure reads."""
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One network's epoch log."""
+
+    label: str
+    """Its folder relative to the training folder (``network`` for the folder itself)."""
+    epoch: np.ndarray
+    """(n_epoch,) epoch numbers."""
+    train_loss: np.ndarray
+    """(n_epoch,) mean training loss (NaN where not logged)."""
+    val_error: np.ndarray
+    """(n_epoch,) validation free-run error (NaN where not logged)."""
+
+
+def _number(text: str | None) -> float:
+    try:
+        return float(text) if text not in (None, "") else math.nan
+    except ValueError:
+        return math.nan
+
+
+def read_curves(folder: str | Path) -> list[Curve]:
+    """Every epoch log under ``folder`` (``log.csv`` files with :data:`NEEDED` columns; an
+    ensemble's own ``log.csv``, one row per member, has no ``train_loss`` and is skipped), in
+    path order."""
+    folder = Path(folder)
+    curves = []
+    for path in sorted(folder.rglob("log.csv")):
+        with path.open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        if not rows or not all(c in rows[0] for c in NEEDED):
+            continue
+        rel = path.parent.relative_to(folder).as_posix()
+        curves.append(
+            Curve(
+                label="network" if rel == "." else rel,
+                epoch=np.array([_number(r["epoch"]) for r in rows]),
+                train_loss=np.array([_number(r["train_loss"]) for r in rows]),
+                val_error=np.array([_number(r["val_error"]) for r in rows]),
+            )
+        )
+    return curves
+
+
+def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110) -> Path:
+    """Draw the learning curves of the training folder ``folder`` to the PNG ``out`` (written
+    atomically) and return its path.
+
+    Left: training loss per epoch; right: validation free-run error per epoch (the error
+    training selects by), both on a log scale; a dot marks each network's lowest validation
+    error.
+
+    Raises:
+        DataError: ``folder`` holds no epoch log.
+        ConfigError: ``out`` does not end in ``.png``.
+    """
+    from matplotlib.figure import Figure  # no pyplot: backend-independent, thread-safe
+
+    out = Path(out)
+    if out.suffix.lower() != ".png":
+        raise ConfigError(f"{out}: the plot is written as PNG; give a file name ending in .png")
+    curves = read_curves(folder)
+    if not curves:
+        raise DataError(
+            folder,
+            "no epoch log (log.csv with epoch, train_loss, val_error): not a training folder",
+        )
+    fig = Figure(figsize=(11.0, 4.2), layout="constrained")
+    ax_loss, ax_val = fig.subplots(1, 2, sharex=True)
+    for i, c in enumerate(curves):
+        color = f"C{i % 10}"
+        ax_loss.plot(c.epoch, c.train_loss, lw=1.0, color=color, label=c.label)
+        ax_val.plot(c.epoch, c.val_error, lw=1.0, color=color, label=c.label)
+        if np.isfinite(c.val_error).any():
+            k = int(np.nanargmin(c.val_error))
+            ax_val.plot(c.epoch[k], c.val_error[k], "o", ms=5, color=color)
+    for ax, what in ((ax_loss, "training loss"), (ax_val, "validation free-run error")):
+        ax.set_yscale("log")
+        ax.set_xlabel("epoch")
+        ax.set_ylabel(what)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax_val.set_title("dot: each network's lowest validation error", fontsize=9)
+    if len(curves) <= 12:
+        ax_loss.legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"learning curves: {Path(folder).name} ({len(curves)} network(s))")
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE})
+    return out

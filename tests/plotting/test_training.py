@@ -1,0 +1,55 @@
+"""Learning curves of a training folder (plotting.training): which logs it reads, the figure,
+and its errors."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from excavator_surrogate.errors import ConfigError, DataError
+from excavator_surrogate.outdir import is_exsur_file
+from excavator_surrogate.plotting.training import plot_learning_curves, read_curves
+
+
+def _log(path: Path, val: list[str], loss: list[float]) -> None:
+    """An epoch log as training writes it (extra columns, empty val_error where not run)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["epoch", "time_s", "train_loss", "val_error", "best"])
+        for k, (v, lo) in enumerate(zip(val, loss)):
+            w.writerow([k, k * 1.5, lo, v, 0])
+
+
+def test_reads_every_network_log_and_skips_the_ensemble_summary(tmp_path: Path) -> None:
+    _log(tmp_path / "plain" / "member_1" / "log.csv", ["", "0.5", "0.3"], [0.1, 0.05, 0.02])
+    _log(tmp_path / "plain" / "member_0" / "log.csv", ["0.9", "0.4", "0.6"], [0.2, 0.1, 0.04])
+    _log(tmp_path / "prior" / "member_0" / "log.csv", ["0.3", "0.2"], [0.02, 0.01])
+    (tmp_path / "log.csv").write_text("member,seed,epoch,val_error\n0,0,1,0.4\n1,1,2,0.3\n")
+    curves = read_curves(tmp_path)
+    assert [c.label for c in curves] == ["plain/member_0", "plain/member_1", "prior/member_0"]
+    c = curves[1]
+    np.testing.assert_array_equal(c.epoch, [0, 1, 2])
+    np.testing.assert_array_equal(c.train_loss, [0.1, 0.05, 0.02])
+    assert np.isnan(c.val_error[0]) and c.val_error[2] == 0.3
+
+    png = plot_learning_curves(tmp_path, out=tmp_path / "learning_curve.png")
+    assert png.stat().st_size > 0 and is_exsur_file(png)
+    assert [p.name for p in tmp_path.iterdir() if p.suffix == ".tmp"] == []
+
+
+def test_a_single_network_folder_is_labelled_network(tmp_path: Path) -> None:
+    _log(tmp_path / "log.csv", ["0.5", "0.4"], [0.1, 0.05])
+    assert [c.label for c in read_curves(tmp_path)] == ["network"]
+
+
+def test_no_epoch_log_and_a_wrong_suffix_are_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(DataError, match="no epoch log"):
+        plot_learning_curves(tmp_path, out=tmp_path / "lc.png")
+    _log(tmp_path / "log.csv", ["0.5"], [0.1])
+    with pytest.raises(ConfigError, match="ending in .png"):
+        plot_learning_curves(tmp_path, out=tmp_path / "lc.jpg")
+    assert not (tmp_path / "lc.png").exists() and not (tmp_path / "lc.jpg").exists()
