@@ -184,6 +184,14 @@ def run_pipeline(
         best = bests["model"]
         compare: dict[str, Path] = {"GRU": bests["model_gru"]} if "model_gru" in bests else {}
         raw_best: Path | None = bests.get("model_raw")
+        from .plotting.training import plot_learning_curves
+
+        curves = tuple(
+            plot_learning_curves(b.parent, out=b.parent / "learning_curve.png")
+            .relative_to(tmp)
+            .as_posix()
+            for b in bests.values()
+        )
 
         # ---- evaluate -------------------------------------------------------------------
         t0 = time.monotonic()
@@ -263,6 +271,7 @@ def run_pipeline(
                     spec_names=raw_ds.spec.names,
                     table_md=(tmp / "table.md").read_text(),
                     paper_table=run_cfg.paper_table,
+                    learning_curves=curves,
                 ),
             ),
         )

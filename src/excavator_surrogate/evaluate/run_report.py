@@ -30,6 +30,8 @@ class ReportContext:
     """The CBE table (``table.md``)."""
     paper_table: str = "none"
     """Which of the paper's tables to show: ``II``, ``III-noload``, ``III-compound``, ``none``."""
+    learning_curves: tuple[str, ...] = ()
+    """The trained models' ``learning_curve.png`` files, relative to the run folder."""
 
 
 def _fmt(v: Any, f: float = 1.0) -> str:
@@ -210,6 +212,16 @@ def _cbe_table(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     return ["## CBE table", "", table.strip(), ""]
 
 
+def _learning_curves(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """Each trained model's training loss and validation error per epoch."""
+    if not ctx.learning_curves:
+        return []
+    lines = ["## Learning curves", ""]
+    for path in ctx.learning_curves:
+        lines += [f"![learning curves of {path.rsplit('/', 1)[0]}]({path})", ""]
+    return lines
+
+
 def _files(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """What the folder holds."""
     lines: list[str] = []
@@ -232,6 +244,7 @@ SECTIONS: tuple[Section, ...] = (
     _ensemble_members,
     _uncertainty,
     _cbe_table,
+    _learning_curves,
     _files,
 )
 """The report's sections, in order."""
