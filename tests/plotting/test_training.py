@@ -43,7 +43,20 @@ def test_reads_every_network_log_and_skips_the_ensemble_summary(tmp_path: Path) 
 
 def test_a_single_network_folder_is_labelled_network(tmp_path: Path) -> None:
     _log(tmp_path / "log.csv", ["0.5", "0.4"], [0.1, 0.05])
-    assert [c.label for c in read_curves(tmp_path)] == ["network"]
+    assert [(c.label, c.free_from) for c in read_curves(tmp_path)] == [("network", None)]
+
+
+def test_the_switch_to_the_free_run_loss_is_read_from_the_networks_config(tmp_path: Path) -> None:
+    for name, train in (
+        ("free", 'feedback = "free"\nteacher_epochs = 3\n'),
+        ("teacher", 'feedback = "teacher"\nteacher_epochs = 1\n'),
+        ("free_no_warmup", 'feedback = "free"\nteacher_epochs = 0\n'),
+    ):
+        _log(tmp_path / name / "log.csv", ["0.5", "0.4", "0.3", "0.2"], [0.1, 0.05, 0.3, 0.2])
+        (tmp_path / name / "config.toml").write_text("[train]\n" + train)
+    got = {c.label: c.free_from for c in read_curves(tmp_path)}
+    assert got == {"free": 3, "teacher": None, "free_no_warmup": None}
+    assert plot_learning_curves(tmp_path, out=tmp_path / "lc.png").is_file()
 
 
 def test_no_epoch_log_and_a_wrong_suffix_are_clear_errors(tmp_path: Path) -> None:

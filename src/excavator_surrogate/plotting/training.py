@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import math
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +33,21 @@ class Curve:
     """(n_epoch,) mean training loss (NaN where not logged)."""
     val_error: np.ndarray
     """(n_epoch,) validation free-run error (NaN where not logged)."""
+    free_from: int | None = None
+    """First epoch of the free-run loss after teacher-forced ones (its ``config.toml``:
+    ``feedback = "free"``, ``teacher_epochs > 0``), where the training loss jumps; else None."""
+
+
+def _free_from(config: Path) -> int | None:
+    """The first free-run epoch a network's ``config.toml`` plans after teacher-forced ones."""
+    try:
+        train = tomllib.loads(config.read_text()).get("train", {})
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    teacher = train.get("teacher_epochs", 0)
+    if train.get("feedback") == "free" and isinstance(teacher, int) and teacher > 0:
+        return teacher
+    return None
 
 
 def _number(text: str | None) -> float:
@@ -59,6 +75,7 @@ def read_curves(folder: str | Path) -> list[Curve]:
                 epoch=np.array([_number(r["epoch"]) for r in rows]),
                 train_loss=np.array([_number(r["train_loss"]) for r in rows]),
                 val_error=np.array([_number(r["val_error"]) for r in rows]),
+                free_from=_free_from(path.parent / "config.toml"),
             )
         )
     return curves
@@ -68,9 +85,9 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
     """Draw the learning curves of the training folder ``folder`` to the PNG ``out`` (written
     atomically) and return its path.
 
-    Left: training loss per epoch; right: validation free-run error per epoch (the error
-    training selects by), both on a log scale; a dot marks each network's lowest validation
-    error.
+    Left: training loss per epoch (a dashed line where it turns from teacher-forced to free
+    run); right: validation free-run error per epoch (the error training selects by), both on
+    a log scale; a dot marks each network's lowest validation error.
 
     Raises:
         DataError: ``folder`` holds no epoch log.
@@ -96,6 +113,18 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
         if np.isfinite(c.val_error).any():
             k = int(np.nanargmin(c.val_error))
             ax_val.plot(c.epoch[k], c.val_error[k], "o", ms=5, color=color)
+    starts = {c.free_from for c in curves} - {None}
+    for k in sorted(starts):  # the loss changes meaning there: teacher-forced, then free run
+        ax_loss.axvline(k - 0.5, color="0.4", lw=0.8, ls="--")
+        ax_loss.annotate(
+            "free-run loss from here",
+            (k - 0.5, 1.0),
+            xycoords=("data", "axes fraction"),
+            xytext=(3, -10),
+            textcoords="offset points",
+            fontsize=7,
+            color="0.3",
+        )
     for ax, what in ((ax_loss, "training loss"), (ax_val, "validation free-run error")):
         ax.set_yscale("log")
         ax.set_xlabel("epoch")
