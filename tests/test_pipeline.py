@@ -111,10 +111,9 @@ steps_test = 300
     assert "Seed ensemble: the merged network vs its members" in report
     assert report.count("## Uncertainty and out-of-distribution") == 1  # not again in the table
     for model in ("model", "model_raw"):  # each trained model's learning curves, in the report
+        assert (out / model / "member_1" / "best.pt").exists()
         assert (out / model / "learning_curve.png").is_file()
         assert f"]({model}/learning_curve.png)" in report
-    for model in ("model", "model_raw"):
-        assert (out / model / "member_1" / "best.pt").exists()
     assert tomllib.loads((out / "config.toml").read_text())["train"]["members"] == 2
 
 

@@ -7,9 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import Episode
-from ..errors import ConfigError
-from ..io_utils import atomic_path
-from ..outdir import PNG_SOFTWARE
+from .png import png_path, save_png
 
 
 def plot_episode(ep: Episode, *, out: str | Path, title: str | None = None, dpi: int = 110) -> Path:
@@ -21,9 +19,7 @@ def plot_episode(ep: Episode, *, out: str | Path, title: str | None = None, dpi:
     """
     from matplotlib.figure import Figure  # no pyplot: backend-independent, thread-safe
 
-    out = Path(out)
-    if out.suffix.lower() != ".png":
-        raise ConfigError(f"{out}: the plot is written as PNG; give a file name ending in .png")
+    out = png_path(out)
     n = ep.spec.n_joint
     fig = Figure(figsize=(3.2 * n + 1.0, 7.0), layout="constrained")
     axes = fig.subplots(3, n, sharex=True, squeeze=False)
@@ -51,6 +47,4 @@ def plot_episode(ep: Episode, *, out: str | Path, title: str | None = None, dpi:
         title
         or f"{ep.name}  ({ep.source}, {ep.condition}, {ep.n_step} samples @ {ep.spec.rate_hz:g} Hz)"
     )
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE})
-    return out
+    return save_png(fig, out, dpi=dpi)

@@ -13,9 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
-from ..io_utils import atomic_path
-from ..outdir import PNG_SOFTWARE
+from ..errors import DataError
+from .png import png_path, save_png
 
 NEEDED = ("epoch", "train_loss", "val_error")
 """The columns of an epoch log (``log.csv`` of one network) the figure reads."""
@@ -95,9 +94,7 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
     """
     from matplotlib.figure import Figure  # no pyplot: backend-independent, thread-safe
 
-    out = Path(out)
-    if out.suffix.lower() != ".png":
-        raise ConfigError(f"{out}: the plot is written as PNG; give a file name ending in .png")
+    out = png_path(out)
     curves = read_curves(folder)
     if not curves:
         raise DataError(
@@ -134,6 +131,4 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
     if len(curves) <= 12:
         ax_loss.legend(fontsize=7, loc="upper right")
     fig.suptitle(f"learning curves: {Path(folder).name} ({len(curves)} network(s))")
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": PNG_SOFTWARE})
-    return out
+    return save_png(fig, out, dpi=dpi)
