@@ -1,9 +1,11 @@
 """evaluate stage: closed-loop behavioural equivalence (CBE) metrics, tables and figures.
 
 Public API: :func:`evaluate_checkpoint`, :func:`evaluate_models`, :class:`EvaluateConfig`,
-:func:`cbe_metrics`, :func:`regression_metrics`, :func:`markdown_table`, :data:`PAPER_TABLE_II`.
+:func:`cbe_metrics`, :func:`regression_metrics`, :func:`markdown_table`, :data:`PAPER_TABLE_II`,
+:func:`model_card` / :func:`card_markdown` (what a checkpoint is, ``exsur info``).
 """
 
+from .card import card_markdown, model_card
 from .cbe import EvaluateConfig, evaluate_checkpoint, evaluate_models
 from .metrics import cbe_metrics, min_r2, regression_metrics
 from .report import PAPER_TABLE_II, comparison_table, markdown_table, report_markdown
@@ -11,12 +13,14 @@ from .report import PAPER_TABLE_II, comparison_table, markdown_table, report_mar
 __all__ = [
     "PAPER_TABLE_II",
     "EvaluateConfig",
+    "card_markdown",
     "cbe_metrics",
     "comparison_table",
     "evaluate_checkpoint",
     "evaluate_models",
     "markdown_table",
     "min_r2",
+    "model_card",
     "regression_metrics",
     "report_markdown",
 ]

@@ -130,7 +130,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if path.is_dir():
         raise CheckpointError(
-            f"{path}: is a folder, not a checkpoint file; give the file in it, e.g. {path / 'best.pt'}"
+            f"{path}: is a folder, not a checkpoint file; give the file in it, e.g. "
+            f"{_checkpoint_in(path)}"
         )
     if not path.is_file():
         raise CheckpointError(
@@ -156,6 +157,20 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     if missing:
         raise CheckpointError(f"{path}: checkpoint lacks entries {missing}; re-train")
     return ckpt
+
+
+def _checkpoint_in(folder: Path) -> Path:
+    """The checkpoint a user most likely meant by ``folder``: its ``best.pt`` (an ``exsur
+    train`` folder), else ``model/best.pt`` (an ``exsur run`` folder), else the first
+    ``*/best.pt`` one level down; ``folder/best.pt`` when there is none."""
+    for cand in (folder / "best.pt", folder / "model" / "best.pt"):
+        if cand.is_file():
+            return cand
+    try:
+        below = sorted(folder.glob("*/best.pt"))
+    except OSError:
+        below = []
+    return below[0] if below else folder / "best.pt"
 
 
 def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> Surrogate:
