@@ -71,7 +71,7 @@ def test_a_cut_single_network_is_described_with_its_notes(tmp_path, dataset_dir)
     assert any("wall-time cap cut training short" in w for w in notes)
     assert any(f"below {LOW_R2}: {ds.spec.names[1]} 0.420" in w for w in notes)
     assert any("no coverage record" in w for w in notes)
-    assert not any("end stops off" in w for w in notes)
+    assert not any("end stops off" in w or "in-sample" in w for w in notes)
     text = card_markdown(card)
     for head in ("## Machine", "## Network", "## Training", "## Validation (free run)"):
         assert head in text
@@ -95,6 +95,7 @@ def test_a_calibrated_ensemble_lists_its_members_and_bands(tmp_path, dataset_dir
     ckpt = save_checkpoint(tmp_path / "ens.pt", merge(surs))
     calibrate_checkpoint(ckpt, ds.val, ds.train)
     card = model_card(ckpt)
+    assert card["training"]["trained_on_validation"] is False
     assert card["network"]["n_member"] == 2 and card["network"]["member_hidden"] == [8, 8]
     assert [m["seed"] for m in card["members"]] == [0, 1]
     assert card["uncertainty"]["levels"] == [0.5, 0.9]
@@ -116,6 +117,7 @@ def test_linear_joints_are_printed_in_their_own_unit(tmp_path):
         name="stroke-rig",
     )
     sur = tiny_surrogate(spec, hidden=8)
+    sur.train_config = {"train_on_val": True}  # the recipe's h1-dev way: validation in-sample
     sur.metrics = {
         "val": {"theta_r2": [0.97, 0.98], "theta_rmse": [0.01, 0.004], "omega_rmse": [0.1, 0.002]}
     }
@@ -126,6 +128,8 @@ def test_linear_joints_are_printed_in_their_own_unit(tmp_path):
     assert "| boom | linear | 100.0 … 1600.0 mm |" in text
     assert "4.000 mm" in text and "2.000 mm/s" in text  # stored in m, printed in mm
     assert "no validation scores" not in " ".join(card["warnings"])
+    assert any("validation scores are in-sample" in w for w in card["warnings"])
+    assert "## Validation (free run; in-sample)" in text
 
 
 def test_exsur_info_prints_text_or_json_and_refuses_bad_files(tmp_path, dataset_dir, capsys):

@@ -95,6 +95,7 @@ def model_card(path: str | Path) -> dict[str, Any]:
             or any(bool(m.get("budget_cut")) for m in training.get("members") or []),
             "max_train_seconds": _cap(training, tc),
             "feedback": tc.get("feedback"),
+            "trained_on_validation": bool(tc.get("train_on_val", False)),
             "lr": tc.get("lr"),
             "numerics": training.get("numerics"),
             "environment": dict(training.get("environment") or {}),
@@ -198,6 +199,12 @@ def _warnings(card: Mapping[str, Any]) -> list[str]:
             "and load; retrain with a larger --max-seconds for the planned model"
         )
     val = card["validation"]
+    if val is not None and tr["trained_on_validation"]:
+        out.append(
+            "the networks also trained on the validation runs, so the validation scores are "
+            "in-sample, not an estimate for new data: score it on held-out runs with exsur "
+            "evaluate"
+        )
     if val and "theta_r2" in val:
         low = [f"{n} {r:.3f}" for n, r in val["theta_r2"].items() if r < LOW_R2]
         if low:
@@ -369,7 +376,8 @@ def card_markdown(card: Mapping[str, Any]) -> str:
                 + ("—" if err is None else f"{err:.4f}")
                 + " |"
             )
-    lines += ["", "## Validation (free run)", ""]
+    in_sample = card["training"]["trained_on_validation"]
+    lines += ["", "## Validation (free run" + ("; in-sample" if in_sample else "") + ")", ""]
     val = card["validation"]
     if val is None:
         lines.append("No validation scores were stored.")
