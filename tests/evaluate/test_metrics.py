@@ -116,3 +116,46 @@ def test_r2_of_a_reference_constant_up_to_rounding_is_undefined_not_minus_1e11()
     r2 = regression_metrics(pred, ref)["r2"]
     assert np.isnan(r2[0])
     assert r2[1] > 0.99  # a moving column keeps its R^2
+
+
+def test_each_panel_names_its_episodes_r2_first_model_first():
+    from excavator_surrogate.plotting.cbe import _score_text
+
+    scores = {"LSTM": ([0.5, 0.25], [0.9771, None]), "ARX": ([0.1, 0.2], [-4.6912, 0.3])}
+    assert _score_text(scores, ["LSTM", "ARX"], 1, 0) == "R² 0.977\nARX R² -4.691"
+    assert _score_text(scores, ["LSTM", "ARX"], 1, 1) == "R² —\nARX R² 0.300"  # undefined
+    assert _score_text(scores, ["ARX", "GRU"], 0, 1) == "R² 0.200"  # GRU has none: left out
+
+
+def test_evaluate_writes_each_episodes_scores_into_its_figure(tmp_path, monkeypatch):
+    """The corner scores are the episode's own CBE metrics, per model; with one test episode
+    they are the table's."""
+    import excavator_surrogate.plotting.cbe as plots
+    from excavator_surrogate.data import write_dataset
+    from excavator_surrogate.data.dataset import load_dataset
+    from excavator_surrogate.evaluate import evaluate_checkpoint
+    from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+    from excavator_surrogate.surrogate.synthetic import synthetic_spec, synthetic_split
+    from tests.helpers.surrogates import make_surrogate
+
+    spec = synthetic_spec(2)
+    items = synthetic_split(spec, n_train=2, n_val=1, n_test=1, n_step=120, noise=0.001)
+    ds = load_dataset(write_dataset(tmp_path / "data", items))
+    ckpt = save_checkpoint(
+        tmp_path / "m.pt", make_surrogate(ds.spec, ds.train, mode="stateful", window=5)
+    )
+    seen = {}
+    real = plots.plot_cbe
+
+    def spy(path, **kw):
+        seen.update(kw)
+        return real(path, **kw)
+
+    monkeypatch.setattr(plots, "plot_cbe", spy)
+    res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", max_figures=1)
+    assert set(seen["scores"]) == set(seen["predictions"]) == {"LSTM", "ARX"}
+    for label, part in (("LSTM", res), ("ARX", res["compare"]["ARX"])):
+        omega_r2, theta_r2 = seen["scores"][label]
+        assert omega_r2 == [part["omega"][n]["r2"] for n in ds.spec.names]
+        assert theta_r2 == [part["theta"][n]["r2"] for n in ds.spec.names]
+    assert (tmp_path / "ev" / "cbe.png").stat().st_size > 0

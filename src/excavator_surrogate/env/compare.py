@@ -360,6 +360,9 @@ def write_outputs(result: CompareResult, out: str | Path) -> Path:
             markdown_table({k: result.metrics[k] for k in ("omega", "theta")}),
         ]
         write_text(tmp / "table.md", "\n".join(lines))
+        r2 = {
+            key: [result.metrics[key][n]["r2"] for n in result.names] for key in ("omega", "theta")
+        }
         plot_cbe(
             tmp / "compare.png",
             time=result.time,
@@ -370,6 +373,7 @@ def write_outputs(result: CompareResult, out: str | Path) -> Path:
             warmup=0,
             title=f"{run['commands']}: ExcavatorSurrogate-v0 vs ExcavatorMujoco-v0 (same commands)",
             ref_label="MuJoCo",
+            scores={"surrogate": (r2["omega"], r2["theta"])},
         )
         np.savez_compressed(
             tmp / "trajectories.npz",

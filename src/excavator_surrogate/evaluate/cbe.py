@@ -246,6 +246,13 @@ def evaluate_checkpoint(
                     label: (runs[label][i].omega_hat * f, runs[label][i].theta_hat * f)
                     for label in models
                 }
+                scores = {}  # this episode's R² per model and joint, in each panel's corner
+                for label in models:
+                    m = cbe_metrics([runs[label][i]], sur.spec)
+                    scores[label] = (
+                        [m["omega"][n]["r2"] for n in sur.spec.names],
+                        [m["theta"][n]["r2"] for n in sur.spec.names],
+                    )
                 bands, ood = figure_bands(unc_runs[i].pred)
                 bands = {k: tuple(b * f for b in v) for k, v in bands.items()} if bands else bands
                 plot_cbe(
@@ -261,6 +268,7 @@ def evaluate_checkpoint(
                     bands=bands,
                     ood=ood,
                     units=_plot_units(sur.spec),
+                    scores=scores,
                 )
     return result
 

@@ -24,6 +24,7 @@ def plot_cbe(
     bands: Mapping[float, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
     ood: np.ndarray | None = None,
     units: Sequence[tuple[str, str]] | None = None,
+    scores: Mapping[str, tuple[Sequence[float | None], Sequence[float | None]]] | None = None,
 ) -> Path:
     """Write a PNG comparing surrogate free-runs with the reference.
 
@@ -43,6 +44,9 @@ def plot_cbe(
             bottom of every panel.
         units: per joint ``(ω unit, θ unit)`` of the values given (e.g. ``("mm/s", "mm")``
             for a linear joint); every panel then names its own; None: rad/s and rad.
+        scores: model label -> ``(omega_r2, theta_r2)``, each (n_joint,) R² of this episode
+            (None: undefined), written in each panel's corner, the first model first; models
+            of ``predictions`` without one are left out.
     """
     import matplotlib
 
@@ -108,6 +112,20 @@ def plot_cbe(
                     transform=ax.get_xaxis_transform(),
                     label="out of distribution",
                 )
+            if scores:
+                text = _score_text(scores, list(predictions), row, j)
+                if text:
+                    ax.text(
+                        0.98,
+                        0.97,
+                        text,
+                        transform=ax.transAxes,
+                        ha="right",
+                        va="top",
+                        fontsize=7,
+                        bbox={"facecolor": "white", "alpha": 0.75, "lw": 0, "pad": 1.5},
+                        zorder=4,
+                    )
             if row == 0:
                 ax.set_title(name)
             else:
@@ -126,3 +144,19 @@ def plot_cbe(
         fig.savefig(tmp, format="png", dpi=110)
     plt.close(fig)
     return path
+
+
+def _score_text(
+    scores: Mapping[str, tuple[Sequence[float | None], Sequence[float | None]]],
+    labels: Sequence[str],
+    row: int,
+    j: int,
+) -> str:
+    """One panel's corner: ``R² 0.977`` for the first model, ``ARX R² 0.666`` for the others
+    (``—`` where undefined), in the order of ``labels``."""
+    lines = []
+    for i, label in enumerate(label for label in labels if label in scores):
+        r2 = scores[label][row][j]
+        value = "—" if r2 is None or not np.isfinite(r2) else f"{r2:.3f}"
+        lines.append(f"R² {value}" if i == 0 else f"{label} R² {value}")
+    return "\n".join(lines)
