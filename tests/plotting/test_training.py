@@ -14,14 +14,16 @@ from excavator_surrogate.outdir import is_exsur_file
 from excavator_surrogate.plotting.training import plot_learning_curves, read_curves
 
 
-def _log(path: Path, val: list[str], loss: list[float]) -> None:
-    """An epoch log as training writes it (extra columns, empty val_error where not run)."""
+def _log(path: Path, val: list[str], loss: list[float], best: list[int] | None = None) -> None:
+    """An epoch log as training writes it (extra columns, empty val_error where not run;
+    ``best``: 1 where the checkpoint was updated)."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    best = best or [0] * len(val)
     with path.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["epoch", "time_s", "train_loss", "val_error", "best"])
-        for k, (v, lo) in enumerate(zip(val, loss)):
-            w.writerow([k, k * 1.5, lo, v, 0])
+        for k, (v, lo, b) in enumerate(zip(val, loss, best, strict=True)):
+            w.writerow([k, k * 1.5, lo, v, b])
 
 
 def test_reads_every_network_log_and_skips_the_ensemble_summary(tmp_path: Path) -> None:
@@ -66,3 +68,22 @@ def test_no_epoch_log_and_a_wrong_suffix_are_clear_errors(tmp_path: Path) -> Non
     with pytest.raises(ConfigError, match="ending in .png"):
         plot_learning_curves(tmp_path, out=tmp_path / "lc.jpg")
     assert not (tmp_path / "lc.png").exists() and not (tmp_path / "lc.jpg").exists()
+
+
+def test_the_dot_marks_the_selected_epoch_not_the_lowest_error(tmp_path: Path) -> None:
+    """Selection may start late, smooth the error or average weights: the dot is the epoch the
+    log marks best last (the one best.pt holds), not the curve's minimum."""
+    from excavator_surrogate.plotting.training import _selected_row
+
+    # epoch 1 has the lowest error, but selection only ran from epoch 2 (marks 2, then 4)
+    _log(
+        tmp_path / "late" / "log.csv",
+        ["0.5", "0.1", "0.4", "0.3", "0.35"],
+        [1] * 5,
+        best=[0, 0, 1, 0, 1],
+    )
+    _log(tmp_path / "unmarked" / "log.csv", ["0.5", "0.1", "0.4"], [1] * 3)
+    late, unmarked = read_curves(tmp_path)
+    assert late.selected == 4 and _selected_row(late) == 4
+    assert unmarked.selected is None and _selected_row(unmarked) == 1  # the lowest, as before
+    assert plot_learning_curves(tmp_path, out=tmp_path / "lc.png").is_file()

@@ -1,7 +1,7 @@
 """Learning curves of a training folder: the training loss and the validation free-run error per
 epoch, one line per network (a single network, or every member of an ensemble, of each input
-way or kind), with each network's lowest validation error marked (``exsur train`` writes it as
-``learning_curve.png`` next to ``best.pt``)."""
+way or kind), with the epoch each network selected (its ``best.pt``) marked (``exsur train``
+writes it as ``learning_curve.png`` next to ``best.pt``)."""
 
 from __future__ import annotations
 
@@ -32,6 +32,10 @@ class Curve:
     """(n_epoch,) mean training loss (NaN where not logged)."""
     val_error: np.ndarray
     """(n_epoch,) validation free-run error (NaN where not logged)."""
+    selected: float | None = None
+    """The epoch the network's ``best.pt`` holds: the last one its log marks ``best`` (the
+    selection may smooth the error, average weights or start late, so it need not be the
+    lowest point of the curve); None when the log has no ``best`` column or marks none."""
     free_from: int | None = None
     """First epoch of the free-run loss after teacher-forced ones (its ``config.toml``:
     ``feedback = "free"``, ``teacher_epochs > 0``), where the training loss jumps; else None."""
@@ -68,12 +72,14 @@ def read_curves(folder: str | Path) -> list[Curve]:
         if not rows or not all(c in rows[0] for c in NEEDED):
             continue
         rel = path.parent.relative_to(folder).as_posix()
+        marked = [_number(r["epoch"]) for r in rows if str(r.get("best", "")).strip() == "1"]
         curves.append(
             Curve(
                 label="network" if rel == "." else rel,
                 epoch=np.array([_number(r["epoch"]) for r in rows]),
                 train_loss=np.array([_number(r["train_loss"]) for r in rows]),
                 val_error=np.array([_number(r["val_error"]) for r in rows]),
+                selected=marked[-1] if marked else None,
                 free_from=_free_from(path.parent / "config.toml"),
             )
         )
@@ -86,7 +92,8 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
 
     Left: training loss per epoch (a dashed line where it turns from teacher-forced to free
     run); right: validation free-run error per epoch (the error training selects by), both on
-    a log scale; a dot marks each network's lowest validation error.
+    a log scale; a dot marks the epoch each network selected (:attr:`Curve.selected`; the
+    lowest validation error where the log does not say).
 
     Raises:
         DataError: ``folder`` holds no epoch log.
@@ -107,8 +114,8 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
         color = f"C{i % 10}"
         ax_loss.plot(c.epoch, c.train_loss, lw=1.0, color=color, label=c.label)
         ax_val.plot(c.epoch, c.val_error, lw=1.0, color=color, label=c.label)
-        if np.isfinite(c.val_error).any():
-            k = int(np.nanargmin(c.val_error))
+        k = _selected_row(c)
+        if k is not None:
             ax_val.plot(c.epoch[k], c.val_error[k], "o", ms=5, color=color)
     starts = {c.free_from for c in curves} - {None}
     for k in sorted(starts):  # the loss changes meaning there: teacher-forced, then free run
@@ -127,8 +134,20 @@ def plot_learning_curves(folder: str | Path, *, out: str | Path, dpi: int = 110)
         ax.set_xlabel("epoch")
         ax.set_ylabel(what)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax_val.set_title("dot: each network's lowest validation error", fontsize=9)
+    ax_val.set_title("dot: the epoch each network's best.pt holds", fontsize=9)
     if len(curves) <= 12:
         ax_loss.legend(fontsize=7, loc="upper right")
     fig.suptitle(f"learning curves: {Path(folder).name} ({len(curves)} network(s))")
     return save_png(fig, out, dpi=dpi)
+
+
+def _selected_row(c: Curve) -> int | None:
+    """The row of the dot: the selected epoch's, else the lowest validation error's (None: no
+    finite error to mark)."""
+    if c.selected is not None:
+        rows = np.flatnonzero(c.epoch == c.selected)
+        if rows.size and np.isfinite(c.val_error[rows[-1]]):
+            return int(rows[-1])
+    if np.isfinite(c.val_error).any():
+        return int(np.nanargmin(c.val_error))
+    return None
