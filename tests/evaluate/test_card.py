@@ -10,6 +10,7 @@ import pytest
 from excavator_surrogate.cli import main
 from excavator_surrogate.data import write_dataset
 from excavator_surrogate.data.dataset import load_dataset
+from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.evaluate.card import LOW_R2, card_markdown, model_card, public
 from excavator_surrogate.spec import JointSpec, MachineSpec
 from excavator_surrogate.surrogate.bands import calibrate_checkpoint
@@ -147,11 +148,13 @@ def test_exsur_info_prints_text_or_json_and_refuses_bad_files(tmp_path, dataset_
     # a folder names the checkpoint inside it; a corrupt file is one line, exit code 2
     assert main(["info", str(tmp_path / "m")]) == 2
     err = capsys.readouterr().err
-    assert f"is a folder, not a checkpoint file; give the file in it, e.g. {ckpt}" in err
+    assert f"is not a dataset; give a checkpoint file, e.g. {ckpt}, or a dataset folder" in err
     run = tmp_path / "run"  # an exsur run folder: the model is in model/
     save_checkpoint(run / "model" / "best.pt", sur)
     assert main(["info", str(run)]) == 2
     assert f"e.g. {run / 'model' / 'best.pt'}" in capsys.readouterr().err
+    with pytest.raises(CheckpointError, match="is a folder, not a checkpoint file"):
+        model_card(run)  # the Python API names the file inside too
     bad = tmp_path / "bad.pt"
     bad.write_bytes(b"not a checkpoint")
     assert main(["info", str(bad)]) == 2

@@ -1,23 +1,31 @@
-"""``exsur info CKPT``: what a trained checkpoint is, without running it."""
+"""``exsur info PATH``: what a trained checkpoint or a dataset is, without running anything."""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add the ``info`` subcommand."""
     p = subparsers.add_parser(
         "info",
-        help="describe a checkpoint: its machine, network, training and validation scores",
+        help="describe a checkpoint (machine, network, training, validation) or a dataset "
+        "(splits, what each covers)",
         description="Describe a trained checkpoint (best.pt) without running it: the machine "
         "it models (joints, units, limits, command ranges, inputs), its network, how its "
         "training ended against the plan, on which computer, and its free-run scores on "
-        "validation. Notes flag what to know before relying on it (a training the wall-time "
-        "cap cut short, a joint that validated poorly, no end stops or coverage record).",
+        "validation. Or describe a dataset folder (the one holding manifest.json): its "
+        "splits, and per joint how far each split moves it and commands it. Notes flag what "
+        "to know first (a training the wall-time cap cut short, a joint that validated "
+        "poorly; validation that drives a joint over too little of the training's commands, "
+        "a test that leaves the training's positions).",
     )
     p.add_argument(
-        "ckpt", metavar="CKPT", help="checkpoint file (.pt), e.g. runs/quick/model/best.pt"
+        "path",
+        metavar="PATH",
+        help="a checkpoint file (.pt, e.g. runs/quick/model/best.pt) or a dataset folder "
+        "(e.g. runs/quick/data)",
     )
     p.add_argument(
         "--json", action="store_true", help="print the description as one JSON object instead"
@@ -29,11 +37,30 @@ def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur info``: prints the card, returns 0."""
     import json
 
-    from ..evaluate.card import card_markdown, model_card, public
+    from ..data.dataset import MANIFEST
 
-    card = model_card(args.ckpt)
+    path = Path(args.path)
+    if path.is_dir() and (path / MANIFEST).is_file():
+        from ..evaluate.card import public
+        from ..evaluate.data_card import dataset_card, dataset_card_markdown
+
+        card = dataset_card(path)
+        text = dataset_card_markdown
+    elif path.is_dir():
+        from ..errors import ConfigError
+        from ..surrogate.checkpoint import checkpoint_in
+
+        raise ConfigError(
+            f"{path}: a folder without {MANIFEST} is not a dataset; give a checkpoint file, "
+            f"e.g. {checkpoint_in(path)}, or a dataset folder"
+        )
+    else:
+        from ..evaluate.card import card_markdown, model_card, public
+
+        card = model_card(path)
+        text = card_markdown
     if args.json:
         print(json.dumps(public(card), indent=2, allow_nan=False))
     else:
-        print(card_markdown(card), end="")
+        print(text(card), end="")
     return 0

@@ -2,11 +2,13 @@
 
 Public API: :func:`evaluate_checkpoint`, :func:`evaluate_models`, :class:`EvaluateConfig`,
 :func:`cbe_metrics`, :func:`regression_metrics`, :func:`markdown_table`, :data:`PAPER_TABLE_II`,
-:func:`model_card` / :func:`card_markdown` (what a checkpoint is, ``exsur info``).
+:func:`model_card` / :func:`card_markdown` (what a checkpoint is, ``exsur info``),
+:func:`dataset_card` / :func:`dataset_card_markdown` (what a dataset holds).
 """
 
 from .card import card_markdown, model_card
 from .cbe import EvaluateConfig, evaluate_checkpoint, evaluate_models
+from .data_card import dataset_card, dataset_card_markdown
 from .metrics import cbe_metrics, min_r2, regression_metrics
 from .report import PAPER_TABLE_II, comparison_table, markdown_table, report_markdown
 
@@ -16,6 +18,8 @@ __all__ = [
     "card_markdown",
     "cbe_metrics",
     "comparison_table",
+    "dataset_card",
+    "dataset_card_markdown",
     "evaluate_checkpoint",
     "evaluate_models",
     "markdown_table",

@@ -131,7 +131,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     if path.is_dir():
         raise CheckpointError(
             f"{path}: is a folder, not a checkpoint file; give the file in it, e.g. "
-            f"{_checkpoint_in(path)}"
+            f"{checkpoint_in(path)}"
         )
     if not path.is_file():
         raise CheckpointError(
@@ -159,7 +159,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     return ckpt
 
 
-def _checkpoint_in(folder: Path) -> Path:
+def checkpoint_in(folder: Path) -> Path:
     """The checkpoint a user most likely meant by ``folder``: its ``best.pt`` (an ``exsur
     train`` folder), else ``model/best.pt`` (an ``exsur run`` folder), else the first
     ``*/best.pt`` one level down; ``folder/best.pt`` when there is none."""
