@@ -40,6 +40,10 @@ def run(args: argparse.Namespace) -> int:
     from ..data.dataset import MANIFEST
 
     path = Path(args.path)
+    if not path.exists():
+        from ..errors import ConfigError
+
+        raise ConfigError(f"{path}: not found; give a checkpoint file (.pt) or a dataset folder")
     if path.is_dir() and (path / MANIFEST).is_file():
         from ..evaluate.card import public
         from ..evaluate.data_card import dataset_card, dataset_card_markdown
