@@ -60,6 +60,9 @@ def test_run_stage1_report(tmp_path: Path) -> None:
     report = (out / "report.md").read_text()
     assert "- checkpoint: model/best.pt" in report and "- dataset: data" in report
     assert ".tmp" not in json.dumps(m) and ".tmp" not in report
+    # the data the model trained on: its splits, and the command to see each joint
+    assert "## Data" in report and "| train | 2 |" in report and "| test | 1 |" in report
+    assert f"`exsur info {out.resolve() / 'data'}`" in report
     cfg = tomllib.loads((out / "config.toml").read_text())
     assert cfg["train"]["hidden"] == 16 and cfg["simulate"]["n_train"] == 2
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
@@ -110,6 +113,8 @@ steps_test = 300
     assert set(m["ensemble_members"]) == {"ensemble", "member 0", "member 1"}
     assert "Seed ensemble: the merged network vs its members" in report
     assert report.count("## Uncertainty and out-of-distribution") == 1  # not again in the table
+    # cleaned runs train on the cleaned data: that is the dataset the Data section describes
+    assert "| yes | yes |" in report.split("## Data")[1].split("## Learning")[0]
     for model in ("model", "model_raw"):  # each trained model's learning curves, in the report
         assert (out / model / "member_1" / "best.pt").exists()
         assert (out / model / "learning_curve.png").is_file()

@@ -27,6 +27,7 @@ from typing import Any, Literal
 
 from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
+from .evaluate.data_card import describe_dataset
 from .evaluate.run_report import ReportContext, render_run_report
 from .io_utils import atomic_dir, write_json, write_text
 from .stages import RunConfig, build_configs, check_preset
@@ -272,11 +273,23 @@ def run_pipeline(
                     table_md=(tmp / "table.md").read_text(),
                     paper_table=run_cfg.paper_table,
                     learning_curves=curves,
+                    data=describe_dataset(train_ds, path=_in_run(train_ds.root, tmp)),
                 ),
             ),
         )
     _log.info(f"run[{name}]: done in {timings['total']:.0f} s -> {out / 'report.md'}")
     return metrics
+
+
+def _in_run(path: Path | None, tmp: Path) -> str:
+    """``path`` relative to the run folder being written (``tmp``, renamed into place later)
+    when it lies inside, else as given: what the report names."""
+    if path is None:
+        return "the dataset"
+    try:
+        return Path(path).resolve().relative_to(tmp.resolve()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def _score_models(

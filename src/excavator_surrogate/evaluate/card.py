@@ -323,7 +323,8 @@ def card_markdown(card: Mapping[str, Any]) -> str:
         f"{f['exsur_version']} (checkpoint format {f['format_version']}).",
     ]
     if card["warnings"]:
-        lines += ["", *[f"**Note:** {w}." for w in card["warnings"]]]
+        for w in card["warnings"]:
+            lines += ["", f"**Note:** {w}."]
     lines += ["", "## Machine", "", *_joint_rows(m["joints"])]
     if m["inputs"]:
         lines += [

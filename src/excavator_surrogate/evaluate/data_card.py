@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..data.dataset import SPLITS, load_dataset
+from ..data.dataset import SPLITS, Dataset, load_dataset
 from ..data.episode import Episode
 from ..spec import JointSpec
 from ..training.config import TrainConfig
@@ -48,7 +48,12 @@ def dataset_card(path: str | Path) -> dict[str, Any]:
     Raises:
         DataError: a missing folder, manifest or an episode that breaks the data contract.
     """
-    ds = load_dataset(path)
+    return describe_dataset(load_dataset(path), path=path)
+
+
+def describe_dataset(ds: Dataset, *, path: str | Path | None = None) -> dict[str, Any]:
+    """:func:`dataset_card` of a loaded dataset (``path``: the folder it is named by; default
+    its ``root``)."""
     spec = ds.spec
     splits: dict[str, Any] = {}
     for name in SPLITS:
@@ -74,7 +79,7 @@ def dataset_card(path: str | Path) -> dict[str, Any]:
     if ds.train and ds.val:
         spans = dict(zip(spec.names, command_span(ds.train, ds.val, spec), strict=True))
     card = {
-        "path": str(Path(path)),
+        "path": str(path if path is not None else ds.root),
         "machine": {
             "name": spec.name,
             "rate_hz": spec.rate_hz,
@@ -164,8 +169,8 @@ def _display(js: Mapping[str, Any]) -> tuple[float, str]:
 
 def dataset_card_markdown(card: Mapping[str, Any]) -> str:
     """The card of :func:`dataset_card` as Markdown (what ``exsur info DATASET`` prints)."""
-    m, splits = card["machine"], card["splits"]
-    total = sum(s["samples"] for s in splits.values())
+    m = card["machine"]
+    total = sum(s["samples"] for s in card["splits"].values())
     lines = [
         f"# {card['path']}",
         "",
@@ -175,31 +180,46 @@ def dataset_card_markdown(card: Mapping[str, Any]) -> str:
         + ".",
     ]
     if card["warnings"]:
-        lines += ["", *[f"**Note:** {w}." for w in card["warnings"]]]
-    lines += [
-        "",
-        "## Splits",
-        "",
-        "| Split | Episodes | Samples | Duration | Longest episode | Conditions | Ground truth | Cleaned |",
+        lines += ["", *notes_lines(card)]
+    lines += ["", "## Splits", "", *splits_lines(card), "", "## Joints", "", *joint_lines(card)]
+    lines += reach_lines(card)
+    return "\n".join(lines) + "\n"
+
+
+def notes_lines(card: Mapping[str, Any]) -> list[str]:
+    """The card's notes, one bold-labelled paragraph each."""
+    lines: list[str] = []
+    for w in card["warnings"]:
+        lines += ["", f"**Note:** {w}."] if lines else [f"**Note:** {w}."]
+    return lines
+
+
+def splits_lines(card: Mapping[str, Any]) -> list[str]:
+    """The splits table: episodes, samples, duration, conditions, truth, cleaning."""
+    lines = [
+        "| Split | Episodes | Samples | Duration | Longest episode | Conditions | Ground truth "
+        "| Cleaned |",
         "|---|---:|---:|---:|---:|---|---|---|",
     ]
-    for name, s in splits.items():
+    for name, s in card["splits"].items():
         lines.append(
             f"| {name} | {s['episodes']} | {s['samples']:,} | {_minutes(s['duration_s'])} | "
             f"{_minutes(s['longest_s'])} | {', '.join(s['conditions'])} | "
             f"{'yes' if s['truth'] else 'no'} | {'yes' if s['cleaned'] else 'no'} |"
         )
-    lines += [
-        "",
-        "## Joints",
-        "",
+    return lines
+
+
+def joint_lines(card: Mapping[str, Any]) -> list[str]:
+    """Per joint and split: position range (or travel), speed, commands used."""
+    lines = [
         "Per split: the position range (a periodic joint: the angle it travels), the 99th "
         "percentile of |speed|, and the commands used (1st … 99th percentile).",
         "",
         "| Joint | Split | Position | Speed | Command |",
         "|---|---|---|---:|---|",
     ]
-    for jt, js in zip(card["joints"], m["joints"], strict=True):
+    for jt, js in zip(card["joints"], card["machine"]["joints"], strict=True):
         f, unit = _display(js)
         for k, (name, st) in enumerate(jt["splits"].items()):
             if st["theta_min"] is None:
@@ -210,16 +230,21 @@ def dataset_card_markdown(card: Mapping[str, Any]) -> str:
                 f"| {jt['name'] if k == 0 else ''} | {name} | {pos} | "
                 f"{st['omega_p99'] * f:.1f} {unit}/s | {st['u_p01']:.0f} … {st['u_p99']:.0f} |"
             )
+    return lines
+
+
+def reach_lines(card: Mapping[str, Any]) -> list[str]:
+    """How much of the training's command range validation reaches, per joint (or nothing)."""
     spans = card["val_span"]
-    if spans:
-        lines += [
-            "",
-            "Validation reaches "
-            + ", ".join(f"{n} {100 * s:.0f} %" for n, s in spans.items())
-            + " of the training's command range beyond the dead zone (in the direction it "
-            "reaches less).",
-        ]
-    return "\n".join(lines) + "\n"
+    if not spans:
+        return []
+    return [
+        "",
+        "Validation reaches "
+        + ", ".join(f"{n} {100 * s:.0f} %" for n, s in spans.items())
+        + " of the training's command range beyond the dead zone (in the direction it "
+        "reaches less).",
+    ]
 
 
 def _minutes(seconds: float) -> str:

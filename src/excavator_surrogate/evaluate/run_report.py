@@ -10,9 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from ..spec import LINEAR_UNITS
+from .data_card import notes_lines, reach_lines, splits_lines
 from .metrics import min_r2
 from .report import PAPER_TABLE_III
 from .uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
@@ -32,6 +34,8 @@ class ReportContext:
     """Which of the paper's tables to show: ``II``, ``III-noload``, ``III-compound``, ``none``."""
     learning_curves: tuple[str, ...] = ()
     """The trained models' ``learning_curve.png`` files, relative to the run folder."""
+    data: Mapping[str, Any] | None = None
+    """The trained-on dataset's card (:func:`.data_card.describe_dataset`); None: no section."""
 
 
 def _fmt(v: Any, f: float = 1.0) -> str:
@@ -222,6 +226,23 @@ def _learning_curves(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str
     return lines
 
 
+def _data(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The splits the model trained, selected and was scored on, and the notes on them."""
+    if not ctx.data:
+        return []
+    card = ctx.data
+    lines = ["## Data", ""]
+    if card["warnings"]:
+        lines += [*notes_lines(card), ""]
+    lines += [*splits_lines(card), *reach_lines(card), ""]
+    where = Path(card["path"])
+    out = metrics.get("run", {}).get("out")
+    if out and not where.is_absolute():
+        where = Path(out) / where
+    lines += [f"Per joint and split (positions, speeds, commands): `exsur info {where}`.", ""]
+    return lines
+
+
 def _files(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """What the folder holds."""
     lines: list[str] = []
@@ -244,6 +265,7 @@ SECTIONS: tuple[Section, ...] = (
     _ensemble_members,
     _uncertainty,
     _cbe_table,
+    _data,
     _learning_curves,
     _files,
 )
