@@ -136,10 +136,11 @@ def test_linear_joints_are_printed_in_their_own_unit(tmp_path):
 def test_exsur_info_prints_text_or_json_and_refuses_bad_files(tmp_path, dataset_dir, capsys):
     ds = load_dataset(dataset_dir)
     sur = make_surrogate(ds.spec, ds.train, mode="stateful", window=5, hidden=8)
-    sur.metrics = {"val": {"theta_r2": [float("nan"), 0.5]}}
+    sur.metrics = {"val": {"theta_r2": [float("nan"), None]}}  # diverged; not recorded
     ckpt = save_checkpoint(tmp_path / "m" / "best.pt", sur)
     assert main(["info", str(ckpt)]) == 0
-    assert capsys.readouterr().out.startswith(f"# {ckpt}\n")
+    text = capsys.readouterr().out
+    assert text.startswith(f"# {ckpt}\n") and "| angle R² | — | — |" in text
     assert main(["info", str(ckpt), "--json"]) == 0
     got = json.loads(capsys.readouterr().out)
     assert got == json.loads(json.dumps(public(model_card(ckpt))))

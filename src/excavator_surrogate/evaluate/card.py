@@ -171,8 +171,13 @@ def _validation(metrics: Mapping[str, Any], spec: MachineSpec) -> dict[str, Any]
     for key in ("theta_r2", "theta_rmse", "omega_rmse"):
         v = val.get(key)
         if isinstance(v, Sequence) and len(v) == spec.n_joint:
-            out[key] = dict(zip(spec.names, (float(x) for x in v), strict=True))
+            out[key] = dict(zip(spec.names, (_float(x) for x in v), strict=True))
     return out
+
+
+def _float(x: Any) -> float | None:
+    """A stored score as a float (None: missing, or not a number)."""
+    return float(x) if isinstance(x, int | float) and not isinstance(x, bool) else None
 
 
 def _uncertainty(rec: Any) -> dict[str, Any] | None:
@@ -206,7 +211,9 @@ def _warnings(card: Mapping[str, Any]) -> list[str]:
             "evaluate"
         )
     if val and "theta_r2" in val:
-        low = [f"{n} {r:.3f}" for n, r in val["theta_r2"].items() if r < LOW_R2]
+        low = [
+            f"{n} {r:.3f}" for n, r in val["theta_r2"].items() if r is not None and not r >= LOW_R2
+        ]
         if low:
             out.append(
                 f"validation angle R² below {LOW_R2}: {', '.join(low)}; its free run drifts "
@@ -408,7 +415,10 @@ def _validation_rows(val: Mapping[str, Any], spec: MachineSpec) -> list[str]:
     rows = [head, "|---|" + "---:|" * len(names)]
     r2 = val.get("theta_r2") or {}
     if r2:
-        rows.append("| angle R² | " + " | ".join(f"{r2[n]:.4f}" for n in names) + " |")
+        cells = [
+            "—" if r2[n] is None or not math.isfinite(r2[n]) else f"{r2[n]:.4f}" for n in names
+        ]
+        rows.append("| angle R² | " + " | ".join(cells) + " |")
     for key, label in (("theta_rmse", "angle RMSE"), ("omega_rmse", "speed RMSE")):
         v = val.get(key) or {}
         if not v:
