@@ -68,7 +68,10 @@ without; with them ``z`` has the two own rows),
 ``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_members`` (M with the
 ``omega_members`` output, else ``0``), ``exsur_ood`` (``1`` with the ``ood`` output),
 ``exsur_units`` (JSON, per joint: ``theta``/``omega`` in rad or, for a linear joint, m, and
-the ``display`` unit its mapping gave with the ``factor`` into it, :func:`units_metadata`).
+the ``display`` unit its mapping gave with the ``factor`` into it, :func:`units_metadata`),
+``exsur_card`` (JSON: the checkpoint's description, :func:`~excavator_surrogate.evaluate.card.
+describe_surrogate`: its training and validation scores, which ``exsur info model.onnx``
+prints).
 :class:`~.onnx_stepper.OnnxStepper` runs the exported file with the same warm-up convention as the
 environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 """
@@ -84,6 +87,7 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError
+from ..evaluate.card import describe_surrogate, full_json
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.angles import integrate
@@ -461,6 +465,7 @@ def _add_metadata(
         "exsur_uncertainty": json.dumps((sur.metrics or {}).get("uncertainty") or {}),
         "exsur_coverage": json.dumps((sur.metrics or {}).get("coverage") or {}),
         "exsur_units": json.dumps(units_metadata(sur.spec)),
+        "exsur_card": full_json(describe_surrogate(sur)),
     }
     for k, v in meta.items():
         p = model.metadata_props.add()

@@ -10,6 +10,7 @@ reads.
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -18,6 +19,7 @@ from typing import Any
 from ..spec import JointSpec, MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.ensemble import n_member
+from ..surrogate.model import Surrogate
 from ..surrogate.sizes import n_param
 from .report import training_markdown
 
@@ -42,7 +44,19 @@ def model_card(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     ckpt = read_checkpoint(path)
-    sur = surrogate_from_dict(ckpt, where=str(path))
+    card = describe_surrogate(surrogate_from_dict(ckpt, where=str(path)))
+    card["file"] = {
+        "path": str(path),
+        "bytes": path.stat().st_size,
+        "exsur_version": ckpt.get("exsur_version"),
+        "format_version": ckpt.get("format_version"),
+    }
+    return {"file": card.pop("file"), **card}
+
+
+def describe_surrogate(sur: Surrogate) -> dict[str, Any]:
+    """:func:`model_card` of a loaded surrogate, without the ``file`` entry (what an ONNX
+    export embeds as its ``exsur_card`` metadata, :func:`full_json`)."""
     spec, cfg, norm = sur.spec, sur.model_cfg, sur.norm
     metrics: Mapping[str, Any] = sur.metrics or {}
     tc: Mapping[str, Any] = sur.train_config or {}
@@ -50,12 +64,6 @@ def model_card(path: str | Path) -> dict[str, Any]:
     ens = metrics.get("ensemble") if isinstance(metrics.get("ensemble"), Mapping) else {}
     smap = training.get("static_map") if isinstance(training.get("static_map"), Mapping) else {}
     card: dict[str, Any] = {
-        "file": {
-            "path": str(path),
-            "bytes": path.stat().st_size,
-            "exsur_version": ckpt.get("exsur_version"),
-            "format_version": ckpt.get("format_version"),
-        },
         "machine": {
             "name": spec.name,
             "class": spec.meta.get("class"),
@@ -117,6 +125,12 @@ def public(card: Mapping[str, Any]) -> dict[str, Any]:
     """``card`` for JSON: without the raw training record :func:`card_markdown` reads, and
     with a non-finite number (a score of a diverged run) as None."""
     return {k: _finite(v) for k, v in card.items() if not k.startswith("_")}
+
+
+def full_json(card: Mapping[str, Any]) -> str:
+    """``card`` as JSON with everything :func:`card_markdown` reads (the raw training record
+    too), non-finite numbers as null: what an export embeds to print the same card later."""
+    return json.dumps(_finite(dict(card)), allow_nan=False)
 
 
 def _finite(v: Any) -> Any:
@@ -312,23 +326,36 @@ def _network_lines(net: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def card_markdown(card: Mapping[str, Any]) -> str:
-    """The card of :func:`model_card` as Markdown (what ``exsur info`` prints)."""
-    f, m, net = card["file"], card["machine"], card["network"]
+def machine_phrase(machine: Mapping[str, Any]) -> str:
+    """``A surrogate of **name** (class, data: source) at 20 Hz`` for a card's ``machine``."""
+    what = ", ".join(
+        str(x)
+        for x in (machine["class"], machine["data_source"] and f"data: {machine['data_source']}")
+        if x
+    )
+    return (
+        f"A surrogate of **{machine['name']}**"
+        + (f" ({what})" if what else "")
+        + f" at {machine['rate_hz']:g} Hz"
+    )
+
+
+def card_markdown(card: Mapping[str, Any], *, header: Sequence[str] | None = None) -> str:
+    """The card of :func:`model_card` as Markdown (what ``exsur info`` prints); ``header``:
+    the lines to open with instead of the checkpoint file's (an ONNX export's)."""
+    m, net = card["machine"], card["network"]
     spec = MachineSpec.from_dict(
         {"name": m["name"], "rate_hz": m["rate_hz"], "joints": m["joints"], "inputs": m["inputs"]}
     )
-    what = ", ".join(
-        str(x) for x in (m["class"], m["data_source"] and f"data: {m['data_source']}") if x
-    )
-    lines = [
-        f"# {f['path']}",
-        "",
-        f"A surrogate of **{m['name']}**"
-        + (f" ({what})" if what else "")
-        + f" at {m['rate_hz']:g} Hz; {f['bytes'] / 1e6:.1f} MB, written by exsur "
-        f"{f['exsur_version']} (checkpoint format {f['format_version']}).",
-    ]
+    if header is None:
+        f = card["file"]
+        header = [
+            f"# {f['path']}",
+            "",
+            machine_phrase(m) + f"; {f['bytes'] / 1e6:.1f} MB, written by exsur "
+            f"{f['exsur_version']} (checkpoint format {f['format_version']}).",
+        ]
+    lines = list(header)
     if card["warnings"]:
         for w in card["warnings"]:
             lines += ["", f"**Note:** {w}."]
