@@ -96,6 +96,7 @@ def test_exsur_info_tells_a_dataset_from_a_checkpoint(plain_dir, tmp_path, capsy
     err = capsys.readouterr().err
     assert "a folder without manifest.json is not a dataset; give a checkpoint file" in err
     assert main(["info", str(tmp_path / "gone")]) == 2
-    assert "gone: not found; give a checkpoint file (.pt), an ONNX export (.onnx) or a dataset folder" in (
-        capsys.readouterr().err
+    assert (
+        "gone: not found; give a checkpoint file (.pt), an ONNX export (.onnx) or a dataset folder"
+        in (capsys.readouterr().err)
     )
