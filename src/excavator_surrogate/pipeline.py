@@ -143,7 +143,11 @@ def run_pipeline(
         if not raw_ds.split(eval_cfg.split) and raw_ds.val:
             _log.info(
                 f"run[{name}]: the dataset has no '{eval_cfg.split}' split: evaluating on 'val', "
-                "which also selected the checkpoint (optimistic)"
+                + (
+                    "which the networks also train on (in-sample: no measure of unseen runs)"
+                    if train_cfg.train_on_val
+                    else "which also selected the checkpoint (optimistic)"
+                )
             )
             eval_cfg = dataclasses.replace(eval_cfg, split="val")
         result_extra: dict[str, Any] = {}

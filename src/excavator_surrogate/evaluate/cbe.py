@@ -207,6 +207,10 @@ def evaluate_checkpoint(
         "dt": sur.spec.dt,
         "episodes": [{"name": r.name, "n_step": len(r.time)} for r in main_runs],
         "seconds": round(time.monotonic() - t0, 3),
+        # the model trained on the episodes it is scored on: the training split, or the
+        # validation runs the recipe trains on (``train_on_val``, docs/real.md)
+        "in_sample": split == "train"
+        or (split == "val" and bool((sur.train_config or {}).get("train_on_val", False))),
     }
     if sur.spec.any_linear:  # metrics.json is in stored units (rad, m): say which
         run_info["units"] = {

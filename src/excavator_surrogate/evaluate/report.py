@@ -135,6 +135,13 @@ def comparison_table(
     return "\n".join(lines) + "\n"
 
 
+IN_SAMPLE_NOTE = (
+    "In-sample: the model trained on the '{split}' split it is scored on, so these scores do "
+    "not measure how it does on runs it has not seen; score a held-out test split for that"
+)
+"""The note over an evaluation of the split the model trained on (``run.in_sample``)."""
+
+
 def report_markdown(
     by_model: Mapping[str, Mapping[str, Any]],
     *,
@@ -165,6 +172,8 @@ def report_markdown(
         )
         parts += [f"- {k}: {run[k]}" for k in keys if k in run]
         parts.append("")
+        if run.get("in_sample"):
+            parts += [f"**{IN_SAMPLE_NOTE.format(split=run.get('split'))}**", ""]
     parts += [
         f"## {primary}" + (" (paper Table II alongside)" if show_paper else ""),
         "",
