@@ -146,3 +146,31 @@ def test_exsur_calibrate_stores_the_records_and_refuses_other_machines(
     assert main(["calibrate", str(ckpt), str(other)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("exsur: error:") and "Traceback" not in err
+
+
+def test_bands_that_covered_far_less_than_their_level_are_named():
+    from excavator_surrogate.evaluate.uncertainty import SHORTFALL, undercovered
+
+    def band(c50: float, c90: float) -> dict:
+        return {"coverage_50": c50, "width_50": 0.1, "coverage_90": c90, "width_90": 0.3}
+
+    unc = {
+        "available": True,
+        "notes": [],
+        "levels": [0.5, 0.9],
+        # a: both bands fine; b: only its 90 % band short; c: its 50 % band short
+        "theta": {"a": band(0.55, 0.88), "b": band(0.45, 0.61), "c": band(0.2, 0.95)},
+        "omega": {"a": band(0.5, 0.9), "b": band(0.5, 0.9), "c": band(0.5, 0.9 - SHORTFALL / 2)},
+        "ood": None,
+    }
+    assert undercovered(unc, ["a", "b", "c"]) == [
+        ("theta", "b", 90, 0.61),
+        ("theta", "c", 50, 0.2),
+    ]
+    md = uncertainty_markdown(unc, ["a", "b", "c"])
+    assert "**The bands were too narrow on these runs** (coverage of the 50 % / 90 % bands): " in md
+    assert "θ b 45 % / 61 %, θ c 20 % / 95 %. They were calibrated on other runs" in md
+    assert "θ a" not in md.split("too narrow")[1] and "ω" not in md.split("too narrow")[1]
+    fine = {**unc, "theta": {n: band(0.5, 0.9) for n in "abc"}}
+    assert "too narrow" not in uncertainty_markdown(fine, ["a", "b", "c"])
+    assert undercovered({"available": False, "notes": ["single network"]}, ["a"]) == []

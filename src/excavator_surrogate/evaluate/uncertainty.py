@@ -76,6 +76,50 @@ def _num(v: float | None) -> str:
     return "—" if v is None else f"{v:.4f}"
 
 
+SHORTFALL = 0.10
+"""A band is called too narrow on a scored split where its coverage falls more than this
+below its level (a 90 % band covering under 80 %): beyond what one split's scatter of a
+calibrated band (about ±0.07 on 12 runs of the stand-in, docs/design.md) explains."""
+
+
+def undercovered(unc: Mapping[str, Any], names: Sequence[str]) -> list[tuple[str, str, int, float]]:
+    """The bands that covered too little of the scored steps: ``(quantity, joint, level in
+    %, coverage)`` for every band whose coverage is more than :data:`SHORTFALL` below its
+    level (``quantity``: ``theta`` or ``omega``)."""
+    out = []
+    for q in ("theta", "omega"):
+        for n in names:
+            for lv in unc.get("levels") or []:
+                cov = (unc.get(q) or {}).get(n, {}).get(f"coverage_{round(100 * lv)}")
+                if cov is not None and cov < lv - SHORTFALL:
+                    out.append((q, n, round(100 * lv), float(cov)))
+    return out
+
+
+def _undercovered_note(unc: Mapping[str, Any], short: Sequence[tuple[str, str, int, float]]) -> str:
+    """One paragraph naming the joints :func:`undercovered` found, with every band's coverage
+    there, and what to make of them."""
+    sym = {"theta": "θ", "omega": "ω"}
+    tags = [f"{round(100 * lv)}" for lv in unc["levels"]]
+    seen: list[tuple[str, str]] = []
+    for q, n, _, _ in short:
+        if (q, n) not in seen:
+            seen.append((q, n))
+    parts = [
+        f"{sym[q]} {n} " + " / ".join(_pct(unc[q][n][f"coverage_{t}"]) for t in tags)
+        for q, n in seen
+    ]
+    return (
+        "**The bands were too narrow on these runs** (coverage of the "
+        + " / ".join(f"{t} %" for t in tags)
+        + " bands): "
+        + ", ".join(parts)
+        + ". They were calibrated on other runs, and here the model's error outgrew its "
+        "members' disagreement: do not take them as limits on runs like these (`exsur "
+        "calibrate CKPT DATASET` fits them again on data that holds such runs)."
+    )
+
+
 UNCERTAINTY_HEADING = "## Uncertainty and out-of-distribution"
 """The heading of :func:`uncertainty_markdown`'s section (``table.md`` and ``report.md``)."""
 
@@ -101,6 +145,9 @@ def uncertainty_markdown(unc: Mapping[str, Any], names: Sequence[str]) -> str:
                     cells += [_pct(d[f"coverage_{t}"]), _num(d[f"width_{t}"])]
                 lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
+        short = undercovered(unc, names)
+        if short:
+            lines += [_undercovered_note(unc, short), ""]
     ood = unc.get("ood")
     if ood is not None:
         lines += [
