@@ -183,7 +183,9 @@ def evaluate_checkpoint(
                 dataset.train,
                 window=sur.window,
                 spec=dataset.spec,
-                norm=sur.norm.to("cpu"),  # fitted in NumPy
+                # the surrogate's features, fitted in NumPy; not its map joints: the baseline
+                # is ARX on every joint, not ARX beside the recipe's static map
+                norm=sur.norm.with_own(None).to("cpu"),
                 val=dataset.val,
                 end_stops=sur.end_stops,
             ).to(dev)
