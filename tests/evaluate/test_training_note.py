@@ -75,6 +75,30 @@ def test_joints_on_the_static_map_are_named():
     assert "in parallel with the network, which keeps reading its own angles" in par
 
 
+def test_a_map_pinned_where_the_networks_validated_far_better_is_called_out():
+    from excavator_surrogate.evaluate.report import PINNED_COST
+
+    rec = {
+        "names": ["swing", "boom", "bucket"],
+        "chosen": ["swing", "boom", "bucket"],
+        "pinned": ["swing", "bucket"],  # boom: chosen by the 5 % tie, not pinned
+        "composition": "parallel",
+        "val_theta_rmse_network": [0.10, 0.05, 0.068],
+        "val_theta_rmse_map": [0.12, 0.20, 0.2227],
+        "why": "swing, bucket: the map alone runs validation with angle R^2 >= 0.95",
+    }
+    text = training_markdown({"static_map": rec})
+    assert "**The map was kept where the networks validated better**" in text
+    assert "networks'): bucket 3.3×." in text  # not the swing (1.2x), nor the unpinned boom
+    assert "`--set train.map_periodic=false`" in text
+    mild = {**rec, "val_theta_rmse_map": [0.12, 0.20, PINNED_COST * 0.068 * 0.99]}
+    assert "kept where the networks validated better" not in training_markdown({"static_map": mild})
+    older = {k: v for k, v in rec.items() if k != "val_theta_rmse_map"}  # a record without it
+    assert "kept where the networks validated better" not in training_markdown(
+        {"static_map": older}
+    )
+
+
 def test_the_note_says_whether_the_bits_hold_on_another_cpu():
     native = training_markdown({"epochs_planned": 3, "epochs_done": 3, "numerics": "native"})
     assert "of this computer" in native and "EXSUR_NUMERICS=portable" in native

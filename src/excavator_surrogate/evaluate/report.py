@@ -401,7 +401,35 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
         f"\nStatic valve map: {', '.join(record['chosen'])} follow(s) the map (dead zone, gain "
         f"per direction{delay}) {how}, chosen on the validation free run "
         f"({record.get('why', '')}); its band comes from the map's gain spread over the "
-        "training log, not from the members.\n"
+        "training log, not from the members.\n" + _pinned_cost(record)
+    )
+
+
+PINNED_COST = 1.5
+"""A joint pinned to the static map (it runs validation with angle R² >= 0.95) whose map
+validated this many times worse than the networks gets a note on what the pin trades."""
+
+
+def _pinned_cost(record: Mapping[str, Any]) -> str:
+    """A paragraph on the joints pinned to the map although the networks validated
+    :data:`PINNED_COST` times better there, and how to let the networks drive them."""
+    names = list(record.get("names") or [])
+    net = record.get("val_theta_rmse_network") or []
+    amap = record.get("val_theta_rmse_map") or []
+    costly = [
+        f"{n} {m / v:.1f}×"
+        for n, v, m in zip(names, net, amap)
+        if n in (record.get("pinned") or []) and v > 0 and m > PINNED_COST * v
+    ]
+    if not costly:
+        return ""
+    return (
+        "\n**The map was kept where the networks validated better** (the map's validation "
+        f"angle RMSE over the networks'): {', '.join(costly)}. A map that runs validation with angle R² ≥ 0.95 "
+        "is kept whatever the networks score, because on logs whose test leaves the training's "
+        "conditions (another throttle, another day) such maps drifted less than the networks "
+        "(docs/real.md). Where the runs you will use the model on are like the validation runs, "
+        "`--set train.map_periodic=false` lets the networks drive those joints.\n"
     )
 
 
