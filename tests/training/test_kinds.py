@@ -346,3 +346,26 @@ def test_joints_the_static_map_will_pin_are_found_before_the_kind_choice() -> No
     assert record["pinned"] == ["b"]
     _, record = choose_kinds(plains, priors, val)
     assert record["pinned"] == []
+
+
+def test_the_card_of_a_composite_names_its_members_as_compositions(tmp_path) -> None:
+    from excavator_surrogate.evaluate.card import card_markdown, model_card
+    from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+
+    plains = [_plain_net(s) for s in (0, 1, 2, 3)]
+    priors = [_prior_net(s + 10, exact=(False, False)) for s in (0, 1)]
+    model = composite(plains, priors, [0.5, 0.0])
+    model.metrics["training"] = {"epochs_planned": 4, "members": [{"epochs_done": 4}] * 6}
+    card = model_card(save_checkpoint(tmp_path / "c.pt", model))
+    net = card["network"]
+    assert net["composite"] and net["n_member"] == 2 and net["n_trained"] == 6
+    text = card_markdown(card)
+    assert (
+        "- 2 composite LSTM members of 24 units each, each joining per joint networks of " in text
+    )
+    assert "the 6 trained (plain and map-correcting, weighted by the kind choice)" in text
+    assert "members are compositions of the trained networks" in text
+    assert "| Member | Seed |" not in text  # no seed or epoch of their own to list
+    plain = model_card(save_checkpoint(tmp_path / "p.pt", merge(plains[:2])))
+    assert not plain["network"]["composite"]
+    assert "An ensemble of 2 LSTM networks" in card_markdown(plain)

@@ -87,6 +87,11 @@ def describe_surrogate(sur: Surrogate) -> dict[str, Any]:
             "window": cfg.window,
             "n_member": n_member(sur),
             "member_hidden": list(ens.get("hidden") or []),
+            # the recipe's kind choice: each member joins, per joint, several trained networks
+            "composite": any(
+                str(m.get("name", "")).endswith("-composite") for m in ens.get("members") or []
+            ),
+            "n_trained": len(training.get("members") or []) or None,
             "velocity_input": bool(norm.omega_in),
             "residual": bool(cfg.residual),
             "map_correcting": bool(cfg.prior),
@@ -285,7 +290,17 @@ def _joint_rows(joints: Sequence[Mapping[str, Any]]) -> list[str]:
 
 def _network_lines(net: Mapping[str, Any]) -> list[str]:
     cell = net["cell"].upper()
-    if net["n_member"] > 1:
+    if net.get("composite"):
+        each = net["member_hidden"]
+        size = f" of {each[0]} units each" if each and len(set(each)) == 1 else ""
+        trained = f" of the {net['n_trained']} trained" if net.get("n_trained") else ""
+        what = (
+            f"- {net['n_member']} composite {cell} members{size}, each joining per joint "
+            f"networks{trained} (plain and map-correcting, weighted by the kind choice), merged "
+            f"into one {net['n_layer']} × {net['hidden']} {cell} (the members' mean ω), head "
+            f"{net['head_hidden']}"
+        )
+    elif net["n_member"] > 1:
         each = net["member_hidden"]
         size = f" of {each[0]} units each" if each and len(set(each)) == 1 else ""
         what = (
@@ -396,7 +411,14 @@ def card_markdown(card: Mapping[str, Any], *, header: Sequence[str] | None = Non
     if record:
         text = training_markdown(record, spec=spec).strip("\n")
         lines.append(text.replace("Training: the", "The", 1))
-    if card["members"]:
+    if card["members"] and card["network"].get("composite"):
+        lines += [
+            "",
+            f"The model's {len(card['members'])} members are compositions of the trained "
+            "networks, not networks of their own: each network's epochs are above, and which "
+            "kind drives each joint is in the table of options.",
+        ]
+    elif card["members"]:
         lines += [
             "",
             "The members merged into the model:",
