@@ -16,9 +16,6 @@ from typing import Any
 from ..errors import CheckpointError
 from ..evaluate.card import card_markdown, machine_phrase, public
 
-_TYPES = {1: "float32", 6: "int32", 7: "int64", 9: "bool", 10: "float16", 11: "float64"}
-"""ONNX tensor element types by their enum value (the ones an exsur graph uses, and more)."""
-
 
 def onnx_card(path: str | Path) -> dict[str, Any]:
     """The description of the exported surrogate at ``path``.
@@ -78,7 +75,10 @@ def onnx_card(path: str | Path) -> dict[str, Any]:
 
 
 def _value(v: Any) -> dict[str, Any]:
-    """A graph input or output: name, element type and shape (``n_batch``: the dynamic axis)."""
+    """A graph input or output: name, element type (NumPy's name for it, as onnx maps it) and
+    shape (``n_batch``: the dynamic axis)."""
+    from onnx.helper import tensor_dtype_to_np_dtype
+
     t = v.type.tensor_type
     dims = []
     for d in t.shape.dim:
@@ -86,7 +86,8 @@ def _value(v: Any) -> dict[str, Any]:
             dims.append(int(d.dim_value))
         else:
             dims.append("n_batch" if d.dim_param else "?")
-    return {"name": v.name, "type": _TYPES.get(t.elem_type, str(t.elem_type)), "shape": dims}
+    kind = tensor_dtype_to_np_dtype(t.elem_type).name
+    return {"name": v.name, "type": kind, "shape": dims}
 
 
 def onnx_card_json(card: dict[str, Any]) -> dict[str, Any]:

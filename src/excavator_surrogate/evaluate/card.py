@@ -45,13 +45,13 @@ def model_card(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     ckpt = read_checkpoint(path)
     card = describe_surrogate(surrogate_from_dict(ckpt, where=str(path)))
-    card["file"] = {
+    file = {
         "path": str(path),
         "bytes": path.stat().st_size,
         "exsur_version": ckpt.get("exsur_version"),
         "format_version": ckpt.get("format_version"),
     }
-    return {"file": card.pop("file"), **card}
+    return {"file": file, **card}
 
 
 def describe_surrogate(sur: Surrogate) -> dict[str, Any]:
@@ -290,24 +290,20 @@ def _joint_rows(joints: Sequence[Mapping[str, Any]]) -> list[str]:
 
 def _network_lines(net: Mapping[str, Any]) -> list[str]:
     cell = net["cell"].upper()
+    each = net["member_hidden"]
+    size = f" of {each[0]} units each" if each and len(set(each)) == 1 else ""
+    merged = (
+        f"merged into one {net['n_layer']} × {net['hidden']} {cell} (the members' mean ω), "
+        f"head {net['head_hidden']}"
+    )
     if net.get("composite"):
-        each = net["member_hidden"]
-        size = f" of {each[0]} units each" if each and len(set(each)) == 1 else ""
         trained = f" of the {net['n_trained']} trained" if net.get("n_trained") else ""
         what = (
             f"- {net['n_member']} composite {cell} members{size}, each joining per joint "
-            f"networks{trained} (plain and map-correcting, weighted by the kind choice), merged "
-            f"into one {net['n_layer']} × {net['hidden']} {cell} (the members' mean ω), head "
-            f"{net['head_hidden']}"
+            f"networks{trained} (plain and map-correcting, weighted by the kind choice), {merged}"
         )
     elif net["n_member"] > 1:
-        each = net["member_hidden"]
-        size = f" of {each[0]} units each" if each and len(set(each)) == 1 else ""
-        what = (
-            f"- An ensemble of {net['n_member']} {cell} networks{size}, merged into one "
-            f"{net['n_layer']} × {net['hidden']} {cell} (the members' mean ω), head "
-            f"{net['head_hidden']}"
-        )
+        what = f"- An ensemble of {net['n_member']} {cell} networks{size}, {merged}"
     else:
         what = f"- One {net['n_layer']} × {net['hidden']} {cell}, head {net['head_hidden']}"
     lines = [what + f"; {net['n_param']:,} parameters, {net['n_feature']} input features."]

@@ -101,10 +101,7 @@ def _undercovered_note(unc: Mapping[str, Any], short: Sequence[tuple[str, str, i
     there, and what to make of them."""
     sym = {"theta": "θ", "omega": "ω"}
     tags = [f"{round(100 * lv)}" for lv in unc["levels"]]
-    seen: list[tuple[str, str]] = []
-    for q, n, _, _ in short:
-        if (q, n) not in seen:
-            seen.append((q, n))
+    seen = dict.fromkeys((q, n) for q, n, _, _ in short)  # each (quantity, joint) once, in order
     parts = [
         f"{sym[q]} {n} " + " / ".join(_pct(unc[q][n][f"coverage_{t}"]) for t in tags)
         for q, n in seen
