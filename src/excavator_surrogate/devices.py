@@ -15,6 +15,7 @@ from contextlib import contextmanager
 
 import torch
 
+from . import cpus
 from .errors import ConfigError
 
 DEVICE_CHOICES = ("cpu", "cuda", "auto")
@@ -93,10 +94,9 @@ def device_label(dev: torch.device) -> str:
 
 
 def usable_cpus() -> int:
-    """CPUs this process may use (its affinity mask where the OS has one; at least 1)."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
+    """CPUs to plan for and run on (:func:`excavator_surrogate.cpus.usable_cpus`: ``EXSUR_CPUS``,
+    else the least of the affinity mask and a container's CPU quota; at least 1)."""
+    return cpus.usable_cpus()
 
 
 @contextmanager

@@ -48,6 +48,7 @@ import sys
 from importlib import metadata
 from typing import Any
 
+from .cpus import cpus_note
 from .errors import ConfigError
 
 ENV = "EXSUR_NUMERICS"
@@ -260,7 +261,8 @@ def environment() -> dict[str, Any]:
     numerics (:func:`mode`), the CPU, and the versions and kernel levels of the libraries
     that compute them. Two computers that differ here may train or simulate other bits.
 
-    Keys: ``numerics``, ``cpu``, ``machine``, ``python``, ``numpy``, ``numpy_simd`` (its
+    Keys: ``numerics``, ``cpu``, ``cpus`` (:func:`~.cpus.cpus_note`: the CPUs planned for
+    and run on, which size the recipe's plan), ``machine``, ``python``, ``numpy``, ``numpy_simd`` (its
     dispatch targets in use), ``numpy_blas`` (:func:`numpy_blas`: its matrix library and the
     kernels it picked), ``mujoco``, ``torch`` (None where not installed) and, once
     torch is loaded, ``torch_cpu_capability`` (its element-wise kernels). Reads no clock and
@@ -279,6 +281,7 @@ def environment() -> dict[str, Any]:
     env: dict[str, Any] = {
         "numerics": mode(),
         "cpu": cpu_model(),
+        "cpus": cpus_note(),
         "machine": platform.machine(),
         "python": platform.python_version(),
         "numpy": version("numpy"),

@@ -29,7 +29,8 @@ def test_a_cut_run_is_reported_in_metrics_json_and_the_table(tmp_path):
     # the computer and libraries it trained with, in metrics.json and in the table
     env = res["training"]["environment"]
     assert env["torch"] and env["torch_cpu_capability"] and env["numerics"] == "native"
-    assert f"Trained on {env['cpu']}, torch {env['torch']} ({env['torch_cpu_capability']}" in table
+    head = f"Trained on {env['cpu']} with {env['cpus']}, torch {env['torch']}"
+    assert f"{head} ({env['torch_cpu_capability']}" in table
 
 
 def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_overwrite
+from .common import add_cpus_option, add_overwrite, use_cpus
 from .knobs import add_set_option, configs, overrides, positive_seconds
 
 
@@ -75,6 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="K",
         help="seed-ensemble members per trained model (1: a single network; default: the preset's)",
     )
+    add_cpus_option(p)
     add_overwrite(p, replaced=True)
     add_set_option(p, RUN_SECTIONS)
     p.set_defaults(func=checked_run)
@@ -88,7 +89,7 @@ def checked_run(args: argparse.Namespace) -> int:
     for key in ("data", "mapping", "logs"):  # the dataset, or the logs and their mapping
         value = getattr(args, key, None)
         inputs += [] if value is None else value if isinstance(value, list) else [value]
-    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs), use_cpus(args):
         return run(args)
 
 

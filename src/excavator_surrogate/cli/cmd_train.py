@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import add_overwrite
+from .common import add_cpus_option, add_overwrite, use_cpus
 from .knobs import add_set_option, configs, overrides, positive_seconds
 
 
@@ -58,6 +58,7 @@ def register(subparsers: Any) -> None:
         help="data-parallel training; requires a torchrun launch (automatic when torchrun "
         "sets WORLD_SIZE > 1); batch sizes are per process",
     )
+    add_cpus_option(p)
     add_overwrite(p, replaced=False)
     add_set_option(p, ("train",))
     p.set_defaults(func=checked_run)
@@ -74,7 +75,8 @@ def checked_run(args: argparse.Namespace) -> int:
         resumed = load_checkpoint(args.resume)
         spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
         check_compatible(resumed.spec, spec, ckpt=args.resume, data_name=args.dataset)
-    return run(args)
+    with use_cpus(args):
+        return run(args)
 
 
 def run(args: argparse.Namespace) -> int:

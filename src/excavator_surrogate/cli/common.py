@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -76,3 +78,58 @@ def leaf_parsers(p: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
     return [
         leaf for a in subs for sp in dict.fromkeys(a.choices.values()) for leaf in leaf_parsers(sp)
     ]
+
+
+def add_cpus_option(p: argparse.ArgumentParser) -> None:
+    """``--cpus N``: plan and run as a computer of ``N`` CPUs (sets ``EXSUR_CPUS``)."""
+    p.add_argument(
+        "--cpus",
+        type=_cpu_count,
+        default=None,
+        metavar="N",
+        help="plan the training for N CPUs and run that many workers (default: the CPUs this "
+        "process may use, within a container's CPU quota; EXSUR_CPUS sets it too). The "
+        "recipe's plan depends on it: --cpus 2 trains the README's 2-CPU models on a larger "
+        "computer",
+    )
+
+
+def _cpu_count(text: str) -> int:
+    """argparse ``type`` of ``--cpus``: a whole number >= 1."""
+    from ..errors import ConfigError
+
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigError(f"--cpus {text}: give a whole number of CPUs >= 1")
+    return n
+
+
+@contextmanager
+def use_cpus(args: argparse.Namespace) -> Iterator[None]:
+    """Within the block, apply ``--cpus`` (if given) to this process and the workers it starts,
+    warning when it asks for more CPUs than this process may use; ``EXSUR_CPUS`` is restored
+    after (a command run in-process leaves no trace)."""
+    import os
+
+    from ..cpus import ENV, oversubscribed
+    from ..io_utils import LOGGER_NAME
+
+    n = getattr(args, "cpus", None)
+    if n is None:
+        yield
+        return
+    before = os.environ.get(ENV)
+    os.environ[ENV] = str(n)
+    try:
+        warning = oversubscribed()
+        if warning:
+            logging.getLogger(LOGGER_NAME).warning(f"--cpus: {warning}")
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(ENV, None)
+        else:
+            os.environ[ENV] = before

@@ -439,7 +439,9 @@ def environment_markdown(env: Mapping[str, Any] | None) -> str:
     two runs of the same data and seed differ, compare these first."""
     if not env:
         return ""
-    parts = [str(env.get("cpu", "an unknown CPU"))]
+    parts = [
+        str(env.get("cpu", "an unknown CPU")) + (f" with {env['cpus']}" if env.get("cpus") else "")
+    ]
     if env.get("torch"):
         cap = env.get("torch_cpu_capability")
         parts.append(f"torch {env['torch']}" + (f" ({cap} kernels)" if cap else ""))

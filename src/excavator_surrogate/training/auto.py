@@ -66,8 +66,8 @@ from typing import Any
 import numpy as np
 
 from ..config import from_dict, to_dict
+from ..cpus import cpus_note, usable_cpus
 from ..data.dataset import Dataset
-from ..devices import usable_cpus
 from ..errors import ConfigError, DataError
 from .batches import val_min_steps
 from .config import TrainConfig
@@ -133,6 +133,7 @@ def auto_config(
     lengths = np.array([e.n_step for e in dataset.train])
     if lengths.size == 0:
         raise DataError(dataset.root, "has no training episodes", fix="import or simulate some")
+    counted = cpus_note() if not cpus else f"{cpus} CPU(s)"
     cpus = cpus or usable_cpus()
     why: list[str] = []
     short = int(lengths.min())
@@ -205,7 +206,7 @@ def auto_config(
     cap = training_cap_s(per_member)
     why.append(
         f"seed ensemble of {members} member(s), {workers} in parallel, at most {cap:.0f} s "
-        f"each ({budget_s:.0f} s of training in all on {cpus} CPU(s), {POST_SHARE:.0%} of it "
+        f"each ({budget_s:.0f} s of training in all on {counted}, {POST_SHARE:.0%} of it "
         "held back for the choices after training)"
         + (
             ""
