@@ -110,3 +110,33 @@ def test_cli_refuses_a_bad_cpus(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert code != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--cpus 0: give a whole number of CPUs >= 1" in err[0]
+
+
+def _blas_threads() -> list[int]:
+    from threadpoolctl import threadpool_info
+
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_numpys_blas_follows_the_count_here_and_in_workers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delenv(cpus.BLAS_ENV, raising=False)
+    monkeypatch.setattr(cpus, "affinity_cpus", lambda: 4)
+    monkeypatch.setattr(joblib, "cpu_count", lambda: 4)
+    monkeypatch.setenv(cpus.ENV, "1")
+    before = _blas_threads()
+    with cpus.blas_threads():
+        assert all(n == 1 for n in _blas_threads())
+        assert os.environ[cpus.BLAS_ENV] == "1"  # what a spawned worker's NumPy reads
+    assert _blas_threads() == before and cpus.BLAS_ENV not in os.environ
+
+
+def test_a_users_blas_setting_is_left_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(cpus, "affinity_cpus", lambda: 4)
+    monkeypatch.setattr(joblib, "cpu_count", lambda: 4)
+    monkeypatch.setenv(cpus.ENV, "1")
+    monkeypatch.setenv(cpus.BLAS_ENV, "3")
+    with cpus.blas_threads():
+        assert os.environ[cpus.BLAS_ENV] == "3"
+    assert os.environ[cpus.BLAS_ENV] == "3"

@@ -14,12 +14,20 @@ this process can really use:
   does: the README's real-machine figures were taken on 2 CPUs, and a computer of 8 plans
   more members at once, so another model.
 
+NumPy's BLAS follows the same count (:func:`blas_threads`, around every ``exsur`` command):
+its thread pool otherwise starts one thread per CPU of the affinity mask, which a quota makes
+wait on each other, and a least-squares fit over many rows (the ARX baseline's normal matrix)
+rounds by its thread count: ``exsur evaluate``'s ARX row of a 16-core computer would not be a
+2-CPU computer's.
+
 No torch import here: the simulation and the record of a run read it too.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from .errors import ConfigError
 
@@ -103,3 +111,32 @@ def oversubscribed() -> str | None:
         f"{given}-CPU computer's, its parallel workers share {available}, each runs slower, and "
         "a wall-time cap may cut them (the log and the report say so if it does)"
     )
+
+
+BLAS_ENV = "OPENBLAS_NUM_THREADS"
+"""What NumPy's OpenBLAS reads at load time: :func:`blas_threads` sets it for the worker
+processes a command starts (unless the user has set it)."""
+
+
+@contextmanager
+def blas_threads() -> Iterator[None]:
+    """Within the block, NumPy's BLAS runs at most :func:`usable_cpus` threads: in this process
+    (``threadpoolctl``) and, through :data:`BLAS_ENV` where the user has not set it, in the
+    worker processes it starts.  Nothing changes where the affinity mask is the count (a
+    plain 2-core computer); everything is restored after.
+
+    Raises:
+        ConfigError: a bad :data:`ENV` value.
+    """
+    from threadpoolctl import threadpool_limits
+
+    n = usable_cpus()
+    before = os.environ.get(BLAS_ENV)
+    if before is None and n < affinity_cpus():
+        os.environ[BLAS_ENV] = str(n)
+    try:
+        with threadpool_limits(limits=n, user_api="blas"):
+            yield
+    finally:
+        if before is None:
+            os.environ.pop(BLAS_ENV, None)

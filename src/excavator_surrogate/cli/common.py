@@ -114,7 +114,7 @@ def use_cpus(args: argparse.Namespace) -> Iterator[None]:
     after (a command run in-process leaves no trace)."""
     import os
 
-    from ..cpus import ENV, oversubscribed
+    from ..cpus import ENV, blas_threads, oversubscribed
     from ..io_utils import LOGGER_NAME
 
     n = getattr(args, "cpus", None)
@@ -127,7 +127,8 @@ def use_cpus(args: argparse.Namespace) -> Iterator[None]:
         warning = oversubscribed()
         if warning:
             logging.getLogger(LOGGER_NAME).warning(f"--cpus: {warning}")
-        yield
+        with blas_threads():  # NumPy's BLAS as an N-CPU computer's
+            yield
     finally:
         if before is None:
             os.environ.pop(ENV, None)
