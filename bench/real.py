@@ -94,7 +94,9 @@ busy time less the bench's own and its members'), and ``timings_under_load`` whe
 above 0.1 (where it cannot be read: when ``load_avg_1min`` at the start or the end is above
 1.5, which the bench's own two members also raise). ``environment`` names the computer and
 libraries (``numerics.environment()``): the simulated shapes' logs are other draws on another
-computer (docs/real.md).
+computer (docs/real.md).  The recipe plans for the CPUs this process may use (its affinity
+mask, a container's CPU quota; ``environment.cpus``): the README's figures are 2-CPU plans,
+which ``EXSUR_CPUS=2 python bench/real.py ...`` trains on a larger computer.
 
 Takes about 40 min for h1 on the 2-core reference machine (computer B, quiet, session 18:
 the recipe 289-395 s per seed, ``--condition`` about 4 min more per seed; with the kind
