@@ -140,3 +140,26 @@ def test_a_users_blas_setting_is_left_alone(monkeypatch: pytest.MonkeyPatch) -> 
     with cpus.blas_threads():
         assert os.environ[cpus.BLAS_ENV] == "3"
     assert os.environ[cpus.BLAS_ENV] == "3"
+
+
+def test_info_computer_shows_what_a_run_would_record(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    monkeypatch.setenv(cpus.ENV, "3")
+    assert main(["info", "--computer"]) == 0
+    text = capsys.readouterr().out
+    assert "with 3 CPU(s) (EXSUR_CPUS" in text and "| `torch_cpu_capability` |" in text
+    assert main(["info", "--computer", "--json"]) == 0
+    env = json.loads(capsys.readouterr().out)
+    assert env["cpus"].startswith("3 CPU(s)") and env["torch_cpu_capability"]
+    assert env.keys() == numerics.environment().keys()
+
+
+def test_info_takes_a_path_or_computer(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["info"]) == 2
+    assert "or --computer" in capsys.readouterr().err
+    assert main(["info", str(tmp_path), "--computer"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not both" in err[0]

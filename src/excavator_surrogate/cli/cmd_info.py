@@ -1,4 +1,5 @@
-"""``exsur info PATH``: what a trained checkpoint or a dataset is, without running anything."""
+"""``exsur info PATH``: what a trained checkpoint or a dataset is, without running anything;
+``exsur info --computer``: what this computer computes with."""
 
 from __future__ import annotations
 
@@ -28,8 +29,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "path",
         metavar="PATH",
+        nargs="?",
+        default=None,
         help="a checkpoint file (.pt, e.g. runs/quick/model/best.pt), an ONNX export (.onnx) or "
         "a dataset folder (e.g. runs/quick/data)",
+    )
+    p.add_argument(
+        "--computer",
+        action="store_true",
+        help="instead of PATH, describe this computer as a run's record would: the CPU, the "
+        "CPUs a training plans for and why, and the kernels torch, NumPy and MuJoCo compute "
+        "with (what to compare first when a figure differs from the README's)",
     )
     p.add_argument(
         "--json", action="store_true", help="print the description as one JSON object instead"
@@ -43,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..data.dataset import MANIFEST
 
+    if args.computer or args.path is None:
+        return _computer(args)
     path = Path(args.path)
     if not path.exists():
         from ..errors import ConfigError
@@ -83,4 +95,33 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(public(card), indent=2, allow_nan=False))
     else:
         print(text(card), end="")
+    return 0
+
+
+def _computer(args: argparse.Namespace) -> int:
+    """``exsur info --computer``: the record a run on this computer would write
+    (:func:`~excavator_surrogate.numerics.environment`, torch loaded), as Markdown or JSON."""
+    import json
+
+    from ..errors import ConfigError
+
+    if args.path is not None:
+        raise ConfigError(
+            f"exsur info: give PATH or --computer, not both (got {args.path} and --computer)"
+        )
+    if not args.computer:
+        raise ConfigError(
+            "exsur info: give a checkpoint file (.pt), an ONNX export (.onnx), a dataset "
+            "folder, or --computer"
+        )
+    import torch  # noqa: F401  (loaded so that the record names its CPU kernels)
+
+    from ..evaluate.report import computer_markdown
+    from ..numerics import environment
+
+    env = environment()
+    if args.json:
+        print(json.dumps(env, indent=2, allow_nan=False))
+    else:
+        print(computer_markdown(env), end="")
     return 0

@@ -455,6 +455,28 @@ def environment_markdown(env: Mapping[str, Any] | None) -> str:
     return f"Trained on {', '.join(parts)}; {numerics} numerics.\n"
 
 
+def computer_markdown(env: Mapping[str, Any]) -> str:
+    """``exsur info --computer``: this computer's record
+    (:func:`excavator_surrogate.numerics.environment`) as a short Markdown card: the line a
+    report prints, each key, and what the figures of another computer mean here."""
+
+    def cell(v: Any) -> str:
+        return "-" if v is None else ", ".join(map(str, v)) if isinstance(v, list) else str(v)
+
+    rows = "\n".join(f"| `{k}` | {cell(v)} |" for k, v in env.items())
+    return (
+        "# This computer\n\n"
+        + environment_markdown(env).replace("Trained on", "Computes on", 1)
+        + "\n| Key | Value |\n|---|---|\n"
+        + rows
+        + "\n\nThe same data and seed train the same model on any load of this computer. "
+        "Another CPU's kernels round differently and train another draw of the same recipe "
+        "(docs/computers.md lists which CPUs give which of the README's columns), and the "
+        "data-driven recipe plans from the CPU count: the README's real-machine figures are "
+        "2-CPU plans (`--cpus 2` or `EXSUR_CPUS=2` on a larger computer).\n"
+    )
+
+
 def _budget_markdown(training: Mapping[str, Any]) -> str:
     """How training ended against its plan (see :func:`training_markdown`)."""
     members = list(training.get("members") or [training])
