@@ -36,6 +36,15 @@ ENV = "EXSUR_CPUS"
 those this process may use; inherited by worker processes."""
 
 
+def parse_cpus(text: str) -> int | None:
+    """``text`` as a CPU count (a whole number >= 1), None when it is not one."""
+    try:
+        n = int(text)
+    except ValueError:
+        return None
+    return n if n >= 1 else None
+
+
 def _from_env() -> int | None:
     """:data:`ENV` as a CPU count, None when unset or empty.
 
@@ -45,16 +54,29 @@ def _from_env() -> int | None:
     text = os.environ.get(ENV, "").strip()
     if not text:
         return None
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
+    n = parse_cpus(text)
+    if n is None:
         raise ConfigError(
             f"{ENV}={text!r}: give a whole number of CPUs >= 1 (or unset it to use the CPUs "
             "this process may use)"
         )
     return n
+
+
+@contextmanager
+def environ_set(name: str, value: str | None) -> Iterator[None]:
+    """Within the block, the environment variable ``name`` is ``value`` (None: left as it
+    is), for this process and the workers it starts; restored after."""
+    before = os.environ.get(name)
+    if value is not None:
+        os.environ[name] = value
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = before
 
 
 def affinity_cpus() -> int:
@@ -131,12 +153,7 @@ def blas_threads() -> Iterator[None]:
     from threadpoolctl import threadpool_limits
 
     n = usable_cpus()
-    before = os.environ.get(BLAS_ENV)
-    if before is None and n < affinity_cpus():
-        os.environ[BLAS_ENV] = str(n)
-    try:
+    unset = os.environ.get(BLAS_ENV) is None and n < affinity_cpus()
+    with environ_set(BLAS_ENV, str(n) if unset else None):
         with threadpool_limits(limits=n, user_api="blas"):
             yield
-    finally:
-        if before is None:
-            os.environ.pop(BLAS_ENV, None)

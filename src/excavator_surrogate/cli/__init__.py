@@ -27,10 +27,9 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from .. import __version__, numerics
-from ..cpus import blas_threads
 from ..errors import ConfigError, ExsurError
 from ..io_utils import LOGGER_NAME, remove_logging, setup_logging
-from .common import add_log_options, leaf_parsers, log_level
+from .common import add_log_options, leaf_parsers, log_level, use_cpus
 
 _OS_ERRORS = (
     errno.EACCES,
@@ -143,7 +142,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # something (``exsur config show``, a ``--dry-run``) still prints it
         shows = getattr(args, "shows", False) or getattr(args, "dry_run", False)
         mute = getattr(args, "quiet", False) and not shows
-        with _logging(log_level(args)), _muted_stdout(mute), blas_threads():
+        with _logging(log_level(args)), _muted_stdout(mute), use_cpus(args):
             return int(args.func(args) or 0)
     except ExsurError as e:
         print(f"exsur: error: {e}", file=sys.stderr)

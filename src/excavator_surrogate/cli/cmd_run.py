@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import add_cpus_option, add_overwrite, use_cpus
+from .common import add_cpus_option, add_overwrite
 from .knobs import add_set_option, configs, overrides, positive_seconds
 
 
@@ -89,7 +89,7 @@ def checked_run(args: argparse.Namespace) -> int:
     for key in ("data", "mapping", "logs"):  # the dataset, or the logs and their mapping
         value = getattr(args, key, None)
         inputs += [] if value is None else value if isinstance(value, list) else [value]
-    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs), use_cpus(args):
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
         return run(args)
 
 

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import add_cpus_option, add_overwrite, use_cpus
+from .common import add_cpus_option, add_overwrite
 from .knobs import add_set_option, configs, overrides, positive_seconds
 
 
@@ -75,8 +75,7 @@ def checked_run(args: argparse.Namespace) -> int:
         resumed = load_checkpoint(args.resume)
         spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
         check_compatible(resumed.spec, spec, ckpt=args.resume, data_name=args.dataset)
-    with use_cpus(args):
-        return run(args)
+    return run(args)
 
 
 def run(args: argparse.Namespace) -> int:

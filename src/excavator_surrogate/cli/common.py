@@ -81,11 +81,12 @@ def leaf_parsers(p: argparse.ArgumentParser) -> list[argparse.ArgumentParser]:
 
 
 def add_cpus_option(p: argparse.ArgumentParser) -> None:
-    """``--cpus N``: plan and run as a computer of ``N`` CPUs (sets ``EXSUR_CPUS``)."""
+    """``--cpus N``: plan and run as a computer of ``N`` CPUs (:func:`use_cpus` applies it)."""
     p.add_argument(
         "--cpus",
         type=_cpu_count,
         default=None,
+        dest="plan_cpus",
         metavar="N",
         help="plan the training for N CPUs and run that many workers (default: the CPUs this "
         "process may use, within a container's CPU quota; EXSUR_CPUS sets it too). The "
@@ -96,41 +97,29 @@ def add_cpus_option(p: argparse.ArgumentParser) -> None:
 
 def _cpu_count(text: str) -> int:
     """argparse ``type`` of ``--cpus``: a whole number >= 1."""
+    from ..cpus import parse_cpus
     from ..errors import ConfigError
 
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
+    n = parse_cpus(text)
+    if n is None:
         raise ConfigError(f"--cpus {text}: give a whole number of CPUs >= 1")
     return n
 
 
 @contextmanager
 def use_cpus(args: argparse.Namespace) -> Iterator[None]:
-    """Within the block, apply ``--cpus`` (if given) to this process and the workers it starts,
-    warning when it asks for more CPUs than this process may use; ``EXSUR_CPUS`` is restored
-    after (a command run in-process leaves no trace)."""
-    import os
-
-    from ..cpus import ENV, blas_threads, oversubscribed
+    """Within the block (every command, :func:`~excavator_surrogate.cli.main`): ``--cpus``, if
+    the command has it and it was given, as ``EXSUR_CPUS`` for this process and the workers it
+    starts (with a warning when it asks for more CPUs than this process may use), and NumPy's
+    BLAS threads at the CPU count (:func:`~excavator_surrogate.cpus.blas_threads`); the
+    environment is restored after (a command run in-process leaves no trace)."""
+    from ..cpus import ENV, blas_threads, environ_set, oversubscribed
     from ..io_utils import LOGGER_NAME
 
-    n = getattr(args, "cpus", None)
-    if n is None:
-        yield
-        return
-    before = os.environ.get(ENV)
-    os.environ[ENV] = str(n)
-    try:
-        warning = oversubscribed()
+    n = getattr(args, "plan_cpus", None)
+    with environ_set(ENV, None if n is None else str(n)):
+        warning = oversubscribed() if n is not None else None
         if warning:
             logging.getLogger(LOGGER_NAME).warning(f"--cpus: {warning}")
-        with blas_threads():  # NumPy's BLAS as an N-CPU computer's
+        with blas_threads():
             yield
-    finally:
-        if before is None:
-            os.environ.pop(ENV, None)
-        else:
-            os.environ[ENV] = before

@@ -433,10 +433,11 @@ def _pinned_cost(record: Mapping[str, Any]) -> str:
     )
 
 
-def environment_markdown(env: Mapping[str, Any] | None) -> str:
+def environment_markdown(env: Mapping[str, Any] | None, *, lead: str = "Trained on") -> str:
     """One line naming the computer and libraries a run computed with
     (:func:`excavator_surrogate.numerics.environment`; empty for records without it): where
-    two runs of the same data and seed differ, compare these first."""
+    two runs of the same data and seed differ, compare these first.  ``lead`` opens it
+    (``exsur info --computer``: "Computes on")."""
     if not env:
         return ""
     parts = [
@@ -452,7 +453,7 @@ def environment_markdown(env: Mapping[str, Any] | None) -> str:
     if env.get("mujoco"):
         parts.append(f"MuJoCo {env['mujoco']}")
     numerics = env.get("numerics", "native")
-    return f"Trained on {', '.join(parts)}; {numerics} numerics.\n"
+    return f"{lead} {', '.join(parts)}; {numerics} numerics.\n"
 
 
 def computer_markdown(env: Mapping[str, Any]) -> str:
@@ -466,7 +467,7 @@ def computer_markdown(env: Mapping[str, Any]) -> str:
     rows = "\n".join(f"| `{k}` | {cell(v)} |" for k, v in env.items())
     return (
         "# This computer\n\n"
-        + environment_markdown(env).replace("Trained on", "Computes on", 1)
+        + environment_markdown(env, lead="Computes on")
         + "\n| Key | Value |\n|---|---|\n"
         + rows
         + "\n\nThe same data and seed train the same model on any load of this computer. "
