@@ -150,7 +150,7 @@ def test_the_choice_takes_each_joint_from_the_kind_that_drives_it() -> None:
     plains = [with_map_joints(_plain_net(s), fit, [False, True], lags=(3, 5)) for s in (0, 1)]
     priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
     val = [_episode(7)]
-    model, record = choose_kinds(plains, priors, val)
+    model, record = choose_kinds(plains, priors, val, drive="validation")
     assert record["candidates"] == ["a"] and record["chosen"] == ["a"]
     assert record["val_theta_rmse_prior"][0] < 0.05 * record["val_theta_rmse_plain"][0]
     ep = _episode(9)
@@ -169,7 +169,7 @@ def test_when_every_joint_prefers_the_map_the_known_score_is_not_run_again(monke
     monkeypatch.setattr(sets, "free_run_error", lambda *a, **k: runs.append(1) or real(*a, **k))
     plains = [_plain_net(s) for s in (0, 1)]
     priors = [_prior_net(s + 10, exact=(True, True)) for s in (0, 1)]
-    model, record = choose_kinds(plains, priors, [_episode(7)])
+    model, record = choose_kinds(plains, priors, [_episode(7)], drive="validation")
     assert record["candidates"] == ["a", "b"] and record["chosen"] == ["a", "b"]
     assert len(record["tried"]) == 3 and len(runs) == 2
     assert "ensemble" in model.metrics and model.metrics["ensemble"]["n_member"] == 2
@@ -241,12 +241,12 @@ def test_the_margin_decides_where_a_tie_goes() -> None:
     carrier = _prior_net(10, exact=(False, False))
     priors = [in_prior_form(p, carrier) for p in plains[::-1]]  # no group pairs a net with itself
     val = [_episode(7)]
-    model, record = choose_kinds(plains, priors, val)
+    model, record = choose_kinds(plains, priors, val, drive="validation")
     assert record["candidates"] == [] and record["chosen"] == [] and record["margin"] == 0.05
     np.testing.assert_allclose(
         record["val_theta_rmse_prior"], record["val_theta_rmse_plain"], rtol=1e-5
     )
-    tied, record = choose_kinds(plains, priors, val, margin=-0.05)
+    tied, record = choose_kinds(plains, priors, val, drive="validation", margin=-0.05)
     assert record["candidates"] == ["a", "b"] and record["chosen"] == ["a", "b"]
     ep = _episode(9)
     np.testing.assert_allclose(free_run_checked(tied, ep), free_run_checked(model, ep), atol=1e-5)
@@ -296,9 +296,11 @@ def test_the_blend_drives_a_joint_where_the_kinds_err_in_opposite_ways() -> None
             b.net.prior.k_pos[0] *= 0.8
             b.net.prior.k_neg[0] *= 0.8
     val = [_episode(7)]
-    _, record = choose_kinds(plains, priors, val, blend=False)
+    _, record = choose_kinds(plains, priors, val, drive="validation", blend=False)
     assert record["chosen"] == ["b"] and record["blend"] is False and record["blended"] == []
-    model, record = choose_kinds(plains, priors, val)  # the default: with the blend
+    model, record = choose_kinds(
+        plains, priors, val, drive="validation"
+    )  # the default: with the blend
     assert record["chosen"] == ["a", "b"] and record["blended"] == ["a"]
     assert record["weights"] == [0.5, 1.0]
     assert record["val_theta_rmse_blend"][0] < 0.05 * record["val_theta_rmse_plain"][0]
@@ -321,8 +323,68 @@ def test_what_the_choice_made_the_model() -> None:
 
 def test_the_config_sets_the_choice_options() -> None:
     cfg = tiny_train_config(prior_margin=-0.05, prior_blend=False, val_steps=50)
-    assert choice_options(cfg) == {"max_steps": 50, "margin": -0.05, "blend": False}
+    assert choice_options(cfg) == {
+        "max_steps": 50,
+        "drive": "spanned",
+        "margin": -0.05,
+        "blend": False,
+    }
     assert choice_options(tiny_train_config(val_steps=0))["max_steps"] is None
+    assert choice_options(tiny_train_config(prior_drive="validation"))["drive"] == "validation"
+    with pytest.raises(ConfigError, match="prior_drive"):
+        tiny_train_config(prior_drive="best")
+
+
+def test_by_default_the_map_correcting_networks_drive_every_spanned_joint() -> None:
+    """Plain networks exact on joint b, map-correcting ones exact on joint a: the default drive
+    takes both joints from the map-correcting networks whatever validation says (their
+    ensemble, merged), records both kinds' validation scores, and compares nothing."""
+    fit = fit_prior(TRAIN, SPEC, max_delay=5)
+    plains = [with_map_joints(_plain_net(s), fit, [False, True], lags=(3, 5)) for s in (0, 1)]
+    priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
+    val = [_episode(7)]
+    model, record = choose_kinds(plains, priors, val)
+    assert record["drive"] == "spanned" and record["chosen"] == ["a", "b"]
+    assert record["tried"] == [] and record["weights"] == [1.0, 1.0]
+    assert model_kind(record) == "prior"
+    # b: the plain networks validated better, and were not asked
+    assert record["val_theta_rmse_plain"][1] < record["val_theta_rmse_prior"][1]
+    ep = _episode(9)
+    np.testing.assert_allclose(
+        free_run_checked(model, ep), free_run_checked(merge(priors), ep), atol=1e-5
+    )
+    assert "a, b: validation spans their commands" in record["why"]
+    table = choices_markdown({"kinds": record}, spec=SPEC)  # the plain kind: not an option
+    rows = [ln for ln in table.splitlines() if ln.startswith("| ") and "Joint" not in ln]
+    assert len(rows) == 2 and all(r.split("|")[2].strip().startswith("(") for r in rows)
+    assert "not compared" in table and "Close call" not in table
+
+
+def test_an_unspanned_joint_or_one_with_its_own_inputs_stays_plain_under_the_default_drive() -> (
+    None
+):
+    """The plain networks keep a joint whose validation spans too little of its commands, and
+    one that takes exogenous inputs its own way (the twins); the composite is the one of
+    those weights, and a model with no spanned joint is the plain ensemble."""
+    plains = [_plain_net(s) for s in (0, 1)]
+    priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
+    val = [_episode(7)]
+    ep = _episode(9)
+    model, record = choose_kinds(plains, priors, val, spanned=[True, False])
+    assert record["chosen"] == ["a"] and record["unspanned"] == ["b"]
+    assert model_kind(record) == "composite" and "b: validation commands span" in record["why"]
+    want = composite(plains, priors, [1.0, 0.0])
+    np.testing.assert_allclose(free_run_checked(model, ep), free_run_checked(want, ep), atol=1e-5)
+    twins = [_plain_net(s + 20) for s in (0, 1)]
+    model, record = choose_kinds(plains, priors, val, twins=twins, twin_joints=[False, True])
+    assert record["chosen"] == ["a"] and record["own_inputs"] == ["b"]
+    want = composite(plains, priors, [1.0, 0.0], twins=twins, twin_joints=[False, True])
+    np.testing.assert_allclose(free_run_checked(model, ep), free_run_checked(want, ep), atol=1e-5)
+    model, record = choose_kinds(plains, priors, val, spanned=[False, False])
+    assert record["chosen"] == [] and model_kind(record) == "plain"
+    np.testing.assert_allclose(
+        free_run_checked(model, ep), free_run_checked(merge(plains), ep), atol=1e-5
+    )
 
 
 def test_joints_the_static_map_will_pin_are_found_before_the_kind_choice() -> None:
@@ -342,9 +404,9 @@ def test_joints_the_static_map_will_pin_are_found_before_the_kind_choice() -> No
         assert map_pinned(dataclasses.replace(cfg, **off), net, TRAIN, val) is None
     plains = [_plain_net(s) for s in (0, 1)]
     priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
-    _, record = choose_kinds(plains, priors, val, pinned=[False, True])
+    _, record = choose_kinds(plains, priors, val, drive="validation", pinned=[False, True])
     assert record["pinned"] == ["b"]
-    _, record = choose_kinds(plains, priors, val)
+    _, record = choose_kinds(plains, priors, val, drive="validation")
     assert record["pinned"] == []
 
 

@@ -96,9 +96,9 @@ def test_an_unspanned_joint_stays_with_the_plain_networks_in_the_kind_choice():
     plains = [_plain_net(s) for s in (0, 1)]
     priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
     val = [_episode(7)]
-    _, record = choose_kinds(plains, priors, val)
+    _, record = choose_kinds(plains, priors, val, drive="validation")
     assert "a" in record["chosen"] and record["unspanned"] == []
-    _, record = choose_kinds(plains, priors, val, spanned=[False, True])
+    _, record = choose_kinds(plains, priors, val, drive="validation", spanned=[False, True])
     assert "a" not in record["chosen"] and record["unspanned"] == ["a"]
 
 

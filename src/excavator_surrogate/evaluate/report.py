@@ -268,6 +268,9 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
     # joints whose validation spans too little of their commands: only the networks compete
     unspanned = set((kinds or {}).get("unspanned") or []) | set((smap or {}).get("unspanned") or [])
     simple = {"map-correcting networks", "even blend", "static map"}
+    # prior_drive = "spanned": the kinds are scored for the record, not compared
+    fixed = bool(kinds) and kinds.get("drive") == "spanned"
+    kind_cols = {"plain networks", "map-correcting networks", "even blend"}
     lines = [
         "",
         (
@@ -294,8 +297,15 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
             driver = "plain networks"
         if driver not in cols:  # a record that lacks its driver's scores: nothing to show
             return ""
+        # the kind of network the joint has under the fixed rule (under the map too)
+        own_kind = "map-correcting networks" if name in chosen else "plain networks"
         label, f = _row_label(spec, "theta", name)
-        allowed = [k for k in cols if not (name in unspanned and k in simple)]
+        allowed = [
+            k
+            for k in cols
+            if not (name in unspanned and k in simple)
+            and not (fixed and k in kind_cols and k != own_kind)
+        ]
         mine = cols[driver][j]
         others = [cols[k][j] for k in allowed if k != driver]
         ratio = min(others) / mine if others and mine > 0 else None
@@ -322,6 +332,15 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
             "(In parentheses: not an option there. The joint's validation commands span too "
             "little of its training command range to vouch for a simpler model, so the "
             "networks drive it.)",
+        ]
+    if fixed:
+        lines += [
+            "",
+            "The map-correcting networks drive every joint whose validation spans its commands "
+            "(not one that takes exogenous inputs its own way), the plain networks the rest: "
+            "the two kinds are scored on validation for the record, not compared (in "
+            "parentheses), as one validation segment misranked them off the training's "
+            "conditions (`--set train.prior_drive=validation` compares them).",
         ]
     if close:
         lines += [
@@ -375,10 +394,12 @@ def _kinds_markdown(record: Mapping[str, Any] | None) -> str:
             parts.append(f"the even blend of both kinds drives {', '.join(blended)}")
         rest = len(chosen) < len(record.get("names") or chosen)
         who = ", ".join(parts) + (", the plain networks the other joints" if rest else "")
-    return (
-        f"\nTwo kinds of network: {who}, chosen on the validation free run "
-        f"({record.get('why', '')}).\n"
+    how = (
+        "by the rule for joints whose validation spans their commands"
+        if record.get("drive") == "spanned"
+        else "chosen on the validation free run"
     )
+    return f"\nTwo kinds of network: {who}, {how} ({record.get('why', '')}).\n"
 
 
 def _map_markdown(record: Mapping[str, Any] | None) -> str:

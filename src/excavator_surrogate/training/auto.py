@@ -36,9 +36,11 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   network does not tie the dynamics to where the machine points (it did: on the continuous
   case the test free run's error changed up to 5x with the swing's starting direction);
 - two kinds of network (:mod:`.kinds`): beside the plain members, half as many that correct
-  the static valve map (dead zone, gain per direction, delay); per joint, the kind whose
-  ensemble validates better drives it, or the even blend of both where that validates
-  better still.  Also when the run chooses its exogenous inputs (:mod:`.variants`): the
+  the static valve map (dead zone, gain per direction, delay); the map-correcting networks
+  drive every joint whose validation spans its commands, the plain ones the rest, without a
+  comparison on validation (``prior_drive``: on the operator logs one validation segment
+  misranked the kinds, and the map-correcting networks held better off the training's
+  conditions; docs/real-history.md, session 87).  Also when the run chooses its exogenous inputs (:mod:`.variants`): the
   inputs are chosen first, then the rest of the plain members and the map-correcting
   networks train the chosen way (8 trainings in the budget instead of 6); on the sessions
   case with its throttle the bucket lost 1.4-2.9x without them (docs/real-history.md).
@@ -260,10 +262,18 @@ def auto_config(
             )
         )
     if kinds:
+        rule = (
+            "per joint, the kind whose ensemble validates better drives it, or the even blend "
+            "of both"
+            if str(overrides.get("prior_drive", TrainConfig.prior_drive)) == "validation"
+            else "they drive every joint whose validation spans its commands, the plain ones "
+            "the rest, without a comparison on validation (on the operator logs one validation "
+            "segment misranked the kinds, and the map-correcting networks held better off the "
+            "training's conditions)"
+        )
         why.append(
             f"two kinds of network: beside the {members} plain member(s), "
-            f"{prior_members(members)} correct the static valve map (same seeds); per joint, "
-            "the kind whose ensemble validates better drives it, or the even blend of both "
+            f"{prior_members(members)} correct the static valve map (same seeds); {rule} "
             f"({trainings(members, probe=probe, kinds=True)} trainings in the budget)"
         )
     elif spans is not None and not any(spanned) and "prior_choice" not in overrides:

@@ -201,23 +201,31 @@ class TrainConfig(PresetConfig, table="train"):
     not the paper's; an option, not the recipe's: docs/real-history.md has where it helped)."""
     prior_choice: bool = False
     """Beside the ``members`` plain networks, about half as many more correct the static map
-    (as with ``prior``, the same seeds); per joint, the kind whose ensemble validates better
-    (or their even blend, ``prior_blend``) drives it (:mod:`.kinds`; ours; the recipe turns
-    it on where validation spans a joint's commands, ``choice_min_span``)."""
+    (as with ``prior``, the same seeds); per joint, one kind drives it (``prior_drive``;
+    :mod:`.kinds`; ours; the recipe turns it on where validation spans a joint's commands,
+    ``choice_min_span``)."""
+    prior_drive: str = "spanned"
+    """With ``prior_choice``: which joints the map-correcting networks drive. ``"spanned"``:
+    every joint whose validation spans its commands (``choice_min_span``) and that does not
+    take exogenous inputs its own way, without a comparison on validation (one validation
+    segment misranked the kinds on the operator logs; :mod:`.kinds`); ``"validation"``: per
+    joint, the kind (or the even blend) that validates better, kept as a set."""
     prior_margin: float = 0.05
-    """With ``prior_choice``: a joint is a candidate for the map-correcting networks when their
-    validation angle RMSE on it is below ``1 - prior_margin`` times the plain ensemble's (a near
-    tie stays plain; negative: a near tie goes to the map-correcting networks; :mod:`.kinds`)."""
+    """With ``prior_drive = "validation"``: a joint is a candidate for the map-correcting
+    networks when their validation angle RMSE on it is below ``1 - prior_margin`` times the
+    plain ensemble's (a near tie stays plain; negative: a near tie goes to the map-correcting
+    networks; :mod:`.kinds`)."""
     prior_blend: bool = True
-    """With ``prior_choice``: the even blend of both kinds (each ensemble's omega weighted 1/2)
-    is a third option per joint beside the plain and the map-correcting ensemble, held to the
-    same margin over the plain one; the lowest validation angle RMSE of the options drives the
-    joint (:mod:`.kinds`; false: each joint is one kind's)."""
+    """With ``prior_drive = "validation"``: the even blend of both kinds (each ensemble's
+    omega weighted 1/2) is a third option per joint beside the plain and the map-correcting
+    ensemble, held to the same margin over the plain one; the lowest validation angle RMSE of
+    the options drives the joint (:mod:`.kinds`; false: each joint is one kind's)."""
     prior_skip_pinned: bool = True
-    """With ``prior_choice`` and ``static_map``: a joint that the static map choice will put on
-    the map whatever the networks (``map_periodic``: its delayed map alone validates with angle
-    R^2 >= 0.95) cannot refuse a set of the kind choice on its own score; it still counts in
-    the whole validation error that ranks the sets (:mod:`.kinds`; false: every joint can)."""
+    """With ``prior_drive = "validation"`` and ``static_map``: a joint that the static map
+    choice will put on the map whatever the networks (``map_periodic``: its delayed map alone
+    validates with angle R^2 >= 0.95) cannot refuse a set of the kind choice on its own score;
+    it still counts in the whole validation error that ranks the sets (:mod:`.kinds`; false:
+    every joint can)."""
     choice_min_span: float = 0.5
     """With ``static_map`` or ``prior_choice``: a joint may follow the map, or the networks
     that correct it, only where validation commands it over at least this share of the
@@ -295,6 +303,10 @@ class TrainConfig(PresetConfig, table="train"):
             (
                 0.0 <= self.choice_min_span <= 1.0,
                 "choice_min_span must be in [0, 1] (0 = every joint may follow the map)",
+            ),
+            (
+                self.prior_drive in ("spanned", "validation"),
+                f"prior_drive = {self.prior_drive!r} must be spanned or validation",
             ),
             (
                 -1.0 < self.prior_margin < 1.0,
