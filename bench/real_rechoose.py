@@ -21,9 +21,10 @@ A run that trained more networks than today's plan has stands in for it: the pla
 the plan trains (a member's seed and training do not depend on how many there are, as long
 as no wall-time cap cut them).
 
-``--set`` changes the ``[train]`` fields the choices read (``prior_choice``, ``prior_margin``,
-``prior_blend``, ``prior_skip_pinned``, ``static_map``, ``map_periodic``, ``map_parallel``;
-e.g. ``--set train.prior_blend=false``).  ``--sim-seed`` must be the one the
+``--set`` changes the ``[train]`` fields the choices read (``prior_choice``, ``prior_drive``,
+``prior_margin``, ``prior_blend``, ``prior_skip_pinned``, ``static_map``, ``map_periodic``,
+``map_parallel``; e.g. ``--set train.prior_drive=validation``, the choice of sessions 25-86).
+``--sim-seed`` must be the one the
 run simulated (its JSON line's ``sim_seed``).  Prints each seed's choices and a table per
 scored set, and ends with ONE JSON line whose ``goals`` say whether the median beats the
 structured baseline on every joint and whether every seed chose what its ``best.pt`` records
