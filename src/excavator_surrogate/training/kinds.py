@@ -286,19 +286,17 @@ def choose_kinds(
     n_joint = len(names)
     sides: dict[str, Any] = {"twins": twins, "twin_joints": twin_joints}  # the pairs, if any
     merged = {"plain": plain_ensemble(plains, **sides), "prior": merge(list(priors))}
-    if drive == "spanned":
-        return _drive_spanned(
-            plains, priors, val, merged, max_steps=max_steps, spanned=spanned, **sides
-        )
-    if blend:
+    if blend and drive != "spanned":
         merged["blend"] = composite(plains, priors, [BLEND] * n_joint, **sides)
     vals = {k: free_run_error(m, list(val), max_steps=max_steps) for k, m in merged.items()}
+    spanned = list(spanned) if spanned is not None else [True] * n_joint
+    if drive == "spanned":
+        return _drive_spanned(plains, priors, merged, vals, spanned=spanned, **sides)
     base = vals["plain"]
     # per joint, the map-correcting networks' weight: the option (1 = their ensemble, 1/2 =
     # the even blend) with the lowest validation angle RMSE among those below (1 - margin)
     # times the plain ensemble's; 0 (plain) if none is
     scored = {1.0: vals["prior"]} | ({BLEND: vals["blend"]} if blend else {})
-    spanned = list(spanned) if spanned is not None else [True] * n_joint
     weights = []
     for j, plain in enumerate(base["theta_rmse"]):
         ok = [
@@ -309,20 +307,13 @@ def choose_kinds(
         weights.append(-min(ok)[1] if ok and spanned[j] else 0.0)
     cand = [w > 0 for w in weights]
     record: dict[str, Any] = {
-        "names": names,
-        "val_theta_rmse_plain": base["theta_rmse"],
-        "val_theta_rmse_prior": vals["prior"]["theta_rmse"],
-        "val_error_plain": base["val_error"],
-        "val_error_prior": vals["prior"]["val_error"],
+        **_scores_record(names, vals, spanned),
         "candidates": [n for n, c in zip(names, cand) if c],
         "margin": margin,
         "blend": blend,
-        "tried": [],
         "chosen": [],
         "weights": [0.0] * n_joint,
-        "blended": [],
         "pinned": [n for n, p in zip(names, pinned or []) if p],
-        "unspanned": [n for n, sp in zip(names, spanned) if not sp],
     }
     if blend:
         record["val_theta_rmse_blend"] = vals["blend"]["theta_rmse"]
@@ -379,41 +370,49 @@ def choose_kinds(
     return model, record
 
 
+def _scores_record(
+    names: Sequence[str], vals: Mapping[str, Mapping[str, Any]], spanned: Sequence[bool]
+) -> dict[str, Any]:
+    """The part of :func:`choose_kinds`'s record that both ways of giving the joints their
+    kind share: both ensembles' validation scores and the unspanned joints (no set tried, no
+    joint blended yet)."""
+    return {
+        "names": list(names),
+        "val_theta_rmse_plain": vals["plain"]["theta_rmse"],
+        "val_theta_rmse_prior": vals["prior"]["theta_rmse"],
+        "val_error_plain": vals["plain"]["val_error"],
+        "val_error_prior": vals["prior"]["val_error"],
+        "tried": [],
+        "blended": [],
+        "unspanned": [n for n, sp in zip(names, spanned) if not sp],
+    }
+
+
 def _drive_spanned(
     plains: Sequence[Surrogate],
     priors: Sequence[Surrogate],
-    val: Sequence[Any],
     merged: Mapping[str, Surrogate],
+    vals: Mapping[str, Mapping[str, Any]],
     *,
-    max_steps: int | None,
-    spanned: Sequence[bool] | None,
+    spanned: Sequence[bool],
     twins: Sequence[Surrogate] | None,
     twin_joints: Sequence[bool] | None,
 ) -> tuple[Surrogate, dict[str, Any]]:
     """:func:`choose_kinds` with ``drive = "spanned"``: the map-correcting networks drive every
     spanned joint that takes no exogenous inputs of its own (``twin_joints``), the plain
-    networks the rest; both ensembles' validation scores go in the record, unused."""
+    networks the rest; both ensembles' validation scores (``vals`` of ``merged``) go in the
+    record, unused."""
     names = list(plains[0].spec.names)
-    n_joint = len(names)
-    spanned = list(spanned) if spanned is not None else [True] * n_joint
-    own_inputs = list(twin_joints) if twin_joints is not None else [False] * n_joint
+    own_inputs = list(twin_joints) if twin_joints is not None else [False] * len(names)
     joints = [bool(s) and not bool(t) for s, t in zip(spanned, own_inputs)]
-    vals = {k: free_run_error(m, list(val), max_steps=max_steps) for k, m in merged.items()}
     weights = [1.0 if p else 0.0 for p in joints]
     record: dict[str, Any] = {
-        "names": names,
+        **_scores_record(names, vals, spanned),
         "drive": "spanned",
-        "val_theta_rmse_plain": vals["plain"]["theta_rmse"],
-        "val_theta_rmse_prior": vals["prior"]["theta_rmse"],
-        "val_error_plain": vals["plain"]["val_error"],
-        "val_error_prior": vals["prior"]["val_error"],
         "candidates": [n for n, p in zip(names, joints) if p],
-        "tried": [],
         "chosen": [n for n, p in zip(names, joints) if p],
         "weights": weights,
-        "blended": [],
         "pinned": [],
-        "unspanned": [n for n, sp in zip(names, spanned) if not sp],
         "own_inputs": [n for n, t in zip(names, own_inputs) if t],
     }
     rest = [
