@@ -20,6 +20,7 @@ from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.api import train
 from excavator_surrogate.training.kinds import (
+    choice_joints,
     choice_options,
     choose_kinds,
     composite,
@@ -402,6 +403,11 @@ def test_joints_the_static_map_will_pin_are_found_before_the_kind_choice() -> No
         {"map_periodic": False},
     ):
         assert map_pinned(dataclasses.replace(cfg, **off), net, TRAIN, val) is None
+    # only the validation rule reads the pinned joints: the span rule does not pay for them
+    validation = choice_joints(dataclasses.replace(cfg, prior_drive="validation"), net, TRAIN, val)
+    assert validation["pinned"] == [True, True]
+    spanned = choice_joints(cfg, net, TRAIN, val)
+    assert spanned["pinned"] is None and spanned["spanned"] == validation["spanned"]
     plains = [_plain_net(s) for s in (0, 1)]
     priors = [_prior_net(s + 10, exact=(True, False)) for s in (0, 1)]
     _, record = choose_kinds(plains, priors, val, drive="validation", pinned=[False, True])

@@ -223,14 +223,26 @@ def map_pinned(
     return pinned if any(pinned) else None
 
 
+def spanned_joints(
+    cfg: TrainConfig, carrier: Surrogate, train: Sequence[Any], val: Sequence[Any]
+) -> list[bool]:
+    """(n_joint,) the joints whose validation commands span enough of the training's command
+    range (:func:`~.span.joint_spans` at ``cfg.choice_min_span``)."""
+    return list(joint_spans(train, val, carrier.spec, min_span=cfg.choice_min_span)[1])
+
+
 def choice_joints(
     cfg: TrainConfig, carrier: Surrogate, train: Sequence[Any], val: Sequence[Any]
 ) -> dict[str, Any]:
     """The per-joint keyword options of :func:`choose_kinds` that the data and ``cfg`` set:
-    ``pinned`` (:func:`map_pinned`) and ``spanned`` (:func:`~.span.joint_spans` at
-    ``cfg.choice_min_span``)."""
-    _, spanned = joint_spans(train, val, carrier.spec, min_span=cfg.choice_min_span)
-    return {"pinned": map_pinned(cfg, carrier, train, val), "spanned": spanned}
+    ``spanned`` (:func:`spanned_joints`) and ``pinned`` (:func:`map_pinned`; only the
+    validation rule reads it, so under ``prior_drive = "spanned"`` it is None and the map's
+    validation free run is not paid for)."""
+    reads_pinned = cfg.prior_drive == "validation"
+    return {
+        "pinned": map_pinned(cfg, carrier, train, val) if reads_pinned else None,
+        "spanned": spanned_joints(cfg, carrier, train, val),
+    }
 
 
 def choice_options(cfg: TrainConfig) -> dict[str, Any]:

@@ -67,6 +67,7 @@ from .kinds import (
     model_kind,
     plain_ensemble,
     prior_members,
+    spanned_joints,
 )
 from .records import write_config
 
@@ -226,8 +227,8 @@ def decide_inputs(
         ``(record, keep, joints, options)``: the choice's record (:func:`choice_record`),
         :func:`choose_inputs`'s verdict, :func:`choose_input_joints`'s joints (None where
         not tried), and the kind choice's per-joint options found on the way
-        (:func:`~.kinds.choice_joints` with ``n_prior``, else ``{"pinned": ...}``; empty
-        where not needed).
+        (``pinned``: :func:`~.kinds.map_pinned`, which the input choice reads too, and with
+        ``n_prior`` ``spanned``: :func:`~.kinds.spanned_joints`; empty where not needed).
     """
     max_steps = cfg.val_steps or None
     vals = {
@@ -249,11 +250,10 @@ def decide_inputs(
     ):
         train_eps = split_episodes(cfg, dataset)[0]
         carrier = ignore[0]
-        options = (
-            choice_joints(cfg, carrier, train_eps, val_eps)
-            if n_prior
-            else {"pinned": map_pinned(cfg, carrier, train_eps, val_eps)}
-        )
+        # the input choice reads the pinned joints under either kind rule
+        options = {"pinned": map_pinned(cfg, carrier, train_eps, val_eps)}
+        if n_prior:
+            options["spanned"] = spanned_joints(cfg, carrier, train_eps, val_eps)
         joints, tried = choose_input_joints(
             use, ignore, vals, val_eps, max_steps=max_steps, pinned=options["pinned"]
         )
