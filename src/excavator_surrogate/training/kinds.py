@@ -427,15 +427,14 @@ def _drive_spanned(
         "pinned": [],
         "own_inputs": [n for n, t in zip(names, own_inputs) if t],
     }
-    rest = [
-        f"{', '.join(record['unspanned'])}: validation commands span too little of the training's"
-        if record["unspanned"]
-        else "",
-        f"{', '.join(record['own_inputs'])}: takes the exogenous inputs its own way"
-        if record["own_inputs"]
-        else "",
-    ]
-    rest = [r for r in rest if r]
+    rest = []  # why the other joints stay plain
+    if record["unspanned"]:
+        rest.append(
+            f"{', '.join(record['unspanned'])}: validation commands span too little of the "
+            "training's"
+        )
+    if record["own_inputs"]:
+        rest.append(f"{', '.join(record['own_inputs'])}: takes the exogenous inputs its own way")
     if not any(joints):
         record["why"] = "the plain networks drive every joint (" + "; ".join(rest) + ")"
         return merged["plain"], record
