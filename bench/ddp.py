@@ -12,12 +12,16 @@ Throughput = training windows per second of the training phase (``n_sample / epo
 over the epochs after the first, from ``log.csv``; validation excluded).  The runs alternate
 for ``--rounds`` rounds and the best round of each counts (the machine may be shared; the load
 average at the start is recorded).  Prints one line per run, the ratio ``ddp / 1proc``, and
-ends with ONE JSON line.
+ends with ONE JSON line, with a ``goals`` object of booleans: with one core per process, data
+parallelism trains at least 1.5x the windows per second of one process (the goal is None on a
+computer with fewer cores than ``--nproc``: there it cannot hold).  The default network is the
+paper's 2 x 128 LSTM: at 2 x 64 the step is so short that the gradient exchange eats the gain
+(ratio 0.99 on a quiet 2-core Zen 4, against 1.8-2.5 at 2 x 128).
 
 Usage::
 
-    python bench/ddp.py                       # ~1-2 min on a 2-core machine
-    python bench/ddp.py --batch 64 --hidden 128 --epochs 4
+    python bench/ddp.py                       # ~1 min on a 2-core machine
+    python bench/ddp.py --batch 64 --hidden 64 --epochs 4
 """
 
 from __future__ import annotations
@@ -33,13 +37,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from excavator_surrogate.cpus import available_cpus
 from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
 
 
 def _parse() -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--batch", type=int, default=128, help="per-rank batch B (global = 2 B)")
-    p.add_argument("--hidden", type=int, default=64, help="LSTM width")
+    p.add_argument("--hidden", type=int, default=128, help="LSTM width")
     p.add_argument("--layers", type=int, default=2, help="LSTM layers")
     p.add_argument("--window", type=int, default=30, help="window W")
     p.add_argument("--horizon", type=int, default=1, help="H")
@@ -52,6 +57,10 @@ def _parse() -> argparse.Namespace:
         "--threads-run", action="store_true", help="also time 1 process with 2 torch threads"
     )
     return p.parse_args()
+
+
+GOAL_RATIO = 1.5
+"""Data-parallel training on ``--nproc`` processes against one process, same global batch."""
 
 
 def _preset(path: Path, args: argparse.Namespace, *, batch: int, threads: int) -> Path:
@@ -132,6 +141,7 @@ def main() -> int:
         "bench": "ddp",
         "nproc": args.nproc,
         "cpu_count": os.cpu_count(),
+        "available_cpus": available_cpus(),
         "per_rank_batch": args.batch,
         "global_batch": g,
         "window": args.window,
@@ -147,6 +157,10 @@ def main() -> int:
             if "1proc_2thr" in runs
             else None
         ),
+    }
+    cores = available_cpus()
+    result["goals"] = {
+        f"ddp_ge_{GOAL_RATIO:g}x_1proc": (ratio >= GOAL_RATIO) if cores >= args.nproc else None
     }
     if args.out is None:
         shutil.rmtree(work, ignore_errors=True)

@@ -11,7 +11,12 @@ Steps per second of :class:`SurrogateEngine` (stateful, the vector env's kernel)
 
 Printed ratios: ``merged_K / single`` (the price of the ensemble) and
 ``merged_K / separate_K`` (what merging saves).  Models are untrained: speed does not depend
-on training.  Ends with ONE JSON line.  Usage::
+on training.  Before timing, both ensembles run the same 50 steps from the same angles and
+must agree (the merged block network is the members' mean, not an approximation of it).
+Ends with ONE JSON line, with a ``goals`` object of booleans: the two agree; one env steps
+the merged ensemble faster than the members one by one (what merging is for: a planner or
+a single simulated machine); at 1024 envs merging costs at most half the separate rate (its
+zero blocks are real multiply-adds: a floor against regressions, not a win).  Usage::
 
     python bench/ensemble.py [--members 2] [--seconds 1]
 """
@@ -80,6 +85,32 @@ def rate(step, n_envs: int, seconds: float) -> float:
     return n * n_envs / (time.perf_counter() - t0)
 
 
+GOAL_MERGED_OVER_SEPARATE_N1 = 1.0
+"""One env: the merged ensemble against its members stepped one after another."""
+GOAL_MERGED_OVER_SEPARATE_N1024 = 0.5
+"""1024 envs: the floor of the same ratio (block-diagonal weights are dense work)."""
+AGREE_RAD = 1e-5
+"""Largest angle difference [rad] between the two ensembles after 50 steps."""
+
+
+def agreement(members: list[Surrogate], n_envs: int = 8, n_step: int = 50) -> float:
+    """Largest |theta_merged - theta_separate| [rad] over ``n_step`` steps of random commands
+    from the same angles (``n_envs`` envs)."""
+    rng = np.random.default_rng(1)
+    th0 = np.tile([0.0, 0.0, 1.5, 0.5], (n_envs, 1))
+    merged = SurrogateEngine(merge(members), n_envs=n_envs)
+    parts = [SurrogateEngine(m, n_envs=n_envs) for m in members]
+    for e in (merged, *parts):
+        e.reset(th0)
+    worst = 0.0
+    for _ in range(n_step):
+        u = rng.uniform(-1000, 1000, (n_envs, 4))
+        merged.step(u)
+        step_separately(parts, u)
+        worst = max(worst, float((merged.theta - parts[0].theta).abs().max()))
+    return worst
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--members", type=int, default=2)
@@ -89,7 +120,9 @@ def main() -> None:
     k = args.members
     members = [member(s) for s in range(k)]
     theta0 = np.tile([0.0, 0.0, 1.5, 0.5], (1, 1))
-    result: dict[str, float] = {}
+    diff = agreement(members)
+    print(f"merged vs separate over 50 steps: largest angle difference {diff:.2e} rad")
+    result: dict[str, float | dict[str, bool]] = {"max_theta_diff_rad": diff}
     for n_envs in (1, 1024):
         th0 = np.repeat(theta0, n_envs, axis=0)
         single = SurrogateEngine(members[0], n_envs=n_envs)
@@ -114,6 +147,15 @@ def main() -> None:
             f"separate x{k} {r_sep:10.0f}/s  merged/single {r_merged / r_single:.2f}  "
             f"merged/separate {r_merged / r_sep:.2f}"
         )
+    result["goals"] = {
+        "merged_equals_separate": diff <= AGREE_RAD,
+        "merged_faster_than_separate_n1": bool(
+            result["merged_over_separate_n1"] >= GOAL_MERGED_OVER_SEPARATE_N1  # type: ignore[operator]
+        ),
+        f"merged_ge_{GOAL_MERGED_OVER_SEPARATE_N1024:g}x_separate_n1024": bool(
+            result["merged_over_separate_n1024"] >= GOAL_MERGED_OVER_SEPARATE_N1024  # type: ignore[operator]
+        ),
+    }
     print(json.dumps(result))
 
 
