@@ -4,12 +4,14 @@
   metrics per model (and the rollouts, for plotting).
 - :func:`evaluate_checkpoint`: one checkpoint (+ optional comparison checkpoints and the ARX
   baseline fitted on the training split) on a dataset split; writes ``metrics.json``,
-  ``table.md`` and ``cbe.png`` (``cbe_<episode>.png`` for further episodes) into ``out``.
+  ``table.md`` and ``cbe.png`` (the first episode; ``cbe_<episode>.png`` for the further
+  episodes holding the largest shares of the error, :func:`figure_episodes`) into ``out``.
 
 ``metrics.json``::
 
     {"omega": {"<joint>": {"rmse", "mae", "r2"}}, "theta": {...},
-     "run": {checkpoint, dataset, split, reference, mode, model, n_episode, n_step_scored, warmup, episodes, ...},
+     "run": {checkpoint, dataset, split, reference, mode, model, n_episode, n_step_scored, warmup,
+             episodes: [{name, n_step, theta_rmse: {joint}, theta_share: {joint}}], ...},
      "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines
      "linkage": {"<joint>": {"rmse", "mae", "r2"}},  # linear joints with a linkage: angles [rad]
      "uncertainty": {...}}   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
@@ -39,8 +41,8 @@ from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
-from .metrics import cbe_metrics, regression_metrics
-from .report import report_markdown, training_markdown
+from .metrics import cbe_metrics, episode_errors, regression_metrics
+from .report import episodes_markdown, report_markdown, training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
 _log = logging.getLogger(__name__)
@@ -207,7 +209,10 @@ def evaluate_checkpoint(
         "n_step_scored": int(sum(len(r.time) - r.warmup for r in main_runs)),
         "warmup": sur.window,
         "dt": sur.spec.dt,
-        "episodes": [{"name": r.name, "n_step": len(r.time)} for r in main_runs],
+        "episodes": [
+            {"name": r.name, "n_step": len(r.time), **err}
+            for r, err in zip(main_runs, episode_errors(main_runs, sur.spec), strict=True)
+        ],
         "seconds": round(time.monotonic() - t0, 3),
         # the model trained on the episodes it is scored on: the training split, or the
         # validation runs the recipe trains on (``train_on_val``, docs/real.md)
@@ -230,6 +235,8 @@ def evaluate_checkpoint(
     result["uncertainty"] = uncertainty_metrics(sur, unc_runs)
     if len(models) > 1:
         result["compare"] = {k: v for k, v in metrics.items() if k != primary}
+    shown = figure_episodes(run_info["episodes"], max_figures) if figure else []
+    names = ["cbe.png" if k == 0 else f"cbe_{main_runs[i].name}.png" for k, i in enumerate(shown)]
     out = Path(out)
     with atomic_files(out, kind="evaluation") as tmp:  # all files or none
         write_json(tmp / "metrics.json", _json_safe(result))
@@ -238,6 +245,7 @@ def evaluate_checkpoint(
             report_markdown(
                 metrics, primary=primary, run=run_info, paper=paper, spec=sur.spec, linkage=link
             )
+            + episodes_markdown(run_info["episodes"], spec=sur.spec, figures=names)
             + training_markdown(result["training"], spec=sur.spec)
             + "\n"
             + uncertainty_markdown(result["uncertainty"], sur.spec.names),
@@ -245,8 +253,8 @@ def evaluate_checkpoint(
         if figure:
             from ..plotting.cbe import plot_cbe
 
-            for i, r in enumerate(main_runs[:max_figures]):
-                name = "cbe.png" if i == 0 else f"cbe_{r.name}.png"
+            for i, name in zip(shown, names, strict=True):
+                r = main_runs[i]
                 f = np.array([j.display_factor for j in sur.spec.joints])  # mm for a stroke in mm
                 preds = {
                     label: (runs[label][i].omega_hat * f, runs[label][i].theta_hat * f)
@@ -277,6 +285,21 @@ def evaluate_checkpoint(
                     scores=scores,
                 )
     return result
+
+
+def figure_episodes(episodes: Sequence[Mapping[str, Any]], max_figures: int) -> list[int]:
+    """Indices of the episodes to draw, at most ``max_figures``: the first (``cbe.png``), then
+    the others by the largest share of any joint's pooled angle error they hold
+    (``theta_share`` of :func:`~.metrics.episode_errors`; ties and unscored ones in order)."""
+    if max_figures <= 0 or not episodes:
+        return []
+
+    def worst(e: Mapping[str, Any]) -> float:
+        shares = [v for v in (e.get("theta_share") or {}).values() if v is not None]
+        return max(shares, default=0.0)
+
+    rest = sorted(range(1, len(episodes)), key=lambda i: (-worst(episodes[i]), i))
+    return [0, *rest[: max_figures - 1]]
 
 
 def _plot_units(spec: MachineSpec) -> list[tuple[str, str]] | None:

@@ -110,3 +110,45 @@ def min_r2(metrics: dict[str, Any], key: str = "theta") -> float:
     """Smallest R^2 over joints of ``metrics[key]`` (``-inf`` if any is undefined)."""
     vals = [v["r2"] for v in metrics[key].values()]
     return min((v if v is not None else -math.inf) for v in vals)
+
+
+def episode_errors(runs: Sequence[RunLike], spec: MachineSpec) -> list[dict[str, Any]]:
+    """Where the angle error is: each episode's own angle RMSE per joint, and its share of
+    the joint's squared error pooled over ``runs`` (warm-up excluded, periodic joints
+    unwrapped, as :func:`cbe_metrics` scores them)::
+
+        share[e, j] = SSE[e, j] / sum_e SSE[e, j],  SSE[e, j] = sum_k (theta_hat - theta)^2
+
+    so a joint's pooled RMSE^2 is ``sum_e share[e, j] * SSE`` over its samples, and the shares
+    of a joint sum to 1.
+
+    Returns:
+        One ``{"theta_rmse": {joint: float | None}, "theta_share": {joint: float | None}}``
+        per run, in order (``None``: no scored sample, no error at all, or a non-finite one).
+    """
+    sse, count = [], []
+    for r in runs:
+        w = r.warmup
+        err = r.theta_hat[w:] - unwrap_periodic(r.theta_ref, spec)[w:]
+        with np.errstate(invalid="ignore", over="ignore"):
+            sse.append(np.sum(np.asarray(err, dtype=np.float64) ** 2, axis=0))
+        count.append(len(err))
+    sse_a = np.array(sse).reshape(len(runs), spec.n_joint)
+    total = sse_a.sum(axis=0)
+    out = []
+    for e, n in enumerate(count):
+        rmse = np.sqrt(sse_a[e] / n) if n else np.full(spec.n_joint, np.nan)
+        out.append(
+            {
+                "theta_rmse": {name: _finite(rmse[j]) for j, name in enumerate(spec.names)},
+                "theta_share": {
+                    name: (
+                        _finite(sse_a[e, j] / total[j])
+                        if np.isfinite(total[j]) and total[j] > 0
+                        else None
+                    )
+                    for j, name in enumerate(spec.names)
+                },
+            }
+        )
+    return out

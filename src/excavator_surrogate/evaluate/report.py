@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..spec import MachineSpec
@@ -184,6 +184,57 @@ def report_markdown(
     if len(by_model) > 1:
         parts += ["## Comparison", "", comparison_table(by_model, spec=spec)]
     return "\n".join(parts)
+
+
+EPISODES_TOP = 3
+"""Episodes listed per joint under *Where the error is*."""
+
+
+def episodes_markdown(
+    episodes: Sequence[Mapping[str, Any]],
+    *,
+    spec: MachineSpec | None = None,
+    figures: Sequence[str] = (),
+    top: int = EPISODES_TOP,
+) -> str:
+    """*Where the error is*: per joint, the ``top`` episodes holding the largest shares of its
+    pooled squared angle error, each with its own RMSE (``run.episodes`` of ``metrics.json``
+    with :func:`~.metrics.episode_errors`' fields), and the episode figures written; empty
+    for one episode (the table above is that episode)."""
+    if len(episodes) < 2 or "theta_share" not in episodes[0]:
+        return ""
+    names = list(episodes[0]["theta_share"])
+    lines = [
+        "## Where the error is",
+        "",
+        f"The {min(top, len(episodes))} episodes holding most of each joint's squared angle "
+        "error (share of the pooled sum; the joint's RMSE above is the square root of that "
+        "sum over its samples):",
+        "",
+        "| Joint | Episode | its RMSE"
+        + ("" if spec is not None and spec.any_linear else " [rad]")
+        + " | share |",
+        "|---|---|---:|---:|",
+    ]
+    for name in names:
+        label, f = _row_label(spec, "theta", name)
+        ranked = sorted(
+            (e for e in episodes if e["theta_share"].get(name) is not None),
+            key=lambda e: -e["theta_share"][name],
+        )[:top]
+        for i, e in enumerate(ranked):
+            lines.append(
+                f"| {label if i == 0 else ''} | {e['name']} | {_fmt(e['theta_rmse'][name], f)} "
+                f"| {100 * e['theta_share'][name]:.0f} % |"
+            )
+    lines.append("")
+    if figures:
+        lines += [
+            "Figures: " + ", ".join(f"`{x}`" for x in figures) + " (the first episode, then "
+            "those holding the largest share of any joint's error).",
+            "",
+        ]
+    return "\n".join(lines) + "\n"
 
 
 def linkage_markdown(linkage: Mapping[str, Mapping[str, Any]]) -> str:
