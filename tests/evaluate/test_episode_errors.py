@@ -4,7 +4,6 @@ table that lists them and the episodes the figures show."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -13,21 +12,12 @@ from excavator_surrogate.evaluate import cbe_metrics, episode_errors
 from excavator_surrogate.evaluate.cbe import figure_episodes
 from excavator_surrogate.evaluate.report import episodes_markdown
 from excavator_surrogate.spec import JointSpec, MachineSpec
-
-
-@dataclass
-class _Run:
-    theta_hat: np.ndarray
-    omega_hat: np.ndarray
-    theta_ref: np.ndarray
-    omega_ref: np.ndarray
-    warmup: int
-
+from tests.helpers.runs import Run
 
 SPEC = MachineSpec(joints=(JointSpec("swing", periodic=True), JointSpec("boom")))
 
 
-def _runs(rng: np.random.Generator, lengths: list[int], w: int = 3) -> list[_Run]:
+def _runs(rng: np.random.Generator, lengths: list[int], w: int = 3) -> list[Run]:
     runs = []
     for n in lengths:
         ref = np.cumsum(rng.normal(0.0, 0.2, (n, 2)), axis=0)
@@ -36,7 +26,7 @@ def _runs(rng: np.random.Generator, lengths: list[int], w: int = 3) -> list[_Run
         wrapped = ref.copy()
         wrapped[:, 0] = (wrapped[:, 0] + np.pi) % (2 * np.pi) - np.pi  # the swing stored wrapped
         om = np.zeros((n, 2))
-        runs.append(_Run(hat, om, wrapped, om, w))
+        runs.append(Run(hat, om, wrapped, om, w))
     return runs
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -18,6 +17,7 @@ from excavator_surrogate.evaluate import (
 )
 from excavator_surrogate.plotting.cbe import plot_cbe
 from excavator_surrogate.spec import JointSpec, MachineSpec
+from tests.helpers.runs import Run
 
 
 def test_regression_metrics_hand_computed():
@@ -30,15 +30,6 @@ def test_regression_metrics_hand_computed():
     assert m["r2"][0] == pytest.approx(0.75)
     assert m["rmse"][1] == pytest.approx(1.0) and m["mae"][1] == pytest.approx(1.0)
     assert math.isnan(m["r2"][1])  # constant reference
-
-
-@dataclass
-class _Run:
-    theta_hat: np.ndarray
-    omega_hat: np.ndarray
-    theta_ref: np.ndarray
-    omega_ref: np.ndarray
-    warmup: int
 
 
 def test_cbe_metrics_excludes_warmup_pools_episodes_and_unwraps():
@@ -54,8 +45,8 @@ def test_cbe_metrics_excludes_warmup_pools_episodes_and_unwraps():
     th_hat[:w] = 99.0  # garbage in the warm-up must not count
     om_hat = om_ref + 0.2
     om_hat[:w] = np.nan
-    r1 = _Run(th_hat, om_hat, wrapped, om_ref, w)
-    r2 = _Run(th_ref.copy(), om_ref.copy(), th_ref, om_ref, w)
+    r1 = Run(th_hat, om_hat, wrapped, om_ref, w)
+    r2 = Run(th_ref.copy(), om_ref.copy(), th_ref, om_ref, w)
     m = cbe_metrics([r1, r2], spec)
     assert set(m) == {"omega", "theta"} and list(m["theta"]) == ["swing", "boom"]
     assert m["theta"]["swing"]["rmse"] == pytest.approx(0.0, abs=1e-12)
