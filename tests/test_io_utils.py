@@ -54,3 +54,26 @@ def test_atomic_files_writes_all_or_nothing_into_a_folder(tmp_path: Path) -> Non
         (t / "table.md").write_text("|")
     assert read_marker(tmp_path / "new")["kind"] == "evaluation"
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_atomic_files_removes_an_earlier_calls_files_of_a_varying_set(tmp_path: Path) -> None:
+    ev = tmp_path / "ev"
+    with atomic_files(ev, kind="evaluation", replaces=("cbe_*.png",)) as t:
+        for name in ("cbe.png", "cbe_a.png", "cbe_b.png", "table.md"):
+            (t / name).write_text(name)
+    (ev / "notes.txt").write_text("mine")
+    with atomic_files(ev, kind="evaluation", replaces=("cbe_*.png",)) as t:
+        for name in ("cbe.png", "cbe_c.png", "table.md"):
+            (t / name).write_text(name + "2")
+    # cbe_a and cbe_b were the earlier evaluation's; what matches no pattern stays
+    assert sorted(p.name for p in ev.iterdir()) == [
+        MARKER,
+        "cbe.png",
+        "cbe_c.png",
+        "notes.txt",
+        "table.md",
+    ]
+    assert (ev / "cbe_c.png").read_text() == "cbe_c.png2"
+    with pytest.raises(RuntimeError), atomic_files(ev, kind="evaluation", replaces=("*",)) as t:
+        raise RuntimeError("a failed call removes nothing")
+    assert len(list(ev.iterdir())) == 5

@@ -8,13 +8,14 @@ when complete.
 from __future__ import annotations
 
 import contextlib
+import fnmatch
 import json
 import logging
 import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -151,10 +152,15 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
 
 
 @contextlib.contextmanager
-def atomic_files(path: str | Path, *, kind: str) -> Iterator[Path]:
+def atomic_files(path: str | Path, *, kind: str, replaces: Sequence[str] = ()) -> Iterator[Path]:
     """All or nothing for a command that writes files INTO folder ``path`` (keeping what is
     already there): yield a temporary folder next to ``path``; when the block succeeds, mark
     ``path`` (:func:`mark_output`) and rename every file of the temporary folder into it.
+
+    ``replaces``: shell patterns of names the command writes a varying set of (an
+    evaluation's ``cbe_<episode>.png``): a file of ``path`` matching one that this call did
+    not write is an earlier call's and no longer describes the folder, so it is removed
+    after the renames.
 
     A failure in the block (a full disk while writing a figure) leaves ``path`` untouched.
     The renames need no space, so once they start they complete.
@@ -166,11 +172,17 @@ def atomic_files(path: str | Path, *, kind: str) -> Iterator[Path]:
     try:
         yield tmp
         mark_output(path, kind)
-        for f in sorted(tmp.iterdir()):
+        written = sorted(tmp.iterdir())
+        for f in written:
             if f.is_dir():
                 raise IsADirectoryError(f"atomic_files: {f.name} is a folder; use atomic_dir")
             os.chmod(f, 0o666 & ~_umask())
             os.replace(f, path / f.name)
+        names = {f.name for f in written}
+        for old in path.iterdir():
+            if old.name not in names and old.is_file():
+                if any(fnmatch.fnmatchcase(old.name, p) for p in replaces):
+                    old.unlink(missing_ok=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

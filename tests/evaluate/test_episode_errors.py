@@ -137,3 +137,6 @@ def test_evaluate_records_each_episodes_error_and_draws_the_worst(tmp_path):
     assert drawn == sorted(["cbe.png", f"cbe_{eps[worst]['name']}.png"])
     table = (tmp_path / "ev" / "table.md").read_text()
     assert "## Where the error is" in table and f"`cbe_{eps[worst]['name']}.png`" in table
+    # evaluated again into the same folder with one figure: the earlier episode figure goes
+    evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", max_figures=1, arx=False)
+    assert sorted(p.name for p in (tmp_path / "ev").glob("cbe*.png")) == ["cbe.png"]

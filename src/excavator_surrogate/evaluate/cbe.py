@@ -238,7 +238,8 @@ def evaluate_checkpoint(
     shown = figure_episodes(run_info["episodes"], max_figures) if figure else []
     names = ["cbe.png" if k == 0 else f"cbe_{main_runs[i].name}.png" for k, i in enumerate(shown)]
     out = Path(out)
-    with atomic_files(out, kind="evaluation") as tmp:  # all files or none
+    # all files or none; an earlier evaluation's episode figures go with it
+    with atomic_files(out, kind="evaluation", replaces=("cbe_*.png",)) as tmp:
         write_json(tmp / "metrics.json", _json_safe(result))
         write_text(
             tmp / "table.md",
