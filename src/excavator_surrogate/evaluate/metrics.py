@@ -119,8 +119,8 @@ def episode_errors(runs: Sequence[RunLike], spec: MachineSpec) -> list[dict[str,
 
         share[e, j] = SSE[e, j] / sum_e SSE[e, j],  SSE[e, j] = sum_k (theta_hat - theta)^2
 
-    so a joint's pooled RMSE^2 is ``sum_e share[e, j] * SSE`` over its samples, and the shares
-    of a joint sum to 1.
+    The pooled RMSE of joint ``j`` is ``sqrt(sum_e SSE[e, j] / sum_e n_e)`` (``n_e`` scored
+    samples of episode ``e``), so its shares sum to 1 and say which episodes hold it.
 
     Returns:
         One ``{"theta_rmse": {joint: float | None}, "theta_share": {joint: float | None}}``

@@ -228,7 +228,9 @@ def episodes_markdown(
                 f"| {100 * e['theta_share'][name]:.0f} % |"
             )
     lines.append("")
-    if figures:
+    if len(figures) == 1:
+        lines += [f"Figure: `{figures[0]}` (the first episode).", ""]
+    elif figures:
         lines += [
             "Figures: " + ", ".join(f"`{x}`" for x in figures) + " (the first episode, then "
             "those holding the largest share of any joint's error).",
