@@ -70,8 +70,9 @@ def test_members_and_budget_follow_the_cpus():
 
 def test_cheap_epochs_buy_more_members_within_the_budget():
     """Members beyond MEMBERS are planned only where a computer MEMBER_HEADROOM times slower
-    than the reference still trains each whole within its cap: the h1 shape fits 6 of them
-    in 600 s (8 would leave such a computer short), and 8 in a larger budget."""
+    than the reference still trains each whole within its cap: the h1 shape's planned epochs
+    (about TARGET_PASSES passes) fit 6 of them in 1000 s (8 would leave such a computer
+    short), 8 in a larger budget, and MEMBERS in the default 600 s."""
     from excavator_surrogate.training.plan import (
         MAX_MEMBERS,
         MEMBER_HEADROOM,
@@ -83,28 +84,29 @@ def test_cheap_epochs_buy_more_members_within_the_budget():
 
     many = _dataset([600] * 100)  # the h1 shape: many short runs, cheap epochs
     plain = {"prior_choice": False}  # the plain ensemble alone
-    cfg, why = auto_config(many, cpus=2, budget_s=600, overrides=plain)
+    budget = 1000
+    cfg, why = auto_config(many, cpus=2, budget_s=budget, overrides=plain)
     assert (cfg.members, cfg.member_workers) == (6, 2)
-    share = 600 * 2 / 6
+    share = budget * 2 / 6
     assert cfg.max_train_seconds == pytest.approx((1 - POST_SHARE) * share)
     n_seq = count_sequences(np.array([600] * 100), seq_len=cfg.seq_len, burn_in=cfg.burn_in)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=200)
     member_s = cfg.epochs * cost
     assert MEMBER_HEADROOM * member_s <= cfg.max_train_seconds  # whole, twice as slow
     # 8 members would fit the reference machine's plan, but not a computer twice as slow
-    eight = 600 * 2 / MAX_MEMBERS
+    eight = budget * 2 / MAX_MEMBERS
     assert member_s <= PLAN_SHARE * eight < MEMBER_HEADROOM * member_s / (1 - POST_SHARE)
     assert any("as many members as the budget fits" in w for w in why)
-    big, _ = auto_config(many, cpus=2, budget_s=900, overrides=plain)
+    big, _ = auto_config(many, cpus=2, budget_s=1500, overrides=plain)
     assert big.members == MAX_MEMBERS and big.epochs == cfg.epochs
-    one, _ = auto_config(many, cpus=1, budget_s=1200, overrides=plain)
+    one, _ = auto_config(many, cpus=1, budget_s=2000, overrides=plain)
     assert one.members == MAX_MEMBERS // 2
     # a smaller budget fits fewer members at the same planned epochs, never fewer than MEMBERS
-    tight, _ = auto_config(many, cpus=2, budget_s=400, overrides=plain)
+    tight, _ = auto_config(many, cpus=2, budget_s=600, overrides=plain)
     assert tight.members == MEMBERS and tight.epochs == cfg.epochs
     assert auto_config(many, cpus=2, budget_s=10)[0].members == MEMBERS
     # the recipe's kind choice: a third more trainings per member, so fewer members fit
-    kinds, _ = auto_config(many, cpus=2, budget_s=900)
+    kinds, _ = auto_config(many, cpus=2, budget_s=1500)
     assert kinds.prior_choice and MEMBERS <= kinds.members < big.members
     given, why = auto_config(many, cpus=2, overrides={"members": 3})
     assert given.members == 3 and not any("as many members" in w for w in why)
@@ -189,9 +191,10 @@ def test_a_short_log_plans_fewer_epochs_than_its_budget_fits():
     share = cfg.max_train_seconds / (1 - POST_SHARE)
     assert int(PLAN_SHARE * share / cost) > cfg.epochs  # the budget is not what limits it
     # the rule sits between the floor and the passes: it binds on short logs only
-    assert want_epochs(26) == 45 and want_epochs(55) == 96 and want_epochs(453) == MIN_EPOCHS
+    assert want_epochs(26) == 45 and want_epochs(55) == 96 and want_epochs(557) == 54
     assert want_epochs(10) == MIN_EPOCHS  # a few sub-sequences still train the floor
-    assert max(want_epochs(n) for n in range(1, 5000)) == want_epochs(102) == 177  # the most
+    assert want_epochs(750) == MIN_EPOCHS < want_epochs(749)  # and very many: 30,000 passes
+    assert max(want_epochs(n) for n in range(1, 5000)) == want_epochs(131) == 229  # the most
     longer, why = auto_config(_long_log(), cpus=2, budget_s=600)
     assert longer.epochs > 45 and not any("per sub-sequence" in w for w in why)
 
@@ -299,7 +302,7 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
 
 def test_the_input_choice_costs_two_trainings_however_many_members():
     """The choice's probe is 2 networks per way: a many-run log (8 members without inputs, in
-    an 800-s budget) keeps 6 with them, in the same 4 rounds of two (before: half the members
+    a 1200-s budget) keeps 6 with them, in the same 4 rounds of two (before: half the members
     each way, so 4 members in 3 rounds)."""
     from excavator_surrogate.training.variants import probe_members
 
@@ -307,7 +310,7 @@ def test_the_input_choice_costs_two_trainings_however_many_members():
     plain.episodes["val"] = [
         synthetic_episode(plain.spec, kind="step", n_step=200, seed=900 + i) for i in range(6)
     ]
-    over = {"prior_choice": False, "max_train_seconds": 800}
+    over = {"prior_choice": False, "max_train_seconds": 1200}
     without, _ = auto_config(plain, cpus=2, overrides=over)
     ds = _with_gear(plain)
     cfg, why = auto_config(ds, cpus=2, overrides=over)

@@ -30,17 +30,22 @@ from .kinds import prior_members
 from .variants import probe_members
 
 MIN_EPOCHS = 40
-"""Fewest planned epochs (what the recipe trained on h1-dev's ~500 sub-sequences per epoch)."""
-TARGET_PASSES = 18_000
-"""Sub-sequence passes the recipe aims for (40 epochs of h1-dev's training runs)."""
+"""Fewest planned epochs (what the recipe trained on h1-dev's ~500 sub-sequences per epoch
+before session 90; now binding above 750 sub-sequences per epoch)."""
+TARGET_PASSES = 30_000
+"""Sub-sequence passes the recipe aims for: h1-dev's 557 sub-sequences per epoch (its
+validation runs trained on too) plan 54 epochs, with duty 80 held out 61.  18,000 passes
+(40 epochs of h1-dev, 6 members) before session 90: at the held-out duties 60, 80 and 90
+the 30,000 passes' 4 members won on 8 joints' medians of 9, the bucket by 17-29 % at
+duties 80 and 90, on an AVX2-only Zen 3 (docs/real-history.md)."""
 EPOCHS_PER_SEQUENCE = 1.75
 """Most planned epochs per sub-sequence of an epoch (above :data:`MIN_EPOCHS`): the fewer the
 data, the sooner the networks fit them instead of the machine.  It binds on a short log only:
 a 7-minute log's 160 s of training (26 sub-sequences) plans 45 epochs, where the budget fits
 89, and its boom's test error went from 9.05 to 6.24 deg on one simulated log and from 2.50
 to 2.38 on another, with the same 4 + 2 networks (docs/real-history.md); a 10-minute log
-(55) keeps its budget's 81, h1-dev (557 with its validation runs) its 40.  With
-:data:`TARGET_PASSES` it also bounds every plan: the two meet at 102 sub-sequences, 177
+(55) keeps its budget's 81, h1-dev (557 with its validation runs) its 54.  With
+:data:`TARGET_PASSES` it also bounds every plan: the two meet at 131 sub-sequences, 229
 epochs, the most any data plans."""
 PLAN_SHARE = 0.6
 """Share of each member's wall-time budget the planned epochs fill on the reference machine
@@ -75,7 +80,10 @@ bucket 1.41x worse on validation).  6 members leave D a third of each cap (1.5x 
 time), and on h1-dev's validation runs 6 members of the same seeds scored as 8 did
 (docs/real-history.md).  The other way, 2.5 would give h1-dev 4 members and computer F
 (2x the reference's time) a third of each cap, but 4 members lost on 6 joints of 9 at the
-held-out duties 60, 80 and 90, by up to 19 % (session 54)."""
+held-out duties 60, 80 and 90, by up to 19 % (session 54).  Since session 90 h1-dev's
+members train 54 epochs (:data:`TARGET_PASSES`), about 113 s each on the reference machine,
+so 2 CPUs plan 4 of them (255-s caps) and 4 CPUs 8: the longer schedule was worth more than
+the 2 members (docs/real-history.md)."""
 MAX_MEMBERS = 8
 """Most seed-ensemble members the recipe trains (half as many on one CPU): when the planned
 epochs are cheap (many short runs, h1-dev), the budget buys more members, whose average
