@@ -134,14 +134,16 @@ def main() -> int:
                 runs[name] = r
     ratio = runs["ddp"]["windows_per_s"] / runs["1proc"]["windows_per_s"]
     print(f"ratio ddp ({args.nproc} processes) / 1proc = {ratio:.2f} (ideal {args.nproc}.00)")
+    r2 = None
     if "1proc_2thr" in runs:
         r2 = runs["1proc_2thr"]["windows_per_s"] / runs["1proc"]["windows_per_s"]
         print(f"ratio 1proc_2thr / 1proc = {r2:.2f}")
+    cores = available_cpus()
     result = {
         "bench": "ddp",
         "nproc": args.nproc,
         "cpu_count": os.cpu_count(),
-        "available_cpus": available_cpus(),
+        "available_cpus": cores,
         "per_rank_batch": args.batch,
         "global_batch": g,
         "window": args.window,
@@ -152,13 +154,8 @@ def main() -> int:
         "loadavg_at_start": round(load0, 2),
         "windows_per_s": {k: round(v["windows_per_s"], 1) for k, v in runs.items()},
         "ratio_ddp_vs_1proc": round(ratio, 3),
-        "ratio_2thr_vs_1proc": (
-            round(runs["1proc_2thr"]["windows_per_s"] / runs["1proc"]["windows_per_s"], 3)
-            if "1proc_2thr" in runs
-            else None
-        ),
+        "ratio_2thr_vs_1proc": round(r2, 3) if r2 is not None else None,
     }
-    cores = available_cpus()
     result["goals"] = {
         f"ddp_ge_{GOAL_RATIO:g}x_1proc": (ratio >= GOAL_RATIO) if cores >= args.nproc else None
     }
