@@ -13,7 +13,7 @@ from excavator_surrogate import cpus, devices, numerics
 from excavator_surrogate.cli import main
 from excavator_surrogate.data import Dataset, write_dataset
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.evaluate.report import environment_markdown
+from excavator_surrogate.evaluate.training_report import environment_markdown
 from excavator_surrogate.surrogate.synthetic import (
     synthetic_episode,
     synthetic_spec,

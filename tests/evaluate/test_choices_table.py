@@ -3,7 +3,11 @@ per joint, the one that drives it, and the close calls."""
 
 from __future__ import annotations
 
-from excavator_surrogate.evaluate.report import CLOSE_CALL, choices_markdown, training_markdown
+from excavator_surrogate.evaluate.training_report import (
+    CLOSE_CALL,
+    choices_markdown,
+    training_markdown,
+)
 from excavator_surrogate.spec import JointSpec, MachineSpec
 
 NAMES = ["swing", "boom", "arm", "bucket"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from excavator_surrogate.evaluate.cbe import evaluate_checkpoint
-from excavator_surrogate.evaluate.report import environment_markdown, training_markdown
+from excavator_surrogate.evaluate.training_report import environment_markdown, training_markdown
 from excavator_surrogate.training import train
 from excavator_surrogate.training.ensembles import ensemble_training
 from tests.helpers.training import tiny_dataset, tiny_train_config
@@ -77,7 +77,7 @@ def test_joints_on_the_static_map_are_named():
 
 
 def test_a_map_pinned_where_the_networks_validated_far_better_is_called_out():
-    from excavator_surrogate.evaluate.report import PINNED_COST
+    from excavator_surrogate.evaluate.training_report import PINNED_COST
 
     rec = {
         "names": ["swing", "boom", "bucket"],

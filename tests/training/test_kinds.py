@@ -13,7 +13,7 @@ import torch
 
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.evaluate.report import choices_markdown
+from excavator_surrogate.evaluate.training_report import choices_markdown
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.model import Surrogate

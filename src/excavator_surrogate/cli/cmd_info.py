@@ -116,7 +116,7 @@ def _computer(args: argparse.Namespace) -> int:
         )
     import torch  # noqa: F401  (loaded so that the record names its CPU kernels)
 
-    from ..evaluate.report import computer_markdown
+    from ..evaluate.training_report import computer_markdown
     from ..numerics import environment
 
     env = environment()

@@ -21,7 +21,7 @@ from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.ensemble import n_member
 from ..surrogate.model import Surrogate
 from ..surrogate.sizes import n_param
-from .report import training_markdown
+from .training_report import training_markdown
 
 LOW_R2 = 0.9
 """A validation angle R² below this on a joint is flagged: the free run drifts there."""

@@ -42,7 +42,8 @@ from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .metrics import cbe_metrics, episode_errors, regression_metrics
-from .report import episodes_markdown, report_markdown, training_markdown
+from .report import episodes_markdown, report_markdown
+from .training_report import training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
 _log = logging.getLogger(__name__)
