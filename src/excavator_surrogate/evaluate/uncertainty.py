@@ -26,6 +26,7 @@ from ..surrogate.ensemble import member_head, n_member
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout
 from ..surrogate.uncertainty import NO_MEMBERS, UncertainPrediction, stored_coverage
+from .report import format_value
 
 
 def uncertainty_runs(
@@ -70,10 +71,6 @@ def uncertainty_metrics(sur: Surrogate, preds: Sequence[EpisodePrediction]) -> d
 
 def _pct(v: float | None) -> str:
     return "—" if v is None else f"{100 * v:.0f} %"
-
-
-def _num(v: float | None) -> str:
-    return "—" if v is None else f"{v:.4f}"
 
 
 SHORTFALL = 0.10
@@ -139,7 +136,7 @@ def uncertainty_markdown(unc: Mapping[str, Any], names: Sequence[str]) -> str:
                 d = unc[q][n]
                 cells = [sym, n]
                 for t in tags:
-                    cells += [_pct(d[f"coverage_{t}"]), _num(d[f"width_{t}"])]
+                    cells += [_pct(d[f"coverage_{t}"]), format_value(d[f"width_{t}"])]
                 lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
         short = undercovered(unc, names)
