@@ -54,9 +54,9 @@ from excavator_surrogate.training.kinds import (
     choice_joints,
     choice_options,
     choose_kinds,
-    prior_members,
 )
 from excavator_surrogate.training.map_joints import choose_map_joints, map_options
+from excavator_surrogate.training.plan import prior_members
 
 sys.path.insert(0, str(Path(__file__).parent))
 from real import WARMUP

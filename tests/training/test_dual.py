@@ -107,7 +107,7 @@ def test_dual_choice_keeps_an_informative_input_and_ignores_a_noise_one(tmp_path
 def test_dual_choice_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypatch):
     """The whole ``use`` way refused (forced here); the boom takes the gear alone: each
     network with the gear on the boom and without it (blinded) on the arm, averaged."""
-    from excavator_surrogate.training import variants
+    from excavator_surrogate.training import input_choice
 
     calls: list = []
 
@@ -115,9 +115,9 @@ def test_dual_choice_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypa
         calls.append(use)
         return (False, "refused (test)") if len(calls) == 1 else (True, "kept")
 
-    # the choice's rule, for the whole way and the joint sets (variants.decide_inputs)
-    monkeypatch.setattr(variants, "choose_inputs", rule)
-    monkeypatch.setattr(variants, "input_joints", lambda use, ignore: [True, False])
+    # the choice's rule, for the whole way and the joint sets (input_choice.decide_inputs)
+    monkeypatch.setattr(input_choice, "choose_inputs", rule)
+    monkeypatch.setattr(input_choice, "input_joints", lambda use, ignore: [True, False])
     ds = _dataset2()
     cfg = _cfg(exogenous="choose", input_dropout=0.5, members=2, member_workers=1)
     best = train(cfg, ds, out=tmp_path / "m", show_progress=False)

@@ -27,7 +27,6 @@ from excavator_surrogate.training.kinds import (
     in_prior_form,
     map_pinned,
     model_kind,
-    prior_members,
 )
 from excavator_surrogate.training.resume import start
 from tests.helpers.surrogates import free_run_checked, teacher_forced_omega, tiny_surrogate
@@ -103,7 +102,6 @@ def test_a_composite_takes_each_joint_from_its_member() -> None:
     np.testing.assert_allclose(_omega(both, ep), want, atol=1e-5)
     with pytest.raises(ValueError, match="do not divide"):
         composite(plains[:3], priors, [True, False])
-    assert [prior_members(k) for k in (1, 2, 3, 4, 5, 6, 8)] == [1, 1, 1, 2, 1, 3, 4]
     with pytest.raises(ConfigError, match="joint_weights"):
         merge([plains[0], plains[1]], joint_weights=[[0.5, 1.0], [0.2, 0.0]])
 

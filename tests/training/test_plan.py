@@ -45,3 +45,18 @@ def test_sequences_are_counted_as_the_epoch_tiles_them():
     assert len(sequence_starts(_Data, 50, 10, rng)) <= n
     zero_offset = sum(max(0, (int(L) - 1 - 50) // 41 + 1) for L in _Data.lengths)
     assert n == zero_offset
+
+
+def test_the_choices_networks_are_counted_before_training():
+    """The input choice's probe is 2 networks per way, at most half the members; the kind
+    choice's map-correcting networks are the largest divisor of the members up to half, so
+    every composite group holds as many plain networks.  Both enter :func:`trainings`."""
+    from excavator_surrogate.training.plan import prior_members, probe_members, trainings
+
+    assert [probe_members(m) for m in (1, 2, 3, 4, 6, 8)] == [1, 1, 1, 2, 2, 2]
+    assert [prior_members(k) for k in (1, 2, 3, 4, 5, 6, 8)] == [1, 1, 1, 2, 1, 3, 4]
+    for members in (2, 4, 6, 8):
+        for probe in (False, True):
+            for kinds in (False, True):
+                want = members + probe * probe_members(members) + kinds * prior_members(members)
+                assert trainings(members, probe=probe, kinds=kinds) == want

@@ -15,7 +15,6 @@ from excavator_surrogate.data.episode import Episode
 from excavator_surrogate.spec import InputSpec, JointSpec, MachineSpec
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, read_checkpoint
 from excavator_surrogate.training import train
-from excavator_surrogate.training.variants import INPUT_MARGIN, choose_inputs
 from tests.helpers.surrogates import teacher_forced_omega
 from tests.helpers.training import tiny_train_config
 
@@ -123,21 +122,6 @@ def test_choose_without_inputs_trains_as_before(tmp_path):
     assert not (tmp_path / "p" / "use").exists()
 
 
-def _val(err, rmse):
-    return {"val_error": err, "theta_rmse": rmse}
-
-
-def test_inputs_are_kept_only_if_better_overall_and_on_every_joint():
-    m = INPUT_MARGIN
-    assert choose_inputs(_val(0.5, [1.0, 1.0]), _val(1.0, [2.0, 2.0]))[0]
-    # a tie (within the margin) keeps the model that cannot depend on them
-    assert not choose_inputs(_val(1.0 - m / 2, [1.0, 1.0]), _val(1.0, [1.0, 1.0]))[0]
-    # better overall, but one joint worse: they would hurt that joint
-    keep, why = choose_inputs(_val(0.5, [0.2, 2.2]), _val(1.0, [2.0, 2.0]))
-    assert not keep and "[1]" in why
-    assert not choose_inputs(_val(math.inf, [math.nan, 1.0]), _val(1.0, [1.0, 1.0]))[0]
-
-
 def test_choose_with_the_kind_choice_trains_the_map_correcting_networks_the_chosen_way(tmp_path):
     """The inputs are chosen first; the rest of the plain ensemble and the map-correcting
     networks then train the chosen way, and the kind choice runs on them."""
@@ -214,7 +198,7 @@ def _omega(sur, ep: Episode, *, flip_gear: bool = False) -> torch.Tensor:
 
 
 def test_paired_takes_each_joint_from_its_way_and_averages_the_seeds(tmp_path):
-    from excavator_surrogate.training.variants import paired
+    from excavator_surrogate.training.input_choice import paired
 
     ds = _dataset2()
     nets = {
@@ -251,51 +235,11 @@ def test_paired_takes_each_joint_from_its_way_and_averages_the_seeds(tmp_path):
         paired(use, ignore[:1], [True, False])
 
 
-def test_choose_input_joints_keeps_the_best_set_that_passes_the_whole_rule(monkeypatch):
-    """The candidates together and each alone are scored; a set must beat the half that
-    ignores the inputs as the whole half must (better overall, no joint worse)."""
-    from excavator_surrogate.training import variants
-
-    monkeypatch.setattr(variants, "paired", lambda use, ignore, joints: tuple(joints))
-    scores: dict = {}
-    monkeypatch.setattr(variants, "free_run_error", lambda model, val, max_steps: scores[model])
-    ignore = _val(1.0, [1.0, 1.0, 1.0])
-    three = MachineSpec(
-        joints=(*SPEC2.joints, JointSpec("bucket")), rate_hz=20.0, inputs=SPEC2.inputs
-    )
-    use = [type("S", (), {"spec": three})()]
-    # the inputs help the first two joints and hurt the third
-    vals = {"use": _val(0.9, [0.5, 0.8, 1.5]), "ignore": ignore}
-    scores[(True, True, False)] = _val(0.7, [0.5, 0.8, 1.02])
-    scores[(True, False, False)] = _val(0.8, [0.5, 1.0, 1.0])
-    scores[(False, True, False)] = _val(0.9, [1.0, 0.8, 1.0])
-    joints, tried = variants.choose_input_joints(use, use, vals, [])
-    assert joints == [True, True, False]
-    assert [t["joints"] for t in tried] == [["boom", "arm"], ["boom"], ["arm"]]
-    assert [t["kept"] for t in tried] == [True, True, True]
-    # together they hurt the bucket (it reads their angles): the best single one wins
-    scores[(True, True, False)] = _val(0.6, [0.5, 0.8, 1.2])
-    joints, tried = variants.choose_input_joints(use, use, vals, [])
-    assert joints == [True, False, False] and [t["kept"] for t in tried] == [False, True, True]
-    # a joint the static map drives anyway is no candidate
-    joints, tried = variants.choose_input_joints(use, use, vals, [], pinned=[True, False, False])
-    assert joints == [False, True, False] and [t["joints"] for t in tried] == [["arm"]]
-    # no set beats the ignoring half by the margin: none
-    for k in list(scores):
-        scores[k] = _val(1.0 - INPUT_MARGIN / 2, [1.0, 1.0, 1.0])
-    assert variants.choose_input_joints(use, use, vals, [])[0] is None
-    # better on every joint: the whole half (refused by the caller) is no set of its own
-    vals_all = {"use": _val(0.9, [0.5, 0.8, 0.9]), "ignore": ignore}
-    scores[(False, False, True)] = _val(0.9, [1.0, 1.0, 0.9])
-    joints, tried = variants.choose_input_joints(use, use, vals_all, [])
-    assert [t["joints"] for t in tried] == [["boom"], ["arm"], ["bucket"]]
-
-
 def test_choose_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypatch):
     """The whole half that uses the gear is refused (forced here); the boom, where it helps,
     takes it alone: the model pairs each seed's two networks, and the rest of the budget
     trains one more pair."""
-    from excavator_surrogate.training import variants
+    from excavator_surrogate.training import input_choice
 
     calls: list = []
 
@@ -303,8 +247,8 @@ def test_choose_gives_the_inputs_to_the_joints_they_help(tmp_path, monkeypatch):
         calls.append(use)
         return (False, "refused (test)") if len(calls) == 1 else (True, "kept")
 
-    monkeypatch.setattr(variants, "choose_inputs", rule)
-    monkeypatch.setattr(variants, "input_joints", lambda use, ignore: [True, False])
+    monkeypatch.setattr(input_choice, "choose_inputs", rule)
+    monkeypatch.setattr(input_choice, "input_joints", lambda use, ignore: [True, False])
     ds = _dataset2()
     cfg = _cfg(exogenous="choose", members=4, member_workers=1)
     best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
@@ -341,7 +285,7 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
     trained); the kinds are chosen with the pairs as the plain side, and the model is, joint
     by joint, the chosen share of the map-correcting networks' mean plus the rest from the
     networks of the joint's way (the plain loop over the saved networks)."""
-    from excavator_surrogate.training import variants
+    from excavator_surrogate.training import input_choice
 
     calls: list = []
 
@@ -349,8 +293,8 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
         calls.append(use)
         return (False, "refused (test)") if len(calls) == 1 else (True, "kept")
 
-    monkeypatch.setattr(variants, "choose_inputs", rule)
-    monkeypatch.setattr(variants, "input_joints", lambda use, ignore: [True, False])
+    monkeypatch.setattr(input_choice, "choose_inputs", rule)
+    monkeypatch.setattr(input_choice, "input_joints", lambda use, ignore: [True, False])
     ds = _dataset2()
     cfg = _cfg(exogenous="choose", prior_choice=True, members=4, member_workers=1)
     best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
@@ -390,25 +334,6 @@ def test_the_inputs_per_joint_with_the_kind_choice(tmp_path, monkeypatch):
     torch.testing.assert_close(
         teacher_forced_omega(load_checkpoint(best), ep), want, rtol=1e-4, atol=1e-5
     )
-
-
-def test_a_joint_the_map_correcting_networks_drive_alone_reads_no_input():
-    from excavator_surrogate.training.variants import inputs_after_kinds
-
-    def record(joints):
-        return {"joints": list(joints), "kept": True, "why": "boom, arm take them alone"}
-
-    names = ["swing", "boom", "arm"]
-    rec = record(["boom", "arm"])
-    inputs_after_kinds(rec, {"names": names, "weights": [1.0, 1.0, 0.5]})
-    assert rec["joints"] == ["arm"] and rec["kept"]
-    assert rec["why"].endswith("drive swing, boom: arm read them")
-    rec = record(["boom"])
-    inputs_after_kinds(rec, {"names": names, "weights": [0.0, 1.0, 0.0]})
-    assert rec["joints"] == [] and not rec["kept"] and rec["why"].endswith("no joint reads them")
-    rec = record(["boom", "arm"])  # a blend, or the plain networks: unchanged
-    inputs_after_kinds(rec, {"names": names, "weights": [1.0, 0.5, 0.0]})
-    assert rec == record(["boom", "arm"])
 
 
 def _without_gear(ds: Dataset) -> Dataset:

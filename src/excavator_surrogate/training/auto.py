@@ -73,7 +73,6 @@ from ..data.dataset import Dataset
 from ..errors import ConfigError, DataError
 from .batches import val_min_steps
 from .config import TrainConfig
-from .kinds import prior_members
 from .map_joints import PERIODIC_MAP_R2
 from .plan import (
     MEMBER_HEADROOM,
@@ -85,12 +84,13 @@ from .plan import (
     min_members,
     plan_epochs,
     plan_members,
+    prior_members,
+    probe_members,
     training_cap_s,
     trainings,
     want_epochs,
 )
 from .span import joint_spans, span_note
-from .variants import probe_members
 
 TRAIN_BUDGET_S = 540.0
 """Wall time of the whole training (every member) on the reference 2-core machine [s]."""

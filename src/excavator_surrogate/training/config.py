@@ -127,9 +127,9 @@ class TrainConfig(PresetConfig, table="train"):
     exogenous: Literal["use", "ignore", "choose"] = "use"
     """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
     are held at zero, so the model cannot depend on them); or ``choose`` the way that scores
-    better on validation (``use`` only if better by :data:`~.variants.INPUT_MARGIN`): with
+    better on validation (``use`` only if better by :data:`~.input_choice.INPUT_MARGIN`): with
     ``input_dropout`` > 0 on the same networks run both ways (:mod:`.dual`), else train 2
-    networks each way (at most half the members, :func:`~.variants.probe_members`), then
+    networks each way (at most half the members, :func:`~.plan.probe_members`), then
     the rest the chosen way."""
     input_dropout: float = 0.0
     """Share of the training sub-sequences whose exogenous inputs are blanked (held at their

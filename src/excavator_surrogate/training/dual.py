@@ -5,10 +5,10 @@ Every member trains with the inputs, and on ``input_dropout`` of its sub-sequenc
 blanked (feature 0, their training mean: :meth:`~.modes.Stateful._blanked`).  Each network
 then runs both ways: as trained, and :func:`blinded`, its input weights of the inputs
 zeroed, so it cannot depend on them.  The choice of :mod:`.variants` is made on these two
-ways of the same networks, under the same rule (:func:`~.variants.choose_inputs`: the
+ways of the same networks, under the same rule (:func:`~.input_choice.choose_inputs`: the
 inputs are kept only if the ensemble that uses them is better on validation by
-:data:`~.variants.INPUT_MARGIN` overall and no joint is worse by more; else, per joint,
-:func:`~.variants.choose_input_joints`).  No network is trained only to lose the choice: the
+:data:`~.input_choice.INPUT_MARGIN` overall and no joint is worse by more; else, per joint,
+:func:`~.input_choice.choose_input_joints`).  No network is trained only to lose the choice: the
 budget's trainings all go to the ensemble, as many as without inputs (the probe of
 :mod:`.variants` spent 2 of 6 on the losing way, and h1-dev's bucket with the H/L condition
 scored as 4 members instead of 6).
@@ -16,7 +16,7 @@ scored as 4 members instead of 6).
 With ``prior_choice`` the kind choice's map-correcting networks train the same way beside
 the plain ones, and follow the chosen way: as trained where the inputs are kept, blinded
 where they are refused or go to some joints only (there the plain networks' two ways are
-the pairs, :func:`~.variants.paired`, as in :mod:`.variants`).
+the pairs, :func:`~.input_choice.paired`, as in :mod:`.variants`).
 
 Layout: ``OUT/member_*`` (every network, as trained; with ``prior_choice`` the kind
 choice's ``OUT/plain/member_*`` and ``OUT/prior/member_*``), ``OUT/best.pt`` (the chosen
@@ -47,16 +47,16 @@ from ..surrogate.model import Surrogate
 from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_members
+from .input_choice import decide_inputs, inputs_after_kinds
 from .kinds import (
     choice_joints,
     choice_options,
     choose_kinds,
     model_kind,
     plain_ensemble,
-    prior_members,
 )
+from .plan import prior_members
 from .records import write_config
-from .variants import decide_inputs, inputs_after_kinds
 
 _log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ zone, gain per direction, delay) generalise differently, and not alike on every 
 the stand-in sessions case the map-correcting networks drove the boom and the bucket better
 on validation and on the test day, the plain ones the arm (docs/real-history.md).  With
 ``prior_choice`` the run trains the whole plain ensemble (``members`` networks, seeds
-``seed, seed + 1, ...``, as without the option) and :func:`prior_members` more that
+``seed, seed + 1, ...``, as without the option) and :func:`~.plan.prior_members` more that
 correct the map (seeds ``seed, seed + 1, ...``): ``members + prior_members(members)``
 trainings, which the recipe plans the epochs for within the same budget
 (:func:`~.plan.trainings`).
@@ -75,6 +75,7 @@ from .batches import split_episodes
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups
 from .map_joints import map_options, pinned_joints
+from .plan import prior_members
 from .records import write_config
 from .sets import SET_MARGIN, best_set
 from .span import joint_spans
@@ -105,13 +106,6 @@ def in_prior_form(plain: Surrogate, prior: Surrogate) -> Surrogate:
     n_joint = plain.spec.n_joint
     fit = {k: getattr(p, k).tolist() for k in PRIOR_MAP}  # no joint on it: gains 0
     return with_map_joints(plain, fit, [False] * n_joint, lags=prior.norm.lags or None)
-
-
-def prior_members(members: int) -> int:
-    """Map-correcting networks trained beside a plain ensemble of ``members``: the largest
-    divisor of ``members`` up to half of it (4 -> 2, 8 -> 4, 6 -> 3; 1 for a prime), so
-    that every group of :func:`composite` holds as many plain networks."""
-    return max([p for p in range(1, members // 2 + 1) if members % p == 0], default=1)
 
 
 def plain_ensemble(
@@ -459,7 +453,7 @@ def train_choosing_kinds(
     show_progress: bool | None = None,
     notes: Mapping[str, Any] | None = None,
 ) -> Path:
-    """Train the plain ensemble of ``cfg.members`` networks and :func:`prior_members` more
+    """Train the plain ensemble of ``cfg.members`` networks and :func:`~.plan.prior_members` more
     that correct the static map, and keep per joint the kind (or their blend) that validates
     better (see the module docstring); returns ``OUT/best.pt``."""
     n_plain, n_prior = cfg.members, prior_members(cfg.members)

@@ -16,6 +16,9 @@ under it:
   (:func:`plan_members`);
 - caps: the budget over the pool's rounds (:func:`member_budget_s`), less :data:`POST_SHARE`
   for the work after training (:func:`training_cap_s`).
+- trainings: the members, the input choice's probe networks (:func:`probe_members`) and the
+  kind choice's map-correcting networks (:func:`prior_members`), counted by
+  :func:`trainings`.
 
 The measurements behind each constant are in ``docs/real-history.md``.
 """
@@ -25,9 +28,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from .kinds import prior_members
-from .variants import probe_members
 
 MIN_EPOCHS = 40
 """Fewest planned epochs (what the recipe trained on h1-dev's ~500 sub-sequences per epoch
@@ -92,6 +92,26 @@ varies less from seed to seed, and another CPU's kernels act like another draw o
 members, 14.0-16.5 for 4-member ensembles and 12.8-14.0 for 8-member ones (docs/real-history.md)."""
 
 
+INPUT_PROBE = 2
+"""Networks per way (using the exogenous inputs, ignoring them) that decide the input choice
+of :mod:`.variants`, at most half the members (:func:`probe_members`): the losing way's
+networks are the choice's cost, so it stays the same however many members the budget buys."""
+
+
+def probe_members(members: int) -> int:
+    """Networks per way that decide the input choice of an ensemble of ``members``:
+    :data:`INPUT_PROBE`, at most half of them, at least 1."""
+    return max(1, min(INPUT_PROBE, members // 2))
+
+
+def prior_members(members: int) -> int:
+    """Map-correcting networks the kind choice (:mod:`.kinds`) trains beside a plain
+    ensemble of ``members``: the largest divisor of ``members`` up to half of it (4 -> 2,
+    8 -> 4, 6 -> 3; 1 for a prime), so that every group of :func:`~.kinds.composite` holds as
+    many plain networks."""
+    return max([p for p in range(1, members // 2 + 1) if members % p == 0], default=1)
+
+
 def count_sequences(lengths: np.ndarray, *, seq_len: int, burn_in: int) -> int:
     """Sub-sequences one epoch draws from episodes of ``lengths`` samples (as
     :func:`~.batches.sequence_starts` tiles them, with its random offset at zero)."""
@@ -136,9 +156,9 @@ def max_members(cpus: int) -> int:
 def trainings(members: int, *, probe: bool, kinds: bool = False) -> int:
     """Trainings an ensemble of ``members`` costs: one per member, plus the losing way's
     networks when an exogenous input is chosen by probe trainings (``probe``;
-    :func:`~.variants.probe_members`: 2, at most half the members; none when every network
+    :func:`probe_members`: 2, at most half the members; none when every network
     learns both ways, ``training/dual.py``), plus the map-correcting networks of the kind choice
-    (:func:`~.kinds.prior_members`)."""
+    (:func:`prior_members`)."""
     extra = probe_members(members) if probe else 0
     return members + extra + (prior_members(members) if kinds else 0)
 
