@@ -305,3 +305,31 @@ def test_a_map_joint_stops_at_the_training_range_and_the_network_keeps_its_margi
     th0 = np.stack([e.theta[:6] for e in fast])
     th_new, th_wide = rollout(new, th0, u)[0], rollout(wide, th0, u)[0]
     assert th_new.max() <= hi.max() + 1e-6 < th_wide.max()
+
+
+def test_the_map_is_refitted_on_both_splits_only_where_validation_is_a_large_share() -> None:
+    """Validation from a plant 10 % faster than training's: the map still wins the choice, and
+    with ``refit_share`` at or below validation's share of the samples (2/3 here) the joints
+    on the map take the map fitted on both splits (gains between the two plants'), in series
+    and in parallel; above it, or at 0, the map of the training split stays."""
+    from excavator_surrogate.training.map_joints import refit_due
+
+    train = [_static_episode(s) for s in range(3)]
+    val = [_scaled(_static_episode(s), 1.1) for s in (7, 8)]
+    assert refit_due(train, val, 0.0) is None and refit_due(train, val, 0.9) is None
+    assert refit_due(train, val, 0.5) == 2 / 3
+    k_train = np.array(fit_prior(train, SPEC)["k_pos"])
+    for parallel in (False, True):
+        kept, rec0 = choose_map_joints(_net(), train, val, parallel=parallel)
+        high, rec_h = choose_map_joints(_net(), train, val, parallel=parallel, refit_share=0.9)
+        new, rec = choose_map_joints(_net(), train, val, parallel=parallel, refit_share=0.5)
+        assert rec0["chosen"] == rec["chosen"] == ["a", "b"]
+        assert "refit" not in rec0 and "refit" not in rec_h
+        assert high.metrics["val_error"] == kept.metrics["val_error"]
+        k = np.array(rec["refit"]["map"]["k_pos"])
+        assert np.all(k > 1.02 * k_train) and np.all(k < 1.1 * k_train)
+        assert (
+            rec["refit"]["val_share"] == 2 / 3 and "refitted on training + validation" in rec["why"]
+        )
+        # the validation scores are those of the model returned: in-sample on the map joints
+        assert new.metrics["val_error"] < 0.8 * kept.metrics["val_error"]

@@ -195,6 +195,10 @@ class TrainConfig(PresetConfig, table="train"):
     the structured baseline does, even where a positive ``limit_margin`` widens the networks'
     stops: the map has no angle to correct its drift, and an end stop is its only reset (needs
     ``end_stops``; a negative ``limit_margin`` keeps the network's)."""
+    map_refit_share: float = 0.0
+    """With ``static_map``: when the validation episodes hold at least this share of the
+    training's samples, the joints on the map take it fitted again on both splits after the
+    choice (:func:`~.map_joints.refit_map`; 0 = never)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,
@@ -299,6 +303,10 @@ class TrainConfig(PresetConfig, table="train"):
             (
                 not (self.prior_choice and (self.prior or self.residual)),
                 "prior_choice trains both kinds itself: set prior = false and residual = false",
+            ),
+            (
+                math.isfinite(self.map_refit_share) and self.map_refit_share >= 0,
+                f"map_refit_share = {self.map_refit_share!r} must be >= 0 (0 = never refit)",
             ),
             (
                 0.0 <= self.choice_min_span <= 1.0,

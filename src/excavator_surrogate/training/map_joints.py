@@ -115,7 +115,42 @@ def map_options(cfg: TrainConfig) -> dict[str, Any]:
         "parallel": cfg.map_parallel,
         "end_stops": cfg.map_stops_at_range,
         "min_span": cfg.choice_min_span,
+        "refit_share": cfg.map_refit_share,
     }
+
+
+def refit_map(
+    pick: Sequence[int],
+    train: Sequence[Episode],
+    val: Sequence[Episode],
+    *,
+    max_delay: int,
+    end_stops: bool,
+) -> tuple[dict[str, Any], tuple[Any, Any] | None]:
+    """The static map fitted again on the training and validation episodes together, after the
+    choice was made on validation with the map of the training split: ``(fit, stops)``.
+
+    Args:
+        pick: (n_joint,) each joint's variant of the choice: 0 the map with delays up to
+            ``max_delay`` [samples], 1 the map without delays.
+        end_stops: the end stops come from both splits (:func:`map_end_stops`); else None
+            (the network's).
+    """
+    both = [*train, *val]
+    spec = both[0].spec
+    fits = [fit_prior(both, spec, max_delay=max_delay)]
+    if any(pick):
+        fits.append(fit_prior(both, spec))
+    fit = {k: [fits[v][k][j] for j, v in enumerate(pick)] for k in fits[0]}
+    return fit, (map_end_stops(both) if end_stops else None)
+
+
+def refit_due(train: Sequence[Episode], val: Sequence[Episode], share: float) -> float | None:
+    """Validation's samples over the training's, if a map refit is due (``share > 0`` and
+    validation holds at least ``share`` times the training's samples), else None."""
+    n_train = sum(e.n_step for e in train)
+    ratio = sum(e.n_step for e in val) / max(n_train, 1)
+    return ratio if share > 0 and ratio >= share else None
 
 
 def _all_on_map(
@@ -170,6 +205,7 @@ def pinned_joints(
     parallel: bool = False,
     end_stops: bool = True,
     min_span: float = MIN_SPAN,
+    refit_share: float = 0.0,
 ) -> list[bool]:
     """The joints that :func:`choose_map_joints` (with the same options) puts on the map
     whatever the network: with ``periodic``, a joint (a periodic one; with ``parallel``, any)
@@ -177,7 +213,9 @@ def pinned_joints(
     :data:`PERIODIC_MAP_R2`.  A map joint's angle depends on its own command only, so this
     reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
     before the map choice on other networks of the same run, gets the same joints
-    (``record["pinned"]`` of the map choice)."""
+    (``record["pinned"]`` of the map choice; ``refit_share`` changes the map after the choice,
+    not which joints it pins)."""
+    del refit_share
     if not periodic:
         return [False] * sur.spec.n_joint
     _, spanned = joint_spans(train, val, sur.spec, min_span=min_span)
@@ -198,6 +236,7 @@ def choose_map_joints(
     parallel: bool = False,
     end_stops: bool = True,
     min_span: float = MIN_SPAN,
+    refit_share: float = 0.0,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The surrogate with the chosen joints on the static map, or None to keep ``sur``.
 
@@ -216,6 +255,10 @@ def choose_map_joints(
             so.
         min_span: a joint whose validation commands span less than this share of the
             training's command range (:func:`~.span.command_span`) keeps the network.
+        refit_share: when the validation episodes hold at least this share of the training's
+            samples (0: never), the joints on the map take it fitted again on both splits
+            after the choice (:func:`refit_map`; each keeps its variant), and their end stops
+            from both; the model's validation scores are then in-sample on those joints.
 
     Returns:
         ``(new or None, record)``; ``record`` holds the map, both validation scores, the
@@ -341,13 +384,43 @@ def choose_map_joints(
                 f"without {'them' if sum(joints) > 1 else 'it'}"
                 + ("" if lead else " (the network's)")
             )
+    on_map = [bool(k or (parallel and g)) for k, g in zip(kept, good)]
+    ratio = refit_due(train, val, refit_share) if any(on_map) else None
+    if ratio is not None:
+        fit, stops = refit_map(
+            pick,
+            train,
+            val,
+            max_delay=max_map_delay(sur.window, spec),
+            end_stops=stops is not None,
+        )
+        record["refit"] = {
+            "val_share": ratio,
+            "map": {k: fit[k] for k in ("a_pos", "a_neg", "k_pos", "k_neg", "delay")},
+        }
     if parallel:
-        return choose_parallel(
+        chosen = choose_parallel(
             sur, fit, net, kept, good, val, record=record, max_steps=max_steps, map_stops=stops
         )
+        _say_refit(record)
+        return chosen
+    if ratio is not None:  # the chosen joints, on the map of both splits
+        model = with_map_joints(sur, fit, kept, map_stops=stops)
+        got = free_run_error(model, list(val), max_steps=max_steps)
+        _say_refit(record)
     if got is None:  # no candidate: the network, or the pinned joints on the map
         model, got = pinned_only()
     return _chosen(model, got), record
+
+
+def _say_refit(record: dict[str, Any]) -> None:
+    """Add the refit (:func:`refit_map`) to ``record``'s ``why``, if there was one."""
+    if "refit" in record:
+        record["why"] += (
+            f"; the map then refitted on training + validation (validation holds "
+            f"{record['refit']['val_share']:.0%} of the training's samples; its validation "
+            "scores are in-sample on the map joints)"
+        )
 
 
 def choose_parallel(
@@ -433,6 +506,7 @@ def apply_map_choice(
     parallel: bool = False,
     end_stops: bool = True,
     min_span: float = MIN_SPAN,
+    refit_share: float = 0.0,
 ) -> dict[str, Any]:
     """Run :func:`choose_map_joints` on the checkpoint ``best`` and rewrite it atomically (the
     chosen model, or the same model; either way ``metrics.training.static_map`` records the
@@ -449,6 +523,7 @@ def apply_map_choice(
         parallel=parallel,
         end_stops=end_stops,
         min_span=min_span,
+        refit_share=refit_share,
     )
     if new is not None:
         ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it
