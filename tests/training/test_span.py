@@ -194,8 +194,18 @@ def test_validation_at_one_command_level_is_trained_on_too():
     assert not auto_config(low, cpus=2, overrides={"prior_choice": True})[0].train_on_val
     from tests.surrogate.test_auto import _with_gear
 
-    geared, _ = auto_config(_with_gear(low), cpus=2)
-    assert geared.exogenous == "choose" and geared.average_last and not geared.train_on_val
+    # an exogenous input that changes: at one command level validation vouches for no input
+    # either, so it is ignored without a trial and the plan is the one without it
+    geared, why_g = auto_config(_with_gear(low), cpus=2)
+    assert geared.exogenous == "ignore" and geared.average_last and geared.train_on_val
+    for name in ("members", "epochs", "max_train_seconds", "prior_choice", "train_on_val"):
+        assert getattr(geared, name) == getattr(cfg, name), name
+    assert any("gear ignored without a trial" in w and "one command level" in w for w in why_g)
+    assert not any("must not hurt" in w for w in why_g)
+    tried, why_t = auto_config(_with_gear(low), cpus=2, overrides={"exogenous": "choose"})
+    assert tried.exogenous == "choose" and tried.average_last and not tried.train_on_val
+    assert any("must not hurt" in w for w in why_t)
+    assert not any("ignored without a trial" in w for w in why_t)
 
 
 def test_validation_too_short_to_train_on_still_scores():

@@ -164,17 +164,6 @@ def auto_config(
             )
         capped = given > 0
         budget_s = given if capped else budget_s
-    inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
-    held = held_inputs(dataset)
-    # inputs that never change in training teach nothing: ignored without a trial, and the
-    # plan is the one without them (each network starts as it would without the columns)
-    default_exogenous = ("ignore" if len(held) == len(inputs) else "choose") if inputs else "use"
-    exogenous = str(overrides.get("exogenous", default_exogenous))
-    choose = bool(inputs) and exogenous == "choose"
-    # input_dropout > 0 (an override, not the recipe's): every network learns both ways and
-    # the choice costs no training (dual.py); else 2 more networks decide it (variants.py)
-    dropout = float(overrides.get("input_dropout", 0.0)) if choose else 0.0
-    probe = choose and dropout == 0  # networks trained only to decide the choice
     # the kind choice is the recipe's, beside the input choice too, unless validation spans
     # too little of any joint's command range to choose a kind
     min_span = float(overrides.get("choice_min_span", TrainConfig.choice_min_span))
@@ -191,6 +180,19 @@ def auto_config(
     # Its runs are data the other levels lack: the networks train on them too where nothing
     # is chosen on validation (an input or kind choice on in-sample scores would be biased)
     one_level = not short_val and spans is not None and not any(spanned)
+    inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
+    held = held_inputs(dataset)
+    # inputs that never change in training teach nothing, and validation at one command
+    # level vouches for no input at the others: both are ignored without a trial, and the
+    # plan is the one without them (each network starts as it would without the columns)
+    untried = len(held) == len(inputs) or one_level
+    default_exogenous = ("ignore" if untried else "choose") if inputs else "use"
+    exogenous = str(overrides.get("exogenous", default_exogenous))
+    choose = bool(inputs) and exogenous == "choose"
+    # input_dropout > 0 (an override, not the recipe's): every network learns both ways and
+    # the choice costs no training (dual.py); else 2 more networks decide it (variants.py)
+    dropout = float(overrides.get("input_dropout", 0.0)) if choose else 0.0
+    probe = choose and dropout == 0  # networks trained only to decide the choice
     average = bool(overrides.get("average_last", one_level))
     on_val = bool(overrides.get("train_on_val", one_level and not choose and not kinds))
     trained = np.concatenate([lengths, [e.n_step for e in val]]) if on_val else lengths
@@ -218,6 +220,15 @@ def auto_config(
             f"{MEMBER_HEADROOM:g}x slower than the reference to train each whole"
         )
     )
+    if inputs and one_level and len(held) < len(inputs) and "exogenous" not in overrides:
+        why.append(
+            f"exogenous input(s) {', '.join(i for i in inputs if i not in held)} ignored "
+            "without a trial: validation sits at one command level, which vouches for no "
+            "input at the others (h1-dev's H/L condition, chosen at duty 50, lost 12-51 % "
+            "per joint at duty 80 held out, where its trial also cost the validation runs as "
+            "training data); the networks start as they would without the columns and train "
+            'on the validation runs too (set exogenous = "choose" to try them)'
+        )
     if held and "exogenous" not in overrides:
         why.append(
             f"exogenous input(s) {', '.join(f'{k} = {v:g}' for k, v in held.items())} never "
