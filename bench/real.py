@@ -59,8 +59,10 @@ JSON gains a ``condition`` block per shape and the goal ``condition_does_not_hur
 Since session 53 the recipe trains on h1-dev's validation runs too (``train_on_val``: they
 sit at one duty and choose nothing but the epoch), so the ``h1`` shape's scores on them are
 in-sample: its JSON says ``"in_sample": true`` and keeps only the goals that do not read
-them (time, envelope); ``h1-duty80`` is the measure.  With the condition the recipe chooses
-the input on validation and does not train on it.
+them (time, envelope); ``h1-duty80`` is the measure.  With the condition the recipe ignores
+the input without a trial since session 92 (validation at one duty vouches for no input at
+the others) and trains on validation as without it (``--set train.exogenous=choose``: the
+trial, on validation, which it then does not train on).
 
 The scores, the tables and the JSON's per-shape summary live in ``bench/real_scores.py``.
 

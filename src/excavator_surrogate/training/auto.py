@@ -47,6 +47,9 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   With ``input_dropout`` > 0 (not the recipe's) every network learns both ways instead
   and the choice is made on the same networks (:mod:`.dual`): the plan is then the one
   without inputs;
+- exogenous inputs that never change in training, or that validation at one command level
+  cannot vouch for (h1-dev's step tests), are ignored without a trial: the plan, the
+  networks and the training on the validation runs are those without them;
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
