@@ -316,8 +316,8 @@ def test_the_map_is_refitted_on_both_splits_only_where_validation_is_a_large_sha
 
     train = [_static_episode(s) for s in range(3)]
     val = [_scaled(_static_episode(s), 1.1) for s in (7, 8)]
-    assert refit_due(train, val, 0.0) is None and refit_due(train, val, 0.9) is None
-    assert refit_due(train, val, 0.5) == 2 / 3
+    assert refit_due(train, val, share=0.0) is None and refit_due(train, val, share=0.9) is None
+    assert refit_due(train, val, share=0.5) == 2 / 3
     k_train = np.array(fit_prior(train, SPEC)["k_pos"])
     for parallel in (False, True):
         kept, rec0 = choose_map_joints(_net(), train, val, parallel=parallel)

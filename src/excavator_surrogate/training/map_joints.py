@@ -145,7 +145,7 @@ def refit_map(
     return fit, (map_end_stops(both) if end_stops else None)
 
 
-def refit_due(train: Sequence[Episode], val: Sequence[Episode], share: float) -> float | None:
+def refit_due(train: Sequence[Episode], val: Sequence[Episode], *, share: float) -> float | None:
     """Validation's samples over the training's, if a map refit is due (``share > 0`` and
     validation holds at least ``share`` times the training's samples), else None."""
     n_train = sum(e.n_step for e in train)
@@ -385,7 +385,7 @@ def choose_map_joints(
                 + ("" if lead else " (the network's)")
             )
     on_map = [bool(k or (parallel and g)) for k, g in zip(kept, good)]
-    ratio = refit_due(train, val, refit_share) if any(on_map) else None
+    ratio = refit_due(train, val, share=refit_share) if any(on_map) else None
     if ratio is not None:
         fit, stops = refit_map(
             pick,
