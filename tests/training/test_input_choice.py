@@ -14,12 +14,12 @@ from excavator_surrogate.training.input_choice import (
     inputs_after_kinds,
 )
 
-SPEC2 = MachineSpec(
-    joints=(JointSpec("boom"), JointSpec("arm")),
+THREE = MachineSpec(
+    joints=(JointSpec("boom"), JointSpec("arm"), JointSpec("bucket")),
     rate_hz=20.0,
-    name="gear-2j",
     inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),),
 )
+"""A machine with an exogenous input; the rule reads only its joint names."""
 
 
 def _val(err, rmse):
@@ -44,10 +44,7 @@ def test_choose_input_joints_keeps_the_best_set_that_passes_the_whole_rule(monke
     scores: dict = {}
     monkeypatch.setattr(input_choice, "free_run_error", lambda model, val, max_steps: scores[model])
     ignore = _val(1.0, [1.0, 1.0, 1.0])
-    three = MachineSpec(
-        joints=(*SPEC2.joints, JointSpec("bucket")), rate_hz=20.0, inputs=SPEC2.inputs
-    )
-    use = [type("S", (), {"spec": three})()]
+    use = [type("S", (), {"spec": THREE})()]
     # the inputs help the first two joints and hurt the third
     vals = {"use": _val(0.9, [0.5, 0.8, 1.5]), "ignore": ignore}
     scores[(True, True, False)] = _val(0.7, [0.5, 0.8, 1.02])
