@@ -22,10 +22,18 @@ def register(subparsers: Any) -> None:
         help="train a surrogate on a dataset (best checkpoint by validation free-run)",
         description="Train a surrogate on DATASET's train split, select it by closed-loop error on the "
         "val split, and write OUT/best.pt, OUT/last.pt, OUT/log.csv, OUT/config.toml, OUT/tb/ and "
-        "OUT/learning_curve.png (training loss and validation error per epoch).",
+        "OUT/learning_curve.png (training loss and validation error per epoch).  With --dry-run: "
+        "print what it would train (the recipe's reasons or the preset, the trainings, epochs and "
+        "caps and their time on the reference machine, the [train] table) and write nothing.",
     )
     p.add_argument("dataset", type=Path, help="dataset folder (manifest.json + episodes/)")
-    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--out", type=Path, default=None, help="output folder (required to train)")
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print the recipe (or the preset's config), the trainings, epochs and caps it "
+        "plans and their time on the reference machine; train and write nothing",
+    )
     p.add_argument(
         "--preset",
         default=None,
@@ -67,9 +75,14 @@ def register(subparsers: Any) -> None:
 def checked_run(args: argparse.Namespace) -> int:
     """Check ``--out`` and ``--resume`` against the dataset before :func:`run` writes anything."""
     from ..data.dataset import load_dataset
+    from ..errors import ConfigError
     from ..outdir import check_out_dir
     from ..surrogate.checkpoint import check_compatible, load_checkpoint
 
+    if args.dry_run:
+        return run(args)
+    if args.out is None:
+        raise ConfigError("--out DIR is required (or --dry-run to only print the plan)")
     check_out_dir(args.out, overwrite=args.overwrite, lock=True)
     if args.resume is not None:
         resumed = load_checkpoint(args.resume)
@@ -103,8 +116,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         over = overrides(args, ("train",), {"train": named}).get("train", {})
         cfg, why = auto_config(dataset, overrides=over)
-        for line in why:
+        for line in why if not args.dry_run else ():
             log(f"recipe: {line}")
+    if args.dry_run:
+        print(dry_run(cfg, dataset, why=why, source=args.preset), end="")
+        return 0
     dist = None
     if args.ddp or distributed_env():
         dist = init_distributed(device=cfg.device, require=args.ddp)
@@ -122,6 +138,30 @@ def run(args: argparse.Namespace) -> int:
     log(f"best checkpoint: {best} ({which}, val_error {m.get('val_error', float('nan')):.4g})")
     print(best)
     return 0
+
+
+def dry_run(cfg: Any, dataset: Any, *, why: list[str], source: str | None) -> str:
+    """What ``exsur train --dry-run`` prints: the data's sizes, the recipe's reasons (or the
+    preset), the planned work (:mod:`~excavator_surrogate.training.estimate`) and the
+    ``[train]`` table that ``config.toml`` would record."""
+    from ..config import dumps_toml, to_dict
+    from ..training.estimate import describe_work, estimate_work
+
+    spec = dataset.spec
+    sizes = []
+    for split in ("train", "val"):
+        eps = dataset.episodes.get(split, [])
+        minutes = sum(e.n_step for e in eps) / spec.rate_hz / 60
+        sizes.append(f"{len(eps)} {split} episode(s), {minutes:.1f} min")
+    lines = [f"data: {'; '.join(sizes)} at {spec.rate_hz:g} Hz"]
+    if source:
+        lines.append(f"preset: {source}")
+    else:
+        lines.append("recipe (docs/real.md):")
+        lines += [f"  - {w}" for w in why]
+    lines.append("planned work (the reference machine's time; nothing is trained):")
+    lines += [f"  - {w}" for w in describe_work(estimate_work(cfg, dataset))]
+    return "\n".join(lines) + "\n\n" + dumps_toml({"train": to_dict(cfg)})
 
 
 def _learning_curves(out: Path) -> None:

@@ -1,0 +1,133 @@
+"""What a training config will cost before it runs: its trainings, their rounds, its epochs
+and caps, and its time on the reference machine (:mod:`.plan`'s cost model; nothing here
+reads this computer's clock).  ``exsur train DATASET --dry-run`` prints it.
+
+The estimate covers the stateful sub-sequence training of the recipe (:mod:`.auto`) and of
+any preset in that mode; the windowed mode has no cost model, and gets no estimate.  The
+time is the reference machine's: an AVX2-only 2-core computer needed 1.5-1.9x of it on the
+training steps (docs/real-history.md), and the validation estimate overcounts, so the
+headroom printed (the cap over the planned time) says how much slower a computer may be and
+still train every network whole.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..cpus import usable_cpus
+from ..data.dataset import Dataset
+from .batches import val_min_steps
+from .config import TrainConfig
+from .plan import count_sequences, epoch_cost_s, prior_members, probe_members
+
+
+@dataclass(frozen=True)
+class WorkEstimate:
+    """The planned work of one training config on one dataset, at the reference machine's
+    speed (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`)."""
+
+    n_seq: int
+    """Training sub-sequences per epoch (the validation runs' too where they are trained on)."""
+    epochs: int
+    """Planned epochs of every network."""
+    members: int
+    """Plain ensemble members."""
+    map_correcting: int
+    """Networks that correct the static valve map (the kind choice; 0 without it)."""
+    probes: int
+    """Networks trained only to decide the exogenous input choice (its losing way; 0 without it)."""
+    workers: int
+    """Trainings run at once."""
+    epoch_s: float
+    """One epoch of one network on the reference machine [s]."""
+    cap_s: float
+    """Each training's wall-time cap [s] (0: none)."""
+
+    @property
+    def trainings(self) -> int:
+        """Networks trained in all."""
+        return self.members + self.map_correcting + self.probes
+
+    @property
+    def rounds(self) -> int:
+        """Rounds of :attr:`workers` trainings at once."""
+        return math.ceil(self.trainings / self.workers)
+
+    @property
+    def training_s(self) -> float:
+        """One network's planned epochs on the reference machine [s]."""
+        return self.epochs * self.epoch_s
+
+    @property
+    def total_s(self) -> float:
+        """Every round's trainings on the reference machine [s] (the choices after training
+        not counted)."""
+        return self.rounds * self.training_s
+
+    @property
+    def headroom(self) -> float:
+        """How many times slower than the reference a computer may train and still finish
+        every network's planned epochs within the cap (``inf`` without a cap)."""
+        return self.cap_s / self.training_s if self.cap_s > 0 else math.inf
+
+
+def estimate_work(
+    cfg: TrainConfig, dataset: Dataset, *, cpus: int | None = None
+) -> WorkEstimate | None:
+    """The planned work of ``cfg`` on ``dataset`` (``None`` in the windowed mode, which has
+    no cost model).  ``cpus`` (default: those this process may use) bounds the workers where
+    ``cfg.member_workers`` is 0, as the training's pool does."""
+    if cfg.mode != "stateful":
+        return None
+    lengths = [e.n_step for e in dataset.train]
+    val = [e.n_step for e in dataset.val if e.n_step >= val_min_steps(cfg.window)]
+    trained = np.array(lengths + val if cfg.train_on_val else lengths)
+    n_seq = count_sequences(trained, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
+    val_steps = max(val, default=max(lengths, default=0))
+    cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=val_steps)
+    inputs = dataset.spec.n_input > 0
+    probe = inputs and cfg.exogenous == "choose" and cfg.input_dropout == 0
+    members = max(1, cfg.members)
+    n_prior = prior_members(members) if cfg.prior_choice else 0
+    n_probe = probe_members(members) if probe else 0
+    workers = min(cfg.member_workers or cpus or usable_cpus(), members + n_prior + n_probe)
+    return WorkEstimate(
+        n_seq=n_seq,
+        epochs=cfg.epochs,
+        members=members,
+        map_correcting=n_prior,
+        probes=n_probe,
+        workers=max(1, workers),
+        epoch_s=cost,
+        cap_s=float(cfg.max_train_seconds or 0.0),
+    )
+
+
+def describe_work(est: WorkEstimate | None) -> list[str]:
+    """``est`` in a few lines for a person (what ``exsur train --dry-run`` prints)."""
+    if est is None:
+        return ["no estimate: the cost model covers the stateful training (the recipe's mode)"]
+    parts = [f"{est.members} plain member(s)"]
+    if est.map_correcting:
+        parts.append(f"{est.map_correcting} map-correcting")
+    if est.probes:
+        parts.append(f"{est.probes} that decide the exogenous inputs")
+    lines = [
+        f"{est.trainings} training(s) ({', '.join(parts)}), {est.workers} at a time in "
+        f"{est.rounds} round(s); {est.epochs} epochs of {est.n_seq} sub-sequences each",
+        f"about {est.training_s:.0f} s a training on the reference machine, "
+        f"{est.total_s:.0f} s for all of them (the choices after training not counted)",
+    ]
+    if est.cap_s > 0:
+        lines.append(
+            f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "
+            f"{est.headroom:.2f}x slower than the reference trains every network whole; a "
+            "slower or busier one is cut, and the run says so (an AVX2-only 2-core computer "
+            "took 1.5-1.9x the reference's time on the training steps)"
+        )
+    else:
+        lines.append("no wall-time cap: every planned epoch runs, however long it takes")
+    return lines

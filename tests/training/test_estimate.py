@@ -1,0 +1,104 @@
+"""The planned work of a config before it trains (``training/estimate.py``): the same
+numbers the recipe plans with (``training/plan.py``), counted the way the pool runs them."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from excavator_surrogate.data import Dataset
+from excavator_surrogate.spec import InputSpec
+from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.training.auto import auto_config
+from excavator_surrogate.training.estimate import describe_work, estimate_work
+from excavator_surrogate.training.plan import (
+    PLAN_SHARE,
+    POST_SHARE,
+    member_budget_s,
+    trainings,
+)
+
+
+def _dataset(lengths: list[int], *, val: list[int]) -> Dataset:
+    spec = synthetic_spec(3)
+    ds = Dataset(spec=spec)
+    for i, n in enumerate(lengths):
+        ds.episodes["train"].append(synthetic_episode(spec, kind="step", n_step=n, seed=i))
+    for i, n in enumerate(val):
+        ds.episodes["val"].append(synthetic_episode(spec, kind="step", n_step=n, seed=90 + i))
+    return ds
+
+
+def _with_gear(plain: Dataset) -> Dataset:
+    """``plain`` with an exogenous input that changes in training (-1 / +1 by turns)."""
+    spec = replace(plain.spec, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
+    ds = Dataset(spec=spec)
+    for split, eps in plain.episodes.items():
+        ds.episodes[split] = [
+            e.replace(spec=spec, u=np.concatenate([e.u, _gear(e.n_step)], axis=1)) for e in eps
+        ]
+    return ds
+
+
+def _gear(n_step: int) -> np.ndarray:
+    return np.where(np.arange(n_step) // 40 % 2 == 0, -1.0, 1.0)[:, None]
+
+
+@pytest.mark.parametrize(
+    ("lengths", "val", "budget"),
+    [
+        ([600] * 100, [200] * 6, 540.0),  # many runs (the h1 shape)
+        ([8000], [2000], 540.0),  # one long log, one validation segment
+        ([8000], [2000], 60.0),  # the same, squeezed: the budget binds
+        ([3200], [2000], 600.0),  # a short log: the data bound the epochs
+    ],
+)
+def test_the_estimate_is_the_recipes_own_plan(lengths, val, budget):
+    """Trainings, rounds and caps as the recipe budgets them (``plan.trainings``,
+    ``member_budget_s``), its epochs, and a planned time within its share: the cap leaves a
+    computer at least (1 - POST_SHARE) / PLAN_SHARE times slower room to finish."""
+    ds = _dataset(lengths, val=val)
+    cfg, why = auto_config(ds, cpus=2, budget_s=budget)
+    est = estimate_work(cfg, ds, cpus=2)
+    assert est is not None and est.epochs == cfg.epochs and est.cap_s == cfg.max_train_seconds
+    assert est.trainings == trainings(cfg.members, probe=False, kinds=cfg.prior_choice)
+    assert est.workers == cfg.member_workers and est.rounds == math.ceil(est.trainings / 2)
+    share = member_budget_s(cfg.members, budget, cpus=2, probe=False, kinds=cfg.prior_choice)
+    assert est.cap_s == pytest.approx((1 - POST_SHARE) * share)
+    assert est.training_s <= PLAN_SHARE * share + 1e-9 or est.epochs == 1
+    assert est.headroom >= (1 - POST_SHARE) / PLAN_SHARE - 1e-9 or est.epochs == 1
+    planned = next(w for w in why if "epochs planned" in w)
+    assert f"{est.n_seq} sub-sequences per epoch" in planned
+    assert f"about {est.training_s:.0f} s per member" in planned
+    assert est.total_s == pytest.approx(est.rounds * est.training_s)
+
+
+def test_the_input_probe_and_a_single_cpu_are_counted():
+    ds = _with_gear(_dataset([8000], val=[2000]))
+    cfg, _ = auto_config(ds, cpus=2)
+    assert cfg.exogenous == "choose"  # 2 more networks decide it, in the same budget
+    est = estimate_work(cfg, ds, cpus=2)
+    assert est is not None and est.probes == 2
+    assert est.trainings == trainings(cfg.members, probe=True, kinds=cfg.prior_choice) == 8
+    assert est.cap_s == pytest.approx((1 - POST_SHARE) * 540 / est.rounds)
+    dual, _ = auto_config(ds, cpus=2, overrides={"input_dropout": 0.5})
+    both = estimate_work(dual, ds, cpus=2)  # every network learns both ways: no probe
+    assert both is not None and both.probes == 0 and both.trainings == 6
+    one = estimate_work(replace(cfg, member_workers=0), ds, cpus=1)
+    assert one is not None and one.workers == 1 and one.rounds == one.trainings
+    lines = describe_work(est)
+    assert "decide the exogenous inputs" in lines[0] and f"{est.rounds} round(s)" in lines[0]
+
+
+def test_no_cap_and_the_windowed_mode_say_so():
+    ds = _dataset([600] * 10, val=[200])
+    cfg, _ = auto_config(ds, cpus=2, overrides={"max_train_seconds": 0})
+    est = estimate_work(cfg, ds, cpus=2)
+    assert est is not None and est.cap_s == 0 and est.headroom == math.inf
+    assert "no wall-time cap" in describe_work(est)[-1]
+    windowed = cfg.for_mode("windowed")
+    assert estimate_work(windowed, ds) is None
+    assert describe_work(None)[0].startswith("no estimate")
