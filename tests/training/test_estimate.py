@@ -68,12 +68,46 @@ def test_the_estimate_is_the_recipes_own_plan(lengths, val, budget):
     assert est.workers == cfg.member_workers and est.rounds == math.ceil(est.trainings / 2)
     share = member_budget_s(cfg.members, budget, cpus=2, probe=False, kinds=cfg.prior_choice)
     assert est.cap_s == pytest.approx((1 - POST_SHARE) * share)
-    assert est.training_s <= PLAN_SHARE * share + 1e-9 or est.epochs == 1
+    # the plan budgets a validation for every epoch; the estimate counts those the loop runs
+    plan_s = est.epochs * (est.train_s + est.val_s)
+    assert est.training_s <= plan_s <= PLAN_SHARE * share + 1e-9 or est.epochs == 1
     assert est.headroom >= (1 - POST_SHARE) / PLAN_SHARE - 1e-9 or est.epochs == 1
     planned = next(w for w in why if "epochs planned" in w)
     assert f"{est.n_seq} sub-sequences per epoch" in planned
-    assert f"about {est.training_s:.0f} s per member" in planned
+    assert f"about {plan_s:.0f} s per member" in planned
     assert est.total_s == pytest.approx(est.rounds * est.training_s)
+    assert 1 <= est.validated <= est.epochs
+
+
+@pytest.mark.parametrize(
+    ("select", "validated"),
+    [
+        ({}, 6),
+        ({"select_after": 0.5, "select_smooth": 1}, 4),
+        ({"train_on_val": True}, 1),
+        ({"select_after": 0.5, "select_smooth": 1, "lr_schedule": "plateau"}, 6),
+    ],
+)
+def test_the_validated_epochs_are_those_the_loop_validates(tmp_path, select, validated):
+    """Every epoch; on one short segment the second half of the plan (less the epochs its
+    smoothed score reads); where validation is trained on, the last epoch alone: counted
+    from a training's own ``log.csv`` (the recipe's cosine schedule; the plateau schedule
+    validates every epoch, as it steps on the error)."""
+    import csv
+
+    from excavator_surrogate.training import train
+    from tests.helpers.training import tiny_dataset, tiny_train_config
+
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    cfg = tiny_train_config(**{"epochs": 6, "seq_batch": 4, "lr_schedule": "cosine", **select})
+    est = estimate_work(cfg, ds, cpus=1)
+    assert est is not None
+    train(cfg, ds, out=tmp_path, show_progress=False)
+    with open(tmp_path / "log.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == cfg.epochs
+    ran = sum(math.isfinite(float(r["val_error"])) for r in rows)  # NaN: not validated
+    assert est.validated == ran == validated
 
 
 def test_the_input_probe_and_a_single_cpu_are_counted():

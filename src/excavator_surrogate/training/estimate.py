@@ -3,11 +3,15 @@ and caps, and its time on the reference machine (:mod:`.plan`'s cost model; noth
 reads this computer's clock).  ``exsur train DATASET --dry-run`` prints it.
 
 The estimate covers the stateful sub-sequence training of the recipe (:mod:`.auto`) and of
-any preset in that mode; the windowed mode has no cost model, and gets no estimate.  The
-time is the reference machine's: an AVX2-only 2-core computer needed 1.5-1.9x of it on the
-training steps (docs/real-history.md), and the validation estimate overcounts, so the
-headroom printed (the cap over the planned time) says how much slower a computer may be and
-still train every network whole.
+any preset in that mode; the windowed mode has no cost model, and gets no estimate.  Unlike
+the plan, which budgets a validation for every epoch, it counts the epochs the training
+loop will validate (:func:`~.selection.first_validated`: on one short segment only the
+second half of the plan, where validation is trained on only the last epoch), so its
+headroom (the cap over the estimated time) says how much slower than the reference a
+computer may be and still train every network whole.  The reference machine's per-step
+costs (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`) are the plan's: an AVX2-only
+2-core computer needed 1.5-1.9x :data:`~.plan.STEP_S` on its training steps, and about half
+of :data:`~.plan.VAL_STEP_S` on a long validation run (docs/real-history.md).
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ from ..cpus import usable_cpus
 from ..data.dataset import Dataset
 from .batches import val_min_steps
 from .config import TrainConfig
-from .plan import count_sequences, epoch_cost_s, prior_members, probe_members
+from .plan import count_sequences, epoch_cost_s, epoch_train_s, prior_members, probe_members
+from .selection import first_validated
 
 
 @dataclass(frozen=True)
@@ -41,8 +46,12 @@ class WorkEstimate:
     """Networks trained only to decide the exogenous input choice (its losing way; 0 without it)."""
     workers: int
     """Trainings run at once."""
-    epoch_s: float
-    """One epoch of one network on the reference machine [s]."""
+    train_s: float
+    """One epoch's training steps on the reference machine [s]."""
+    val_s: float
+    """One epoch's validation on the reference machine [s] (both candidates, as planned)."""
+    validated: int
+    """Epochs validated (the last ones: :func:`~.selection.first_validated`)."""
     cap_s: float
     """Each training's wall-time cap [s] (0: none)."""
 
@@ -58,8 +67,11 @@ class WorkEstimate:
 
     @property
     def training_s(self) -> float:
-        """One network's planned epochs on the reference machine [s]."""
-        return self.epochs * self.epoch_s
+        """One network's planned epochs on the reference machine [s]::
+
+        epochs * train_s + validated * val_s
+        """
+        return self.epochs * self.train_s + self.validated * self.val_s
 
     @property
     def total_s(self) -> float:
@@ -87,7 +99,15 @@ def estimate_work(
     trained = np.array(lengths + val if cfg.train_on_val else lengths)
     n_seq = count_sequences(trained, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
     val_steps = max(val, default=max(lengths, default=0))
+    train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=val_steps)
+    start = first_validated(
+        cfg.epochs,
+        cfg.select_after,
+        smooth=cfg.select_smooth,
+        plateau=cfg.lr_schedule == "plateau",
+        last_only=cfg.train_on_val,
+    )
     inputs = dataset.spec.n_input > 0
     probe = inputs and cfg.exogenous == "choose" and cfg.input_dropout == 0
     members = max(1, cfg.members)
@@ -101,7 +121,9 @@ def estimate_work(
         map_correcting=n_prior,
         probes=n_probe,
         workers=max(1, workers),
-        epoch_s=cost,
+        train_s=train_s,
+        val_s=cost - train_s,
+        validated=max(0, cfg.epochs - start),
         cap_s=float(cfg.max_train_seconds or 0.0),
     )
 
@@ -118,15 +140,18 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
     lines = [
         f"{est.trainings} training(s) ({', '.join(parts)}), {est.workers} at a time in "
         f"{est.rounds} round(s); {est.epochs} epochs of {est.n_seq} sub-sequences each",
-        f"about {est.training_s:.0f} s a training on the reference machine, "
-        f"{est.total_s:.0f} s for all of them (the choices after training not counted)",
+        f"about {est.training_s:.0f} s a training on the reference machine "
+        f"({est.epochs * est.train_s:.0f} s of training steps, {est.validated} validated "
+        f"epoch(s) {est.validated * est.val_s:.0f} s), {est.total_s:.0f} s for all of them (the "
+        "choices after training not counted)",
     ]
     if est.cap_s > 0:
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "
             f"{est.headroom:.2f}x slower than the reference trains every network whole; a "
             "slower or busier one is cut, and the run says so (an AVX2-only 2-core computer "
-            "took 1.5-1.9x the reference's time on the training steps)"
+            "took 1.5-1.9x the reference's time on the training steps, and less on long "
+            "validation runs)"
         )
     else:
         lines.append("no wall-time cap: every planned epoch runs, however long it takes")

@@ -123,11 +123,21 @@ def count_sequences(lengths: np.ndarray, *, seq_len: int, burn_in: int) -> int:
 def epoch_cost_s(n_seq: int, *, seq_len: int, seq_batch: int, val_steps: int) -> float:
     """Estimated wall time of one epoch on the reference machine [s]:
 
-      n_batch * seq_len * STEP_S          training (one recurrent step per sample of a batch)
+      n_batch * seq_len * STEP_S          training (:func:`epoch_train_s`)
     + 2 * val_steps * VAL_STEP_S          free-run validation of the raw and averaged weights
     """
+    train_s = epoch_train_s(n_seq, seq_len=seq_len, seq_batch=seq_batch)
+    return train_s + 2 * val_steps * VAL_STEP_S
+
+
+def epoch_train_s(n_seq: int, *, seq_len: int, seq_batch: int) -> float:
+    """The training steps' part of :func:`epoch_cost_s` [s]: one recurrent step per sample of
+    each of the ``ceil(n_seq / seq_batch)`` batches of sub-sequences::
+
+        n_batch * seq_len * STEP_S
+    """
     n_batch = math.ceil(max(n_seq, 1) / seq_batch)
-    return n_batch * seq_len * STEP_S + 2 * val_steps * VAL_STEP_S
+    return n_batch * seq_len * STEP_S
 
 
 def want_epochs(n_seq: int) -> int:
