@@ -140,6 +140,10 @@ def run_pipeline(
             )
             for line in recipe:
                 _log.info(f"run[{name}]: recipe: {line}")
+            from .training.estimate import describe_work, estimate_work
+
+            for line in describe_work(estimate_work(train_cfg, raw_ds)):
+                _log.info(f"run[{name}]: planned work: {line}")
         if not raw_ds.split(eval_cfg.split) and raw_ds.val:
             _log.info(
                 f"run[{name}]: the dataset has no '{eval_cfg.split}' split: evaluating on 'val', "

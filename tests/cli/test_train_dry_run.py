@@ -50,3 +50,12 @@ def test_training_without_out_is_one_line(data_dir: Path, capsys) -> None:
     assert main(["train", str(data_dir / "ds3")]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "exsur: error: --out DIR is required (or --dry-run to only print the plan)"
+
+
+def test_a_training_logs_its_planned_work_first(data_dir: Path, tmp_path: Path, capsys) -> None:
+    argv = ["train", str(data_dir / "ds3"), "--preset", str(data_dir / "tiny.toml")]
+    assert main([*argv, "--epochs", "1", "--out", str(tmp_path / "m")]) == 0
+    err = capsys.readouterr().err
+    planned = [ln for ln in err.splitlines() if "planned work: " in ln]
+    assert len(planned) == 3 and "1 training(s) (1 plain member(s))" in planned[0]
+    assert err.index("planned work: ") < err.index("epoch 0")

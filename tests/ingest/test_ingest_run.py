@@ -63,6 +63,7 @@ def test_run_logs_writes_the_report_folder(arm3_dir: Path, tmp_path: Path, cli) 
     lo, hi, w = envelope(sur.spec)
     assert np.isfinite(lo).all() and np.isfinite(hi).all() and np.isfinite(w).all()
     assert "recipe" in err
+    assert "planned work: " in err and err.index("recipe: ") < err.index("planned work: ")
 
 
 def test_run_logs_needs_the_mapping(arm3_dir: Path, tmp_path: Path, cli) -> None:
@@ -82,4 +83,4 @@ def test_train_without_a_preset_uses_the_recipe(arm3_dir: Path, tmp_path: Path, 
     assert stdout.strip().endswith("best.pt")
     cfg = tomllib.loads((out / "config.toml").read_text())
     assert cfg["recipe"]["name"] == "auto" and cfg["train"]["mode"] == "stateful"
-    assert "recipe: window" in err
+    assert "recipe: window" in err and "planned work: " in err

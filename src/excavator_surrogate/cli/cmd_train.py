@@ -99,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from ..surrogate.checkpoint import read_checkpoint
     from ..training import train
     from ..training.auto import auto_config, recipe_table
+    from ..training.estimate import describe_work, estimate_work
 
     named = dict(
         mode=args.mode,
@@ -121,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     if args.dry_run:
         print(dry_run(cfg, dataset, why=why, source=args.preset), end="")
         return 0
+    for line in describe_work(estimate_work(cfg, dataset)):
+        log(f"planned work: {line}")
     dist = None
     if args.ddp or distributed_env():
         dist = init_distributed(device=cfg.device, require=args.ddp)
