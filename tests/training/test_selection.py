@@ -126,7 +126,7 @@ def test_skipping_early_validation_changes_no_weight_and_no_score(tmp_path, monk
     assert [r["validated"] for r in rows] == [0, 0, 1, 1, 1, 1]  # eligible from 3, smooth 1
     assert all(math.isnan(r["val_error"]) for r in rows[:2])
     # the reference: every epoch validated
-    monkeypatch.setattr(loop, "first_validated", lambda *a, **k: 0)
+    monkeypatch.setattr(loop, "validation_start", lambda cfg: 0)
     ref = read_checkpoint(train(cfg, data, out=tmp_path / "ref", show_progress=False))
     assert all(r["validated"] == 1 for r in ref["history"])
     assert fast["metrics"]["epoch"] == ref["metrics"]["epoch"]

@@ -5,7 +5,7 @@ reads this computer's clock).  ``exsur train DATASET --dry-run`` prints it.
 The estimate covers the stateful sub-sequence training of the recipe (:mod:`.auto`) and of
 any preset in that mode; the windowed mode has no cost model, and gets no estimate.  Unlike
 the plan, which budgets a validation for every epoch, it counts the epochs the training
-loop will validate (:func:`~.selection.first_validated`: on one short segment only the
+loop will validate (:func:`~.selection.validation_start`: on one short segment only the
 second half of the plan, where validation is trained on only the last epoch), so its
 headroom (the cap over the estimated time) says how much slower than the reference a
 computer may be and still train every network whole.  The reference machine's per-step
@@ -26,7 +26,7 @@ from ..data.dataset import Dataset
 from .batches import val_min_steps
 from .config import TrainConfig
 from .plan import count_sequences, epoch_cost_s, epoch_train_s, prior_members, probe_members
-from .selection import first_validated
+from .selection import validation_start
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class WorkEstimate:
     val_s: float
     """One epoch's validation on the reference machine [s] (both candidates, as planned)."""
     validated: int
-    """Epochs validated (the last ones: :func:`~.selection.first_validated`)."""
+    """Epochs validated (the last ones: :func:`~.selection.validation_start`)."""
     cap_s: float
     """Each training's wall-time cap [s] (0: none)."""
 
@@ -101,13 +101,7 @@ def estimate_work(
     val_steps = max(val, default=max(lengths, default=0))
     train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=val_steps)
-    start = first_validated(
-        cfg.epochs,
-        cfg.select_after,
-        smooth=cfg.select_smooth,
-        plateau=cfg.lr_schedule == "plateau",
-        last_only=cfg.train_on_val,
-    )
+    start = validation_start(cfg)
     inputs = dataset.spec.n_input > 0
     probe = inputs and cfg.exogenous == "choose" and cfg.input_dropout == 0
     members = max(1, cfg.members)

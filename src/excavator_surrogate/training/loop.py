@@ -55,10 +55,10 @@ from .selection import (
     averaged,
     choose,
     first_eligible,
-    first_validated,
     is_better,
     not_validated,
     selection_score,
+    validation_start,
 )
 
 _log = logging.getLogger(__name__)
@@ -184,13 +184,7 @@ def train_network(
     cands = [("raw", sur)] + ([("ema", optim.ema_sur)] if optim.ema_sur is not None else [])
     done, stopped = st.epoch, "planned"
     say(f"planned: {cfg.epochs} epochs{budget_note(budget)}")
-    validate_from = first_validated(
-        cfg.epochs,
-        cfg.select_after,
-        smooth=cfg.select_smooth,
-        plateau=cfg.lr_schedule == "plateau",
-        last_only=cfg.train_on_val,
-    )
+    validate_from = validation_start(cfg)
     if validate_from > st.epoch:
         say(
             f"validating from epoch {validate_from} on: no earlier epoch competes for best.pt "

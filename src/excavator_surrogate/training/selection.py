@@ -29,6 +29,7 @@ import torch
 from ..data.episode import Episode
 from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_errors
+from .config import TrainConfig
 from .parallel import Parallel
 
 
@@ -97,6 +98,18 @@ def first_validated(
     if plateau:
         return 0
     return max(0, first_eligible(epochs, select_after, last_only=last_only) - smooth)
+
+
+def validation_start(cfg: TrainConfig) -> int:
+    """:func:`first_validated` of the training ``cfg`` plans (its epochs, selection rule,
+    schedule and whether validation is trained on)."""
+    return first_validated(
+        cfg.epochs,
+        cfg.select_after,
+        smooth=cfg.select_smooth,
+        plateau=cfg.lr_schedule == "plateau",
+        last_only=cfg.train_on_val,
+    )
 
 
 def not_validated(cands: list[tuple[str, Surrogate]], n_joint: int) -> Choice:
