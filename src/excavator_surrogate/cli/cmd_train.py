@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .common import add_cpus_option, add_overwrite
 from .knobs import add_set_option, configs, overrides, positive_seconds
+
+if TYPE_CHECKING:
+    from ..data.dataset import Dataset
+    from ..training.config import TrainConfig
 
 
 def register(subparsers: Any) -> None:
@@ -117,11 +121,11 @@ def run(args: argparse.Namespace) -> int:
     else:
         over = overrides(args, ("train",), {"train": named}).get("train", {})
         cfg, why = auto_config(dataset, overrides=over)
-        for line in why if not args.dry_run else ():
-            log(f"recipe: {line}")
-    if args.dry_run:
+    if args.dry_run:  # printed, not logged
         print(dry_run(cfg, dataset, why=why, source=args.preset), end="")
         return 0
+    for line in why:
+        log(f"recipe: {line}")
     for line in describe_work(estimate_work(cfg, dataset)):
         log(f"planned work: {line}")
     dist = None
@@ -143,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def dry_run(cfg: Any, dataset: Any, *, why: list[str], source: str | None) -> str:
+def dry_run(cfg: TrainConfig, dataset: Dataset, *, why: list[str], source: str | None) -> str:
     """What ``exsur train --dry-run`` prints: the data's sizes, the recipe's reasons (or the
     preset), the planned work (:mod:`~excavator_surrogate.training.estimate`) and the
     ``[train]`` table that ``config.toml`` would record."""
