@@ -9,9 +9,10 @@ loop will validate (:func:`~.selection.validation_start`: on one short segment o
 second half of the plan, where validation is trained on only the last epoch), so its
 headroom (the cap over the estimated time) says how much slower than the reference a
 computer may be and still train every network whole.  The reference machine's per-step
-costs (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`) are the plan's: an AVX2-only
-2-core computer needed 1.5-1.9x :data:`~.plan.STEP_S` on its training steps, and about half
-of :data:`~.plan.VAL_STEP_S` on a long validation run (docs/real-history.md).
+costs (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`) are the plan's: AVX2-only 2-core
+computers needed 1.3-2.1x :data:`~.plan.STEP_S` on their training steps (a Zen 3, quiet,
+1.25-1.66x on the stroke case's; computer D 1.9-2.1x on 150-step sub-sequences), and about
+half of :data:`~.plan.VAL_STEP_S` on a long validation run (docs/real-history.md).
 """
 
 from __future__ import annotations
@@ -143,8 +144,8 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "
             f"{est.headroom:.2f}x slower than the reference trains every network whole; a "
-            "slower or busier one is cut, and the run says so (an AVX2-only 2-core computer "
-            "took 1.5-1.9x the reference's time on the training steps, and less on long "
+            "slower or busier one is cut, and the run says so (AVX2-only 2-core computers "
+            "took 1.3-2.1x the reference's time on the training steps, and less on long "
             "validation runs)"
         )
     else:
