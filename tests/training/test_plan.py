@@ -60,3 +60,18 @@ def test_the_choices_networks_are_counted_before_training():
             for kinds in (False, True):
                 want = members + probe * probe_members(members) + kinds * prior_members(members)
                 assert trainings(members, probe=probe, kinds=kinds) == want
+
+
+def test_an_epochs_sizes_count_the_validation_runs_only_where_they_are_trained_on():
+    """``epoch_sizes``, which the recipe plans with and the dry run estimates with: the
+    validation runs' sub-sequences join the epoch with ``on_val``; validation's length is its
+    longest run, or the longest training run where there is none."""
+    from excavator_surrogate.training.plan import count_sequences, epoch_sizes
+
+    train, val = [500, 200], [300, 60]
+    alone = count_sequences(np.array(train), seq_len=50, burn_in=10)
+    both = count_sequences(np.array(train + val), seq_len=50, burn_in=10)
+    assert epoch_sizes(train, val, on_val=False, seq_len=50, burn_in=10) == (alone, 300)
+    assert epoch_sizes(train, val, on_val=True, seq_len=50, burn_in=10) == (both, 300)
+    assert both > alone
+    assert epoch_sizes(train, [], on_val=True, seq_len=50, burn_in=10) == (alone, 500)

@@ -80,8 +80,8 @@ from .map_joints import PERIODIC_MAP_R2
 from .plan import (
     MEMBER_HEADROOM,
     POST_SHARE,
-    count_sequences,
     epoch_cost_s,
+    epoch_sizes,
     max_members,
     member_budget_s,
     min_members,
@@ -198,9 +198,9 @@ def auto_config(
     probe = choose and dropout == 0  # networks trained only to decide the choice
     average = bool(overrides.get("average_last", one_level))
     on_val = bool(overrides.get("train_on_val", one_level and not choose and not kinds))
-    trained = np.concatenate([lengths, [e.n_step for e in val]]) if on_val else lengths
-    n_seq = count_sequences(trained, seq_len=seq_len, burn_in=window)
-    val_len = max((e.n_step for e in val), default=int(lengths.max()))
+    n_seq, val_len = epoch_sizes(
+        lengths.tolist(), [e.n_step for e in val], on_val=on_val, seq_len=seq_len, burn_in=window
+    )
     cost = epoch_cost_s(n_seq, seq_len=seq_len, seq_batch=SEQ_BATCH, val_steps=val_len)
     asked = overrides.get("members")
     members = (

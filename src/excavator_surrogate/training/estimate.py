@@ -20,13 +20,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..cpus import usable_cpus
 from ..data.dataset import Dataset
 from .batches import val_min_steps
 from .config import TrainConfig
-from .plan import count_sequences, epoch_cost_s, epoch_train_s, prior_members, probe_members
+from .plan import epoch_cost_s, epoch_sizes, epoch_train_s, prior_members, probe_members
 from .selection import validation_start
 
 
@@ -95,11 +93,13 @@ def estimate_work(
     ``cfg.member_workers`` is 0, as the training's pool does."""
     if cfg.mode != "stateful":
         return None
-    lengths = [e.n_step for e in dataset.train]
-    val = [e.n_step for e in dataset.val if e.n_step >= val_min_steps(cfg.window)]
-    trained = np.array(lengths + val if cfg.train_on_val else lengths)
-    n_seq = count_sequences(trained, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
-    val_steps = max(val, default=max(lengths, default=0))
+    n_seq, val_steps = epoch_sizes(
+        [e.n_step for e in dataset.train],
+        [e.n_step for e in dataset.val if e.n_step >= val_min_steps(cfg.window)],
+        on_val=cfg.train_on_val,
+        seq_len=cfg.seq_len,
+        burn_in=cfg.burn_in,
+    )
     train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=val_steps)
     start = validation_start(cfg)

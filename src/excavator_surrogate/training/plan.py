@@ -26,6 +26,7 @@ The measurements behind each constant are in ``docs/real-history.md``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -118,6 +119,19 @@ def count_sequences(lengths: np.ndarray, *, seq_len: int, burn_in: int) -> int:
     stride = seq_len - burn_in + 1
     last = lengths - 1 - seq_len
     return int(np.sum(np.where(last >= 0, last // stride + 1, 0)))
+
+
+def epoch_sizes(
+    lengths: Sequence[int], val_lengths: Sequence[int], *, on_val: bool, seq_len: int, burn_in: int
+) -> tuple[int, int]:
+    """``(n_seq, val_steps)``: the sub-sequences one epoch trains on (:func:`count_sequences`
+    of the training episodes' ``lengths``, and of the validation episodes' ``val_lengths``
+    too where they are trained on, ``on_val``) and the samples of the longest validation run
+    (of the longest training episode without one).  ``val_lengths``: the validation episodes
+    the training free-runs (those long enough for its window)."""
+    trained = [*lengths, *val_lengths] if on_val else list(lengths)
+    n_seq = count_sequences(np.array(trained, dtype=int), seq_len=seq_len, burn_in=burn_in)
+    return n_seq, int(max(val_lengths, default=max(lengths, default=0)))
 
 
 def epoch_cost_s(n_seq: int, *, seq_len: int, seq_batch: int, val_steps: int) -> float:
