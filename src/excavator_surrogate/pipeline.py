@@ -134,14 +134,13 @@ def run_pipeline(
         train_ds = raw_ds
         if run_cfg.auto_train:
             from .training.auto import auto_config, recipe_table
+            from .training.estimate import describe_work, estimate_work
 
             train_cfg, recipe = auto_config(
                 raw_ds, overrides=merge_tables(raw_preset.get("train", {}), over.get("train", {}))
             )
             for line in recipe:
                 _log.info(f"run[{name}]: recipe: {line}")
-            from .training.estimate import describe_work, estimate_work
-
             for line in describe_work(estimate_work(train_cfg, raw_ds)):
                 _log.info(f"run[{name}]: planned work: {line}")
         if not raw_ds.split(eval_cfg.split) and raw_ds.val:

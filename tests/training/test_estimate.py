@@ -6,11 +6,9 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-import numpy as np
 import pytest
 
 from excavator_surrogate.data import Dataset
-from excavator_surrogate.spec import InputSpec
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.estimate import describe_work, estimate_work
@@ -20,6 +18,7 @@ from excavator_surrogate.training.plan import (
     member_budget_s,
     trainings,
 )
+from tests.surrogate.test_auto import _with_gear  # a gear that changes by turns
 
 
 def _dataset(lengths: list[int], *, val: list[int]) -> Dataset:
@@ -30,21 +29,6 @@ def _dataset(lengths: list[int], *, val: list[int]) -> Dataset:
     for i, n in enumerate(val):
         ds.episodes["val"].append(synthetic_episode(spec, kind="step", n_step=n, seed=90 + i))
     return ds
-
-
-def _with_gear(plain: Dataset) -> Dataset:
-    """``plain`` with an exogenous input that changes in training (-1 / +1 by turns)."""
-    spec = replace(plain.spec, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
-    ds = Dataset(spec=spec)
-    for split, eps in plain.episodes.items():
-        ds.episodes[split] = [
-            e.replace(spec=spec, u=np.concatenate([e.u, _gear(e.n_step)], axis=1)) for e in eps
-        ]
-    return ds
-
-
-def _gear(n_step: int) -> np.ndarray:
-    return np.where(np.arange(n_step) // 40 % 2 == 0, -1.0, 1.0)[:, None]
 
 
 @pytest.mark.parametrize(
