@@ -33,7 +33,7 @@ def _preset(tmp_path: Path, base: str, extra: str = "") -> Path:
     return p
 
 
-def test_run_stage1_report(tmp_path: Path) -> None:
+def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
     assert main(["run", "--preset", str(_preset(tmp_path, "tiny")), "--out", str(out)]) == 0
     for f in (
@@ -65,6 +65,11 @@ def test_run_stage1_report(tmp_path: Path) -> None:
     assert f"`exsur info {out.resolve() / 'data'}`" in report
     cfg = tomllib.loads((out / "config.toml").read_text())
     assert cfg["train"]["hidden"] == 16 and cfg["simulate"]["n_train"] == 2
+    # the dry run of the same command: the data's sizes before simulating, the same record
+    assert main(["run", "--preset", str(_preset(tmp_path, "tiny")), "--dry-run", "-q"]) == 0
+    text = capsys.readouterr().out
+    assert "data: simulated on the ideal stand-in (nothing simulated now): 2 train" in text
+    assert tomllib.loads(text[text.index("config.toml:\n") + 13 :]) == cfg
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
     moved = tmp_path / "moved"
     out.rename(moved)

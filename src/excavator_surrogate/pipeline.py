@@ -82,29 +82,19 @@ def run_pipeline(
     from .training import TrainJob, train_parallel
 
     t_start = time.monotonic()
-    if (logs is None) != (mapping is None):
-        raise ConfigError("--logs and --mapping go together: give both, or neither")
-    if logs is not None and data is not None:
-        raise ConfigError("give either --logs (with --mapping) or --data, not both")
-    raw_preset = load_preset(preset, check=check_preset)
-    name = str(raw_preset.get("name", preset))
-    if workers is not None and workers < 1:
-        raise ConfigError(f"--workers must be >= 1, got {workers}")
-    named = {
-        "simulate": {"workers": workers, "seed": seed},
-        "train": {
-            "seed": seed,
-            "max_train_seconds": None if max_train_seconds is None else float(max_train_seconds),
-            "epochs": epochs,
-            "members": members,
-        },
-    }
-    over = merge_tables(
-        sets or {}, {k: {n: v for n, v in t.items() if v is not None} for k, t in named.items()}
+    req = resolve_run(
+        preset=preset,
+        data=data,
+        workers=workers,
+        seed=seed,
+        max_train_seconds=max_train_seconds,
+        epochs=epochs,
+        members=members,
+        logs=logs,
+        mapping=mapping,
+        sets=sets,
     )
-    cfgs = build_configs(
-        raw_preset, sections=RUN_SECTIONS, overrides=over, where=f"preset '{name}'"
-    )
+    name, raw_preset, over, cfgs = req.name, req.raw_preset, req.overrides, req.configs
     run_cfg: RunConfig = cfgs["run"]
     sim_cfg = cfgs["simulate"]
     train_cfg = cfgs["train"]
@@ -143,16 +133,13 @@ def run_pipeline(
                 _log.info(f"run[{name}]: recipe: {line}")
             for line in describe_work(estimate_work(train_cfg, raw_ds)):
                 _log.info(f"run[{name}]: planned work: {line}")
-        if not raw_ds.split(eval_cfg.split) and raw_ds.val:
-            _log.info(
-                f"run[{name}]: the dataset has no '{eval_cfg.split}' split: evaluating on 'val', "
-                + (
-                    "which the networks also train on (in-sample: no measure of unseen runs)"
-                    if train_cfg.train_on_val
-                    else "which also selected the checkpoint (optimistic)"
-                )
-            )
-            eval_cfg = dataclasses.replace(eval_cfg, split="val")
+        eval_cfg, why_val = evaluated_split(
+            eval_cfg,
+            splits={s: len(raw_ds.split(s)) for s in ("train", "val", "test")},
+            train_on_val=train_cfg.train_on_val,
+        )
+        if why_val:
+            _log.info(f"run[{name}]: {why_val}")
         result_extra: dict[str, Any] = {}
 
         # ---- clean ----------------------------------------------------------------------
@@ -257,19 +244,10 @@ def run_pipeline(
             "out": str(out.resolve()),
         }
         write_json(tmp / "metrics.json", metrics)
-        # with the CLI overrides (and the data-driven recipe) applied
-        used = {k: v for k, v in cfgs.items() if k != "clean" or run_cfg.clean}
-        used.update(train=train_cfg, evaluate=eval_cfg)
-        if logs is not None or data is not None:
-            used.pop("simulate")
-        record = {"name": name, **{k: to_dict(v) for k, v in used.items()}}
-        if data is not None:
-            record["data"] = str(data)
-        if logs is not None:
-            record["logs"] = {"sources": [str(p) for p in logs], "mapping": str(mapping)}
-        if recipe:
-            record["recipe"] = recipe_table(recipe)
-        write_text(tmp / "config.toml", dumps_toml(record))
+        write_text(
+            tmp / "config.toml",
+            dumps_toml(req.record(train=train_cfg, evaluate=eval_cfg, recipe=recipe)),
+        )
         write_text(
             tmp / "report.md",
             render_run_report(
@@ -286,6 +264,116 @@ def run_pipeline(
         )
     _log.info(f"run[{name}]: done in {timings['total']:.0f} s -> {out / 'report.md'}")
     return metrics
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRequest:
+    """What ``exsur run`` was asked for, resolved: the preset with the command's options and
+    ``--set`` applied, and where its data comes from.  :func:`run_pipeline` runs it and
+    :func:`plan_run` describes it."""
+
+    name: str
+    """The preset's name."""
+    raw_preset: Mapping[str, Any]
+    """The preset's tables as loaded."""
+    overrides: Mapping[str, Mapping[str, Any]]
+    """The command's options and ``--set`` by table (the named options win)."""
+    configs: Mapping[str, Any]
+    """The resolved config of each of :data:`RUN_SECTIONS`."""
+    data: Path | None
+    """The dataset to train on (None: simulate, or import ``logs``)."""
+    logs: tuple[str, ...] | None
+    """The logs to import with ``mapping``: files, folders or glob patterns (None: none)."""
+    mapping: Path | None
+    """The mapping file of ``logs``."""
+
+    def record(self, *, train: Any, evaluate: Any, recipe: Sequence[str] = ()) -> dict[str, Any]:
+        """The content of ``config.toml``: every table the run reads, with the command's
+        overrides, the recipe's ``train`` and the ``evaluate`` actually used."""
+        from .training.auto import recipe_table
+
+        run_cfg: RunConfig = self.configs["run"]
+        used = {k: v for k, v in self.configs.items() if k != "clean" or run_cfg.clean}
+        used.update(train=train, evaluate=evaluate)
+        if self.logs is not None or self.data is not None:
+            used.pop("simulate")
+        record: dict[str, Any] = {"name": self.name, **{k: to_dict(v) for k, v in used.items()}}
+        if self.data is not None:
+            record["data"] = str(self.data)
+        if self.logs is not None:
+            record["logs"] = {"sources": list(self.logs), "mapping": str(self.mapping)}
+        if recipe:
+            record["recipe"] = recipe_table(list(recipe))
+        return record
+
+
+def resolve_run(
+    *,
+    preset: str | Path = DEFAULT_PRESET,
+    data: str | Path | None = None,
+    workers: int | None = None,
+    seed: int | None = None,
+    max_train_seconds: float | None = None,
+    epochs: int | None = None,
+    members: int | None = None,
+    logs: Sequence[str | Path] | None = None,
+    mapping: str | Path | None = None,
+    sets: Mapping[str, Mapping[str, Any]] | None = None,
+) -> RunRequest:
+    """Check and resolve :func:`run_pipeline`'s arguments (the same ones) into a
+    :class:`RunRequest`.
+
+    Raises:
+        ConfigError: one line: options that do not go together, or a bad value.
+    """
+    if (logs is None) != (mapping is None):
+        raise ConfigError("--logs and --mapping go together: give both, or neither")
+    if logs is not None and data is not None:
+        raise ConfigError("give either --logs (with --mapping) or --data, not both")
+    raw_preset = load_preset(preset, check=check_preset)
+    name = str(raw_preset.get("name", preset))
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    named = {
+        "simulate": {"workers": workers, "seed": seed},
+        "train": {
+            "seed": seed,
+            "max_train_seconds": None if max_train_seconds is None else float(max_train_seconds),
+            "epochs": epochs,
+            "members": members,
+        },
+    }
+    over = merge_tables(
+        sets or {}, {k: {n: v for n, v in t.items() if v is not None} for k, t in named.items()}
+    )
+    cfgs = build_configs(
+        raw_preset, sections=RUN_SECTIONS, overrides=over, where=f"preset '{name}'"
+    )
+    return RunRequest(
+        name=name,
+        raw_preset=raw_preset,
+        overrides=over,
+        configs=cfgs,
+        data=None if data is None else Path(data),
+        logs=None if logs is None else tuple(str(p) for p in logs),
+        mapping=None if mapping is None else Path(mapping),
+    )
+
+
+def evaluated_split(
+    eval_cfg: Any, *, splits: Mapping[str, int], train_on_val: bool
+) -> tuple[Any, str | None]:
+    """The ``[evaluate]`` config a run scores with, and why it is not the one asked for:
+    data without the asked split (episodes per split in ``splits``) are scored on ``val``,
+    which the networks also train on (``train_on_val``) or which selected the checkpoint."""
+    if splits.get(eval_cfg.split) or not splits.get("val"):
+        return eval_cfg, None
+    why = f"the dataset has no '{eval_cfg.split}' split: evaluating on 'val', " + (
+        "which the networks also train on (in-sample: no measure of unseen runs)"
+        if train_on_val
+        else "which also selected the checkpoint (optimistic)"
+    )
+    return dataclasses.replace(eval_cfg, split="val"), why
 
 
 def _in_run(path: Path | None, tmp: Path) -> str:

@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 
 from excavator_surrogate.data import Episode, load_dataset, write_dataset
-from excavator_surrogate.data.timesplit import split_dataset_in_time, split_in_time
+from excavator_surrogate.data.timesplit import (
+    split_dataset_in_time,
+    split_in_time,
+    time_split_sizes,
+)
 from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.spec import JointSpec, MachineSpec
 
@@ -36,6 +40,14 @@ def test_parts_follow_each_other_in_time():
     np.testing.assert_array_equal(np.concatenate([p.theta for p, _ in parts]), ep.theta)
     assert parts[1][0].time[0] == pytest.approx(parts[0][0].time[-1] + SPEC.dt)
     assert parts[2][0].extra["time_split"] == {"from": "shift", "start": 1400, "stop": 2000}
+
+
+@pytest.mark.parametrize(("val_s", "test_s"), [(20.0, 30.0), (0.0, 30.0), (12.34, 0.0), (0.0, 0.0)])
+def test_the_sizes_alone_are_the_parts_lengths(val_s, test_s):
+    """What a dry run plans from (no episode) is what the cut makes."""
+    parts = split_in_time(_log(), val_s=val_s, test_s=test_s)
+    sizes = time_split_sizes(2000, rate_hz=SPEC.rate_hz, val_s=val_s, test_s=test_s)
+    assert sizes == [(p.n_step, s) for p, s in parts]
 
 
 def test_a_zero_length_part_is_left_out():

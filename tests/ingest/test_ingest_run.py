@@ -64,6 +64,47 @@ def test_run_logs_writes_the_report_folder(arm3_dir: Path, tmp_path: Path, cli) 
     assert np.isfinite(lo).all() and np.isfinite(hi).all() and np.isfinite(w).all()
     assert "recipe" in err
     assert "planned work: " in err and err.index("recipe: ") < err.index("planned work: ")
+    # the dry run of the same command: the same import, recipe and config.toml, in a moment
+    rc, text, err = cli(
+        "run", "--logs", arm3_dir / "logs", "--mapping", mapping, "--preset", preset, "--dry-run"
+    )
+    assert rc == 0, err
+    assert text.startswith(f"preset: tiny-real\ndata: 4 log(s) imported with {mapping}: ")
+    assert tomllib.loads(text[text.index("config.toml:\n") + 13 :]) == cfg
+    assert "planned work of the surrogate" in text and "(1 plain member(s)" in text
+
+
+def test_the_dry_run_imports_into_a_folder_it_removes(
+    arm3_dir: Path, tmp_path: Path, cli, monkeypatch
+) -> None:
+    """``exsur run --logs --dry-run`` writes nothing: not ``--out``, no temporary folder left;
+    a log the run would refuse, it refuses in the same words."""
+    import tempfile
+
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    out = tmp_path / "never"
+    mapping = _open_mapping(arm3_dir, tmp_path)
+    argv = ["run", "--logs", arm3_dir / "logs", "--mapping", mapping, "--out", out]
+    rc, text, err = cli(*argv, "--dry-run")
+    assert rc == 0, err
+    assert "recipe (docs/real.md):" in text and "evaluate: " in text
+    assert not out.exists() and list(temp.iterdir()) == []
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "run01.csv").write_text(
+        (arm3_dir / "logs" / "run01.csv").read_text().replace("0.", "x", 1)
+    )
+    argv[2] = bad
+    rc_dry, _, err_dry = cli(*argv, "--dry-run")
+    rc_run, _, err_run = cli(*argv)
+    assert (
+        rc_dry == rc_run != 0
+        and err_dry.strip().splitlines()[-1] == err_run.strip().splitlines()[-1]
+    )
+    assert len(err_dry.strip().splitlines()) == 1 and "run01.csv" in err_dry
+    assert not out.exists() and list(temp.iterdir()) == []
 
 
 def test_run_logs_needs_the_mapping(arm3_dir: Path, tmp_path: Path, cli) -> None:

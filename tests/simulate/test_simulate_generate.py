@@ -48,6 +48,9 @@ def test_output_does_not_depend_on_workers(tmp_path: Path) -> None:
         assert pq.read_table(d1 / "episodes" / f).equals(pq.read_table(d2 / "episodes" / f))
     ds = load_dataset(d1)
     assert [len(ds.train), len(ds.val), len(ds.test)] == [2, 1, 1]
+    assert cfg.episode_lengths() == {  # known before anything is simulated
+        s: [e.n_step for e in ds.split(s)] for s in ("train", "val", "test")
+    }
     ep = ds.train[0]
     np.testing.assert_array_equal(ep.omega[1:], np.diff(ep.theta, axis=0) / ep.dt)
 

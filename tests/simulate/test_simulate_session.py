@@ -45,6 +45,10 @@ def test_one_shift_is_split_in_time_and_records_the_throttle(tmp_path):
     cfg = _config(p_throttle=1.0, throttle_levels=(0.5,))
     ds = load_dataset(simulate_dataset(cfg, out=tmp_path / "ds"))
     assert [e.n_step for e in ds.train + ds.val + ds.test] == [2000, 200, 200]
+    # what `exsur run --dry-run` plans from, before anything is simulated
+    assert cfg.episode_lengths() == {
+        s: [e.n_step for e in ds.split(s)] for s in ("train", "val", "test")
+    }
     assert [i.name for i in ds.spec.inputs] == ["throttle"]
     whole = np.concatenate([e.u for e in ds.train + ds.val + ds.test])
     assert whole.shape == (2400, EXCAVATOR.n_joint + 1)

@@ -61,6 +61,7 @@ def test_the_estimate_is_the_recipes_own_plan(lengths, val, budget):
     assert f"about {plan_s:.0f} s per member" in planned
     assert est.total_s == pytest.approx(est.rounds * est.training_s)
     assert 1 <= est.validated <= est.epochs
+    assert est.unmodelled == ()  # the recipe trains the network the times were measured on
 
 
 @pytest.mark.parametrize(
@@ -120,3 +121,27 @@ def test_no_cap_and_the_windowed_mode_say_so():
     windowed = cfg.for_mode("windowed")
     assert estimate_work(windowed, ds) is None
     assert describe_work(None)[0].startswith("no estimate")
+
+
+def test_a_network_the_times_were_not_measured_on_gets_no_time():
+    """The demo's preset (64 units, free-run feedback, batches of 64, the velocity input)
+    trains at another speed than the reference's per-step cost: its plan, not its time."""
+    ds = _dataset([600] * 10, val=[200])
+    cfg, _ = auto_config(ds, cpus=2)
+    other = replace(cfg, hidden=64, feedback="free", seq_batch=64, velocity_input=True)
+    est = estimate_work(other, ds, cpus=2)
+    assert est is not None and est.epochs == cfg.epochs and est.cap_s == cfg.max_train_seconds
+    assert est.unmodelled == (
+        "hidden = 64",
+        "feedback = 'free'",
+        "seq_batch = 64",
+        "velocity_input = True",
+    )
+    lines = describe_work(est)
+    assert "training(s)" in lines[0] and f"{est.epochs} epochs" in lines[0]
+    assert lines[1].startswith("no time estimate") and "hidden = 64" in lines[1]
+    assert (
+        lines[2]
+        == f"each training capped at {est.cap_s:.0f} s of wall time; a run cut by it says so"
+    )
+    assert not any("reference machine (" in ln or "slower than" in ln for ln in lines)

@@ -22,10 +22,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--out",
-        required=True,
         type=Path,
+        default=None,
         metavar="DIR",
-        help="report folder (replaced when complete)",
+        help="report folder (replaced when complete; required to run)",
+    )
+    p.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="print what the run would do: the data's sizes (logs are imported into a "
+        "temporary folder, nothing is simulated), the recipe's reasons, the trainings, "
+        "epochs and caps and their time on the reference machine, and the config.toml it "
+        "would record; write and train nothing",
     )
     p.add_argument(
         "--preset",
@@ -82,8 +90,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def checked_run(args: argparse.Namespace) -> int:
-    """:func:`run` under the output-folder rule: no input inside ``--out``; ``--overwrite``."""
+    """:func:`run` under the output-folder rule: no input inside ``--out``; ``--overwrite``.
+    With ``--dry-run``: :func:`dry_run`, which needs no ``--out``."""
+    from ..errors import ConfigError
     from ..outdir import out_dir, preset_files
+
+    if args.dry_run:
+        return dry_run(args)
+    if args.out is None:
+        raise ConfigError("--out DIR is required (or --dry-run to only print the plan)")
 
     inputs = [*preset_files(args.preset)]
     for key in ("data", "mapping", "logs"):  # the dataset, or the logs and their mapping
@@ -95,12 +110,35 @@ def checked_run(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
-    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS, run_pipeline
+    from ..pipeline import run_pipeline
+
+    metrics = run_pipeline(out=args.out, **_request(args))
+    print(
+        f"{args.out}: worst-joint angle R² {_r2_text(metrics, 'theta')}, "
+        f"worst-joint ω R² {_r2_text(metrics, 'omega')} (report: {args.out / 'report.md'})"
+    )
+    return 0
+
+
+def dry_run(args: argparse.Namespace) -> int:
+    """Handler of ``exsur run --dry-run``: print :func:`~excavator_surrogate.run_plan.plan_run`
+    (printed, not logged), write nothing."""
+    from ..pipeline import resolve_run
+    from ..run_plan import plan_run
+
+    print(plan_run(resolve_run(**_request(args))), end="")
+    return 0
+
+
+def _request(args: argparse.Namespace) -> dict:
+    """The keyword arguments of :func:`~excavator_surrogate.pipeline.run_pipeline` (and of
+    :func:`~excavator_surrogate.pipeline.resolve_run`) that ``args`` ask for, after
+    :func:`_check_request`."""
+    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS
 
     preset = args.preset or ("real" if args.logs else DEFAULT_PRESET)
     _check_request(args, preset)
-    metrics = run_pipeline(
-        out=args.out,
+    return dict(
         preset=preset,
         logs=args.logs,
         mapping=args.mapping,
@@ -112,11 +150,6 @@ def run(args: argparse.Namespace) -> int:
         members=args.members,
         sets=overrides(args, RUN_SECTIONS),
     )
-    print(
-        f"{args.out}: worst-joint angle R² {_r2_text(metrics, 'theta')}, "
-        f"worst-joint ω R² {_r2_text(metrics, 'omega')} (report: {args.out / 'report.md'})"
-    )
-    return 0
 
 
 def _r2_text(metrics: dict, key: str) -> str:
@@ -148,4 +181,4 @@ def _check_request(args: argparse.Namespace, preset: str) -> None:
         skipped["simulate"] = f"this run trains on {given} and simulates nothing"
     check_sets_read(sets, cfgs, skipped=skipped)
     if "simulate" not in skipped:
-        check_dataset_size(cfgs["simulate"], out=args.out)
+        check_dataset_size(cfgs["simulate"], out=args.out or Path.cwd())

@@ -43,15 +43,12 @@ def split_in_time(
         ConfigError: a negative length.
         DataError: the episode is too short for the parts.
     """
-    if not (val_s >= 0 and test_s >= 0):
-        raise ConfigError(
-            f"split in time: val_s and test_s must be >= 0 [s], got {val_s}, {test_s}"
-        )
     rate = episode.spec.rate_hz
-    n_val, n_test = round(val_s * rate), round(test_s * rate)
-    n_train = episode.n_step - n_val - n_test
-    parts = [(n_train, "train", ""), (n_val, "val", "_val"), (n_test, "test", "_test")]
-    made = [(n, s, suffix) for n, s, suffix in parts if n > 0 or s == "train"]
+    ends = {"train": "", "val": "_val", "test": "_test"}  # the parts' name suffixes
+    made = [
+        (n, s, ends[s])
+        for n, s in time_split_sizes(episode.n_step, rate_hz=rate, val_s=val_s, test_s=test_s)
+    ]
     if any(n < min_part for n, _, _ in made):
         raise DataError(
             episode.name,
@@ -72,6 +69,28 @@ def split_in_time(
         out.append((part, split))
         start += n
     return out
+
+
+def time_split_sizes(
+    n_step: int, *, rate_hz: float, val_s: float, test_s: float
+) -> list[tuple[int, str]]:
+    """The parts :func:`split_in_time` cuts an ``n_step``-sample episode into, without the
+    episode: ``[(n_samples, split), ...]`` in time order (a part of 0 s left out; the lengths
+    not checked against :data:`MIN_PART`)::
+
+        n_val = round(val_s * rate_hz),  n_test = round(test_s * rate_hz)
+        n_train = n_step - n_val - n_test
+
+    Raises:
+        ConfigError: a negative length.
+    """
+    if not (val_s >= 0 and test_s >= 0):
+        raise ConfigError(
+            f"split in time: val_s and test_s must be >= 0 [s], got {val_s}, {test_s}"
+        )
+    n_val, n_test = round(val_s * rate_hz), round(test_s * rate_hz)
+    parts = [(n_step - n_val - n_test, "train"), (n_val, "val"), (n_test, "test")]
+    return [(n, s) for n, s in parts if n > 0 or s == "train"]
 
 
 def split_dataset_in_time(

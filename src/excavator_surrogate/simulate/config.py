@@ -128,6 +128,25 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
         """``source`` metadata of the generated episodes."""
         return SOURCES[self.plant]
 
+    def episode_lengths(self) -> dict[str, list[int]]:
+        """Samples of each episode the simulated dataset will hold, by split, before anything
+        is simulated (the training episodes cut in time by ``val_s`` / ``test_s``, as
+        :func:`~.generate.simulate_dataset` cuts them)."""
+        from ..data.timesplit import time_split_sizes
+
+        out: dict[str, list[int]] = {
+            "train": [],
+            "val": [self.steps_val] * self.n_val,
+            "test": [self.steps_test] * self.n_test,
+        }
+        for _ in range(self.n_train):
+            cut = time_split_sizes(
+                self.steps_train, rate_hz=self.rate_hz, val_s=self.val_s, test_s=self.test_s
+            )
+            for n, split in cut:
+                out[split].append(n)
+        return out
+
     def plant_config(self) -> PlantConfig:
         """The plant options implied by this config (single-threaded: parallelism is per process)."""
         return PlantConfig(xml=self.xml, rate_hz=self.rate_hz, delay_s=self.delay_s, n_threads=1)

@@ -136,6 +136,19 @@ def _train_job(job: TrainJob, show_progress: bool | None) -> Path:
     return train(job.cfg, job.dataset, out=job.out, show_progress=show_progress, notes=job.notes)
 
 
+def side_by_side(cfgs: Sequence[TrainConfig], *, cpus: int | None = None) -> bool:
+    """Whether :func:`train_parallel` trains models of configs ``cfgs`` side by side: more
+    than one, every one's members fit on the ``cpus`` at once (default: those this process
+    may use), all on the CPU and none with ``member_workers = 1``."""
+    cpus = usable_cpus() if cpus is None else cpus
+    need = sum(min(c.members, cpus) for c in cfgs)  # processes at once, members >= 1
+    return (
+        len(cfgs) > 1
+        and need <= cpus
+        and all(c.device == "cpu" and c.member_workers != 1 for c in cfgs)
+    )
+
+
 def train_parallel(
     jobs: Sequence[TrainJob], *, cpus: int | None = None, show_progress: bool | None = None
 ) -> list[Path]:
@@ -155,13 +168,7 @@ def train_parallel(
     Returns:
         The jobs' ``best.pt`` paths, in order.
     """
-    cpus = usable_cpus() if cpus is None else cpus
-    need = sum(min(j.cfg.members, cpus) for j in jobs)  # processes at once, members >= 1
-    parallel = (
-        len(jobs) > 1
-        and need <= cpus
-        and all(j.cfg.device == "cpu" and j.cfg.member_workers != 1 for j in jobs)
-    )
+    parallel = side_by_side([j.cfg for j in jobs], cpus=cpus)
     if parallel:
         _log.info(f"training {len(jobs)} models side by side: " + ", ".join(j.tag for j in jobs))
     workers = len(jobs) if parallel else 1

@@ -18,13 +18,21 @@ half of :data:`~.plan.VAL_STEP_S` on a long validation run (docs/real-history.md
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..cpus import usable_cpus
 from ..data.dataset import Dataset
 from .batches import val_min_steps
 from .config import TrainConfig
-from .plan import epoch_cost_s, epoch_sizes, epoch_train_s, prior_members, probe_members
+from .plan import (
+    STEP_NET,
+    epoch_cost_s,
+    epoch_sizes,
+    epoch_train_s,
+    prior_members,
+    probe_members,
+)
 from .selection import validation_start
 
 
@@ -53,6 +61,9 @@ class WorkEstimate:
     """Epochs validated (the last ones: :func:`~.selection.validation_start`)."""
     cap_s: float
     """Each training's wall-time cap [s] (0: none)."""
+    unmodelled: tuple[str, ...] = ()
+    """The config's fields that differ from the network the reference times were measured
+    with (:data:`~.plan.STEP_NET`), as ``"name = value"``: the times do not hold for it."""
 
     @property
     def trainings(self) -> int:
@@ -91,11 +102,37 @@ def estimate_work(
     """The planned work of ``cfg`` on ``dataset`` (``None`` in the windowed mode, which has
     no cost model).  ``cpus`` (default: those this process may use) bounds the workers where
     ``cfg.member_workers`` is 0, as the training's pool does."""
+    return estimate_sizes(
+        cfg,
+        train=[e.n_step for e in dataset.train],
+        val=[e.n_step for e in dataset.val],
+        n_input=dataset.spec.n_input,
+        cpus=cpus,
+    )
+
+
+def estimate_sizes(
+    cfg: TrainConfig,
+    *,
+    train: Sequence[int],
+    val: Sequence[int],
+    n_input: int,
+    cpus: int | None = None,
+) -> WorkEstimate | None:
+    """:func:`estimate_work` from the data's sizes alone, e.g. of a dataset not simulated yet.
+
+    Args:
+        cfg: the training config.
+        train: samples of each training episode.
+        val: samples of each validation episode.
+        n_input: exogenous input columns of the data.
+        cpus: CPUs the pool plans for (default: those this process may use).
+    """
     if cfg.mode != "stateful":
         return None
     n_seq, val_steps = epoch_sizes(
-        [e.n_step for e in dataset.train],
-        [e.n_step for e in dataset.val if e.n_step >= val_min_steps(cfg.window)],
+        list(train),
+        [n for n in val if n >= val_min_steps(cfg.window)],
         on_val=cfg.train_on_val,
         seq_len=cfg.seq_len,
         burn_in=cfg.burn_in,
@@ -103,8 +140,7 @@ def estimate_work(
     train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=val_steps)
     start = validation_start(cfg)
-    inputs = dataset.spec.n_input > 0
-    probe = inputs and cfg.exogenous == "choose" and cfg.input_dropout == 0
+    probe = n_input > 0 and cfg.exogenous == "choose" and cfg.input_dropout == 0
     members = max(1, cfg.members)
     n_prior = prior_members(members) if cfg.prior_choice else 0
     n_probe = probe_members(members) if probe else 0
@@ -120,6 +156,9 @@ def estimate_work(
         val_s=cost - train_s,
         validated=max(0, cfg.epochs - start),
         cap_s=float(cfg.max_train_seconds or 0.0),
+        unmodelled=tuple(
+            f"{k} = {getattr(cfg, k)!r}" for k, v in STEP_NET.items() if getattr(cfg, k) != v
+        ),
     )
 
 
@@ -135,11 +174,25 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
     lines = [
         f"{est.trainings} training(s) ({', '.join(parts)}), {est.workers} at a time in "
         f"{est.rounds} round(s); {est.epochs} epochs of {est.n_seq} sub-sequences each",
+    ]
+    if est.unmodelled:
+        lines.append(
+            "no time estimate: the reference machine's per-step times were measured with "
+            + ", ".join(f"{k} = {v!r}" for k, v in STEP_NET.items())
+            + f"; this config has {', '.join(est.unmodelled)}"
+        )
+        lines.append(
+            f"each training capped at {est.cap_s:.0f} s of wall time; a run cut by it says so"
+            if est.cap_s > 0
+            else "no wall-time cap: every planned epoch runs, however long it takes"
+        )
+        return lines
+    lines.append(
         f"about {est.training_s:.0f} s a training on the reference machine "
         f"({est.epochs * est.train_s:.0f} s of training steps, {est.validated} validated "
         f"epoch(s) {est.validated * est.val_s:.0f} s), {est.total_s:.0f} s for all of them (the "
-        "choices after training not counted)",
-    ]
+        "choices after training not counted)"
+    )
     if est.cap_s > 0:
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "

@@ -61,6 +61,16 @@ STEP_S = 4.5e-4
 """Reference machine: one training step of a batch of 16 sub-sequences through the 2 x 128
 LSTM, forward and backward, one core [s] (measured on h1-dev: 2.0 s for 32 batches of 109
 steps with the other core busy)."""
+STEP_NET: dict[str, object] = {
+    "cell": "lstm",
+    "hidden": 128,
+    "layers": 2,
+    "feedback": "teacher",
+    "seq_batch": 16,
+    "velocity_input": False,
+}
+"""The training config fields :data:`STEP_S` was measured with (the recipe's network): a
+config that differs in any of them trains at another speed, which the plan does not model."""
 VAL_STEP_S = 3.0e-4
 """Reference machine: one step of the validation free run over all validation episodes [s],
 one candidate at a time.  The plan's constant, not a measurement of today's code: the two
