@@ -82,6 +82,17 @@ def test_a_cut_single_network_is_described_with_its_notes(tmp_path, dataset_dir)
     # the second joint's angle RMSE of 1 degree, printed in degrees
     assert "| angle RMSE | 0.57 ° | 1.00 ° |" in text
     assert "No calibrated uncertainty bands" in text
+    assert card["training"]["pace"] is None and "Time on this computer" not in text  # no logs
+    # with its log beside it: how fast this computer trained it, against the cap
+    rows = "epoch,time_s,epoch_s,val_s,ref_epoch_s\n" + "".join(
+        f"{e},{6 * (e + 1)},5.0,1.0,4.0\n" for e in range(5)
+    )
+    (tmp_path / "log.csv").write_text(rows)
+    card = model_card(ckpt)
+    assert card["training"]["pace"]["pace"] == 1.25 and card["training"]["pace"]["longest_s"] == 30
+    text = card_markdown(card)
+    assert "their training steps took 25 s, 1.25x the reference machine's 20 s" in text
+    assert "The longest network ran 30 s and its 30-s cap cut it." in text
 
 
 def test_a_calibrated_ensemble_lists_its_members_and_bands(tmp_path, dataset_dir):

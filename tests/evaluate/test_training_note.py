@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 from excavator_surrogate.evaluate.cbe import evaluate_checkpoint
 from excavator_surrogate.evaluate.training_report import environment_markdown, training_markdown
@@ -26,6 +27,12 @@ def test_a_cut_run_is_reported_in_metrics_json_and_the_table(tmp_path):
     assert res["training"]["budget_cut"] is False
     table = (tmp_path / "ev_full" / "table.md").read_text()
     assert "planned 2 epochs ran" in table
+    # how fast this computer trained it, from log.csv (the tiny network is not the one the
+    # reference times were measured on: no ratio); nothing of it in best.pt
+    pace = res["pace"]
+    assert pace["networks"] == 1 and pace["epochs"] == 2 and math.isnan(pace["pace"])
+    assert "Time on this computer: 1 network(s), 2 epochs" in table and "no wall-time cap" in table
+    assert "reference machine" not in table.split("Time on this computer")[1].split("\n")[0]
     # the computer and libraries it trained with, in metrics.json and in the table
     env = res["training"]["environment"]
     assert env["torch"] and env["torch_cpu_capability"] and env["numerics"] == "native"

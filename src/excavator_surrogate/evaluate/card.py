@@ -21,6 +21,7 @@ from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.ensemble import n_member
 from ..surrogate.model import Surrogate
 from ..surrogate.sizes import n_param
+from .pace import pace_markdown, training_pace
 from .training_report import training_markdown
 
 LOW_R2 = 0.9
@@ -37,7 +38,8 @@ def model_card(path: str | Path) -> dict[str, Any]:
         A dict of plain types: ``file``, ``machine`` (joints with their ranges in the stored
         unit: rad, rad/s, or m, m/s for a linear joint), ``network``, ``training``,
         ``validation`` (per-joint free-run scores, or None), ``members``, ``uncertainty``,
-        ``coverage`` and ``warnings`` (one line each).
+        ``coverage`` and ``warnings`` (one line each); ``training.pace``: how fast this
+        computer trained it (:func:`~.pace.training_pace` of the logs beside the file).
 
     Raises:
         CheckpointError: a missing, corrupt or foreign file (one line naming it).
@@ -45,6 +47,8 @@ def model_card(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     ckpt = read_checkpoint(path)
     card = describe_surrogate(surrogate_from_dict(ckpt, where=str(path)))
+    if card.get("_training_record"):  # how fast it trained, from the logs beside it
+        card["training"]["pace"] = training_pace(path.parent)
     file = {
         "path": str(path),
         "bytes": path.stat().st_size,
@@ -407,6 +411,8 @@ def card_markdown(card: Mapping[str, Any], *, header: Sequence[str] | None = Non
     if record:
         text = training_markdown(record, spec=spec).strip("\n")
         lines.append(text.replace("Training: the", "The", 1))
+        if tr.get("pace"):
+            lines += ["", pace_markdown(tr["pace"], record).strip("\n")]
     if card["members"] and card["network"].get("composite"):
         lines += [
             "",

@@ -42,6 +42,7 @@ from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .metrics import cbe_metrics, episode_errors, regression_metrics
+from .pace import pace_markdown, training_pace
 from .report import episodes_markdown, report_markdown
 from .training_report import training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
@@ -230,6 +231,8 @@ def evaluate_checkpoint(
     if link:
         result["linkage"] = link
     result["training"] = (sur.metrics or {}).get("training")  # did the wall-time cap cut it?
+    # how fast this computer trained it, from the logs beside the checkpoint (not in best.pt)
+    result["pace"] = training_pace(Path(ckpt).parent) if result["training"] else None
     unc_runs = uncertainty_runs(
         sur, episodes, main_runs, reference=reference, max_steps=max_steps or None
     )
@@ -249,6 +252,7 @@ def evaluate_checkpoint(
             )
             + episodes_markdown(run_info["episodes"], spec=sur.spec, figures=names)
             + training_markdown(result["training"], spec=sur.spec)
+            + pace_markdown(result["pace"], result["training"])
             + "\n"
             + uncertainty_markdown(result["uncertainty"], sur.spec.names),
         )

@@ -63,7 +63,8 @@ class WorkEstimate:
     """Each training's wall-time cap [s] (0: none)."""
     unmodelled: tuple[str, ...] = ()
     """The config's fields that differ from the network the reference times were measured
-    with (:data:`~.plan.STEP_NET`), as ``"name = value"``: the times do not hold for it."""
+    with (:data:`~.plan.STEP_NET`), and a cap on the samples of an epoch (``epoch_samples``),
+    as ``"name = value"``: the times do not hold for it."""
 
     @property
     def trainings(self) -> int:
@@ -158,7 +159,8 @@ def estimate_sizes(
         cap_s=float(cfg.max_train_seconds or 0.0),
         unmodelled=tuple(
             f"{k} = {getattr(cfg, k)!r}" for k, v in STEP_NET.items() if getattr(cfg, k) != v
-        ),
+        )
+        + ((f"epoch_samples = {cfg.epoch_samples}",) if cfg.epoch_samples > 0 else ()),
     )
 
 

@@ -32,6 +32,7 @@ from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_errors
 from .batches import make_data, split_episodes
 from .config import TrainConfig
+from .estimate import estimate_work
 from .guards import check_finite
 from .loss import LossFn, default_loss
 from .modes import Mode, make_mode
@@ -185,6 +186,10 @@ def train_network(
     done, stopped = st.epoch, "planned"
     say(f"planned: {cfg.epochs} epochs{budget_note(budget)}")
     validate_from = validation_start(cfg)
+    # the reference machine's time for an epoch's training steps (log.csv: this computer's
+    # pace against it, evaluate/pace.py); NaN where the cost model does not cover the config
+    ref = estimate_work(cfg, dataset, cpus=1)
+    ref_epoch_s = ref.train_s if ref is not None and not ref.unmodelled else math.nan
     if validate_from > st.epoch:
         say(
             f"validating from epoch {validate_from} on: no earlier epoch competes for best.pt "
@@ -248,6 +253,7 @@ def train_network(
                 improved=improved,
                 with_ema=optim.ema_sur is not None,
             )
+            row["ref_epoch_s"] = round(ref_epoch_s, 3)
             if cfg.select_smooth or cfg.select_after or cfg.train_on_val:
                 row["select_score"] = score if eligible else math.nan
                 row["validated"] = int(validated)

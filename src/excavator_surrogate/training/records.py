@@ -23,6 +23,7 @@ LOG_FIELDS = (
     "time_s",
     "epoch_s",
     "val_s",
+    "ref_epoch_s",
     "lr",
     "train_loss",
     "n_sample",
@@ -116,9 +117,11 @@ def tb_epoch(
     tb.flush()
 
 
-TIMING_FIELDS = ("time_s", "epoch_s", "val_s")
-"""``log.csv`` columns that read the wall clock: kept in ``log.csv`` and ``last.pt``, never in
-``best.pt``, so the same data and seed give a bit-identical ``best.pt`` on any load."""
+TIMING_FIELDS = ("time_s", "epoch_s", "val_s", "ref_epoch_s")
+"""``log.csv`` columns of time: those that read the wall clock, and the reference machine's
+time for the epoch's training steps beside them (:mod:`~excavator_surrogate.evaluate.pace`;
+NaN where the cost model does not cover the config).  Kept in ``log.csv`` and ``last.pt``,
+never in ``best.pt``, so the same data and seed give a bit-identical ``best.pt`` on any load."""
 
 
 def untimed(history: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:

@@ -1,0 +1,107 @@
+"""How fast this computer trained a model, against the plan's reference machine and the cap.
+
+The plan (``training/plan.py``) fixes the epochs from the data's sizes at a reference
+machine's speed, and the wall-time cap only stops a computer that is much slower or busier
+(``exsur train --dry-run`` prints the headroom before a run).  After the run, each network's
+``log.csv`` holds what happened: the wall time of every epoch's training steps
+(``epoch_s``), the reference machine's time for the same steps (``ref_epoch_s``; NaN where
+the cost model does not cover the config) and the wall time since the start (``time_s``).
+:func:`training_pace` sums them over every network beside a checkpoint, so a report can say
+how this computer, as loaded during the run, compared with the reference and how much of the
+cap it used: how much slower or busier the same run could have been and still trained the
+same model.  Nothing here goes into ``best.pt`` (it reads the clock's record).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+
+def training_pace(model_dir: str | Path) -> dict[str, Any] | None:
+    """The training time of every network under ``model_dir`` (each ``log.csv`` with an
+    ``epoch_s`` column: a single network's, or an ensemble's members').
+
+    Returns:
+        ``None`` without such logs, else ``{"networks", "epochs", "train_s",
+        "reference_train_s", "pace", "longest_s", "per_network"}``: the training steps' wall
+        time [s] summed over networks and epochs, the reference machine's for the same
+        steps [s] (NaN if any network's is unknown), their ratio (``pace``: 1.3 means 30 %
+        slower than the reference), the longest network's wall time from start to last
+        epoch [s], and per network its log (relative to ``model_dir``), epochs and times.
+    """
+    root = Path(model_dir)
+    nets = []
+    for log in sorted(root.rglob("log.csv")):
+        try:
+            with open(log, newline="") as f:
+                rows = list(csv.DictReader(f))
+        except (OSError, csv.Error, UnicodeDecodeError):
+            continue  # a log that cannot be read tells nothing about time
+        if not rows or "epoch_s" not in rows[0]:
+            continue  # an ensemble's summary of its members, not a network's epochs
+        nets.append(
+            {
+                "log": log.relative_to(root).as_posix(),
+                "epochs": len(rows),
+                "train_s": round(sum(_num(r.get("epoch_s")) for r in rows), 1),
+                "reference_train_s": round(sum(_num(r.get("ref_epoch_s")) for r in rows), 1),
+                "wall_s": round(_num(rows[-1].get("time_s")), 1),
+            }
+        )
+    if not nets:
+        return None
+    train_s = sum(n["train_s"] for n in nets)
+    ref_s = sum(n["reference_train_s"] for n in nets)
+    return {
+        "networks": len(nets),
+        "epochs": sum(n["epochs"] for n in nets),
+        "train_s": round(train_s, 1),
+        "reference_train_s": round(ref_s, 1),
+        "pace": round(train_s / ref_s, 3) if ref_s > 0 else math.nan,
+        "longest_s": max(n["wall_s"] for n in nets),
+        "per_network": nets,
+    }
+
+
+def pace_markdown(pace: Mapping[str, Any] | None, training: Mapping[str, Any] | None) -> str:
+    """One paragraph on :func:`training_pace` against the cap of ``training`` (the ``best.pt``
+    metrics' ``training`` record); empty without either."""
+    if not pace or not training:
+        return ""
+    members = list(training.get("members") or [training])
+    cap = max((float(m.get("max_train_seconds") or 0.0) for m in members), default=0.0)
+    cut = any(bool(m.get("budget_cut")) for m in members)
+    text = (
+        f"\nTime on this computer: {pace['networks']} network(s), {pace['epochs']} epochs; "
+        f"their training steps took {pace['train_s']:.0f} s"
+    )
+    if math.isfinite(pace["pace"]):
+        text += (
+            f", {pace['pace']:.2f}x the reference machine's {pace['reference_train_s']:.0f} s "
+            "(the time the plan is sized by)"
+        )
+    longest = pace["longest_s"]
+    text += f". The longest network ran {longest:.0f} s"
+    if cap > 0 and cut:
+        text += f" and its {cap:.0f}-s cap cut it.\n"
+    elif cap > 0 and longest > 0:
+        text += (
+            f" of its {cap:.0f}-s cap ({100 * longest / cap:.0f} %): the same run up to "
+            f"{cap / longest:.2f}x slower (another computer, or more load on this one) trains "
+            "the same model.\n"
+        )
+    else:
+        text += " (no wall-time cap).\n"
+    return text
+
+
+def _num(v: Any) -> float:
+    """A CSV cell as a number (an empty or missing cell: NaN)."""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
