@@ -23,7 +23,7 @@ import logging
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict, Unpack
 
 from .config import dumps_toml, load_preset, merge_tables, to_dict
 from .errors import ConfigError
@@ -42,36 +42,40 @@ DEFAULT_PRESET = "quick-hydraulic"
 on the hydraulic stand-in, where the LSTM beats ARX."""
 
 
-def run_pipeline(
-    *,
-    out: str | Path,
-    preset: str | Path = DEFAULT_PRESET,
-    data: str | Path | None = None,
-    workers: int | None = None,
-    seed: int | None = None,
-    max_train_seconds: float | None = None,
-    epochs: int | None = None,
-    members: int | None = None,
-    logs: Sequence[str | Path] | None = None,
-    mapping: str | Path | None = None,
-    sets: Mapping[str, Mapping[str, Any]] | None = None,
-) -> dict[str, Any]:
+class RunOptions(TypedDict, total=False):
+    """What ``exsur run`` is asked for: the keyword arguments of :func:`run_pipeline` and
+    :func:`resolve_run` (every one optional)."""
+
+    preset: str | Path
+    """Shipped preset name or TOML path with ``[simulate]``, ``[train]``, ``[evaluate]`` and
+    optional ``[run]``/``[clean]`` tables (default: :data:`DEFAULT_PRESET`)."""
+    data: str | Path | None
+    """Use this existing dataset instead of simulating (e.g. imported logs)."""
+    workers: int | None
+    """Simulation processes (default: the preset's)."""
+    seed: int | None
+    """Overrides the simulation and training seeds."""
+    max_train_seconds: float | None
+    """Overrides the training wall-time budget (per model)."""
+    epochs: int | None
+    """Overrides the maximum number of epochs."""
+    members: int | None
+    """Overrides the seed-ensemble size of every trained model (1: single networks)."""
+    logs: Sequence[str | Path] | None
+    """Import these logs (files, folders, globs) with ``mapping`` instead of simulating."""
+    mapping: str | Path | None
+    """The mapping TOML of ``logs`` (see ``docs/import.md``)."""
+    sets: Mapping[str, Mapping[str, Any]] | None
+    """Further overrides by table, e.g. ``{"train": {"lr": 3e-4}}`` (``--set``; the named
+    options above win)."""
+
+
+def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str, Any]:
     """Run the whole pipeline for a preset and write the report folder ``out``.
 
     Args:
         out: report folder (replaced only when the run completes).
-        preset: shipped preset name or TOML path with ``[simulate]``, ``[train]``, ``[evaluate]``
-            and optional ``[run]``/``[clean]`` tables.
-        data: use this existing dataset instead of simulating (e.g. imported logs).
-        workers: simulation processes (default: the preset's).
-        seed: overrides the simulation and training seeds.
-        max_train_seconds: overrides the training wall-time budget (per model).
-        epochs: overrides the maximum number of epochs.
-        members: overrides the seed-ensemble size of every trained model (1: single networks).
-        logs: import these logs (files, folders, globs) with ``mapping`` instead of simulating.
-        mapping: the mapping TOML of ``logs`` (see ``docs/import.md``).
-        sets: further overrides by table, e.g. ``{"train": {"lr": 3e-4}}`` (``--set``; the named
-            arguments above win).
+        **options: what to run (:class:`RunOptions`), resolved by :func:`resolve_run`.
 
     Returns:
         The content of ``metrics.json``.
@@ -82,19 +86,9 @@ def run_pipeline(
     from .training import TrainJob, train_parallel
 
     t_start = time.monotonic()
-    req = resolve_run(
-        preset=preset,
-        data=data,
-        workers=workers,
-        seed=seed,
-        max_train_seconds=max_train_seconds,
-        epochs=epochs,
-        members=members,
-        logs=logs,
-        mapping=mapping,
-        sets=sets,
-    )
+    req = resolve_run(**options)
     name, raw_preset, over, cfgs = req.name, req.raw_preset, req.overrides, req.configs
+    logs, mapping, data = req.logs, req.mapping, req.data
     run_cfg: RunConfig = cfgs["run"]
     sim_cfg = cfgs["simulate"]
     train_cfg = cfgs["train"]
@@ -307,25 +301,17 @@ class RunRequest:
         return record
 
 
-def resolve_run(
-    *,
-    preset: str | Path = DEFAULT_PRESET,
-    data: str | Path | None = None,
-    workers: int | None = None,
-    seed: int | None = None,
-    max_train_seconds: float | None = None,
-    epochs: int | None = None,
-    members: int | None = None,
-    logs: Sequence[str | Path] | None = None,
-    mapping: str | Path | None = None,
-    sets: Mapping[str, Mapping[str, Any]] | None = None,
-) -> RunRequest:
-    """Check and resolve :func:`run_pipeline`'s arguments (the same ones) into a
+def resolve_run(**options: Unpack[RunOptions]) -> RunRequest:
+    """Check and resolve what ``exsur run`` is asked for (:class:`RunOptions`) into a
     :class:`RunRequest`.
 
     Raises:
         ConfigError: one line: options that do not go together, or a bad value.
     """
+    logs, mapping, data = options.get("logs"), options.get("mapping"), options.get("data")
+    preset = options.get("preset", DEFAULT_PRESET)
+    workers, seed = options.get("workers"), options.get("seed")
+    max_train_seconds = options.get("max_train_seconds")
     if (logs is None) != (mapping is None):
         raise ConfigError("--logs and --mapping go together: give both, or neither")
     if logs is not None and data is not None:
@@ -339,12 +325,13 @@ def resolve_run(
         "train": {
             "seed": seed,
             "max_train_seconds": None if max_train_seconds is None else float(max_train_seconds),
-            "epochs": epochs,
-            "members": members,
+            "epochs": options.get("epochs"),
+            "members": options.get("members"),
         },
     }
     over = merge_tables(
-        sets or {}, {k: {n: v for n, v in t.items() if v is not None} for k, t in named.items()}
+        options.get("sets") or {},
+        {k: {n: v for n, v in t.items() if v is not None} for k, t in named.items()},
     )
     cfgs = build_configs(
         raw_preset, sections=RUN_SECTIONS, overrides=over, where=f"preset '{name}'"
