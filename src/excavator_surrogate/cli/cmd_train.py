@@ -98,6 +98,7 @@ def checked_run(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the best checkpoint path."""
     from ..data.dataset import load_dataset
+    from ..evaluate.pace import pace_markdown, training_pace
     from ..io_utils import log
     from ..scale.ddp import distributed_env, init_distributed, shutdown
     from ..surrogate.checkpoint import read_checkpoint
@@ -143,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
     ens = m.get("ensemble")
     which = f"{ens['n_member']}-member ensemble" if ens else f"epoch {m.get('epoch')}"
     log(f"best checkpoint: {best} ({which}, val_error {m.get('val_error', float('nan')):.4g})")
+    pace = pace_markdown(training_pace(Path(args.out)), m.get("training")).strip()
+    if pace:  # how fast this computer trained it, against the reference and the cap
+        log(pace)
     print(best)
     return 0
 
