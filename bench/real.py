@@ -85,7 +85,9 @@ developed on (seed 0).
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
 train.prior_choice=false`` for the recipe without the per-joint kind choice (docs/real-history.md).
-``--work DIR`` keeps every network; ``bench/real_rechoose.py --work DIR`` then makes the
+Each seed's JSON entry has ``pace`` (``evaluate/pace.py``): its networks' training steps
+against the reference machine's time for them, which the plan is sized by, and the longest
+network's wall time (the share of its cap it used).  ``--work DIR`` keeps every network; ``bench/real_rechoose.py --work DIR`` then makes the
 kind and static map choices again on them with the code on the path (no training).  ``--smoke``: one
 seed, one member (and one map-correcting network with ``prior_choice``), 2 epochs, 2
 plain-LSTM epochs (a minute: the plumbing only, the numbers mean nothing).  ``--budget`` sets the recipe's whole-training
@@ -114,6 +116,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import tempfile
@@ -127,6 +130,7 @@ from excavator_surrogate import numerics
 from excavator_surrogate.config import parse_sets
 from excavator_surrogate.data import Dataset, Episode
 from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.evaluate.pace import training_pace
 from excavator_surrogate.io_utils import log, setup_logging
 from excavator_surrogate.surrogate.baselines import fit_arx
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
@@ -209,6 +213,7 @@ def run_recipe(
             "train_on_val": cfg.train_on_val,
             "budget_cut": bool(facts.get("budget_cut", False)),
             **training_log(out),
+            "pace": {k: v for k, v in (training_pace(out) or {}).items() if k != "per_network"},
             "choices": choices(sur),
             **score(sur, data.split(split)),
             **scored_more(sur, more, data.spec),
@@ -220,7 +225,15 @@ def run_recipe(
             for k, v in rows.items()
         }
         (work / f"{tag}_partial.json").write_text(json.dumps({"rows": partial, "seeds": results}))
-        log(f"bench/real: {tag}, seed {seed}: RMSE {np.round(res['rmse'], 2)} in {train_s:.0f} s")
+        pace = res["pace"].get("pace", math.nan)
+        log(
+            f"bench/real: {tag}, seed {seed}: RMSE {np.round(res['rmse'], 2)} in {train_s:.0f} s"
+            + (
+                f" (training steps {pace:.2f}x the reference machine's)"
+                if math.isfinite(pace)
+                else ""
+            )
+        )
     return results
 
 
