@@ -71,6 +71,8 @@ def test_unknown_reference_cut_runs_and_no_logs(tmp_path: Path) -> None:
     assert pace is not None and math.isnan(pace["pace"])
     text = pace_markdown(pace, {"max_train_seconds": 2.0, "budget_cut": True})
     assert "reference machine" not in text and "its 2-s cap cut it" in text
+    through_json = {**pace, "pace": None, "reference_train_s": None}  # NaN as JSON writes it
+    assert pace_markdown(through_json, {"max_train_seconds": 2.0, "budget_cut": True}) == text
     assert training_pace(tmp_path / "nothing") is None
     assert pace_markdown(None, {"budget_cut": False}) == "" == pace_markdown(pace, None)
 

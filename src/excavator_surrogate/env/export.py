@@ -361,7 +361,12 @@ def export_onnx(
         else:
             _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
         got = _add_metadata(
-            tmp, sur, mode, n_member=module_members(module), ood=isinstance(module, _StatefulOod)
+            tmp,
+            sur,
+            mode,
+            n_member=module_members(module),
+            ood=isinstance(module, _StatefulOod),
+            folder=None if isinstance(ckpt, Surrogate) else Path(ckpt).parent,
         )
         if got != opset:  # the exporter falls back to its own opset with only a logged warning
             raise ConfigError(
@@ -442,9 +447,16 @@ def _export_torchscript(
 
 
 def _add_metadata(
-    path: Path, sur: Surrogate, mode: str, *, n_member: int = 0, ood: bool = False
+    path: Path,
+    sur: Surrogate,
+    mode: str,
+    *,
+    n_member: int = 0,
+    ood: bool = False,
+    folder: Path | None = None,
 ) -> int | None:
-    """Add the exsur metadata to the ONNX file at ``path``; return its default-domain opset."""
+    """Add the exsur metadata to the ONNX file at ``path``; return its default-domain opset.
+    ``folder``: the checkpoint's, whose training logs the card's ``training.pace`` reads."""
     import onnx
 
     model = onnx.load(str(path))
@@ -465,7 +477,7 @@ def _add_metadata(
         "exsur_uncertainty": json.dumps((sur.metrics or {}).get("uncertainty") or {}),
         "exsur_coverage": json.dumps((sur.metrics or {}).get("coverage") or {}),
         "exsur_units": json.dumps(units_metadata(sur.spec)),
-        "exsur_card": full_json(describe_surrogate(sur)),
+        "exsur_card": full_json(describe_surrogate(sur, folder=folder)),
     }
     for k, v in meta.items():
         p = model.metadata_props.add()

@@ -46,9 +46,7 @@ def model_card(path: str | Path) -> dict[str, Any]:
     """
     path = Path(path)
     ckpt = read_checkpoint(path)
-    card = describe_surrogate(surrogate_from_dict(ckpt, where=str(path)))
-    if card.get("_training_record"):  # how fast it trained, from the logs beside it
-        card["training"]["pace"] = training_pace(path.parent)
+    card = describe_surrogate(surrogate_from_dict(ckpt, where=str(path)), folder=path.parent)
     file = {
         "path": str(path),
         "bytes": path.stat().st_size,
@@ -58,9 +56,11 @@ def model_card(path: str | Path) -> dict[str, Any]:
     return {"file": file, **card}
 
 
-def describe_surrogate(sur: Surrogate) -> dict[str, Any]:
+def describe_surrogate(sur: Surrogate, *, folder: str | Path | None = None) -> dict[str, Any]:
     """:func:`model_card` of a loaded surrogate, without the ``file`` entry (what an ONNX
-    export embeds as its ``exsur_card`` metadata, :func:`full_json`)."""
+    export embeds as its ``exsur_card`` metadata, :func:`full_json`).  ``folder``: where its
+    checkpoint lies, whose training logs give ``training.pace`` (:func:`~.pace.training_pace`;
+    None without the folder, its logs or a training record)."""
     spec, cfg, norm = sur.spec, sur.model_cfg, sur.norm
     metrics: Mapping[str, Any] = sur.metrics or {}
     tc: Mapping[str, Any] = sur.train_config or {}
@@ -116,6 +116,7 @@ def describe_surrogate(sur: Surrogate) -> dict[str, Any]:
             "lr": tc.get("lr"),
             "numerics": training.get("numerics"),
             "environment": dict(training.get("environment") or {}),
+            "pace": training_pace(folder) if folder is not None and training else None,
         },
         "validation": _validation(metrics, spec),
         "members": [

@@ -79,12 +79,13 @@ def pace_markdown(pace: Mapping[str, Any] | None, training: Mapping[str, Any] | 
         f"\nTime on this computer: {pace['networks']} network(s), {pace['epochs']} epochs; "
         f"their training steps took {pace['train_s']:.0f} s"
     )
-    if math.isfinite(pace["pace"]):
+    ratio = pace.get("pace")  # NaN, or None once through JSON: no reference time
+    if isinstance(ratio, int | float) and math.isfinite(ratio):
         text += (
-            f", {pace['pace']:.2f}x the reference machine's {pace['reference_train_s']:.0f} s "
+            f", {ratio:.2f}x the reference machine's {pace['reference_train_s']:.0f} s "
             "(the time the plan is sized by)"
         )
-    longest = pace["longest_s"]
+    longest = float(pace.get("longest_s") or 0.0)
     text += f". The longest network ran {longest:.0f} s"
     if cap > 0 and cut:
         text += f" and its {cap:.0f}-s cap cut it.\n"
