@@ -59,5 +59,5 @@ def test_a_training_logs_its_planned_work_first(data_dir: Path, tmp_path: Path, 
     planned = [ln for ln in err.splitlines() if "planned work: " in ln]
     assert len(planned) == 3 and "1 training(s) (1 plain member(s))" in planned[0]
     # and last, how fast this computer trained it (a tiny network: no reference time)
-    assert "Time on this computer: 1 network(s), 1 epochs; their training steps took" in err
+    assert "Time on this computer: 1 network(s), 1 epochs in all; their training steps took" in err
     assert err.index("planned work: ") < err.index("epoch 0")

@@ -81,7 +81,7 @@ def test_an_export_carries_its_checkpoint_card_and_describes_its_graph(
         (tmp_path / "log.csv").write_text("epoch,time_s,epoch_s,val_s,ref_epoch_s\n0,5,4,1,\n")
         again = onnx_card(export_onnx(ckpt, tmp_path / "again.onnx"))
         assert again["card"]["training"]["pace"]["epochs"] == 1
-        assert "Time on this computer: 1 network(s), 1 epochs" in onnx_card_markdown(again)
+        assert "Time on this computer: 1 network(s), 1 epochs in all" in onnx_card_markdown(again)
 
 
 def test_linear_joints_are_named_in_their_own_unit(tmp_path: Path) -> None:

@@ -31,7 +31,10 @@ def test_a_cut_run_is_reported_in_metrics_json_and_the_table(tmp_path):
     # reference times were measured on: no ratio); nothing of it in best.pt
     pace = res["pace"]
     assert pace["networks"] == 1 and pace["epochs"] == 2 and math.isnan(pace["pace"])
-    assert "Time on this computer: 1 network(s), 2 epochs" in table and "no wall-time cap" in table
+    assert (
+        "Time on this computer: 1 network(s), 2 epochs in all" in table
+        and "no wall-time cap" in table
+    )
     assert "reference machine" not in table.split("Time on this computer")[1].split("\n")[0]
     # the computer and libraries it trained with, in metrics.json and in the table
     env = res["training"]["environment"]

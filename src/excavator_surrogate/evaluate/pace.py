@@ -8,8 +8,8 @@ machine's speed, and the wall-time cap only stops a computer that is much slower
 the cost model does not cover the config) and the wall time since the start (``time_s``).
 :func:`training_pace` sums them over every network beside a checkpoint, so a report can say
 how this computer, as loaded during the run, compared with the reference and how much of the
-cap it used: how much slower or busier the same run could have been and still trained the
-same model.  Nothing here goes into ``best.pt`` (it reads the clock's record).
+cap it used: how much slower or busier the same run could have been and still trained every
+planned epoch.  Nothing here goes into ``best.pt`` (it reads the clock's record).
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def pace_markdown(pace: Mapping[str, Any] | None, training: Mapping[str, Any] | 
     cap = max((float(m.get("max_train_seconds") or 0.0) for m in members), default=0.0)
     cut = any(bool(m.get("budget_cut")) for m in members)
     text = (
-        f"\nTime on this computer: {pace['networks']} network(s), {pace['epochs']} epochs; "
+        f"\nTime on this computer: {pace['networks']} network(s), {pace['epochs']} epochs in all; "
         f"their training steps took {pace['train_s']:.0f} s"
     )
     ratio = pace.get("pace")  # NaN, or None once through JSON: no reference time
@@ -91,9 +91,9 @@ def pace_markdown(pace: Mapping[str, Any] | None, training: Mapping[str, Any] | 
         text += f" and its {cap:.0f}-s cap cut it.\n"
     elif cap > 0 and longest > 0:
         text += (
-            f" of its {cap:.0f}-s cap ({100 * longest / cap:.0f} %): the same run up to "
-            f"{cap / longest:.2f}x slower (another computer, or more load on this one) trains "
-            "the same model.\n"
+            f" of its {cap:.0f}-s cap ({100 * longest / cap:.0f} %): a run up to "
+            f"{cap / longest:.2f}x slower (a slower computer, or more load on this one) still "
+            "trains every planned epoch.\n"
         )
     else:
         text += " (no wall-time cap).\n"
