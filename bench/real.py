@@ -381,6 +381,7 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
         "recipe_train_s": [r["train_s"] for r in recipe],
         "recipe_epochs_planned": [r["epochs_planned"] for r in recipe],
         "recipe_budget_cut": [r["budget_cut"] for r in recipe],
+        "recipe_pace": [r["pace"] for r in recipe],
         "recipe_training_log": {r["seed"]: r["members"] for r in recipe},
         "recipe_val_rmse_and_choices": {r["seed"]: r["choices"] for r in recipe},
         **summary(median, rows),
