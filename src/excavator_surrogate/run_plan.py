@@ -115,6 +115,7 @@ def _describe(
 
             train_cfg, recipe = auto_config(
                 ds,
+                cpus=cpus,
                 overrides=merge_tables(
                     req.raw_preset.get("train", {}), req.overrides.get("train", {})
                 ),
