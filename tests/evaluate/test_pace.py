@@ -43,6 +43,7 @@ def test_the_members_are_summed_and_the_ensembles_summary_skipped(tmp_path: Path
     _log(tmp_path / "log.csv", [{"member": 0, "seed": 0, "epoch": 3, "val_error": 0.1}])
     _log(tmp_path / "plain" / "member_0" / "log.csv", _epochs(4, epoch_s=3.0, ref=2.0))
     _log(tmp_path / "prior" / "member_0" / "log.csv", _epochs(4, epoch_s=2.0, ref=2.0))
+    _log(tmp_path / "another_run" / "log.csv", _epochs(9, epoch_s=9.0, ref=1.0))  # not this model's
     pace = training_pace(tmp_path)
     assert pace is not None
     assert (pace["networks"], pace["epochs"]) == (2, 8)

@@ -20,10 +20,14 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+LOGS = ("log.csv", "member_*/log.csv", "*/member_*/log.csv")
+"""Where a training writes its networks' logs in its folder: a single network's, an
+ensemble's members', and the members of each group (the kinds' ``plain/``, ``prior/``)."""
+
 
 def training_pace(model_dir: str | Path) -> dict[str, Any] | None:
-    """The training time of every network under ``model_dir`` (each ``log.csv`` with an
-    ``epoch_s`` column: a single network's, or an ensemble's members').
+    """The training time of every network of the model in ``model_dir`` (each ``log.csv``
+    of :data:`LOGS` with an ``epoch_s`` column; other runs' folders inside it are not read).
 
     Returns:
         ``None`` without such logs, else ``{"networks", "epochs", "train_s",
@@ -35,7 +39,7 @@ def training_pace(model_dir: str | Path) -> dict[str, Any] | None:
     """
     root = Path(model_dir)
     nets = []
-    for log in sorted(root.rglob("log.csv")):
+    for log in sorted({p for pattern in LOGS for p in root.glob(pattern)}):
         try:
             with open(log, newline="") as f:
                 rows = list(csv.DictReader(f))
