@@ -87,7 +87,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
 
     t_start = time.monotonic()
     req = resolve_run(**options)
-    name, raw_preset, over, cfgs = req.name, req.raw_preset, req.overrides, req.configs
+    name, cfgs = req.name, req.configs
     logs, mapping, data = req.logs, req.mapping, req.data
     run_cfg: RunConfig = cfgs["run"]
     sim_cfg = cfgs["simulate"]
@@ -117,12 +117,10 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
         raw_ds = load_dataset(data_dir)
         train_ds = raw_ds
         if run_cfg.auto_train:
-            from .training.auto import auto_config, recipe_table
+            from .training.auto import recipe_table
             from .training.estimate import describe_work, estimate_work
 
-            train_cfg, recipe = auto_config(
-                raw_ds, overrides=merge_tables(raw_preset.get("train", {}), over.get("train", {}))
-            )
+            train_cfg, recipe = req.train_recipe(raw_ds)
             for line in recipe:
                 _log.info(f"run[{name}]: recipe: {line}")
             for line in describe_work(estimate_work(train_cfg, raw_ds)):
@@ -280,6 +278,15 @@ class RunRequest:
     """The logs to import with ``mapping``: files, folders or glob patterns (None: none)."""
     mapping: Path | None
     """The mapping file of ``logs``."""
+
+    def train_recipe(self, dataset: Any, *, cpus: int | None = None) -> tuple[Any, list[str]]:
+        """The data-driven recipe's ``[train]`` config for ``dataset`` and its reasons
+        (``[run] auto_train``): the preset's ``[train]`` keys and the command's override its
+        choices.  ``cpus``: those it plans for (default: those this process may use)."""
+        from .training.auto import auto_config
+
+        over = merge_tables(self.raw_preset.get("train", {}), self.overrides.get("train", {}))
+        return auto_config(dataset, overrides=over, cpus=cpus)
 
     def record(self, *, train: Any, evaluate: Any, recipe: Sequence[str] = ()) -> dict[str, Any]:
         """The content of ``config.toml``: every table the run reads, with the command's

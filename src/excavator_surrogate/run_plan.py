@@ -24,7 +24,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from .config import dumps_toml, merge_tables
+from .config import dumps_toml
 from .pipeline import RunRequest, evaluated_split
 
 
@@ -55,6 +55,7 @@ def plan_run(req: RunRequest, *, cpus: int | None = None) -> str:
                 list(req.logs), load_mapping(req.mapping), out=Path(tmp) / "data", quiet=True
             )
             ds = load_dataset(Path(tmp) / "data")
+            lengths = _lengths(ds)
             totals = report["totals"]
             left = [
                 f"{totals[k]} {what}"
@@ -64,38 +65,38 @@ def plan_run(req: RunRequest, *, cpus: int | None = None) -> str:
             lines.append(
                 f"data: {totals['files']} log(s) imported with {req.mapping}"
                 + (f" ({', '.join(left)}: see `exsur import`'s report)" if left else "")
-                + f": {_sizes(_lengths(ds), ds.spec.rate_hz)}"
+                + f": {_sizes(lengths, ds.spec.rate_hz)}"
             )
-            return _describe(req, lines, ds=ds, n_input=ds.spec.n_input, cpus=cpus)
+            return _describe(req, lines, lengths, ds=ds, n_input=ds.spec.n_input, cpus=cpus)
     if req.data is not None:
         ds = load_dataset(req.data)
-        lines.append(f"data: {req.data}: {_sizes(_lengths(ds), ds.spec.rate_hz)}")
-        return _describe(req, lines, ds=ds, n_input=ds.spec.n_input, cpus=cpus)
+        lengths = _lengths(ds)
+        lines.append(f"data: {req.data}: {_sizes(lengths, ds.spec.rate_hz)}")
+        return _describe(req, lines, lengths, ds=ds, n_input=ds.spec.n_input, cpus=cpus)
     sim = cfgs["simulate"]
     lengths = sim.episode_lengths()
     lines.append(
         f"data: simulated on the {sim.plant} stand-in (nothing simulated now): "
         f"{_sizes(lengths, sim.rate_hz)}"
     )
-    return _describe(req, lines, lengths=lengths, n_input=len(sim.inputs), cpus=cpus)
+    return _describe(req, lines, lengths, n_input=len(sim.inputs), cpus=cpus)
 
 
 def _describe(
     req: RunRequest,
     lines: list[str],
+    lengths: Mapping[str, Sequence[int]],
     *,
     ds: Any = None,
-    lengths: Mapping[str, Sequence[int]] | None = None,
     n_input: int,
     cpus: int | None,
 ) -> str:
     """The clean, train and evaluate lines after ``lines`` (the data's), and the record.
-    ``ds``: the dataset (None: not simulated yet; then ``lengths``, its episodes' samples by
-    split); ``n_input``: its exogenous inputs."""
+    ``lengths``: the samples of each episode by split; ``ds``: the dataset (None: not
+    simulated yet); ``n_input``: its exogenous inputs."""
     from .training.api import side_by_side
     from .training.estimate import describe_work, estimate_sizes
 
-    lengths = _lengths(ds) if ds is not None else dict(lengths or {})
     cfgs = req.configs
     run_cfg, train_cfg, eval_cfg = cfgs["run"], cfgs["train"], cfgs["evaluate"]
     if run_cfg.clean:
@@ -111,15 +112,7 @@ def _describe(
                 "it with `exsur simulate`, then `exsur run --data DIR --dry-run`)"
             )
         else:
-            from .training.auto import auto_config
-
-            train_cfg, recipe = auto_config(
-                ds,
-                cpus=cpus,
-                overrides=merge_tables(
-                    req.raw_preset.get("train", {}), req.overrides.get("train", {})
-                ),
-            )
+            train_cfg, recipe = req.train_recipe(ds, cpus=cpus)
             lines.append("recipe (docs/real.md):")
             lines += [f"  - {w}" for w in recipe]
     jobs = ["surrogate"]
@@ -180,10 +173,16 @@ def _lengths(ds: Any) -> dict[str, list[int]]:
 
 
 def _sizes(lengths: Mapping[str, Sequence[int]], rate_hz: float) -> str:
-    """``lengths`` in words: episodes and minutes per split (an empty split left out)."""
+    """:func:`sizes_text` of the splits that hold episodes."""
+    return sizes_text({s: n for s, n in lengths.items() if n}, rate_hz)
+
+
+def sizes_text(lengths: Mapping[str, Sequence[int]], rate_hz: float) -> str:
+    """``lengths`` (the samples of each episode, by split) in words: episodes and minutes
+    per split, e.g. ``2 train episode(s), 0.2 min; 1 val episode(s), 0.1 min at 20 Hz``
+    (what ``exsur run --dry-run`` and ``exsur train --dry-run`` print)."""
     parts = [
         f"{len(n)} {split} episode(s), {sum(n) / rate_hz / 60:.1f} min"
         for split, n in lengths.items()
-        if n
     ]
     return "; ".join(parts) + f" at {rate_hz:g} Hz"

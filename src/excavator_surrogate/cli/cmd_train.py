@@ -156,15 +156,11 @@ def dry_run(cfg: TrainConfig, dataset: Dataset, *, why: list[str], source: str |
     preset), the planned work (:mod:`~excavator_surrogate.training.estimate`) and the
     ``[train]`` table that ``config.toml`` would record."""
     from ..config import dumps_toml, to_dict
+    from ..run_plan import sizes_text
     from ..training.estimate import describe_work, estimate_work
 
-    spec = dataset.spec
-    sizes = []
-    for split in ("train", "val"):
-        eps = dataset.episodes.get(split, [])
-        minutes = sum(e.n_step for e in eps) / spec.rate_hz / 60
-        sizes.append(f"{len(eps)} {split} episode(s), {minutes:.1f} min")
-    lines = [f"data: {'; '.join(sizes)} at {spec.rate_hz:g} Hz"]
+    lengths = {s: [e.n_step for e in dataset.episodes.get(s, [])] for s in ("train", "val")}
+    lines = [f"data: {sizes_text(lengths, dataset.spec.rate_hz)}"]
     if source:
         lines.append(f"preset: {source}")
     else:

@@ -246,6 +246,7 @@ def train_network(
             row = epoch_row(
                 epoch,
                 times=(t_start, t0, t1, t2),
+                ref_epoch_s=ref_epoch_s,
                 lr=lr,
                 loss=loss,
                 n_sample=n,
@@ -253,7 +254,6 @@ def train_network(
                 improved=improved,
                 with_ema=optim.ema_sur is not None,
             )
-            row["ref_epoch_s"] = round(ref_epoch_s, 3)
             if cfg.select_smooth or cfg.select_after or cfg.train_on_val:
                 row["select_score"] = score if eligible else math.nan
                 row["validated"] = int(validated)

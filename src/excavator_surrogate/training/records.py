@@ -41,6 +41,7 @@ def epoch_row(
     epoch: int,
     *,
     times: tuple[float, float, float, float],
+    ref_epoch_s: float,
     lr: float,
     loss: float,
     n_sample: int,
@@ -49,7 +50,8 @@ def epoch_row(
     with_ema: bool,
 ) -> dict[str, Any]:
     """One ``log.csv`` row.  ``times``: monotonic clock at the run's start, the epoch's start,
-    the end of its training and the end of its validation [s]."""
+    the end of its training and the end of its validation [s]; ``ref_epoch_s``: the
+    reference machine's time for the epoch's training steps [s] (NaN: not modelled)."""
     t_start, t0, t1, t2 = times
     val = choice.val
     row: dict[str, Any] = {
@@ -57,6 +59,7 @@ def epoch_row(
         "time_s": round(t2 - t_start, 3),
         "epoch_s": round(t1 - t0, 3),
         "val_s": round(t2 - t1, 3),
+        "ref_epoch_s": round(ref_epoch_s, 3),
         "lr": lr,
         "train_loss": loss,
         "n_sample": n_sample,
