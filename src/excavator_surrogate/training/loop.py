@@ -34,6 +34,7 @@ from .batches import make_data, split_episodes
 from .config import TrainConfig
 from .estimate import estimate_work
 from .guards import check_finite
+from .ignored import input_stats, widen_checkpoint, without_inputs
 from .loss import LossFn, default_loss
 from .modes import Mode, make_mode
 from .optim import Optimisation, cosine_lr
@@ -132,6 +133,10 @@ def train_network(
     loss_fn = loss if loss is not None else default_loss(lambda_bias=cfg.lambda_bias)
     if cfg.num_threads > 0:
         torch.set_num_threads(cfg.num_threads)
+    wide: Dataset | None = None
+    if cfg.exogenous == "ignore" and dataset.spec.n_input:
+        # trained as on the data that never had the inputs, stored with them (ignored.py)
+        wide, dataset = dataset, without_inputs(dataset)
     spec = dataset.spec
     train_eps, val_eps = split_episodes(cfg, dataset)
     val_steps = cfg.val_steps or None
@@ -142,9 +147,11 @@ def train_network(
     net, history = st.net, st.history
     for line in st.derived:
         say(line)
-    if st.blind is not None:  # before the EMA copy is made
-        blind_inputs(net, *st.blind)
-        say(f"ignoring the exogenous inputs {list(spec.u_names[spec.n_joint :])}")
+    if wide is not None:
+        say(
+            f"ignoring the exogenous inputs {list(wide.spec.u_names[spec.n_joint :])}: trained "
+            "without their columns, stored with zero weights for them"
+        )
     net.to(par.device).train()
     sur = Surrogate(
         net=net,
@@ -339,6 +346,13 @@ def train_network(
                 environment=numerics.environment(),
             ),
         )
+    if main and wide is not None:  # the checkpoints take the machine's whole command vector
+        stats = input_stats(
+            split_episodes(cfg, wide)[0], wide.spec, play=cfg.play, omega_in=cfg.velocity_input
+        )
+        for path in (best_path, last_path):
+            if path.exists():
+                widen_checkpoint(path, spec=wide.spec, stats=stats)
     par.barrier()  # best.pt is complete before any rank returns its path
     return best_path
 
@@ -383,15 +397,3 @@ def average_with_last(
         say(f"best.pt: the last epoch's ({epoch}) validated weights averaged with its raw{note}")
     else:
         say(f"best.pt: epoch {epoch}'s weights averaged with the last epoch's ({last_epoch}){note}")
-
-
-def blind_inputs(net: torch.nn.Module, lo: int, hi: int) -> None:
-    """Make ``net`` ignore its input features ``lo:hi`` (the exogenous inputs): their columns
-    of the first recurrent layer's input weights are zeroed and their gradient too, so Adam
-    (no weight decay) and the weight average keep them at exactly zero."""
-    w = net.rnn.weight_ih_l0
-    keep = torch.ones_like(w)
-    keep[:, lo:hi] = 0.0
-    with torch.no_grad():
-        w.mul_(keep)
-    w.register_hook(lambda g: g * keep)

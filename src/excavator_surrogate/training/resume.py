@@ -6,8 +6,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from ..data.episode import Episode
 from ..errors import CheckpointError
 from ..spec import MachineSpec
@@ -18,6 +16,7 @@ from ..surrogate.model import ModelConfig, SurrogateNet
 from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import fit_prior, max_map_delay
 from .config import TrainConfig
+from .ignored import narrowed
 
 SOURCE_META = "data_source"
 """Key of ``MachineSpec.meta`` under which a trained checkpoint records where its training
@@ -51,9 +50,6 @@ class Start:
     """``last.pt``'s optimiser/scheduler/bookkeeping state (None: fresh run)."""
     history: list[dict[str, Any]] = field(default_factory=list)
     """``log.csv`` rows of the epochs already trained."""
-    blind: tuple[int, int] | None = None
-    """The feature columns ``lo:hi`` of the exogenous inputs the net ignores (``[train]
-    exogenous = "ignore"``; :func:`~.loop.blind_inputs`), or None."""
 
     @property
     def epoch(self) -> int:
@@ -76,29 +72,6 @@ class Start:
         return float(self.train_state.get("elapsed_s", 0.0)) if self.train_state else 0.0
 
 
-def fresh_net(mcfg: ModelConfig, *, blind: tuple[int, int] | None = None) -> SurrogateNet:
-    """A new net from the current torch seed; with ``blind = (lo, hi)``, the feature columns
-    ``lo:hi`` (the exogenous inputs) get zero input weights, and every other weight is drawn
-    as for a net without those columns, with the torch seed left where that net leaves it:
-    a network that ignores its inputs starts as the one trained on the data without them.
-
-        W_ih = [W_narrow[:, :lo], 0, W_narrow[:, lo:]]
-    """
-    if blind is None:
-        return SurrogateNet(mcfg)
-    lo, hi = blind
-    narrow = SurrogateNet(replace(mcfg, n_feature=mcfg.n_feature - (hi - lo)))
-    with torch.random.fork_rng(devices=[]):  # the wide net only holds the narrow one's weights
-        net = SurrogateNet(mcfg)
-    state = narrow.state_dict()
-    w = state["rnn.weight_ih_l0"]
-    state["rnn.weight_ih_l0"] = torch.cat(
-        [w[:, :lo], w.new_zeros(w.shape[0], hi - lo), w[:, lo:]], 1
-    )
-    net.load_state_dict(state)
-    return net
-
-
 def start(
     cfg: TrainConfig,
     mcfg: ModelConfig,
@@ -107,15 +80,13 @@ def start(
     resume: str | Path | None,
 ) -> Start:
     """A fresh net (weights from the current torch seed, normalisation fitted on ``train_eps``)
-    or the state of checkpoint ``resume``.  With ``[train] exogenous = "ignore"``, the fresh
-    net's input weights of the exogenous inputs are zero and the rest as without them
-    (:func:`fresh_net`).
+    or the state of checkpoint ``resume``.  With ``[train] exogenous = "ignore"`` the training
+    runs without the inputs (:mod:`.ignored`), so a checkpoint that has them (its input
+    weights zero) resumes without them.
 
     Raises:
         CheckpointError: ``resume`` has another architecture or other joints.
     """
-    cols = spec.input_features
-    blind = (cols.start, cols.stop) if cfg.exogenous == "ignore" and spec.n_input else None
     if resume is None:
         derived: list[str] = []
         if cfg.end_stops:
@@ -147,7 +118,7 @@ def start(
                 norm = norm.with_lags(fit["delay"])
                 cols = [norm.lag_start + j for j in range(spec.n_joint)]
                 mcfg = replace(mcfg, n_feature=norm.n_feature)
-            net = fresh_net(mcfg, blind=blind)
+            net = SurrogateNet(mcfg)
             assert net.prior is not None
             net.prior.load_fit(
                 **{k: fit[k] for k in PRIOR_MAP if k != "cols"}, cols=cols, norm=norm
@@ -167,10 +138,12 @@ def start(
                 )
             ]
         else:
-            net = fresh_net(mcfg, blind=blind)
-        return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived, blind=blind)
+            net = SurrogateNet(mcfg)
+        return Start(net=net, norm=norm, spec=spec, model_cfg=mcfg, derived=derived)
     ck = read_checkpoint(resume)
     old = surrogate_from_dict(ck, where=str(resume))
+    if old.spec.n_input and not spec.n_input and cfg.exogenous == "ignore":
+        old = narrowed(old, where=str(resume))  # stored with the inputs it was trained without
     if old.norm.own is not None:  # training runs the network alone, not beside a map
         raise CheckpointError(
             f"{resume}: joints {', '.join((old.metrics or {}).get('map_joints') or [])} follow "
@@ -194,5 +167,4 @@ def start(
         model_cfg=old.model_cfg,
         train_state=ck.get("train_state") or None,
         history=list(ck.get("history") or []),
-        blind=blind,
     )

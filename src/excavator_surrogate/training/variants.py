@@ -3,7 +3,8 @@
 A throttle, a gear or a run condition (``spec.inputs``) may help one joint and hurt
 another on held-out data.  With ``choose`` the ensemble's members are trained in two ways
 on the same seeds: :func:`~.plan.probe_members` of them (2, at most half) use the inputs, as many
-ignore them (their input weights held at zero, :func:`~.loop.blind_inputs`).  Each half is
+ignore them (trained without their columns, stored with zero weights for them,
+:mod:`.ignored`).  Each half is
 merged and scored by its validation free run; the inputs are kept only if that half is
 better by :data:`~.input_choice.INPUT_MARGIN` overall and no joint's angle RMSE is worse by more than it.
 The remaining members are then trained the chosen way and merged with the winning half, so
