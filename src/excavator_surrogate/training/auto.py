@@ -187,7 +187,7 @@ def auto_config(
     held = held_inputs(dataset)
     # inputs that never change in training teach nothing, and validation at one command
     # level vouches for no input at the others: both are ignored without a trial, and the
-    # plan is the one without them (each network starts as it would without the columns)
+    # plan is the one without them (each network trains as on the data without the columns)
     untried = len(held) == len(inputs) or one_level
     default_exogenous = ("ignore" if untried else "choose") if inputs else "use"
     exogenous = str(overrides.get("exogenous", default_exogenous))
@@ -229,8 +229,8 @@ def auto_config(
             "without a trial: validation sits at one command level, which vouches for no "
             "input at the others (h1-dev's H/L condition, chosen at duty 50, lost 12-51 % "
             "per joint at duty 80 held out, where its trial also cost the validation runs as "
-            "training data); the networks start as they would without the columns and train "
-            'on the validation runs too (set exogenous = "choose" to try them)'
+            "training data); the networks train as on the data without the columns, on the "
+            'validation runs too (set exogenous = "choose" to try them)'
         )
     if held and "exogenous" not in overrides:
         why.append(
@@ -238,7 +238,7 @@ def auto_config(
             "change in the training data: nothing to learn from them, so "
             + (
                 "they are ignored without a trial and the budget plans as without them (each "
-                "network starts as it would without the columns)"
+                "network trains as on the data without the columns)"
                 if default_exogenous == "ignore"
                 else "they add nothing to the inputs the choice below weighs"
             )

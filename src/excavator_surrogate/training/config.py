@@ -125,8 +125,9 @@ class TrainConfig(PresetConfig, table="train"):
     else is chosen on validation: h1-dev's one duty level, whose runs are data the other
     duties lack).  Validation scores are then in-sample."""
     exogenous: Literal["use", "ignore", "choose"] = "use"
-    """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (their input weights
-    are held at zero, so the model cannot depend on them); or ``choose`` the way that scores
+    """Exogenous inputs (``spec.inputs``): ``use`` them; ``ignore`` them (the network trains on the
+    data without them, :mod:`.ignored`, and is stored with zero weights for them, so the
+    model cannot depend on them); or ``choose`` the way that scores
     better on validation (``use`` only if better by :data:`~.input_choice.INPUT_MARGIN`): with
     ``input_dropout`` > 0 on the same networks run both ways (:mod:`.dual`), else train 2
     networks each way (at most half the members, :func:`~.plan.probe_members`), then
