@@ -11,6 +11,7 @@ import torch
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.spec import EXCAVATOR, InputSpec
+from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import Surrogate, build_net
 from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import with_lag_columns
@@ -22,7 +23,13 @@ WIDE = replace(
     EXCAVATOR,
     inputs=(InputSpec("throttle", u_min=0.0, u_max=100.0), InputSpec("gear", u_min=-1, u_max=1)),
 )
-STATS = (torch.tensor([0.3, -0.1]), torch.tensor([2.0, 0.5]))
+LIKE = Normalization.from_arrays(  # a network using the inputs: their columns' statistics
+    x_mean=np.r_[np.zeros(WIDE.n_feature - 2), 0.3, -0.1],
+    x_std=np.r_[np.ones(WIDE.n_feature - 2), 2.0, 0.5],
+    y_mean=np.zeros(WIDE.n_joint),
+    y_std=np.ones(WIDE.n_joint),
+    spec=WIDE,
+)
 
 
 def _delayed(sur: Surrogate) -> Surrogate:
@@ -64,8 +71,11 @@ def _commands(n_step: int = 60) -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_widened_runs_as_the_network_without_inputs_and_narrowed_undoes_it(variant) -> None:
     sur = VARIANTS[variant]()
-    wide = widened(sur, spec=WIDE, stats=STATS)
+    wide = widened(sur, spec=WIDE, like=LIKE)
     assert wide.spec.u_names == WIDE.u_names and wide.norm.n_feature == sur.norm.n_feature + 2
+    cols = WIDE.input_features
+    assert torch.equal(wide.norm.x_std[cols], LIKE.x_std[cols])
+    assert torch.equal(wide.norm.u_scale, LIKE.u_scale)
     assert wide.model_cfg.n_feature == sur.model_cfg.n_feature + 2
     theta, u = _commands()
     th_wide, om_wide = rollout(wide.eval(), theta, u)
@@ -81,7 +91,7 @@ def test_widened_runs_as_the_network_without_inputs_and_narrowed_undoes_it(varia
 
 
 def test_narrowed_refuses_a_network_that_reads_its_inputs() -> None:
-    wide = widened(tiny_surrogate(seed=1), spec=WIDE, stats=STATS)
+    wide = widened(tiny_surrogate(seed=1), spec=WIDE, like=LIKE)
     with torch.no_grad():
         wide.net.rnn.weight_ih_l0[0, WIDE.input_features.start] = 0.1
     with pytest.raises(CheckpointError, match=r"^run/last\.pt: the network reads its exogenous"):

@@ -41,19 +41,21 @@ from ..surrogate.model import Surrogate, build_net
 
 
 def without_inputs(dataset: Dataset) -> Dataset:
-    """``dataset`` without its exogenous inputs: each episode's ``u`` keeps the joints'
-    ``n_joint`` columns, and the spec has no inputs (the arrays are views, not copies)."""
+    """``dataset`` without its exogenous inputs (:func:`narrow_episodes`), on its machine
+    without inputs."""
     spec = replace(dataset.spec, inputs=())
-    n = spec.n_joint
     return Dataset(
         spec=spec,
-        episodes={
-            split: [e.replace(spec=spec, u=e.u[:, :n]) for e in eps]
-            for split, eps in dataset.episodes.items()
-        },
+        episodes={split: narrow_episodes(eps, spec) for split, eps in dataset.episodes.items()},
         root=dataset.root,
         manifest=dataset.manifest,
     )
+
+
+def narrow_episodes(eps: Sequence[Episode], spec: MachineSpec) -> list[Episode]:
+    """``eps`` on ``spec``, their machine without inputs: each episode's ``u`` keeps the
+    joints' ``n_joint`` columns (views of the same arrays, not copies)."""
+    return [e.replace(spec=spec, u=e.u[:, : spec.n_joint]) for e in eps]
 
 
 def _insert(w: torch.Tensor, at: int, cols: torch.Tensor) -> torch.Tensor:
@@ -66,13 +68,18 @@ def _first_layer(net: torch.nn.Module) -> str:
     return "linear.weight" if hasattr(net, "linear") else "rnn.weight_ih_l0"
 
 
-def _rebuilt(sur: Surrogate, state: dict[str, torch.Tensor], n_feature: int) -> torch.nn.Module:
-    """A network of ``sur``'s architecture with ``n_feature`` inputs holding ``state``;
-    draws no random numbers (the training's torch seed stays where it was)."""
+def _resized(
+    sur: Surrogate, state: dict[str, torch.Tensor], *, spec: MachineSpec, norm: Normalization
+) -> Surrogate:
+    """``sur`` on ``spec`` with the features of ``norm``: a network of its architecture
+    with ``norm.n_feature`` inputs holding ``state``, built without drawing random numbers
+    (the training's torch seed stays where it was)."""
+    mcfg = replace(sur.model_cfg, n_feature=norm.n_feature)
     with torch.random.fork_rng(devices=[]):
-        net = build_net(replace(sur.model_cfg, n_feature=n_feature))
+        net = build_net(mcfg)
     net.load_state_dict(state)
-    return net.to(device=sur.device, dtype=sur.dtype).train(sur.net.training)
+    net = net.to(device=sur.device, dtype=sur.dtype).train(sur.net.training)
+    return replace(sur, net=net, spec=spec, norm=norm, model_cfg=mcfg)
 
 
 def _feature_weights(sur: Surrogate, state: dict[str, torch.Tensor]) -> tuple[str, torch.Tensor]:
@@ -84,25 +91,11 @@ def _feature_weights(sur: Surrogate, state: dict[str, torch.Tensor]) -> tuple[st
     return name, w
 
 
-def input_stats(
-    train_eps: Sequence[Episode], spec: MachineSpec, *, play: Sequence[float], omega_in: bool
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(x_mean, x_std)``, each (n_input,), of the inputs' feature columns over the
-    training episodes ``train_eps`` (with their inputs): what a network that uses them is
-    normalised with (:meth:`.Normalization.fit`)."""
-    full = Normalization.fit(
-        [e.theta for e in train_eps], [e.u for e in train_eps], spec, play=play, omega_in=omega_in
-    )
-    cols = spec.input_features
-    return full.x_mean[cols], full.x_std[cols]
-
-
-def widened(
-    sur: Surrogate, *, spec: MachineSpec, stats: tuple[torch.Tensor, torch.Tensor]
-) -> Surrogate:
+def widened(sur: Surrogate, *, spec: MachineSpec, like: Normalization) -> Surrogate:
     """``sur`` (trained without inputs) on the machine ``spec`` with its exogenous inputs:
-    their feature columns are inserted (normalised with ``stats``, :func:`input_stats`) with
-    zero input weights, so the output is ``sur``'s up to the order of float sums.
+    their feature columns are inserted with zero input weights, so the output is ``sur``'s
+    up to the order of float sums.  They are normalised as in ``like``, the normalisation a
+    network that uses them has (:meth:`.Normalization.fit` on the training data with them).
 
         W_ih = [W[:, :at], 0, W[:, at:]]
     """
@@ -113,22 +106,15 @@ def widened(
     if "prior.cols" in state:  # the static map reads command columns at or after ``at``
         cols = state["prior.cols"]
         state["prior.cols"] = cols + n_in * (cols >= at)
-    n = sur.norm
-    mean, std = (s.to(n.x_mean) for s in stats)
+    n, cols = sur.norm, spec.input_features
     norm = replace(
         n,
-        x_mean=_insert(n.x_mean, at, mean),
-        x_std=_insert(n.x_std, at, std),
-        u_center=torch.tensor([c.u_center for c in spec.u_specs]).to(n.u_center),
-        u_scale=torch.tensor([c.u_scale for c in spec.u_specs]).to(n.u_scale),
+        x_mean=_insert(n.x_mean, at, like.x_mean[cols].to(n.x_mean)),
+        x_std=_insert(n.x_std, at, like.x_std[cols].to(n.x_std)),
+        u_center=like.u_center.to(n.u_center),
+        u_scale=like.u_scale.to(n.u_scale),
     )
-    return replace(
-        sur,
-        net=_rebuilt(sur, state, sur.model_cfg.n_feature + n_in),
-        spec=replace(sur.spec, inputs=spec.inputs),
-        norm=norm,
-        model_cfg=replace(sur.model_cfg, n_feature=sur.model_cfg.n_feature + n_in),
-    )
+    return _resized(sur, state, spec=replace(sur.spec, inputs=spec.inputs), norm=norm)
 
 
 def narrowed(sur: Surrogate, *, where: str) -> Surrogate:
@@ -160,22 +146,14 @@ def narrowed(sur: Surrogate, *, where: str) -> Surrogate:
         u_center=n.u_center[: spec.n_joint],
         u_scale=n.u_scale[: spec.n_joint],
     )
-    return replace(
-        sur,
-        net=_rebuilt(sur, state, sur.model_cfg.n_feature - n_in),
-        spec=replace(spec, inputs=()),
-        norm=norm,
-        model_cfg=replace(sur.model_cfg, n_feature=sur.model_cfg.n_feature - n_in),
-    )
+    return _resized(sur, state, spec=replace(spec, inputs=()), norm=norm)
 
 
-def widen_checkpoint(
-    path: Path, *, spec: MachineSpec, stats: tuple[torch.Tensor, torch.Tensor]
-) -> None:
+def widen_checkpoint(path: Path, *, spec: MachineSpec, like: Normalization) -> None:
     """Rewrite the checkpoint at ``path`` (trained without inputs) :func:`widened` to
-    ``spec``, atomically; its history and optimiser state are kept as they are."""
+    ``spec`` and ``like``, atomically; its history and optimiser state are kept as they are."""
     ck = read_checkpoint(path)
-    sur = widened(surrogate_from_dict(ck, where=str(path)), spec=spec, stats=stats)
+    sur = widened(surrogate_from_dict(ck, where=str(path)), spec=spec, like=like)
     write_checkpoint_dict(
         path, checkpoint_dict(sur, history=ck.get("history"), train_state=ck.get("train_state"))
     )

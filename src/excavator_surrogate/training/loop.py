@@ -28,13 +28,14 @@ from ..devices import resolve_device
 from ..errors import ConfigError
 from ..io_utils import mark_output, progress
 from ..surrogate.checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
+from ..surrogate.features import Normalization
 from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_errors
 from .batches import make_data, split_episodes
 from .config import TrainConfig
 from .estimate import estimate_work
 from .guards import check_finite
-from .ignored import input_stats, widen_checkpoint, without_inputs
+from .ignored import narrow_episodes, widen_checkpoint, without_inputs
 from .loss import LossFn, default_loss
 from .modes import Mode, make_mode
 from .optim import Optimisation, cosine_lr
@@ -133,12 +134,21 @@ def train_network(
     loss_fn = loss if loss is not None else default_loss(lambda_bias=cfg.lambda_bias)
     if cfg.num_threads > 0:
         torch.set_num_threads(cfg.num_threads)
-    wide: Dataset | None = None
-    if cfg.exogenous == "ignore" and dataset.spec.n_input:
-        # trained as on the data that never had the inputs, stored with them (ignored.py)
-        wide, dataset = dataset, without_inputs(dataset)
-    spec = dataset.spec
+    spec = wide_spec = dataset.spec
     train_eps, val_eps = split_episodes(cfg, dataset)
+    like: Normalization | None = None  # ignored inputs: a network using them is normalised so
+    if cfg.exogenous == "ignore" and spec.n_input:
+        # trained as on the data that never had the inputs, stored with them (ignored.py)
+        like = Normalization.fit(
+            [e.theta for e in train_eps],
+            [e.u for e in train_eps],
+            spec,
+            play=cfg.play,
+            omega_in=cfg.velocity_input,
+        )
+        dataset = without_inputs(dataset)
+        spec = dataset.spec
+        train_eps, val_eps = (narrow_episodes(eps, spec) for eps in (train_eps, val_eps))
     val_steps = cfg.val_steps or None
 
     torch.manual_seed(cfg.seed)
@@ -147,9 +157,9 @@ def train_network(
     net, history = st.net, st.history
     for line in st.derived:
         say(line)
-    if wide is not None:
+    if like is not None:
         say(
-            f"ignoring the exogenous inputs {list(wide.spec.u_names[spec.n_joint :])}: trained "
+            f"ignoring the exogenous inputs {list(wide_spec.u_names[spec.n_joint :])}: trained "
             "without their columns, stored with zero weights for them"
         )
     net.to(par.device).train()
@@ -346,13 +356,10 @@ def train_network(
                 environment=numerics.environment(),
             ),
         )
-    if main and wide is not None:  # the checkpoints take the machine's whole command vector
-        stats = input_stats(
-            split_episodes(cfg, wide)[0], wide.spec, play=cfg.play, omega_in=cfg.velocity_input
-        )
+    if main and like is not None:  # the checkpoints take the machine's whole command vector
         for path in (best_path, last_path):
             if path.exists():
-                widen_checkpoint(path, spec=wide.spec, stats=stats)
+                widen_checkpoint(path, spec=wide_spec, like=like)
     par.barrier()  # best.pt is complete before any rank returns its path
     return best_path
 
