@@ -53,7 +53,7 @@ from .records import (
     write_config,
     write_log,
 )
-from .resume import start
+from .resume import fit_norm, start
 from .selection import (
     averaged,
     choose,
@@ -139,13 +139,7 @@ def train_network(
     like: Normalization | None = None  # ignored inputs: a network using them is normalised so
     if cfg.exogenous == "ignore" and spec.n_input:
         # trained as on the data that never had the inputs, stored with them (ignored.py)
-        like = Normalization.fit(
-            [e.theta for e in train_eps],
-            [e.u for e in train_eps],
-            spec,
-            play=cfg.play,
-            omega_in=cfg.velocity_input,
-        )
+        like = fit_norm(cfg, train_eps, spec)
         dataset = without_inputs(dataset)
         spec = dataset.spec
         train_eps, val_eps = (narrow_episodes(eps, spec) for eps in (train_eps, val_eps))

@@ -72,6 +72,17 @@ class Start:
         return float(self.train_state.get("elapsed_s", 0.0)) if self.train_state else 0.0
 
 
+def fit_norm(cfg: TrainConfig, train_eps: list[Episode], spec: MachineSpec) -> Normalization:
+    """The normalisation a fresh network of ``cfg`` gets, fitted on ``train_eps`` of ``spec``."""
+    return Normalization.fit(
+        [e.theta for e in train_eps],
+        [e.u for e in train_eps],
+        spec,
+        play=cfg.play,
+        omega_in=cfg.velocity_input,
+    )
+
+
 def start(
     cfg: TrainConfig,
     mcfg: ModelConfig,
@@ -102,13 +113,7 @@ def start(
                         f"{name}: {', '.join(f'{k} {b[k]:.4g}' for k in got)} from the training data"
                     )
         spec = with_source(spec, train_eps)
-        norm = Normalization.fit(
-            [e.theta for e in train_eps],
-            [e.u for e in train_eps],
-            spec,
-            play=cfg.play,
-            omega_in=cfg.velocity_input,
-        )
+        norm = fit_norm(cfg, train_eps, spec)
         if mcfg.prior:
             # the structured baseline's map, delay included
             fit = fit_prior(train_eps, spec, max_delay=max_map_delay(cfg.window, spec))
