@@ -267,12 +267,31 @@ def test_an_input_that_never_changes_in_training_is_ignored_without_a_trial():
     assert held_inputs(_with_gear(plain)) == {}
 
 
+def test_an_input_nothing_would_read_is_ignored_without_a_trial():
+    """Validation spans every joint's commands: the map-correcting networks drive them all
+    and never read an input chosen on validation, so the run ignores the gear without a
+    trial and plans as without the column; ``exogenous = "choose"`` still tries it."""
+    plain = _long_log()
+    without, _ = auto_config(plain, cpus=2)
+    cfg, why = auto_config(_with_gear(plain), cpus=2)
+    assert cfg.exogenous == "ignore" and cfg.prior_choice
+    for name in ("members", "epochs", "max_train_seconds", "prior_choice", "train_on_val"):
+        assert getattr(cfg, name) == getattr(without, name), name
+    assert any("gear ignored without a trial" in w and "drive every joint" in w for w in why)
+    assert not any("must not hurt" in w for w in why)
+    tried, why = auto_config(_with_gear(plain), cpus=2, overrides={"exogenous": "choose"})
+    assert tried.exogenous == "choose" and any("must not hurt" in w for w in why)
+    assert not any("ignored without a trial" in w for w in why)
+
+
 def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
+    """Where the plain networks may drive a joint (here: the kinds chosen on validation), the
+    gear is tried."""
     plain = _long_log()
     without, _ = auto_config(plain, cpus=2)
     assert without.exogenous == "use"  # nothing to choose
     ds = _with_gear(plain)
-    cfg, why = auto_config(ds, cpus=2)
+    cfg, why = auto_config(ds, cpus=2, overrides={"prior_drive": "validation"})
     assert cfg.exogenous == "choose" and cfg.members == without.members == 4
     # the input choice and the kind choice: 4 members + 2 that ignore the inputs + 2
     # map-correcting networks share the budget: 540 s x 2 workers / 8 trainings
@@ -280,7 +299,9 @@ def test_exogenous_inputs_are_chosen_on_validation_within_the_same_budget():
     assert cfg.prior_choice and not any("one kind of network" in w for w in why)
     assert cfg.max_train_seconds == pytest.approx(135 * (1 - POST_SHARE))
     assert any("must not hurt" in w and "8 trainings" in w for w in why)
-    dual, why = auto_config(ds, cpus=2, overrides={"input_dropout": 0.5})
+    dual, why = auto_config(
+        ds, cpus=2, overrides={"input_dropout": 0.5, "prior_drive": "validation"}
+    )
     # every network learning both ways (dual.py), the choice costs no training: the plan
     # is the one without inputs (4 members + 2 map-correcting networks)
     assert dual.input_dropout == 0.5 and dual.exogenous == "choose"

@@ -208,6 +208,40 @@ def test_validation_at_one_command_level_is_trained_on_too():
     assert not any("ignored without a trial" in w for w in why_t)
 
 
+def test_an_input_is_tried_only_where_the_plain_networks_drive_a_joint():
+    """Validation spans a's commands and holds b at one low level: the map-correcting
+    networks will drive a, the plain ones b, so the gear is tried.  Spanning both, the
+    map-correcting networks drive every joint and never read an input chosen on
+    validation: the gear is ignored without a trial, with the plan without it."""
+    from excavator_surrogate.training.auto import SHORT_VAL_EPISODES
+    from tests.surrogate.test_auto import _with_gear
+
+    def data(val: list[Episode]) -> Dataset:
+        ds = Dataset(spec=SPEC)
+        ds.episodes["train"] = list(TRAIN)
+        ds.episodes["val"] = val
+        return ds
+
+    levels = [(900.0, 400.0), (-900.0, -400.0), (600.0, 400.0), (-600.0, -400.0)]
+    mixed = data([_held(levels, name=f"v{i}") for i in range(SHORT_VAL_EPISODES)])
+    assert joint_spans(mixed.train, mixed.val, SPEC, min_span=0.5)[1] == [True, False]
+    cfg, why = auto_config(_with_gear(mixed), cpus=2)
+    assert cfg.exogenous == "choose" and cfg.prior_choice
+    assert any("must not hurt" in w and "ignore them, whichever way wins" in w for w in why)
+    wide = data([_static_episode(7 + i) for i in range(SHORT_VAL_EPISODES)])
+    assert joint_spans(wide.train, wide.val, SPEC, min_span=0.5)[1] == [True, True]
+    without, _ = auto_config(wide, cpus=2)
+    blind, why = auto_config(_with_gear(wide), cpus=2)
+    assert blind.exogenous == "ignore" and blind.prior_choice
+    for name in ("members", "epochs", "max_train_seconds", "train_on_val", "average_last"):
+        assert getattr(blind, name) == getattr(without, name), name
+    assert any("ignored without a trial" in w and "drive every joint" in w for w in why)
+    assert not any("must not hurt" in w for w in why)
+    # the kinds chosen on validation: the plain networks may drive either joint, so tried
+    tried, _ = auto_config(_with_gear(wide), cpus=2, overrides={"prior_drive": "validation"})
+    assert tried.exogenous == "choose"
+
+
 def test_validation_too_short_to_train_on_still_scores():
     """A validation episode shorter than a training sub-sequence is scored, not trained on."""
     from excavator_surrogate.training.batches import split_episodes

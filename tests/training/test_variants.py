@@ -123,9 +123,10 @@ def test_choose_without_inputs_trains_as_before(tmp_path):
     assert not (tmp_path / "p" / "use").exists()
 
 
-def test_choose_with_the_kind_choice_trains_the_map_correcting_networks_the_chosen_way(tmp_path):
-    """The inputs are chosen first; the rest of the plain ensemble and the map-correcting
-    networks then train the chosen way, and the kind choice runs on them."""
+def test_choose_with_the_kind_choice_keeps_the_map_correcting_networks_blind(tmp_path):
+    """The inputs are chosen first; the rest of the plain ensemble then trains the chosen
+    way, the map-correcting networks ignore the inputs whichever way won, and the kind
+    choice runs on them: a joint they drive never reads the gear."""
     ds = _dataset(informative=True)
     cfg = _cfg(exogenous="choose", prior_choice=True, members=2, member_workers=1)
     best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
@@ -137,11 +138,14 @@ def test_choose_with_the_kind_choice_trains_the_map_correcting_networks_the_chos
     for d in ("ignore/member_0", "member_0", "member_1", "prior/member_0"):
         assert (tmp_path / "m" / d / "best.pt").is_file()
     prior = load_checkpoint(tmp_path / "m" / "prior" / "member_0" / "best.pt")
-    assert prior.net.prior is not None and prior.train_config["exogenous"] == "use"
+    assert prior.net.prior is not None and prior.train_config["exogenous"] == "ignore"
     rows = list(csv.DictReader((tmp_path / "m" / "log.csv").open()))
     model_kind = {0: "plain", 1: "prior"}.get(len(kinds["chosen"]), "composite")
     assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind]
-    assert _gear_effect(best) > 1e-3  # whichever kind drives the joint reads the gear
+    assert _gear_effect(tmp_path / "m" / "prior" / "member_0" / "best.pt") == 0.0
+    assert _gear_effect(tmp_path / "m" / "member_1" / "best.pt") > 1e-3  # the chosen way
+    # the joint reads the gear exactly where the plain networks drive it
+    assert (_gear_effect(best) > 1e-3) == (model_kind == "plain")
     notes = tomllib.loads((tmp_path / "m" / "config.toml").read_text())
     assert notes["exogenous"]["kept"] is True and "chosen" in notes["kinds"]
 

@@ -41,15 +41,17 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   comparison on validation (``prior_drive``: on the operator logs one validation segment
   misranked the kinds, and the map-correcting networks held better off the training's
   conditions; docs/real-history.md, session 87).  Also when the run chooses its exogenous inputs (:mod:`.variants`): the
-  inputs are chosen first, then the rest of the plain members and the map-correcting
-  networks train the chosen way (8 trainings in the budget instead of 6); on the sessions
-  case with its throttle the bucket lost 1.4-2.9x without them (docs/real-history.md).
+  inputs are chosen first on the plain networks, then the rest of the plain members train
+  the chosen way and the map-correcting networks ignore them (8 trainings in the budget
+  instead of 6; on the 10-minute loader log the throttle chosen on its validation segment
+  cost the map-correcting networks' boom 1.38x held out, docs/real-history.md session 96).
   With ``input_dropout`` > 0 (not the recipe's) every network learns both ways instead
   and the choice is made on the same networks (:mod:`.dual`): the plan is then the one
   without inputs;
-- exogenous inputs that never change in training, or that validation at one command level
-  cannot vouch for (h1-dev's step tests), are ignored without a trial: the plan, the
-  networks and the training on the validation runs are those without them;
+- exogenous inputs that never change in training, that validation at one command level
+  cannot vouch for (h1-dev's step tests), or that nothing would read (validation spans
+  every joint, so the map-correcting networks drive them all) are ignored without a trial:
+  the plan, the networks and the training on the validation runs are those without them;
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
@@ -185,10 +187,14 @@ def auto_config(
     one_level = not short_val and spans is not None and not any(spanned)
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     held = held_inputs(dataset)
+    # the map-correcting networks never read an input a validation trial chose (variants.py),
+    # so where they drive every joint nothing would read the inputs: no trial either
+    drive = str(overrides.get("prior_drive", TrainConfig.prior_drive))
+    all_mapped = kinds and all(spanned) and drive == "spanned"
     # inputs that never change in training teach nothing, and validation at one command
-    # level vouches for no input at the others: both are ignored without a trial, and the
-    # plan is the one without them (each network trains as on the data without the columns)
-    untried = len(held) == len(inputs) or one_level
+    # level vouches for no input at the others: all three are ignored without a trial, and
+    # the plan is the one without them (each network trains as on the data without the columns)
+    untried = len(held) == len(inputs) or one_level or all_mapped
     default_exogenous = ("ignore" if untried else "choose") if inputs else "use"
     exogenous = str(overrides.get("exogenous", default_exogenous))
     choose = bool(inputs) and exogenous == "choose"
@@ -232,6 +238,18 @@ def auto_config(
             "training data); the networks train as on the data without the columns, on the "
             'validation runs too (set exogenous = "choose" to try them)'
         )
+    if inputs and all_mapped and not one_level and len(held) < len(inputs):
+        if "exogenous" not in overrides:
+            why.append(
+                f"exogenous input(s) {', '.join(i for i in inputs if i not in held)} ignored "
+                "without a trial: validation spans every joint's commands, so the "
+                "map-correcting networks drive every joint, and they never read an input "
+                "chosen on validation (on the 10-minute loader log the throttle chosen there "
+                "cost their boom 1.38x held out, and a trial that refused it still cost its "
+                "epochs: the continuous log's boom 1.72x; docs/real-history.md); the networks "
+                'train as on the data without the columns (set exogenous = "choose" to try '
+                "them on the plain networks)"
+            )
     if held and "exogenous" not in overrides:
         why.append(
             f"exogenous input(s) {', '.join(f'{k} = {v:g}' for k, v in held.items())} never "
@@ -269,8 +287,8 @@ def auto_config(
             + "; where they help some joints only, those joints may take them alone "
             "(each seed's two networks joint by joint, kept on the same terms)"
             + (
-                "; the map-correcting networks of the kind choice train the chosen way (if "
-                "some joints take them: ignoring them)"
+                "; the map-correcting networks of the kind choice ignore them, whichever "
+                "way wins (the joints they drive never take an input chosen on validation)"
                 if kinds
                 else ""
             )

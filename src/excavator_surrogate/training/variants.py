@@ -11,7 +11,11 @@ The remaining members are then trained the chosen way and merged with the winnin
 the result is an ensemble of ``members`` networks, as without inputs (the recipe plans the
 epochs for the ``members + probe_members(members)`` trainings within the same budget).
 With ``prior_choice`` the kind choice's map-correcting networks (:mod:`.kinds`) train
-beside the rest, the chosen way, and the kinds are chosen per joint on the result.
+beside the rest, ignoring the inputs whichever way won, and the kinds are chosen per joint
+on the result: the joints they drive never take an input chosen on validation (on the
+10-minute loader log the throttle kept on its one validation segment cost their boom 1.38x
+held out; ignoring it, 3 cells of 4 better; docs/real-history.md, session 96).  Where they
+drive every joint the recipe does not run the trial at all (:mod:`.auto`).
 
 **Per joint** (``[train] inputs_per_joint``, default true): an input can help one joint
 and hurt another (the wheel loader's throttle and gear helped its boom and hurt its
@@ -136,9 +140,13 @@ def train_choosing_inputs(
         os.replace(out / way / f"member_{i}", out / f"member_{i}")
     (out / way).rmdir()
     rest = member_configs(replace(base, exogenous=way))[half:]
-    # the kind choice's map-correcting networks treat the inputs the chosen way too
+    # the kind choice's map-correcting networks ignore the inputs, whichever way won: they
+    # drive every spanned joint without a comparison on validation, so nothing vouches for
+    # their use of an input the plain probe networks chose on validation (docs/real.md)
     priors = (
-        member_configs(replace(base, exogenous=way, prior=True, members=n_prior)) if n_prior else []
+        member_configs(replace(base, exogenous="ignore", prior=True, members=n_prior))
+        if n_prior
+        else []
     )
     rest_jobs = [
         TrainJob(
@@ -164,7 +172,7 @@ def train_choosing_inputs(
     nets = [load_checkpoint(p) for p in more]
     plains, prior_nets = halves[way] + nets[: len(rest)], nets[len(rest) :]
     model, column = None, ("exogenous", [c.exogenous for c in final_cfgs], way)
-    if n_prior:  # the kinds, per joint, among the networks trained the chosen way
+    if n_prior:  # the kinds, per joint: the plain networks the chosen way, the others blind
         if not per_joint:  # not found for the inputs per joint above
             per_joint = choice_joints(cfg, plains[0], split_episodes(cfg, dataset)[0], val_eps)
         model, kinds = choose_kinds(plains, prior_nets, val_eps, **per_joint, **choice_options(cfg))
