@@ -191,9 +191,10 @@ def auto_config(
     # so where they drive every joint nothing would read the inputs: no trial either
     drive = str(overrides.get("prior_drive", TrainConfig.prior_drive))
     all_mapped = kinds and all(spanned) and drive == "spanned"
-    # inputs that never change in training teach nothing, and validation at one command
-    # level vouches for no input at the others: all three are ignored without a trial, and
-    # the plan is the one without them (each network trains as on the data without the columns)
+    # inputs that never change in training teach nothing, validation at one command level
+    # vouches for no input at the others, and where the map-correcting networks drive every
+    # joint nothing would read them: all three are ignored without a trial, and the plan is
+    # the one without them (each network trains as on the data without the columns)
     untried = len(held) == len(inputs) or one_level or all_mapped
     default_exogenous = ("ignore" if untried else "choose") if inputs else "use"
     exogenous = str(overrides.get("exogenous", default_exogenous))
@@ -238,18 +239,17 @@ def auto_config(
             "training data); the networks train as on the data without the columns, on the "
             'validation runs too (set exogenous = "choose" to try them)'
         )
-    if inputs and all_mapped and not one_level and len(held) < len(inputs):
-        if "exogenous" not in overrides:
-            why.append(
-                f"exogenous input(s) {', '.join(i for i in inputs if i not in held)} ignored "
-                "without a trial: validation spans every joint's commands, so the "
-                "map-correcting networks drive every joint, and they never read an input "
-                "chosen on validation (on the 10-minute loader log the throttle chosen there "
-                "cost their boom 1.38x held out, and a trial that refused it still cost its "
-                "epochs: the continuous log's boom 1.72x; docs/real-history.md); the networks "
-                'train as on the data without the columns (set exogenous = "choose" to try '
-                "them on the plain networks)"
-            )
+    if inputs and all_mapped and len(held) < len(inputs) and "exogenous" not in overrides:
+        why.append(
+            f"exogenous input(s) {', '.join(i for i in inputs if i not in held)} ignored "
+            "without a trial: validation spans every joint's commands, so the map-correcting "
+            "networks drive every joint, and they never read an input chosen on validation "
+            "(on the 10-minute loader log the throttle chosen there cost their boom 1.38x held "
+            "out, and a trial that refused it still cost its epochs: the continuous log's "
+            "boom 1.72x; docs/real-history.md); the networks train as on the data without the "
+            'columns (set exogenous = "use" to let every network read them, or prior_drive = '
+            '"validation" to choose the kinds, and so the inputs, on validation)'
+        )
     if held and "exogenous" not in overrides:
         why.append(
             f"exogenous input(s) {', '.join(f'{k} = {v:g}' for k, v in held.items())} never "
