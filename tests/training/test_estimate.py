@@ -97,13 +97,16 @@ def test_the_validated_epochs_are_those_the_loop_validates(tmp_path, select, val
 
 def test_the_input_probe_and_a_single_cpu_are_counted():
     ds = _with_gear(_dataset([8000], val=[2000]))
-    cfg, _ = auto_config(ds, cpus=2)
+    # the kinds chosen on validation, so the plain networks may drive a joint: the gear is
+    # tried (spanning every joint, the recipe would ignore it without a trial)
+    tried = {"prior_drive": "validation"}
+    cfg, _ = auto_config(ds, cpus=2, overrides=tried)
     assert cfg.exogenous == "choose"  # 2 more networks decide it, in the same budget
     est = estimate_work(cfg, ds, cpus=2)
     assert est is not None and est.probes == 2
     assert est.trainings == trainings(cfg.members, probe=True, kinds=cfg.prior_choice) == 8
     assert est.cap_s == pytest.approx((1 - POST_SHARE) * 540 / est.rounds)
-    dual, _ = auto_config(ds, cpus=2, overrides={"input_dropout": 0.5})
+    dual, _ = auto_config(ds, cpus=2, overrides={**tried, "input_dropout": 0.5})
     both = estimate_work(dual, ds, cpus=2)  # every network learns both ways: no probe
     assert both is not None and both.probes == 0 and both.trainings == 6
     one = estimate_work(replace(cfg, member_workers=0), ds, cpus=1)
