@@ -109,7 +109,8 @@ choice, session 25 on computer C: 239-243 s per seed, 4 + 2 networks). On comput
 two at a time; the recipe plans 162 s a member, but the epochs before ``select_after`` are
 not validated and the two candidates validate in one batched free run), the sessions
 case's in about 4.5 min per seed, and its plain LSTM in 11 min; ``--condition`` adds about
-as much again per seed.
+as much again per seed (since session 96 the same training again on the operator shapes,
+whose validation spans every joint: the recipe ignores their throttle without a trial).
 """
 
 from __future__ import annotations
