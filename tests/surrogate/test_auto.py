@@ -267,18 +267,24 @@ def test_an_input_that_never_changes_in_training_is_ignored_without_a_trial():
     assert held_inputs(_with_gear(plain)) == {}
 
 
+def unread_gear_is_untried(plain: Dataset) -> None:
+    """A gear on ``plain``, whose validation spans every joint, is ignored without a trial,
+    with the plan of the run without it."""
+    without, _ = auto_config(plain, cpus=2)
+    cfg, why = auto_config(_with_gear(plain), cpus=2)
+    assert cfg.exogenous == "ignore" and cfg.prior_choice
+    for name in ("members", "epochs", "max_train_seconds", "train_on_val", "average_last"):
+        assert getattr(cfg, name) == getattr(without, name), name
+    assert any("gear ignored without a trial" in w and "drive every joint" in w for w in why)
+    assert not any("must not hurt" in w for w in why)
+
+
 def test_an_input_nothing_would_read_is_ignored_without_a_trial():
     """Validation spans every joint's commands: the map-correcting networks drive them all
     and never read an input chosen on validation, so the run ignores the gear without a
     trial and plans as without the column; ``exogenous = "choose"`` still tries it."""
     plain = _long_log()
-    without, _ = auto_config(plain, cpus=2)
-    cfg, why = auto_config(_with_gear(plain), cpus=2)
-    assert cfg.exogenous == "ignore" and cfg.prior_choice
-    for name in ("members", "epochs", "max_train_seconds", "prior_choice", "train_on_val"):
-        assert getattr(cfg, name) == getattr(without, name), name
-    assert any("gear ignored without a trial" in w and "drive every joint" in w for w in why)
-    assert not any("must not hurt" in w for w in why)
+    unread_gear_is_untried(plain)
     tried, why = auto_config(_with_gear(plain), cpus=2, overrides={"exogenous": "choose"})
     assert tried.exogenous == "choose" and any("must not hurt" in w for w in why)
     assert not any("ignored without a trial" in w for w in why)

@@ -214,7 +214,7 @@ def test_an_input_is_tried_only_where_the_plain_networks_drive_a_joint():
     map-correcting networks drive every joint and never read an input chosen on
     validation: the gear is ignored without a trial, with the plan without it."""
     from excavator_surrogate.training.auto import SHORT_VAL_EPISODES
-    from tests.surrogate.test_auto import _with_gear
+    from tests.surrogate.test_auto import _with_gear, unread_gear_is_untried
 
     def data(val: list[Episode]) -> Dataset:
         ds = Dataset(spec=SPEC)
@@ -230,13 +230,7 @@ def test_an_input_is_tried_only_where_the_plain_networks_drive_a_joint():
     assert any("must not hurt" in w and "ignore them, whichever way wins" in w for w in why)
     wide = data([_static_episode(7 + i) for i in range(SHORT_VAL_EPISODES)])
     assert joint_spans(wide.train, wide.val, SPEC, min_span=0.5)[1] == [True, True]
-    without, _ = auto_config(wide, cpus=2)
-    blind, why = auto_config(_with_gear(wide), cpus=2)
-    assert blind.exogenous == "ignore" and blind.prior_choice
-    for name in ("members", "epochs", "max_train_seconds", "train_on_val", "average_last"):
-        assert getattr(blind, name) == getattr(without, name), name
-    assert any("ignored without a trial" in w and "drive every joint" in w for w in why)
-    assert not any("must not hurt" in w for w in why)
+    unread_gear_is_untried(wide)
     # the kinds chosen on validation: the plain networks may drive either joint, so tried
     tried, _ = auto_config(_with_gear(wide), cpus=2, overrides={"prior_drive": "validation"})
     assert tried.exogenous == "choose"
