@@ -297,7 +297,7 @@ def auto_config(
         rule = (
             "per joint, the kind whose ensemble validates better drives it, or the even blend "
             "of both"
-            if str(overrides.get("prior_drive", TrainConfig.prior_drive)) == "validation"
+            if drive == "validation"
             else "they drive every joint whose validation spans its commands, the plain ones "
             "the rest, without a comparison on validation (on the operator logs one validation "
             "segment misranked the kinds, and the map-correcting networks held better off the "

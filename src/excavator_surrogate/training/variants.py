@@ -80,6 +80,17 @@ def more_pairs(members: int, half: int, n_prior: int) -> int | None:
     return max(fits) if fits else None
 
 
+def blind_priors(base: TrainConfig, n_prior: int) -> list[TrainConfig]:
+    """The configs of the kind choice's ``n_prior`` map-correcting networks (of ``base``'s
+    single networks): they ignore the exogenous inputs whichever way the choice went.  They
+    drive every spanned joint without a comparison on validation, so nothing vouches for
+    their use of an input the plain probe networks chose there (docs/real.md), and where
+    the inputs go to some joints only, a tie keeps the model that cannot depend on them."""
+    if not n_prior:
+        return []
+    return member_configs(replace(base, exogenous="ignore", prior=True, members=n_prior))
+
+
 def train_choosing_inputs(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -140,14 +151,7 @@ def train_choosing_inputs(
         os.replace(out / way / f"member_{i}", out / f"member_{i}")
     (out / way).rmdir()
     rest = member_configs(replace(base, exogenous=way))[half:]
-    # the kind choice's map-correcting networks ignore the inputs, whichever way won: they
-    # drive every spanned joint without a comparison on validation, so nothing vouches for
-    # their use of an input the plain probe networks chose on validation (docs/real.md)
-    priors = (
-        member_configs(replace(base, exogenous="ignore", prior=True, members=n_prior))
-        if n_prior
-        else []
-    )
+    priors = blind_priors(base, n_prior)
     rest_jobs = [
         TrainJob(
             cfg=c, dataset=dataset, out=out / f"member_{half + i}", tag=f"exsur member {half + i}"
@@ -225,11 +229,7 @@ def _train_pairs(
         w: member_configs(replace(base, exogenous=w))[half : half + n_more]
         for w in ("use", "ignore")
     }
-    priors = (
-        member_configs(replace(base, exogenous="ignore", prior=True, members=n_prior))
-        if n_prior
-        else []
-    )
+    priors = blind_priors(base, n_prior)
     if n_prior and n_more < (cfg.members - half) // 2:
         _log.info(
             f"exogenous inputs: {n_more} more pair(s) and {n_prior} map-correcting network(s): "
