@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import math
 import tomllib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,6 +16,8 @@ from excavator_surrogate.data.episode import Episode
 from excavator_surrogate.spec import InputSpec, JointSpec, MachineSpec
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, read_checkpoint
 from excavator_surrogate.training import train
+from excavator_surrogate.training.batches import split_episodes
+from excavator_surrogate.training.variants import trial_reaches_no_joint
 from tests.helpers.surrogates import teacher_forced_omega
 from tests.helpers.training import tiny_train_config
 
@@ -123,19 +126,31 @@ def test_choose_without_inputs_trains_as_before(tmp_path):
     assert not (tmp_path / "p" / "use").exists()
 
 
-def test_choose_with_the_kind_choice_keeps_the_map_correcting_networks_blind(tmp_path):
+@pytest.mark.parametrize("per_joint", [True, False])
+def test_choose_with_the_kind_choice_keeps_the_map_correcting_networks_blind(
+    tmp_path, caplog, per_joint
+):
     """The inputs are chosen first; the rest of the plain ensemble then trains the chosen
     way, the map-correcting networks ignore the inputs whichever way won, and the kind
-    choice runs on them: a joint they drive never reads the gear."""
+    choice runs on them: a joint they drive never reads the gear.  Without the per-joint
+    route the trial can reach no joint here, and the run warns."""
     ds = _dataset(informative=True)
-    cfg = _cfg(exogenous="choose", prior_choice=True, members=2, member_workers=1)
-    best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
+    cfg = _cfg(
+        exogenous="choose",
+        prior_choice=True,
+        members=2,
+        member_workers=1,
+        inputs_per_joint=per_joint,
+    )
+    with caplog.at_level("WARNING", logger="excavator_surrogate"):
+        best = train(cfg, ds, out=tmp_path / "m", show_progress=False)
+    warned = [r.getMessage() for r in caplog.records if "decides no joint" in r.getMessage()]
+    assert len(warned) == (not per_joint)
     ck = read_checkpoint(best)
     training = ck["metrics"]["training"]
-    assert training["exogenous"]["kept"] is True, training["exogenous"]["why"]
     kinds = training["kinds"]
     assert set(kinds) >= {"candidates", "chosen", "why", "val_theta_rmse_prior"}
-    for d in ("ignore/member_0", "member_0", "member_1", "prior/member_0"):
+    for d in ("ignore/member_0", "member_0", "member_1", "prior/member_0"):  # "use" won
         assert (tmp_path / "m" / d / "best.pt").is_file()
     prior = load_checkpoint(tmp_path / "m" / "prior" / "member_0" / "best.pt")
     assert prior.net.prior is not None and prior.train_config["exogenous"] == "ignore"
@@ -144,10 +159,32 @@ def test_choose_with_the_kind_choice_keeps_the_map_correcting_networks_blind(tmp
     assert [r["kind"] for r in rows] == ["plain", "plain", "prior", model_kind]
     assert _gear_effect(tmp_path / "m" / "prior" / "member_0" / "best.pt") == 0.0
     assert _gear_effect(tmp_path / "m" / "member_1" / "best.pt") > 1e-3  # the chosen way
-    # the joint reads the gear exactly where the plain networks drive it
-    assert (_gear_effect(best) > 1e-3) == (model_kind == "plain")
+    # the joint reads the gear exactly where the plain networks drive it, and the record
+    # (the report's line, config.toml) says so
+    reads = _gear_effect(best) > 1e-3
+    assert reads == (model_kind == "plain")
+    record = training["exogenous"]
+    assert record["kept"] is reads and record["joints"] == (["boom"] if reads else [])
+    assert reads or record["why"].endswith("drive boom: no joint reads them")
     notes = tomllib.loads((tmp_path / "m" / "config.toml").read_text())
-    assert notes["exogenous"]["kept"] is True and "chosen" in notes["kinds"]
+    assert notes["exogenous"]["kept"] is reads and "chosen" in notes["kinds"]
+
+
+@pytest.mark.parametrize("per_joint", [True, False])
+def test_a_trial_that_can_reach_no_joint_says_so(tmp_path, per_joint):
+    """Validation spans the joint's commands, so the blind map-correcting networks drive it:
+    the whole-way choice reaches no joint, and without the per-joint route (or with no pair
+    count fitting) neither does the trial."""
+    ds = _dataset(informative=True)
+    _, val = split_episodes(_cfg(), ds)
+    cfg = _cfg(exogenous="choose", prior_choice=True, members=2, inputs_per_joint=per_joint)
+    assert trial_reaches_no_joint(cfg, ds, val, half=1, n_prior=1) is not per_joint
+    assert trial_reaches_no_joint(cfg, ds, val, half=1, n_prior=2)  # 2 cannot divide 1 pair
+    assert not trial_reaches_no_joint(cfg, ds, val, half=1, n_prior=0)  # plain networks drive
+    by_val = replace(cfg, prior_drive="validation")
+    assert not trial_reaches_no_joint(by_val, ds, val, half=1, n_prior=1)
+    narrow = replace(cfg, choice_min_span=1.0)  # no validation spans all of its training's
+    assert not trial_reaches_no_joint(narrow, ds, val, half=1, n_prior=1)
 
 
 SPEC2 = MachineSpec(

@@ -49,9 +49,11 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   and the choice is made on the same networks (:mod:`.dual`): the plan is then the one
   without inputs;
 - exogenous inputs that never change in training, that validation at one command level
-  cannot vouch for (h1-dev's step tests), or that nothing would read (validation spans
-  every joint, so the map-correcting networks drive them all) are ignored without a trial:
-  the plan, the networks and the training on the validation runs are those without them;
+  cannot vouch for (h1-dev's step tests), or that the default would not read (validation
+  spans every joint, so the map-correcting networks, blind to a chosen input, drive them
+  all; only a joint given the inputs alone, on plain networks, could read them, and on these
+  logs no trial helped a joint held out) are ignored without a trial: the plan, the
+  networks and the training on the validation runs are those without them;
 - after training, the static valve map as a candidate per joint, chosen on validation
   (:mod:`.map_joints`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
@@ -188,13 +190,14 @@ def auto_config(
     inputs = list(dataset.spec.u_names[dataset.spec.n_joint :])
     held = held_inputs(dataset)
     # the map-correcting networks never read an input a validation trial chose (variants.py),
-    # so where they drive every joint nothing would read the inputs: no trial either
+    # so where they drive every joint only the per-joint route (a joint taking the inputs
+    # alone, on plain networks) could read them: no trial either (none helped held out)
     drive = str(overrides.get("prior_drive", TrainConfig.prior_drive))
     all_mapped = kinds and all(spanned) and drive == "spanned"
     # inputs that never change in training teach nothing, validation at one command level
     # vouches for no input at the others, and where the map-correcting networks drive every
-    # joint nothing would read them: all three are ignored without a trial, and the plan is
-    # the one without them (each network trains as on the data without the columns)
+    # joint the whole-way choice reaches none: all three are ignored without a trial, and
+    # the plan is the one without them (each network trains as on the data without them)
     untried = len(held) == len(inputs) or one_level or all_mapped
     default_exogenous = ("ignore" if untried else "choose") if inputs else "use"
     exogenous = str(overrides.get("exogenous", default_exogenous))
@@ -247,8 +250,9 @@ def auto_config(
             "(on the 10-minute loader log the throttle chosen there cost their boom 1.38x held "
             "out, and a trial that refused it still cost its epochs: the continuous log's "
             "boom 1.72x; docs/real-history.md); the networks train as on the data without the "
-            'columns (set exogenous = "use" to let every network read them, or prior_drive = '
-            '"validation" to choose the kinds, and so the inputs, on validation)'
+            'columns (set exogenous = "use" to let every network read them, "choose" to try '
+            'giving them to single joints on plain networks, or prior_drive = "validation" to '
+            "choose the kinds, and so the inputs, on validation)"
         )
     if held and "exogenous" not in overrides:
         why.append(

@@ -66,6 +66,7 @@ from .jobs import TrainJob, run_jobs
 from .kinds import choice_joints, choice_options, choose_kinds, model_kind
 from .plan import prior_members, probe_members
 from .records import write_config
+from .span import joint_spans
 
 _log = logging.getLogger(__name__)
 
@@ -91,6 +92,23 @@ def blind_priors(base: TrainConfig, n_prior: int) -> list[TrainConfig]:
     return member_configs(replace(base, exogenous="ignore", prior=True, members=n_prior))
 
 
+def trial_reaches_no_joint(
+    cfg: TrainConfig, dataset: Dataset, val_eps: Sequence[Any], *, half: int, n_prior: int
+) -> bool:
+    """Whether the input trial can give the inputs to no joint: the kind choice's
+    ``n_prior`` map-correcting networks, which ignore them (:func:`blind_priors`), drive
+    every joint (``prior_drive = "spanned"`` and validation spans every joint's commands,
+    :func:`~.span.joint_spans`), and no joint can take them alone on its plain pairs
+    (``inputs_per_joint`` off, or no pair count fits beside ``half``: :func:`more_pairs`).
+    The recipe then runs no trial (:mod:`.auto`); a forced ``exogenous = "choose"`` does."""
+    if not n_prior or cfg.prior_drive != "spanned":
+        return False
+    if cfg.inputs_per_joint and more_pairs(cfg.members, half, n_prior) is not None:
+        return False
+    train_eps = split_episodes(cfg, dataset)[0]
+    return all(joint_spans(train_eps, val_eps, dataset.spec, min_span=cfg.choice_min_span)[1])
+
+
 def train_choosing_inputs(
     cfg: TrainConfig,
     dataset: Dataset,
@@ -110,6 +128,15 @@ def train_choosing_inputs(
         f"(same seeds), {workers} in parallel; the better way trains the rest"
         + (f" and {n_prior} network(s) correcting the static map" if n_prior else "")
     )
+    if trial_reaches_no_joint(cfg, dataset, val_eps, half=half, n_prior=n_prior):
+        _log.warning(
+            f"exogenous inputs {names}: this trial decides no joint: validation spans every "
+            "joint's commands, so the map-correcting networks, which ignore the inputs, drive "
+            "them all, and no joint can take the inputs alone (inputs_per_joint is off or no "
+            'pair count fits); its probe networks only cost epochs. Set exogenous = "use" to '
+            'let every network read them, prior_drive = "validation" to choose the kinds on '
+            'validation too, or exogenous = "ignore"'
+        )
     t0 = time.monotonic()
     ways = ("use", "ignore")
     base = replace(cfg, prior_choice=False, static_map=False)  # single networks
@@ -182,6 +209,7 @@ def train_choosing_inputs(
         model, kinds = choose_kinds(plains, prior_nets, val_eps, **per_joint, **choice_options(cfg))
         _log.info(f"two kinds of network: {kinds['why']}")
         training["kinds"] = kinds
+        inputs_after_kinds(record, kinds)  # a kept input: the joints the blind ones drive alone
         column = ("kind", ["plain"] * len(plains) + ["prior"] * len(prior_nets), model_kind(kinds))
     best = merge_members(
         final_cfg,
