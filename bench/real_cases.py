@@ -64,7 +64,7 @@ class Case:
 
 def _h1(work: Path, args: argparse.Namespace) -> Case | str:
     from excavator_surrogate.ingest import import_logs
-    from excavator_surrogate.ingest.mapping import load_mapping
+    from excavator_surrogate.ingest.mapping_toml import load_mapping
 
     runs_dir = args.data / "runs"
     if not runs_dir.is_dir():
@@ -325,7 +325,7 @@ def _stroke(work: Path, args: argparse.Namespace) -> Case:
     import importlib.util
 
     from excavator_surrogate.ingest import import_logs
-    from excavator_surrogate.ingest.mapping import load_mapping
+    from excavator_surrogate.ingest.mapping_toml import load_mapping
 
     spec = importlib.util.spec_from_file_location("stroke_make_logs", STROKE_EXAMPLE)
     assert spec is not None and spec.loader is not None

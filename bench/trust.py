@@ -231,7 +231,7 @@ def real(work: Path, data: Path, quick: bool, reuse: bool = False) -> dict[str, 
     """Coverage and spread-error correlation of the default recipe on h1-dev's validation runs
     (``reuse``: keep the import and model already in ``work``, calibrate the model again)."""
     from excavator_surrogate.ingest import import_logs
-    from excavator_surrogate.ingest.mapping import load_mapping
+    from excavator_surrogate.ingest.mapping_toml import load_mapping
     from excavator_surrogate.training import train
     from excavator_surrogate.training.auto import auto_config
     from excavator_surrogate.training.batches import split_episodes

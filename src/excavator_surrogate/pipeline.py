@@ -102,7 +102,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
         t0 = time.monotonic()
         if logs is not None:
             from .ingest import import_logs
-            from .ingest.mapping import load_mapping
+            from .ingest.mapping_toml import load_mapping
 
             _log.info(f"run[{name}]: import {len(logs)} source(s) with {mapping} -> {out / 'data'}")
             import_logs(list(logs), load_mapping(mapping), out=tmp / "data", quiet=True)

@@ -48,7 +48,7 @@ def plan_run(req: RunRequest, *, cpus: int | None = None) -> str:
     lines = [f"preset: {req.name}"]
     if req.logs is not None:
         from .ingest import import_logs
-        from .ingest.mapping import load_mapping
+        from .ingest.mapping_toml import load_mapping
 
         with tempfile.TemporaryDirectory(prefix="exsur-dry-run-") as tmp:
             report = import_logs(

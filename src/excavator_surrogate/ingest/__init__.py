@@ -25,9 +25,8 @@ from .mapping import (
     SplitOptions,
     TimeMap,
     VelocityMap,
-    load_mapping,
-    parse_mapping,
 )
+from .mapping_toml import load_mapping, parse_mapping
 from .readers import expand_sources, read_log
 from .report import render_markdown
 from .resample import antialias_sos, decimation_factor, interval_mean, resample_smooth
