@@ -9,7 +9,7 @@ import torch
 from excavator_surrogate.env.engine import MEMBERS_MIN_BATCH, SurrogateEngine
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
-from excavator_surrogate.surrogate.rollout import rollout_reference
+from excavator_surrogate.surrogate.reference import rollout_reference
 from tests.helpers.surrogates import on_parallel_map, on_static_map
 
 KW = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05, 0.2), omega_in=True)

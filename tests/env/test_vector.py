@@ -201,7 +201,7 @@ def test_engine_runs_a_merged_ensemble_like_its_members_averaged(mode: str, make
     """A seed ensemble merged into one network (exsur merge / train --members) steps in the
     engine exactly as its members stepped one by one with their omega averaged (plain loop)."""
     from excavator_surrogate.surrogate.ensemble import merge
-    from excavator_surrogate.surrogate.rollout import rollout_reference
+    from excavator_surrogate.surrogate.reference import rollout_reference
 
     kw = dict(mode=mode, end_stops=True, drive=20.0, play=(0.05, 0.2))
     members = [make_surrogate(seed=0, hidden=16, **kw), make_surrogate(seed=1, hidden=8, **kw)]

@@ -14,7 +14,8 @@ from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_net
 from excavator_surrogate.surrogate.parallel import with_parallel_map
-from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
+from excavator_surrogate.surrogate.reference import rollout_reference
+from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import with_map_joints
 
 

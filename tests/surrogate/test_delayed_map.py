@@ -16,7 +16,8 @@ from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_check
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.features import scale_commands_np
 from excavator_surrogate.surrogate.model import Surrogate
-from excavator_surrogate.surrogate.rollout import rollout, rollout_reference
+from excavator_surrogate.surrogate.reference import rollout_reference
+from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
 from excavator_surrogate.training.api import train
 from excavator_surrogate.training.batches import make_data

@@ -15,7 +15,7 @@ from excavator_surrogate.ingest import import_logs, parse_mapping
 from excavator_surrogate.spec import InputSpec, JointSpec, MachineSpec
 from excavator_surrogate.surrogate import load_checkpoint, rollout, save_checkpoint
 from excavator_surrogate.surrogate.features import encode_np
-from excavator_surrogate.surrogate.rollout import rollout_reference
+from excavator_surrogate.surrogate.reference import rollout_reference
 from tests.helpers.ingest import assert_nothing_written
 from tests.helpers.surrogates import make_surrogate
 

@@ -14,7 +14,8 @@ from excavator_surrogate.surrogate.numpy_loop import (
     rollout_episodes_numpy,
     rollout_numpy,
 )
-from excavator_surrogate.surrogate.rollout import rollout, rollout_episodes, rollout_reference
+from excavator_surrogate.surrogate.reference import rollout_reference
+from excavator_surrogate.surrogate.rollout import rollout, rollout_episodes
 from excavator_surrogate.surrogate.stacked import stack
 from tests.helpers.surrogates import VARIANTS, tiny_surrogate, variant_surrogate
 from tests.surrogate.test_stacked import _candidates

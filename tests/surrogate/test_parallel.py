@@ -19,7 +19,8 @@ from excavator_surrogate.surrogate.checkpoint import (
 )
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.parallel import own_gain_dev, with_parallel_map
-from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout, rollout_reference
+from excavator_surrogate.surrogate.reference import rollout_reference
+from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout
 from excavator_surrogate.surrogate.uncertainty import map_note
 from tests.helpers.surrogates import (
     PARALLEL_JOINTS,

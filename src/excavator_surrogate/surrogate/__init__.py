@@ -11,7 +11,8 @@ from .baselines import fit_arx
 from .checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
 from .features import Normalization, encode_np
 from .model import ARXNet, ModelConfig, Surrogate, SurrogateNet
-from .rollout import ClosedLoop, EpisodeRollout, rollout, rollout_episodes, rollout_reference
+from .reference import rollout_reference
+from .rollout import ClosedLoop, EpisodeRollout, rollout, rollout_episodes
 from .validation import free_run_error
 
 __all__ = [

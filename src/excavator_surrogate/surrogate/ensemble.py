@@ -15,7 +15,7 @@ keep equal.  Members may differ in normalisation (each member's input and output
 are folded into its block) and in width; they must share the machine spec, cell, depth,
 window, rollout mode, end stops, play features and velocity feature.
 
-:func:`~.rollout.rollout_reference` with a list of members is the plain loop (members
+:func:`~.reference.rollout_reference` with a list of members is the plain loop (members
 stepped one by one, omega averaged in NumPy) that the merged network is tested against.
 
 :class:`MemberHead` gives every member's own omega back from a merged network (the spread
