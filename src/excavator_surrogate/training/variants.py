@@ -15,7 +15,9 @@ beside the rest, ignoring the inputs whichever way won, and the kinds are chosen
 on the result: the joints they drive never take an input chosen on validation (on the
 10-minute loader log the throttle kept on its one validation segment cost their boom 1.38x
 held out; ignoring it, 3 cells of 4 better; docs/real-history.md, session 96).  Where they
-drive every joint the recipe does not run the trial at all (:mod:`.auto`).
+drive every joint the recipe does not run the trial at all (:mod:`.auto`); a forced one
+there warns when no joint can take the inputs alone either (:func:`trial_reaches_no_joint`),
+and a kept input's record drops the joints they drive alone.
 
 **Per joint** (``[train] inputs_per_joint``, default true): an input can help one joint
 and hurt another (the wheel loader's throttle and gear helped its boom and hurt its
