@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import CheckpointError
 from ..spec import MachineSpec
 from ..surrogate.command_state import play_np
-from ..surrogate.features import scale_commands_np
+from ..surrogate.features_np import scale_commands_np
 from ..surrogate.own_angles import N_OWN_ROWS
 from .fused import rest_command
 

@@ -9,7 +9,8 @@ Public API: :func:`load_checkpoint`, :func:`save_checkpoint`, :class:`Surrogate`
 from .angles import omega_target, unwrap_periodic, wrap_angle
 from .baselines import fit_arx
 from .checkpoint import load_checkpoint, read_checkpoint, save_checkpoint
-from .features import Normalization, encode_np
+from .features import Normalization
+from .features_np import encode_np
 from .model import ARXNet, ModelConfig, Surrogate, SurrogateNet
 from .reference import rollout_reference
 from .rollout import ClosedLoop, EpisodeRollout, rollout, rollout_episodes

@@ -30,7 +30,7 @@ def play_np(us: np.ndarray, widths: Sequence[float], z0: np.ndarray | None = Non
     """Play operators over time, plain loop (the reference of :func:`play_step`).
 
     Args:
-        us: (..., n_step, n_joint) scaled commands (:func:`scale_commands_np`).
+        us: (..., n_step, n_joint) scaled commands (:func:`.features_np.scale_commands_np`).
         widths: P half-widths ``b_p`` > 0 [scaled command units].
         z0: (..., P, n_joint) state before the first sample; None: at rest (0).
 

@@ -48,79 +48,12 @@ from .command_state import (
     command_rows_seq,
     command_rows_step,
     line_from_rest_np,
-    play_features_np,
-    play_np,
 )
+from .features_np import encode_np, play_states_from_rest, scale_commands_np
 from .own_angles import N_OWN_ROWS, OwnMap
 
 STD_FLOOR = 1e-3
 """Smallest standard deviation used to scale a feature or target (avoids blowing up constants)."""
-
-
-def scale_commands_np(u: np.ndarray, spec: MachineSpec) -> np.ndarray:
-    """Commands ``u: (..., n_u)`` [command units] scaled to ``(u - u_center) / u_scale``."""
-    center = np.array([c.u_center for c in spec.u_specs])
-    scale = np.array([c.u_scale for c in spec.u_specs])
-    return (np.asarray(u, dtype=np.float64) - center) / scale
-
-
-def _play_from_rest(u: np.ndarray, spec: MachineSpec, play: Sequence[float]) -> np.ndarray | None:
-    if not len(play):
-        return None
-    return play_np(scale_commands_np(u, spec)[..., : spec.n_joint], play)
-
-
-def angle_columns_np(theta: np.ndarray, periodic: Sequence[bool]) -> np.ndarray:
-    """The angle columns of the features before normalisation, in ``theta``'s dtype:
-    ``(..., n_joint)`` [rad] -> ``(..., n_angle)``, sin and cos of a periodic joint, else
-    the angle."""
-    parts = []
-    for j, p in enumerate(periodic):
-        th = theta[..., j]
-        parts += [np.sin(th), np.cos(th)] if p else [th]
-    return np.stack(parts, axis=-1)
-
-
-def encode_np(
-    theta: np.ndarray,
-    u: np.ndarray,
-    spec: MachineSpec,
-    *,
-    play: Sequence[float] = (),
-    z: np.ndarray | None = None,
-    lag: np.ndarray | None = None,
-    omega: np.ndarray | None = None,
-) -> np.ndarray:
-    """Raw (un-normalised) features, NumPy version.
-
-    Args:
-        theta: (..., n_joint) angles [rad].
-        u: (..., n_u) commands [command units]: the joints', then the exogenous inputs'.
-        play: half-widths of the play operators (empty: the paper's features).
-        z: (..., P, n_joint) play states after this sample (:func:`play_np`); required with ``play``.
-        lag: (..., n_joint) each joint's delayed scaled command ``us_j[k - d_j]``, or None
-            (not a feature).
-        omega: (..., n_joint) velocity input feature [rad/s] (:func:`.angles.omega_in_np`), or None
-            (not a feature).
-
-    Returns:
-        (..., n_feature) features: angle part (sin/cos for periodic joints), scaled commands,
-        the play features, ``lag``, then ``omega``; ``n_feature = spec.n_feature + P * n_joint``
-        (+ ``n_joint`` with ``lag``, + ``n_joint`` with ``omega``).
-    """
-    theta = np.asarray(theta, dtype=np.float64)
-    u = np.asarray(u, dtype=np.float64)
-    us = scale_commands_np(u, spec)
-    out = [angle_columns_np(theta, [js.periodic for js in spec.joints]), us]
-    if len(play):
-        if z is None:
-            raise ValueError("encode_np: play features need the play states z")
-        out.append(play_features_np(z, us[..., : spec.n_joint], play))
-    if lag is not None:
-        out.append(np.asarray(lag, dtype=np.float64))
-    if omega is not None:
-        out.append(np.asarray(omega, dtype=np.float64))
-    return np.concatenate(out, axis=-1)
 
 
 @dataclass
@@ -270,7 +203,7 @@ class Normalization:
                     u,
                     spec,
                     play=play,
-                    z=_play_from_rest(u, spec, play),
+                    z=play_states_from_rest(u, spec, play),
                     omega=omega_in_np(t, spec) if omega_in else None,
                 )
                 for t, u in zip(thetas, us)
@@ -449,7 +382,7 @@ class Normalization:
                 [rad/s]; needed with ``omega_in``, ignored otherwise.
 
         Returns:
-            (..., n_feature) normalised features (same layout as :func:`encode_np`).
+            (..., n_feature) normalised features (same layout as :func:`.features_np.encode_np`).
         """
         out = [self.angle_raw(theta), self.command_raw(u, z)]
         if self.omega_in:
@@ -522,7 +455,7 @@ class Normalization:
     def play_from_rest_np(self, u: np.ndarray, spec: MachineSpec) -> np.ndarray | None:
         """Command states ``(..., n_step, P + L, n_joint)`` of commands ``u: (..., n_step,
         n_u)`` from rest (plain loops), or None without play features or delayed commands."""
-        z = _play_from_rest(u, spec, self.play_widths)
+        z = play_states_from_rest(u, spec, self.play_widths)
         if not self.n_line:
             return z
         line = line_from_rest_np(scale_commands_np(u, spec)[..., : spec.n_joint], self.n_line)

@@ -36,7 +36,7 @@ import torch
 
 from ..data.episode import Episode
 from .angles import integrate_np
-from .features import angle_columns_np
+from .features_np import angle_columns_np
 from .model import Surrogate, SurrogateNet
 from .rollout import ClosedLoop, EpisodeRollout, batch_episodes, episode_rollouts
 from .stacked import StackedNet
