@@ -4,6 +4,7 @@ source, and the citation record."""
 from __future__ import annotations
 
 import importlib.metadata
+import re
 import shutil
 import subprocess
 import sys
@@ -119,6 +120,16 @@ def test_one_version_source(capsys: pytest.CaptureFixture[str]) -> None:
     assert capsys.readouterr().out.split() == ["exsur", version]
     changelog = (ROOT / "CHANGELOG.md").read_text()
     assert "## [Unreleased]" in changelog and f"## [{version}] - " in changelog
+
+
+def test_changelog_has_each_section_once_per_release() -> None:
+    """Keep a Changelog: within a release, one ``### Added``, one ``### Changed``, ..."""
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    releases = re.split(r"(?m)^## ", changelog)[1:]
+    assert releases
+    for release in releases:
+        heads = re.findall(r"(?m)^### (.+)$", release)
+        assert len(heads) == len(set(heads)), f"{release.splitlines()[0]}: sections {heads}"
 
 
 def test_citation_cff() -> None:
