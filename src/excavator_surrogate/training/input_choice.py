@@ -185,7 +185,7 @@ def decide_inputs(
         # the input choice reads the pinned joints under either kind rule
         options = {"pinned": map_pinned(cfg, carrier, train_eps, val_eps)}
         if n_prior:
-            options["spanned"] = spanned_joints(cfg, carrier, train_eps, val_eps)
+            options["spanned"] = spanned_joints(cfg, carrier.spec, train_eps, val_eps)
         joints, tried = choose_input_joints(
             use, ignore, vals, val_eps, max_steps=max_steps, pinned=options["pinned"]
         )

@@ -66,6 +66,7 @@ from pathlib import Path
 from typing import Any
 
 from ..data.dataset import Dataset
+from ..spec import MachineSpec
 from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
 from ..surrogate.prior import PRIOR_MAP
@@ -218,11 +219,12 @@ def map_pinned(
 
 
 def spanned_joints(
-    cfg: TrainConfig, carrier: Surrogate, train: Sequence[Any], val: Sequence[Any]
+    cfg: TrainConfig, spec: MachineSpec, train: Sequence[Any], val: Sequence[Any]
 ) -> list[bool]:
-    """(n_joint,) the joints whose validation commands span enough of the training's command
-    range (:func:`~.span.joint_spans` at ``cfg.choice_min_span``)."""
-    return list(joint_spans(train, val, carrier.spec, min_span=cfg.choice_min_span)[1])
+    """(n_joint,) the joints of ``spec`` whose validation commands span enough of the
+    training's command range (:func:`~.span.joint_spans` at ``cfg.choice_min_span``): the
+    data's alone, known before any network trains."""
+    return list(joint_spans(train, val, spec, min_span=cfg.choice_min_span)[1])
 
 
 def choice_joints(
@@ -235,7 +237,7 @@ def choice_joints(
     reads_pinned = cfg.prior_drive == "validation"
     return {
         "pinned": map_pinned(cfg, carrier, train, val) if reads_pinned else None,
-        "spanned": spanned_joints(cfg, carrier, train, val),
+        "spanned": spanned_joints(cfg, carrier.spec, train, val),
     }
 
 

@@ -65,10 +65,9 @@ from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_member
 from .input_choice import decide_inputs, inputs_after_kinds, paired
 from .jobs import TrainJob, run_jobs
-from .kinds import choice_joints, choice_options, choose_kinds, model_kind
+from .kinds import choice_joints, choice_options, choose_kinds, model_kind, spanned_joints
 from .plan import prior_members, probe_members
 from .records import write_config
-from .span import joint_spans
 
 _log = logging.getLogger(__name__)
 
@@ -100,7 +99,8 @@ def trial_reaches_no_joint(
     """Whether the input trial can give the inputs to no joint: the kind choice's
     ``n_prior`` map-correcting networks, which ignore them (:func:`blind_priors`), drive
     every joint (``prior_drive = "spanned"`` and validation spans every joint's commands,
-    :func:`~.span.joint_spans`), and no joint can take them alone on its plain pairs
+    :func:`~.kinds.spanned_joints`, as the kind choice reads them), and no joint can take
+    them alone on its plain pairs
     (``inputs_per_joint`` off, or no pair count fits beside ``half``: :func:`more_pairs`).
     The recipe then runs no trial (:mod:`.auto`); a forced ``exogenous = "choose"`` does."""
     if not n_prior or cfg.prior_drive != "spanned":
@@ -108,7 +108,7 @@ def trial_reaches_no_joint(
     if cfg.inputs_per_joint and more_pairs(cfg.members, half, n_prior) is not None:
         return False
     train_eps = split_episodes(cfg, dataset)[0]
-    return all(joint_spans(train_eps, val_eps, dataset.spec, min_span=cfg.choice_min_span)[1])
+    return all(spanned_joints(cfg, dataset.spec, train_eps, val_eps))
 
 
 def train_choosing_inputs(
