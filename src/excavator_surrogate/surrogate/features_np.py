@@ -1,9 +1,11 @@
-"""The raw (un-normalised) features in NumPy: the plain-loop reference's and the NumPy loop's.
+"""The raw (un-normalised) features in NumPy: what the normalisation is fitted on, and what
+the plain-loop reference, the NumPy loop and the ONNX stepper encode with.
 
 The layout is :mod:`.features`' (angles, sin/cos of a periodic joint; the commands scaled
 by their range; the play features; the delayed commands; the velocity input), computed in
-float64 from plain arrays, one function per part, so the reference paths share no code
-with the torch encoding they check.  :class:`~.features.Normalization` standardises them.
+float64 from plain arrays, one function per part.  The torch encoding
+(:meth:`~.features.Normalization.encode`) is a separate twin, tested against these.
+:class:`~.features.Normalization` standardises them.
 """
 
 from __future__ import annotations

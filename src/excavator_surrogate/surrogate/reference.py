@@ -6,7 +6,9 @@ window and NumPy features, under the convention of :mod:`.rollout` (the features
 list of seed-ensemble members it steps each in its own normalisation and averages their
 omega: the reference of a merged ensemble (:func:`.ensemble.merge`).  Joints on a static map
 in parallel (``norm.own``) run the map's own NumPy loop beside the network's free run.  It
-is slow on purpose and shares no code with the fast paths beyond the features' NumPy twin.
+is slow on purpose and runs none of the torch paths it checks: it encodes with the NumPy
+features (:mod:`.features_np`) and integrates with :func:`.angles.integrate_np`, pieces it
+shares with the NumPy loop (:mod:`.numpy_loop`), not with the batched rollout.
 """
 
 from __future__ import annotations
