@@ -157,4 +157,9 @@ def test_the_kind_and_input_choices_are_named():
     assert "ignore them; so do the networks that correct the static valve map)" in both
     whole = {**rec, "kept": True, "per_joint": False, "joints": ["swing", "boom"]}
     assert "used by the model" in training_markdown({"epochs_planned": 30, "exogenous": whole})
+    # kept whole, then the static map took the swing: the line names the joint that reads them
+    part = {**whole, "joints": ["boom"], "dropped": ["swing"]}
+    text_part = training_markdown({"epochs_planned": 30, "exogenous": part})
+    assert "used by boom only (the parts of the model that drive the other joints" in text_part
+    assert "used by the model" not in text_part
     assert "Two kinds" not in text and "Exogenous" not in training_markdown({"epochs_planned": 3})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +15,9 @@ from excavator_surrogate.surrogate.ensemble import member_head, merge
 from excavator_surrogate.surrogate.envelope import fill_envelope
 from excavator_surrogate.surrogate.rollout import rollout
 from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.training.map_apply import apply_map_choice
 from excavator_surrogate.training.map_joints import (
     PERIODIC_MAP_R2,
-    apply_map_choice,
     choose_map_joints,
     pinned_joints,
 )
@@ -54,6 +55,59 @@ def test_a_map_that_drives_validation_better_is_chosen_and_recorded(tmp_path: Pa
     back = load_checkpoint(path)
     assert back.model_cfg.prior
     assert back.metrics["training"]["static_map"]["chosen"] == ["a", "b"]
+
+
+def _with_gear(ep, spec, seed: int):
+    """``ep`` with an exogenous ``gear`` column (+1 / -1, held for 40 samples) that the
+    plant ignores."""
+    rng = np.random.default_rng(1000 + seed)
+    gear = np.repeat(rng.choice([-1.0, 1.0], ep.n_step // 40 + 1), 40)[: ep.n_step]
+    return dataclasses.replace(ep, spec=spec, u=np.column_stack([ep.u, gear]))
+
+
+def _gear_moves(sur, ep) -> float:
+    """Largest change of the free-run angles [rad] when the gear column is flipped."""
+    flipped = ep.u * np.array([1.0, 1.0, -1.0])
+    th = [rollout(sur, ep.theta[None], u[None])[0] for u in (ep.u, flipped)]
+    return float(np.abs(th[0] - th[1]).max())
+
+
+def test_a_joint_on_the_map_no_longer_reads_the_kept_inputs(tmp_path: Path) -> None:
+    """The map reads only its own joint's command: once both joints follow it, the gear the
+    input choice kept moves no prediction, and the record (metrics.training.exogenous, the
+    run's config.toml) says so; a config.toml without the table is not touched."""
+    from excavator_surrogate.config import dumps_toml
+    from excavator_surrogate.spec import InputSpec
+
+    spec = dataclasses.replace(SPEC, inputs=(InputSpec("gear", u_min=-1.0, u_max=1.0),))
+    train = [_with_gear(_static_episode(s), spec, s) for s in range(3)]
+    val = [_with_gear(_static_episode(s), spec, s) for s in (7, 8)]
+    net = tiny_surrogate(spec, mode="stateful", window=6, seed=3)
+    assert _gear_moves(net, val[0]) > 1e-4  # the network reads the gear
+    inputs = {"inputs": ["gear"], "kept": True, "joints": ["a", "b"], "why": "kept"}
+    net.metrics = {"training": {"exogenous": inputs}}
+    path = save_checkpoint(tmp_path / "best.pt", net)
+    config = tmp_path / "config.toml"
+    config.write_text(dumps_toml({"train": {"epochs": 3}, "exogenous": inputs}))
+    rec = apply_map_choice(path, train, val, parallel=True, config=config)
+    assert rec["chosen"] == ["a", "b"]
+    back = load_checkpoint(path)
+    assert _gear_moves(back, val[0]) < 1e-6  # no joint reads the gear now
+    got = back.metrics["training"]["exogenous"]
+    assert got["kept"] is False and got["joints"] == [] and got["dropped"] == ["a", "b"]
+    assert (
+        got["why"]
+        == "kept; the static valve map, which ignores them, drives a, b: no joint reads them"
+    )
+    notes = tomllib.loads(config.read_text())
+    assert notes["exogenous"] == got and notes["train"] == {"epochs": 3}
+    # a run whose config.toml has no [exogenous] table: the file stays as it was
+    path = save_checkpoint(tmp_path / "best.pt", net)
+    bare = dumps_toml({"train": {"epochs": 3}})
+    config.write_text(bare)
+    apply_map_choice(path, train, val, parallel=True, config=config)
+    assert config.read_text() == bare
+    assert load_checkpoint(path).metrics["training"]["exogenous"]["kept"] is False
 
 
 def test_a_map_worse_than_the_network_on_validation_is_not_chosen(tmp_path: Path) -> None:

@@ -175,6 +175,11 @@ def _inputs_markdown(record: Mapping[str, Any] | None, *, kinds: bool = False) -
         how = f"used by {', '.join(joints)} only (the other joints ignore them" + (
             "; so do the networks that correct the static valve map)" if kinds else ")"
         )
+    elif record.get("dropped") and joints:  # kept whole, then joints went to blind parts
+        how = (
+            f"used by {', '.join(joints)} only (the parts of the model that drive the other "
+            "joints ignore them)"
+        )
     else:
         how = "used by the model"
     return (

@@ -21,7 +21,8 @@ from .jobs import TrainJob, run_jobs
 from .kinds import train_choosing_kinds
 from .loop import EpochCallback, train_network
 from .loss import LossFn
-from .map_joints import apply_map_choice, map_options
+from .map_apply import apply_map_choice
+from .map_joints import map_options
 from .parallel import Parallel
 from .variants import train_choosing_inputs
 
@@ -127,7 +128,13 @@ def train(
         if dist is None or dist.is_main:
             if cfg.static_map:  # joints on the static valve map, if validation says so
                 train_eps, val_eps = split_episodes(cfg, dataset)
-                apply_map_choice(best, train_eps, val_eps, **map_options(cfg))
+                apply_map_choice(
+                    best,
+                    train_eps,
+                    val_eps,
+                    **map_options(cfg),
+                    config=Path(best).parent / "config.toml",  # its [exogenous] note too
+                )
             calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
         return best
 

@@ -24,6 +24,7 @@ from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
+from .input_readers import drop_readers
 from .kinds import map_pinned, plain_ensemble, spanned_joints
 
 INPUT_MARGIN = 0.05
@@ -254,17 +255,7 @@ def choice_record(
 def inputs_after_kinds(record: dict[str, Any], kinds: Mapping[str, Any]) -> None:
     """Update the input choice's ``record`` in place after the kind choice (``kinds``, its
     record): a joint that the map-correcting networks, which ignore the inputs, drive alone
-    (weight 1) no longer reads them; with none left the inputs are not ``kept``."""
+    (weight 1) no longer reads them; with none left the inputs are not ``kept``
+    (:func:`~.input_readers.drop_readers`)."""
     alone = [n for n, w in zip(kinds["names"], kinds["weights"]) if w >= 1.0]
-    if not any(n in alone for n in record["joints"]):
-        return
-    record["joints"] = [n for n in record["joints"] if n not in alone]
-    record["kept"] = bool(record["joints"])
-    record["why"] += (
-        f"; the map-correcting networks, which ignore them, drive {', '.join(alone)}"
-        + (
-            f": {', '.join(record['joints'])} read them"
-            if record["joints"]
-            else ": no joint reads them"
-        )
-    )
+    drop_readers(record, alone, by="the map-correcting networks, which ignore them, drive")

@@ -44,7 +44,8 @@ on the more test data as with the margin, by up to 9 % (docs/real-history.md).  
 the network's own angles keep the network's end stops.
 
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
-in the log and in ``metrics.json``.  On a joint on the map, the ensemble's members drive it
+in the log and in ``metrics.json`` (:func:`.map_apply.apply_map_choice`, which applies the
+choice to a run's checkpoint).  On a joint on the map, the ensemble's members drive it
 with gains spread like the map's stretch-wise gain over the training log
 (:func:`~excavator_surrogate.surrogate.structured.gain_spread`), so its band grows with the
 distance the map moved it.
@@ -52,20 +53,12 @@ distance the map moved it.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 from ..data.episode import Episode
 from ..surrogate.angles import joint_limits
-from ..surrogate.checkpoint import (
-    checkpoint_dict,
-    read_checkpoint,
-    surrogate_from_dict,
-    write_checkpoint_dict,
-)
 from ..surrogate.model import Surrogate
 from ..surrogate.parallel import with_parallel_map
 from ..surrogate.structured import (
@@ -78,8 +71,6 @@ from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .sets import SET_MARGIN, best_set
 from .span import joint_spans, span_note
-
-_log = logging.getLogger(__name__)
 
 MAP_TIE = 0.05
 """A joint is a candidate when the map's validation angle RMSE is at most this share above
@@ -106,7 +97,7 @@ def map_end_stops(train: Sequence[Episode]) -> tuple[Any, Any]:
 
 
 def map_options(cfg: TrainConfig) -> dict[str, Any]:
-    """The keyword options of :func:`choose_map_joints`, :func:`apply_map_choice` and
+    """The keyword options of :func:`choose_map_joints`, :func:`.map_apply.apply_map_choice` and
     :func:`pinned_joints` that ``cfg`` sets: every caller makes the map choice, or predicts
     its pinned joints, as ``exsur train`` does."""
     return {
@@ -494,44 +485,3 @@ def _chosen(model: Surrogate | None, got: Mapping[str, Any]) -> Surrogate | None
             "best_val_error": got["val_error"],
         }
     return model
-
-
-def apply_map_choice(
-    best: str | Path,
-    train: Sequence[Episode],
-    val: Sequence[Episode],
-    *,
-    max_steps: int | None = None,
-    periodic: bool = True,
-    parallel: bool = False,
-    end_stops: bool = True,
-    min_span: float = MIN_SPAN,
-    refit_share: float = 0.0,
-) -> dict[str, Any]:
-    """Run :func:`choose_map_joints` on the checkpoint ``best`` and rewrite it atomically (the
-    chosen model, or the same model; either way ``metrics.training.static_map`` records the
-    choice).  Returns the record."""
-    path = Path(best)
-    ckpt = read_checkpoint(path)
-    sur = surrogate_from_dict(ckpt, where=str(path))
-    new, record = choose_map_joints(
-        sur,
-        train,
-        val,
-        max_steps=max_steps,
-        periodic=periodic,
-        parallel=parallel,
-        end_stops=end_stops,
-        min_span=min_span,
-        refit_share=refit_share,
-    )
-    if new is not None:
-        ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it
-    metrics = dict(ckpt.get("metrics") or {})
-    training = dict(metrics.get("training") or {})
-    training["static_map"] = record
-    metrics["training"] = training
-    ckpt["metrics"] = metrics
-    write_checkpoint_dict(path, ckpt)
-    _log.info(f"{path}: static map: {record['why']}")
-    return record

@@ -6,6 +6,7 @@ import csv
 import io
 import logging
 import math
+import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -80,6 +81,23 @@ def write_config(out: Path, cfg: TrainConfig, *, notes: Mapping[str, Any] | None
     """``OUT/config.toml``: the ``[train]`` table that produced the run, then ``notes``' tables
     (e.g. ``[recipe]``: why the data-driven recipe chose what it did)."""
     write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg), **(notes or {})}))
+
+
+def update_notes(path: str | Path, notes: Mapping[str, Any]) -> bool:
+    """Replace tables of a run's ``config.toml`` (``path``, written by :func:`write_config`)
+    with ``notes``' (e.g. ``[exogenous]`` after a later choice changed it), atomically.
+
+    Only tables the file already has are replaced; the file is left alone if it is missing
+    or has none of them.  Returns whether it was rewritten."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    tables = tomllib.loads(path.read_text())
+    if not any(k in tables for k in notes):
+        return False
+    tables.update({k: v for k, v in notes.items() if k in tables})
+    write_text(path, dumps_toml(tables))
+    return True
 
 
 def write_log(
