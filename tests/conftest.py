@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -13,3 +15,12 @@ try:
     torch.set_num_threads(1)
 except ImportError:  # pragma: no cover
     pass
+
+
+@pytest.fixture(autouse=True)
+def _short_speed_probe(monkeypatch) -> None:
+    """The dry runs' speed probe (``training/speed_probe.py``) in short bursts: the tests
+    check what it prints, not how well it times."""
+    from excavator_surrogate.training import speed_probe
+
+    monkeypatch.setattr(speed_probe, "PROBE_SECONDS", 0.02)

@@ -96,6 +96,7 @@ def _describe(
     simulated yet); ``n_input``: its exogenous inputs."""
     from .training.api import side_by_side
     from .training.estimate import describe_work, estimate_sizes
+    from .training.speed_probe import timed_estimate
 
     cfgs = req.configs
     run_cfg, train_cfg, eval_cfg = cfgs["run"], cfgs["train"], cfgs["evaluate"]
@@ -131,6 +132,9 @@ def _describe(
         cpus=cpus,
     )
     if not (run_cfg.auto_train and ds is None):
+        # another network than the recipe's: timed against it here (the simulated plant and
+        # the synthetic probe have four joints)
+        est = timed_estimate(est, train_cfg, n_joint=ds.spec.n_joint if ds is not None else 4)
         lines.append(
             "planned work of the surrogate (the reference machine's time; nothing is trained):"
         )
@@ -146,7 +150,7 @@ def _describe(
                 "at once): "
                 + (
                     f"about {len(jobs) * est.total_s:.0f} s on the reference machine"
-                    if est and not est.unmodelled
+                    if est and est.timed
                     else f"{len(jobs)}x one model's training time"
                 )
             )

@@ -11,7 +11,7 @@ import pytest
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training.auto import auto_config
-from excavator_surrogate.training.estimate import describe_work, estimate_work
+from excavator_surrogate.training.estimate import SpeedRatio, describe_work, estimate_work
 from excavator_surrogate.training.plan import (
     PLAN_SHARE,
     POST_SHARE,
@@ -143,8 +143,49 @@ def test_a_network_the_times_were_not_measured_on_gets_no_time():
     lines = describe_work(est)
     assert "training(s)" in lines[0] and f"{est.epochs} epochs" in lines[0]
     assert lines[1].startswith("no time estimate") and "hidden = 64" in lines[1]
+    assert lines[1].endswith("(`--dry-run` times it against them on this computer)")
     assert (
         lines[2]
         == f"each training capped at {est.cap_s:.0f} s of wall time; a run cut by it says so"
     )
     assert not any("reference machine (" in ln or "slower than" in ln for ln in lines)
+
+
+def test_a_measured_speed_ratio_times_another_network():
+    """``with_speed`` scales the reference network's epoch (in its batches of 16) by the
+    measured ratios; the lines give the time, the ratios and the headroom under the cap."""
+    ds = _dataset([600] * 10, val=[200])
+    cfg, _ = auto_config(ds, cpus=2)
+    other = replace(cfg, hidden=64, seq_batch=64)
+    est = estimate_work(other, ds, cpus=2)
+    ref = estimate_work(cfg, ds, cpus=2)
+    assert est is not None and ref is not None and not est.timed and est.network_only
+    # the unscaled times are the reference network's on the same sub-sequences
+    assert (est.train_s, est.val_s) == (ref.train_s, ref.val_s)
+    timed = est.with_speed(SpeedRatio(train=0.5, val=0.25, seconds=4.6))
+    assert timed.timed and timed.unmodelled == est.unmodelled
+    assert timed.train_s == pytest.approx(0.5 * ref.train_s)
+    assert timed.val_s == pytest.approx(0.25 * ref.val_s)
+    assert timed.training_s == pytest.approx(
+        est.epochs * 0.5 * ref.train_s + est.validated * 0.25 * ref.val_s
+    )
+    assert timed.headroom == pytest.approx(2 * ref.headroom, rel=0.5)  # about half the time
+    lines = describe_work(timed)
+    assert lines[1].startswith(f"about {timed.training_s:.0f} s a training on the reference")
+    assert "hidden = 64, seq_batch = 64) against the reference's" in lines[2]
+    assert "0.50x on the training steps, 0.25x on validation (a 5-s probe" in lines[2]
+    assert f"up to {timed.headroom:.2f}x slower than the reference" in lines[3]
+    with pytest.raises(ValueError, match="already scaled"):
+        timed.with_speed(SpeedRatio(train=1.0, val=1.0))
+
+
+def test_a_cap_on_an_epochs_samples_is_not_timed_by_a_speed_ratio():
+    """``epoch_samples`` changes the epoch, not the network: a ratio cannot time it."""
+    ds = _dataset([600] * 10, val=[200])
+    cfg, _ = auto_config(ds, cpus=2)
+    est = estimate_work(replace(cfg, hidden=64, epoch_samples=1000), ds, cpus=2)
+    assert est is not None and not est.network_only
+    timed = est.with_speed(SpeedRatio(train=0.5, val=0.5))
+    assert not timed.timed
+    lines = describe_work(timed)
+    assert lines[1].startswith("no time estimate") and "--dry-run" not in lines[1]

@@ -158,6 +158,7 @@ def dry_run(cfg: TrainConfig, dataset: Dataset, *, why: list[str], source: str |
     from ..config import dumps_toml, to_dict
     from ..run_plan import sizes_text
     from ..training.estimate import describe_work, estimate_work
+    from ..training.speed_probe import timed_estimate
 
     lengths = {s: [e.n_step for e in dataset.episodes.get(s, [])] for s in ("train", "val")}
     lines = [f"data: {sizes_text(lengths, dataset.spec.rate_hz)}"]
@@ -167,7 +168,8 @@ def dry_run(cfg: TrainConfig, dataset: Dataset, *, why: list[str], source: str |
         lines.append("recipe (docs/real.md):")
         lines += [f"  - {w}" for w in why]
     lines.append("planned work (the reference machine's time; nothing is trained):")
-    lines += [f"  - {w}" for w in describe_work(estimate_work(cfg, dataset))]
+    est = timed_estimate(estimate_work(cfg, dataset), cfg, n_joint=dataset.spec.n_joint)
+    lines += [f"  - {w}" for w in describe_work(est)]
     return "\n".join(lines) + "\n\n" + dumps_toml({"train": to_dict(cfg)})
 
 

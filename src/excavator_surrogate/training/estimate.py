@@ -13,13 +13,18 @@ costs (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`) are the plan's: AVX2-on
 computers needed 1.3-2.1x :data:`~.plan.STEP_S` on their training steps (a Zen 3, quiet,
 1.25-1.66x on the stroke case's; computer D 1.9-2.1x on 150-step sub-sequences), and about
 half of :data:`~.plan.VAL_STEP_S` on a long validation run (docs/real-history.md).
+
+A network other than the recipe's (:data:`~.plan.STEP_NET`) trains at another speed, which
+the cost model does not know: its estimate has no time (:attr:`WorkEstimate.unmodelled`)
+until :meth:`WorkEstimate.with_speed` scales the reference network's times by the ratio
+:mod:`.speed_probe` measured on this computer (what the dry runs print).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from ..cpus import usable_cpus
 from ..data.dataset import Dataset
@@ -34,6 +39,19 @@ from .plan import (
     probe_members,
 )
 from .selection import validation_start
+
+
+@dataclass(frozen=True)
+class SpeedRatio:
+    """A config's network's time over the recipe's (:data:`~.plan.STEP_NET`), both timed on
+    this computer side by side (:func:`~.speed_probe.measure_speed`)."""
+
+    train: float
+    """An epoch's training steps (per loss sample, the same sub-sequences)."""
+    val: float
+    """An epoch's validation free run (two candidates, the same episodes)."""
+    seconds: float = 0.0
+    """Wall time the measurement took [s]."""
 
 
 @dataclass(frozen=True)
@@ -54,9 +72,11 @@ class WorkEstimate:
     workers: int
     """Trainings run at once."""
     train_s: float
-    """One epoch's training steps on the reference machine [s]."""
+    """One epoch's training steps on the reference machine [s] (the reference network's, in
+    batches of its ``seq_batch``, times :attr:`speed` where it was measured)."""
     val_s: float
-    """One epoch's validation on the reference machine [s] (both candidates, as planned)."""
+    """One epoch's validation on the reference machine [s] (both candidates, as planned; times
+    :attr:`speed` where it was measured)."""
     validated: int
     """Epochs validated (the last ones: :func:`~.selection.validation_start`)."""
     cap_s: float
@@ -64,7 +84,34 @@ class WorkEstimate:
     unmodelled: tuple[str, ...] = ()
     """The config's fields that differ from the network the reference times were measured
     with (:data:`~.plan.STEP_NET`), and a cap on the samples of an epoch (``epoch_samples``),
-    as ``"name = value"``: the times do not hold for it."""
+    as ``"name = value"``: the times do not hold for it unless :attr:`speed` scales them."""
+    speed: SpeedRatio | None = None
+    """This config's network's time over the reference network's, measured on this computer
+    (:meth:`with_speed`; None: not measured)."""
+
+    @property
+    def network_only(self) -> bool:
+        """Whether only the network differs from the reference's (:attr:`unmodelled` names
+        no ``epoch_samples``), so that a measured speed ratio times this config."""
+        return all(u.split(" = ")[0] in STEP_NET for u in self.unmodelled)
+
+    @property
+    def timed(self) -> bool:
+        """Whether :attr:`train_s` and :attr:`val_s` hold for this config: its network is the
+        reference's, or its speed against it was measured."""
+        return not self.unmodelled or (self.speed is not None and self.network_only)
+
+    def with_speed(self, speed: SpeedRatio) -> WorkEstimate:
+        """This estimate for a network that trains ``speed`` times as long as the reference's::
+
+        train_s' = train_s * speed.train
+        val_s'   = val_s * speed.val
+        """
+        if self.speed is not None:
+            raise ValueError("this estimate is already scaled by a measured speed")
+        return replace(
+            self, train_s=self.train_s * speed.train, val_s=self.val_s * speed.val, speed=speed
+        )
 
     @property
     def trainings(self) -> int:
@@ -138,8 +185,10 @@ def estimate_sizes(
         seq_len=cfg.seq_len,
         burn_in=cfg.burn_in,
     )
-    train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch)
-    cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=cfg.seq_batch, val_steps=val_steps)
+    # the reference network's batches: a measured speed ratio (per loss sample) scales these
+    ref_batch = int(STEP_NET["seq_batch"])  # type: ignore[call-overload]
+    train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch)
+    cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch, val_steps=val_steps)
     start = validation_start(cfg)
     probe = n_input > 0 and cfg.exogenous == "choose" and cfg.input_dropout == 0
     members = max(1, cfg.members)
@@ -177,11 +226,12 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
         f"{est.trainings} training(s) ({', '.join(parts)}), {est.workers} at a time in "
         f"{est.rounds} round(s); {est.epochs} epochs of {est.n_seq} sub-sequences each",
     ]
-    if est.unmodelled:
+    ref_net = ", ".join(f"{k} = {v!r}" for k, v in STEP_NET.items())
+    if not est.timed:
         lines.append(
-            "no time estimate: the reference machine's per-step times were measured with "
-            + ", ".join(f"{k} = {v!r}" for k, v in STEP_NET.items())
-            + f"; this config has {', '.join(est.unmodelled)}"
+            f"no time estimate: the reference machine's per-step times were measured with "
+            f"{ref_net}; this config has {', '.join(est.unmodelled)}"
+            + (" (`--dry-run` times it against them on this computer)" if est.network_only else "")
         )
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time; a run cut by it says so"
@@ -195,6 +245,13 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
         f"epoch(s) {est.validated * est.val_s:.0f} s), {est.total_s:.0f} s for all of them (the "
         "choices after training not counted)"
     )
+    if est.speed is not None:
+        lines.append(
+            f"scaled by this config's network ({', '.join(est.unmodelled)}) against the "
+            f"reference's, timed on this computer just now: {est.speed.train:.2f}x on the "
+            f"training steps, {est.speed.val:.2f}x on validation (a {est.speed.seconds:.0f}-s "
+            "probe on throwaway networks; the ratio moves with the CPU's kernels and its load)"
+        )
     if est.cap_s > 0:
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "

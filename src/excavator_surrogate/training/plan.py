@@ -68,6 +68,8 @@ STEP_NET: dict[str, object] = {
     "feedback": "teacher",
     "seq_batch": 16,
     "velocity_input": False,
+    "head_hidden": 128,
+    "residual": False,
 }
 """The training config fields :data:`STEP_S` was measured with (the recipe's network): a
 config that differs in any of them trains at another speed, which the plan does not model."""

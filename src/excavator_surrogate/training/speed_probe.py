@@ -1,0 +1,164 @@
+"""How fast a training config's network trains against the recipe's, timed on this computer:
+what turns the reference machine's per-step times (:data:`~.plan.STEP_S`,
+:data:`~.plan.VAL_STEP_S`, measured with :data:`~.plan.STEP_NET`) into an estimate for any
+other stateful network (:meth:`~.estimate.WorkEstimate.with_speed`).
+
+``exsur train --dry-run`` and ``exsur run --dry-run`` call it for a config the cost model does
+not cover, e.g. the demo's 64-unit network trained on its own free runs.  It trains two
+throwaway networks, the config's and the recipe's (the config with :data:`~.plan.STEP_NET`'s
+fields), on the same synthetic sub-sequences through the training loop's own epoch
+(:func:`~.loop.run_epoch`), in alternating bursts of :data:`PROBE_SECONDS`, and free-runs
+each on the same validation episodes (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`,
+the two candidates of an epoch).  The ratios are medians of :data:`PROBE_ROUNDS` bursts.
+
+Only a ratio leaves this module, never a time: the plan stays a function of the data, and the
+estimate stays in the reference machine's seconds.  The ratio itself is this computer's: it
+moves with the kernels a CPU runs (a wider network gains more from AVX-512 than a narrow one),
+and with other work on the machine.  The probe restores torch's global random state and the
+thread count, so a training after it is the one it would have been.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import replace
+
+import numpy as np
+import torch
+
+from ..devices import torch_threads
+from ..surrogate.model import Surrogate
+from ..surrogate.synthetic import synthetic_episode, synthetic_spec
+from ..surrogate.validation import free_run_errors
+from .batches import make_data
+from .config import TrainConfig
+from .estimate import SpeedRatio, WorkEstimate
+from .loop import run_epoch
+from .loss import default_loss
+from .modes import make_mode
+from .optim import Optimisation
+from .parallel import SingleProcess
+from .plan import STEP_NET, count_sequences
+from .resume import start
+
+PROBE_SECONDS = 0.4
+"""Wall time of one timed burst of training [s] (the probe runs ``2 * PROBE_ROUNDS`` of
+them, plus a warm-up and the validation free runs: about 5 s in all)."""
+PROBE_ROUNDS = 3
+"""Bursts per network; the ratio is of their medians."""
+PROBE_BATCHES = 4
+"""Full batches of sub-sequences in the probe's epoch (of the config's or the reference's
+``seq_batch``, whichever is larger): a half-empty batch costs nearly a full one's time."""
+PROBE_EPOCH = 10
+"""The epoch the bursts train as: past the free-run feedback's teacher-forced warm-up, so a
+``feedback = "free"`` config is timed as it trains most of its epochs."""
+
+
+def timed_estimate(
+    est: WorkEstimate | None, cfg: TrainConfig, *, n_joint: int = 4
+) -> WorkEstimate | None:
+    """``est`` with a time: scaled by :func:`measure_speed` where only its network differs
+    from the reference's, else unchanged (no probe runs for the recipe's network)."""
+    if est is None or est.timed or not est.network_only:
+        return est
+    return est.with_speed(measure_speed(cfg, n_joint=n_joint))
+
+
+def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
+    """Time ``cfg``'s network against the recipe's (:data:`~.plan.STEP_NET`) on this computer.
+
+    Args:
+        cfg: a stateful training config (its network, sub-sequences, feedback, threads).
+        n_joint: joints of the machine (the synthetic episodes' and the networks').
+
+    Returns:
+        ``cfg``'s time over the reference network's, for an epoch's training steps and for
+        an epoch's validation free run.
+    """
+    ref_cfg = replace(cfg, **STEP_NET, num_threads=1)  # type: ignore[arg-type]  # STEP_S: one core
+    spec = synthetic_spec(n_joint, periodic_first=True)
+    # batches as full as in a real epoch: PROBE_BATCHES of the larger seq_batch, from copies
+    # of two episodes (what the data says does not change the time a step takes)
+    steps = max(600, 4 * cfg.seq_len)
+    eps = [synthetic_episode(spec, n_step=steps, seed=k) for k in range(2)]
+    per_ep = max(1, count_sequences(np.array([steps]), seq_len=cfg.seq_len, burn_in=cfg.burn_in))
+    want = PROBE_BATCHES * max(cfg.seq_batch, ref_cfg.seq_batch)
+    train_eps = eps * max(1, -(-want // (2 * per_ep)))
+    val_eps = [synthetic_episode(spec, n_step=400, seed=10 + k) for k in range(2)]
+    t0 = time.perf_counter()
+    with torch.random.fork_rng(devices=[]):  # NumPy draws only from explicit generators
+        torch.manual_seed(0)
+        probes = [_Probe(c, spec, train_eps, val_eps) for c in (cfg, ref_cfg)]
+        for p in probes:  # warm-up: first calls allocate and pick kernels
+            p.train_burst(PROBE_SECONDS / 2)
+            p.validate()
+        train_s: list[list[float]] = [[], []]
+        val_s: list[list[float]] = [[], []]
+        for _ in range(PROBE_ROUNDS):  # alternating: a drift in speed hits both alike
+            for k, p in enumerate(probes):
+                train_s[k].append(p.train_burst(PROBE_SECONDS))
+                val_s[k].append(p.validate())
+    med = [statistics.median(s) for s in train_s]
+    med_val = [statistics.median(s) for s in val_s]
+    return SpeedRatio(
+        train=med[0] / med[1], val=med_val[0] / med_val[1], seconds=time.perf_counter() - t0
+    )
+
+
+class _Probe:
+    """One throwaway network of ``cfg`` with its optimiser and epoch, on the probe's data."""
+
+    def __init__(self, cfg: TrainConfig, spec, train_eps, val_eps) -> None:
+        mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
+        st = start(cfg, mcfg, spec, train_eps, None)
+        self.cfg, self.val_eps = cfg, val_eps
+        self.net = st.net.train()
+        self.sur = Surrogate(
+            net=self.net,
+            spec=st.spec,
+            norm=st.norm,
+            model_cfg=mcfg,
+            mode=cfg.mode,
+            train_config={},
+            metrics={},
+            name=cfg.cell,
+            end_stops=cfg.end_stops,
+        )
+        par = SingleProcess(device=torch.device("cpu"))
+        self.optim = Optimisation.build(cfg, self.sur)
+        self.mode = make_mode(cfg, make_data(train_eps, st.norm, torch.device("cpu")), self.sur)
+        self.epoch: Callable[..., tuple[float, int]] = lambda past, epoch: run_epoch(
+            self.mode,
+            self.net,
+            par,
+            self.optim.opt,
+            epoch=epoch,
+            rng=np.random.default_rng(epoch),
+            loss_fn=default_loss(lambda_bias=cfg.lambda_bias),
+            grad_clip=cfg.grad_clip,
+            lr_at=lambda: None,
+            past=past,
+            show=lambda it, **kw: it,
+        )
+
+    def train_burst(self, seconds: float) -> float:
+        """Train for about ``seconds`` (whole batches); the time per loss sample [s]."""
+        with torch_threads(self.cfg.num_threads or 1):
+            self.net.train()
+            t0 = time.perf_counter()
+            deadline, total = t0 + seconds, 0
+            while time.perf_counter() < deadline:
+                _, n = self.epoch(lambda: time.perf_counter() > deadline, PROBE_EPOCH)
+                total += n
+            return (time.perf_counter() - t0) / max(total, 1)
+
+    def validate(self) -> float:
+        """One epoch's validation free run of two candidates on the probe's episodes [s]."""
+        with torch_threads(self.cfg.num_threads or 1), torch.no_grad():
+            t0 = time.perf_counter()
+            free_run_errors([self.sur, self.sur], self.val_eps)
+            seconds = time.perf_counter() - t0
+        self.net.train()
+        return seconds
