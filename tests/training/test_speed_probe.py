@@ -49,6 +49,9 @@ def test_only_a_network_the_cost_model_does_not_cover_is_probed(monkeypatch):
     capped = replace(cfg, hidden=64, epoch_samples=500)  # a ratio would not time it
     est = estimate_work(capped, ds, cpus=2)
     assert timed_estimate(est, capped) is est and calls == []
+    gpu = replace(cfg, hidden=64, device="cuda:7")  # the reference times are a CPU's
+    est = estimate_work(gpu, ds, cpus=2)
+    assert timed_estimate(est, gpu) is est and calls == []
     other = replace(cfg, hidden=64)
     est = estimate_work(other, ds, cpus=2)
     timed = timed_estimate(est, other, n_joint=3)

@@ -28,7 +28,10 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from ..devices import torch_threads
+from ..data.episode import Episode
+from ..devices import resolve_device, torch_threads
+from ..errors import ConfigError
+from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
 from ..surrogate.synthetic import synthetic_episode, synthetic_spec
 from ..surrogate.validation import free_run_errors
@@ -60,8 +63,9 @@ def timed_estimate(
     est: WorkEstimate | None, cfg: TrainConfig, *, n_joint: int = 4
 ) -> WorkEstimate | None:
     """``est`` with a time: scaled by :func:`measure_speed` where only its network differs
-    from the reference's, else unchanged (no probe runs for the recipe's network)."""
-    if est is None or est.timed or not est.network_only:
+    from the reference's, else unchanged (no probe runs for the recipe's network, nor for a
+    training on a GPU: the probe and the reference times are a CPU's)."""
+    if est is None or est.timed or not est.network_only or _on_gpu(cfg):
         return est
     return est.with_speed(measure_speed(cfg, n_joint=n_joint))
 
@@ -90,7 +94,7 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[]):  # NumPy draws only from explicit generators
         torch.manual_seed(0)
-        probes = [_Probe(c, spec, train_eps, val_eps) for c in (cfg, ref_cfg)]
+        probes = [ThrowawayNetwork(c, spec, train_eps, val_eps) for c in (cfg, ref_cfg)]
         for p in probes:  # warm-up: first calls allocate and pick kernels
             p.train_burst(PROBE_SECONDS / 2)
             p.validate()
@@ -107,10 +111,27 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
     )
 
 
-class _Probe:
-    """One throwaway network of ``cfg`` with its optimiser and epoch, on the probe's data."""
+def _on_gpu(cfg: TrainConfig) -> bool:
+    """Whether ``cfg`` trains on another device than the CPU (a device this computer lacks
+    counts as one: the training will say so)."""
+    try:
+        return resolve_device(cfg.device).type != "cpu"
+    except ConfigError:
+        return True
 
-    def __init__(self, cfg: TrainConfig, spec, train_eps, val_eps) -> None:
+
+class ThrowawayNetwork:
+    """A fresh network of ``cfg`` with its optimiser and its training loop's epoch, on
+    ``train_eps`` and ``val_eps``: timed, never kept (``bench/estimate.py`` times whole
+    epochs with it)."""
+
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        spec: MachineSpec,
+        train_eps: list[Episode],
+        val_eps: list[Episode],
+    ) -> None:
         mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
         st = start(cfg, mcfg, spec, train_eps, None)
         self.cfg, self.val_eps = cfg, val_eps
@@ -154,8 +175,16 @@ class _Probe:
                 total += n
             return (time.perf_counter() - t0) / max(total, 1)
 
+    def train_epoch(self) -> float:
+        """Train one whole epoch; the time per loss sample [s]."""
+        with torch_threads(self.cfg.num_threads or 1):
+            self.net.train()
+            t0 = time.perf_counter()
+            _, n = self.epoch(lambda: False, PROBE_EPOCH)
+            return (time.perf_counter() - t0) / max(n, 1)
+
     def validate(self) -> float:
-        """One epoch's validation free run of two candidates on the probe's episodes [s]."""
+        """One epoch's validation free run of two candidates on ``val_eps`` [s]."""
         with torch_threads(self.cfg.num_threads or 1), torch.no_grad():
             t0 = time.perf_counter()
             free_run_errors([self.sur, self.sur], self.val_eps)

@@ -1,0 +1,142 @@
+"""Benchmark: the dry run's speed probe against whole epochs, side by side.
+
+``exsur run --dry-run`` and ``exsur train --dry-run`` time a network the cost model does not
+cover against the recipe's (``training/speed_probe.py``: about 5 s of short bursts on copies
+of two synthetic episodes) and scale the reference machine's times by the ratio.  This
+checks that ratio against the one whole epochs give: for each config below, the config's
+network and the reference network (the config with ``plan.STEP_NET``'s fields) train
+:data:`EPOCHS` whole epochs each, alternately, on a training split the size of a real one
+(:data:`N_EPISODE` synthetic episodes of :data:`N_STEP` samples), and free-run the demo's
+validation shape (two episodes of 2000 samples); then the probe runs as a dry run runs it.
+
+Configs: the recipe itself (a control: both ratios near 1), the recipe as a GRU, the recipe
+at 64 units, the demo's (``quick-hydraulic``: 64 units, free-run feedback, batches of 64,
+the velocity input) and ``paper-noload``'s.
+
+Goals: the probe's training ratio within :data:`GOAL_TRAIN` of the whole epochs' for every
+config (it is most of a training's time), its validation ratio within :data:`GOAL_VAL`.
+Ends with one JSON line with a ``goals`` object of booleans.  Usage::
+
+    python bench/estimate.py            # one core per network, as the trainings run; ~3 min
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import time
+from dataclasses import replace
+
+import torch
+
+from excavator_surrogate.data import Dataset
+from excavator_surrogate.pipeline import resolve_run
+from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.training.auto import auto_config
+from excavator_surrogate.training.config import TrainConfig
+from excavator_surrogate.training.plan import STEP_NET
+from excavator_surrogate.training.speed_probe import ThrowawayNetwork, measure_speed
+
+N_EPISODE = 40
+"""Training episodes of the whole-epoch runs (about 990 sub-sequences of the demo's 150)."""
+N_STEP = 3000
+"""Samples per training episode (the demo's)."""
+EPOCHS = 2
+"""Whole epochs per network and config (alternating with the reference's)."""
+GOAL_TRAIN = 1.25
+"""The probe's training ratio is within this factor of the whole epochs' (either way)."""
+GOAL_VAL = 1.5
+"""The probe's validation ratio is within this factor of the whole validation runs'."""
+
+
+def _parse() -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--epochs", type=int, default=EPOCHS, help="whole epochs per network")
+    return p.parse_args()
+
+
+def _configs(ds: Dataset) -> dict[str, TrainConfig]:
+    recipe, _ = auto_config(ds, cpus=1)
+    recipe = replace(recipe, members=1, prior_choice=False)
+    return {
+        "recipe": recipe,
+        "recipe_gru": replace(recipe, cell="gru"),
+        "recipe_64": replace(recipe, hidden=64, head_hidden=64),
+        "demo": resolve_run().configs["train"],
+        "paper_noload": resolve_run(preset="paper-noload").configs["train"],
+    }
+
+
+def whole_epochs(cfg: TrainConfig, ds: Dataset, *, epochs: int) -> tuple[float, float]:
+    """``cfg``'s network over the reference network: (training time per loss sample over
+    ``epochs`` whole epochs, validation free-run time), alternating, medians."""
+    ref = replace(cfg, **STEP_NET, num_threads=1)  # type: ignore[arg-type]
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        nets = [ThrowawayNetwork(c, ds.spec, ds.train, ds.val) for c in (cfg, ref)]
+        for n in nets:  # warm-up
+            n.train_burst(0.5)
+            n.validate()
+        train_s: list[list[float]] = [[], []]
+        val_s: list[list[float]] = [[], []]
+        for _ in range(epochs):
+            for k, n in enumerate(nets):
+                train_s[k].append(n.train_epoch())
+                val_s[k].append(n.validate())
+    tr = [statistics.median(s) for s in train_s]
+    va = [statistics.median(s) for s in val_s]
+    return tr[0] / tr[1], va[0] / va[1]
+
+
+def main() -> None:
+    args = _parse()
+    torch.set_num_threads(1)
+    spec = synthetic_spec(4)
+    ds = Dataset(spec=spec)
+    ds.episodes["train"] = [
+        synthetic_episode(spec, kind="sine" if i % 2 else "step", n_step=N_STEP, seed=i)
+        for i in range(N_EPISODE)
+    ]
+    ds.episodes["val"] = [synthetic_episode(spec, n_step=2000, seed=900 + i) for i in range(2)]
+    rows: dict[str, dict[str, float]] = {}
+    t0 = time.perf_counter()
+    for name, cfg in _configs(ds).items():
+        train_r, val_r = whole_epochs(cfg, ds, epochs=args.epochs)
+        probe = measure_speed(cfg, n_joint=spec.n_joint)
+        rows[name] = {
+            "epochs_train_ratio": train_r,
+            "probe_train_ratio": probe.train,
+            "train_probe_over_epochs": probe.train / train_r,
+            "epochs_val_ratio": val_r,
+            "probe_val_ratio": probe.val,
+            "val_probe_over_epochs": probe.val / val_r,
+            "probe_s": probe.seconds,
+        }
+        r = rows[name]
+        print(
+            f"{name:13s} training: whole epochs {train_r:.2f}x, probe {probe.train:.2f}x "
+            f"({r['train_probe_over_epochs']:.2f}); validation: {val_r:.2f}x, probe "
+            f"{probe.val:.2f}x ({r['val_probe_over_epochs']:.2f}); probe {probe.seconds:.1f} s",
+            flush=True,
+        )
+
+    def within(key: str, factor: float) -> bool:
+        return all(abs(math.log(r[key])) <= math.log(factor) for r in rows.values())
+
+    out = {
+        "bench": "estimate",
+        "threads": torch.get_num_threads(),
+        "seconds": time.perf_counter() - t0,
+        "configs": rows,
+        "goals": {
+            "probe_train_within": within("train_probe_over_epochs", GOAL_TRAIN),
+            "probe_val_within": within("val_probe_over_epochs", GOAL_VAL),
+        },
+    }
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()
