@@ -36,8 +36,11 @@ from excavator_surrogate.pipeline import resolve_run
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.config import TrainConfig
-from excavator_surrogate.training.plan import STEP_NET
-from excavator_surrogate.training.speed_probe import ThrowawayNetwork, measure_speed
+from excavator_surrogate.training.speed_probe import (
+    ThrowawayNetwork,
+    measure_speed,
+    reference_config,
+)
 
 N_EPISODE = 40
 """Training episodes of the whole-epoch runs (about 990 sub-sequences of the demo's 150)."""
@@ -72,7 +75,7 @@ def _configs(ds: Dataset) -> dict[str, TrainConfig]:
 def whole_epochs(cfg: TrainConfig, ds: Dataset, *, epochs: int) -> tuple[float, float]:
     """``cfg``'s network over the reference network: (training time per loss sample over
     ``epochs`` whole epochs, validation free-run time), alternating, medians."""
-    ref = replace(cfg, **STEP_NET, num_threads=1)  # type: ignore[arg-type]
+    ref = reference_config(cfg)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(0)
         nets = [ThrowawayNetwork(c, ds.spec, ds.train, ds.val) for c in (cfg, ref)]

@@ -159,7 +159,7 @@ def test_a_measured_speed_ratio_times_another_network():
     other = replace(cfg, hidden=64, seq_batch=64)
     est = estimate_work(other, ds, cpus=2)
     ref = estimate_work(cfg, ds, cpus=2)
-    assert est is not None and ref is not None and not est.timed and est.network_only
+    assert est is not None and ref is not None and not est.timed
     # the unscaled times are the reference network's on the same sub-sequences
     assert (est.train_s, est.val_s) == (ref.train_s, ref.val_s)
     timed = est.with_speed(SpeedRatio(train=0.5, val=0.25, seconds=4.6))
@@ -179,13 +179,14 @@ def test_a_measured_speed_ratio_times_another_network():
         timed.with_speed(SpeedRatio(train=1.0, val=1.0))
 
 
-def test_a_cap_on_an_epochs_samples_is_not_timed_by_a_speed_ratio():
-    """``epoch_samples`` changes the epoch, not the network: a ratio cannot time it."""
-    ds = _dataset([600] * 10, val=[200])
+def test_a_cap_on_an_epochs_samples_and_on_validation_runs_is_counted():
+    """``epoch_samples`` cuts an epoch's sub-sequences as ``Stateful.batches`` cuts its
+    starts, ``val_steps`` the validation free runs: the recipe's network keeps its time."""
+    ds = _dataset([600] * 10, val=[300])
     cfg, _ = auto_config(ds, cpus=2)
-    est = estimate_work(replace(cfg, hidden=64, epoch_samples=1000), ds, cpus=2)
-    assert est is not None and not est.network_only
-    timed = est.with_speed(SpeedRatio(train=0.5, val=0.5))
-    assert not timed.timed
-    lines = describe_work(timed)
-    assert lines[1].startswith("no time estimate") and "--dry-run" not in lines[1]
+    full = estimate_work(cfg, ds, cpus=2)
+    per_seq = cfg.seq_len - cfg.burn_in + 1
+    capped = estimate_work(replace(cfg, epoch_samples=3 * per_seq, val_steps=100), ds, cpus=2)
+    assert full is not None and capped is not None and capped.timed
+    assert full.n_seq > 3 and capped.n_seq == 3
+    assert capped.train_s < full.train_s and capped.val_s == pytest.approx(full.val_s / 3)

@@ -46,7 +46,7 @@ def test_only_a_network_the_cost_model_does_not_cover_is_probed(monkeypatch):
     est = estimate_work(cfg, ds, cpus=2)
     assert timed_estimate(est, cfg, n_joint=3) is est and calls == []  # the recipe's network
     assert timed_estimate(None, cfg) is None and calls == []  # the windowed mode's estimate
-    capped = replace(cfg, hidden=64, epoch_samples=500)  # a ratio would not time it
+    capped = replace(cfg, epoch_samples=500)  # the recipe's network in a shorter epoch
     est = estimate_work(capped, ds, cpus=2)
     assert timed_estimate(est, capped) is est and calls == []
     gpu = replace(cfg, hidden=64, device="cuda:7")  # the reference times are a CPU's

@@ -83,23 +83,17 @@ class WorkEstimate:
     """Each training's wall-time cap [s] (0: none)."""
     unmodelled: tuple[str, ...] = ()
     """The config's fields that differ from the network the reference times were measured
-    with (:data:`~.plan.STEP_NET`), and a cap on the samples of an epoch (``epoch_samples``),
-    as ``"name = value"``: the times do not hold for it unless :attr:`speed` scales them."""
+    with (:data:`~.plan.STEP_NET`), as ``"name = value"``: the times do not hold for it
+    unless :attr:`speed` scales them."""
     speed: SpeedRatio | None = None
     """This config's network's time over the reference network's, measured on this computer
     (:meth:`with_speed`; None: not measured)."""
 
     @property
-    def network_only(self) -> bool:
-        """Whether only the network differs from the reference's (:attr:`unmodelled` names
-        no ``epoch_samples``), so that a measured speed ratio times this config."""
-        return all(u.split(" = ")[0] in STEP_NET for u in self.unmodelled)
-
-    @property
     def timed(self) -> bool:
         """Whether :attr:`train_s` and :attr:`val_s` hold for this config: its network is the
         reference's, or its speed against it was measured."""
-        return not self.unmodelled or (self.speed is not None and self.network_only)
+        return not self.unmodelled or self.speed is not None
 
     def with_speed(self, speed: SpeedRatio) -> WorkEstimate:
         """This estimate for a network that trains ``speed`` times as long as the reference's::
@@ -185,6 +179,10 @@ def estimate_sizes(
         seq_len=cfg.seq_len,
         burn_in=cfg.burn_in,
     )
+    if cfg.epoch_samples > 0:  # the epoch's cap, as Stateful.batches cuts its starts
+        n_seq = min(n_seq, max(1, cfg.epoch_samples // (cfg.seq_len - cfg.burn_in + 1)))
+    if cfg.val_steps > 0:  # validation runs truncated to val_steps samples
+        val_steps = min(val_steps, cfg.val_steps)
     # the reference network's batches: a measured speed ratio (per loss sample) scales these
     ref_batch = int(STEP_NET["seq_batch"])  # type: ignore[call-overload]
     train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch)
@@ -208,8 +206,7 @@ def estimate_sizes(
         cap_s=float(cfg.max_train_seconds or 0.0),
         unmodelled=tuple(
             f"{k} = {getattr(cfg, k)!r}" for k, v in STEP_NET.items() if getattr(cfg, k) != v
-        )
-        + ((f"epoch_samples = {cfg.epoch_samples}",) if cfg.epoch_samples > 0 else ()),
+        ),
     )
 
 
@@ -230,8 +227,8 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
     if not est.timed:
         lines.append(
             f"no time estimate: the reference machine's per-step times were measured with "
-            f"{ref_net}; this config has {', '.join(est.unmodelled)}"
-            + (" (`--dry-run` times it against them on this computer)" if est.network_only else "")
+            f"{ref_net}; this config has {', '.join(est.unmodelled)} (`--dry-run` times it "
+            "against them on this computer)"
         )
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time; a run cut by it says so"

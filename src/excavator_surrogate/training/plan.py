@@ -73,6 +73,11 @@ STEP_NET: dict[str, object] = {
 }
 """The training config fields :data:`STEP_S` was measured with (the recipe's network): a
 config that differs in any of them trains at another speed, which the plan does not model."""
+STEP_SHAPE: dict[str, int] = {"seq_len": 150, "burn_in": 30, "tbptt": 10}
+"""The recipe's sub-sequences on logs of long runs, which :data:`STEP_S` prices per step
+(its burn-in steps, forward only, as dearly as the others): the shape the dry runs' speed
+probe times the reference network in (``training/speed_probe.py``), so that a config with
+a long burn-in or long truncated-BPTT chunks is priced at its own cost per step."""
 VAL_STEP_S = 3.0e-4
 """Reference machine: one step of the validation free run over all validation episodes [s],
 one candidate at a time.  The plan's constant, not a measurement of today's code: the two

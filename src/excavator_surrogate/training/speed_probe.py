@@ -43,7 +43,7 @@ from .loss import default_loss
 from .modes import make_mode
 from .optim import Optimisation
 from .parallel import SingleProcess
-from .plan import STEP_NET, count_sequences
+from .plan import STEP_NET, STEP_SHAPE, count_sequences
 from .resume import start
 
 PROBE_SECONDS = 0.4
@@ -62,12 +62,18 @@ PROBE_EPOCH = 10
 def timed_estimate(
     est: WorkEstimate | None, cfg: TrainConfig, *, n_joint: int = 4
 ) -> WorkEstimate | None:
-    """``est`` with a time: scaled by :func:`measure_speed` where only its network differs
-    from the reference's, else unchanged (no probe runs for the recipe's network, nor for a
+    """``est`` with a time: scaled by :func:`measure_speed` where its network differs from
+    the reference's, else unchanged (no probe runs for the recipe's network, nor for a
     training on a GPU: the probe and the reference times are a CPU's)."""
-    if est is None or est.timed or not est.network_only or _on_gpu(cfg):
+    if est is None or est.timed or _on_gpu(cfg):
         return est
     return est.with_speed(measure_speed(cfg, n_joint=n_joint))
+
+
+def reference_config(cfg: TrainConfig) -> TrainConfig:
+    """``cfg`` with the network and the sub-sequences :data:`~.plan.STEP_S` prices
+    (:data:`~.plan.STEP_NET`, :data:`~.plan.STEP_SHAPE`), on one core as it was measured."""
+    return replace(cfg, **STEP_NET, **STEP_SHAPE, num_threads=1)  # type: ignore[arg-type]
 
 
 def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
@@ -81,20 +87,24 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
         ``cfg``'s time over the reference network's, for an epoch's training steps and for
         an epoch's validation free run.
     """
-    ref_cfg = replace(cfg, **STEP_NET, num_threads=1)  # type: ignore[arg-type]  # STEP_S: one core
+    ref_cfg = reference_config(cfg)
     spec = synthetic_spec(n_joint, periodic_first=True)
     # batches as full as in a real epoch: PROBE_BATCHES of the larger seq_batch, from copies
     # of two episodes (what the data says does not change the time a step takes)
-    steps = max(600, 4 * cfg.seq_len)
+    both = (cfg, ref_cfg)
+    steps = max(600, *(4 * c.seq_len for c in both))
     eps = [synthetic_episode(spec, n_step=steps, seed=k) for k in range(2)]
-    per_ep = max(1, count_sequences(np.array([steps]), seq_len=cfg.seq_len, burn_in=cfg.burn_in))
-    want = PROBE_BATCHES * max(cfg.seq_batch, ref_cfg.seq_batch)
+    per_ep = max(
+        1,
+        min(count_sequences(np.array([steps]), seq_len=c.seq_len, burn_in=c.burn_in) for c in both),
+    )
+    want = PROBE_BATCHES * max(c.seq_batch for c in both)
     train_eps = eps * max(1, -(-want // (2 * per_ep)))
-    val_eps = [synthetic_episode(spec, n_step=400, seed=10 + k) for k in range(2)]
+    val_eps = [synthetic_episode(spec, n_step=1000, seed=10 + k) for k in range(2)]
     t0 = time.perf_counter()
     with torch.random.fork_rng(devices=[]):  # NumPy draws only from explicit generators
         torch.manual_seed(0)
-        probes = [ThrowawayNetwork(c, spec, train_eps, val_eps) for c in (cfg, ref_cfg)]
+        probes = [ThrowawayNetwork(c, spec, train_eps, val_eps) for c in both]
         for p in probes:  # warm-up: first calls allocate and pick kernels
             p.train_burst(PROBE_SECONDS / 2)
             p.validate()
@@ -165,7 +175,7 @@ class ThrowawayNetwork:
         )
 
     def train_burst(self, seconds: float) -> float:
-        """Train for about ``seconds`` (whole batches); the time per loss sample [s]."""
+        """Train for about ``seconds`` (whole batches); the time per sub-sequence step [s]."""
         with torch_threads(self.cfg.num_threads or 1):
             self.net.train()
             t0 = time.perf_counter()
@@ -173,15 +183,26 @@ class ThrowawayNetwork:
             while time.perf_counter() < deadline:
                 _, n = self.epoch(lambda: time.perf_counter() > deadline, PROBE_EPOCH)
                 total += n
-            return (time.perf_counter() - t0) / max(total, 1)
+            return self._per_step(time.perf_counter() - t0, total)
 
     def train_epoch(self) -> float:
-        """Train one whole epoch; the time per loss sample [s]."""
+        """Train one whole epoch; the time per sub-sequence step [s]."""
         with torch_threads(self.cfg.num_threads or 1):
             self.net.train()
             t0 = time.perf_counter()
             _, n = self.epoch(lambda: False, PROBE_EPOCH)
-            return (time.perf_counter() - t0) / max(n, 1)
+            return self._per_step(time.perf_counter() - t0, n)
+
+    def _per_step(self, seconds: float, n_loss: int) -> float:
+        """``seconds`` over the sub-sequence steps, burn-in included, of ``n_loss`` loss
+        samples (``seq_len - burn_in + 1`` of each sub-sequence): the unit the cost model's
+        :data:`~.plan.STEP_S` prices, whatever the share of the burn-in::
+
+            seconds / (n_loss / (seq_len - burn_in + 1) * seq_len)
+        """
+        cfg = self.cfg
+        steps = n_loss / (cfg.seq_len - cfg.burn_in + 1) * cfg.seq_len
+        return seconds / max(steps, 1.0)
 
     def validate(self) -> float:
         """One epoch's validation free run of two candidates on ``val_eps`` [s]."""
