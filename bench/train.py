@@ -133,18 +133,8 @@ def measure(
     torch.manual_seed(0)
     mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
     st = start(cfg, mcfg, spec, episodes, None)
-    net = st.net.to(dev).train()
-    sur = Surrogate(
-        net=net,
-        spec=st.spec,
-        norm=st.norm.to(dev),
-        model_cfg=mcfg,
-        mode=cfg.mode,
-        train_config={},
-        metrics={},
-        name="lstm",
-        end_stops=cfg.end_stops,
-    )
+    sur = st.surrogate(cfg, dev)  # as the training loop builds it
+    net = sur.net
     data = make_data(episodes, st.norm, dev)
     optim = Optimisation.build(cfg, sur)
     mode = make_mode(cfg, data, sur)

@@ -6,18 +6,24 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
+import torch
 
 from excavator_surrogate.data import Dataset
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training.auto import auto_config
+from excavator_surrogate.training.batches import make_data, sequence_cap
+from excavator_surrogate.training.config import TrainConfig
 from excavator_surrogate.training.estimate import SpeedRatio, describe_work, estimate_work
+from excavator_surrogate.training.modes import make_mode
 from excavator_surrogate.training.plan import (
     PLAN_SHARE,
     POST_SHARE,
     member_budget_s,
     trainings,
 )
+from tests.helpers.surrogates import make_surrogate
 from tests.surrogate.test_auto import _with_gear  # a gear that changes by turns
 
 
@@ -190,3 +196,16 @@ def test_a_cap_on_an_epochs_samples_and_on_validation_runs_is_counted():
     assert full is not None and capped is not None and capped.timed
     assert full.n_seq > 3 and capped.n_seq == 3
     assert capped.train_s < full.train_s and capped.val_s == pytest.approx(full.val_s / 3)
+
+
+def test_the_estimates_epoch_cap_is_the_one_the_training_applies():
+    """``epoch_samples``: the stateful mode's epoch holds as many sub-sequences as the
+    estimate counts (both call ``batches.sequence_cap``)."""
+    ds = _dataset([400] * 6, val=[200])
+    cfg = TrainConfig(mode="stateful", seq_len=40, burn_in=10, seq_batch=4, epoch_samples=250)
+    sur = make_surrogate(ds.spec, ds.train, mode="stateful")
+    mode = make_mode(cfg, make_data(ds.train, sur.norm, torch.device("cpu")), sur)
+    drawn = sum(len(b) for b in mode.batches(np.random.default_rng(0), 1))
+    est = estimate_work(cfg, ds, cpus=1)
+    assert est is not None and drawn == est.n_seq == sequence_cap(250, seq_len=40, burn_in=10)
+    assert est.n_seq == 250 // 31 < estimate_work(replace(cfg, epoch_samples=0), ds).n_seq

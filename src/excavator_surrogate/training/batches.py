@@ -128,6 +128,15 @@ def sequence_starts(
     return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
 
 
+def sequence_cap(epoch_samples: int, *, seq_len: int, burn_in: int) -> int | None:
+    """Most sub-sequences an epoch trains under a cap of ``epoch_samples`` target samples
+    (None: no cap, ``epoch_samples`` 0), each sub-sequence holding ``seq_len - burn_in + 1``
+    targets; at least one."""
+    if epoch_samples <= 0:
+        return None
+    return max(1, epoch_samples // (seq_len - burn_in + 1))
+
+
 def global_batches(order: np.ndarray, size: int) -> list[np.ndarray]:
     """``order`` cut into consecutive batches of ``size`` (the last one may be short)."""
     return [order[b : b + size] for b in range(0, len(order), size)]

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 
 from ..cpus import usable_cpus
 from ..data.dataset import Dataset
-from .batches import val_min_steps
+from .batches import sequence_cap, val_min_steps
 from .config import TrainConfig
 from .plan import (
     STEP_NET,
@@ -43,11 +43,12 @@ from .selection import validation_start
 
 @dataclass(frozen=True)
 class SpeedRatio:
-    """A config's network's time over the recipe's (:data:`~.plan.STEP_NET`), both timed on
-    this computer side by side (:func:`~.speed_probe.measure_speed`)."""
+    """A config's network's time over the recipe's (:data:`~.plan.STEP_NET` in
+    :data:`~.plan.STEP_SHAPE`'s sub-sequences), both timed on this computer side by side
+    (:func:`~.speed_probe.measure_speed`)."""
 
     train: float
-    """An epoch's training steps (per loss sample, the same sub-sequences)."""
+    """Training, per sub-sequence step (burn-in included), each in its own sub-sequences."""
     val: float
     """An epoch's validation free run (two candidates, the same episodes)."""
     seconds: float = 0.0
@@ -179,11 +180,12 @@ def estimate_sizes(
         seq_len=cfg.seq_len,
         burn_in=cfg.burn_in,
     )
-    if cfg.epoch_samples > 0:  # the epoch's cap, as Stateful.batches cuts its starts
-        n_seq = min(n_seq, max(1, cfg.epoch_samples // (cfg.seq_len - cfg.burn_in + 1)))
+    cap = sequence_cap(cfg.epoch_samples, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
+    if cap is not None:  # the epoch's cap, as Stateful.batches cuts its starts
+        n_seq = min(n_seq, cap)
     if cfg.val_steps > 0:  # validation runs truncated to val_steps samples
         val_steps = min(val_steps, cfg.val_steps)
-    # the reference network's batches: a measured speed ratio (per loss sample) scales these
+    # the reference network's batches: a measured speed ratio (per step) scales these
     ref_batch = int(STEP_NET["seq_batch"])  # type: ignore[call-overload]
     train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch)
     cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch, val_steps=val_steps)

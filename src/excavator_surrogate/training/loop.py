@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from .. import numerics
-from ..config import to_dict
 from ..data.dataset import Dataset
 from ..data.episode import Episode
 from ..devices import resolve_device
@@ -156,18 +155,7 @@ def train_network(
             f"ignoring the exogenous inputs {list(wide_spec.u_names[spec.n_joint :])}: trained "
             "without their columns, stored with zero weights for them"
         )
-    net.to(par.device).train()
-    sur = Surrogate(
-        net=net,
-        spec=st.spec,
-        norm=st.norm.to(par.device),
-        model_cfg=st.model_cfg,
-        mode=cfg.mode,
-        train_config=to_dict(cfg),
-        metrics={},
-        name=cfg.cell,
-        end_stops=cfg.end_stops,
-    )
+    sur = st.surrogate(cfg, par.device)
     data = make_data(train_eps, st.norm, par.device)
     optim = Optimisation.build(cfg, sur)
     if st.train_state:

@@ -44,6 +44,7 @@ from .batches import (
     TrainData,
     bootstrap_counts,
     global_batches,
+    sequence_cap,
     sequence_starts,
     windowed_indices,
 )
@@ -206,8 +207,9 @@ class Stateful:
         cfg = self.cfg
         starts = sequence_starts(self.data, cfg.seq_len, cfg.burn_in, rng, self._counts)
         rng.shuffle(starts)
-        if cfg.epoch_samples > 0:
-            starts = starts[: max(1, cfg.epoch_samples // (cfg.seq_len - cfg.burn_in + 1))]
+        cap = sequence_cap(cfg.epoch_samples, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
+        if cap is not None:
+            starts = starts[:cap]
         return global_batches(starts, cfg.seq_batch * world)
 
     def predict(self, net: Any, index: np.ndarray, epoch: int) -> Iterator[Piece]:

@@ -6,13 +6,16 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import torch
+
+from ..config import to_dict
 from ..data.episode import Episode
 from ..errors import CheckpointError
 from ..spec import MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
-from ..surrogate.model import ModelConfig, SurrogateNet
+from ..surrogate.model import ModelConfig, Surrogate, SurrogateNet
 from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import fit_prior, max_map_delay
 from .config import TrainConfig
@@ -50,6 +53,22 @@ class Start:
     """``last.pt``'s optimiser/scheduler/bookkeeping state (None: fresh run)."""
     history: list[dict[str, Any]] = field(default_factory=list)
     """``log.csv`` rows of the epochs already trained."""
+
+    def surrogate(self, cfg: TrainConfig, device: torch.device) -> Surrogate:
+        """The surrogate a training of ``cfg`` updates in place: this start's network, moved
+        to ``device`` in training mode, with its spec, normalisation and architecture."""
+        self.net.to(device).train()
+        return Surrogate(
+            net=self.net,
+            spec=self.spec,
+            norm=self.norm.to(device),
+            model_cfg=self.model_cfg,
+            mode=cfg.mode,
+            train_config=to_dict(cfg),
+            metrics={},
+            name=cfg.cell,
+            end_stops=cfg.end_stops,
+        )
 
     @property
     def epoch(self) -> int:

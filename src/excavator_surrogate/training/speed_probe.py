@@ -5,10 +5,11 @@ other stateful network (:meth:`~.estimate.WorkEstimate.with_speed`).
 
 ``exsur train --dry-run`` and ``exsur run --dry-run`` call it for a config the cost model does
 not cover, e.g. the demo's 64-unit network trained on its own free runs.  It trains two
-throwaway networks, the config's and the recipe's (the config with :data:`~.plan.STEP_NET`'s
-fields), on the same synthetic sub-sequences through the training loop's own epoch
-(:func:`~.loop.run_epoch`), in alternating bursts of :data:`PROBE_SECONDS`, and free-runs
-each on the same validation episodes (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`,
+throwaway networks, the config's and the reference (:func:`reference_config`: the config with
+:data:`~.plan.STEP_NET`'s network in :data:`~.plan.STEP_SHAPE`'s sub-sequences), on copies
+of the same synthetic episodes through the training loop's own epoch
+(:func:`~.loop.run_epoch`), in alternating bursts of :data:`PROBE_SECONDS`, timing each per
+sub-sequence step, and free-runs each on the same validation episodes (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`,
 the two candidates of an epoch).  The ratios are medians of :data:`PROBE_ROUNDS` bursts.
 
 Only a ratio leaves this module, never a time: the plan stays a function of the data, and the
@@ -32,7 +33,6 @@ from ..data.episode import Episode
 from ..devices import resolve_device, torch_threads
 from ..errors import ConfigError
 from ..spec import MachineSpec
-from ..surrogate.model import Surrogate
 from ..surrogate.synthetic import synthetic_episode, synthetic_spec
 from ..surrogate.validation import free_run_errors
 from .batches import make_data
@@ -77,7 +77,7 @@ def reference_config(cfg: TrainConfig) -> TrainConfig:
 
 
 def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
-    """Time ``cfg``'s network against the recipe's (:data:`~.plan.STEP_NET`) on this computer.
+    """Time ``cfg``'s network against the reference (:func:`reference_config`) on this computer.
 
     Args:
         cfg: a stateful training config (its network, sub-sequences, feedback, threads).
@@ -142,24 +142,14 @@ class ThrowawayNetwork:
         train_eps: list[Episode],
         val_eps: list[Episode],
     ) -> None:
-        mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
-        st = start(cfg, mcfg, spec, train_eps, None)
+        cpu = torch.device("cpu")
+        st = start(cfg, cfg.model_config(cfg.n_feature(spec), spec.n_joint), spec, train_eps, None)
         self.cfg, self.val_eps = cfg, val_eps
-        self.net = st.net.train()
-        self.sur = Surrogate(
-            net=self.net,
-            spec=st.spec,
-            norm=st.norm,
-            model_cfg=mcfg,
-            mode=cfg.mode,
-            train_config={},
-            metrics={},
-            name=cfg.cell,
-            end_stops=cfg.end_stops,
-        )
-        par = SingleProcess(device=torch.device("cpu"))
+        self.sur = st.surrogate(cfg, cpu)  # as the training loop builds it
+        self.net = self.sur.net
+        par = SingleProcess(device=cpu)
         self.optim = Optimisation.build(cfg, self.sur)
-        self.mode = make_mode(cfg, make_data(train_eps, st.norm, torch.device("cpu")), self.sur)
+        self.mode = make_mode(cfg, make_data(train_eps, st.norm, cpu), self.sur)
         self.epoch: Callable[..., tuple[float, int]] = lambda past, epoch: run_epoch(
             self.mode,
             self.net,
