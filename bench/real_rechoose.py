@@ -23,7 +23,8 @@ as no wall-time cap cut them).
 
 ``--set`` changes the ``[train]`` fields the choices read (``prior_choice``, ``prior_drive``,
 ``prior_margin``, ``prior_blend``, ``prior_skip_pinned``, ``static_map``, ``map_periodic``,
-``map_parallel``; e.g. ``--set train.prior_drive=validation``, the choice of sessions 25-86).
+``map_parallel``, ``map_blocks``; e.g. ``--set train.prior_drive=validation``, the choice of
+sessions 25-86, or ``--set train.map_blocks=false``, the map choice before session 100).
 ``--sim-seed`` must be the one the
 run simulated (its JSON line's ``sim_seed``).  Prints each seed's choices and a table per
 scored set, and ends with ONE JSON line whose ``goals`` say whether the median beats the

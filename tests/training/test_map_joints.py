@@ -264,6 +264,7 @@ def test_a_periodic_joint_the_map_runs_badly_is_chosen_as_any_joint() -> None:
 def test_the_all_map_set_reuses_the_all_map_free_run(monkeypatch) -> None:
     """With every joint a candidate on one map, the set of all of them is the all-map free run
     that scored the candidates: it is not run again, and it scores as a fresh run of it."""
+    import excavator_surrogate.training.map_blocks as mb
     import excavator_surrogate.training.map_joints as mj
     import excavator_surrogate.training.sets as sets
 
@@ -274,7 +275,8 @@ def test_the_all_map_set_reuses_the_all_map_free_run(monkeypatch) -> None:
         calls.append(sur)
         return real(sur, episodes, **kw)
 
-    monkeypatch.setattr(mj, "free_run_error", counting)  # the candidates' runs
+    monkeypatch.setattr(mj, "free_run_error", counting)  # the network's run
+    monkeypatch.setattr(mb, "free_run_error", counting)  # the all-map run
     monkeypatch.setattr(sets, "free_run_error", counting)  # the sets' runs
     train = [_static_episode(s) for s in range(3)]
     val = [_static_episode(s) for s in (7, 8)]

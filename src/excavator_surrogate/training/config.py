@@ -200,6 +200,11 @@ class TrainConfig(PresetConfig, table="train"):
     """With ``static_map``: when the validation episodes hold at least this share of the
     training's samples, the joints on the map take it fitted again on both splits after the
     choice (:func:`~.map_joints.refit_map`; 0 = never)."""
+    map_blocks: bool = True
+    """With ``static_map`` and one validation episode: a joint the map ties or beats on the
+    whole validation free run follows it only if it also does on both halves of the episode,
+    each free-run from its own warm-up (:mod:`.map_blocks`; ours, since session 100; false:
+    the whole run alone decides, as before)."""
     prior: bool = False
     """The head corrects a static per-joint valve map (dead zone, gain per direction, delay)
     fitted on the training split by least squares: ``omega[k+1] = s(u[k - d]) + net`` (ours,

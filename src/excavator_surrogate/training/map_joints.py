@@ -69,6 +69,7 @@ from ..surrogate.structured import (
 )
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
+from .map_blocks import all_on_map, check_blocks
 from .sets import SET_MARGIN, best_set
 from .span import joint_spans, span_note
 
@@ -107,6 +108,7 @@ def map_options(cfg: TrainConfig) -> dict[str, Any]:
         "end_stops": cfg.map_stops_at_range,
         "min_span": cfg.choice_min_span,
         "refit_share": cfg.map_refit_share,
+        "blocks": cfg.map_blocks,
     }
 
 
@@ -144,22 +146,6 @@ def refit_due(train: Sequence[Episode], val: Sequence[Episode], *, share: float)
     return ratio if share > 0 and ratio >= share else None
 
 
-def _all_on_map(
-    sur: Surrogate,
-    fit: Mapping[str, Any],
-    val: Sequence[Episode],
-    *,
-    stops: tuple[Any, Any] | None,
-    max_steps: int | None,
-) -> dict[str, Any]:
-    """The validation free run of ``sur`` with every joint on the map ``fit``: a map joint's
-    angle depends on its own command only, so each joint scores as its map alone."""
-    on_map = [True] * sur.spec.n_joint
-    return free_run_error(
-        with_map_joints(sur, fit, on_map, map_stops=stops), list(val), max_steps=max_steps
-    )
-
-
 def _delayed_map(
     sur: Surrogate,
     train: Sequence[Episode],
@@ -173,7 +159,7 @@ def _delayed_map(
     ``end_stops``), and the validation free run of every joint on that map alone."""
     fit = fit_prior(train, sur.spec, max_delay=max_map_delay(sur.window, sur.spec))
     stops = map_end_stops(train) if end_stops and sur.end_stops else None
-    return fit, stops, _all_on_map(sur, fit, val, stops=stops, max_steps=max_steps)
+    return fit, stops, all_on_map(sur, fit, val, stops=stops, max_steps=max_steps)
 
 
 def _runs_well(run: Mapping[str, Any], *, periodic: bool, spanned: Sequence[bool]) -> list[bool]:
@@ -197,6 +183,7 @@ def pinned_joints(
     end_stops: bool = True,
     min_span: float = MIN_SPAN,
     refit_share: float = 0.0,
+    blocks: bool = True,
 ) -> list[bool]:
     """The joints that :func:`choose_map_joints` (with the same options) puts on the map
     whatever the network: with ``periodic``, a joint (a periodic one; with ``parallel``, any)
@@ -204,9 +191,9 @@ def pinned_joints(
     :data:`PERIODIC_MAP_R2`.  A map joint's angle depends on its own command only, so this
     reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
     before the map choice on other networks of the same run, gets the same joints
-    (``record["pinned"]`` of the map choice; ``refit_share`` changes the map after the choice,
-    not which joints it pins)."""
-    del refit_share
+    (``record["pinned"]`` of the map choice; ``refit_share`` changes the map after the choice
+    and ``blocks`` checks the other candidates, neither changes which joints it pins)."""
+    del refit_share, blocks
     if not periodic:
         return [False] * sur.spec.n_joint
     _, spanned = joint_spans(train, val, sur.spec, min_span=min_span)
@@ -228,6 +215,7 @@ def choose_map_joints(
     end_stops: bool = True,
     min_span: float = MIN_SPAN,
     refit_share: float = 0.0,
+    blocks: bool = True,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The surrogate with the chosen joints on the static map, or None to keep ``sur``.
 
@@ -250,6 +238,9 @@ def choose_map_joints(
             samples (0: never), the joints on the map take it fitted again on both splits
             after the choice (:func:`refit_map`; each keeps its variant), and their end stops
             from both; the model's validation scores are then in-sample on those joints.
+        blocks: on a single validation episode, a candidate (one not pinned by the R^2 rule
+            in parallel) must also be within :data:`MAP_TIE` of the network on both of its
+            halves (:mod:`.map_blocks`).
 
     Returns:
         ``(new or None, record)``; ``record`` holds the map, both validation scores, the
@@ -261,7 +252,7 @@ def choose_map_joints(
     fits, runs = [delayed], [run]
     if any(delayed["delay"]):  # the same map without delays: chosen per joint on validation
         fits.append(fit_prior(train, spec))
-        runs.append(_all_on_map(sur, fits[1], val, stops=stops, max_steps=max_steps))
+        runs.append(all_on_map(sur, fits[1], val, stops=stops, max_steps=max_steps))
     net = free_run_error(sur, list(val), max_steps=max_steps)
     scores = [r["theta_rmse"] for r in runs]
     spans, spanned = joint_spans(train, val, spec, min_span=min_span)
@@ -277,6 +268,12 @@ def choose_map_joints(
         bool(not p and s and m <= (1 + MAP_TIE) * e)
         for p, s, m, e in zip(pinned, spanned, map_rmse, net["theta_rmse"])
     ]
+    check = [bool(blocks and c and not (parallel and g)) for c, g in zip(cand, good)]
+    checked = check_blocks(
+        sur, fits, pick, val, check, stops=stops, max_steps=max_steps, names=names, tie=MAP_TIE
+    )
+    if checked is not None:
+        cand = [c and n not in checked["refused"] for c, n in zip(cand, names)]
     record: dict[str, Any] = {
         "names": names,
         "map": {
@@ -301,6 +298,7 @@ def choose_map_joints(
             }
         ),
         "pinned": [n for n, p in zip(names, pinned) if p],
+        **({"blocks": checked} if checked is not None else {}),
         "span": spans,
         "min_span": min_span,
         "unspanned": [n for n, s in zip(names, spanned) if not s],
@@ -334,6 +332,7 @@ def choose_map_joints(
             f"training's command range beyond the dead zone, below {100 * min_span:.0f} %: the "
             f"network keeps {'them' if spanned.count(False) > 1 else 'it'}; "
         )
+    lead += _refused_note(record, "; ")
     # the series choice: which joints it keeps on the map, its model (None: the network) and
     # its validation scores (None: not run yet; in parallel neither is needed)
     kept: list[bool] = list(pinned)
@@ -460,6 +459,8 @@ def choose_parallel(
     rest = [n for n, k, g in zip(names, kept, good) if k and not g]
     if rest:
         parts.append(f"{', '.join(rest)}: within {MAP_TIE:.0%} of the network, kept as a set")
+    if refused := _refused_note(record):
+        parts.append(refused)
     record["why"] = (
         f"{', '.join(record['chosen'])} follow(s) the static map in parallel (the network "
         f"reads its own angles): {'; '.join(parts)}; validation error {got['val_error']:.4g} "
@@ -473,6 +474,18 @@ def choose_parallel(
     )
     record["parallel"] = {"val_error": got["val_error"], "val_theta_rmse": got["theta_rmse"]}
     return _chosen(model, got), record
+
+
+def _refused_note(record: Mapping[str, Any], end: str = "") -> str:
+    """The ``why`` of the candidates the block check refused (``record["blocks"]``), or ""."""
+    refused = (record.get("blocks") or {}).get("refused") or []
+    if not refused:
+        return ""
+    return (
+        f"{', '.join(refused)}: the map within {MAP_TIE:.0%} of the network or better on the "
+        f"whole validation free run, not on both of {record['blocks']['what']}: the "
+        f"network keeps {'them' if len(refused) > 1 else 'it'}{end}"
+    )
 
 
 def _chosen(model: Surrogate | None, got: Mapping[str, Any]) -> Surrogate | None:
