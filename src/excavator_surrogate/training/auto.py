@@ -365,7 +365,8 @@ def auto_config(
     why.append(
         "static valve map as a candidate per joint: a joint follows the map (dead zone, gain "
         "per direction, delay) if its validation free run is within 5 % of the network's (a "
-        "near tie goes to the simpler model), and any joint whose map with its fitted delay "
+        "near tie goes to the simpler model; on one validation segment, on both its halves "
+        "too), and any joint whose map with its fitted delay "
         f"alone runs the validation with angle R^2 >= {PERIODIC_MAP_R2:g} follows it; in "
         "parallel: the networks keep reading their own angles of the map joints, so no map "
         "joint moves the others; only on a joint whose validation commands span at least "

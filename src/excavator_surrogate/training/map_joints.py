@@ -14,8 +14,8 @@ per joint, chosen on the validation free run like an epoch is:
    delay is not 0, the map with delay 0 is fitted too;
 2. free-run the validation episodes with every joint on the map (on each map, if two); each
    joint takes the map that drives it better there, and the joints whose angle RMSE on it is
-   at most :data:`MAP_TIE` above the network's are the candidates (a near tie goes to the
-   simpler model: it is the one that generalises off the training conditions);
+   at most :data:`MAP_TIE` above the network's, on one validation episode on both its halves
+   too (:mod:`.map_blocks`), are the candidates (a near tie goes to the simpler model);
 3. try them together, then each alone (:func:`~excavator_surrogate.surrogate.structured.with_map_joints`:
    those joints follow the map, the others keep the network's output exactly);
 4. keep the best set whose validation error is at most :data:`SET_MARGIN` above the
