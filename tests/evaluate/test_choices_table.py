@@ -99,3 +99,25 @@ def test_linear_joints_print_in_their_own_unit() -> None:
     assert "in the joint's unit" in text
     assert _row(text, "Boom [mm]") == ["54.7000", "**43.1000**", "1.27"]
     assert _row(text, "Swing [rad]") == ["**0.1300**", "0.1200", "0.92"]
+
+
+def test_a_map_refused_on_the_validation_halves_is_explained() -> None:
+    """The map validated better over the whole segment yet the networks drive the boom: the
+    table says why, with the halves' scores."""
+    smap = {
+        **MAP,
+        "chosen": ["swing"],
+        "blocks": {
+            "what": "the validation episode's halves",
+            "tie": 0.05,
+            "checked": ["boom"],
+            "val_theta_rmse_network": [[0.1, 0.0422, 0.2, 0.1], [0.1, 0.0449, 0.2, 0.1]],
+            "val_theta_rmse_map": [[0.1, 0.0534, 0.3, 0.2], [0.1, 0.0260, 0.3, 0.2]],
+            "refused": ["boom"],
+        },
+    }
+    text = choices_markdown({"kinds": KINDS, "static_map": smap})
+    assert "Not on the static map although it validated within 5% of the networks" in text
+    assert "Boom (map against networks: 0.0534 against 0.0422 and 0.0260 against 0.0449)" in text
+    assert "map_blocks=false" in text
+    assert "Not on the static map" not in choices_markdown({"kinds": KINDS, "static_map": MAP})

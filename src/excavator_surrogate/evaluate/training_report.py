@@ -150,6 +150,7 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
             "parentheses), as one validation segment misranked them off the training's "
             "conditions (`--set train.prior_drive=validation` compares them).",
         ]
+    lines += _halves_note(smap, spec)
     if close:
         lines += [
             "",
@@ -160,6 +161,34 @@ def choices_markdown(training: Mapping[str, Any], *, spec: MachineSpec | None = 
             "drives those joints.",
         ]
     return "\n".join(lines) + "\n"
+
+
+def _halves_note(smap: Mapping[str, Any] | None, spec: MachineSpec | None) -> list[str]:
+    """The lines on the joints the static map validated as well as the networks over the
+    whole validation segment but not on both halves (``static_map.blocks``), or none."""
+    if not smap:
+        return []
+    blocks, names = smap.get("blocks") or {}, list(smap.get("names") or [])
+    refused = [n for n in blocks.get("refused") or [] if n in names]
+    if not refused:
+        return []
+    net, amap = blocks["val_theta_rmse_network"], blocks["val_theta_rmse_map"]
+    parts = []
+    for name in refused:
+        j = names.index(name)
+        label, f = row_label(spec, "theta", name)
+        halves = " and ".join(
+            f"{format_value(m[j], f)} against {format_value(n[j], f)}" for n, m in zip(net, amap)
+        )
+        parts.append(f"{label} (map against networks: {halves})")
+    return [
+        "",
+        f"Not on the static map although it validated within {blocks['tie']:.0%} of "
+        f"the networks, or better, over the whole segment: {'; '.join(parts)}, on the two "
+        "halves of the one validation episode. On one segment a single excursion can make "
+        "that tie, so the map must hold on both halves (`--set train.map_blocks=false` lets "
+        "the whole segment decide).",
+    ]
 
 
 def _inputs_markdown(record: Mapping[str, Any] | None, *, kinds: bool = False) -> str:

@@ -142,6 +142,7 @@ def check_blocks(
     held = held_on_blocks(net_b, map_b, tie=tie)
     return {
         "what": what,
+        "tie": tie,
         "checked": [n for n, c in zip(names, check) if c],
         "val_theta_rmse_network": net_b,
         "val_theta_rmse_map": map_b,
