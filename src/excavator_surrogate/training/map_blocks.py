@@ -16,7 +16,8 @@ Evidence (``docs/real-history.md``, session 100; computer B, seeds 0 / 10 / 20):
   networks, the boom's worst seed falls from 2.11x to 1.10x the median;
 - the 7-minute loader's boom, on the map in seeds 0 and 10 (a tie on the first half, 31-45 %
   worse on the second): the test median 4.06 -> 3.06 deg, the log's continuation 4.80 ->
-  5.23 deg (the structured model's 3.03 and 5.37);
+  5.23 deg (the structured model's 3.03 and 5.37); on another simulated 7-minute log the
+  one seed it changed traded the other way (test 3.11 -> 3.74, continuation 5.01 -> 4.43);
 - with two validation sessions as blocks, the second sessions log's arm would have left the
   map in seed 10 (lost one session of two) and scored the test 12 % and the 12 more
   sessions 10 % worse: so episodes are not blocks.
