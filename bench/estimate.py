@@ -4,7 +4,8 @@
 cover against the recipe's (``training/speed_probe.py``: about 5 s of short bursts on copies
 of two synthetic episodes) and scale the reference machine's times by the ratio.  This
 checks that ratio against the one whole epochs give: for each config below, the config's
-network and the reference network (the config with ``plan.STEP_NET``'s fields) train
+network and the reference network (``speed_probe.reference_config``: ``plan.STEP_NET``'s
+network in ``plan.STEP_SHAPE``'s sub-sequences) train
 :data:`EPOCHS` whole epochs each, alternately, on a training split the size of a real one
 (:data:`N_EPISODE` synthetic episodes of :data:`N_STEP` samples), and free-run the demo's
 validation shape (two episodes of 2000 samples); then the probe runs as a dry run runs it.
@@ -25,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import statistics
 import time
 from dataclasses import replace
 
@@ -37,9 +37,9 @@ from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.config import TrainConfig
 from excavator_surrogate.training.speed_probe import (
-    ThrowawayNetwork,
     measure_speed,
     reference_config,
+    side_by_side,
 )
 
 N_EPISODE = 40
@@ -73,24 +73,17 @@ def _configs(ds: Dataset) -> dict[str, TrainConfig]:
 
 
 def whole_epochs(cfg: TrainConfig, ds: Dataset, *, epochs: int) -> tuple[float, float]:
-    """``cfg``'s network over the reference network: (training time per loss sample over
-    ``epochs`` whole epochs, validation free-run time), alternating, medians."""
-    ref = reference_config(cfg)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(0)
-        nets = [ThrowawayNetwork(c, ds.spec, ds.train, ds.val) for c in (cfg, ref)]
-        for n in nets:  # warm-up
-            n.train_burst(0.5)
-            n.validate()
-        train_s: list[list[float]] = [[], []]
-        val_s: list[list[float]] = [[], []]
-        for _ in range(epochs):
-            for k, n in enumerate(nets):
-                train_s[k].append(n.train_epoch())
-                val_s[k].append(n.validate())
-    tr = [statistics.median(s) for s in train_s]
-    va = [statistics.median(s) for s in val_s]
-    return tr[0] / tr[1], va[0] / va[1]
+    """``cfg``'s network over the reference network: (training time per sub-sequence step
+    over ``epochs`` whole epochs, validation free-run time), alternating, medians."""
+    return side_by_side(
+        (cfg, reference_config(cfg)),
+        ds.spec,
+        ds.train,
+        ds.val,
+        rounds=epochs,
+        train=lambda n: n.train_epoch(),
+        warmup_s=0.5,
+    )
 
 
 def main() -> None:

@@ -102,23 +102,52 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
     train_eps = eps * max(1, -(-want // (2 * per_ep)))
     val_eps = [synthetic_episode(spec, n_step=1000, seed=10 + k) for k in range(2)]
     t0 = time.perf_counter()
+    train, val = side_by_side(
+        (cfg, ref_cfg),
+        spec,
+        train_eps,
+        val_eps,
+        rounds=PROBE_ROUNDS,
+        train=lambda p: p.train_burst(PROBE_SECONDS),
+    )
+    return SpeedRatio(train=train, val=val, seconds=time.perf_counter() - t0)
+
+
+def side_by_side(
+    cfgs: tuple[TrainConfig, TrainConfig],
+    spec: MachineSpec,
+    train_eps: list[Episode],
+    val_eps: list[Episode],
+    *,
+    rounds: int,
+    train: Callable[[ThrowawayNetwork], float],
+    warmup_s: float | None = None,
+) -> tuple[float, float]:
+    """A throwaway network of each of ``cfgs`` timed in alternation, ``rounds`` times each,
+    after a warm-up: ``(training, validation)``, the first's median time over the second's.
+
+    Args:
+        train: one timed piece of training of a network, returning its time per
+            sub-sequence step [s] (:meth:`ThrowawayNetwork.train_burst` or
+            :meth:`ThrowawayNetwork.train_epoch`).
+        warmup_s: the untimed burst each network trains first [s] (None: half of
+            :data:`PROBE_SECONDS`).
+    """
     with torch.random.fork_rng(devices=[]):  # NumPy draws only from explicit generators
         torch.manual_seed(0)
-        probes = [ThrowawayNetwork(c, spec, train_eps, val_eps) for c in both]
+        probes = [ThrowawayNetwork(c, spec, train_eps, val_eps) for c in cfgs]
         for p in probes:  # warm-up: first calls allocate and pick kernels
-            p.train_burst(PROBE_SECONDS / 2)
+            p.train_burst(PROBE_SECONDS / 2 if warmup_s is None else warmup_s)
             p.validate()
         train_s: list[list[float]] = [[], []]
         val_s: list[list[float]] = [[], []]
-        for _ in range(PROBE_ROUNDS):  # alternating: a drift in speed hits both alike
+        for _ in range(rounds):  # alternating: a drift in speed hits both alike
             for k, p in enumerate(probes):
-                train_s[k].append(p.train_burst(PROBE_SECONDS))
+                train_s[k].append(train(p))
                 val_s[k].append(p.validate())
     med = [statistics.median(s) for s in train_s]
     med_val = [statistics.median(s) for s in val_s]
-    return SpeedRatio(
-        train=med[0] / med[1], val=med_val[0] / med_val[1], seconds=time.perf_counter() - t0
-    )
+    return med[0] / med[1], med_val[0] / med_val[1]
 
 
 def _on_gpu(cfg: TrainConfig) -> bool:
