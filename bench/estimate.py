@@ -15,7 +15,9 @@ at 64 units, the demo's (``quick-hydraulic``: 64 units, free-run feedback, batch
 the velocity input) and ``paper-noload``'s.
 
 Goals: the probe's training ratio within :data:`GOAL_TRAIN` of the whole epochs' for every
-config (it is most of a training's time), its validation ratio within :data:`GOAL_VAL`.
+config (it is most of a training's time), and so is its ratio in a free-run-feedback config's
+teacher-forced epochs (the demo's and ``paper-noload``'s first 3, timed as epoch 0); its
+validation ratio within :data:`GOAL_VAL`.
 Ends with one JSON line with a ``goals`` object of booleans.  Usage::
 
     python bench/estimate.py            # one core per network, as the trainings run; ~3 min
@@ -27,6 +29,7 @@ import argparse
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import replace
 
 import torch
@@ -36,7 +39,9 @@ from excavator_surrogate.pipeline import resolve_run
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.config import TrainConfig
+from excavator_surrogate.training.estimate import teacher_forced_epochs
 from excavator_surrogate.training.speed_probe import (
+    ThrowawayNetwork,
     measure_speed,
     reference_config,
     side_by_side,
@@ -72,18 +77,25 @@ def _configs(ds: Dataset) -> dict[str, TrainConfig]:
     }
 
 
-def whole_epochs(cfg: TrainConfig, ds: Dataset, *, epochs: int) -> tuple[float, float]:
+def whole_epochs(
+    cfg: TrainConfig, ds: Dataset, *, epochs: int
+) -> tuple[float, float | None, float]:
     """``cfg``'s network over the reference network: (training time per sub-sequence step
-    over ``epochs`` whole epochs, validation free-run time), alternating, medians."""
-    return side_by_side(
+    over ``epochs`` whole epochs, the same in its teacher-forced warm-up's epochs (None
+    without one), validation free-run time), alternating, medians."""
+    pieces: list[Callable[[ThrowawayNetwork], float]] = [lambda n: n.train_epoch()]
+    if teacher_forced_epochs(cfg):
+        pieces.append(lambda n: n.train_epoch(epoch=0))
+    train, val = side_by_side(
         (cfg, reference_config(cfg)),
         ds.spec,
         ds.train,
         ds.val,
         rounds=epochs,
-        train=lambda n: n.train_epoch(),
+        train=pieces,
         warmup_s=0.5,
     )
+    return train[0], (train[1] if len(train) > 1 else None), val
 
 
 def main() -> None:
@@ -99,7 +111,7 @@ def main() -> None:
     rows: dict[str, dict[str, float]] = {}
     t0 = time.perf_counter()
     for name, cfg in _configs(ds).items():
-        train_r, val_r = whole_epochs(cfg, ds, epochs=args.epochs)
+        train_r, teacher_r, val_r = whole_epochs(cfg, ds, epochs=args.epochs)
         probe = measure_speed(cfg, n_joint=spec.n_joint)
         rows[name] = {
             "epochs_train_ratio": train_r,
@@ -111,15 +123,28 @@ def main() -> None:
             "probe_s": probe.seconds,
         }
         r = rows[name]
-        print(
+        line = (
             f"{name:13s} training: whole epochs {train_r:.2f}x, probe {probe.train:.2f}x "
-            f"({r['train_probe_over_epochs']:.2f}); validation: {val_r:.2f}x, probe "
-            f"{probe.val:.2f}x ({r['val_probe_over_epochs']:.2f}); probe {probe.seconds:.1f} s",
-            flush=True,
+            f"({r['train_probe_over_epochs']:.2f}); "
         )
+        if teacher_r is not None and probe.teacher is not None:
+            r.update(
+                epochs_teacher_ratio=teacher_r,
+                probe_teacher_ratio=probe.teacher,
+                teacher_probe_over_epochs=probe.teacher / teacher_r,
+            )
+            line += (
+                f"teacher-forced: {teacher_r:.2f}x, probe {probe.teacher:.2f}x "
+                f"({r['teacher_probe_over_epochs']:.2f}); "
+            )
+        line += (
+            f"validation: {val_r:.2f}x, probe {probe.val:.2f}x "
+            f"({r['val_probe_over_epochs']:.2f}); probe {probe.seconds:.1f} s"
+        )
+        print(line, flush=True)
 
     def within(key: str, factor: float) -> bool:
-        return all(abs(math.log(r[key])) <= math.log(factor) for r in rows.values())
+        return all(abs(math.log(r[key])) <= math.log(factor) for r in rows.values() if key in r)
 
     out = {
         "bench": "estimate",
@@ -128,6 +153,7 @@ def main() -> None:
         "configs": rows,
         "goals": {
             "probe_train_within": within("train_probe_over_epochs", GOAL_TRAIN),
+            "probe_teacher_within": within("teacher_probe_over_epochs", GOAL_TRAIN),
             "probe_val_within": within("val_probe_over_epochs", GOAL_VAL),
         },
     }

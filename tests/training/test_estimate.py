@@ -185,6 +185,40 @@ def test_a_measured_speed_ratio_times_another_network():
         timed.with_speed(SpeedRatio(train=1.0, val=1.0))
 
 
+def test_a_free_run_feedback_config_prices_its_teacher_forced_epochs_apart():
+    """A ``feedback = "free"`` config trains its first ``teacher_epochs`` teacher-forced (about
+    half the cost of a free-run epoch): the estimate counts them (never more than the
+    epochs), times them by their own ratio, and a ratio without one is refused."""
+    ds = _dataset([600] * 10, val=[200])
+    cfg, _ = auto_config(ds, cpus=2)
+    free = replace(cfg, hidden=64, feedback="free", teacher_epochs=3)
+    est = estimate_work(free, ds, cpus=2)
+    ref = estimate_work(cfg, ds, cpus=2)
+    assert est is not None and ref is not None and not est.timed
+    assert est.teacher_epochs == 3 and est.teacher_train_s == est.train_s == ref.train_s
+    assert est.steps_s == pytest.approx(est.epochs * ref.train_s)  # unscaled: all alike
+    with pytest.raises(ValueError, match="must time them"):
+        est.with_speed(SpeedRatio(train=0.5, val=0.25))
+    timed = est.with_speed(SpeedRatio(train=0.5, val=0.25, teacher=0.3, seconds=6.0))
+    steps = (est.epochs - 3) * 0.5 * ref.train_s + 3 * 0.3 * ref.train_s
+    assert timed.steps_s == pytest.approx(steps)
+    assert timed.training_s == pytest.approx(steps + est.validated * 0.25 * ref.val_s)
+    lines = describe_work(timed)
+    assert f"({timed.steps_s:.0f} s of training steps," in lines[1]
+    assert (
+        "0.50x on the training steps (0.30x in the 3 teacher-forced epoch(s) before the "
+        "free-run feedback), 0.25x on validation" in lines[2]
+    )
+    # every epoch is teacher-forced in the recipe's feedback, whatever teacher_epochs says
+    taught = estimate_work(replace(cfg, hidden=64, teacher_epochs=3), ds, cpus=2)
+    assert taught is not None and taught.teacher_epochs == 0
+    assert (
+        "teacher-forced" not in describe_work(taught.with_speed(SpeedRatio(train=0.5, val=0.25)))[2]
+    )
+    short = estimate_work(replace(free, epochs=2), ds, cpus=2)
+    assert short is not None and short.teacher_epochs == 2
+
+
 def test_a_cap_on_an_epochs_samples_and_on_validation_runs_is_counted():
     """``epoch_samples`` cuts an epoch's sub-sequences as ``Stateful.batches`` cuts its
     starts, ``val_steps`` the validation free runs: the recipe's network keeps its time."""

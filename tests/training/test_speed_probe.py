@@ -31,6 +31,32 @@ def test_the_probe_gives_ratios_and_leaves_the_global_state_alone():
     assert torch.equal(after, torch.rand(3))
     assert torch.get_num_threads() == threads
     assert all(math.isfinite(r) and r > 0 for r in (ratio.train, ratio.val, ratio.seconds))
+    assert ratio.teacher is not None and math.isfinite(ratio.teacher) and ratio.teacher > 0
+
+
+def test_a_free_run_feedback_is_timed_in_its_teacher_forced_epochs_too(monkeypatch):
+    """The bursts of a ``feedback = "free"`` config with ``teacher_epochs`` train as epoch 0
+    (teacher-forced, :mod:`~excavator_surrogate.training.modes`) beside those past its
+    warm-up; a teacher-forced config is timed once, with no warm-up ratio."""
+    epochs: list[int] = []
+    burst = speed_probe.ThrowawayNetwork.train_burst
+
+    def spy(self, seconds, *, epoch=speed_probe.PROBE_EPOCH):
+        epochs.append(epoch)
+        return burst(self, seconds, epoch=epoch)
+
+    monkeypatch.setattr(speed_probe.ThrowawayNetwork, "train_burst", spy)
+    cfg, _ = auto_config(_dataset([600] * 6, val=[300]), cpus=2)
+    small = replace(cfg, hidden=16, head_hidden=16, seq_len=40, burn_in=10)
+    free = replace(small, feedback="free", teacher_epochs=2)
+    assert speed_probe.PROBE_EPOCH >= free.teacher_epochs  # the main bursts run free
+    ratio = measure_speed(free, n_joint=3)
+    assert ratio.teacher is not None
+    timed = epochs[2:]  # after each network's warm-up burst
+    assert timed.count(0) == timed.count(speed_probe.PROBE_EPOCH) == 2 * speed_probe.PROBE_ROUNDS
+    epochs.clear()
+    assert measure_speed(small, n_joint=3).teacher is None
+    assert set(epochs) == {speed_probe.PROBE_EPOCH}
 
 
 def test_only_a_network_the_cost_model_does_not_cover_is_probed(monkeypatch):

@@ -51,6 +51,10 @@ class SpeedRatio:
     """Training, per sub-sequence step (burn-in included), each in its own sub-sequences."""
     val: float
     """An epoch's validation free run (two candidates, the same episodes)."""
+    teacher: float | None = None
+    """Training in the teacher-forced warm-up of a ``feedback = "free"`` config
+    (:func:`teacher_forced_epochs`), per sub-sequence step (None: no such warm-up, every epoch at
+    :attr:`train`)."""
     seconds: float = 0.0
     """Wall time the measurement took [s]."""
 
@@ -64,6 +68,9 @@ class WorkEstimate:
     """Training sub-sequences per epoch (the validation runs' too where they are trained on)."""
     epochs: int
     """Planned epochs of every network."""
+    teacher_epochs: int
+    """Of :attr:`epochs`, those trained teacher-forced before a ``feedback = "free"``
+    config's free-run feedback (:func:`teacher_forced_epochs`; they take :attr:`teacher_train_s`)."""
     members: int
     """Plain ensemble members."""
     map_correcting: int
@@ -78,6 +85,10 @@ class WorkEstimate:
     val_s: float
     """One epoch's validation on the reference machine [s] (both candidates, as planned; times
     :attr:`speed` where it was measured)."""
+    teacher_train_s: float
+    """One teacher-forced warm-up epoch's training steps on the reference machine [s] (:attr:`train_s`
+    until :attr:`speed` scales it by its own ratio: a teacher-forced epoch of a network
+    trained on its free runs costs about half of one of them)."""
     validated: int
     """Epochs validated (the last ones: :func:`~.selection.validation_start`)."""
     cap_s: float
@@ -99,13 +110,24 @@ class WorkEstimate:
     def with_speed(self, speed: SpeedRatio) -> WorkEstimate:
         """This estimate for a network that trains ``speed`` times as long as the reference's::
 
-        train_s' = train_s * speed.train
-        val_s'   = val_s * speed.val
+        train_s'         = train_s * speed.train
+        teacher_train_s' = teacher_train_s * speed.teacher   (speed.train where None)
+        val_s'           = val_s * speed.val
         """
         if self.speed is not None:
             raise ValueError("this estimate is already scaled by a measured speed")
+        if self.teacher_epochs and speed.teacher is None:
+            raise ValueError(
+                f"this estimate has {self.teacher_epochs} teacher-forced warm-up epoch(s): the "
+                "speed ratio must time them (SpeedRatio.teacher)"
+            )
+        teacher = speed.train if speed.teacher is None else speed.teacher
         return replace(
-            self, train_s=self.train_s * speed.train, val_s=self.val_s * speed.val, speed=speed
+            self,
+            train_s=self.train_s * speed.train,
+            teacher_train_s=self.teacher_train_s * teacher,
+            val_s=self.val_s * speed.val,
+            speed=speed,
         )
 
     @property
@@ -119,12 +141,22 @@ class WorkEstimate:
         return math.ceil(self.trainings / self.workers)
 
     @property
+    def steps_s(self) -> float:
+        """One network's training steps over its planned epochs on the reference machine [s]::
+
+        (epochs - teacher_epochs) * train_s + teacher_epochs * teacher_train_s
+        """
+        return (
+            self.epochs - self.teacher_epochs
+        ) * self.train_s + self.teacher_epochs * self.teacher_train_s
+
+    @property
     def training_s(self) -> float:
         """One network's planned epochs on the reference machine [s]::
 
-        epochs * train_s + validated * val_s
+        steps_s + validated * val_s
         """
-        return self.epochs * self.train_s + self.validated * self.val_s
+        return self.steps_s + self.validated * self.val_s
 
     @property
     def total_s(self) -> float:
@@ -198,18 +230,27 @@ def estimate_sizes(
     return WorkEstimate(
         n_seq=n_seq,
         epochs=cfg.epochs,
+        teacher_epochs=teacher_forced_epochs(cfg),
         members=members,
         map_correcting=n_prior,
         probes=n_probe,
         workers=max(1, workers),
         train_s=train_s,
         val_s=cost - train_s,
+        teacher_train_s=train_s,
         validated=max(0, cfg.epochs - start),
         cap_s=float(cfg.max_train_seconds or 0.0),
         unmodelled=tuple(
             f"{k} = {getattr(cfg, k)!r}" for k, v in STEP_NET.items() if getattr(cfg, k) != v
         ),
     )
+
+
+def teacher_forced_epochs(cfg: TrainConfig) -> int:
+    """Epochs a ``feedback = "free"`` config trains teacher-forced before its free-run
+    feedback (``teacher_epochs``, within its ``epochs``: :mod:`.modes`); 0 for a
+    teacher-forced config, all of whose epochs train alike."""
+    return min(cfg.teacher_epochs, cfg.epochs) if cfg.feedback == "free" else 0
 
 
 def describe_work(est: WorkEstimate | None) -> list[str]:
@@ -240,7 +281,7 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
         return lines
     lines.append(
         f"about {est.training_s:.0f} s a training on the reference machine "
-        f"({est.epochs * est.train_s:.0f} s of training steps, {est.validated} validated "
+        f"({est.steps_s:.0f} s of training steps, {est.validated} validated "
         f"epoch(s) {est.validated * est.val_s:.0f} s), {est.total_s:.0f} s for all of them (the "
         "choices after training not counted)"
     )
@@ -248,7 +289,8 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
         lines.append(
             f"scaled by this config's network ({', '.join(est.unmodelled)}) against the "
             f"reference's, timed on this computer just now: {est.speed.train:.2f}x on the "
-            f"training steps, {est.speed.val:.2f}x on validation (a {est.speed.seconds:.0f}-s "
+            f"training steps{_teacher_note(est)}, {est.speed.val:.2f}x on validation (a "
+            f"{est.speed.seconds:.0f}-s "
             "probe on throwaway networks; the ratio moves with the CPU's kernels and its load)"
         )
     if est.cap_s > 0:
@@ -262,3 +304,13 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
     else:
         lines.append("no wall-time cap: every planned epoch runs, however long it takes")
     return lines
+
+
+def _teacher_note(est: WorkEstimate) -> str:
+    """The measured ratio of ``est``'s teacher-forced warm-up epochs, for the speed line."""
+    if not est.teacher_epochs or est.speed is None or est.speed.teacher is None:
+        return ""
+    return (
+        f" ({est.speed.teacher:.2f}x in the {est.teacher_epochs} teacher-forced epoch(s) before the "
+        "free-run feedback)"
+    )

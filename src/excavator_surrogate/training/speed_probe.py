@@ -9,7 +9,8 @@ throwaway networks, the config's and the reference (:func:`reference_config`: th
 :data:`~.plan.STEP_NET`'s network in :data:`~.plan.STEP_SHAPE`'s sub-sequences), on copies
 of the same synthetic episodes through the training loop's own epoch
 (:func:`~.loop.run_epoch`), in alternating bursts of :data:`PROBE_SECONDS`, timing each per
-sub-sequence step, and free-runs each on the same validation episodes (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`,
+sub-sequence step (a ``feedback = "free"`` config also in its teacher-forced warm-up's epochs,
+which cost about half as much), and free-runs each on the same validation episodes (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`,
 the two candidates of an epoch).  The ratios are medians of :data:`PROBE_ROUNDS` bursts.
 
 Only a ratio leaves this module, never a time: the plan stays a function of the data, and the
@@ -23,7 +24,7 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -37,7 +38,7 @@ from ..surrogate.synthetic import synthetic_episode, synthetic_spec
 from ..surrogate.validation import free_run_errors
 from .batches import make_data
 from .config import TrainConfig
-from .estimate import SpeedRatio, WorkEstimate
+from .estimate import SpeedRatio, WorkEstimate, teacher_forced_epochs
 from .loop import run_epoch
 from .loss import default_loss
 from .modes import make_mode
@@ -48,7 +49,8 @@ from .resume import start
 
 PROBE_SECONDS = 0.4
 """Wall time of one timed burst of training [s] (the probe runs ``2 * PROBE_ROUNDS`` of
-them, plus a warm-up and the validation free runs: about 5 s in all)."""
+them, plus a warm-up and the validation free runs: about 5 s in all; a free-run feedback's
+teacher-forced epochs add as many bursts of half this, about 1 s)."""
 PROBE_ROUNDS = 3
 """Bursts per network; the ratio is of their medians."""
 PROBE_BATCHES = 4
@@ -84,8 +86,9 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
         n_joint: joints of the machine (the synthetic episodes' and the networks').
 
     Returns:
-        ``cfg``'s time over the reference network's, for an epoch's training steps and for
-        an epoch's validation free run.
+        ``cfg``'s time over the reference network's, for an epoch's training steps, for
+        those of its teacher-forced warm-up (:func:`~.estimate.teacher_forced_epochs`; ``None``
+        without one) and for an epoch's validation free run.
     """
     ref_cfg = reference_config(cfg)
     spec = synthetic_spec(n_joint, periodic_first=True)
@@ -101,16 +104,19 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
     want = PROBE_BATCHES * max(c.seq_batch for c in both)
     train_eps = eps * max(1, -(-want // (2 * per_ep)))
     val_eps = [synthetic_episode(spec, n_step=1000, seed=10 + k) for k in range(2)]
+    bursts: list[Callable[[ThrowawayNetwork], float]] = [lambda p: p.train_burst(PROBE_SECONDS)]
+    if teacher_forced_epochs(cfg) > 0:  # its teacher-forced epochs train at another speed
+        bursts.append(lambda p: p.train_burst(PROBE_SECONDS / 2, epoch=0))  # a tenth of them
     t0 = time.perf_counter()
     train, val = side_by_side(
-        (cfg, ref_cfg),
-        spec,
-        train_eps,
-        val_eps,
-        rounds=PROBE_ROUNDS,
-        train=lambda p: p.train_burst(PROBE_SECONDS),
+        (cfg, ref_cfg), spec, train_eps, val_eps, rounds=PROBE_ROUNDS, train=bursts
     )
-    return SpeedRatio(train=train, val=val, seconds=time.perf_counter() - t0)
+    return SpeedRatio(
+        train=train[0],
+        val=val,
+        teacher=train[1] if len(train) > 1 else None,
+        seconds=time.perf_counter() - t0,
+    )
 
 
 def side_by_side(
@@ -120,16 +126,18 @@ def side_by_side(
     val_eps: list[Episode],
     *,
     rounds: int,
-    train: Callable[[ThrowawayNetwork], float],
+    train: Sequence[Callable[[ThrowawayNetwork], float]],
     warmup_s: float | None = None,
-) -> tuple[float, float]:
+) -> tuple[list[float], float]:
     """A throwaway network of each of ``cfgs`` timed in alternation, ``rounds`` times each,
-    after a warm-up: ``(training, validation)``, the first's median time over the second's.
+    after a warm-up: ``(training, validation)``, the first's median time over the second's,
+    one training ratio for each of ``train``.
 
     Args:
-        train: one timed piece of training of a network, returning its time per
+        train: timed pieces of training of a network, each returning its time per
             sub-sequence step [s] (:meth:`ThrowawayNetwork.train_burst` or
-            :meth:`ThrowawayNetwork.train_epoch`).
+            :meth:`ThrowawayNetwork.train_epoch`, e.g. at two epochs); every round runs each
+            on both networks.
         warmup_s: the untimed burst each network trains first [s] (None: half of
             :data:`PROBE_SECONDS`).
     """
@@ -139,15 +147,18 @@ def side_by_side(
         for p in probes:  # warm-up: first calls allocate and pick kernels
             p.train_burst(PROBE_SECONDS / 2 if warmup_s is None else warmup_s)
             p.validate()
-        train_s: list[list[float]] = [[], []]
+        train_s = [[[] for _ in train] for _ in probes]  # [network][piece][round]
         val_s: list[list[float]] = [[], []]
         for _ in range(rounds):  # alternating: a drift in speed hits both alike
             for k, p in enumerate(probes):
-                train_s[k].append(train(p))
+                for j, piece in enumerate(train):
+                    train_s[k][j].append(piece(p))
                 val_s[k].append(p.validate())
-    med = [statistics.median(s) for s in train_s]
-    med_val = [statistics.median(s) for s in val_s]
-    return med[0] / med[1], med_val[0] / med_val[1]
+    ratios = [
+        statistics.median(train_s[0][j]) / statistics.median(train_s[1][j])
+        for j in range(len(train))
+    ]
+    return ratios, statistics.median(val_s[0]) / statistics.median(val_s[1])
 
 
 def _on_gpu(cfg: TrainConfig) -> bool:
@@ -193,23 +204,24 @@ class ThrowawayNetwork:
             show=lambda it, **kw: it,
         )
 
-    def train_burst(self, seconds: float) -> float:
-        """Train for about ``seconds`` (whole batches); the time per sub-sequence step [s]."""
+    def train_burst(self, seconds: float, *, epoch: int = PROBE_EPOCH) -> float:
+        """Train for about ``seconds`` (whole batches) as epoch ``epoch`` trains (0: a free-run
+        feedback's teacher-forced warm-up); the time per sub-sequence step [s]."""
         with torch_threads(self.cfg.num_threads or 1):
             self.net.train()
             t0 = time.perf_counter()
             deadline, total = t0 + seconds, 0
             while time.perf_counter() < deadline:
-                _, n = self.epoch(lambda: time.perf_counter() > deadline, PROBE_EPOCH)
+                _, n = self.epoch(lambda: time.perf_counter() > deadline, epoch)
                 total += n
             return self._per_step(time.perf_counter() - t0, total)
 
-    def train_epoch(self) -> float:
-        """Train one whole epoch; the time per sub-sequence step [s]."""
+    def train_epoch(self, *, epoch: int = PROBE_EPOCH) -> float:
+        """Train one whole epoch as epoch ``epoch`` trains; the time per sub-sequence step [s]."""
         with torch_threads(self.cfg.num_threads or 1):
             self.net.train()
             t0 = time.perf_counter()
-            _, n = self.epoch(lambda: False, PROBE_EPOCH)
+            _, n = self.epoch(lambda: False, epoch)
             return self._per_step(time.perf_counter() - t0, n)
 
     def _per_step(self, seconds: float, n_loss: int) -> float:
