@@ -53,8 +53,8 @@ class SpeedRatio:
     """An epoch's validation free run (two candidates, the same episodes)."""
     teacher: float | None = None
     """Training in the teacher-forced warm-up of a ``feedback = "free"`` config
-    (:func:`teacher_forced_epochs`), per sub-sequence step (None: no such warm-up, every epoch at
-    :attr:`train`)."""
+    (:func:`teacher_forced_epochs`), per sub-sequence step (None: no such warm-up, every
+    epoch at :attr:`train`)."""
     seconds: float = 0.0
     """Wall time the measurement took [s]."""
 
@@ -70,7 +70,8 @@ class WorkEstimate:
     """Planned epochs of every network."""
     teacher_epochs: int
     """Of :attr:`epochs`, those trained teacher-forced before a ``feedback = "free"``
-    config's free-run feedback (:func:`teacher_forced_epochs`; they take :attr:`teacher_train_s`)."""
+    config's free-run feedback (:func:`teacher_forced_epochs`; each takes
+    :attr:`teacher_train_s`)."""
     members: int
     """Plain ensemble members."""
     map_correcting: int
@@ -86,9 +87,9 @@ class WorkEstimate:
     """One epoch's validation on the reference machine [s] (both candidates, as planned; times
     :attr:`speed` where it was measured)."""
     teacher_train_s: float
-    """One teacher-forced warm-up epoch's training steps on the reference machine [s] (:attr:`train_s`
-    until :attr:`speed` scales it by its own ratio: a teacher-forced epoch of a network
-    trained on its free runs costs about half of one of them)."""
+    """One teacher-forced warm-up epoch's training steps on the reference machine [s]
+    (:attr:`train_s` until :attr:`speed` scales it by its own ratio: a teacher-forced epoch
+    of a network trained on its free runs costs about half of one of them)."""
     validated: int
     """Epochs validated (the last ones: :func:`~.selection.validation_start`)."""
     cap_s: float
@@ -146,9 +147,8 @@ class WorkEstimate:
 
         (epochs - teacher_epochs) * train_s + teacher_epochs * teacher_train_s
         """
-        return (
-            self.epochs - self.teacher_epochs
-        ) * self.train_s + self.teacher_epochs * self.teacher_train_s
+        free = self.epochs - self.teacher_epochs
+        return free * self.train_s + self.teacher_epochs * self.teacher_train_s
 
     @property
     def training_s(self) -> float:
@@ -311,6 +311,6 @@ def _teacher_note(est: WorkEstimate) -> str:
     if not est.teacher_epochs or est.speed is None or est.speed.teacher is None:
         return ""
     return (
-        f" ({est.speed.teacher:.2f}x in the {est.teacher_epochs} teacher-forced epoch(s) before the "
-        "free-run feedback)"
+        f" ({est.speed.teacher:.2f}x in the {est.teacher_epochs} teacher-forced epoch(s) "
+        "before the free-run feedback)"
     )

@@ -9,9 +9,10 @@ throwaway networks, the config's and the reference (:func:`reference_config`: th
 :data:`~.plan.STEP_NET`'s network in :data:`~.plan.STEP_SHAPE`'s sub-sequences), on copies
 of the same synthetic episodes through the training loop's own epoch
 (:func:`~.loop.run_epoch`), in alternating bursts of :data:`PROBE_SECONDS`, timing each per
-sub-sequence step (a ``feedback = "free"`` config also in its teacher-forced warm-up's epochs,
-which cost about half as much), and free-runs each on the same validation episodes (:func:`~excavator_surrogate.surrogate.validation.free_run_errors`,
-the two candidates of an epoch).  The ratios are medians of :data:`PROBE_ROUNDS` bursts.
+sub-sequence step (a ``feedback = "free"`` config also as in its teacher-forced warm-up's
+epochs, which cost about half as much), and free-runs each on the same validation episodes
+(:func:`~excavator_surrogate.surrogate.validation.free_run_errors`, the two candidates of an
+epoch).  The ratios are medians of :data:`PROBE_ROUNDS` bursts.
 
 Only a ratio leaves this module, never a time: the plan stays a function of the data, and the
 estimate stays in the reference machine's seconds.  The ratio itself is this computer's: it
