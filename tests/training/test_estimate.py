@@ -15,11 +15,19 @@ from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic
 from excavator_surrogate.training.auto import auto_config
 from excavator_surrogate.training.batches import make_data, sequence_cap
 from excavator_surrogate.training.config import TrainConfig
-from excavator_surrogate.training.estimate import SpeedRatio, describe_work, estimate_work
+from excavator_surrogate.training.estimate import (
+    SpeedRatio,
+    describe_work,
+    estimate_work,
+    val_epoch_s,
+)
 from excavator_surrogate.training.modes import make_mode
 from excavator_surrogate.training.plan import (
     PLAN_SHARE,
     POST_SHARE,
+    STEP_NET,
+    VAL_STEP_S,
+    epoch_cost_s,
     member_budget_s,
     trainings,
 )
@@ -58,8 +66,13 @@ def test_the_estimate_is_the_recipes_own_plan(lengths, val, budget):
     assert est.workers == cfg.member_workers and est.rounds == math.ceil(est.trainings / 2)
     share = member_budget_s(cfg.members, budget, cpus=2, probe=False, kinds=cfg.prior_choice)
     assert est.cap_s == pytest.approx((1 - POST_SHARE) * share)
-    # the plan budgets a validation for every epoch; the estimate counts those the loop runs
-    plan_s = est.epochs * (est.train_s + est.val_s)
+    # the plan budgets a validation of every epoch, as two separate free runs at the plan's
+    # price; the estimate counts the epochs the loop validates, at today's price
+    val_steps = max(val)
+    plan_s = est.epochs * epoch_cost_s(
+        est.n_seq, seq_len=cfg.seq_len, seq_batch=int(STEP_NET["seq_batch"]), val_steps=val_steps
+    )
+    assert est.val_s == pytest.approx(val_epoch_s(val_steps, len(val)))
     assert est.training_s <= plan_s <= PLAN_SHARE * share + 1e-9 or est.epochs == 1
     assert est.headroom >= (1 - POST_SHARE) / PLAN_SHARE - 1e-9 or est.epochs == 1
     planned = next(w for w in why if "epochs planned" in w)
@@ -217,6 +230,22 @@ def test_a_free_run_feedback_config_prices_its_teacher_forced_epochs_apart():
     )
     short = estimate_work(replace(free, epochs=2), ds, cpus=2)
     assert short is not None and short.teacher_epochs == 2
+
+
+def test_validation_is_priced_per_sample_of_the_longest_run_and_per_run_batched():
+    """A validated epoch costs ``val_epoch_s``: per sample of the longest validation run, more
+    with more runs batched (h1-dev's 24 cost about 4x one segment's per sample), well below
+    the plan's two separate runs on one long segment; a run too short for the window is not
+    free-run, so not counted."""
+    seg_ds = _dataset([8000], val=[2000])
+    seg = estimate_work(auto_config(seg_ds, cpus=2)[0], seg_ds, cpus=2)
+    assert seg is not None and seg.val_s == pytest.approx(val_epoch_s(2000, 1))
+    assert seg.val_s < 2 * 2000 * VAL_STEP_S / 4  # the plan's price, 4-6x today's
+    many_ds = _dataset([600] * 40, val=[640] * 23 + [300, 20])  # 20 samples: under the window
+    cfg, _ = auto_config(many_ds, cpus=2)
+    many = estimate_work(cfg, many_ds, cpus=2)
+    assert many is not None and many.val_s == pytest.approx(val_epoch_s(640, 24))
+    assert 3.5 < val_epoch_s(1, 24) / val_epoch_s(1, 1) < 5
 
 
 def test_a_cap_on_an_epochs_samples_and_on_validation_runs_is_counted():

@@ -352,7 +352,8 @@ def auto_config(
     epochs, limit = plan_epochs(n_seq, cost, budget_s=per_member)
     why.append(
         f"{epochs} epochs planned: {n_seq} sub-sequences per epoch, about {epochs * cost:.0f} s "
-        f"per member on the reference machine ({limit}); the budget only caps it"
+        f"per member at the plan's prices on the reference machine (an upper bound: `--dry-run` "
+        f"estimates the run; {limit}); the budget only caps it"
     )
     why.append("envelope: end stops and speed bounds from the spec, else from the training data")
     turning = [j.name for j in dataset.spec.joints if j.periodic]

@@ -8,11 +8,14 @@ the plan, which budgets a validation for every epoch, it counts the epochs the t
 loop will validate (:func:`~.selection.validation_start`: on one short segment only the
 second half of the plan, where validation is trained on only the last epoch), so its
 headroom (the cap over the estimated time) says how much slower than the reference a
-computer may be and still train every network whole.  The reference machine's per-step
-costs (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`) are the plan's: AVX2-only 2-core
-computers needed 1.3-2.1x :data:`~.plan.STEP_S` on their training steps (a Zen 3, quiet,
-1.25-1.66x on the stroke case's; computer D 1.9-2.1x on 150-step sub-sequences), and about
-half of :data:`~.plan.VAL_STEP_S` on a long validation run (docs/real-history.md).
+computer may be and still train every network whole.  The training steps are priced as the
+plan prices them (:data:`~.plan.STEP_S`): AVX2-only 2-core computers needed 1.3-2.1x of it
+(a Zen 3, quiet, 1.25-1.66x on the stroke case's; computer D 1.9-2.1x on 150-step
+sub-sequences; docs/real-history.md).  Validation is priced as today's code runs it
+(:data:`VAL_PAIR_STEP_S`, :data:`VAL_RUN_STEP_S`), not at the plan's
+:data:`~.plan.VAL_STEP_S`: the plan keeps that older, 4-6x higher price so that the same
+data plan the same epochs, and an estimate at it made a long log's training look 2-3x as
+long as it is.
 
 A network other than the recipe's (:data:`~.plan.STEP_NET`) trains at another speed, which
 the cost model does not know: its estimate has no time (:attr:`WorkEstimate.unmodelled`)
@@ -32,13 +35,34 @@ from .batches import sequence_cap, val_min_steps
 from .config import TrainConfig
 from .plan import (
     STEP_NET,
-    epoch_cost_s,
     epoch_sizes,
     epoch_train_s,
     prior_members,
     probe_members,
 )
 from .selection import validation_start
+
+VAL_PAIR_STEP_S = 1.0e-4
+"""Reference machine: an epoch's validation free run as today's code runs it (the epoch's two
+candidates batched, stepped in NumPy:
+:func:`~excavator_surrogate.surrogate.validation.free_run_errors`), per sample of the longest
+validation run, one core [s]; plus :data:`VAL_RUN_STEP_S` for each run in the batch
+(:func:`val_epoch_s`).  Fitted in session 101 on computer B's recipe trainings, each
+network's mean time per validated epoch over its own training pace against
+:data:`~.plan.STEP_S` (0.79-0.97), per sample: one 2000-sample segment (the continuous and
+7-minute loader logs, 24 networks) 1.09-1.27e-4 s, two sessions of 3000 samples
+1.30-1.43e-4 s, h1-dev's 24 runs of at most 641 samples 4.2-5.6e-4 s."""
+VAL_RUN_STEP_S = 1.5e-5
+"""Reference machine: what each validation run adds to a step of :data:`VAL_PAIR_STEP_S` [s]."""
+
+
+def val_epoch_s(val_steps: int, n_run: int) -> float:
+    """One validated epoch's free run of its two candidates on the reference machine [s]::
+
+        val_steps * (VAL_PAIR_STEP_S + n_run * VAL_RUN_STEP_S)
+
+    ``val_steps``: samples of the longest validation run; ``n_run``: the runs batched."""
+    return val_steps * (VAL_PAIR_STEP_S + n_run * VAL_RUN_STEP_S)
 
 
 @dataclass(frozen=True)
@@ -62,7 +86,7 @@ class SpeedRatio:
 @dataclass(frozen=True)
 class WorkEstimate:
     """The planned work of one training config on one dataset, at the reference machine's
-    speed (:data:`~.plan.STEP_S`, :data:`~.plan.VAL_STEP_S`)."""
+    speed (:data:`~.plan.STEP_S`, :func:`val_epoch_s`)."""
 
     n_seq: int
     """Training sub-sequences per epoch (the validation runs' too where they are trained on)."""
@@ -84,8 +108,8 @@ class WorkEstimate:
     """One epoch's training steps on the reference machine [s] (the reference network's, in
     batches of its ``seq_batch``, times :attr:`speed` where it was measured)."""
     val_s: float
-    """One epoch's validation on the reference machine [s] (both candidates, as planned; times
-    :attr:`speed` where it was measured)."""
+    """One validated epoch's free run on the reference machine [s] (both candidates,
+    :func:`val_epoch_s`; times :attr:`speed` where it was measured)."""
     teacher_train_s: float
     """One teacher-forced warm-up epoch's training steps on the reference machine [s]
     (:attr:`train_s` until :attr:`speed` scales it by its own ratio: a teacher-forced epoch
@@ -205,12 +229,9 @@ def estimate_sizes(
     """
     if cfg.mode != "stateful":
         return None
+    runs = [n for n in val if n >= val_min_steps(cfg.window)]  # those the training free-runs
     n_seq, val_steps = epoch_sizes(
-        list(train),
-        [n for n in val if n >= val_min_steps(cfg.window)],
-        on_val=cfg.train_on_val,
-        seq_len=cfg.seq_len,
-        burn_in=cfg.burn_in,
+        list(train), runs, on_val=cfg.train_on_val, seq_len=cfg.seq_len, burn_in=cfg.burn_in
     )
     cap = sequence_cap(cfg.epoch_samples, seq_len=cfg.seq_len, burn_in=cfg.burn_in)
     if cap is not None:  # the epoch's cap, as Stateful.batches cuts its starts
@@ -220,7 +241,6 @@ def estimate_sizes(
     # the reference network's batches: a measured speed ratio (per step) scales these
     ref_batch = int(STEP_NET["seq_batch"])  # type: ignore[call-overload]
     train_s = epoch_train_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch)
-    cost = epoch_cost_s(n_seq, seq_len=cfg.seq_len, seq_batch=ref_batch, val_steps=val_steps)
     start = validation_start(cfg)
     probe = n_input > 0 and cfg.exogenous == "choose" and cfg.input_dropout == 0
     members = max(1, cfg.members)
@@ -236,7 +256,7 @@ def estimate_sizes(
         probes=n_probe,
         workers=max(1, workers),
         train_s=train_s,
-        val_s=cost - train_s,
+        val_s=val_epoch_s(val_steps, max(1, len(runs))),
         teacher_train_s=train_s,
         validated=max(0, cfg.epochs - start),
         cap_s=float(cfg.max_train_seconds or 0.0),
@@ -298,8 +318,7 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
             f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "
             f"{est.headroom:.2f}x slower than the reference trains every network whole; a "
             "slower or busier one is cut, and the run says so (AVX2-only 2-core computers "
-            "took 1.3-2.1x the reference's time on the training steps, and less on long "
-            "validation runs)"
+            "took 1.3-2.1x the reference's time on the training steps)"
         )
     else:
         lines.append("no wall-time cap: every planned epoch runs, however long it takes")

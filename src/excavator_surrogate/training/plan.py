@@ -84,7 +84,9 @@ one candidate at a time.  The plan's constant, not a measurement of today's code
 candidates now free-run together (``surrogate.validation.free_run_errors``, about 0.7x
 the time of two runs), and the epochs before ``select_after`` are not validated, so a long
 log's member finishes well within its estimate.  The plan keeps it: more epochs in the same
-budget did not pay on one long log (docs/real-history.md, "Faster, not longer")."""
+budget did not pay on one long log (docs/real-history.md, "Faster, not longer").  What a
+run will take is :mod:`.estimate`'s, at today's price (:data:`~.estimate.VAL_PAIR_STEP_S`:
+4-6x below this on one long segment)."""
 MEMBERS = 4
 """Fewest seed-ensemble members on a machine with 2 or more CPUs (half as many on one CPU)."""
 MEMBER_HEADROOM = 2.0
