@@ -107,7 +107,7 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
     val_eps = [synthetic_episode(spec, n_step=1000, seed=10 + k) for k in range(2)]
     bursts: list[Callable[[ThrowawayNetwork], float]] = [lambda p: p.train_burst(PROBE_SECONDS)]
     if teacher_forced_epochs(cfg) > 0:  # its teacher-forced epochs train at another speed
-        bursts.append(lambda p: p.train_burst(PROBE_SECONDS / 2, epoch=0))  # a tenth of them
+        bursts.append(lambda p: p.train_burst(PROBE_SECONDS / 2, epoch=0))  # few epochs: short
     t0 = time.perf_counter()
     train, val = side_by_side(
         (cfg, ref_cfg), spec, train_eps, val_eps, rounds=PROBE_ROUNDS, train=bursts
