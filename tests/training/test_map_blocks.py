@@ -73,6 +73,13 @@ def test_block_scores_equal_each_blocks_own_free_run() -> None:
             on = with_map_joints(sur, fit, [True, True])
             want = free_run_error(on, [block])["theta_rmse"][j]
             np.testing.assert_allclose(map_b[b][j], want, rtol=1e-5, atol=1e-8)
+    # a variant no joint picks is never run (None would fail to build a map surrogate)
+    unused: list = [fits[0], None]
+    net_0, map_0 = block_scores(sur, unused, [0, 0], blocks, stops=None)
+    assert net_0 == net_b
+    for b, block in enumerate(blocks):
+        want = free_run_error(with_map_joints(sur, fits[0], [True, True]), [block])
+        np.testing.assert_allclose(map_0[b], want["theta_rmse"], rtol=1e-5, atol=1e-8)
 
 
 @pytest.mark.parametrize("parallel", [False, True])

@@ -22,8 +22,8 @@ Evidence (``docs/real-history.md``, session 100; computer B, seeds 0 / 10 / 20):
   map in seed 10 (lost one session of two) and scored the test 12 % and the 12 more
   sessions 10 % worse: so episodes are not blocks.
 
-The check adds one free run of the network and one of each map over the two halves, and
-only when some joint is a candidate.
+The check adds one free run of the network and one of each map variant the joints use over
+the two halves, and only when some joint is a candidate.
 """
 
 from __future__ import annotations
@@ -94,7 +94,8 @@ def block_scores(
 ) -> tuple[list[list[float]], list[list[float]]]:
     """Each block's angle RMSE per joint [rad], ``(network, map)``: (n_block, n_joint) each,
     the map's per joint from its variant ``pick[j]`` of ``fits``; every model runs all the
-    blocks in one batched free run (each cut to ``max_steps``)."""
+    blocks in one batched free run (each cut to ``max_steps``), and a variant no joint picks
+    does not run."""
 
     def per_block(model: Surrogate) -> list[list[float]]:
         model.net.eval()
@@ -102,7 +103,7 @@ def block_scores(
         return [score_runs([r], model)["theta_rmse"] for r in runs]
 
     net = per_block(sur)
-    maps = [per_block(_on_map(sur, fit, stops)) for fit in fits]
+    maps = {v: per_block(_on_map(sur, fits[v], stops)) for v in sorted(set(pick))}
     on_map = [[maps[v][b][j] for j, v in enumerate(pick)] for b in range(len(blocks))]
     return net, on_map
 
