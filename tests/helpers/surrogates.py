@@ -16,7 +16,7 @@ from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_ne
 from excavator_surrogate.surrogate.parallel import with_parallel_map
 from excavator_surrogate.surrogate.reference import rollout_reference
 from excavator_surrogate.surrogate.rollout import rollout
-from excavator_surrogate.surrogate.structured import with_map_joints
+from excavator_surrogate.surrogate.series import with_map_joints
 
 
 def drive_into_stops(net: nn.Module, drive: float, n_joint: int) -> None:

@@ -15,10 +15,10 @@ from excavator_surrogate.simulate.hydraulics import (
     EFFECTS,
     HydraulicConfig,
     HydraulicTransform,
-    ReliefAntiWindup,
     resolve,
 )
 from excavator_surrogate.simulate.plant import MujocoExcavator, PlantConfig
+from excavator_surrogate.simulate.relief import ReliefAntiWindup
 from excavator_surrogate.simulate.soil import ChainHook
 from excavator_surrogate.spec import EXCAVATOR, JointSpec, MachineSpec
 

@@ -18,7 +18,8 @@ from excavator_surrogate.surrogate.features import scale_commands_np
 from excavator_surrogate.surrogate.model import Surrogate
 from excavator_surrogate.surrogate.reference import rollout_reference
 from excavator_surrogate.surrogate.rollout import rollout
-from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.surrogate.series import with_map_joints
+from excavator_surrogate.surrogate.structured import fit_prior
 from excavator_surrogate.training.api import train
 from excavator_surrogate.training.batches import make_data
 from excavator_surrogate.training.config import TrainConfig

@@ -14,7 +14,7 @@ from excavator_surrogate.spec import EXCAVATOR, InputSpec
 from excavator_surrogate.surrogate.features import Normalization
 from excavator_surrogate.surrogate.model import Surrogate, build_net
 from excavator_surrogate.surrogate.rollout import rollout
-from excavator_surrogate.surrogate.structured import with_lag_columns
+from excavator_surrogate.surrogate.series import with_lag_columns
 from excavator_surrogate.training.ignored import narrowed, widened, without_inputs
 from tests.helpers.surrogates import tiny_surrogate
 from tests.helpers.training import tiny_dataset

@@ -7,7 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.surrogate.series import with_map_joints
+from excavator_surrogate.surrogate.structured import fit_prior
 from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training.config import TrainConfig
 from excavator_surrogate.training.map_blocks import (

@@ -14,7 +14,8 @@ from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_check
 from excavator_surrogate.surrogate.ensemble import member_head, merge
 from excavator_surrogate.surrogate.envelope import fill_envelope
 from excavator_surrogate.surrogate.rollout import rollout
-from excavator_surrogate.surrogate.structured import fit_prior, with_map_joints
+from excavator_surrogate.surrogate.series import with_map_joints
+from excavator_surrogate.surrogate.structured import fit_prior
 from excavator_surrogate.training.map_apply import apply_map_choice
 from excavator_surrogate.training.map_joints import (
     PERIODIC_MAP_R2,

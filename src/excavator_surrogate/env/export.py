@@ -90,153 +90,23 @@ from ..errors import ConfigError
 from ..evaluate.card import describe_surrogate, full_json
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
-from ..surrogate.angles import integrate
-from ..surrogate.command_state import command_features
 from ..surrogate.coverage import channel_names
 from ..surrogate.model import Surrogate
-from ..surrogate.own_angles import network_inputs, own_advance
 from ..surrogate.uncertainty import stored_coverage
 from .engine import Mode
-from .fused import FusedMembersStep, FusedStep, add_end_stops, end_stops
+from .export_graphs import (
+    StatefulOod,
+    StatefulVelocityOnly,
+    WindowStep,
+    WindowVelocityOnly,
+    module_members,
+)
+from .fused import FusedMembersStep, FusedStep
 from .surrogate_env import load_surrogate
 from .uncertainty import OodFlags
 
 OPSET = 18
 Exporter = Literal["auto", "dynamo", "torchscript"]
-
-
-class WindowStep(nn.Module):
-    """Windowed step with encoding and normalisation in the graph:
-    ``(theta (n, W, J), u (n, W, n_u)[, z (n, W, S, J)][, w (n, W, J)]) -> (omega (n, J),
-    theta_next (n, J)[, z_out (n, S, J)])`` (``u``: the joints' commands, then the exogenous
-    inputs'; ``z``: the command states after each sample's ``u``, ``S = Q + L [+ 2]`` rows;
-    ``w``: the velocity features [rad/s]).
-
-    With joints on a static map in parallel (``norm.own``) the network reads, at every
-    sample, its own angle and velocity of them from that sample's ``z``
-    (:func:`~excavator_surrogate.surrogate.own_angles.network_inputs`), ``omega`` there is the
-    map's speed, and ``z_out`` is the last sample's ``z`` with the own rows moved by the
-    network's speed (:func:`~excavator_surrogate.surrogate.own_angles.own_advance`): the
-    caller's ``z`` for the next step, before its command."""
-
-    def __init__(self, sur: Surrogate) -> None:
-        super().__init__()
-        self.net = sur.net
-        norm = sur.norm.to("cpu", torch.float32)
-        self.periodic = tuple(norm.periodic)
-        for k in ("x_mean", "x_std", "y_mean", "y_std", "u_center", "u_scale", "play", "lag_index"):
-            self.register_buffer(k, getattr(norm, k).clone())
-        self.n_play = norm.n_play
-        self.n_command = norm.n_command
-        self.n_state = norm.n_state
-        self.omega_in = norm.omega_in
-        self.dt = float(sur.spec.dt)
-        self.own_norm = norm if norm.own is not None else None
-        """The float32 normalisation with joints on a map in parallel (None: none; CPU, as
-        the export runs)."""
-        add_end_stops(self, sur)
-
-    def forward(
-        self,
-        theta: torch.Tensor,
-        u: torch.Tensor,
-        z: torch.Tensor | None = None,
-        w: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, ...]:
-        """See the class docstring."""
-        if self.n_state and z is None:
-            raise ValueError("this surrogate has command states: pass z")
-        if self.omega_in and w is None:
-            raise ValueError("this surrogate has a velocity feature: pass w")
-        w_in = w if self.omega_in else None
-        theta_in, own = theta, self.own_norm
-        if own is not None:
-            # every sample i: theta_in = where(own, theta_own[i], theta[i]), w_in likewise
-            theta_in, w_in = network_inputs(own, theta, z, w_in)
-        parts = []
-        for j, p in enumerate(self.periodic):
-            th = theta_in[..., j : j + 1]
-            parts += [torch.sin(th), torch.cos(th)] if p else [th]
-        us = (u - self.u_center) / self.u_scale
-        parts.append(us)
-        if self.n_command:
-            assert z is not None
-            nj, zc = len(self.periodic), z[..., : self.n_command, :]
-            parts.append(command_features(zc, us[..., :nj], self.play, self.lag_index))
-        if w_in is not None:
-            parts.append(w_in)
-        x = torch.cat(parts, dim=-1)
-        y = self.net((x - self.x_mean) / self.x_std)
-        # omega_net[k+1] = y_std y + y_mean
-        omega = y * self.y_std + self.y_mean
-        lim = end_stops(self)
-        z_out = None
-        if own is not None:
-            assert z is not None
-            # omega[k+1] = where(own, s(u[k - d]), omega_net[k+1]); the own rows move by omega_net
-            omega, z_out = own_advance(own, z[:, -1], u[:, -1], omega, dt=self.dt, limits=lim)
-        # theta[k+1] = theta[k] + T_s omega[k+1]   (speed bound, end stops)
-        theta_next, omega = integrate(theta[:, -1], omega, dt=self.dt, limits=lim)
-        return (omega, theta_next) if z_out is None else (omega, theta_next, z_out)
-
-
-class _StatefulOod(nn.Module):
-    """A stateful members step (:class:`~.fused.FusedMembersStep`) with the ``ood`` output
-    last (:class:`~.uncertainty.OodFlags` on ``theta``, ``u`` and ω[k]).  The inputs after
-    ``h``, ``c`` are, in order and when present: ``z``, ``w``, ``omega_prev`` (ω[k] when
-    there is no ``w``)."""
-
-    def __init__(self, step: FusedMembersStep, box: OodFlags, *, play: bool, omega_in: bool):
-        super().__init__()
-        self.step, self.box = step, box
-        self.play, self.omega_in = play, omega_in
-
-    def forward(
-        self,
-        theta: torch.Tensor,
-        u: torch.Tensor,
-        h: torch.Tensor,
-        c: torch.Tensor,
-        e1: torch.Tensor | None = None,
-        e2: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, ...]:
-        """The step's outputs, then ``ood``."""
-        rest = [e for e in (e1, e2) if e is not None]
-        z = rest.pop(0) if self.play else None
-        w = rest.pop(0) if self.omega_in else None
-        omega_k = w if w is not None else rest.pop(0)
-        outs = self.step(theta, u, h, c, z, w)
-        return (*outs, self.box(theta, u, omega_k))
-
-
-class _VelocityOnly(nn.Module):
-    """``forward(theta, u, [h, c,] w)`` of a step without play features: the velocity
-    feature is the graph's last input (no ``z`` input in between)."""
-
-    def __init__(self, step: nn.Module) -> None:
-        super().__init__()
-        self.step = step
-
-
-class _StatefulVelocityOnly(_VelocityOnly):
-    def forward(  # type: ignore[override]
-        self,
-        theta: torch.Tensor,
-        u: torch.Tensor,
-        h: torch.Tensor,
-        c: torch.Tensor,
-        w: torch.Tensor,
-    ) -> tuple[torch.Tensor, ...]:
-        """:class:`~.fused.FusedStep` with ``z = None``."""
-        return self.step(theta, u, h, c, None, w)
-
-
-class _WindowVelocityOnly(_VelocityOnly):
-    def forward(  # type: ignore[override]
-        self, theta: torch.Tensor, u: torch.Tensor, w: torch.Tensor
-    ) -> tuple[torch.Tensor, ...]:
-        """:class:`WindowStep` with ``z = None``."""
-        return self.step(theta, u, None, w)
 
 
 def export_onnx(
@@ -306,7 +176,7 @@ def export_onnx(
             inputs.append("w")
             axes["w"] = {0: "batch"}
             if not n_play:
-                module = _StatefulVelocityOnly(module).eval()
+                module = StatefulVelocityOnly(module).eval()
         if uncertainty:
             outputs.append("omega_members")
             axes["omega_members"] = {1: "batch"}
@@ -314,7 +184,7 @@ def export_onnx(
             if rec is not None and rec.channels == channel_names(spec):
                 box = OodFlags(rec, spec, dtype=torch.float32)
                 inner = getattr(module, "step", module)
-                module = _StatefulOod(inner, box, play=bool(n_play), omega_in=omega_in).eval()
+                module = StatefulOod(inner, box, play=bool(n_play), omega_in=omega_in).eval()
                 if not omega_in:
                     args = (*args, torch.zeros(n_b, n_joint))
                     inputs.append("omega_prev")
@@ -340,7 +210,7 @@ def export_onnx(
             inputs.append("w")
             axes["w"] = {0: "batch"}
             if not n_play:
-                module = _WindowVelocityOnly(module).eval()
+                module = WindowVelocityOnly(module).eval()
         axes.update({"omega": {0: "batch"}, "theta_next": {0: "batch"}})
     else:
         raise ConfigError(f"export mode must be 'stateful' or 'windowed', got {mode!r}")
@@ -365,7 +235,7 @@ def export_onnx(
             sur,
             mode,
             n_member=module_members(module),
-            ood=isinstance(module, _StatefulOod),
+            ood=isinstance(module, StatefulOod),
             folder=None if isinstance(ckpt, Surrogate) else Path(ckpt).parent,
         )
         if got != opset:  # the exporter falls back to its own opset with only a logged warning
@@ -374,12 +244,6 @@ def export_onnx(
                 f"opset {got}); use --opset {got} or leave the option out (default {OPSET})"
             )
     return out
-
-
-def module_members(module: nn.Module) -> int:
-    """M of an exported step with the ``omega_members`` output, else 0."""
-    inner = getattr(module, "step", module)
-    return int(inner.n_member) if isinstance(inner, FusedMembersStep) else 0
 
 
 def _export_dynamo(

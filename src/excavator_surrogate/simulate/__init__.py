@@ -7,7 +7,7 @@ See docs/plant.md and docs/hydraulics.md.  Main entry points:
   (``reset``/``step`` Python loop, batched ``rollout``).
 - :class:`~.hydraulics.HydraulicTransform` / :class:`~.hydraulics.HydraulicConfig`: the
   hydraulic command transform (dead zones, valve curve, lag, delay, pump sharing, relief ...);
-  :class:`~.hydraulics.ReliefAntiWindup`: force hook against servo wind-up at relief.
+  :class:`~.relief.ReliefAntiWindup`: force hook against servo wind-up at relief.
 - :class:`~.soil.SoilHook` / :class:`~.soil.SoilConfig`: soil resistance and payload
   (compound operation); :class:`~.soil.ChainHook` combines force hooks.
 - :mod:`.excitation`: command signals (``multisine``, ``steps``, ``chirp``, ``prbs``,
@@ -23,8 +23,9 @@ from .config import SimulateConfig
 from .excitation import CLOSED_LOOP, SIGNALS, DigOperator, ExcitationConfig, NominalModel, generate
 from .generate import build_plant, simulate_dataset
 from .hooks import CommandTransform, ForceHook, ZeroOrderHold
-from .hydraulics import HydraulicConfig, HydraulicTransform, ReliefAntiWindup
+from .hydraulics import HydraulicConfig, HydraulicTransform
 from .plant import MujocoExcavator, PlantConfig
+from .relief import ReliefAntiWindup
 from .soil import ChainHook, SoilConfig, SoilHook
 
 __all__ = [

@@ -47,8 +47,9 @@ from .excitation import (
     NominalModel,
     generate,
 )
-from .hydraulics import HydraulicTransform, ReliefAntiWindup
+from .hydraulics import HydraulicTransform
 from .plant import MujocoExcavator
+from .relief import ReliefAntiWindup
 from .sensors import apply_sensors_episode
 from .session import SessionOperator
 from .soil import ChainHook, SoilHook

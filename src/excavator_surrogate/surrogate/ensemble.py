@@ -361,7 +361,7 @@ class MemberHead:
         dev = info.get("map_gain_dev") if self.prior is not None else None
         self.map_dev = None if dev is None else torch.tensor(dev, dtype=w2.dtype, device=w2.device)
         """(M, n_joint) member ``m`` drives a static-map joint with gain ``1 + map_dev[m]``
-        (:func:`.structured.with_map_joints`), or None."""
+        (:func:`.series.with_map_joints`), or None."""
         self.a: torch.Tensor | None = None
         """The head activations ``(..., f_tot)`` of the last captured network call."""
 

@@ -18,7 +18,7 @@ in a free run.  It is the state of a slow, acceleration-limited flow (a heavy sw
 net otherwise has to infer from the small differences of consecutive angle features.
 Optionally (``lags`` ``d_1..d_J`` [samples], ours) each joint's scaled command ``d_j`` samples
 back, ``us_j[k - d_j]`` (0 before the first sample), is appended before ``omega_in``: what a
-delayed static map reads (:func:`.structured.with_map_joints`).  Both histories travel in one
+delayed static map reads (:func:`.series.with_map_joints`).  Both histories travel in one
 command state ``z``, the delay line after the play operators (:mod:`.command_state`).
 Features and targets are then standardised with statistics of the training split
 (:class:`Normalization`), which travel with the checkpoint.

@@ -3,7 +3,7 @@
 A joint put on the static valve map after training (``training/map_joints.py``) can be
 composed with the network in two ways:
 
-- **in series** (:func:`.structured.with_map_joints`): the map drives the joint's angle and
+- **in series** (:func:`.series.with_map_joints`): the map drives the joint's angle and
   the network reads that angle, as it reads every joint's;
 - **in parallel** (:func:`.parallel.with_parallel_map`, this module): the map drives the
   joint's reported angle, while the network reads its *own* angle of that joint, integrated

@@ -3,7 +3,7 @@
 The map drives those joints' reported angles, while the network keeps reading its own angle
 of them (:mod:`.own_angles`), so its free run is the network's own, and each joint scores
 exactly as its source scores alone.  The series composition, where the network reads the
-map's angle, is :func:`.structured.with_map_joints`.
+map's angle, is :func:`.series.with_map_joints`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from .angles import joint_limits
 from .envelope import with_end_stops
 from .model import Surrogate
 from .own_angles import OwnMap
-from .structured import member_offsets, with_lag_columns
+from .series import member_offsets, with_lag_columns
 
 
 def with_parallel_map(
@@ -41,7 +41,7 @@ def with_parallel_map(
     first layer, so its output is unchanged (up to the order of float sums); one with them
     must hold ``d_j`` in its line.  With a merged ensemble's members, member ``m`` drives a
     map joint with the gain ``1 + sigma_j z_m`` (``metrics["ensemble"]["own_gain_dev"]``, as
-    :func:`.structured.with_map_joints` does): their mean is the map, their spread the map's
+    :func:`.series.with_map_joints` does): their mean is the map, their spread the map's
     gain spread (``fit["gain_spread"]``) times the distance it moved the joint.
 
     Args:

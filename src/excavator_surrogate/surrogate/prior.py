@@ -19,7 +19,7 @@ delay ``d_j > 0`` reads its command ``d_j`` samples back: ``cols`` then points a
 delayed-command features (:meth:`.Normalization.with_lags`, carried as a delay line in the
 command state ``z``), still one input row.  Training with a prior fits the delays as the
 structured baseline does (up to 1 s, within the window); a joint put on the map after
-training (:func:`.structured.with_map_joints`) reads them the same way.
+training (:func:`.series.with_map_joints`) reads them the same way.
 
 :func:`.structured.fit_prior` fits it by least squares on the training split (the
 structured baseline's fit); the parameters live in the network's ``state_dict`` (buffers), so checkpoints

@@ -45,16 +45,11 @@ from ..data.dataset import Dataset
 from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
 from .batches import split_episodes
+from .composite import plain_ensemble
 from .config import TrainConfig
 from .ensembles import member_configs, merge_members, open_run, train_groups, train_members
 from .input_choice import decide_inputs, inputs_after_kinds
-from .kinds import (
-    choice_joints,
-    choice_options,
-    choose_kinds,
-    model_kind,
-    plain_ensemble,
-)
+from .kinds import choice_joints, choice_options, choose_kinds, model_kind
 from .plan import prior_members
 from .records import write_config
 

@@ -23,9 +23,10 @@ from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
+from .composite import plain_ensemble
 from .config import TrainConfig
 from .input_readers import drop_readers
-from .kinds import map_pinned, plain_ensemble, spanned_joints
+from .kinds import map_pinned, spanned_joints
 
 INPUT_MARGIN = 0.05
 """Relative margin by which the members that use the exogenous inputs must beat those that

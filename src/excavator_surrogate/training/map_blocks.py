@@ -34,7 +34,7 @@ from typing import Any
 from ..data.episode import Episode
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import rollout_episodes
-from ..surrogate.structured import with_map_joints
+from ..surrogate.series import with_map_joints
 from ..surrogate.validation import free_run_error, score_runs
 
 

@@ -16,7 +16,7 @@ per joint, chosen on the validation free run like an epoch is:
    joint takes the map that drives it better there, and the joints whose angle RMSE on it is
    at most :data:`MAP_TIE` above the network's, on one validation episode on both its halves
    too (:mod:`.map_blocks`), are the candidates (a near tie goes to the simpler model);
-3. try them together, then each alone (:func:`~excavator_surrogate.surrogate.structured.with_map_joints`:
+3. try them together, then each alone (:func:`~..surrogate.series.with_map_joints`:
    those joints follow the map, the others keep the network's output exactly);
 4. keep the best set whose validation error is at most :data:`SET_MARGIN` above the
    network's overall, and on no joint more than :data:`SET_MARGIN` above it, or more than the
@@ -61,12 +61,8 @@ from ..data.episode import Episode
 from ..surrogate.angles import joint_limits
 from ..surrogate.model import Surrogate
 from ..surrogate.parallel import with_parallel_map
-from ..surrogate.structured import (
-    fit_prior,
-    max_map_delay,
-    training_range_spec,
-    with_map_joints,
-)
+from ..surrogate.series import with_map_joints
+from ..surrogate.structured import fit_prior, max_map_delay, training_range_spec
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .map_blocks import all_on_map, check_blocks

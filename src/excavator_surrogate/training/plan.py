@@ -127,7 +127,7 @@ def probe_members(members: int) -> int:
 def prior_members(members: int) -> int:
     """Map-correcting networks the kind choice (:mod:`.kinds`) trains beside a plain
     ensemble of ``members``: the largest divisor of ``members`` up to half of it (4 -> 2,
-    8 -> 4, 6 -> 3; 1 for a prime), so that every group of :func:`~.kinds.composite` holds as
+    8 -> 4, 6 -> 3; 1 for a prime), so that every group of :func:`~.composite.composite` holds as
     many plain networks."""
     return max([p for p in range(1, members // 2 + 1) if members % p == 0], default=1)
 

@@ -76,7 +76,7 @@ def more_pairs(members: int, half: int, n_prior: int) -> int | None:
     """Pairs to train after the choice's ``half``: as many as the rest of the budget buys
     (``(members - half) // 2``, each pair two trainings), with the kind choice's
     ``n_prior`` map-correcting networks as many fewer as it takes for them to divide the
-    pairs evenly (:func:`~.kinds.composite`); None if no count does."""
+    pairs evenly (:func:`~.composite.composite`); None if no count does."""
     limit = (members - half) // 2
     fits = [n for n in range(limit + 1) if not n_prior or (half + n) % n_prior == 0]
     return max(fits) if fits else None
