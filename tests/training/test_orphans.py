@@ -39,8 +39,10 @@ from excavator_surrogate.training.jobs import TrainJob, run_jobs
 
 
 def busy_member(job, show_progress):
-    # a member that trains to a long budget: it never talks to the parent before the end
-    (job.out / "pid").write_text(str(os.getpid()))
+    # a member that trains to a long budget: it never talks to the parent before the end;
+    # its pid file appears whole (renamed), or the recorder could read it empty
+    (job.out / "pid.tmp").write_text(str(os.getpid()))
+    os.replace(job.out / "pid.tmp", job.out / "pid")
     time.sleep(600)
     return job.out / "best.pt"
 
