@@ -53,7 +53,7 @@ def with_map_joints(
     """A copy of ``sur`` whose ``joints`` move by the static map ``fit`` alone (the network's
     output for them is dropped) while the other joints keep the network's output exactly.
 
-    Built with a :class:`SpeedPrior` whose gains are ``fit``'s on ``joints`` and zero
+    Built with a :class:`~.prior.SpeedPrior` whose gains are ``fit``'s on ``joints`` and zero
     elsewhere, the head's output rows of ``joints`` zeroed, and ``y_mean / y_std`` added to the
     other rows' bias (the prior subtracts it from every joint)::
 

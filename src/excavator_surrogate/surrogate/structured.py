@@ -254,7 +254,7 @@ def fit_prior(
     ``cols`` the command's column in the features (the spec fixes the layout), each joint's
     ``delay`` [samples] (0 to ``max_delay``, the one-step error's best: ``omega[k+1] =
     s(u[k - d])``), one-step ``rmse`` [rad/s] and ``gain_spread`` (:func:`gain_spread`)
-    (keyword arguments of :meth:`SpeedPrior.load_fit`, without ``norm``, and ``delay``,
+    (keyword arguments of :meth:`~.prior.SpeedPrior.load_fit`, without ``norm``, and ``delay``,
     ``rmse``, ``gain_spread``).  With ``max_delay = 0`` every joint reads its current command."""
     fits = fit_joints(episodes, spec, max_delay=max_delay)
     omegas = [omega_target(e.theta, spec) for e in episodes]
