@@ -274,6 +274,11 @@ class TrainConfig(PresetConfig, table="train"):
         unless a negative ``limit_margin`` asks for no end stops from the data."""
         return self.map_end_stops and self.limit_margin >= 0
 
+    def teacher_forced(self, epoch: int) -> bool:
+        """Whether epoch ``epoch`` (from 0) trains on recorded angles: every epoch with
+        ``feedback = "teacher"``, the first ``teacher_epochs`` with ``"free"``."""
+        return self.feedback == "teacher" or epoch < self.teacher_epochs
+
     def __post_init__(self) -> None:
         checks = [
             (self.window >= 1, "window must be >= 1"),

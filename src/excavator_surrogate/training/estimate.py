@@ -269,9 +269,11 @@ def estimate_sizes(
 
 def teacher_forced_epochs(cfg: TrainConfig) -> int:
     """Epochs a ``feedback = "free"`` config trains teacher-forced before its free-run
-    feedback (``teacher_epochs``, within its ``epochs``: :mod:`.modes`); 0 for a
+    feedback (:meth:`~.config.TrainConfig.teacher_forced`, within its ``epochs``); 0 for a
     teacher-forced config, all of whose epochs train alike."""
-    return min(cfg.teacher_epochs, cfg.epochs) if cfg.feedback == "free" else 0
+    if cfg.feedback != "free":
+        return 0
+    return sum(cfg.teacher_forced(e) for e in range(cfg.epochs))
 
 
 def describe_work(est: WorkEstimate | None) -> list[str]:

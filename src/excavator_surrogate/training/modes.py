@@ -216,7 +216,7 @@ class Stateful:
         """One piece per TBPTT chunk after the burn-in; state and angle are detached between."""
         cfg, data, norm = self.cfg, self.data, self.sur.norm
         dt, limits = self.sur.spec.dt, self._limits
-        teacher = cfg.feedback == "teacher" or epoch < cfg.teacher_epochs
+        teacher = cfg.teacher_forced(epoch)
         s = torch.as_tensor(index, device=data.x.device)
         g = s[:, None] + torch.arange(cfg.seq_len, device=data.x.device)
         x_seq, th_seq, u_seq, y_seq = data.x[g], data.theta[g], data.u[g], data.y[g + 1]
