@@ -41,8 +41,8 @@ def test_a_free_run_feedback_is_timed_in_its_teacher_forced_epochs_too(monkeypat
     epochs: list[int] = []
     burst = speed_probe.ThrowawayNetwork.train_burst
 
-    def spy(self, seconds, *, epoch=speed_probe.PROBE_EPOCH):
-        epochs.append(epoch)
+    def spy(self, seconds, *, epoch=None):
+        epochs.append(self.free_epoch if epoch is None else epoch)
         return burst(self, seconds, epoch=epoch)
 
     monkeypatch.setattr(speed_probe.ThrowawayNetwork, "train_burst", spy)
@@ -57,6 +57,14 @@ def test_a_free_run_feedback_is_timed_in_its_teacher_forced_epochs_too(monkeypat
     epochs.clear()
     assert measure_speed(small, n_joint=3).teacher is None
     assert set(epochs) == {speed_probe.PROBE_EPOCH}
+    # a warm-up past PROBE_EPOCH: the config's main bursts train as its first free-run epoch
+    # (the reference network's, teacher-forced throughout, as PROBE_EPOCH)
+    long = replace(free, epochs=20, teacher_epochs=12)
+    epochs.clear()
+    measure_speed(long, n_joint=3)
+    assert set(epochs[2:]) == {0, speed_probe.PROBE_EPOCH, 12}
+    assert epochs[2:].count(12) == speed_probe.PROBE_ROUNDS
+    assert long.teacher_forced(11) and not long.teacher_forced(12)
 
 
 def test_only_a_network_the_cost_model_does_not_cover_is_probed(monkeypatch):

@@ -58,8 +58,9 @@ PROBE_BATCHES = 4
 """Full batches of sub-sequences in the probe's epoch (of the config's or the reference's
 ``seq_batch``, whichever is larger): a half-empty batch costs nearly a full one's time."""
 PROBE_EPOCH = 10
-"""The epoch the bursts train as: past the free-run feedback's teacher-forced warm-up, so a
-``feedback = "free"`` config is timed as it trains most of its epochs."""
+"""The epoch the bursts train as, or the first past a longer teacher-forced warm-up
+(:attr:`ThrowawayNetwork.free_epoch`), so a ``feedback = "free"`` config is timed as it
+trains most of its epochs."""
 
 
 def timed_estimate(
@@ -186,6 +187,8 @@ class ThrowawayNetwork:
         cpu = torch.device("cpu")
         st = start(cfg, cfg.model_config(cfg.n_feature(spec), spec.n_joint), spec, train_eps, None)
         self.cfg, self.val_eps = cfg, val_eps
+        self.free_epoch = max(PROBE_EPOCH, teacher_forced_epochs(cfg))
+        """The epoch the bursts train as by default: :data:`PROBE_EPOCH`, past the warm-up."""
         self.sur = st.surrogate(cfg, cpu)  # as the training loop builds it
         self.net = self.sur.net
         par = SingleProcess(device=cpu)
@@ -205,24 +208,28 @@ class ThrowawayNetwork:
             show=lambda it, **kw: it,
         )
 
-    def train_burst(self, seconds: float, *, epoch: int = PROBE_EPOCH) -> float:
+    def train_burst(self, seconds: float, *, epoch: int | None = None) -> float:
         """Train for about ``seconds`` (whole batches) as epoch ``epoch`` trains (0: a free-run
-        feedback's teacher-forced warm-up); the time per sub-sequence step [s]."""
+        feedback's teacher-forced warm-up; None: :attr:`free_epoch`); the time per sub-sequence
+        step [s]."""
+        at = self.free_epoch if epoch is None else epoch
         with torch_threads(self.cfg.num_threads or 1):
             self.net.train()
             t0 = time.perf_counter()
             deadline, total = t0 + seconds, 0
             while time.perf_counter() < deadline:
-                _, n = self.epoch(lambda: time.perf_counter() > deadline, epoch)
+                _, n = self.epoch(lambda: time.perf_counter() > deadline, at)
                 total += n
             return self._per_step(time.perf_counter() - t0, total)
 
-    def train_epoch(self, *, epoch: int = PROBE_EPOCH) -> float:
-        """Train one whole epoch as epoch ``epoch`` trains; the time per sub-sequence step [s]."""
+    def train_epoch(self, *, epoch: int | None = None) -> float:
+        """Train one whole epoch as epoch ``epoch`` trains (None: :attr:`free_epoch`); the time
+        per sub-sequence step [s]."""
+        at = self.free_epoch if epoch is None else epoch
         with torch_threads(self.cfg.num_threads or 1):
             self.net.train()
             t0 = time.perf_counter()
-            _, n = self.epoch(lambda: False, epoch)
+            _, n = self.epoch(lambda: False, at)
             return self._per_step(time.perf_counter() - t0, n)
 
     def _per_step(self, seconds: float, n_loss: int) -> float:
