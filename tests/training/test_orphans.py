@@ -33,6 +33,7 @@ import os, sys, threading, time
 from pathlib import Path
 
 from excavator_surrogate.data.dataset import Dataset
+from excavator_surrogate.io_utils import write_text
 from excavator_surrogate.surrogate.synthetic import synthetic_spec
 from excavator_surrogate.training import TrainConfig
 from excavator_surrogate.training.jobs import TrainJob, run_jobs
@@ -40,9 +41,8 @@ from excavator_surrogate.training.jobs import TrainJob, run_jobs
 
 def busy_member(job, show_progress):
     # a member that trains to a long budget: it never talks to the parent before the end;
-    # its pid file appears whole (renamed), or the recorder could read it empty
-    (job.out / "pid.tmp").write_text(str(os.getpid()))
-    os.replace(job.out / "pid.tmp", job.out / "pid")
+    # its pid file appears whole (written atomically), or the recorder could read it empty
+    write_text(job.out / "pid", str(os.getpid()))
     time.sleep(600)
     return job.out / "best.pt"
 
@@ -55,8 +55,7 @@ def record(root, jobs):
             time.sleep(0.05)
         pids = [int((j.out / "pid").read_text()) for j in jobs]
         pids.append(resource_tracker._resource_tracker._pid)
-        (root / "pids.tmp").write_text(" ".join(map(str, pids)))
-        os.replace(root / "pids.tmp", root / "pids")
+        write_text(root / "pids", " ".join(map(str, pids)))
     except BaseException:  # the test sees the parent fail now, not at its 120-s bound
         import traceback
 
@@ -74,13 +73,14 @@ if __name__ == "__main__":
 """
 
 ROLLOUT_PARENT = """
-import os, sys, time
+import sys, time
 from pathlib import Path
 
 import numpy as np
 
 from excavator_surrogate.control.workers import RolloutWorker
 from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.io_utils import write_text
 from tests.helpers.surrogates import tiny_surrogate
 
 if __name__ == "__main__":
@@ -93,8 +93,7 @@ if __name__ == "__main__":
     # a long rollout: the worker is busy, not waiting on the pipe, when the parent dies
     worker.submit(engine.export_row(0), np.zeros((1, 1_000_000, n_u), np.float32))
     time.sleep(1.0)
-    (root / "pids.tmp").write_text(str(worker._proc.pid))
-    os.replace(root / "pids.tmp", root / "pids")
+    write_text(root / "pids", str(worker._proc.pid))
     time.sleep(600)
 """
 
