@@ -35,10 +35,10 @@ import numpy as np
 import pyarrow as pa
 
 from ..errors import DataError
+from .columns import numeric_column, parse_time
 from .limits import TooBig, bounded_open, memory_limit, too_big
 from .mapping import TABLE, Mapping
 from .sources import CSV_SUFFIXES, RawLog, Reader, Series, missing_channel
-from .tables import numeric_column, parse_time
 
 SUFFIXES = (".dspace.csv.gz", ".dspace.csv")
 GENERIC = re.compile(r"(?:In|Out)\d*", re.IGNORECASE)
@@ -120,8 +120,12 @@ def _read_bytes(path: Path, limit: int) -> bytes:
         ) from e
 
 
-def parse_header(path: Path, data: bytes) -> tuple[list[Trace], int, str, int | None]:
+def parse_header(
+    path: Path, data: bytes, *, encoding: str = "utf-8"
+) -> tuple[list[Trace], int, str, int | None]:
     """The traces, the byte offset of the ``trace_values`` row, the delimiter and ``trace_size``.
+
+    The names and paths are decoded with ``encoding`` (bytes it cannot decode are replaced).
 
     Raises:
         DataError: no ``trace_values`` row, or neither ``trace_names`` nor ``path``.
@@ -136,12 +140,12 @@ def parse_header(path: Path, data: bytes) -> tuple[list[Trace], int, str, int | 
     start = m.start() + (1 if data[m.start() : m.start() + 1] == b"\n" else 0)
     delim = m.group(1).decode()
     rows: dict[str, list[str]] = {}
-    text = data[:start].decode("utf-8", errors="replace")
+    text = data[:start].decode(encoding, errors="replace")
     for row in csv.reader(io.StringIO(text, newline=""), delimiter=delim):
         if row and row[0].strip() in LABELS and row[0].strip() not in rows:
             rows[row[0].strip()] = [c.strip() for c in row[1:]]
     end = data.find(b"\n", start)
-    first = data[start : end if end >= 0 else len(data)].decode("utf-8", errors="replace")
+    first = data[start : end if end >= 0 else len(data)].decode(encoding, errors="replace")
     n_trace = len(next(csv.reader([first.rstrip("\r")], delimiter=delim))) - 1
     if "trace_names" not in rows and "path" not in rows:
         raise DataError(
@@ -156,17 +160,18 @@ def parse_header(path: Path, data: bytes) -> tuple[list[Trace], int, str, int | 
     return traces, start, delim, int(size) if size.isdigit() else None
 
 
-def metadata(data: bytes) -> dict[str, str]:
+def metadata(data: bytes, *, encoding: str = "utf-8") -> dict[str, str]:
     """The ``descriptions`` rows before the traces: ``{"General/Description": "...", ...}``.
 
     Each row is ``<label or empty>,<section>,<key>,<value>``; the first reads
-    ``descriptions``, the next ones leave the label empty.  Text in a local code page is
-    decoded with replacement characters.
+    ``descriptions``, the next ones leave the label empty.  Text that is not in ``encoding``
+    (the mapping's ``[csv] encoding``; often a local code page) is decoded with replacement
+    characters.
     """
     m = _VALUES.search(data)
     head = data[: m.start()] if m is not None else data[:65536]
     delim = m.group(1).decode() if m is not None else ","
-    text = head.decode("utf-8", errors="replace")
+    text = head.decode(encoding, errors="replace")
     out: dict[str, str] = {}
     inside = False
     for row in csv.reader(io.StringIO(text, newline=""), delimiter=delim):
@@ -222,7 +227,14 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     import pyarrow.csv as pcsv
 
     data = _read_bytes(path, memory_limit(mapping.options.max_memory_mb))
-    traces, start, delim, size = parse_header(path, data)
+    traces, start, delim, size = parse_header(path, data, encoding=mapping.csv.encoding)
+    if delim == mapping.csv.decimal:
+        raise DataError(
+            path,
+            f"the export separates its fields by {delim!r}, the mapping's [csv] decimal mark",
+            fix=f"remove [csv] decimal from {mapping.where}: this export's numbers have "
+            "decimal points",
+        )
     tm = mapping.time
     t_trace = traces[0]  # the x axis; [time] column may name it as in the plain CSV logs
     if tm.column is not None and any(str(tm.column) in t.aliases() for t in traces[1:]):
@@ -242,6 +254,7 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
                 include_columns=list(names.values()),
                 column_types=dict.fromkeys(names.values(), column_type),
                 strings_can_be_null=True,
+                decimal_point=mapping.csv.decimal,
             ),
         )
 
@@ -264,11 +277,16 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     if table.num_rows == 0:
         raise DataError(path, "the export has no samples", fix="remove the file or record data")
     tlabel = str(tm.column) if tm.column is not None else t_trace.short
+    decimal = mapping.csv.decimal
     time_s, origin = parse_time(
-        path, table.column(names[t_trace.index]), dataclasses.replace(tm, column=tlabel)
+        path,
+        table.column(names[t_trace.index]),
+        dataclasses.replace(tm, column=tlabel),
+        decimal=decimal,
     )
     values: dict[str, np.ndarray] = {
-        k: numeric_column(path, table.column(names[t.index]), k) for k, t in chosen.items()
+        k: numeric_column(path, table.column(names[t.index]), k, decimal=decimal)
+        for k, t in chosen.items()
     }
     return RawLog(
         path=path,
@@ -276,7 +294,7 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
         series={TABLE: Series(TABLE, time_s, values, tlabel)},
         origin=origin,
         columns=[t.short for t in traces if t.short],
-        meta=metadata(data[:start]),
+        meta=metadata(data[:start], encoding=mapping.csv.encoding),
     )
 
 

@@ -64,11 +64,11 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
     try:
         options = from_dict(ImportOptions, data.get("import"), where=f"{where}: import")
         split = from_dict(SplitOptions, data.get("split"), where=f"{where}: split")
+        csv = from_dict(CsvOptions, data.get("csv"), where=f"{where}: csv")
     except ConfigError as e:
         if str(e).startswith(where):
             raise
         raise ConfigError(f"{where}: {e}") from e
-    csv = from_dict(CsvOptions, data.get("csv"), where=f"{where}: csv")
     raw_joints = data.get("joints")
     if not isinstance(raw_joints, list) or not raw_joints:
         raise ConfigError(

@@ -5,6 +5,7 @@ Re-exported by :mod:`.mapping`, which parses them with the rest of the file.
 
 from __future__ import annotations
 
+import codecs
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -22,6 +23,31 @@ class CsvOptions:
     format: Literal["auto", "plain", "dspace"] = "auto"
     """``dspace``: read .csv files as dSPACE ControlDesk exports; ``plain``: never; ``auto``:
     by content (first cell ``descriptions`` or a ``trace_...`` row) or a ``.dspace.csv`` name."""
+    decimal: Literal[".", ","] = "."
+    """The numbers' decimal mark: ``","`` for logs written with a European locale (``1,25``;
+    their delimiter is then ``;`` or a tab). Applies to plain CSV and dSPACE exports."""
+    encoding: str = "utf-8"
+    """The text encoding of the names and cells, a Python codec name: ``"cp1252"`` for a
+    Windows export with ``°`` or umlauts in its header (a UTF-8 byte-order mark is skipped)."""
+
+    def __post_init__(self) -> None:
+        try:
+            codecs.lookup(self.encoding)
+        except LookupError:
+            raise ConfigError(
+                f"[csv] encoding {self.encoding!r} is not a known text encoding "
+                '(e.g. "utf-8", "cp1252", "latin-1")'
+            ) from None
+
+    @property
+    def is_utf8(self) -> bool:
+        """Whether the files are UTF-8 (the readers' default path)."""
+        return codecs.lookup(self.encoding).name == "utf-8"
+
+    @property
+    def text_encoding(self) -> str:
+        """The codec to open the text with: UTF-8 skips a byte-order mark."""
+        return "utf-8-sig" if self.is_utf8 else self.encoding
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,6 @@
 """The table readers: CSV (plain or .gz) and Parquet, one :class:`~.sources.Series` per file
-(``"table"``), and the column converters the dSPACE reader shares (:func:`numeric_column`,
-:func:`parse_time`).  Values are raw (no unit conversion); missing cells are NaN; rows are
-counted from 0, header not counted.
+(``"table"``); their columns are converted by :mod:`.columns`.  Values are raw (no unit
+conversion); missing cells are NaN; rows are counted from 0, header not counted.
 """
 
 from __future__ import annotations
@@ -9,16 +8,15 @@ from __future__ import annotations
 import csv as _csv
 import gzip
 import zlib
-from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 
 from ..errors import ConfigError, DataError
+from .columns import numeric_column, parse_time
 from .limits import TooBig, bounded_open, memory_limit, too_big
-from .mapping import TABLE, CsvOptions, Mapping, TimeMap
+from .mapping import TABLE, CsvOptions, Mapping
 from .sources import (
     CSV_SUFFIXES,
     PARQUET_SUFFIXES,
@@ -29,8 +27,6 @@ from .sources import (
     missing_channel,
 )
 
-_UNIT_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
-
 MAX_CSV_COLUMNS = 100_000
 """A CSV header with more columns than this is refused (no logger writes that many)."""
 MAX_LINE_BYTES = 64 * 1024**2
@@ -40,16 +36,18 @@ MAX_LINE_BYTES = 64 * 1024**2
 def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
-        with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
+        with opener(path, "rt", encoding=opts.text_encoding, newline="") as f:
             for _ in range(opts.skip_rows):
                 f.readline(MAX_LINE_BYTES)
             line = f.readline(MAX_LINE_BYTES)
     except (OSError, UnicodeDecodeError, EOFError) as e:
-        raise DataError(
-            path,
-            f"cannot read the header ({type(e).__name__}: {e})",
-            fix="check that it is a UTF-8 CSV file (gzip if .gz)",
-        ) from e
+        fix = (
+            'check that it is a UTF-8 CSV file (gzip if .gz), or set [csv] encoding (e.g. "cp1252" '
+            "for a Windows export)"
+            if opts.is_utf8
+            else f"check that it is a {opts.encoding} CSV file (gzip if .gz), or set [csv] encoding"
+        )
+        raise DataError(path, f"cannot read the header ({type(e).__name__}: {e})", fix=fix) from e
     if not line.strip():
         raise DataError(
             path,
@@ -77,7 +75,7 @@ def _ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None
     """The first data row whose field count differs from the header's (streamed)."""
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
-        with opener(path, "rt", encoding="utf-8-sig", newline="") as f:
+        with opener(path, "rt", encoding=opts.text_encoding, newline="") as f:
             for _ in range(opts.skip_rows + 1):
                 f.readline()
             for i, row in enumerate(_csv.reader(f, delimiter=opts.delimiter)):
@@ -140,6 +138,12 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     needed = [tcol, *[c for c in value_cols if c != tcol]]
     meta: dict[str, str] = {}
     if kind == "csv":
+        if mapping.csv.decimal == mapping.csv.delimiter:
+            raise ConfigError(
+                f"{mapping.where}: [csv] decimal and delimiter are both "
+                f"{mapping.csv.decimal!r}: a decimal mark cannot also separate the fields "
+                '(a log with decimal commas is usually separated by ";": set [csv] delimiter)'
+            )
         names = _csv_header(path, mapping.csv)
         _check_columns(path, names, needed, mapping)
         table = _read_csv(path, mapping, needed, value_cols, names=names)
@@ -149,10 +153,11 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     n = table.num_rows
     if n == 0:
         raise DataError(path, "the log has no data rows", fix="remove the file or record data")
-    time_s, origin = parse_time(path, table.column(tcol), tm)
+    decimal = mapping.csv.decimal if kind == "csv" else "."
+    time_s, origin = parse_time(path, table.column(tcol), tm, decimal=decimal)
     values: dict[str, np.ndarray] = {}
     for c in value_cols:
-        values[c] = numeric_column(path, table.column(c), c)
+        values[c] = numeric_column(path, table.column(c), c, decimal=decimal)
     return RawLog(
         path=path,
         kind=kind,
@@ -200,7 +205,11 @@ def _parse_csv(
 
     # a block must hold the header line (pyarrow: "cannot infer number of columns")
     block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
-    read = pcsv.ReadOptions(skip_rows=mapping.csv.skip_rows, block_size=block)
+    read = pcsv.ReadOptions(
+        skip_rows=mapping.csv.skip_rows,
+        block_size=block,
+        **({} if mapping.csv.is_utf8 else {"encoding": mapping.csv.encoding}),
+    )
     parse = pcsv.ParseOptions(delimiter=mapping.csv.delimiter)
     types: dict[str, pa.DataType] = {c: pa.float64() for c in value_cols}
     tcol = str(mapping.time.column)
@@ -209,7 +218,10 @@ def _parse_csv(
 
     def go(column_types: dict[str, pa.DataType]) -> pa.Table:
         conv = pcsv.ConvertOptions(
-            include_columns=needed, column_types=column_types, strings_can_be_null=True
+            include_columns=needed,
+            column_types=column_types,
+            strings_can_be_null=True,
+            decimal_point=mapping.csv.decimal,
         )
         if not path.name.lower().endswith(".gz"):  # its size was checked: read it natively
             return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=conv)
@@ -241,7 +253,7 @@ def _parse_csv(
     for c in needed:
         if c == tcol and mapping.time.unit == "datetime":
             continue
-        numeric_column(path, text.column(c), c)
+        numeric_column(path, text.column(c), c, decimal=mapping.csv.decimal)
     return text
 
 
@@ -283,153 +295,6 @@ def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.T
             f"cannot read Parquet data ({type(e).__name__}: {e})",
             fix="the file is corrupt; re-export it",
         ) from e
-
-
-def numeric_column(path: Path, col: pa.ChunkedArray | pa.Array, name: str) -> np.ndarray:
-    """Column as float64 (nulls -> NaN); DataError at the first non-numeric cell."""
-    t = col.type
-    if (
-        pa.types.is_floating(t)
-        or pa.types.is_integer(t)
-        or pa.types.is_boolean(t)
-        or pa.types.is_null(t)
-    ):
-        return np.asarray(
-            pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
-        )
-    if pa.types.is_string(t) or pa.types.is_large_string(t):
-        try:
-            return np.asarray(
-                pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
-            )
-        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-            pass
-        arr = col.to_numpy(zero_copy_only=False)
-        for i, v in enumerate(arr):
-            if v is None:
-                continue
-            try:
-                float(v)
-            except ValueError:
-                raise DataError(
-                    path,
-                    f"non-numeric value {v!r}",
-                    column=name,
-                    row=i,
-                    fix="replace it with a number or leave the cell empty (see --nan)",
-                ) from None
-    raise DataError(
-        path, f"values are of type {t}, not numbers", column=name, fix="map a numeric column"
-    )
-
-
-def parse_time(path: Path, col: pa.ChunkedArray, tm: TimeMap) -> tuple[np.ndarray, str]:
-    """Time column -> (seconds since the first row, origin string)."""
-    name = str(tm.column)
-    t = col.type
-    if col.null_count:
-        valid = col.is_valid().to_numpy(zero_copy_only=False)
-        row = int(np.flatnonzero(~valid)[0])
-        raise DataError(
-            path,
-            "missing timestamp",
-            column=name,
-            row=row,
-            fix="drop rows without a time stamp (time gaps are handled, missing stamps are not)",
-        )
-    if tm.unit == "datetime":
-        ns = _datetime_ns(path, col, name)
-        origin = str(pc.cast(col, pa.string())[0]) if col.num_chunks else ""
-        return (ns - ns[0]).astype(np.float64) * 1e-9, origin
-    if pa.types.is_timestamp(t):
-        raise DataError(
-            path,
-            "time column holds timestamps, but unit is numeric",
-            column=name,
-            fix='set [time] unit = "datetime"',
-        )
-    if pa.types.is_string(t) or pa.types.is_large_string(t):
-        first = col[0].as_py()
-        try:
-            float(first)
-        except (TypeError, ValueError):
-            raise DataError(
-                path,
-                f"time value {first!r} is text, not a number",
-                column=name,
-                row=0,
-                fix='set [time] unit = "datetime" for ISO-8601 time stamps',
-            ) from None
-        vals = numeric_column(path, col, name)
-    elif pa.types.is_integer(t):
-        ints = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
-        rel = (ints - ints[0]).astype(np.float64) * (_UNIT_NS[tm.unit] * 1e-9)
-        return rel, f"{int(ints[0])} {tm.unit}"
-    else:
-        vals = numeric_column(path, col, name)
-    bad = ~np.isfinite(vals)
-    if bad.any():
-        row = int(np.flatnonzero(bad)[0])
-        raise DataError(
-            path,
-            f"non-finite timestamp {float(vals[row]):g}",
-            column=name,
-            row=row,
-            fix="drop rows without a valid time stamp",
-        )
-    with np.errstate(over="ignore", invalid="ignore"):
-        rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
-    bad = ~np.isfinite(rel)
-    if bad.any():
-        row = int(np.flatnonzero(bad)[0])
-        raise DataError(
-            path,
-            f"timestamp {float(vals[row]):.6g} is out of range (row 0 reads {float(vals[0]):.6g})",
-            column=name,
-            row=row,
-            fix="drop rows without a valid time stamp",
-        )
-    return rel, f"{float(vals[0])!r} {tm.unit}"
-
-
-def _datetime_ns(path: Path, col: pa.ChunkedArray, name: str) -> np.ndarray:
-    t = col.type
-    if pa.types.is_timestamp(t) or pa.types.is_date(t):
-        ts = pc.cast(col, pa.timestamp("ns", tz=getattr(t, "tz", None)))
-        return np.asarray(pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64)
-    if not (pa.types.is_string(t) or pa.types.is_large_string(t)):
-        raise DataError(
-            path,
-            f"time values are of type {t}, not ISO-8601 text",
-            column=name,
-            fix="use a numeric unit (s, ms, us, ns) for numeric time stamps",
-        )
-    for target in (pa.timestamp("ns"), pa.timestamp("ns", tz="UTC")):
-        try:
-            ts = pc.cast(col, target)
-            return np.asarray(
-                pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64
-            )
-        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
-            continue
-    # mixed or unusual forms: parse in Python and locate the first bad row
-    out = np.empty(len(col), dtype=np.int64)
-    epoch = datetime(1970, 1, 1)
-    for i, v in enumerate(col.to_pylist()):
-        try:
-            d = datetime.fromisoformat(str(v).strip())
-        except ValueError:
-            raise DataError(
-                path,
-                f"time value {v!r} is not an ISO-8601 date-time",
-                column=name,
-                row=i,
-                fix="write times like 2024-05-01T12:00:00.125 (or use a numeric unit)",
-            ) from None
-        if d.tzinfo is not None:
-            d = (d - (d.utcoffset() or timedelta(0))).replace(tzinfo=None)
-        out[i] = int((d - epoch).total_seconds() * 1e6) * 1000
-    return out
 
 
 # --------------------------------------------------------------------------------------

@@ -1,0 +1,195 @@
+"""The column converters of the table readers: a column of numbers or of text as float64
+(:func:`numeric_column`), and a time column as seconds since its first row
+(:func:`parse_time`). Shared by the CSV/Parquet reader (:mod:`.tables`) and the dSPACE one;
+a bad cell is a :class:`~excavator_surrogate.errors.DataError` naming its column and row.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..errors import DataError
+from .mapping import TimeMap
+
+_UNIT_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+
+
+def numeric_column(
+    path: Path, col: pa.ChunkedArray | pa.Array, name: str, *, decimal: str = "."
+) -> np.ndarray:
+    """Column as float64 (nulls -> NaN); DataError at the first non-numeric cell.
+
+    ``decimal`` is the decimal mark of a text column: with ``","``, ``1,25`` reads 1.25 and a
+    cell holding a ``.`` is refused (it may be a thousands separator), as pyarrow does.
+    """
+    t = col.type
+    if (
+        pa.types.is_floating(t)
+        or pa.types.is_integer(t)
+        or pa.types.is_boolean(t)
+        or pa.types.is_null(t)
+    ):
+        return np.asarray(
+            pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
+        )
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        dotted = pc.replace_substring(col, decimal, ".") if decimal != "." else col
+        if decimal == "." or not pc.any(pc.match_substring(col, ".")).as_py():
+            try:
+                return np.asarray(
+                    pc.cast(dotted, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
+                )
+            except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+                pass
+        arr = col.to_numpy(zero_copy_only=False)
+        for i, v in enumerate(arr):
+            if v is None:
+                continue
+            if _is_number(v, decimal):
+                continue
+            raise DataError(
+                path, f"non-numeric value {v!r}", column=name, row=i, fix=_number_fix(v, decimal)
+            )
+    raise DataError(
+        path, f"values are of type {t}, not numbers", column=name, fix="map a numeric column"
+    )
+
+
+def _is_number(text: str, decimal: str) -> bool:
+    """Whether ``text`` is a number written with the decimal mark ``decimal``."""
+    if decimal != "." and "." in text:
+        return False
+    try:
+        float(text.replace(decimal, "."))
+    except ValueError:
+        return False
+    return True
+
+
+def _number_fix(text: str, decimal: str) -> str:
+    """What to do about the cell ``text`` that is not a number with the mark ``decimal``."""
+    if decimal == "." and _is_number(text, ","):
+        return 'the log writes decimal commas: set [csv] decimal = "," in the mapping'
+    if decimal != "." and _is_number(text, "."):
+        return (
+            f"[csv] decimal is {decimal!r}, but this cell has a decimal point: if the log "
+            'writes decimal points, set [csv] decimal = "." in the mapping'
+        )
+    if decimal != "." and "." in text:
+        return f"a '.' in a number with decimal {decimal!r} (a thousands separator?): remove it"
+    return "replace it with a number or leave the cell empty (see --nan)"
+
+
+def parse_time(
+    path: Path, col: pa.ChunkedArray, tm: TimeMap, *, decimal: str = "."
+) -> tuple[np.ndarray, str]:
+    """Time column -> (seconds since the first row, origin string); ``decimal`` as in
+    :func:`numeric_column`."""
+    name = str(tm.column)
+    t = col.type
+    if col.null_count:
+        valid = col.is_valid().to_numpy(zero_copy_only=False)
+        row = int(np.flatnonzero(~valid)[0])
+        raise DataError(
+            path,
+            "missing timestamp",
+            column=name,
+            row=row,
+            fix="drop rows without a time stamp (time gaps are handled, missing stamps are not)",
+        )
+    if tm.unit == "datetime":
+        ns = _datetime_ns(path, col, name)
+        origin = str(pc.cast(col, pa.string())[0]) if col.num_chunks else ""
+        return (ns - ns[0]).astype(np.float64) * 1e-9, origin
+    if pa.types.is_timestamp(t):
+        raise DataError(
+            path,
+            "time column holds timestamps, but unit is numeric",
+            column=name,
+            fix='set [time] unit = "datetime"',
+        )
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        first = col[0].as_py()
+        if not (isinstance(first, str) and (_is_number(first, ".") or _is_number(first, ","))):
+            raise DataError(
+                path,
+                f"time value {first!r} is text, not a number",
+                column=name,
+                row=0,
+                fix='set [time] unit = "datetime" for ISO-8601 time stamps',
+            )
+        vals = numeric_column(path, col, name, decimal=decimal)
+    elif pa.types.is_integer(t):
+        ints = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
+        rel = (ints - ints[0]).astype(np.float64) * (_UNIT_NS[tm.unit] * 1e-9)
+        return rel, f"{int(ints[0])} {tm.unit}"
+    else:
+        vals = numeric_column(path, col, name)
+    bad = ~np.isfinite(vals)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            path,
+            f"non-finite timestamp {float(vals[row]):g}",
+            column=name,
+            row=row,
+            fix="drop rows without a valid time stamp",
+        )
+    with np.errstate(over="ignore", invalid="ignore"):
+        rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
+    bad = ~np.isfinite(rel)
+    if bad.any():
+        row = int(np.flatnonzero(bad)[0])
+        raise DataError(
+            path,
+            f"timestamp {float(vals[row]):.6g} is out of range (row 0 reads {float(vals[0]):.6g})",
+            column=name,
+            row=row,
+            fix="drop rows without a valid time stamp",
+        )
+    return rel, f"{float(vals[0])!r} {tm.unit}"
+
+
+def _datetime_ns(path: Path, col: pa.ChunkedArray, name: str) -> np.ndarray:
+    t = col.type
+    if pa.types.is_timestamp(t) or pa.types.is_date(t):
+        ts = pc.cast(col, pa.timestamp("ns", tz=getattr(t, "tz", None)))
+        return np.asarray(pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64)
+    if not (pa.types.is_string(t) or pa.types.is_large_string(t)):
+        raise DataError(
+            path,
+            f"time values are of type {t}, not ISO-8601 text",
+            column=name,
+            fix="use a numeric unit (s, ms, us, ns) for numeric time stamps",
+        )
+    for target in (pa.timestamp("ns"), pa.timestamp("ns", tz="UTC")):
+        try:
+            ts = pc.cast(col, target)
+            return np.asarray(
+                pc.cast(ts, pa.int64()).to_numpy(zero_copy_only=False), dtype=np.int64
+            )
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            continue
+    # mixed or unusual forms: parse in Python and locate the first bad row
+    out = np.empty(len(col), dtype=np.int64)
+    epoch = datetime(1970, 1, 1)
+    for i, v in enumerate(col.to_pylist()):
+        try:
+            d = datetime.fromisoformat(str(v).strip())
+        except ValueError:
+            raise DataError(
+                path,
+                f"time value {v!r} is not an ISO-8601 date-time",
+                column=name,
+                row=i,
+                fix="write times like 2024-05-01T12:00:00.125 (or use a numeric unit)",
+            ) from None
+        if d.tzinfo is not None:
+            d = (d - (d.utcoffset() or timedelta(0))).replace(tzinfo=None)
+        out[i] = int((d - epoch).total_seconds() * 1e6) * 1000
+    return out

@@ -1,0 +1,194 @@
+"""``[csv] decimal`` and ``encoding``: logs written with a European locale (``;`` between fields,
+``1,25``, a Windows code page), as a German spreadsheet saves them."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from excavator_surrogate.data import load_dataset
+from excavator_surrogate.errors import DataError
+from excavator_surrogate.ingest import parse_mapping
+from excavator_surrogate.ingest.columns import numeric_column
+from tests.helpers import arm3_plant
+from tests.helpers.ingest import assert_nothing_written, write_lines
+from tests.ingest.test_ingest_dspace import dspace_mapping_toml, dspace_traces, write_dspace
+
+LOCALE = '[csv]\ndelimiter = ";"\ndecimal = ","\n'
+
+
+def _european(lines: list[str]) -> list[str]:
+    """The log as a German spreadsheet writes it: fields by ``;``, decimals by ``,``."""
+    return [x.replace(",", ";").replace(".", ",") for x in lines]
+
+
+def _import(cli, log: Path, mapping: Path, out: Path) -> tuple[int, str]:
+    rc, _, err = cli("import", log, "--mapping", mapping, "--out", out, "--quiet")
+    return rc, err
+
+
+def _fail(cli, log: Path, mapping: Path, out: Path) -> str:
+    rc, err = _import(cli, log, mapping, out)
+    assert rc == 2, err
+    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
+    assert_nothing_written(out)
+    return err
+
+
+def test_a_decimal_comma_log_imports_as_the_plain_one(cli, work, short_cols) -> None:
+    plain = write_lines(work / "plain" / "a.csv", short_cols)
+    euro = write_lines(work / "euro" / "a.csv", short_cols, _european)
+    assert ";" not in plain.read_text() and "." not in euro.read_text()
+    mapping = work / "euro.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + LOCALE)
+    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
+    assert _import(cli, euro, mapping, work / "E") == (0, "")
+    ref = load_dataset(work / "P")
+    got = load_dataset(work / "E")
+    assert {s: len(e) for s, e in got.episodes.items()} == {
+        s: len(e) for s, e in ref.episodes.items()
+    }
+    assert ref.n_samples() > 0
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_array_equal(a.time, b.time)
+            np.testing.assert_array_equal(a.theta, b.theta)
+            np.testing.assert_array_equal(a.omega, b.omega)
+            np.testing.assert_array_equal(a.u, b.u)
+
+
+def test_decimal_commas_without_the_option_name_the_fix(cli, work, short_cols) -> None:
+    euro = write_lines(work / "a.csv", short_cols, _european)
+    mapping = work / "semi.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\ndelimiter = ";"\n')
+    err = _fail(cli, euro, mapping, work / "X")
+    assert f"{euro}, column 't_ms', row 0: non-numeric value '0,000'" in err
+    assert 'decimal commas: set [csv] decimal = "," in the mapping' in err
+
+
+def test_one_bad_cell_of_a_decimal_comma_log_is_named(cli, work, short_cols) -> None:
+    def edit(lines: list[str]) -> list[str]:
+        lines = _european(lines)
+        cells = lines[301].split(";")
+        cells[arm3_plant.LOG_COLUMNS.index("arm_deg")] = "1.234,5"  # a thousands separator
+        lines[301] = ";".join(cells)
+        return lines
+
+    log = write_lines(work / "a.csv", short_cols, edit)
+    mapping = work / "euro.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + LOCALE)
+    err = _fail(cli, log, mapping, work / "X")
+    assert f"{log}, column 'arm_deg', row 300: non-numeric value '1.234,5'" in err
+    assert "thousands separator" in err
+
+
+def test_decimal_and_delimiter_alike_is_a_config_error(cli, work, short_cols) -> None:
+    log = write_lines(work / "a.csv", short_cols)
+    mapping = work / "same.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\ndecimal = ","\n')
+    err = _fail(cli, log, mapping, work / "X")
+    assert "same.toml: [csv] decimal and delimiter are both ','" in err
+
+
+def test_a_decimal_comma_dspace_export_imports_as_the_plain_one(cli, tmp_path, short_cols) -> None:
+    traces = dspace_traces(short_cols)
+    plain = write_dspace(tmp_path / "p" / "run.dspace.csv", traces)
+    euro = tmp_path / "e" / "run.dspace.csv"
+    euro.parent.mkdir()
+    head, sep, body = plain.read_bytes().partition(b"trace_values")
+    euro.write_bytes(head.replace(b",", b";") + sep + body.replace(b",", b";").replace(b".", b","))
+    text = dspace_mapping_toml()
+    (tmp_path / "p.toml").write_text(text)
+    (tmp_path / "e.toml").write_text(text + '[csv]\ndecimal = ","\n')
+    err = _fail(cli, plain, tmp_path / "e.toml", tmp_path / "X")
+    assert f"{plain}: the export separates its fields by ','" in err
+    assert "remove [csv] decimal from" in err
+    assert _import(cli, plain, tmp_path / "p.toml", tmp_path / "P") == (0, "")
+    assert _import(cli, euro, tmp_path / "e.toml", tmp_path / "E") == (0, "")
+    ref, got = load_dataset(tmp_path / "P"), load_dataset(tmp_path / "E")
+    assert ref.n_samples() == got.n_samples() > 0
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_array_equal(a.theta, b.theta)
+            np.testing.assert_array_equal(a.u, b.u)
+
+
+def test_numeric_column_reads_either_mark() -> None:
+    col = pa.array(["1,5", None, "-2,25e-1", "3"])
+    np.testing.assert_array_equal(
+        numeric_column(Path("x.csv"), col, "c", decimal=","), [1.5, np.nan, -0.225, 3.0]
+    )
+    with pytest.raises(DataError, match=r"row 0: non-numeric value '1,5'.*decimal commas"):
+        numeric_column(Path("x.csv"), col, "c")
+    with pytest.raises(DataError, match=r"row 1: non-numeric value '2.5'.*writes decimal points"):
+        numeric_column(Path("x.csv"), pa.array(["1,5", "2.5"]), "c", decimal=",")
+
+
+def test_the_options_round_trip_through_the_mapping() -> None:
+    m = parse_mapping(tomllib.loads(arm3_plant.MAPPING_TOML + LOCALE + 'encoding = "CP1252"\n'))
+    assert (m.csv.delimiter, m.csv.decimal, m.csv.encoding) == (";", ",", "CP1252")
+    assert not m.csv.is_utf8 and m.csv.text_encoding == "CP1252"
+    default = parse_mapping(tomllib.loads(arm3_plant.MAPPING_TOML)).csv
+    assert (default.decimal, default.is_utf8, default.text_encoding) == (".", True, "utf-8-sig")
+
+
+def _excel(work: Path, cols: dict[str, np.ndarray]) -> tuple[Path, Path]:
+    """The log as a German Excel saves "CSV (Trennzeichen-getrennt)": ``;``, ``1,25`` and
+    cp1252 (the boom's column named ``Ausleger_°``); and its mapping without ``[csv]``."""
+    text = write_lines(work / "tmp.csv", cols, _european).read_text()
+    log = work / "excel.csv"
+    log.write_bytes(text.replace("boom_deg", "Ausleger_°").encode("cp1252"))
+    mapping = work / "excel.toml"
+    mapping.write_text((work / "arm3.toml").read_text().replace("boom_deg", "Ausleger_°"))
+    return log, mapping
+
+
+def test_a_windows_excel_export_imports_as_the_plain_one(cli, work, short_cols) -> None:
+    plain = write_lines(work / "plain.csv", short_cols)
+    log, mapping = _excel(work, short_cols)
+    err = _fail(cli, log, mapping, work / "X")
+    assert f"{log}: cannot read the header (UnicodeDecodeError" in err
+    assert 'set [csv] encoding (e.g. "cp1252" for a Windows export)' in err
+    mapping.write_text(mapping.read_text() + LOCALE + 'encoding = "cp1252"\n')
+    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
+    assert _import(cli, log, mapping, work / "E") == (0, "")
+    ref, got = load_dataset(work / "P"), load_dataset(work / "E")
+    assert ref.n_samples() == got.n_samples() > 0
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_array_equal(a.theta, b.theta)
+            np.testing.assert_array_equal(a.u, b.u)
+
+
+def test_an_unknown_encoding_is_a_config_error(cli, work, short_cols) -> None:
+    log = write_lines(work / "a.csv", short_cols)
+    mapping = work / "enc.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\nencoding = "cp9999"\n')
+    err = _fail(cli, log, mapping, work / "X")
+    assert "enc.toml: " in err and "[csv] encoding 'cp9999' is not a known text encoding" in err
+
+
+def test_a_dspace_export_in_a_code_page_names_its_traces(cli, tmp_path, short_cols) -> None:
+    traces = [
+        (name, path.replace("boom_deg", "Auslegerwinkel_°"), values)
+        for name, path, values in dspace_traces(short_cols)
+    ]
+    plain = write_dspace(tmp_path / "p" / "run.dspace.csv", dspace_traces(short_cols))
+    coded = tmp_path / "e" / "run.dspace.csv"
+    coded.parent.mkdir()
+    blob = write_dspace(tmp_path / "u" / "run.dspace.csv", traces, preamble=False).read_bytes()
+    coded.write_bytes(blob.decode("utf-8").encode("cp1252"))
+    text = dspace_mapping_toml()
+    (tmp_path / "p.toml").write_text(text)
+    coded_map = text.replace('"boom_deg"', '"Auslegerwinkel_°"') + '[csv]\nencoding = "cp1252"\n'
+    (tmp_path / "e.toml").write_text(coded_map)
+    assert _import(cli, plain, tmp_path / "p.toml", tmp_path / "P") == (0, "")
+    assert _import(cli, coded, tmp_path / "e.toml", tmp_path / "E") == (0, "")
+    ref, got = load_dataset(tmp_path / "P"), load_dataset(tmp_path / "E")
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_array_equal(a.theta, b.theta)
