@@ -205,8 +205,10 @@ def _parse_csv(
 
     # a block must hold the header line (pyarrow: "cannot infer number of columns")
     block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
+    # the header's names as _csv_header read them, stripped: "t, boom_deg" names "boom_deg"
     read = pcsv.ReadOptions(
-        skip_rows=mapping.csv.skip_rows,
+        skip_rows=mapping.csv.skip_rows + 1,
+        column_names=names,
         block_size=block,
         **({} if mapping.csv.is_utf8 else {"encoding": mapping.csv.encoding}),
     )
@@ -230,7 +232,7 @@ def _parse_csv(
 
     try:
         return go(types)
-    except pa.ArrowInvalid as e:
+    except (pa.ArrowInvalid, pa.ArrowKeyError) as e:
         msg = str(e)
         if "conversion error" not in msg and "CSV conversion" not in msg:
             ragged = _ragged_row(path, mapping.csv, len(names)) if "columns" in msg else None

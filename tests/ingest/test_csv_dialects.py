@@ -1,5 +1,6 @@
-"""``[csv] decimal`` and ``encoding``: logs written with a European locale (``;`` between fields,
-``1,25``, a Windows code page), as a German spreadsheet saves them."""
+"""CSV dialects: a space after each delimiter, and ``[csv] decimal`` and ``encoding`` for logs
+written with a European locale (``;`` between fields, ``1,25``, a Windows code page), as a
+German spreadsheet saves them."""
 
 from __future__ import annotations
 
@@ -58,6 +59,34 @@ def test_a_decimal_comma_log_imports_as_the_plain_one(cli, work, short_cols) -> 
             np.testing.assert_array_equal(a.time, b.time)
             np.testing.assert_array_equal(a.theta, b.theta)
             np.testing.assert_array_equal(a.omega, b.omega)
+            np.testing.assert_array_equal(a.u, b.u)
+
+
+@pytest.mark.parametrize("locale", [False, True], ids=["comma", "semicolon-decimal-comma"])
+def test_a_space_after_each_delimiter_imports_as_the_plain_log(
+    cli, work, short_cols, locale
+) -> None:
+    """``t_ms, boom_deg, ...`` (numpy.savetxt's ``", "``, a hand-made log): the header's names
+    are stripped and so are the numbers."""
+
+    def spaced(lines: list[str]) -> list[str]:
+        lines = _european(lines) if locale else lines
+        sep = ";" if locale else ","
+        return [x.replace(sep, sep + " ") for x in lines]
+
+    plain = write_lines(work / "plain.csv", short_cols)
+    log = write_lines(work / "spaced.csv", short_cols, spaced)
+    assert ", " in log.read_text() or "; " in log.read_text()
+    mapping = work / "m.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + (LOCALE if locale else ""))
+    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
+    assert _import(cli, log, mapping, work / "S") == (0, "")
+    ref, got = load_dataset(work / "P"), load_dataset(work / "S")
+    assert ref.n_samples() == got.n_samples() > 0
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_array_equal(a.time, b.time)
+            np.testing.assert_array_equal(a.theta, b.theta)
             np.testing.assert_array_equal(a.u, b.u)
 
 
