@@ -221,3 +221,72 @@ def test_a_dspace_export_in_a_code_page_names_its_traces(cli, tmp_path, short_co
     for split, eps in ref.episodes.items():
         for a, b in zip(eps, got.split(split), strict=True):
             np.testing.assert_array_equal(a.theta, b.theta)
+
+
+def _same_as_plain(cli, work: Path, cols, log: Path, mapping: Path) -> None:
+    """``log`` imports with ``mapping`` to the episodes of the plain log of ``cols``."""
+    plain = write_lines(work / "plain.csv", cols)
+    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
+    assert _import(cli, log, mapping, work / "S") == (0, "")
+    ref, got = load_dataset(work / "P"), load_dataset(work / "S")
+    assert ref.n_samples() == got.n_samples() > 0
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_array_equal(a.time, b.time)
+            np.testing.assert_array_equal(a.theta, b.theta)
+            np.testing.assert_array_equal(a.u, b.u)
+
+
+def test_a_units_row_is_named_and_skipped(cli, work, short_cols) -> None:
+    units = ",".join(
+        "ms" if c == "t_ms" else "deg" if "deg" in c else "%" for c in arm3_plant.LOG_COLUMNS
+    )
+    log = write_lines(work / "u.csv", short_cols, lambda ls: [ls[0], units, *ls[1:]])
+    err = _fail(cli, log, work / "arm3.toml", work / "X")
+    assert f"{log}, row 0: no mapped column holds a number ('ms', 'deg', '%', '%', ...)" in err
+    assert "a row of units under the header? (set [csv] skip_rows_after_header = 1 in" in err
+    mapping = work / "units.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = 1\n")
+    _same_as_plain(cli, work, short_cols, log, mapping)
+
+
+def test_a_ragged_row_after_a_units_row_names_its_line(cli, work, short_cols) -> None:
+    units = ",".join("u" for _ in arm3_plant.LOG_COLUMNS)
+    log = write_lines(
+        work / "u.csv", short_cols, lambda ls: [ls[0], units, *ls[1:40], ls[40] + ",9", *ls[41:]]
+    )
+    mapping = work / "units.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = 1\n")
+    err = _fail(cli, log, mapping, work / "X")
+    assert "row 39: ragged rows: line 42 of the file has" in err  # header 1, units 2, row 0 on 3
+
+
+def test_a_stray_byte_in_an_unmapped_column_does_not_stop_the_import(cli, work, short_cols) -> None:
+    """A comment column in a code page ("Prüfung") that no mapping reads: only the header is decoded."""
+    text = write_lines(work / "tmp.csv", short_cols).read_text().splitlines()
+    log = work / "note.csv"
+    lines = [text[0] + ",note"] + [x + ",Prüfung" for x in text[1:]]
+    log.write_bytes(("\n".join(lines) + "\n").encode("latin-1"))
+    _same_as_plain(cli, work, short_cols, log, work / "arm3.toml")
+
+
+def test_a_utf16_log_is_named_and_read(cli, work, short_cols) -> None:
+    text = write_lines(work / "tmp.csv", short_cols).read_text()
+    log = work / "wide.csv"
+    log.write_bytes(text.encode("utf-16"))
+    err = _fail(cli, log, work / "arm3.toml", work / "X")
+    assert (
+        'the file is UTF-16 (it starts with its byte-order mark): set [csv] encoding = "utf-16"'
+        in err
+    )
+    mapping = work / "utf16.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\nencoding = "utf-16"\n')
+    _same_as_plain(cli, work, short_cols, log, mapping)
+
+
+def test_a_negative_skip_is_a_config_error(cli, work, short_cols) -> None:
+    log = write_lines(work / "a.csv", short_cols)
+    mapping = work / "neg.toml"
+    mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = -1\n")
+    err = _fail(cli, log, mapping, work / "X")
+    assert "neg.toml: [csv] skip_rows_after_header must be >= 0, got -1" in err

@@ -50,7 +50,7 @@ def numeric_column(
         for i, v in enumerate(arr):
             if v is None:
                 continue
-            if _is_number(v, decimal):
+            if is_number(v, decimal):
                 continue
             raise DataError(
                 path, f"non-numeric value {v!r}", column=name, row=i, fix=_number_fix(v, decimal)
@@ -60,7 +60,7 @@ def numeric_column(
     )
 
 
-def _is_number(text: str, decimal: str) -> bool:
+def is_number(text: str, decimal: str) -> bool:
     """Whether ``text`` is a number written with the decimal mark ``decimal``."""
     if decimal != "." and "." in text:
         return False
@@ -73,9 +73,9 @@ def _is_number(text: str, decimal: str) -> bool:
 
 def _number_fix(text: str, decimal: str) -> str:
     """What to do about the cell ``text`` that is not a number with the mark ``decimal``."""
-    if decimal == "." and _is_number(text, ","):
+    if decimal == "." and is_number(text, ","):
         return 'the log writes decimal commas: set [csv] decimal = "," in the mapping'
-    if decimal != "." and _is_number(text, "."):
+    if decimal != "." and is_number(text, "."):
         return (
             f"[csv] decimal is {decimal!r}, but this cell has a decimal point: if the log "
             'writes decimal points, set [csv] decimal = "." in the mapping'
@@ -115,7 +115,7 @@ def parse_time(
         )
     if pa.types.is_string(t) or pa.types.is_large_string(t):
         first = col[0].as_py()
-        if not (isinstance(first, str) and (_is_number(first, ".") or _is_number(first, ","))):
+        if not (isinstance(first, str) and (is_number(first, ".") or is_number(first, ","))):
             raise DataError(
                 path,
                 f"time value {first!r} is text, not a number",

@@ -20,6 +20,8 @@ class CsvOptions:
     delimiter: str = ","
     skip_rows: int = 0
     """Lines before the header line to skip (logger preambles)."""
+    skip_rows_after_header: int = 0
+    """Lines between the header and the first sample to skip (a row of units: ``s;deg;%``)."""
     format: Literal["auto", "plain", "dspace"] = "auto"
     """``dspace``: read .csv files as dSPACE ControlDesk exports; ``plain``: never; ``auto``:
     by content (first cell ``descriptions`` or a ``trace_...`` row) or a ``.dspace.csv`` name."""
@@ -31,6 +33,9 @@ class CsvOptions:
     Windows export with ``°`` or umlauts in its header (a UTF-8 byte-order mark is skipped)."""
 
     def __post_init__(self) -> None:
+        for name in ("skip_rows", "skip_rows_after_header"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"[csv] {name} must be >= 0, got {getattr(self, name)}")
         try:
             codecs.lookup(self.encoding)
         except LookupError:

@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..errors import ConfigError, DataError
-from .columns import numeric_column, parse_time
+from .columns import is_number, numeric_column, parse_time
 from .limits import TooBig, bounded_open, memory_limit, too_big
 from .mapping import TABLE, CsvOptions, Mapping
 from .sources import (
@@ -34,12 +34,23 @@ MAX_LINE_BYTES = 64 * 1024**2
 
 
 def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
+    """The header's names, stripped. Only the header line is decoded (in an encoding whose
+    line ends are ASCII's), so a stray byte in a column no mapping reads cannot stop it."""
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
-        with opener(path, "rt", encoding=opts.text_encoding, newline="") as f:
-            for _ in range(opts.skip_rows):
-                f.readline(MAX_LINE_BYTES)
-            line = f.readline(MAX_LINE_BYTES)
+        if "\n".encode(opts.encoding) == b"\n":
+            with opener(path, "rb") as fb:
+                for _ in range(opts.skip_rows):
+                    fb.readline(MAX_LINE_BYTES)
+                raw = fb.readline(MAX_LINE_BYTES)
+            line = raw.decode(opts.text_encoding)
+            if "\r" in line.rstrip("\r\n"):  # a file whose lines end in \r alone
+                line = line.split("\r", 1)[0] + "\n"
+        else:  # UTF-16 and the like
+            with opener(path, "rt", encoding=opts.text_encoding, newline="") as f:
+                for _ in range(opts.skip_rows):
+                    f.readline(MAX_LINE_BYTES)
+                line = f.readline(MAX_LINE_BYTES)
     except (OSError, UnicodeDecodeError, EOFError) as e:
         fix = (
             'check that it is a UTF-8 CSV file (gzip if .gz), or set [csv] encoding (e.g. "cp1252" '
@@ -47,6 +58,8 @@ def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
             if opts.is_utf8
             else f"check that it is a {opts.encoding} CSV file (gzip if .gz), or set [csv] encoding"
         )
+        if isinstance(e, UnicodeDecodeError) and bytes(e.object[:2]) in (b"\xff\xfe", b"\xfe\xff"):
+            fix = 'the file is UTF-16 (it starts with its byte-order mark): set [csv] encoding = "utf-16"'
         raise DataError(path, f"cannot read the header ({type(e).__name__}: {e})", fix=fix) from e
     if not line.strip():
         raise DataError(
@@ -73,17 +86,18 @@ def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
 
 def _ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
     """The first data row whose field count differs from the header's (streamed)."""
+    first_line = opts.skip_rows + 2 + opts.skip_rows_after_header  # of the first sample, from 1
     opener = gzip.open if path.name.lower().endswith(".gz") else open
     try:
         with opener(path, "rt", encoding=opts.text_encoding, newline="") as f:
-            for _ in range(opts.skip_rows + 1):
+            for _ in range(opts.skip_rows + 1 + opts.skip_rows_after_header):
                 f.readline()
             for i, row in enumerate(_csv.reader(f, delimiter=opts.delimiter)):
                 if row and len(row) != n_header:
                     what = "too many" if len(row) > n_header else "too few"
                     return DataError(
                         path,
-                        f"ragged rows: line {opts.skip_rows + 2 + i} of the file has "
+                        f"ragged rows: line {first_line + i} of the file has "
                         f"{len(row)} fields, the header {n_header} ({what})",
                         row=i,
                         fix="repair or cut the damaged line, or check [csv] delimiter",
@@ -207,7 +221,7 @@ def _parse_csv(
     block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
     # the header's names as _csv_header read them, stripped: "t, boom_deg" names "boom_deg"
     read = pcsv.ReadOptions(
-        skip_rows=mapping.csv.skip_rows + 1,
+        skip_rows=mapping.csv.skip_rows + 1 + mapping.csv.skip_rows_after_header,
         column_names=names,
         block_size=block,
         **({} if mapping.csv.is_utf8 else {"encoding": mapping.csv.encoding}),
@@ -252,11 +266,32 @@ def _parse_csv(
     # slow path: a value is not a number, or the inferred time type changed mid-file (int ->
     # float); read the mapped columns as text, locate a bad cell, else convert the text
     text = go({c: pa.string() for c in needed})
-    for c in needed:
-        if c == tcol and mapping.time.unit == "datetime":
-            continue
-        numeric_column(path, text.column(c), c, decimal=mapping.csv.decimal)
+    numeric = [c for c in needed if not (c == tcol and mapping.time.unit == "datetime")]
+    for c in numeric:
+        try:
+            numeric_column(path, text.column(c), c, decimal=mapping.csv.decimal)
+        except DataError as e:
+            units = _units_row(text, numeric, mapping.csv.decimal) if e.row == 0 else None
+            if units is None:
+                raise
+            more = mapping.csv.skip_rows_after_header + 1
+            raise DataError(
+                path,
+                f"no mapped column holds a number ({', '.join(units)}): a row of units "
+                "under the header?",
+                row=0,
+                fix=f"set [csv] skip_rows_after_header = {more} in {mapping.where}",
+            ) from None
     return text
+
+
+def _units_row(text: pa.Table, columns: list[str], decimal: str) -> list[str] | None:
+    """Row 0's cells of ``columns`` if none is a number and one is text (units), else None."""
+    cells = [text.column(c)[0].as_py() if text.num_rows else None for c in columns]
+    if any(v is not None and is_number(v, decimal) for v in cells) or not any(cells):
+        return None
+    shown = [repr(v) for v in cells if v][:4]
+    return shown + (["..."] if sum(1 for v in cells if v) > 4 else [])
 
 
 def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.Table, list[str]]:
