@@ -5,6 +5,8 @@ German spreadsheet saves them."""
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import numpy as np
@@ -290,3 +292,96 @@ def test_a_negative_skip_is_a_config_error(cli, work, short_cols) -> None:
     mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = -1\n")
     err = _fail(cli, log, mapping, work / "X")
     assert "neg.toml: [csv] skip_rows_after_header must be >= 0, got -1" in err
+
+
+def _dated(cols, fmt: str) -> Callable[[list[str]], list[str]]:
+    """The log's ``t_ms`` written as date-time text of ``strftime`` format ``fmt``."""
+    t0 = datetime(2024, 5, 1, 23, 59, 55)
+
+    def edit(lines: list[str]) -> list[str]:
+        out = [lines[0]]
+        for x in lines[1:]:
+            ms, rest = x.split(",", 1)
+            stamp = (t0 + timedelta(milliseconds=float(ms))).strftime(fmt)  # %f: 6 digits, exact
+            out.append(f'"{stamp}",{rest}' if "," in stamp else f"{stamp},{rest}")
+        return out
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    "fmt", ["%d.%m.%Y %H:%M:%S.%f", "%d/%m/%Y %H:%M:%S,%f"], ids=["german", "comma-seconds"]
+)
+def test_a_strptime_format_reads_a_logger_date(cli, work, short_cols, fmt) -> None:
+    """A date the logger writes its own way, across midnight: the same episodes as ``t_ms``."""
+    log = write_lines(work / "d.csv", short_cols, _dated(short_cols, fmt))
+    assert "02.05.2024" in log.read_text() or "02/05/2024" in log.read_text()
+    iso = work / "iso.toml"
+    iso.write_text((work / "arm3.toml").read_text().replace('unit = "ms"', 'unit = "datetime"'))
+    err = _fail(cli, log, iso, work / "X")
+    assert "column 't_ms', row 0: time value '01" in err and "is not an ISO-8601 date-time" in err
+    mapping = work / "fmt.toml"
+    mapping.write_text(
+        (work / "arm3.toml")
+        .read_text()
+        .replace('unit = "ms"', f'unit = "datetime"\nformat = "{fmt}"')
+    )
+    plain = write_lines(work / "plain.csv", short_cols)
+    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
+    assert _import(cli, log, mapping, work / "S") == (0, "")
+    ref, got = load_dataset(work / "P"), load_dataset(work / "S")
+    assert ref.n_samples() == got.n_samples() > 0
+    for split, eps in ref.episodes.items():
+        for a, b in zip(eps, got.split(split), strict=True):
+            np.testing.assert_allclose(a.time, b.time, atol=1e-9)
+            np.testing.assert_allclose(a.theta, b.theta, atol=1e-9)
+            np.testing.assert_allclose(a.u, b.u, atol=1e-9)
+
+
+def test_a_time_that_misses_the_format_is_named(cli, work, short_cols) -> None:
+    def edit(lines: list[str]) -> list[str]:
+        lines = _dated(short_cols, "%d.%m.%Y %H:%M:%S.%f")(lines)
+        lines[101] = "2024-05-01 " + lines[101].split(" ", 1)[1]
+        return lines
+
+    log = write_lines(work / "d.csv", short_cols, edit)
+    mapping = work / "fmt.toml"
+    mapping.write_text(
+        (work / "arm3.toml")
+        .read_text()
+        .replace('unit = "ms"', 'unit = "datetime"\nformat = "%d.%m.%Y %H:%M:%S.%f"')
+    )
+    err = _fail(cli, log, mapping, work / "X")
+    assert "column 't_ms', row 100: time value '2024-05-01 " in err
+    assert "does not match [time] format '%d.%m.%Y %H:%M:%S.%f'" in err
+
+
+@pytest.mark.parametrize(
+    ("time", "message"),
+    [
+        (
+            'unit = "ms"\nformat = "%H:%M:%S"',
+            '[time] format is for date-time text: set unit = "datetime"',
+        ),
+        ('unit = "datetime"\nformat = "H:M:S"', "[time] format 'H:M:S' has no % directive"),
+    ],
+)
+def test_a_format_that_cannot_apply_is_a_config_error(cli, work, short_cols, time, message) -> None:
+    log = write_lines(work / "a.csv", short_cols)
+    mapping = work / "bad.toml"
+    mapping.write_text((work / "arm3.toml").read_text().replace('unit = "ms"', time))
+    err = _fail(cli, log, mapping, work / "X")
+    assert f"bad.toml: {message}" in err
+
+
+def test_a_time_of_day_across_midnight_is_refused(cli, work, short_cols) -> None:
+    """``%H:%M:%S.%f`` has no date: the log starts at 23:59:55, so 5 s in it runs backwards."""
+    log = write_lines(work / "d.csv", short_cols, _dated(short_cols, "%H:%M:%S.%f"))
+    mapping = work / "tod.toml"
+    mapping.write_text(
+        (work / "arm3.toml")
+        .read_text()
+        .replace('unit = "ms"', 'unit = "datetime"\nformat = "%H:%M:%S.%f"')
+    )
+    err = _fail(cli, log, mapping, work / "X")
+    assert "column 't_ms', row 501: time goes backwards (4.999567 s -> -86394.989077 s)" in err

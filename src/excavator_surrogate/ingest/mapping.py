@@ -187,6 +187,19 @@ class TimeMap:
     """Numeric unit, or ``datetime`` for ISO-8601 strings / timestamp columns."""
     stamp: Literal["auto", "header", "log"] = "auto"
     """ROS: use ``header.stamp`` or the bag's log time (``auto``: header when present)."""
+    format: str | None = None
+    """With ``unit = "datetime"``: the text's form as a ``strptime`` format, e.g.
+    ``"%d.%m.%Y %H:%M:%S,%f"``, or ``"%H:%M:%S.%f"`` for a time of day; None: ISO-8601."""
+
+    def __post_init__(self) -> None:
+        if self.format is not None and self.unit != "datetime":
+            raise ConfigError(
+                f'[time] format is for date-time text: set unit = "datetime" (unit is {self.unit!r})'
+            )
+        if self.format is not None and "%" not in self.format:
+            raise ConfigError(
+                f'[time] format {self.format!r} has no % directive (e.g. "%d.%m.%Y %H:%M:%S.%f")'
+            )
 
 
 @dataclass(frozen=True)

@@ -60,8 +60,8 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
         if key in data and not isinstance(data[key], dict):
             raise ConfigError(f"{where}: '{key}' must be a table ([{key}])")
     machine = from_dict(MachineTable, data.get("machine"), where=f"{where}: machine")
-    time = from_dict(TimeMap, data.get("time"), where=f"{where}: time")
     try:
+        time = from_dict(TimeMap, data.get("time"), where=f"{where}: time")
         options = from_dict(ImportOptions, data.get("import"), where=f"{where}: import")
         split = from_dict(SplitOptions, data.get("split"), where=f"{where}: split")
         csv = from_dict(CsvOptions, data.get("csv"), where=f"{where}: csv")
