@@ -159,6 +159,24 @@ def test_datetime_time_column(work, short_cols):
     np.testing.assert_allclose(res.episodes[0].theta, ref.theta, atol=1e-9)
 
 
+@pytest.mark.parametrize("unit", ["ms", "datetime"])
+def test_a_duration_time_column_is_read_in_its_own_unit(work, short_cols, unit):
+    """pandas' Timedelta in Parquet (``duration[us]``): relative time whatever ``unit`` says."""
+    arrays = {c: pa.array(short_cols[c]) for c in arm3_plant.LOG_COLUMNS}
+    us = np.round(short_cols["t_ms"] * 1e3).astype(np.int64) + 7_000_000  # 7 s into a run
+    arrays["t_ms"] = pa.array(us, type=pa.duration("us"))
+    log = work / "d.parquet"
+    pq.write_table(pa.table(arrays), log)
+    text = (work / "arm3.toml").read_text().replace('unit = "ms"', f'unit = "{unit}"')
+    res = convert_log(log, parse_mapping(tomllib.loads(text), path=work / "d.toml"))
+    assert res.entry["origin"] == "7000000000 ns (a duration)"
+    ref = convert_log(
+        write_lines(work / "b.csv", short_cols), load_mapping(work / "arm3.toml")
+    ).episodes[0]
+    np.testing.assert_allclose(res.episodes[0].time, ref.time, atol=1e-12)
+    np.testing.assert_allclose(res.episodes[0].theta, ref.theta, atol=1e-5)  # CSV: 6 digits
+
+
 def _six_joint(
     tmp: Path, *, swing_vel_unit: str = "deg/s"
 ) -> tuple[Path, Path, dict[str, np.ndarray]]:

@@ -89,7 +89,8 @@ def parse_time(
     path: Path, col: pa.ChunkedArray, tm: TimeMap, *, decimal: str = "."
 ) -> tuple[np.ndarray, str]:
     """Time column -> (seconds since the first row, origin string); ``decimal`` as in
-    :func:`numeric_column`."""
+    :func:`numeric_column`. A duration column (pandas' Timedelta) is read in its own unit,
+    whatever ``tm.unit`` says."""
     name = str(tm.column)
     t = col.type
     if col.null_count:
@@ -102,6 +103,12 @@ def parse_time(
             row=row,
             fix="drop rows without a time stamp (time gaps are handled, missing stamps are not)",
         )
+    if pa.types.is_duration(t):  # pandas' Timedelta: the type carries its unit
+        ns = np.asarray(
+            pc.cast(pc.cast(col, pa.duration("ns")), pa.int64()).to_numpy(zero_copy_only=False),
+            dtype=np.int64,
+        )
+        return (ns - ns[0]).astype(np.float64) * 1e-9, f"{int(ns[0])} ns (a duration)"
     if tm.unit == "datetime":
         ns = _datetime_ns(path, col, name, fmt=tm.format)
         origin = str(pc.cast(col, pa.string())[0]) if col.num_chunks else ""
