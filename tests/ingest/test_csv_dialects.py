@@ -42,26 +42,38 @@ def _fail(cli, log: Path, mapping: Path, out: Path) -> str:
     return err
 
 
-def test_a_decimal_comma_log_imports_as_the_plain_one(cli, work, short_cols) -> None:
-    plain = write_lines(work / "plain" / "a.csv", short_cols)
-    euro = write_lines(work / "euro" / "a.csv", short_cols, _european)
-    assert ";" not in plain.read_text() and "." not in euro.read_text()
-    mapping = work / "euro.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + LOCALE)
-    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
-    assert _import(cli, euro, mapping, work / "E") == (0, "")
-    ref = load_dataset(work / "P")
-    got = load_dataset(work / "E")
-    assert {s: len(e) for s, e in got.episodes.items()} == {
-        s: len(e) for s, e in ref.episodes.items()
-    }
-    assert ref.n_samples() > 0
+def _mapping(work: Path, name: str, extra: str = "", *, time: str | None = None) -> Path:
+    """The test arm's mapping with ``extra`` appended and ``[time] unit = "ms"`` replaced by
+    ``time``, written to ``work / name``."""
+    text = (work / "arm3.toml").read_text()
+    if time is not None:
+        text = text.replace('unit = "ms"', time)
+    (work / name).write_text(text + extra)
+    return work / name
+
+
+def _same(cli, a: tuple[Path, Path], b: tuple[Path, Path], out: Path, *, atol: float = 0.0):
+    """Logs ``a`` and ``b`` (each with its mapping) import to the same episodes (to ``atol``)."""
+    assert _import(cli, *a, out / "A") == (0, "")
+    assert _import(cli, *b, out / "B") == (0, "")
+    ref, got = load_dataset(out / "A"), load_dataset(out / "B")
+    assert ref.n_samples() == got.n_samples() > 0
     for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_array_equal(a.time, b.time)
-            np.testing.assert_array_equal(a.theta, b.theta)
-            np.testing.assert_array_equal(a.omega, b.omega)
-            np.testing.assert_array_equal(a.u, b.u)
+        for x, y in zip(eps, got.split(split), strict=True):
+            for f in ("time", "theta", "omega", "u"):
+                np.testing.assert_allclose(getattr(x, f), getattr(y, f), rtol=0, atol=atol)
+
+
+def _same_as_plain(cli, work: Path, cols, log: Path, mapping: Path, *, atol: float = 0.0):
+    """``log`` imports with ``mapping`` to the episodes of the plain log of ``cols``."""
+    plain = write_lines(work / "plain.csv", cols)
+    _same(cli, (plain, work / "arm3.toml"), (log, mapping), work / "out", atol=atol)
+
+
+def test_a_decimal_comma_log_imports_as_the_plain_one(cli, work, short_cols) -> None:
+    euro = write_lines(work / "euro.csv", short_cols, _european)
+    assert "." not in euro.read_text()
+    _same_as_plain(cli, work, short_cols, euro, _mapping(work, "euro.toml", LOCALE))
 
 
 @pytest.mark.parametrize("locale", [False, True], ids=["comma", "semicolon-decimal-comma"])
@@ -76,27 +88,15 @@ def test_a_space_after_each_delimiter_imports_as_the_plain_log(
         sep = ";" if locale else ","
         return [x.replace(sep, sep + " ") for x in lines]
 
-    plain = write_lines(work / "plain.csv", short_cols)
     log = write_lines(work / "spaced.csv", short_cols, spaced)
     assert ", " in log.read_text() or "; " in log.read_text()
-    mapping = work / "m.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + (LOCALE if locale else ""))
-    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
-    assert _import(cli, log, mapping, work / "S") == (0, "")
-    ref, got = load_dataset(work / "P"), load_dataset(work / "S")
-    assert ref.n_samples() == got.n_samples() > 0
-    for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_array_equal(a.time, b.time)
-            np.testing.assert_array_equal(a.theta, b.theta)
-            np.testing.assert_array_equal(a.u, b.u)
+    mapping = _mapping(work, "m.toml", LOCALE if locale else "")
+    _same_as_plain(cli, work, short_cols, log, mapping)
 
 
 def test_decimal_commas_without_the_option_name_the_fix(cli, work, short_cols) -> None:
     euro = write_lines(work / "a.csv", short_cols, _european)
-    mapping = work / "semi.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\ndelimiter = ";"\n')
-    err = _fail(cli, euro, mapping, work / "X")
+    err = _fail(cli, euro, _mapping(work, "semi.toml", '[csv]\ndelimiter = ";"\n'), work / "X")
     assert f"{euro}, column 't_ms', row 0: non-numeric value '0,000'" in err
     assert 'decimal commas: set [csv] decimal = "," in the mapping' in err
 
@@ -110,18 +110,14 @@ def test_one_bad_cell_of_a_decimal_comma_log_is_named(cli, work, short_cols) -> 
         return lines
 
     log = write_lines(work / "a.csv", short_cols, edit)
-    mapping = work / "euro.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + LOCALE)
-    err = _fail(cli, log, mapping, work / "X")
+    err = _fail(cli, log, _mapping(work, "euro.toml", LOCALE), work / "X")
     assert f"{log}, column 'arm_deg', row 300: non-numeric value '1.234,5'" in err
     assert "thousands separator" in err
 
 
 def test_decimal_and_delimiter_alike_is_a_config_error(cli, work, short_cols) -> None:
     log = write_lines(work / "a.csv", short_cols)
-    mapping = work / "same.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\ndecimal = ","\n')
-    err = _fail(cli, log, mapping, work / "X")
+    err = _fail(cli, log, _mapping(work, "same.toml", '[csv]\ndecimal = ","\n'), work / "X")
     assert "same.toml: [csv] decimal and delimiter are both ','" in err
 
 
@@ -138,14 +134,7 @@ def test_a_decimal_comma_dspace_export_imports_as_the_plain_one(cli, tmp_path, s
     err = _fail(cli, plain, tmp_path / "e.toml", tmp_path / "X")
     assert f"{plain}: the export separates its fields by ','" in err
     assert "remove [csv] decimal from" in err
-    assert _import(cli, plain, tmp_path / "p.toml", tmp_path / "P") == (0, "")
-    assert _import(cli, euro, tmp_path / "e.toml", tmp_path / "E") == (0, "")
-    ref, got = load_dataset(tmp_path / "P"), load_dataset(tmp_path / "E")
-    assert ref.n_samples() == got.n_samples() > 0
-    for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_array_equal(a.theta, b.theta)
-            np.testing.assert_array_equal(a.u, b.u)
+    _same(cli, (plain, tmp_path / "p.toml"), (euro, tmp_path / "e.toml"), tmp_path)
 
 
 def test_numeric_column_reads_either_mark() -> None:
@@ -179,27 +168,17 @@ def _excel(work: Path, cols: dict[str, np.ndarray]) -> tuple[Path, Path]:
 
 
 def test_a_windows_excel_export_imports_as_the_plain_one(cli, work, short_cols) -> None:
-    plain = write_lines(work / "plain.csv", short_cols)
     log, mapping = _excel(work, short_cols)
     err = _fail(cli, log, mapping, work / "X")
     assert f"{log}: cannot read the header (UnicodeDecodeError" in err
     assert 'set [csv] encoding (e.g. "cp1252" for a Windows export)' in err
     mapping.write_text(mapping.read_text() + LOCALE + 'encoding = "cp1252"\n')
-    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
-    assert _import(cli, log, mapping, work / "E") == (0, "")
-    ref, got = load_dataset(work / "P"), load_dataset(work / "E")
-    assert ref.n_samples() == got.n_samples() > 0
-    for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_array_equal(a.theta, b.theta)
-            np.testing.assert_array_equal(a.u, b.u)
+    _same_as_plain(cli, work, short_cols, log, mapping)
 
 
 def test_an_unknown_encoding_is_a_config_error(cli, work, short_cols) -> None:
     log = write_lines(work / "a.csv", short_cols)
-    mapping = work / "enc.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\nencoding = "cp9999"\n')
-    err = _fail(cli, log, mapping, work / "X")
+    err = _fail(cli, log, _mapping(work, "enc.toml", '[csv]\nencoding = "cp9999"\n'), work / "X")
     assert "enc.toml: " in err and "[csv] encoding 'cp9999' is not a known text encoding" in err
 
 
@@ -217,26 +196,7 @@ def test_a_dspace_export_in_a_code_page_names_its_traces(cli, tmp_path, short_co
     (tmp_path / "p.toml").write_text(text)
     coded_map = text.replace('"boom_deg"', '"Auslegerwinkel_°"') + '[csv]\nencoding = "cp1252"\n'
     (tmp_path / "e.toml").write_text(coded_map)
-    assert _import(cli, plain, tmp_path / "p.toml", tmp_path / "P") == (0, "")
-    assert _import(cli, coded, tmp_path / "e.toml", tmp_path / "E") == (0, "")
-    ref, got = load_dataset(tmp_path / "P"), load_dataset(tmp_path / "E")
-    for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_array_equal(a.theta, b.theta)
-
-
-def _same_as_plain(cli, work: Path, cols, log: Path, mapping: Path) -> None:
-    """``log`` imports with ``mapping`` to the episodes of the plain log of ``cols``."""
-    plain = write_lines(work / "plain.csv", cols)
-    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
-    assert _import(cli, log, mapping, work / "S") == (0, "")
-    ref, got = load_dataset(work / "P"), load_dataset(work / "S")
-    assert ref.n_samples() == got.n_samples() > 0
-    for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_array_equal(a.time, b.time)
-            np.testing.assert_array_equal(a.theta, b.theta)
-            np.testing.assert_array_equal(a.u, b.u)
+    _same(cli, (plain, tmp_path / "p.toml"), (coded, tmp_path / "e.toml"), tmp_path)
 
 
 def test_a_units_row_is_named_and_skipped(cli, work, short_cols) -> None:
@@ -247,8 +207,7 @@ def test_a_units_row_is_named_and_skipped(cli, work, short_cols) -> None:
     err = _fail(cli, log, work / "arm3.toml", work / "X")
     assert f"{log}, row 0: no mapped column holds a number ('ms', 'deg', '%', '%', ...)" in err
     assert "a row of units under the header? (set [csv] skip_rows_after_header = 1 in" in err
-    mapping = work / "units.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = 1\n")
+    mapping = _mapping(work, "units.toml", "[csv]\nskip_rows_after_header = 1\n")
     _same_as_plain(cli, work, short_cols, log, mapping)
 
 
@@ -257,8 +216,7 @@ def test_a_ragged_row_after_a_units_row_names_its_line(cli, work, short_cols) ->
     log = write_lines(
         work / "u.csv", short_cols, lambda ls: [ls[0], units, *ls[1:40], ls[40] + ",9", *ls[41:]]
     )
-    mapping = work / "units.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = 1\n")
+    mapping = _mapping(work, "units.toml", "[csv]\nskip_rows_after_header = 1\n")
     err = _fail(cli, log, mapping, work / "X")
     assert "row 39: ragged rows: line 42 of the file has" in err  # header 1, units 2, row 0 on 3
 
@@ -281,15 +239,13 @@ def test_a_utf16_log_is_named_and_read(cli, work, short_cols) -> None:
         'the file is UTF-16 (it starts with its byte-order mark): set [csv] encoding = "utf-16"'
         in err
     )
-    mapping = work / "utf16.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + '[csv]\nencoding = "utf-16"\n')
+    mapping = _mapping(work, "utf16.toml", '[csv]\nencoding = "utf-16"\n')
     _same_as_plain(cli, work, short_cols, log, mapping)
 
 
 def test_a_negative_skip_is_a_config_error(cli, work, short_cols) -> None:
     log = write_lines(work / "a.csv", short_cols)
-    mapping = work / "neg.toml"
-    mapping.write_text((work / "arm3.toml").read_text() + "[csv]\nskip_rows_after_header = -1\n")
+    mapping = _mapping(work, "neg.toml", "[csv]\nskip_rows_after_header = -1\n")
     err = _fail(cli, log, mapping, work / "X")
     assert "neg.toml: [csv] skip_rows_after_header must be >= 0, got -1" in err
 
@@ -316,26 +272,10 @@ def test_a_strptime_format_reads_a_logger_date(cli, work, short_cols, fmt) -> No
     """A date the logger writes its own way, across midnight: the same episodes as ``t_ms``."""
     log = write_lines(work / "d.csv", short_cols, _dated(short_cols, fmt))
     assert "02.05.2024" in log.read_text() or "02/05/2024" in log.read_text()
-    iso = work / "iso.toml"
-    iso.write_text((work / "arm3.toml").read_text().replace('unit = "ms"', 'unit = "datetime"'))
-    err = _fail(cli, log, iso, work / "X")
+    err = _fail(cli, log, _mapping(work, "iso.toml", time='unit = "datetime"'), work / "X")
     assert "column 't_ms', row 0: time value '01" in err and "is not an ISO-8601 date-time" in err
-    mapping = work / "fmt.toml"
-    mapping.write_text(
-        (work / "arm3.toml")
-        .read_text()
-        .replace('unit = "ms"', f'unit = "datetime"\nformat = "{fmt}"')
-    )
-    plain = write_lines(work / "plain.csv", short_cols)
-    assert _import(cli, plain, work / "arm3.toml", work / "P") == (0, "")
-    assert _import(cli, log, mapping, work / "S") == (0, "")
-    ref, got = load_dataset(work / "P"), load_dataset(work / "S")
-    assert ref.n_samples() == got.n_samples() > 0
-    for split, eps in ref.episodes.items():
-        for a, b in zip(eps, got.split(split), strict=True):
-            np.testing.assert_allclose(a.time, b.time, atol=1e-9)
-            np.testing.assert_allclose(a.theta, b.theta, atol=1e-9)
-            np.testing.assert_allclose(a.u, b.u, atol=1e-9)
+    mapping = _mapping(work, "fmt.toml", time=f'unit = "datetime"\nformat = "{fmt}"')
+    _same_as_plain(cli, work, short_cols, log, mapping, atol=1e-9)
 
 
 def test_a_time_that_misses_the_format_is_named(cli, work, short_cols) -> None:
@@ -345,12 +285,7 @@ def test_a_time_that_misses_the_format_is_named(cli, work, short_cols) -> None:
         return lines
 
     log = write_lines(work / "d.csv", short_cols, edit)
-    mapping = work / "fmt.toml"
-    mapping.write_text(
-        (work / "arm3.toml")
-        .read_text()
-        .replace('unit = "ms"', 'unit = "datetime"\nformat = "%d.%m.%Y %H:%M:%S.%f"')
-    )
+    mapping = _mapping(work, "fmt.toml", time='unit = "datetime"\nformat = "%d.%m.%Y %H:%M:%S.%f"')
     err = _fail(cli, log, mapping, work / "X")
     assert "column 't_ms', row 100: time value '2024-05-01 " in err
     assert "does not match [time] format '%d.%m.%Y %H:%M:%S.%f'" in err
@@ -368,20 +303,13 @@ def test_a_time_that_misses_the_format_is_named(cli, work, short_cols) -> None:
 )
 def test_a_format_that_cannot_apply_is_a_config_error(cli, work, short_cols, time, message) -> None:
     log = write_lines(work / "a.csv", short_cols)
-    mapping = work / "bad.toml"
-    mapping.write_text((work / "arm3.toml").read_text().replace('unit = "ms"', time))
-    err = _fail(cli, log, mapping, work / "X")
+    err = _fail(cli, log, _mapping(work, "bad.toml", time=time), work / "X")
     assert f"bad.toml: {message}" in err
 
 
 def test_a_time_of_day_across_midnight_is_refused(cli, work, short_cols) -> None:
     """``%H:%M:%S.%f`` has no date: the log starts at 23:59:55, so 5 s in it runs backwards."""
     log = write_lines(work / "d.csv", short_cols, _dated(short_cols, "%H:%M:%S.%f"))
-    mapping = work / "tod.toml"
-    mapping.write_text(
-        (work / "arm3.toml")
-        .read_text()
-        .replace('unit = "ms"', 'unit = "datetime"\nformat = "%H:%M:%S.%f"')
-    )
+    mapping = _mapping(work, "tod.toml", time='unit = "datetime"\nformat = "%H:%M:%S.%f"')
     err = _fail(cli, log, mapping, work / "X")
     assert "column 't_ms', row 501: time goes backwards (4.999567 s -> -86394.989077 s)" in err
