@@ -23,7 +23,7 @@ from ..outdir import check_out_dir, replace_allowed
 from ..spec import MachineSpec
 from .convert import FileResult, convert_log
 from .mapping import ImportOptions, Mapping, SplitOptions
-from .readers import expand_sources
+from .readers import expand_sources, log_kind, log_suffix, nested_logs
 from .report import render_markdown
 from .split import assign_splits
 
@@ -85,6 +85,7 @@ def import_logs(
             fix="lower --min-steps, raise --max-gap, or check the logs",
         )
     items, warnings = _split_by_file(kept, split)
+    warnings += _unsearched(sources)
     report = _report(mapping, spec, options, split, results, failed, items, warnings, outp)
     md = render_markdown(report)
     if outp is not None:
@@ -155,6 +156,22 @@ def _unique_names(results: list[FileResult]) -> None:
                     if seg.get("episode") == ep.name:
                         seg["episode"] = name
                 r.episodes[i] = ep.replace(name=name)
+
+
+def _unsearched(sources: Sequence[str | Path]) -> list[str]:
+    """A warning for each folder source whose sub-folders hold logs it did not import."""
+    out = []
+    for s in sources:
+        p = Path(s)
+        if p.is_dir() and log_kind(p) is None:
+            deeper = nested_logs(p)
+            if deeper:
+                out.append(
+                    f"{p}: its sub-folders hold {len(deeper)} log(s) that were not imported (a "
+                    "folder is not searched recursively); give the sub-folders too, or a quoted "
+                    f'glob such as "{p}/**/*{log_suffix(deeper[0])}"'
+                )
+    return out
 
 
 def _split_by_file(

@@ -10,6 +10,7 @@ a log format is one reader module plus one entry here.
 from __future__ import annotations
 
 import glob
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -80,7 +81,15 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
                     c for c in sorted(p.iterdir()) if not c.name.startswith(".") and log_kind(c)
                 ]
                 if not found:
-                    raise DataError(p, "folder holds no log files", fix=f"put {SUPPORTED} in it")
+                    deeper = nested_logs(p)
+                    fix = (
+                        f"its sub-folders hold {len(deeper)} log(s), and a folder is not searched "
+                        f'recursively: give the sub-folders, or a quoted glob such as "{p}/**/*'
+                        f'{log_suffix(deeper[0])}"'
+                        if deeper
+                        else f"put {SUPPORTED} in it"
+                    )
+                    raise DataError(p, "folder holds no log files", fix=fix)
                 for c in found:
                     add(c)
             else:
@@ -99,6 +108,32 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
         else:
             raise DataError(p, "file not found", fix="check the path")
     return out
+
+
+def nested_logs(folder: Path, *, limit: int = 10_000) -> list[Path]:
+    """The logs in ``folder``'s sub-folders at any depth (not its own files; hidden entries
+    skipped; at most ``limit``): what a folder source leaves out."""
+    out: list[Path] = []
+    subs = [c for c in sorted(folder.iterdir()) if c.is_dir() and not c.name.startswith(".")]
+    for sub in subs:
+        if log_kind(sub):  # a rosbag2 folder is one log, and the folder source takes it
+            continue
+        for root, dirs, files in os.walk(sub):
+            dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+            here = Path(root)
+            if log_kind(here):
+                out.append(here)
+                dirs[:] = []
+                continue
+            out += [here / f for f in sorted(files) if not f.startswith(".") and log_kind(here / f)]
+            if len(out) >= limit:
+                return out[:limit]
+    return out
+
+
+def log_suffix(path: Path) -> str:
+    """The log suffix of ``path`` (``.csv.gz``), or ``""`` for a folder."""
+    return "" if path.is_dir() else path.name[len(log_stem(path)) :]
 
 
 def read_log(path: Path, mapping: Mapping) -> RawLog:
