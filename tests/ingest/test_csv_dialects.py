@@ -274,6 +274,7 @@ def test_a_strptime_format_reads_a_logger_date(cli, work, short_cols, fmt) -> No
     assert "02.05.2024" in log.read_text() or "02/05/2024" in log.read_text()
     err = _fail(cli, log, _mapping(work, "iso.toml", time='unit = "datetime"'), work / "X")
     assert "column 't_ms', row 0: time value '01" in err and "is not an ISO-8601 date-time" in err
+    assert 'a strptime format in the mapping, e.g. [time] format = "%d.%m.%Y %H:%M:%S.%f"' in err
     mapping = _mapping(work, "fmt.toml", time=f'unit = "datetime"\nformat = "{fmt}"')
     _same_as_plain(cli, work, short_cols, log, mapping, atol=1e-9)
 

@@ -200,7 +200,8 @@ def _datetime_ns(
                 f"time value {v!r} is not an ISO-8601 date-time",
                 column=name,
                 row=i,
-                fix="write times like 2024-05-01T12:00:00.125 (or use a numeric unit)",
+                fix="give their form as a strptime format in the mapping, e.g. [time] format = "
+                '"%d.%m.%Y %H:%M:%S.%f", or write times like 2024-05-01T12:00:00.125',
             ) from None
         out[i] = _ns(d, epoch)
     return out
