@@ -137,29 +137,30 @@ def parse_time(
         return rel, f"{int(ints[0])} {tm.unit}"
     else:
         vals = numeric_column(path, col, name)
-    bad = ~np.isfinite(vals)
-    if bad.any():
-        row = int(np.flatnonzero(bad)[0])
-        raise DataError(
-            path,
-            f"non-finite timestamp {float(vals[row]):g}",
-            column=name,
-            row=row,
-            fix="drop rows without a valid time stamp",
-        )
+    row = _first_non_finite(vals)
+    if row is not None:
+        raise _bad_stamp(path, name, row, f"non-finite timestamp {float(vals[row]):g}")
     with np.errstate(over="ignore", invalid="ignore"):
         rel = (vals - vals[0]) * (_UNIT_NS[tm.unit] * 1e-9)
-    bad = ~np.isfinite(rel)
-    if bad.any():
-        row = int(np.flatnonzero(bad)[0])
-        raise DataError(
-            path,
-            f"timestamp {float(vals[row]):.6g} is out of range (row 0 reads {float(vals[0]):.6g})",
-            column=name,
-            row=row,
-            fix="drop rows without a valid time stamp",
+    row = _first_non_finite(rel)
+    if row is not None:
+        problem = (
+            f"timestamp {float(vals[row]):.6g} is out of range (row 0 reads {float(vals[0]):.6g})"
         )
+        raise _bad_stamp(path, name, row, problem)
     return rel, f"{float(vals[0])!r} {tm.unit}"
+
+
+def _first_non_finite(x: np.ndarray) -> int | None:
+    """The index of ``x``'s first NaN or infinity, or None."""
+    bad = np.flatnonzero(~np.isfinite(x))
+    return int(bad[0]) if bad.size else None
+
+
+def _bad_stamp(path: Path, name: str, row: int, problem: str) -> DataError:
+    return DataError(
+        path, problem, column=name, row=row, fix="drop rows without a valid time stamp"
+    )
 
 
 def _datetime_ns(
@@ -179,7 +180,7 @@ def _datetime_ns(
             fix="use a numeric unit (s, ms, us, ns) for numeric time stamps",
         )
     if fmt is not None:
-        return _strptime_ns(path, col, name, fmt)
+        return _parsed_ns(path, col, name, fmt=fmt)
     for target in (pa.timestamp("ns"), pa.timestamp("ns", tz="UTC")):
         try:
             ts = pc.cast(col, target)
@@ -188,42 +189,30 @@ def _datetime_ns(
             )
         except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
             continue
-    # mixed or unusual forms: parse in Python and locate the first bad row
+    return _parsed_ns(path, col, name, fmt=None)  # mixed or unusual forms: row by row
+
+
+def _parsed_ns(path: Path, col: pa.ChunkedArray, name: str, *, fmt: str | None) -> np.ndarray:
+    """Date-time text parsed row by row in Python, as nanoseconds since 1970: ISO-8601
+    (``fmt`` None), or the ``strptime`` format ``fmt`` (Arrow's parser has no ``%f``; about
+    10 µs a row). The first row that does not parse is a DataError."""
     out = np.empty(len(col), dtype=np.int64)
     epoch = datetime(1970, 1, 1)
     for i, v in enumerate(col.to_pylist()):
+        text = str(v).strip()
         try:
-            d = datetime.fromisoformat(str(v).strip())
-        except ValueError:
-            raise DataError(
-                path,
-                f"time value {v!r} is not an ISO-8601 date-time",
-                column=name,
-                row=i,
-                fix="give their form as a strptime format in the mapping, e.g. [time] format = "
-                '"%d.%m.%Y %H:%M:%S.%f", or write times like 2024-05-01T12:00:00.125',
-            ) from None
-        out[i] = _ns(d, epoch)
-    return out
-
-
-def _strptime_ns(path: Path, col: pa.ChunkedArray, name: str, fmt: str) -> np.ndarray:
-    """Date-time text of the ``strptime`` format ``fmt`` as nanoseconds since 1970 (Python's
-    parser: Arrow's has no ``%f``; about 10 µs a row)."""
-    out = np.empty(len(col), dtype=np.int64)
-    epoch = datetime(1970, 1, 1)
-    for i, v in enumerate(col.to_pylist()):
-        try:
-            d = datetime.strptime(str(v).strip(), fmt)
+            d = datetime.fromisoformat(text) if fmt is None else datetime.strptime(text, fmt)
         except ValueError as e:
-            raise DataError(
-                path,
-                f"time value {v!r} does not match [time] format {fmt!r} ({e})",
-                column=name,
-                row=i,
-                fix="write the format with Python's strptime directives, e.g. "
-                '"%d.%m.%Y %H:%M:%S.%f"',
-            ) from None
+            if fmt is None:
+                problem = f"time value {v!r} is not an ISO-8601 date-time"
+                fix = (
+                    "give their form as a strptime format in the mapping, e.g. [time] format = "
+                    '"%d.%m.%Y %H:%M:%S.%f", or write times like 2024-05-01T12:00:00.125'
+                )
+            else:
+                problem = f"time value {v!r} does not match [time] format {fmt!r} ({e})"
+                fix = 'write the format with Python\'s strptime directives, e.g. "%d.%m.%Y %H:%M:%S.%f"'
+            raise DataError(path, problem, column=name, row=i, fix=fix) from None
         out[i] = _ns(d, epoch)
     return out
 
