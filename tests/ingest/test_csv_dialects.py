@@ -101,6 +101,22 @@ def test_decimal_commas_without_the_option_name_the_fix(cli, work, short_cols) -
     assert 'decimal commas: set [csv] decimal = "," in the mapping' in err
 
 
+def test_a_first_row_of_decimal_commas_is_not_taken_for_units(cli, work, short_cols) -> None:
+    """Row 0 without an integer cell (``0,000;10,0058;0,55;...``): no number with a decimal
+    point anywhere, yet the fix is the decimal mark, not a units row."""
+
+    def edit(lines: list[str]) -> list[str]:
+        lines = _european(lines)
+        lines[1] = ";".join(x if "," in x else x + ",5" for x in lines[1].split(";"))
+        return lines
+
+    log = write_lines(work / "a.csv", short_cols, edit)
+    err = _fail(cli, log, _mapping(work, "semi.toml", '[csv]\ndelimiter = ";"\n'), work / "X")
+    assert all("," in x for x in log.read_text().splitlines()[1].split(";"))
+    assert f"{log}, column 't_ms', row 0: non-numeric value '0,000'" in err
+    assert 'decimal commas: set [csv] decimal = ","' in err
+
+
 def test_one_bad_cell_of_a_decimal_comma_log_is_named(cli, work, short_cols) -> None:
     def edit(lines: list[str]) -> list[str]:
         lines = _european(lines)

@@ -271,7 +271,7 @@ def _parse_csv(
         try:
             numeric_column(path, text.column(c), c, decimal=mapping.csv.decimal)
         except DataError as e:
-            units = _units_row(text, numeric, mapping.csv.decimal) if e.row == 0 else None
+            units = _units_row(text, numeric) if e.row == 0 else None
             if units is None:
                 raise
             more = mapping.csv.skip_rows_after_header + 1
@@ -285,10 +285,13 @@ def _parse_csv(
     return text
 
 
-def _units_row(text: pa.Table, columns: list[str], decimal: str) -> list[str] | None:
-    """Row 0's cells of ``columns`` if none is a number and one is text (units), else None."""
+def _units_row(text: pa.Table, columns: list[str]) -> list[str] | None:
+    """Row 0's cells of ``columns`` if none is a number (with either decimal mark: a log with
+    decimal commas read without ``[csv] decimal`` is not a units row) and one is text."""
     cells = [text.column(c)[0].as_py() if text.num_rows else None for c in columns]
-    if any(v is not None and is_number(v, decimal) for v in cells) or not any(cells):
+    if any(v is not None and (is_number(v, ".") or is_number(v, ",")) for v in cells):
+        return None
+    if not any(cells):
         return None
     shown = [repr(v) for v in cells if v][:4]
     return shown + (["..."] if sum(1 for v in cells if v) > 4 else [])
