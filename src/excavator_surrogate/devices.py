@@ -116,6 +116,24 @@ def torch_threads(n: int) -> Iterator[None]:
             torch.set_num_threads(prev)
 
 
+_FORK_HOOK = False
+
+
+def one_thread_in_forked_children() -> None:
+    """Make every child this process forks from now on run torch on ONE thread (registered once).
+
+    A process that ran torch on several threads holds an OpenMP thread pool, and a child it
+    forks (gymnasium's ``AsyncVectorEnv`` on Linux, a ``multiprocessing`` pool) inherits the
+    pool's state without its threads: its first parallel torch op (copying a 128-wide LSTM's
+    weights into a fresh network) waits on them forever. One thread never enters the pool.
+    ``torch.utils.data`` does the same in its workers; a spawned child is not affected.
+    """
+    global _FORK_HOOK
+    if not _FORK_HOOK and hasattr(os, "register_at_fork"):
+        os.register_at_fork(after_in_child=lambda: torch.set_num_threads(1))
+        _FORK_HOOK = True
+
+
 def available_memory() -> int | None:
     """Memory this process may still allocate [bytes]: ``MemAvailable`` of ``/proc/meminfo``
     (Linux), else the free physical pages (``os.sysconf``); None when neither is known."""

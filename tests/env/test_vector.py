@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -22,6 +26,7 @@ from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.angles import joint_limits
+from excavator_surrogate.surrogate.checkpoint import save_checkpoint
 from excavator_surrogate.surrogate.rollout import ClosedLoop
 from tests.helpers.surrogates import VARIANTS, variant_surrogate
 
@@ -194,6 +199,42 @@ def test_make_vec_entry_point(stateful_ckpt: Path) -> None:
     obs, rew, term, trunc, _ = envs.step(envs.action_space.sample())
     assert obs.shape == (5, 8) and rew.shape == term.shape == trunc.shape == (5,)
     assert envs.observation_space.contains(obs)
+
+
+_FORKED = """
+import sys
+import gymnasium as gym
+import excavator_surrogate.env  # noqa: F401
+envs = gym.make_vec("ExcavatorSurrogate-v0", num_envs=2, vectorization_mode="async",
+                    vector_kwargs={"context": "fork"}, ckpt=sys.argv[1])
+envs.reset(seed=0)
+for _ in range(3):
+    envs.step(envs.action_space.sample())
+envs.close()
+print("stepped")
+"""
+
+
+def test_async_vector_env_with_forked_workers_steps(ckpt_dir: Path, make_surrogate) -> None:
+    """gymnasium's ``AsyncVectorEnv`` forks its workers on Linux after it built one env in the
+    parent. A 128-wide LSTM's weights are copied on torch's threads there, and the forked
+    workers hung on the copy until load_checkpoint made their torch run on one thread."""
+    ckpt = save_checkpoint(ckpt_dir / "wide.pt", make_surrogate(hidden=128))
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _FORKED, str(ckpt)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "OMP_NUM_THREADS": "2"},  # a parent on threads, as on any multi-core
+        start_new_session=True,  # its forked workers die with it on a timeout
+    )
+    try:
+        out, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail("the forked workers hung (torch's thread pool across fork)")
+    assert proc.returncode == 0 and "stepped" in out, err[-2000:]
 
 
 @pytest.mark.parametrize("mode", ["stateful", "windowed"])

@@ -32,6 +32,7 @@ from typing import Any
 
 import torch
 
+from ..devices import one_thread_in_forked_children
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
@@ -277,6 +278,7 @@ def load_checkpoint(path: str | Path, *, device: str | torch.device = "cpu") -> 
     Raises:
         CheckpointError: one line naming the file and what to do.
     """
+    one_thread_in_forked_children()  # a forked env worker must not hang on torch's threads
     ckpt = read_checkpoint(path)
     sur = surrogate_from_dict(ckpt, where=str(path))
     return sur.to(device)
