@@ -38,8 +38,8 @@ def numeric_column(
             pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
         )
     if pa.types.is_string(t) or pa.types.is_large_string(t):
-        dotted = pc.replace_substring(col, decimal, ".") if decimal != "." else col
         if decimal == "." or not pc.any(pc.match_substring(col, ".")).as_py():
+            dotted = col if decimal == "." else pc.replace_substring(col, decimal, ".")
             try:
                 return np.asarray(
                     pc.cast(dotted, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64

@@ -288,13 +288,10 @@ def _parse_csv(
 def _units_row(text: pa.Table, columns: list[str]) -> list[str] | None:
     """Row 0's cells of ``columns`` if none is a number (with either decimal mark: a log with
     decimal commas read without ``[csv] decimal`` is not a units row) and one is text."""
-    cells = [text.column(c)[0].as_py() if text.num_rows else None for c in columns]
-    if any(v is not None and (is_number(v, ".") or is_number(v, ",")) for v in cells):
+    text_cells = [v for v in (text.column(c)[0].as_py() for c in columns) if v]
+    if not text_cells or any(is_number(v, ".") or is_number(v, ",") for v in text_cells):
         return None
-    if not any(cells):
-        return None
-    shown = [repr(v) for v in cells if v][:4]
-    return shown + (["..."] if sum(1 for v in cells if v) > 4 else [])
+    return [repr(v) for v in text_cells[:4]] + (["..."] if len(text_cells) > 4 else [])
 
 
 def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.Table, list[str]]:
