@@ -148,3 +148,33 @@ def available_memory() -> int | None:
         return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
     except (ValueError, OSError, AttributeError):
         return None
+
+
+class OneThread:
+    """Context manager: ``torch.set_num_threads(1)`` inside, previous count restored after."""
+
+    __slots__ = ("prev",)
+
+    def __init__(self) -> None:
+        self.prev = 1
+
+    def __enter__(self) -> None:
+        self.prev = torch.get_num_threads()
+        if self.prev != 1:
+            torch.set_num_threads(1)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.prev != 1:
+            torch.set_num_threads(self.prev)
+
+
+class NoOp:
+    """Context manager that does nothing (the threads of a large batch stay as they are)."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> None:
+        return None

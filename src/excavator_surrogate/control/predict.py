@@ -28,7 +28,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from ..env.engine import OneThread
+from ..devices import OneThread
 from ..errors import ConfigError
 from ..simulate.plant import MujocoExcavator
 from ..spec import MachineSpec

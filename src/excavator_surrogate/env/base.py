@@ -20,7 +20,6 @@ from gymnasium import spaces
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
-from ..surrogate.angles import joint_limits
 from .inputs import ActionLayout
 from .render import (
     RENDER_MODES,
@@ -40,6 +39,7 @@ from .safety import (
     GuardConfig,
     check_action_scale,
 )
+from .starts import check_history, check_theta0, last_velocity
 from .tasks import Task, start_pose
 
 
@@ -87,56 +87,6 @@ def observation_space(
     if guard.omega_max is not None:
         lo[n:], hi[n:] = -guard.omega_max, guard.omega_max
     return spaces.Box(lo, hi, dtype=np.float32)
-
-
-THETA0_SLACK = 0.02
-"""A given start pose may lie this fraction of a joint's range beyond its end stop: it starts
-at the stop, and a warning says so (a pose read off a log at a stop, plus sensor noise, or
-a model whose stops are its training data's range).  Farther out is an error."""
-
-
-def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = True) -> np.ndarray:
-    """Validate a start pose: (n_joint,) finite, limited joints inside their limits.
-
-    A limited joint up to :data:`THETA0_SLACK` of its range beyond a limit starts at that
-    limit, with one warning naming the joint and the distance (``warn=False``: no warning,
-    the caller says it); farther out raises.
-
-    Returns:
-        The pose (n_joint,) [rad], float64, clipped into the limits.
-    """
-    try:
-        th = np.asarray(theta0, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):  # text, ragged lists, None entries
-        th = np.full(0, np.nan)
-    if th.shape != (spec.n_joint,) or not np.isfinite(th).all():
-        raise ConfigError(
-            f"{where}: theta0 must be {spec.n_joint} finite angles in rad for joints "
-            f"{list(spec.names)}, got {theta0!r:.200}"
-        )
-    th = th.copy()
-    for k, (j, lo, hi) in enumerate(zip(spec.joints, *joint_limits(spec))):
-        # lo, hi = -inf, +inf for a periodic joint or an open limit: never beyond
-        span = hi - lo
-        slack = THETA0_SLACK * span if math.isfinite(span) else 0.0
-        beyond = max(lo - th[k], th[k] - hi)
-        if beyond <= 1e-9:
-            continue
-        if beyond > slack + 1e-9:
-            raise ConfigError(
-                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is outside the joint limits "
-                f"[{j.theta_min}, {j.theta_max}] by {math.degrees(beyond):.3g} deg, more than "
-                f"{THETA0_SLACK:.0%} of the range: give a start pose inside them"
-            )
-        stop = lo if th[k] < lo else hi
-        if warn:
-            gym.logger.warn(
-                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is "
-                f"{math.degrees(beyond):.3g} deg beyond its end stop {stop:.4g} rad: it starts "
-                "at the stop"
-            )
-        th[k] = stop
-    return th
 
 
 class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -219,6 +169,15 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
     def _dyn_reset(self, theta0: np.ndarray) -> None:
         raise NotImplementedError
 
+    def _dyn_reset_history(self, theta: np.ndarray, u: np.ndarray) -> None:
+        """Warm up on a recorded history ``theta`` (n_hist, n_joint) [rad], ``u`` (n_hist - 1,
+        n_u); dynamics that cannot (the plant) refuse it."""
+        raise ConfigError(
+            f"{self.env_id}: options['history'] starts only a surrogate from a recorded "
+            "history (a log does not hold this model's hidden state); start it at rest with "
+            "options['theta0']"
+        )
+
     def _dyn_step(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError
 
@@ -283,7 +242,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start at rest at ``options["theta0"]`` (n_joint,) [rad] or at a random pose.
+        """Start at rest at ``options["theta0"]`` (n_joint,) [rad], at a random pose, or (the
+        surrogate) after a recorded history ``options["history"]`` (:mod:`.starts`).
 
         Random poses are uniform in ``[-π, π)`` for periodic joints and inside the joint limits
         (shrunk by ``reset_margin`` of the range) otherwise, drawn from ``self.np_random``; a
@@ -291,13 +251,25 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         """
         super().reset(seed=seed)
         options = options or {}
-        if options.get("theta0") is not None:
-            theta0 = check_theta0(self.machine, options["theta0"], where=f"{self.env_id}.reset")
+        where = f"{self.env_id}.reset"
+        history = options.get("history")
+        if history is not None and options.get("theta0") is not None:
+            raise ConfigError(f"{where}: give options['theta0'] or options['history'], not both")
+        if history is not None:
+            theta_hist, u_hist = check_history(self.machine, history, where=where)
+            self._dyn_reset_history(theta_hist, u_hist)
+            self.theta = theta_hist[-1].copy()
+            self.omega = last_velocity(self.machine, theta_hist)
         else:
-            theta0 = start_pose(self.machine, self.task, self.np_random, margin=self.reset_margin)
-        self._dyn_reset(theta0)
-        self.theta = theta0.copy()
-        self.omega = np.zeros(self.machine.n_joint)
+            if options.get("theta0") is not None:
+                theta0 = check_theta0(self.machine, options["theta0"], where=where)
+            else:
+                theta0 = start_pose(
+                    self.machine, self.task, self.np_random, margin=self.reset_margin
+                )
+            self._dyn_reset(theta0)
+            self.theta = theta0.copy()
+            self.omega = np.zeros(self.machine.n_joint)
         self._n_step = 0
         info: dict[str, Any] = {"theta": self.theta.copy()}
         if self.task is not None:

@@ -32,9 +32,10 @@ from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, write_json, write_text
 from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
-from .base import ExcavatorEnv, check_theta0
+from .base import ExcavatorEnv
 from .plants import checkpoint_plant
 from .safety import GuardConfig
+from .starts import check_theta0
 
 DEFAULT_SECONDS = 90.0
 """Length of named excitations unless given (the paper's 1800-step test)."""

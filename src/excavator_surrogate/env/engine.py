@@ -19,20 +19,20 @@ Resets are masked: only the envs in ``mask`` get new angles and a fresh warm-up 
 
 from __future__ import annotations
 
-import math
 from typing import Literal
 
 import numpy as np
 import torch
 from torch import nn
 
-from ..devices import resolve_device
+from ..devices import NoOp, OneThread, resolve_device
 from ..errors import ConfigError
 from ..surrogate.angles import integrate
 from ..surrogate.member_lstm import MemberLSTM, from_dense, member_count, to_dense
 from ..surrogate.model import Surrogate, step_layers
 from ..surrogate.own_angles import network_inputs, own_advance, own_members, own_start
 from ..surrogate.parallel import own_gain_dev
+from ..surrogate.rollout import ClosedLoop
 from .fused import FusedStep, play_and_features, rest_command
 from .uncertainty import StepUncertainty
 
@@ -51,34 +51,6 @@ SINGLE_THREAD_MAX_BATCH = 128
 """Below this batch size a step runs with ONE torch thread (restored afterwards): tiny matmuls
 do not gain from threads, and on a shared machine OpenMP barriers waiting for descheduled
 threads made small-batch steps up to 10x slower."""
-
-
-class OneThread:
-    """Context manager: ``torch.set_num_threads(1)`` inside, previous count restored after."""
-
-    __slots__ = ("prev",)
-
-    def __init__(self) -> None:
-        self.prev = 1
-
-    def __enter__(self) -> None:
-        self.prev = torch.get_num_threads()
-        if self.prev != 1:
-            torch.set_num_threads(1)
-
-    def __exit__(self, *exc: object) -> None:
-        if self.prev != 1:
-            torch.set_num_threads(self.prev)
-
-
-class _NoOp:
-    __slots__ = ()
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc: object) -> None:
-        return None
 
 
 class SurrogateEngine:
@@ -132,7 +104,7 @@ class SurrogateEngine:
         self.window = int(sur.window)
         self.dt = float(self.spec.dt)
         self.u_rest = rest_command(self.spec)
-        self._threads = OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else _NoOp()
+        self._threads = OneThread() if self.n_envs < SINGLE_THREAD_MAX_BATCH else NoOp()
         n_joint = self.spec.n_joint
         self.theta = torch.zeros(self.n_envs, n_joint, dtype=torch.float64, device=self.device)
         self.norm = sur.norm.to(self.device, torch.float32)
@@ -325,6 +297,89 @@ class SurrogateEngine:
         return self.theta
 
     @torch.inference_mode()
+    def reset_history(
+        self,
+        theta_hist: np.ndarray,
+        u_hist: np.ndarray,
+        mask: np.ndarray | None = None,
+    ) -> torch.Tensor:
+        """Warm the envs in ``mask`` up on recorded samples instead of at rest.
+
+        Args:
+            theta_hist: (n_envs, n_hist, n_joint) angles ``theta[0..n_hist-1]`` [rad],
+                ``n_hist >= 2``; only rows in ``mask`` are used.
+            u_hist: (n_envs, n_hist - 1, n_u) commands ``u[0..n_hist-2]`` [command units].
+            mask: (n_envs,) bool; None resets every env.
+
+        The state is the one :class:`~excavator_surrogate.surrogate.rollout.ClosedLoop`
+        reaches with ``reset(theta_hist, u_hist)`` (the free run of ``exsur evaluate`` with
+        ``warmup = n_hist``): stepping the recorded commands from here continues that free
+        run.  A windowed model uses the last ``W - 1`` samples; a shorter history is padded
+        with its first sample.  The angle starts at ``theta[n_hist-1]``, the velocity feature
+        at the last backward difference.
+
+        Returns:
+            The current angles ``theta`` (n_envs, n_joint) float64 [rad] (a live tensor).
+        """
+        th_all = np.asarray(theta_hist, dtype=np.float64)
+        u_all = np.asarray(u_hist, dtype=np.float64)
+        n, n_hist = self.n_envs, th_all.shape[1] if th_all.ndim == 3 else 0
+        want = ((n, n_hist, self.spec.n_joint), (n, n_hist - 1, self.spec.n_u))
+        if n_hist < 2 or (th_all.shape, u_all.shape) != want:
+            raise ConfigError(
+                f"reset_history: need theta_hist (n_envs={n}, n_hist>=2, {self.spec.n_joint}) "
+                f"and u_hist (n_envs, n_hist-1, {self.spec.n_u}), got {th_all.shape} and "
+                f"{u_all.shape}"
+            )
+        idx_np = np.arange(n) if mask is None else np.flatnonzero(mask)
+        if idx_np.size == 0:
+            return self.theta
+        with self._threads:
+            self._reset_history(th_all[idx_np], u_all[idx_np], idx_np)
+        return self.theta
+
+    def _reset_history(self, th_hist: np.ndarray, u_hist: np.ndarray, idx_np: np.ndarray) -> None:
+        dev = self.device
+        idx = torch.as_tensor(idx_np, device=dev)
+        m = idx.numel()
+        if self.unc is not None:
+            self.unc.reset(idx)
+        # the reference path's own warm-up, then its state in this engine's layout
+        loop = ClosedLoop(self.sur, mode=self.mode)
+        loop.reset(th_hist, u_hist)
+        th64 = torch.as_tensor(th_hist, device=dev)
+        self.theta.index_copy_(0, idx, th64[:, -1])
+        self.theta_prev.index_copy_(0, idx, th64[:, -2])
+        if self.omega_in:
+            # w = wrap(theta[n_hist-1] - theta[n_hist-2]) / T_s, in float64 as observe() does
+            self.w.index_copy_(0, idx, self.norm.velocity(th64[:, -1], th64[:, -2], self.dt))
+        assert loop.z is not None
+        self.z.index_copy_(0, idx, loop.z.to(self.z.dtype))
+        if self.mode == "stateful":
+            assert loop.state is not None
+            h, c = (s.to(self.h.dtype) for s in loop.state)  # (n_layer, m, hidden)
+            if self._members is not None:  # (n_layer, m, hidden) -> (n_layer, M, m, width)
+                h = from_dense(h, self._members.n_member)
+                c = from_dense(c, self._members.n_member)
+            env_dim = h.dim() - 2
+            self.h.index_copy_(env_dim, idx, h.contiguous())
+            self.c.index_copy_(env_dim, idx, c.contiguous())
+        else:
+            assert loop.window_rows is not None
+            rows = loop.window_rows.to(self._ring.dtype)  # (m, <= W-1, n_feature), oldest first
+            w1 = self.window - 1
+            if rows.shape[1] < w1:  # a short history: repeat its first sample, as ClosedLoop
+                pad = rows[:, :1].expand(m, w1 - rows.shape[1], rows.shape[2])
+                rows = torch.cat([pad, rows], dim=1)
+            # step() writes the next row at _pos and reads ring[_pos + 1 : _pos + W + 1]:
+            # the W - 1 rows before it sit at (_pos + 1 + j) mod W, twice (the doubled ring)
+            w = self.window
+            slots = [(self._pos + 1 + j) % w for j in range(w1)]
+            for j, q in enumerate(slots):
+                self._ring[idx, q] = rows[:, j]
+                self._ring[idx, q + w] = rows[:, j]
+
+    @torch.inference_mode()
     def observe(self, theta: np.ndarray | torch.Tensor) -> None:
         """Overwrite the current angles with measured ones ``theta`` (n_envs, n_joint) [rad]:
         the next :meth:`step` then consumes the measurement (teacher forcing), which keeps the
@@ -464,11 +519,3 @@ class SurrogateEngine:
             if unc is not None:
                 unc.advance(om_m, omega)
         return theta, omega
-
-
-def wrap_periodic(theta: np.ndarray, periodic: np.ndarray) -> np.ndarray:
-    """Copy of ``theta`` (..., n_joint) with periodic joints wrapped to ``[-π, π)`` [rad]."""
-    out = np.array(theta, dtype=np.float64, copy=True)
-    if periodic.any():
-        out[..., periodic] = (out[..., periodic] + math.pi) % (2.0 * math.pi) - math.pi
-    return out

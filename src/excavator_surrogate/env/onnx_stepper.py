@@ -129,6 +129,74 @@ class OnnxStepper:
             self._w_win = np.zeros_like(self._theta_win)
         return self.theta
 
+    def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> np.ndarray:
+        """Warm every row up on recorded samples instead of at rest, as
+        :meth:`~.engine.SurrogateEngine.reset_history` and ``exsur evaluate``'s free run do.
+
+        Args:
+            theta_hist: (n_batch, n_hist, n_joint) angles ``theta[0..n_hist-1]`` [rad], n_hist >= 2.
+            u_hist: (n_batch, n_hist - 1, n_u) commands ``u[0..n_hist-2]`` [command units].
+
+        The command states start at rest before ``u[0]``, the velocity feature at 0 on
+        ``theta[0]``; the network reads the recorded angles on every joint.  A windowed graph
+        reads the last ``W - 1`` samples, a shorter history padded with its first.
+
+        Returns:
+            θ ``theta[n_hist-1]`` (n_batch, n_joint) float32.
+        """
+        th = np.asarray(theta_hist, dtype=np.float32)
+        u = np.asarray(u_hist, dtype=np.float32)
+        n_joint, n_u = self.spec.n_joint, self.spec.n_u
+        if th.ndim != 3 or th.shape[1] < 2 or th.shape[2] != n_joint:
+            raise ValueError(f"theta_hist must be (n_batch, n_hist>=2, {n_joint}), got {th.shape}")
+        n, n_hist = th.shape[:2]
+        if u.shape != (n, n_hist - 1, n_u):
+            raise ValueError(
+                f"u_hist must be (n_batch, n_hist-1={n_hist - 1}, {n_u}), got {u.shape}"
+            )
+        # w[0] = 0 (at rest on theta[0]);  w[k] = wrap(theta[k] - theta[k-1]) / T_s
+        d = th[:, 1:] - th[:, :-1]
+        p = np.asarray(self.spec.periodic, dtype=bool)
+        d = np.where(p, (d + np.pi) % (2.0 * np.pi) - np.pi, d)
+        w = np.concatenate([np.zeros_like(th[:, :1]), d / np.float32(self.spec.dt)], axis=1)
+        w = w.astype(np.float32)
+        c = self.n_command
+        z = np.zeros((n, self.n_state, n_joint), np.float32)  # at rest before u[0]
+        z_before, z_after = [], []  # per history sample: the states before / after its command
+        for k in range(n_hist - 1):
+            z = z.copy()
+            if self.own is not None:  # the network reads the recorded angle on every joint
+                z[:, c], z[:, c + 1] = th[:, k], w[:, k]
+            z_before.append(z)
+            z = self._play_update(z, u[:, k])
+            z_after.append(z)
+        z = z.copy()
+        if self.own is not None:
+            z[:, c], z[:, c + 1] = th[:, -1], w[:, -1]
+        self.z, self.theta, self.w = z, th[:, -1].copy(), w[:, -1].copy()
+        if self.mode == "stateful":
+            self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
+            self.c = np.zeros_like(self.h)
+            for k in range(n_hist - 1):
+                feed = {"theta": th[:, k], "u": u[:, k], "h": self.h, "c": self.c}
+                if self.n_state:
+                    feed["z"] = z_before[k]
+                if self.omega_in:
+                    feed["w"] = w[:, k]
+                if self._omega_prev:
+                    feed["omega_prev"] = w[:, k]
+                _, _, self.h, self.c, *_ = self.session.run(None, feed)
+        else:
+            # the W - 1 samples before the next one, oldest first (the last slot is rewritten)
+            take = np.arange(n_hist - 1)[-(self.window - 1) :] if self.window > 1 else []
+            pad = max(self.window - 1 - len(take), 0)
+            idx = np.concatenate([np.zeros(pad, int), np.asarray(take, int), [n_hist - 2]])
+            self._theta_win = th[:, idx].copy()
+            self._u_win = u[:, idx].copy()
+            self._w_win = w[:, idx].copy()
+            self._z_win = np.stack(z_after, axis=1)[:, idx].copy()
+        return self.theta
+
     def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Command states after commands ``u`` (n, n_u) from ``z`` (n, Q + L [+ 2], n_joint):
         the play operators, then the delay line shifted by one sample (then the network's

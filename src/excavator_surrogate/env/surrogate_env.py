@@ -100,7 +100,11 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     ## Starting State
     At rest (ω = 0) at ``options["theta0"]`` or at a random pose from ``np_random``.  The
-    network is warmed up on ``W - 1`` at-rest samples (θ constant, u = 0).
+    network is warmed up on ``W - 1`` at-rest samples (θ constant, u = 0).  Or mid-motion,
+    after a recorded history: ``options["history"] = {"theta": (n_hist, n_joint) [rad],
+    "u": (n_hist - 1, n_u)}`` warms the network up on it and starts at its last angle and
+    velocity; stepping the recorded commands from there continues the free run of ``exsur
+    evaluate`` (:mod:`.starts`).
 
     ## Episode End
     Termination only through the task.  Truncation: the divergence guard (NaN/inf state, a
@@ -201,6 +205,9 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     def _dyn_reset(self, theta0: np.ndarray) -> None:
         self.engine.reset(theta0[None])
+
+    def _dyn_reset_history(self, theta: np.ndarray, u: np.ndarray) -> None:
+        self.engine.reset_history(theta[None], u[None])
 
     def _dyn_info(self) -> dict[str, Any]:
         info = step_info(self.engine.unc, 1, self.machine.n_joint)

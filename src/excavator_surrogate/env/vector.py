@@ -43,7 +43,7 @@ from gymnasium.vector.utils import batch_space
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
-from .base import action_space, check_theta0, observation_space
+from .base import action_space, observation_space
 from .engine import Impl, Mode, SurrogateEngine
 from .inputs import ActionLayout
 from .safety import (
@@ -56,6 +56,7 @@ from .safety import (
     GuardConfig,
     check_action_scale,
 )
+from .starts import check_history, check_theta0, last_velocity
 from .surrogate_env import load_surrogate
 from .tasks import Task, start_pose
 from .uncertainty import INFO_KEYS, notes, step_info, wanted
@@ -232,11 +233,25 @@ class SurrogateVectorEnv(VectorEnv):
 
     def _reset_envs(self, mask: np.ndarray, options: dict[str, Any]) -> dict[str, Any]:
         """Reset the envs in ``mask`` (engine, observation rows, counters, task)."""
-        theta0 = self._theta0(mask, options)
-        theta = self.engine.reset(theta0, mask).cpu().numpy()
+        history = options.get("history")
+        omega = np.zeros((self.num_envs, self.machine.n_joint))
+        if history is None:
+            theta0 = self._theta0(mask, options)
+            theta = self.engine.reset(theta0, mask).cpu().numpy()
+        else:
+            where = f"{self.env_id}.reset"
+            if options.get("theta0") is not None:
+                raise ConfigError(
+                    f"{where}: give options['theta0'] or options['history'], not both"
+                )
+            theta_hist, u_hist = check_history(
+                self.machine, history, where=where, n_envs=self.num_envs
+            )
+            theta = self.engine.reset_history(theta_hist, u_hist, mask).cpu().numpy()
+            omega[mask] = last_velocity(self.machine, theta_hist[mask])
         self._elapsed[mask] = 0
         self._autoreset[mask] = False
-        self._write_obs(theta, np.zeros_like(theta), mask)
+        self._write_obs(theta, omega, mask)
         info: dict[str, Any] = {}
         if self.task is not None:
             # one call per env with that env's generator: identical draws to single envs
@@ -258,8 +273,10 @@ class SurrogateVectorEnv(VectorEnv):
 
         Args:
             seed: int (env ``i`` gets ``seed + i``), a list of per-env seeds, or None.
-            options: ``theta0`` ((n_joint,) or (n_envs, n_joint) [rad], at rest), ``reset_mask``,
-                and task options (e.g. ``target``).
+            options: ``theta0`` ((n_joint,) or (n_envs, n_joint) [rad], at rest), or
+                ``history`` (``{"theta": (n_hist, n_joint) or (n_envs, n_hist, n_joint) [rad],
+                "u": (n_hist - 1, n_u) or (n_envs, n_hist - 1, n_u)}``, a recorded warm-up:
+                :mod:`.starts`), ``reset_mask``, and task options (e.g. ``target``).
 
         Returns:
             Observations (n_envs, 2·n_joint) float32 and ``info`` (``theta``: (n_envs, n_joint)).

@@ -130,6 +130,19 @@ class ClosedLoop:
     def _t(self, a: np.ndarray | torch.Tensor) -> torch.Tensor:
         return torch.as_tensor(a, device=self._device, dtype=self._dtype)
 
+    @property
+    def state(self) -> State | None:
+        """Stateful: the carried ``(h, c)``, each ``(n_layer, n_batch, hidden)`` (None:
+        windowed, or before :meth:`reset`)."""
+        return self._state
+
+    @property
+    def window_rows(self) -> torch.Tensor | None:
+        """Windowed: the last (at most ``W - 1``) encoded samples ``(n_batch, n, n_feature)``,
+        oldest first, that the next step's window ends with (None: stateful, or before
+        :meth:`reset`)."""
+        return self._rows
+
     @torch.no_grad()
     def reset(
         self, theta_hist: np.ndarray | torch.Tensor, u_hist: np.ndarray | torch.Tensor

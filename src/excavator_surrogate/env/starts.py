@@ -1,0 +1,170 @@
+"""Where an episode starts: a pose at rest, or a recorded history.
+
+:func:`check_theta0` validates a start pose at rest (``options["theta0"]``), for both
+environments.
+
+``reset(options={"history": {"theta": theta, "u": u}})`` warms the surrogate up on the
+machine's own samples: ``theta`` (n_hist, n_joint) [rad] are ``theta[0..n_hist-1]`` and
+``u`` (n_hist - 1, n_u) [command units] the commands ``u[0..n_hist-2]`` between them (the
+joints', then any exogenous inputs', as in the dataset).  The episode then starts at
+``theta[n_hist-1]`` with ``ω = wrap(theta[n_hist-1] - theta[n_hist-2]) / T_s``, the
+observation's definition of ω, and stepping the recorded commands ``u[n_hist-1:]``
+continues the free run ``exsur evaluate`` makes with ``warmup = n_hist``
+(:class:`~excavator_surrogate.surrogate.rollout.ClosedLoop`).  A controller can so start
+mid-cycle, from states the machine was really in, under load.
+
+Only the surrogate can start this way: a log does not hold the plant's hidden state (servo
+setpoints, the actuator's delay line, the hydraulic transform's memory), so
+``ExcavatorMujoco-v0`` refuses it with one line.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from ..errors import ConfigError
+from ..spec import MachineSpec
+from ..surrogate.angles import joint_limits
+
+THETA0_SLACK = 0.02
+"""A given start pose may lie this fraction of a joint's range beyond its end stop: it starts
+at the stop, and a warning says so (a pose read off a log at a stop, plus sensor noise, or
+a model whose stops are its training data's range).  Farther out is an error."""
+
+
+def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = True) -> np.ndarray:
+    """Validate a start pose: (n_joint,) finite, limited joints inside their limits.
+
+    A limited joint up to :data:`THETA0_SLACK` of its range beyond a limit starts at that
+    limit, with one warning naming the joint and the distance (``warn=False``: no warning,
+    the caller says it); farther out raises.
+
+    Returns:
+        The pose (n_joint,) [rad], float64, clipped into the limits.
+    """
+    try:
+        th = np.asarray(theta0, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):  # text, ragged lists, None entries
+        th = np.full(0, np.nan)
+    if th.shape != (spec.n_joint,) or not np.isfinite(th).all():
+        raise ConfigError(
+            f"{where}: theta0 must be {spec.n_joint} finite angles in rad for joints "
+            f"{list(spec.names)}, got {theta0!r:.200}"
+        )
+    th = th.copy()
+    for k, (j, lo, hi) in enumerate(zip(spec.joints, *joint_limits(spec))):
+        # lo, hi = -inf, +inf for a periodic joint or an open limit: never beyond
+        span = hi - lo
+        slack = THETA0_SLACK * span if math.isfinite(span) else 0.0
+        beyond = max(lo - th[k], th[k] - hi)
+        if beyond <= 1e-9:
+            continue
+        if beyond > slack + 1e-9:
+            raise ConfigError(
+                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is outside the joint limits "
+                f"[{j.theta_min}, {j.theta_max}] by {math.degrees(beyond):.3g} deg, more than "
+                f"{THETA0_SLACK:.0%} of the range: give a start pose inside them"
+            )
+        stop = lo if th[k] < lo else hi
+        if warn:
+            gym.logger.warn(
+                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is "
+                f"{math.degrees(beyond):.3g} deg beyond its end stop {stop:.4g} rad: it starts "
+                "at the stop"
+            )
+        th[k] = stop
+    return th
+
+
+def _array(value: Any, *, what: str, where: str) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):  # text, ragged lists, None entries
+        raise ConfigError(f"{where}: history['{what}'] must be an array of numbers") from None
+
+
+def check_history(
+    spec: MachineSpec, history: Any, *, where: str, n_envs: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate ``options["history"]``.
+
+    Args:
+        spec: the machine (joints, command and input ranges, rate).
+        history: a mapping with ``theta`` (n_hist, n_joint) [rad] and ``u`` (n_hist - 1,
+            n_u) [command units]; with ``n_envs``, also one per env: (n_envs, n_hist,
+            n_joint) and (n_envs, n_hist - 1, n_u).
+        where: prefix of the error message (the env and the call).
+        n_envs: the vector env's size (None: a single env).
+
+    Returns:
+        ``(theta, u)``, (n_hist, n_joint) and (n_hist - 1, n_u), or with ``n_envs`` (n_envs,
+        n_hist, n_joint) and (n_envs, n_hist - 1, n_u), float64.  The last angle of each
+        history passes :func:`check_theta0` (a limited joint up to 2 % of its range beyond a
+        stop is put at the stop; farther out raises).
+
+    Raises:
+        ConfigError: one line naming the entry, the sample and the joint or command.
+    """
+    if not isinstance(history, Mapping) or set(history) != {"theta", "u"}:
+        got = sorted(history) if isinstance(history, Mapping) else type(history).__name__
+        raise ConfigError(
+            f"{where}: options['history'] must be a dict with 'theta' (n_hist, n_joint) [rad] "
+            f"and 'u' (n_hist-1, n_u) [command units], got {got}"
+        )
+    theta = _array(history["theta"], what="theta", where=where)
+    u = _array(history["u"], what="u", where=where)
+    n_joint, n_u = spec.n_joint, spec.n_u
+    batched = n_envs is not None and theta.ndim == 3
+    if n_envs is not None and theta.ndim == 2:  # one history for every env
+        theta = np.broadcast_to(theta, (n_envs, *theta.shape))
+        u = np.broadcast_to(u, (n_envs, *u.shape)) if u.ndim == 2 else u
+    lead = (n_envs,) if n_envs is not None else ()
+    shape_ok = (
+        theta.ndim == len(lead) + 2
+        and theta.shape[: len(lead)] == lead
+        and theta.shape[-1] == n_joint
+        and theta.shape[-2] >= 2
+        and u.shape == (*lead, theta.shape[-2] - 1, n_u)
+    )
+    if not shape_ok:
+        per_env = f" (or with a first axis of {n_envs} envs)" if n_envs is not None else ""
+        raise ConfigError(
+            f"{where}: options['history'] needs 'theta' (n_hist >= 2, {n_joint}) [rad] and "
+            f"'u' (n_hist - 1, {n_u}) [command units]{per_env}, got {theta.shape} and {u.shape}"
+        )
+    for name, a in (("theta", theta), ("u", u)):
+        bad = np.argwhere(~np.isfinite(a))
+        if bad.size:
+            raise ConfigError(f"{where}: history['{name}']{[int(i) for i in bad[0]]} is not finite")
+    lo = np.array([s.u_min for s in spec.u_specs])
+    hi = np.array([s.u_max for s in spec.u_specs])
+    out = np.argwhere((u < lo) | (u > hi))
+    if out.size:
+        at = tuple(int(i) for i in out[0])
+        col = spec.u_specs[at[-1]]
+        raise ConfigError(
+            f"{where}: history['u']{list(at)} ({col.name}) = {u[at]:.6g} is outside its range "
+            f"[{col.u_min:g}, {col.u_max:g}]: give the commands in the machine's command units, "
+            "clipped into the range"
+        )
+    theta = np.array(theta, dtype=np.float64)  # a writable copy (broadcasts are read-only)
+    u = np.array(u, dtype=np.float64)
+    rows = theta.reshape(-1, *theta.shape[-2:])
+    for i, th in enumerate(rows):
+        who = f"{where} env {i}" if batched else where
+        th[-1] = check_theta0(spec, th[-1], where=f"{who} history['theta'][-1]")
+    return theta, u
+
+
+def last_velocity(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
+    """``ω = wrap(theta[..., -1, :] - theta[..., -2, :]) / T_s`` [rad/s] of a history
+    (..., n_hist, n_joint) [rad], ``wrap`` on periodic joints: the observation's ω."""
+    d = theta[..., -1, :] - theta[..., -2, :]
+    p = np.asarray(spec.periodic, dtype=bool)
+    d = np.where(p, (d + math.pi) % (2.0 * math.pi) - math.pi, d)
+    return d / spec.dt

@@ -1,0 +1,214 @@
+"""Starting the surrogate from a recorded history: the engine against ClosedLoop, the envs
+against the free run of ``exsur evaluate``, and the one-line errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from excavator_surrogate.env import (
+    ExcavatorMujocoEnv,
+    ExcavatorSurrogateEnv,
+    OnnxStepper,
+    SurrogateVectorEnv,
+    export_onnx,
+)
+from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.surrogate.checkpoint import load_checkpoint
+from excavator_surrogate.surrogate.ensemble import merge
+from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout
+from tests.helpers.surrogates import VARIANTS, variant_surrogate
+
+MID = np.array([0.0, 0.0, 1.5, 0.5])
+
+
+def _log(rng: np.random.Generator, n: int, n_step: int) -> tuple[np.ndarray, np.ndarray]:
+    """A machine-like record: smooth angles in the limits, commands in the range;
+    (n, n_step, 4) and (n, n_step, 4)."""
+    steps = rng.normal(0.0, 0.02, (n, n_step, 4)).cumsum(axis=1)
+    theta = MID + rng.uniform(-0.2, 0.2, (n, 1, 4)) + steps
+    u = rng.uniform(-1000, 1000, (n, n_step, 4))
+    return theta, u
+
+
+@pytest.mark.parametrize("n_hist", [3, 10], ids=["short", "full"])
+@pytest.mark.parametrize("variant", list(VARIANTS))
+@pytest.mark.parametrize(
+    ("mode", "cell"),
+    [("stateful", "lstm"), ("stateful", "gru"), ("windowed", "lstm"), ("windowed", "arx")],
+)
+def test_engine_history_equals_closed_loop(mode: str, cell: str, variant: str, n_hist: int) -> None:
+    """``reset_history`` puts an env where ClosedLoop's ``reset`` on the same history puts
+    it (a windowed history shorter than the window padded with its first sample), also for
+    a masked reset of a running engine (the ring's position is not 0); the env left out
+    goes on as if nothing happened."""
+    sur = variant_surrogate(mode=mode, cell=cell, **VARIANTS[variant])
+    rng = np.random.default_rng(3)
+    n = 3
+    theta, u = _log(rng, n, n_hist)
+    eng = SurrogateEngine(sur, n_envs=n)
+    twin = SurrogateEngine(sur, n_envs=n)
+    for e in (eng, twin):
+        e.reset(np.repeat(MID[None], n, 0))
+    for _ in range(4):
+        u0 = rng.uniform(-1000, 1000, (n, 4))
+        eng.step(u0)
+        twin.step(u0)
+    mask = np.array([True, False, True])
+    eng.reset_history(theta, u[:, :-1], mask)
+    np.testing.assert_array_equal(eng.theta.numpy()[mask], theta[mask, -1])
+    ref = ClosedLoop(sur)
+    ref.reset(theta[mask], u[mask, :-1])
+    for _ in range(20):
+        u_k = rng.uniform(-1000, 1000, (n, 4))
+        th, om = eng.step(u_k)
+        th_r, om_r = ref.step(u_k[mask])
+        th_t, _ = twin.step(u_k)
+        np.testing.assert_allclose(th.numpy()[mask], th_r.double().numpy(), atol=1e-5)
+        np.testing.assert_allclose(om.numpy()[mask], om_r.double().numpy(), atol=1e-4)
+        np.testing.assert_allclose(th.numpy()[1], th_t.numpy()[1], atol=1e-12)
+
+
+def test_member_kernel_history_equals_closed_loop(make_surrogate) -> None:
+    """A merged seed ensemble started from a history: the member kernel, the dense cell and
+    the module kernels all continue ClosedLoop's warm-up."""
+    kw = dict(mode="stateful", end_stops=True, drive=20.0, play=(0.05,), omega_in=True)
+    ens = merge([make_surrogate(seed=s, hidden=16, **kw) for s in range(3)])
+    rng = np.random.default_rng(4)
+    n = 4
+    theta, u = _log(rng, n, 12)
+    ref = ClosedLoop(ens)
+    ref.reset(theta, u[:, :-1])
+    engines = [SurrogateEngine(ens, n_envs=n, impl=k) for k in ("members", "cell", "module")]
+    assert engines[0].impl == "members"
+    for e in engines:
+        e.reset_history(theta, u[:, :-1])
+    for _ in range(15):
+        u_k = rng.uniform(-1000, 1000, (n, 4))
+        th_r, _ = ref.step(u_k)
+        for e in engines:
+            np.testing.assert_allclose(e.step(u_k)[0].numpy(), th_r.double().numpy(), atol=1e-5)
+
+
+@pytest.mark.parametrize("ckpt_name", ["stateful_ckpt", "windowed_ckpt"])
+def test_env_from_history_continues_the_evaluate_free_run(
+    ckpt_name: str, request: pytest.FixtureRequest
+) -> None:
+    """The single and the vector env started from a log's first ``n_hist`` samples, then
+    stepped with the log's commands, give the free run ``rollout(warmup=n_hist)`` (what
+    ``exsur evaluate`` reports); the start's observation holds the history's last angle
+    and its last backward difference as ω; a masked vector reset from per-env histories
+    leaves the other env's state alone."""
+    ckpt = request.getfixturevalue(ckpt_name)
+    sur = load_checkpoint(ckpt)
+    rng = np.random.default_rng(5)
+    n_hist, n_step = 9, 40
+    theta, u = _log(rng, 2, n_step)
+    theta[:, :, 0] += 7.0  # an unwrapped swing: the observation wraps it, the state does not
+    th_free, _ = rollout(sur, theta, u, warmup=n_hist)
+
+    env = ExcavatorSurrogateEnv(ckpt)
+    obs, info = env.reset(
+        options={"history": {"theta": theta[0, :n_hist], "u": u[0, : n_hist - 1]}}
+    )
+    np.testing.assert_array_equal(info["theta"], theta[0, n_hist - 1])
+    w_last = (theta[0, n_hist - 1] - theta[0, n_hist - 2]) / EXCAVATOR.dt
+    np.testing.assert_allclose(obs[4:], w_last, rtol=1e-6)
+    assert obs[0] == pytest.approx(theta[0, n_hist - 1, 0] - 2 * np.pi, abs=1e-6)
+    for k in range(n_hist - 1, n_step - 1):
+        env.step(u[0, k])
+        np.testing.assert_allclose(env.unwrapped.theta, th_free[0, k + 1], atol=1e-5)
+
+    venv = SurrogateVectorEnv(ckpt, 3)
+    venv.reset(seed=0)
+    for _ in range(3):
+        venv.step(rng.uniform(-1000, 1000, (3, 4)))
+    kept = venv.engine.export_row(1)
+    theta3 = np.concatenate([theta, theta[:1]])[:, :n_hist]
+    u3 = np.concatenate([u, u[:1]])[:, : n_hist - 1]
+    mask = np.array([True, False, True])
+    obs, _ = venv.reset(options={"history": {"theta": theta3, "u": u3}, "reset_mask": mask})
+    np.testing.assert_allclose(obs[0], obs[2])
+    np.testing.assert_allclose(venv.engine.export_row(1)["theta"], kept["theta"])
+    for k in range(n_hist - 1, n_step - 1):
+        u_k = np.stack([u[0, k], rng.uniform(-1000, 1000, 4), u[0, k]])
+        venv.step(u_k)
+        np.testing.assert_allclose(
+            venv.engine.theta.numpy()[[0, 2]], th_free[[0, 0], k + 1], atol=1e-5
+        )
+
+
+@pytest.mark.parametrize(
+    ("history", "match"),
+    [
+        ({"theta": np.zeros((5, 4))}, r"must be a dict with 'theta' .* and 'u'"),
+        ([np.zeros((5, 4)), np.zeros((4, 4))], r"must be a dict with 'theta'"),
+        ({"theta": np.zeros((5, 4)), "u": np.zeros((5, 4))}, r"needs 'theta' \(n_hist >= 2, 4\)"),
+        ({"theta": np.zeros((1, 4)), "u": np.zeros((0, 4))}, r"n_hist >= 2"),
+        ({"theta": "abc", "u": np.zeros((4, 4))}, r"history\['theta'\] must be an array"),
+        (
+            {"theta": MID + np.zeros((5, 4)), "u": np.full((4, 4), np.nan)},
+            r"\['u'\]\[0, 0\] is not finite",
+        ),
+        (
+            {"theta": MID + np.zeros((5, 4)), "u": np.tile([0.0, 0.0, 1500.0, 0.0], (4, 1))},
+            r"history\['u'\]\[0, 2\] \(arm\) = 1500 is outside its range \[-1000, 1000\]",
+        ),
+        (
+            {"theta": MID + np.zeros((5, 4)) + np.array([0, 3.0, 0, 0]), "u": np.zeros((4, 4))},
+            r"theta0\[1\] \(boom\) .* outside the joint limits",
+        ),
+    ],
+    ids=["no-u", "not-a-dict", "u-length", "one-sample", "text", "nan", "range", "limits"],
+)
+def test_bad_history_is_one_clear_line(stateful_ckpt, history, match: str) -> None:
+    env = ExcavatorSurrogateEnv(stateful_ckpt)
+    with pytest.raises(ConfigError, match=match):
+        env.reset(options={"history": history})
+
+
+def test_history_is_refused_where_it_cannot_be_honoured(stateful_ckpt) -> None:
+    """Both a pose and a history; the plant (its hidden state is not in a log); a vector
+    env's per-env history of the wrong count."""
+    hist = {"theta": MID + np.zeros((5, 4)), "u": np.zeros((4, 4))}
+    env = ExcavatorSurrogateEnv(stateful_ckpt)
+    with pytest.raises(ConfigError, match="not both"):
+        env.reset(options={"history": hist, "theta0": MID})
+    plant = ExcavatorMujocoEnv()
+    with pytest.raises(
+        ConfigError, match=r"ExcavatorMujoco-v0: options\['history'\] starts only a surrogate"
+    ):
+        plant.reset(options={"history": hist})
+    venv = SurrogateVectorEnv(stateful_ckpt, 3)
+    bad = {"theta": np.zeros((2, 5, 4)) + MID, "u": np.zeros((2, 4, 4))}
+    with pytest.raises(ConfigError, match=r"or with a first axis of 3 envs"):
+        venv.reset(options={"history": bad})
+
+
+@pytest.mark.parametrize(
+    ("mode", "cell", "exporter"),
+    [("stateful", "lstm", "torchscript"), ("windowed", "lstm", "torchscript")],
+)
+@pytest.mark.parametrize("n_hist", [3, 10], ids=["short", "full"])
+@pytest.mark.parametrize("variant", ["stops", "velocity", "delayed-map", "parallel-map"])
+def test_onnx_stepper_history_equals_closed_loop(
+    mode: str, cell: str, exporter: str, variant: str, n_hist: int, tmp_path
+) -> None:
+    """The torch-free runtime starts from a history as ClosedLoop does (command states,
+    delay line, velocity feature, a map joint's own angle)."""
+    sur = variant_surrogate(mode=mode, cell=cell, **VARIANTS[variant])
+    stepper = OnnxStepper(export_onnx(sur, tmp_path / "m.onnx", exporter=exporter))
+    rng = np.random.default_rng(6)
+    theta, u = _log(rng, 3, n_hist)
+    th0 = stepper.reset_history(theta, u[:, :-1])
+    np.testing.assert_allclose(th0, theta[:, -1], atol=1e-6)
+    ref = ClosedLoop(sur)
+    ref.reset(theta, u[:, :-1])
+    for _ in range(20):
+        u_k = rng.uniform(-1000, 1000, (3, 4))
+        th, om = stepper.step(u_k)
+        th_r, om_r = ref.step(u_k)
+        np.testing.assert_allclose(om, om_r.double().numpy(), atol=2e-4)
+        np.testing.assert_allclose(th, th_r.double().numpy(), atol=1e-5)
