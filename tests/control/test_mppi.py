@@ -26,6 +26,9 @@ class Integrator:
     def reset(self, theta0: np.ndarray) -> None:
         self.theta = np.array(theta0, dtype=float)
 
+    def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
+        self.theta = np.array(theta_hist[-1], dtype=float)
+
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
         self.theta = np.array(theta, dtype=float)
 
@@ -104,3 +107,23 @@ def test_dig_reference() -> None:
     np.testing.assert_array_equal(win, np.repeat(theta[-1:], 5, axis=0))
     with pytest.raises(ConfigError, match="time_scale"):
         dig_reference(EXCAVATOR, time_scale=0.0)
+
+
+def test_mppi_takes_over_mid_motion() -> None:
+    """After a recorded history the predictor starts at its last angle and the smoothness
+    cost from its last command (in half ranges), and MPPI still reaches the target."""
+    model = Integrator()
+    cfg = MPPIConfig(n_sample=64, n_horizon=10, seed=0)
+    mppi = MPPI(model, cfg)
+    theta_hist = np.array([[0.0, 0.0, 1.5, 0.5], [0.01, 0.0, 1.5, 0.5]])
+    mppi.reset_history(theta_hist, np.array([[500.0, 0.0, -1000.0, 0.0]]))
+    np.testing.assert_array_equal(model.theta, theta_hist[-1])
+    np.testing.assert_allclose(mppi.u_prev, [0.5, 0.0, -1.0, 0.0])
+    target = np.array([0.3, 0.2, 1.3, 0.7])
+    theta = theta_hist[-1]
+    ref = np.repeat(target[None], cfg.n_horizon, axis=0)
+    for k in range(150):
+        u = mppi.act(k, ref)
+        theta = theta + EXCAVATOR.dt * GAIN * u
+        mppi.observe(u, theta)
+    assert np.abs(theta - target).max() < 0.05

@@ -72,6 +72,15 @@ def test_surrogate_batch_matches_single_closed_loops(
             np.testing.assert_allclose(got[i, n], th[0].double().numpy(), atol=2e-5)
     # a second call starts again from the synced state: same input, same output
     np.testing.assert_array_equal(pred.predict(u), got)
+    # taking over mid-motion: warmed up on the history alone, as ClosedLoop on it
+    pred.reset_history(theta, u_hist)
+    got = pred.predict(u)
+    for i in range(K):
+        ref = ClosedLoop(sur)
+        ref.reset(theta[None], u_hist[None])
+        for n in range(N):
+            th, _ = ref.step(u[i, n][None])
+            np.testing.assert_allclose(got[i, n], th[0].double().numpy(), atol=2e-5)
 
 
 def test_plant_oracle_matches_stepping_copies_of_the_plant() -> None:

@@ -48,6 +48,11 @@ class Predictor(Protocol):
         """The machine starts at rest at ``theta0`` (n_joint,) [rad]."""
         ...
 
+    def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
+        """The machine is mid-motion after the recorded ``theta_hist`` (n_hist, n_joint) [rad]
+        and the commands ``u_hist`` (n_hist - 1, n_u) between them."""
+        ...
+
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
         """The machine applied ``u`` (n_joint,) and then measured ``theta`` (n_joint,) [rad]."""
         ...
@@ -131,6 +136,14 @@ class SurrogatePredictor:
     def reset(self, theta0: np.ndarray) -> None:
         """At rest at ``theta0`` (n_joint,): the engine's at-rest warm-up."""
         self.sync.reset(np.asarray(theta0, dtype=np.float64)[None])
+        self.bias[:] = 0.0
+
+    def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
+        """Mid-motion: the synced engine warmed up on the machine's recorded ``theta_hist``
+        (n_hist, n_joint) [rad] and ``u_hist`` (n_hist - 1, n_u)
+        (:meth:`~excavator_surrogate.env.engine.SurrogateEngine.reset_history`)."""
+        th = np.asarray(theta_hist, dtype=np.float64)[None]
+        self.sync.reset_history(th, np.asarray(u_hist, dtype=np.float64)[None])
         self.bias[:] = 0.0
 
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
@@ -239,6 +252,10 @@ class PlantPredictor:
     def reset(self, theta0: np.ndarray) -> None:
         """Nothing to do: the oracle reads the plant's state at every call."""
         del theta0
+
+    def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
+        """Nothing to do: the oracle reads the plant's state at every call."""
+        del theta_hist, u_hist
 
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
         """Nothing to do: the oracle reads the plant's state at every call."""
