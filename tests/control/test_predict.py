@@ -64,21 +64,23 @@ def test_surrogate_batch_matches_single_closed_loops(
     w = sur.window
     th_hist = np.concatenate([np.repeat(theta[:1], w - 1, axis=0), theta])
     u_full = np.concatenate([np.zeros((w - 1, 4)), u_hist])
-    for i in range(K):
-        ref = ClosedLoop(sur)
-        ref.reset(th_hist[None], u_full[None])
-        for n in range(N):
-            th, _ = ref.step(u[i, n][None])
-            np.testing.assert_allclose(got[i, n], th[0].double().numpy(), atol=2e-5)
+    _assert_single_closed_loops(sur, th_hist, u_full, u, got)
     # a second call starts again from the synced state: same input, same output
     np.testing.assert_array_equal(pred.predict(u), got)
     # taking over mid-motion: warmed up on the history alone, as ClosedLoop on it
     pred.reset_history(theta, u_hist)
-    got = pred.predict(u)
-    for i in range(K):
+    _assert_single_closed_loops(sur, theta, u_hist, u, pred.predict(u))
+
+
+def _assert_single_closed_loops(
+    sur, th_hist: np.ndarray, u_hist: np.ndarray, u: np.ndarray, got: np.ndarray
+) -> None:
+    """``got`` (K, N, 4) equals K single ClosedLoop runs of the candidates ``u`` (K, N, 4),
+    each warmed up on ``th_hist`` (n_hist, 4) and ``u_hist`` (n_hist - 1, 4)."""
+    for i in range(u.shape[0]):
         ref = ClosedLoop(sur)
-        ref.reset(theta[None], u_hist[None])
-        for n in range(N):
+        ref.reset(th_hist[None], u_hist[None])
+        for n in range(u.shape[1]):
             th, _ = ref.step(u[i, n][None])
             np.testing.assert_allclose(got[i, n], th[0].double().numpy(), atol=2e-5)
 
