@@ -41,6 +41,7 @@ def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
         "metrics.json",
         "table.md",
         "cbe.png",
+        "horizon.png",
         "config.toml",
         "model/best.pt",
         "model_gru/best.pt",
@@ -62,6 +63,9 @@ def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert ".tmp" not in json.dumps(m) and ".tmp" not in report
     # the data the model trained on: its splits, and the command to see each joint
     assert "## Data" in report and "| train | 2 |" in report and "| test | 1 |" in report
+    # how far ahead it can be trusted: every model and the hold baseline, with the figure
+    assert set(m["horizon"]["rmse"]) == {"LSTM", "GRU", "ARX", "hold"}
+    assert "## Prediction horizon" in report and "![prediction horizon](horizon.png)" in report
     assert f"`exsur info {out.resolve() / 'data'}`" in report
     cfg = tomllib.loads((out / "config.toml").read_text())
     assert cfg["train"]["hidden"] == 16 and cfg["simulate"]["n_train"] == 2

@@ -61,7 +61,12 @@ def test_report_prints_mm_not_deg(run: dict[str, Path]) -> None:
     table = (run["eval"] / "table.md").read_text()
     for joint in ("Boom", "Arm", "Bucket"):
         assert f"| {joint} [mm] |" in table and f"| {joint} [mm/s] |" in table
-    assert "deg" not in table and "°" not in table
+    # strokes never in degrees: only the revolute swing's prediction-horizon row is in °
+    assert "deg" not in table
+    assert [line for line in table.splitlines() if "°" in line] == [
+        line for line in table.splitlines() if line.startswith("| Swing [°] |")
+    ]
+    assert "| Boom [mm] | " in table.split("## Prediction horizon")[1]
     assert "Paper RMSE" not in table  # the paper's machine senses angles
     assert "Joint angles through the linkage" in table
     m = json.loads((run["eval"] / "metrics.json").read_text())

@@ -251,6 +251,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
                     paper_table=run_cfg.paper_table,
                     learning_curves=curves,
                     data=describe_dataset(train_ds, path=_in_run(train_ds.root, tmp)),
+                    horizon_figure=(tmp / "horizon.png").is_file(),
                 ),
             ),
         )

@@ -85,8 +85,13 @@ def run(args: argparse.Namespace) -> int:
         figure=cfg.figure,
         max_figures=cfg.max_figures,
         num_threads=cfg.num_threads,
+        horizons=cfg.horizons,
+        horizon_stride=cfg.horizon_stride,
         device=args.device,
     )
     print((Path(args.out) / "table.md").read_text())
-    log(f"wrote {args.out}/metrics.json, table.md, cbe.png")
+    log(
+        f"wrote {args.out}/metrics.json, table.md, cbe.png"
+        + (", horizon.png" if cfg.horizons and cfg.figure else "")
+    )
     return 0

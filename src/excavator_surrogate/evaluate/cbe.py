@@ -14,7 +14,8 @@
              episodes: [{name, n_step, theta_rmse: {joint}, theta_share: {joint}}], ...},
      "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines
      "linkage": {"<joint>": {"rmse", "mae", "r2"}},  # linear joints with a linkage: angles [rad]
-     "uncertainty": {...}}   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
+     "uncertainty": {...},   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
+     "horizon": {...}}       # angle RMSE n s after measured starts (evaluate/horizon.py)
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from ..surrogate.baselines import fit_arx
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
+from .horizon import HORIZONS_S, check_horizons, horizon_errors, horizon_markdown
 from .metrics import cbe_metrics, episode_errors, regression_metrics
 from .pace import pace_markdown, training_pace
 from .report import episodes_markdown, report_markdown
@@ -70,11 +72,16 @@ class EvaluateConfig(PresetConfig, table="evaluate"):
     """At most this many episode figures."""
     num_threads: int = 1
     """Torch intra-op threads (0 keeps torch's default)."""
+    horizons: tuple[float, ...] = HORIZONS_S
+    """Prediction horizons [s] scored after measured starts (table, horizon.png); [] = off."""
+    horizon_stride: float = 0.5
+    """Seconds between two measured starts of the prediction-horizon scores."""
 
     def __post_init__(self) -> None:
         for name in ("max_steps", "max_figures", "num_threads"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"[evaluate] {name} must be >= 0, got {getattr(self, name)}")
+        check_horizons(self.horizons, self.horizon_stride)
 
 
 def evaluate_models(
@@ -129,6 +136,8 @@ def evaluate_checkpoint(
     figure: bool = True,
     max_figures: int = 4,
     num_threads: int = 1,
+    horizons: tuple[float, ...] = HORIZONS_S,
+    horizon_stride: float = 0.5,
     device: str | torch.device = "cpu",
     root: str | Path | None = None,
 ) -> dict[str, Any]:
@@ -147,6 +156,10 @@ def evaluate_checkpoint(
         figure: write the figure(s).
         max_figures: at most this many episode figures.
         num_threads: torch intra-op threads (0 keeps torch's default).
+        horizons: prediction horizons [s] scored after measured starts every
+            ``horizon_stride`` s (:mod:`.horizon`; ``()``: none); in ``metrics.json``
+            ``horizon``, the table and ``horizon.png``.
+        horizon_stride: seconds between two such starts.
         device: where the models are rolled out (``cpu``, ``cuda[:N]``, ``auto``).
         root: the output folder the recorded ``checkpoint`` and ``dataset`` paths are
             relative to when they lie inside it (absolute otherwise; see
@@ -239,11 +252,21 @@ def evaluate_checkpoint(
     result["uncertainty"] = uncertainty_metrics(sur, unc_runs)
     if len(models) > 1:
         result["compare"] = {k: v for k, v in metrics.items() if k != primary}
+    if horizons:
+        result["horizon"] = horizon_errors(
+            models,
+            episodes,
+            spec=sur.spec,
+            reference=reference,
+            horizons_s=horizons,
+            stride_s=horizon_stride,
+            max_steps=max_steps or None,
+        )
     shown = figure_episodes(run_info["episodes"], max_figures) if figure else []
     names = ["cbe.png" if k == 0 else f"cbe_{main_runs[i].name}.png" for k, i in enumerate(shown)]
     out = Path(out)
     # all files or none; an earlier evaluation's episode figures go with it
-    with atomic_files(out, kind="evaluation", replaces=("cbe_*.png",)) as tmp:
+    with atomic_files(out, kind="evaluation", replaces=("cbe_*.png", "horizon.png")) as tmp:
         write_json(tmp / "metrics.json", _json_safe(result))
         write_text(
             tmp / "table.md",
@@ -254,8 +277,14 @@ def evaluate_checkpoint(
             + training_markdown(result["training"], spec=sur.spec)
             + pace_markdown(result["pace"], result["training"])
             + "\n"
-            + uncertainty_markdown(result["uncertainty"], sur.spec.names),
+            + uncertainty_markdown(result["uncertainty"], sur.spec.names)
+            + "\n"
+            + horizon_markdown(result.get("horizon") or {}, primary=primary),
         )
+        if figure and result.get("horizon", {}).get("n_start"):
+            from ..plotting.horizon import plot_horizon
+
+            plot_horizon(tmp / "horizon.png", result["horizon"], primary=primary)
         if figure:
             from ..plotting.cbe import plot_cbe
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from ..spec import LINEAR_UNITS
 from .data_card import notes_lines, reach_lines, splits_lines
+from .horizon import horizon_markdown
 from .metrics import min_r2
 from .report import PAPER_TABLE_III
 from .uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
@@ -36,6 +37,8 @@ class ReportContext:
     """The trained models' ``learning_curve.png`` files, relative to the run folder."""
     data: Mapping[str, Any] | None = None
     """The trained-on dataset's card (:func:`.data_card.describe_dataset`); None: no section."""
+    horizon_figure: bool = False
+    """Whether the run folder holds ``horizon.png`` (the prediction-horizon figure)."""
 
 
 def _fmt(v: Any, f: float = 1.0) -> str:
@@ -225,6 +228,17 @@ def _cbe_table(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     return ["## CBE table", "", table.strip(), ""]
 
 
+def _horizon(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
+    """The angle error n seconds after measured starts, against holding still, and its figure."""
+    result = metrics.get("horizon")
+    if not result or not result.get("n_start"):
+        return []
+    primary = next(iter(result["rmse"]))
+    table = horizon_markdown(result, primary=primary).splitlines()
+    figure = ["", "![prediction horizon](horizon.png)"] if ctx.horizon_figure else []
+    return [*table, *figure, ""]
+
+
 def _learning_curves(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """Each trained model's training loss and validation error per epoch."""
     if not ctx.learning_curves:
@@ -274,6 +288,7 @@ SECTIONS: tuple[Section, ...] = (
     _ensemble_members,
     _uncertainty,
     _cbe_table,
+    _horizon,
     _data,
     _learning_curves,
     _files,
