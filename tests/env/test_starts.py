@@ -6,10 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from excavator_surrogate.data.episode import Episode
 from excavator_surrogate.env import (
     ExcavatorMujocoEnv,
     ExcavatorSurrogateEnv,
     OnnxStepper,
+    RecordedStarts,
     SurrogateVectorEnv,
     export_onnx,
 )
@@ -212,3 +214,89 @@ def test_onnx_stepper_history_equals_closed_loop(
         th_r, om_r = ref.step(u_k)
         np.testing.assert_allclose(om, om_r.double().numpy(), atol=2e-4)
         np.testing.assert_allclose(th, th_r.double().numpy(), atol=1e-5)
+
+
+def _episodes(lengths: list[int], seed: int = 7) -> list[Episode]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for i, n in enumerate(lengths):
+        theta, u = _log(rng, 1, n)
+        t = np.arange(n) * EXCAVATOR.dt
+        out.append(Episode(EXCAVATOR, t, u[0], theta[0], np.zeros((n, 4)), name=f"ep{i}"))
+    return out
+
+
+def test_recorded_starts_draw_every_moment_uniformly() -> None:
+    """Each draw is the slice of one episode that ends at a moment with W - 1 samples before
+    it; over many draws every such moment comes up, about equally often (an episode shorter
+    than W has none)."""
+    eps = _episodes([8, 5, 2])
+    starts = RecordedStarts(eps, spec=EXCAVATOR, window=3)
+    assert starts.n_moment == 6 + 3
+    rng = np.random.default_rng(0)
+    seen: dict[tuple[int, int], int] = {}
+    for _ in range(3000):
+        th, u = starts.draw(rng)
+        assert th.shape == (3, 4) and u.shape == (2, 4)
+        hits = [
+            (e, k)
+            for e, ep in enumerate(eps[:2])
+            for k in range(2, len(ep.u))
+            if np.array_equal(ep.theta[k - 2 : k + 1], th) and np.array_equal(ep.u[k - 2 : k], u)
+        ]
+        assert len(hits) == 1
+        seen[hits[0]] = seen.get(hits[0], 0) + 1
+    assert len(seen) == 9
+    assert min(seen.values()) > 3000 / 9 * 0.75 and max(seen.values()) < 3000 / 9 * 1.25
+
+
+def test_envs_with_recorded_starts(stateful_ckpt, tmp_path) -> None:
+    """Random resets start at recorded moments: the single env at its generator's draw (the
+    same seed, the same start), continuing as ClosedLoop from that history; the vector env's
+    env i as a single env seeded seed + i, autoresets too; a pose given still wins; a
+    dataset folder works; logs of another machine are refused."""
+    from excavator_surrogate.data import write_dataset
+
+    eps = _episodes([40, 25])
+    sur = load_checkpoint(stateful_ckpt)
+    w = sur.window
+    env = ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=eps)
+    obs, info = env.reset(seed=3)
+    th, u = RecordedStarts(eps, spec=EXCAVATOR, window=w).draw(np.random.default_rng(3))
+    np.testing.assert_array_equal(info["theta"], th[-1])
+    ref = ClosedLoop(sur)
+    ref.reset(th[None], u[None])
+    u_k = np.array([300.0, -200.0, 500.0, 0.0])
+    env.step(u_k)
+    np.testing.assert_allclose(env.unwrapped.theta, ref.step(u_k[None])[0][0].double(), atol=1e-5)
+    np.testing.assert_array_equal(env.reset(seed=3)[0], obs)
+    assert env.reset(options={"theta0": MID})[1]["theta"].tolist() == MID.tolist()
+
+    write_dataset(tmp_path / "data", [(ep, "train") for ep in eps])
+    venv = SurrogateVectorEnv(
+        stateful_ckpt, 3, recorded_starts=tmp_path / "data", max_episode_steps=2
+    )
+    obs_v, _ = venv.reset(seed=10)
+    for i in range(3):
+        one = ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=eps)
+        np.testing.assert_allclose(obs_v[i], one.reset(seed=10 + i)[0], atol=1e-6)
+    for _ in range(3):  # the time limit ends every episode: the autoreset draws again
+        venv.step(np.zeros((3, 4)))
+    drawn = RecordedStarts(eps, spec=EXCAVATOR, window=w)
+    for i in range(3):
+        g = np.random.default_rng(10 + i)
+        drawn.draw(g)
+        np.testing.assert_array_equal(venv.engine.theta.numpy()[i], drawn.draw(g)[0][-1])
+
+    other = _episodes([20])
+    other[0] = Episode(
+        EXCAVATOR.with_rate(10.0),
+        *(getattr(other[0], k) for k in ("time", "u", "theta", "omega")),
+        name="slow",
+    )
+    with pytest.raises(
+        ConfigError, match=r"episode 'slow' is of another machine than the surrogate"
+    ):
+        ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=other)
+    with pytest.raises(ConfigError, match=r"no episode has the \d+ samples a recorded start needs"):
+        ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=_episodes([2]))

@@ -39,7 +39,7 @@ from .safety import (
     GuardConfig,
     check_action_scale,
 )
-from .starts import check_history, check_theta0, last_velocity
+from .starts import RecordedStarts, check_history, check_theta0, last_velocity
 from .tasks import Task, start_pose
 
 
@@ -166,6 +166,10 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ---- to implement -------------------------------------------------------------------------
 
+    recorded: RecordedStarts | None = None
+    """Random resets start at recorded moments of these logs (the surrogate's
+    ``recorded_starts``), not at rest; None: at rest at a random pose."""
+
     def _dyn_reset(self, theta0: np.ndarray) -> None:
         raise NotImplementedError
 
@@ -243,7 +247,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start at rest at ``options["theta0"]`` (n_joint,) [rad], at a random pose, or (the
-        surrogate) after a recorded history ``options["history"]`` (:mod:`.starts`).
+        surrogate) after a recorded history ``options["history"]`` (:mod:`.starts`); without
+        either, a surrogate made with ``recorded_starts`` starts at a random recorded moment.
 
         Random poses are uniform in ``[-π, π)`` for periodic joints and inside the joint limits
         (shrunk by ``reset_margin`` of the range) otherwise, drawn from ``self.np_random``; a
@@ -255,6 +260,9 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         history = options.get("history")
         if history is not None and options.get("theta0") is not None:
             raise ConfigError(f"{where}: give options['theta0'] or options['history'], not both")
+        if history is None and options.get("theta0") is None and self.recorded is not None:
+            theta_rec, u_rec = self.recorded.draw(self.np_random)
+            history = {"theta": theta_rec, "u": u_rec}
         if history is not None:
             theta_hist, u_hist = check_history(self.machine, history, where=where)
             self._dyn_reset_history(theta_hist, u_hist)

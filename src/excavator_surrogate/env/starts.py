@@ -21,12 +21,14 @@ setpoints, the actuator's delay line, the hydraulic transform's memory), so
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
+from ..data.episode import Episode
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.angles import joint_limits
@@ -168,3 +170,66 @@ def last_velocity(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
     p = np.asarray(spec.periodic, dtype=bool)
     d = np.where(p, (d + math.pi) % (2.0 * math.pi) - math.pi, d)
     return d / spec.dt
+
+
+class RecordedStarts:
+    """Random starts at recorded moments of a machine's logs, for resets without a pose.
+
+    Each draw picks one of the episodes' moments ``k`` uniformly over all of them (every
+    sample with ``window - 1`` samples before it) and returns the history that ends there,
+    ``theta[k - window + 1 .. k]`` and ``u[k - window + 1 .. k - 1]``: an RL policy or a
+    controller then trains and is tested from the states the machine was really in (moving,
+    loaded, at the poses operators use), not only from rest.
+
+    Args:
+        source: a dataset folder (its ``split`` is read) or the episodes themselves.
+        spec: the surrogate's machine; episodes of another machine or rate are refused.
+        window: samples of each history (the surrogate's ``W``).
+        split: the split of a dataset folder (default ``train``: the states the model knows).
+    """
+
+    def __init__(
+        self,
+        source: str | Path | Sequence[Episode],
+        *,
+        spec: MachineSpec,
+        window: int,
+        split: str = "train",
+    ) -> None:
+        if isinstance(source, str | Path):
+            from ..data.dataset import load_dataset
+
+            episodes: Sequence[Episode] = load_dataset(source, splits=(split,)).split(split)
+            where = f"{source} ({split} split)"
+        else:
+            episodes, where = list(source), "recorded_starts"
+        self.window = max(2, int(window))
+        for ep in episodes:
+            diff = spec.mismatch(ep.spec)
+            if diff is not None:
+                raise ConfigError(
+                    f"{where}: episode '{ep.name}' is of another machine than the surrogate "
+                    f"({diff}, surrogate vs episode): start from logs of the machine it models"
+                )
+        self.episodes = [ep for ep in episodes if len(ep.u) >= self.window]
+        counts = np.array([len(ep.u) - self.window + 1 for ep in self.episodes], dtype=np.int64)
+        if counts.sum() == 0:
+            raise ConfigError(
+                f"{where}: no episode has the {self.window} samples a recorded start needs"
+            )
+        self._cum = np.cumsum(counts)
+        """Running count of the moments, per episode (a draw's index falls into one)."""
+
+    @property
+    def n_moment(self) -> int:
+        """How many moments a draw picks from."""
+        return int(self._cum[-1])
+
+    def draw(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """One history: ``theta`` (window, n_joint) [rad] and ``u`` (window - 1, n_u)."""
+        r = int(rng.integers(self.n_moment))
+        e = int(np.searchsorted(self._cum, r, side="right"))
+        k = r - (int(self._cum[e - 1]) if e else 0) + self.window - 1  # the moment's sample
+        ep = self.episodes[e]
+        lo = k - self.window + 1
+        return np.array(ep.theta[lo : k + 1], dtype=np.float64), np.array(ep.u[lo:k], np.float64)

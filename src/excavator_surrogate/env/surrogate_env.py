@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +10,7 @@ import mujoco
 import numpy as np
 import torch
 
+from ..data.episode import Episode
 from ..devices import resolve_device
 from ..spec import MachineSpec
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
@@ -17,8 +19,19 @@ from .base import ExcavatorEnv
 from .engine import Impl, Mode, SurrogateEngine
 from .render import RENDER_SIZE, PoseScene
 from .safety import ActionMode, ActionScale, GuardConfig
+from .starts import RecordedStarts
 from .tasks import Task
 from .uncertainty import notes, step_info, wanted
+
+
+def recorded_starts_of(
+    source: str | Path | Sequence[Episode] | RecordedStarts | None, sur: Surrogate
+) -> RecordedStarts | None:
+    """The ``recorded_starts`` argument of the surrogate envs as a sampler of histories of
+    ``sur``'s window (None stays None)."""
+    if source is None or isinstance(source, RecordedStarts):
+        return source
+    return RecordedStarts(source, spec=sur.spec, window=sur.window)
 
 
 def load_surrogate(
@@ -100,7 +113,8 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     ## Starting State
     At rest (ω = 0) at ``options["theta0"]`` or at a random pose from ``np_random``.  The
-    network is warmed up on ``W - 1`` at-rest samples (θ constant, u = 0).  Or mid-motion,
+    network is warmed up on ``W - 1`` at-rest samples (θ constant, u = 0); with
+    ``recorded_starts``, a random recorded moment of those logs instead.  Or mid-motion,
     after a recorded history: ``options["history"] = {"theta": (n_hist, n_joint) [rad],
     "u": (n_hist - 1, n_u)}`` warms the network up on it and starts at its last angle and
     velocity; stepping the recorded commands from there continues the free run of ``exsur
@@ -143,6 +157,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     | `render_mode`  | **str / None**          | `None`    | ``rgb_array`` or ``human`` (the predicted pose, :mod:`.render`) |
     | `render_size`  | **tuple**               | `(480, 360)` | ``(width, height)`` of ``rgb_array`` frames          |
     | `uncertainty`  | **bool / None**         | `None`    | track bands and OOD flags; None: when the checkpoint has members or a coverage record |
+    | `recorded_starts` | **path / episodes / None** | `None` | random resets start at recorded moments of these logs (a dataset folder: its train split) |
     """
 
     env_id = "ExcavatorSurrogate-v0"
@@ -165,6 +180,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
         uncertainty: bool | None = None,
+        recorded_starts: str | Path | Sequence[Episode] | RecordedStarts | None = None,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         self.ckpt = str(ckpt) if not isinstance(ckpt, Surrogate) else None
@@ -187,6 +203,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         )
         self.engine.u_rest = self.layout.rest()
         self.surrogate = sur
+        self.recorded = recorded_starts_of(recorded_starts, sur)
         self.uncertainty_note = (
             "; ".join(notes(sur)) if uncertainty is not False else "uncertainty=False: not tracked"
         )

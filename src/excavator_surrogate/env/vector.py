@@ -30,6 +30,7 @@ False for the envs that were reset).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..data.episode import Episode
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
@@ -56,8 +58,8 @@ from .safety import (
     GuardConfig,
     check_action_scale,
 )
-from .starts import check_history, check_theta0, last_velocity
-from .surrogate_env import load_surrogate
+from .starts import RecordedStarts, check_history, check_theta0, last_velocity
+from .surrogate_env import load_surrogate, recorded_starts_of
 from .tasks import Task, start_pose
 from .uncertainty import INFO_KEYS, notes, step_info, wanted
 
@@ -87,6 +89,9 @@ class SurrogateVectorEnv(VectorEnv):
             mapped linearly onto the command range), as for the single environments.
         uncertainty: track the members' bands and the OOD flags in ``info`` (None: when the
             checkpoint has ensemble members or a training coverage record).
+        recorded_starts: random resets (autoresets too) start each env at a recorded moment
+            of these logs, drawn from its own generator (a dataset folder: its train split;
+            :class:`~.starts.RecordedStarts`), not at rest.
     """
 
     env_id = "ExcavatorSurrogate-v0 (vector)"
@@ -110,6 +115,7 @@ class SurrogateVectorEnv(VectorEnv):
         inputs: dict[str, float] | None = None,
         action_scale: ActionScale = "raw",
         uncertainty: bool | None = None,
+        recorded_starts: str | Path | Sequence[Episode] | RecordedStarts | None = None,
     ) -> None:
         sur = load_surrogate(ckpt, device=device, spec=spec)
         on = wanted(sur, uncertainty)
@@ -134,6 +140,7 @@ class SurrogateVectorEnv(VectorEnv):
         self.layout = ActionLayout.make(spec, inputs, where=self.env_id)
         """The action's columns and the fixed exogenous inputs."""
         self.engine.u_rest = self.layout.rest()
+        self.recorded = recorded_starts_of(recorded_starts, sur)
         self.action_scale = check_action_scale(action_scale)
         self.single_action_space = action_space(spec, self.layout, scale=action_scale)
         self.single_observation_space = observation_space(spec, wrap=wrap_theta, guard=guard)
@@ -210,6 +217,15 @@ class SurrogateVectorEnv(VectorEnv):
             )
         return theta0
 
+    def _recorded_histories(self, mask: np.ndarray) -> dict[str, np.ndarray]:
+        """One recorded history per env in ``mask``, each from that env's generator (the
+        others' rows: copies of the first, never used)."""
+        assert self.recorded is not None
+        rows = {int(i): self.recorded.draw(self._rngs[i]) for i in np.flatnonzero(mask)}
+        first = next(iter(rows.values()))
+        pick = [rows.get(i, first) for i in range(self.num_envs)]
+        return {"theta": np.stack([p[0] for p in pick]), "u": np.stack([p[1] for p in pick])}
+
     def _write_obs(self, theta: np.ndarray, omega: np.ndarray, rows: np.ndarray | None) -> None:
         """Write θ (wrapped) and ω, clipped into the observation bounds, into ``self._obs`` for
         ``rows`` (None: all)."""
@@ -235,6 +251,8 @@ class SurrogateVectorEnv(VectorEnv):
         """Reset the envs in ``mask`` (engine, observation rows, counters, task)."""
         history = options.get("history")
         omega = np.zeros((self.num_envs, self.machine.n_joint))
+        if history is None and options.get("theta0") is None and self.recorded is not None:
+            history = self._recorded_histories(mask)
         if history is None:
             theta0 = self._theta0(mask, options)
             theta = self.engine.reset(theta0, mask).cpu().numpy()
