@@ -152,6 +152,11 @@ def test_too_short_and_corrupt(tmp_path: Path) -> None:
     bad.write_bytes(b"PAR1 this is not parquet")
     with pytest.raises(DataError, match="not a readable Parquet file"):
         read_episode(bad)
+    # a dataset folder where an episode file belongs (exsur plot DATA): named, with a file
+    folder = tmp_path / "data"
+    write_episode(folder / "episodes" / "train_000.parquet", make_episode(n=20))
+    with pytest.raises(DataError, match=r"is a folder, not an episode file .*train_000\.parquet"):
+        read_episode(folder)
 
 
 def test_write_refuses_invalid_and_leaves_nothing(tmp_path: Path) -> None:

@@ -198,6 +198,14 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.exists():
         raise DataError(path, "file not found", fix="check the path or the dataset manifest")
+    if path.is_dir():
+        files = sorted(path.glob("episodes/*.parquet")) or sorted(path.glob("*.parquet"))
+        example = f" such as {files[0]}" if files else ""
+        raise DataError(
+            path,
+            "is a folder, not an episode file",
+            fix=f"give one of its episode files{example}",
+        )
     try:
         schema = pq.read_schema(path)
     except Exception as e:  # pyarrow raises several types for corrupt files
