@@ -97,6 +97,32 @@ def test_exsur_info_tells_a_dataset_from_a_checkpoint(plain_dir, tmp_path, capsy
     assert "a folder without manifest.json is not a dataset; give a checkpoint file" in err
     assert main(["info", str(tmp_path / "gone")]) == 2
     assert (
-        "gone: not found; give a checkpoint file (.pt), an ONNX export (.onnx) or a dataset folder"
-        in (capsys.readouterr().err)
+        "gone: not found; give a checkpoint file (.pt), an ONNX export (.onnx), a dataset folder "
+        "or an episode file (.parquet)" in (capsys.readouterr().err)
     )
+
+
+def test_exsur_info_describes_one_episode_file(plain_dir, capsys):
+    """An episode file gets the dataset card's joint table for itself alone (the same
+    numbers as a dataset holding only it) and its record; a broken one is one line."""
+    ds = load_dataset(plain_dir)
+    ep = ds.test[0]
+    path = plain_dir / next(e["file"] for e in ds.manifest["episodes"] if e["split"] == "test")
+    assert main(["info", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith(f"# {path}\n\nAn episode of **") and f"Episode `{ep.name}`" in text
+    assert "| Joint | Episode | Position | Speed | Command |" in text
+    boom = ep.theta[:, 1]
+    deg = math.degrees
+    assert f"| boom | {ep.name} | {deg(boom.min()):.1f} … {deg(boom.max()):.1f} ° |" in text
+    assert main(["info", str(path), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert got["kind"] == "episode" and got["episode"]["name"] == ep.name
+    assert (
+        got["joints"][1]["splits"][ep.name]
+        == dataset_card(plain_dir)["joints"][1]["splits"]["test"]
+    )
+    bad = path.with_name("bad.parquet")
+    bad.write_bytes(b"PAR1 not parquet")
+    assert main(["info", str(bad)]) == 2
+    assert "bad.parquet: not a readable Parquet file" in capsys.readouterr().err

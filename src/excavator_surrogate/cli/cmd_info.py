@@ -21,7 +21,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "type and shape of every graph input and output, the units and sample period, how it "
         "steps, and the card of the checkpoint it was exported from. Or describe a dataset "
         "folder (the one holding manifest.json): its "
-        "splits, and per joint how far each split moves it and commands it. Notes flag what "
+        "splits, and per joint how far each split moves it and commands it; or one episode "
+        "file the same way. Notes flag what "
         "to know first (a training the wall-time cap cut short, a joint that validated "
         "poorly; validation that drives a joint over too little of the training's commands, "
         "a test that leaves the training's positions).",
@@ -31,8 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PATH",
         nargs="?",
         default=None,
-        help="a checkpoint file (.pt, e.g. runs/quick/model/best.pt), an ONNX export (.onnx) or "
-        "a dataset folder (e.g. runs/quick/data)",
+        help="a checkpoint file (.pt, e.g. runs/quick/model/best.pt), an ONNX export (.onnx), "
+        "a dataset folder (e.g. runs/quick/data) or one of its episode files (.parquet)",
     )
     p.add_argument(
         "--computer",
@@ -60,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
         from ..errors import ConfigError
 
         raise ConfigError(
-            f"{path}: not found; give a checkpoint file (.pt), an ONNX export (.onnx) or a "
-            "dataset folder"
+            f"{path}: not found; give a checkpoint file (.pt), an ONNX export (.onnx), a "
+            "dataset folder or an episode file (.parquet)"
         )
     if path.is_dir() and (path / MANIFEST).is_file():
         from ..evaluate.card import public
@@ -77,6 +78,12 @@ def run(args: argparse.Namespace) -> int:
             f"{path}: a folder without {MANIFEST} is not a dataset; give a checkpoint file, "
             f"e.g. {checkpoint_in(path)}, or a dataset folder"
         )
+    elif path.suffix.lower() == ".parquet":
+        from ..evaluate.card import public
+        from ..evaluate.data_card import dataset_card_markdown, episode_card
+
+        card = episode_card(path)
+        text = dataset_card_markdown
     elif path.suffix.lower() == ".onnx":
         from ..env.onnx_card import onnx_card, onnx_card_json, onnx_card_markdown
 

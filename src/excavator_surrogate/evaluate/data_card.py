@@ -21,7 +21,7 @@ import numpy as np
 
 from ..data.dataset import SPLITS, Dataset, load_dataset
 from ..data.episode import Episode
-from ..spec import JointSpec
+from ..spec import JointSpec, MachineSpec
 from ..training.config import TrainConfig
 from ..training.span import command_span
 
@@ -54,12 +54,49 @@ def dataset_card(path: str | Path) -> dict[str, Any]:
 def describe_dataset(ds: Dataset, *, path: str | Path | None = None) -> dict[str, Any]:
     """:func:`dataset_card` of a loaded dataset (``path``: the folder it is named by; default
     its ``root``)."""
-    spec = ds.spec
+    groups = {name: ds.split(name) for name in SPLITS if ds.split(name)}
+    card = _describe(groups, ds.spec, path=path if path is not None else ds.root)
+    spans = None
+    if ds.train and ds.val:
+        spans = dict(zip(ds.spec.names, command_span(ds.train, ds.val, ds.spec), strict=True))
+    card["val_span"] = spans
+    card["warnings"] = _warnings(card)
+    return card
+
+
+def episode_card(path: str | Path) -> dict[str, Any]:
+    """The description of one episode file (``exsur info EPISODE.parquet``): the keys of
+    :func:`dataset_card`, its one "split" named after the episode, no ``val_span``, and
+    ``episode`` (name, source, condition, start time, seed, the generator's or the import's
+    record).
+
+    Raises:
+        DataError: a missing or unreadable file, or one that breaks the data contract.
+    """
+    from ..data.episode import read_episode
+
+    ep = read_episode(path)
+    card = _describe({ep.name: [ep]}, ep.spec, path=path)
+    card["kind"] = "episode"
+    card["episode"] = {
+        "name": ep.name,
+        "source": ep.source,
+        "condition": ep.condition,
+        "t0_s": float(ep.time[0]),
+        "seed": ep.seed,
+        "generator": dict(ep.generator),
+    }
+    card["val_span"] = None
+    card["warnings"] = []
+    return card
+
+
+def _describe(
+    groups: Mapping[str, Sequence[Episode]], spec: MachineSpec, *, path: str | Path | None
+) -> dict[str, Any]:
+    """The card's machine, per-group and per-joint parts of named groups of episodes."""
     splits: dict[str, Any] = {}
-    for name in SPLITS:
-        eps = ds.split(name)
-        if not eps:
-            continue
+    for name, eps in groups.items():
         n = sum(e.n_step for e in eps)
         splits[name] = {
             "episodes": len(eps),
@@ -73,13 +110,11 @@ def describe_dataset(ds: Dataset, *, path: str | Path | None = None) -> dict[str
         }
     joints = []
     for j, js in enumerate(spec.joints):
-        per = {name: _joint_stats(ds.split(name), j, js) for name in splits}  # present splits
+        per = {name: _joint_stats(groups[name], j, js) for name in splits}
         joints.append({"name": js.name, "kind": js.kind, "unit": js.unit, "splits": per})
-    spans = None
-    if ds.train and ds.val:
-        spans = dict(zip(spec.names, command_span(ds.train, ds.val, spec), strict=True))
-    card = {
-        "path": str(path if path is not None else ds.root),
+    return {
+        "kind": "dataset",
+        "path": str(path),
         "machine": {
             "name": spec.name,
             "rate_hz": spec.rate_hz,
@@ -89,10 +124,7 @@ def describe_dataset(ds: Dataset, *, path: str | Path | None = None) -> dict[str
         },
         "splits": splits,
         "joints": joints,
-        "val_span": spans,
     }
-    card["warnings"] = _warnings(card)
-    return card
 
 
 def _joint_stats(eps: Sequence[Episode], j: int, js: JointSpec) -> dict[str, Any] | None:
@@ -171,16 +203,30 @@ def dataset_card_markdown(card: Mapping[str, Any]) -> str:
     """The card of :func:`dataset_card` as Markdown (what ``exsur info DATASET`` prints)."""
     m = card["machine"]
     total = sum(s["samples"] for s in card["splits"].values())
+    kind = card.get("kind", "dataset")
     lines = [
         f"# {card['path']}",
         "",
-        f"A dataset of **{m['name']}** at {m['rate_hz']:g} Hz: {total:,} samples "
+        f"{'An episode' if kind == 'episode' else 'A dataset'} of **{m['name']}** at "
+        f"{m['rate_hz']:g} Hz: {total:,} samples "
         f"({_minutes(total / m['rate_hz'])}), from {', '.join(m['data_source']) or 'unknown'}"
         + (f"; exogenous inputs {', '.join(m['inputs'])}" if m["inputs"] else "")
         + ".",
     ]
     if card["warnings"]:
         lines += ["", *notes_lines(card)]
+    if kind == "episode":
+        e = card["episode"]
+        lines += [
+            "",
+            f"Episode `{e['name']}`, condition `{e['condition']}`, starting at "
+            f"{e['t0_s']:g} s" + (f", seed {e['seed']}" if e["seed"] is not None else "") + ".",
+            "",
+            "## Joints",
+            "",
+            *joint_lines(card),
+        ]
+        return "\n".join(lines) + "\n"
     lines += ["", "## Splits", "", *splits_lines(card), "", "## Joints", "", *joint_lines(card)]
     lines += reach_lines(card)
     return "\n".join(lines) + "\n"
@@ -211,12 +257,14 @@ def splits_lines(card: Mapping[str, Any]) -> list[str]:
 
 
 def joint_lines(card: Mapping[str, Any]) -> list[str]:
-    """Per joint and split: position range (or travel), speed, commands used."""
+    """Per joint and split (an episode card: the episode): position range (or travel),
+    speed, commands used."""
+    group = "Episode" if card.get("kind") == "episode" else "Split"
     lines = [
-        "Per split: the position range (a periodic joint: the angle it travels), the 99th "
-        "percentile of |speed|, and the commands used (1st … 99th percentile).",
+        f"Per {group.lower()}: the position range (a periodic joint: the angle it travels), the "
+        "99th percentile of |speed|, and the commands used (1st … 99th percentile).",
         "",
-        "| Joint | Split | Position | Speed | Command |",
+        f"| Joint | {group} | Position | Speed | Command |",
         "|---|---|---|---:|---|",
     ]
     for jt, js in zip(card["joints"], card["machine"]["joints"], strict=True):
