@@ -16,6 +16,9 @@ mid-cycle, from states the machine was really in, under load.
 Only the surrogate can start this way: a log does not hold the plant's hidden state (servo
 setpoints, the actuator's delay line, the hydraulic transform's memory), so
 ``ExcavatorMujoco-v0`` refuses it with one line.
+
+:class:`RecordedStarts` (the surrogate envs' ``recorded_starts=``) draws such histories at
+random from a dataset's logs, for the resets that give neither a pose nor a history.
 """
 
 from __future__ import annotations

@@ -103,7 +103,8 @@ def horizon_errors(
     """The angle RMSE of every model (and of :data:`HOLD`) ``horizons_s`` after measured starts.
 
     Args:
-        models: label -> surrogate (each warmed up on its own window ``W``).
+        models: label -> surrogate; all start at the same moments, warmed up on the
+            longest window ``W`` among them (a windowed model reads its own last ``W``).
         episodes: the scored episodes.
         spec: the machine (joint names, periodic joints, sample period).
         reference: ``measured`` or ``true`` angles to start from and compare with.
