@@ -128,7 +128,87 @@ def test_one_bad_cell_of_a_decimal_comma_log_is_named(cli, work, short_cols) -> 
     log = write_lines(work / "a.csv", short_cols, edit)
     err = _fail(cli, log, _mapping(work, "euro.toml", LOCALE), work / "X")
     assert f"{log}, column 'arm_deg', row 300: non-numeric value '1.234,5'" in err
-    assert "thousands separator" in err
+    assert """the log groups thousands with '.': set [csv] thousands = "." in the mapping""" in err
+
+
+def _grouped(dec: str, th: str, sep: str) -> Callable[[list[str]], list[str]]:
+    """The log with the integer digits of every number grouped in threes by ``th``, the
+    decimal mark ``dec`` and fields split by ``sep`` (the header keeps its names)."""
+
+    def cell(x: str) -> str:
+        sign, body = ("-", x[1:]) if x.startswith("-") else ("", x)
+        whole, _, frac = body.partition(".")
+        if not whole.isdigit():
+            return x
+        groups = []
+        while len(whole) > 3:
+            whole, groups = whole[:-3], [whole[-3:], *groups]
+        return sign + th.join([whole, *groups]) + (dec + frac if frac else "")
+
+    def edit(lines: list[str]) -> list[str]:
+        return [lines[0].replace(",", sep)] + [
+            sep.join(cell(x) for x in line.split(",")) for line in lines[1:]
+        ]
+
+    return edit
+
+
+@pytest.mark.parametrize(
+    ("dec", "th", "sep"),
+    [(",", ".", ";"), (".", ",", ";"), (",", " ", ";"), (".", "'", ",")],
+    ids=["de", "en", "fr", "ch"],
+)
+def test_a_log_with_thousands_separators_imports_as_the_plain_one(
+    cli, work, short_cols, dec, th, sep
+) -> None:
+    """``-1.000,5`` (German Excel with separators), ``1,000.5``, ``1 000,5``, ``1'000.5``:
+    with ``[csv] thousands`` (and ``decimal``) the same episodes as the plain log, bit for
+    bit, time column included; without it, the first such cell names the setting."""
+    log = write_lines(work / "grouped.csv", short_cols, _grouped(dec, th, sep))
+    assert f"1{th}0" in log.read_text()  # milliseconds past 1 s are grouped
+    extra = f'[csv]\ndelimiter = "{sep}"\ndecimal = "{dec}"\nthousands = "{th}"\n'
+    _same_as_plain(cli, work, short_cols, log, _mapping(work, "grouped.toml", extra))
+    bare = _mapping(work, "bare.toml", f'[csv]\ndelimiter = "{sep}"\ndecimal = "{dec}"\n')
+    err = _fail(cli, log, bare, work / "X")
+    assert f"""set [csv] thousands = "{th}" in the mapping""" in err
+
+
+def test_each_error_names_the_next_setting_a_grouped_log_needs() -> None:
+    """A cell that one setting would read names it, the decimal mark first (``0,5``), then a
+    grouping of threes; a cell no setting reads gets the general advice."""
+    from excavator_surrogate.ingest.columns import _number_fix
+
+    assert (
+        _number_fix("0,5", ".")
+        == 'the log writes decimal commas: set [csv] decimal = "," in the mapping'
+    )
+    assert _number_fix("-1.234,5", ".").endswith(
+        """with '.': set [csv] decimal = "," and thousands = "." in the mapping"""
+    )
+    assert _number_fix("1,234,567.5", ".").endswith("""set [csv] thousands = "," in the mapping""")
+    assert _number_fix("12 345,5", ",").endswith("""set [csv] thousands = " " in the mapping""")
+    for cell in ("1.23,4", "abc", "1.2.3"):  # not a grouping of threes
+        assert _number_fix(cell, ",").startswith("replace it with a number")
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        (
+            '[csv]\ndecimal = ","\nthousands = ","\ndelimiter = ";"\n',
+            "thousands and decimal are both ','",
+        ),
+        ('[csv]\nthousands = ","\n', "thousands and delimiter are both ','"),
+        ('[csv]\nthousands = "_"\n', "thousands"),
+    ],
+    ids=["as-decimal", "as-delimiter", "unknown-mark"],
+)
+def test_a_thousands_mark_that_cannot_work_is_a_config_error(
+    cli, work, short_cols, extra, match
+) -> None:
+    log = write_lines(work / "a.csv", short_cols)
+    err = _fail(cli, log, _mapping(work, "bad.toml", extra), work / "X")
+    assert match in err
 
 
 def test_decimal_and_delimiter_alike_is_a_config_error(cli, work, short_cols) -> None:

@@ -6,6 +6,7 @@ a bad cell is a :class:`~excavator_surrogate.errors.DataError` naming its column
 
 from __future__ import annotations
 
+import re
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -20,12 +21,19 @@ _UNIT_NS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
 
 
 def numeric_column(
-    path: Path, col: pa.ChunkedArray | pa.Array, name: str, *, decimal: str = "."
+    path: Path,
+    col: pa.ChunkedArray | pa.Array,
+    name: str,
+    *,
+    decimal: str = ".",
+    thousands: str = "",
 ) -> np.ndarray:
     """Column as float64 (nulls -> NaN); DataError at the first non-numeric cell.
 
     ``decimal`` is the decimal mark of a text column: with ``","``, ``1,25`` reads 1.25 and a
     cell holding a ``.`` is refused (it may be a thousands separator), as pyarrow does.
+    ``thousands`` ("" for none) is removed from a text column's cells first: with ``"."``
+    and ``decimal = ","``, ``-1.000,5`` reads -1000.5 (the grouping is not checked).
     """
     t = col.type
     if (
@@ -38,6 +46,9 @@ def numeric_column(
             pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), dtype=np.float64
         )
     if pa.types.is_string(t) or pa.types.is_large_string(t):
+        raw = col
+        if thousands:
+            col = pc.replace_substring(col, thousands, "")
         if decimal == "." or not pc.any(pc.match_substring(col, ".")).as_py():
             dotted = col if decimal == "." else pc.replace_substring(col, decimal, ".")
             try:
@@ -52,8 +63,13 @@ def numeric_column(
                 continue
             if is_number(v, decimal):
                 continue
+            cell = raw[i].as_py()
             raise DataError(
-                path, f"non-numeric value {v!r}", column=name, row=i, fix=_number_fix(v, decimal)
+                path,
+                f"non-numeric value {cell!r}",
+                column=name,
+                row=i,
+                fix=_number_fix(cell, decimal, thousands),
             )
     raise DataError(
         path, f"values are of type {t}, not numbers", column=name, fix="map a numeric column"
@@ -71,22 +87,39 @@ def is_number(text: str, decimal: str) -> bool:
     return True
 
 
-def _number_fix(text: str, decimal: str) -> str:
-    """What to do about the cell ``text`` that is not a number with the mark ``decimal``."""
-    if decimal == "." and is_number(text, ","):
-        return 'the log writes decimal commas: set [csv] decimal = "," in the mapping'
-    if decimal != "." and is_number(text, "."):
-        return (
-            f"[csv] decimal is {decimal!r}, but this cell has a decimal point: if the log "
-            'writes decimal points, set [csv] decimal = "." in the mapping'
-        )
-    if decimal != "." and "." in text:
-        return f"a '.' in a number with decimal {decimal!r} (a thousands separator?): remove it"
+def _grouped(text: str, thousands: str, decimal: str) -> bool:
+    """Whether ``text`` is a number whose integer digits are grouped in threes by
+    ``thousands`` (``-1.234.567,5`` with ``"."`` and ``","``)."""
+    th, dec = re.escape(thousands), re.escape(decimal)
+    return (
+        re.fullmatch(rf"[+-]?\d{{1,3}}({th}\d{{3}})+({dec}\d*)?([eE][+-]?\d+)?", text) is not None
+    )
+
+
+def _number_fix(text: str, decimal: str, thousands: str = "") -> str:
+    """What to do about the cell ``text`` that is not a number with the marks ``decimal`` and
+    ``thousands``: the setting that reads it, if one does."""
+    if not thousands:
+        other = "," if decimal == "." else "."
+        if decimal == "." and is_number(text, ","):
+            return 'the log writes decimal commas: set [csv] decimal = "," in the mapping'
+        if decimal != "." and is_number(text, "."):
+            return (
+                f"[csv] decimal is {decimal!r}, but this cell has a decimal point: if the log "
+                'writes decimal points, set [csv] decimal = "." in the mapping'
+            )
+        for dec, change in ((decimal, ""), (other, f'decimal = "{other}" and ')):
+            for mark in (".", ",", " ", "'"):
+                if mark != dec and _grouped(text, mark, dec):
+                    return (
+                        f"the log groups thousands with {mark!r}: set [csv] {change}"
+                        f'thousands = "{mark}" in the mapping'
+                    )
     return "replace it with a number or leave the cell empty (see --nan)"
 
 
 def parse_time(
-    path: Path, col: pa.ChunkedArray, tm: TimeMap, *, decimal: str = "."
+    path: Path, col: pa.ChunkedArray, tm: TimeMap, *, decimal: str = ".", thousands: str = ""
 ) -> tuple[np.ndarray, str]:
     """Time column -> (seconds since the first row, origin string); ``decimal`` as in
     :func:`numeric_column`. A duration column (pandas' Timedelta) is read in its own unit,
@@ -122,7 +155,8 @@ def parse_time(
         )
     if pa.types.is_string(t) or pa.types.is_large_string(t):
         first = col[0].as_py()
-        if not (isinstance(first, str) and (is_number(first, ".") or is_number(first, ","))):
+        bare = first.replace(thousands, "") if isinstance(first, str) and thousands else first
+        if not (isinstance(bare, str) and (is_number(bare, ".") or is_number(bare, ","))):
             raise DataError(
                 path,
                 f"time value {first!r} is text, not a number",
@@ -130,7 +164,7 @@ def parse_time(
                 row=0,
                 fix='set [time] unit = "datetime" for ISO-8601 time stamps',
             )
-        vals = numeric_column(path, col, name, decimal=decimal)
+        vals = numeric_column(path, col, name, decimal=decimal, thousands=thousands)
     elif pa.types.is_integer(t):
         ints = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.int64)
         rel = (ints - ints[0]).astype(np.float64) * (_UNIT_NS[tm.unit] * 1e-9)

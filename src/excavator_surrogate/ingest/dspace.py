@@ -228,6 +228,12 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
 
     data = _read_bytes(path, memory_limit(mapping.options.max_memory_mb))
     traces, start, delim, size = parse_header(path, data, encoding=mapping.csv.encoding)
+    if delim == mapping.csv.thousands:
+        raise DataError(
+            path,
+            f"the export separates its fields by {delim!r}, the mapping's [csv] thousands mark",
+            fix=f"remove [csv] thousands from {mapping.where} or set another mark",
+        )
     if delim == mapping.csv.decimal:
         raise DataError(
             path,
@@ -283,9 +289,16 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
         table.column(names[t_trace.index]),
         dataclasses.replace(tm, column=tlabel),
         decimal=decimal,
+        thousands=mapping.csv.thousands,
     )
     values: dict[str, np.ndarray] = {
-        k: numeric_column(path, table.column(names[t.index]), k, decimal=decimal)
+        k: numeric_column(
+            path,
+            table.column(names[t.index]),
+            k,
+            decimal=decimal,
+            thousands=mapping.csv.thousands,
+        )
         for k, t in chosen.items()
     }
     return RawLog(

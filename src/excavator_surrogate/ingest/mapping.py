@@ -19,7 +19,7 @@ Layout (see ``docs/import.md`` for the full reference)::
     range = [800, 2200]
     [import]                 # defaults of the import options (CLI flags override)
     [split]                  # train/val/test assignment
-    [csv]                    # delimiter, decimal, encoding, skip_rows(_after_header), format
+    [csv]                    # delimiter, decimal, thousands, encoding, skip_rows(_after_header), format
 
 For ROS bags a channel names ``topic`` and ``field`` (e.g. ``field = "position[1]"``)
 instead of ``column``; for two-channel commands ``up``/``down`` are field paths of ``topic``.

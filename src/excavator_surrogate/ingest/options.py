@@ -28,11 +28,20 @@ class CsvOptions:
     decimal: Literal[".", ","] = "."
     """The numbers' decimal mark: ``","`` for logs written with a European locale (``1,25``;
     their delimiter is then ``;`` or a tab). Applies to plain CSV and dSPACE exports."""
+    thousands: Literal["", ".", ",", " ", "'"] = ""
+    """The mark grouping the digits of large numbers, removed before a text cell is read:
+    ``"."`` with ``decimal = ","`` for ``-1.000,5`` (an Excel export with separators on);
+    ``""``: none (a cell holding one is then refused, naming this option)."""
     encoding: str = "utf-8"
     """The text encoding of the names and cells, a Python codec name: ``"cp1252"`` for a
     Windows export with ``°`` or umlauts in its header (a UTF-8 byte-order mark is skipped)."""
 
     def __post_init__(self) -> None:
+        if self.thousands and self.thousands == self.decimal:
+            raise ConfigError(
+                f"[csv] thousands and decimal are both {self.decimal!r}: one mark cannot group "
+                "the digits and end the whole part"
+            )
         for name in ("skip_rows", "skip_rows_after_header"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"[csv] {name} must be >= 0, got {getattr(self, name)}")

@@ -152,6 +152,12 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     needed = [tcol, *[c for c in value_cols if c != tcol]]
     meta: dict[str, str] = {}
     if kind == "csv":
+        if mapping.csv.thousands == mapping.csv.delimiter:
+            raise ConfigError(
+                f"{mapping.where}: [csv] thousands and delimiter are both "
+                f"{mapping.csv.delimiter!r}: a mark that groups digits cannot also separate "
+                "the fields"
+            )
         if mapping.csv.decimal == mapping.csv.delimiter:
             raise ConfigError(
                 f"{mapping.where}: [csv] decimal and delimiter are both "
@@ -168,10 +174,11 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     if n == 0:
         raise DataError(path, "the log has no data rows", fix="remove the file or record data")
     decimal = mapping.csv.decimal if kind == "csv" else "."
-    time_s, origin = parse_time(path, table.column(tcol), tm, decimal=decimal)
+    thousands = mapping.csv.thousands if kind == "csv" else ""
+    time_s, origin = parse_time(path, table.column(tcol), tm, decimal=decimal, thousands=thousands)
     values: dict[str, np.ndarray] = {}
     for c in value_cols:
-        values[c] = numeric_column(path, table.column(c), c, decimal=decimal)
+        values[c] = numeric_column(path, table.column(c), c, decimal=decimal, thousands=thousands)
     return RawLog(
         path=path,
         kind=kind,
@@ -269,7 +276,13 @@ def _parse_csv(
     numeric = [c for c in needed if not (c == tcol and mapping.time.unit == "datetime")]
     for c in numeric:
         try:
-            numeric_column(path, text.column(c), c, decimal=mapping.csv.decimal)
+            numeric_column(
+                path,
+                text.column(c),
+                c,
+                decimal=mapping.csv.decimal,
+                thousands=mapping.csv.thousands,
+            )
         except DataError as e:
             units = _units_row(text, numeric) if e.row == 0 else None
             if units is None:
