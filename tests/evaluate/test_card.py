@@ -172,3 +172,12 @@ def test_exsur_info_prints_text_or_json_and_refuses_bad_files(tmp_path, dataset_
     assert main(["info", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a readable exsur checkpoint" in err[0]
+    # a file not named as a checkpoint: what info reads instead
+    notes = tmp_path / "notes.txt"
+    notes.write_text("hello")
+    assert main(["info", str(notes)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        "notes.txt: not a file exsur info reads; it describes a checkpoint (.pt), an ONNX "
+        "export (.onnx), a dataset folder or an episode file (.parquet)"
+    )

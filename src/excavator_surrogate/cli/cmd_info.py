@@ -94,9 +94,18 @@ def run(args: argparse.Namespace) -> int:
             print(onnx_card_markdown(card), end="")
         return 0
     else:
+        from ..errors import CheckpointError
         from ..evaluate.card import card_markdown, model_card, public
 
-        card = model_card(path)
+        try:
+            card = model_card(path)
+        except CheckpointError as e:
+            if path.suffix.lower() in (".pt", ".pth"):
+                raise
+            raise CheckpointError(  # not named as a checkpoint: say what info reads
+                f"{path}: not a file exsur info reads; it describes a checkpoint (.pt), an "
+                "ONNX export (.onnx), a dataset folder or an episode file (.parquet)"
+            ) from e
         text = card_markdown
     if args.json:
         print(json.dumps(public(card), indent=2, allow_nan=False))
