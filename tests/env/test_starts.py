@@ -3,6 +3,8 @@ against the free run of ``exsur evaluate``, and the one-line errors."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -300,3 +302,17 @@ def test_envs_with_recorded_starts(stateful_ckpt, tmp_path) -> None:
         ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=other)
     with pytest.raises(ConfigError, match=r"no episode has the \d+ samples a recorded start needs"):
         ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=_episodes([2]))
+
+
+def test_a_history_shorter_than_the_window_warns(stateful_ckpt) -> None:
+    """The warm-up is padded then, unlike the one evaluate validated: one warning that says
+    how many samples to give; a full window is quiet."""
+    env = ExcavatorSurrogateEnv(stateful_ckpt)
+    w = env.engine.window
+    short = {"theta": MID + np.zeros((3, 4)), "u": np.zeros((2, 4))}
+    with pytest.warns(UserWarning, match=rf"has 3 samples, fewer than the model's window W = {w}"):
+        env.reset(options={"history": short})
+    full = {"theta": MID + np.zeros((w, 4)), "u": np.zeros((w - 1, 4))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env.reset(options={"history": full})

@@ -166,6 +166,17 @@ def check_history(
     return theta, u
 
 
+def warn_short_history(n_hist: int, window: int, *, where: str) -> None:
+    """A warning when a history is shorter than the model's window ``W``: the warm-up is then
+    padded with its first sample, unlike the one ``exsur evaluate`` validated."""
+    if n_hist < window:
+        gym.logger.warn(
+            f"{where}: options['history'] has {n_hist} samples, fewer than the model's window "
+            f"W = {window}: its warm-up is padded with the first sample; give {window} samples "
+            "for the warm-up the model was validated with"
+        )
+
+
 def last_velocity(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
     """``ω = wrap(theta[..., -1, :] - theta[..., -2, :]) / T_s`` [rad/s] of a history
     (..., n_hist, n_joint) [rad], ``wrap`` on periodic joints: the observation's ω."""

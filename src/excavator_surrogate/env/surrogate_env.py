@@ -19,7 +19,7 @@ from .base import ExcavatorEnv
 from .engine import Impl, Mode, SurrogateEngine
 from .render import RENDER_SIZE, PoseScene
 from .safety import ActionMode, ActionScale, GuardConfig
-from .starts import RecordedStarts
+from .starts import RecordedStarts, warn_short_history
 from .tasks import Task
 from .uncertainty import notes, step_info, wanted
 
@@ -224,6 +224,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
         self.engine.reset(theta0[None])
 
     def _dyn_reset_history(self, theta: np.ndarray, u: np.ndarray) -> None:
+        warn_short_history(len(theta), self.engine.window, where=f"{self.env_id}.reset")
         self.engine.reset_history(theta[None], u[None])
 
     def _dyn_info(self) -> dict[str, Any]:

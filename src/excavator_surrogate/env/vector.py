@@ -58,7 +58,13 @@ from .safety import (
     GuardConfig,
     check_action_scale,
 )
-from .starts import RecordedStarts, check_history, check_theta0, last_velocity
+from .starts import (
+    RecordedStarts,
+    check_history,
+    check_theta0,
+    last_velocity,
+    warn_short_history,
+)
 from .surrogate_env import load_surrogate, recorded_starts_of
 from .tasks import Task, start_pose
 from .uncertainty import INFO_KEYS, notes, step_info, wanted
@@ -265,6 +271,7 @@ class SurrogateVectorEnv(VectorEnv):
             theta_hist, u_hist = check_history(
                 self.machine, history, where=where, n_envs=self.num_envs
             )
+            warn_short_history(theta_hist.shape[1], self.engine.window, where=where)
             theta = self.engine.reset_history(theta_hist, u_hist, mask).cpu().numpy()
             omega[mask] = last_velocity(self.machine, theta_hist[mask])
         self._elapsed[mask] = 0
