@@ -164,13 +164,29 @@ def test_env_from_history_continues_the_evaluate_free_run(
             {"theta": MID + np.zeros((5, 4)) + np.array([0, 3.0, 0, 0]), "u": np.zeros((4, 4))},
             r"theta0\[1\] \(boom\) .* outside the joint limits",
         ),
+        (
+            {
+                "theta": MID + np.zeros((5, 4)) + np.outer(np.arange(5) >= 3, [0, 0, 1.2, 0]),
+                "u": np.zeros((4, 4)),
+            },
+            r"history\['theta'\] of arm jumps between samples 2 and 3 \(24 rad/s, beyond the guard's omega_max 20\)",
+        ),
     ],
-    ids=["no-u", "not-a-dict", "u-length", "one-sample", "text", "nan", "range", "limits"],
+    ids=["no-u", "not-a-dict", "u-length", "one-sample", "text", "nan", "range", "limits", "jump"],
 )
 def test_bad_history_is_one_clear_line(stateful_ckpt, history, match: str) -> None:
     env = ExcavatorSurrogateEnv(stateful_ckpt)
     with pytest.raises(ConfigError, match=match):
         env.reset(options={"history": history})
+
+
+def test_a_swing_stored_wrapped_across_pi_is_no_jump(stateful_ckpt) -> None:
+    theta = MID + np.zeros((6, 4))
+    theta[:, 0] = [3.10, 3.12, 3.14, -3.14, -3.12, -3.10]  # 0.02 rad a sample, wrapped
+    obs, _ = ExcavatorSurrogateEnv(stateful_ckpt).reset(
+        options={"history": {"theta": theta, "u": np.zeros((5, 4))}}
+    )
+    assert obs[4] == pytest.approx(0.02 / EXCAVATOR.dt, rel=1e-3)
 
 
 def test_history_is_refused_where_it_cannot_be_honoured(stateful_ckpt) -> None:

@@ -264,7 +264,9 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
             theta_rec, u_rec = self.recorded.draw(self.np_random)
             history = {"theta": theta_rec, "u": u_rec}
         if history is not None:
-            theta_hist, u_hist = check_history(self.machine, history, where=where)
+            theta_hist, u_hist = check_history(
+                self.machine, history, where=where, omega_max=self._guard.config.omega_max
+            )
             self._dyn_reset_history(theta_hist, u_hist)
             self.theta = theta_hist[-1].copy()
             self.omega = last_velocity(self.machine, theta_hist)

@@ -94,7 +94,12 @@ def _array(value: Any, *, what: str, where: str) -> np.ndarray:
 
 
 def check_history(
-    spec: MachineSpec, history: Any, *, where: str, n_envs: int | None = None
+    spec: MachineSpec,
+    history: Any,
+    *,
+    where: str,
+    n_envs: int | None = None,
+    omega_max: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Validate ``options["history"]``.
 
@@ -105,6 +110,8 @@ def check_history(
             n_joint) and (n_envs, n_hist - 1, n_u).
         where: prefix of the error message (the env and the call).
         n_envs: the vector env's size (None: a single env).
+        omega_max: the fastest a joint may move between two samples [rad/s] (the divergence
+            guard's; None: unchecked): a faster step is a jump in the log, refused.
 
     Returns:
         ``(theta, u)``, (n_hist, n_joint) and (n_hist - 1, n_u), or with ``n_envs`` (n_envs,
@@ -157,6 +164,18 @@ def check_history(
             f"[{col.u_min:g}, {col.u_max:g}]: give the commands in the machine's command units, "
             "clipped into the range"
         )
+    if omega_max is not None:
+        speed = np.abs(velocities(spec, theta))  # (..., n_hist - 1, n_joint)
+        fast = np.argwhere(speed > omega_max)
+        if fast.size:
+            at = tuple(int(i) for i in fast[0])
+            env = f" env {at[0]}" if len(at) == 3 else ""
+            raise ConfigError(
+                f"{where}{env}: history['theta'] of {spec.names[at[-1]]} jumps between samples "
+                f"{at[-2]} and {at[-2] + 1} ({speed[at]:.3g} rad/s, beyond the guard's "
+                f"omega_max {omega_max:g}): a jump in the log; clean it (exsur clean) or start "
+                "from a stretch without one"
+            )
     theta = np.array(theta, dtype=np.float64)  # a writable copy (broadcasts are read-only)
     u = np.array(u, dtype=np.float64)
     rows = theta.reshape(-1, *theta.shape[-2:])
@@ -177,13 +196,19 @@ def warn_short_history(n_hist: int, window: int, *, where: str) -> None:
         )
 
 
-def last_velocity(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
-    """``ω = wrap(theta[..., -1, :] - theta[..., -2, :]) / T_s`` [rad/s] of a history
-    (..., n_hist, n_joint) [rad], ``wrap`` on periodic joints: the observation's ω."""
-    d = theta[..., -1, :] - theta[..., -2, :]
+def velocities(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
+    """``wrap(theta[k] - theta[k-1]) / T_s`` [rad/s] along a history (..., n_hist, n_joint)
+    [rad] -> (..., n_hist - 1, n_joint), ``wrap`` on periodic joints: the observation's ω."""
+    d = theta[..., 1:, :] - theta[..., :-1, :]
     p = np.asarray(spec.periodic, dtype=bool)
     d = np.where(p, (d + math.pi) % (2.0 * math.pi) - math.pi, d)
     return d / spec.dt
+
+
+def last_velocity(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
+    """The last of :func:`velocities`: the ω a history (..., n_hist, n_joint) [rad] ends
+    with [rad/s]."""
+    return velocities(spec, theta[..., -2:, :])[..., 0, :]
 
 
 class RecordedStarts:

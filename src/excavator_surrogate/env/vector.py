@@ -269,7 +269,11 @@ class SurrogateVectorEnv(VectorEnv):
                     f"{where}: give options['theta0'] or options['history'], not both"
                 )
             theta_hist, u_hist = check_history(
-                self.machine, history, where=where, n_envs=self.num_envs
+                self.machine,
+                history,
+                where=where,
+                n_envs=self.num_envs,
+                omega_max=self._guard.config.omega_max,
             )
             warn_short_history(theta_hist.shape[1], self.engine.window, where=where)
             theta = self.engine.reset_history(theta_hist, u_hist, mask).cpu().numpy()
