@@ -332,3 +332,29 @@ def test_a_history_shorter_than_the_window_warns(stateful_ckpt) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         env.reset(options={"history": full})
+
+
+def test_a_last_angle_a_hair_past_a_stop_starts_there_with_one_warning(stateful_ckpt) -> None:
+    """As a start pose may: one warning for all the envs of a vector reset (not one each),
+    none for a recorded start, which is the machine's own state."""
+    stop = EXCAVATOR.joints[1].theta_max
+    theta = MID + np.zeros((6, 4))
+    theta[-1, 1] = stop + 0.01
+    hist = {"theta": theta, "u": np.zeros((5, 4))}
+    venv = SurrogateVectorEnv(stateful_ckpt, 4)
+    with pytest.warns(UserWarning) as got:
+        venv.reset(options={"history": hist})
+    msgs = [str(w.message) for w in got if "end stop" in str(w.message)]
+    assert len(msgs) == 1 and "the histories of 4 env(s) (first: env 0) end up to 0.573" in msgs[0]
+    np.testing.assert_allclose(venv.engine.theta.numpy()[:, 1], stop)
+    ep = _episodes([12])[0]
+    ep.theta[:, 1] = stop + 0.01  # recorded a hair past the stop: starts there, quietly
+    env = ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=[ep])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _, info = env.reset(seed=0)
+    assert info["theta"][1] == stop
+    far = _episodes([12])[0]
+    far.theta[:, 1] = stop + 0.5  # beyond what a start pose may: no moment to draw
+    with pytest.raises(ConfigError, match="ending inside the joint limits"):
+        ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=[far])

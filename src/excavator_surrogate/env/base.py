@@ -260,12 +260,18 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         history = options.get("history")
         if history is not None and options.get("theta0") is not None:
             raise ConfigError(f"{where}: give options['theta0'] or options['history'], not both")
-        if history is None and options.get("theta0") is None and self.recorded is not None:
+        drawn = history is None and options.get("theta0") is None and self.recorded is not None
+        if drawn:
+            assert self.recorded is not None
             theta_rec, u_rec = self.recorded.draw(self.np_random)
             history = {"theta": theta_rec, "u": u_rec}
         if history is not None:
             theta_hist, u_hist = check_history(
-                self.machine, history, where=where, omega_max=self._guard.config.omega_max
+                self.machine,
+                history,
+                where=where,
+                omega_max=self._guard.config.omega_max,
+                warn=not drawn,  # a recorded moment a hair past a stop starts at it silently
             )
             self._dyn_reset_history(theta_hist, u_hist)
             self.theta = theta_hist[-1].copy()

@@ -100,6 +100,7 @@ def check_history(
     where: str,
     n_envs: int | None = None,
     omega_max: float | None = None,
+    warn: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Validate ``options["history"]``.
 
@@ -112,6 +113,7 @@ def check_history(
         n_envs: the vector env's size (None: a single env).
         omega_max: the fastest a joint may move between two samples [rad/s] (the divergence
             guard's; None: unchecked): a faster step is a jump in the log, refused.
+        warn: warn when a last angle is put at a stop (False: silently, for recorded starts).
 
     Returns:
         ``(theta, u)``, (n_hist, n_joint) and (n_hist - 1, n_u), or with ``n_envs`` (n_envs,
@@ -179,9 +181,23 @@ def check_history(
     theta = np.array(theta, dtype=np.float64)  # a writable copy (broadcasts are read-only)
     u = np.array(u, dtype=np.float64)
     rows = theta.reshape(-1, *theta.shape[-2:])
+    clipped, worst = [], 0.0
     for i, th in enumerate(rows):
         who = f"{where} env {i}" if batched else where
-        th[-1] = check_theta0(spec, th[-1], where=f"{who} history['theta'][-1]")
+        last = check_theta0(spec, th[-1], where=f"{who} history['theta'][-1]", warn=False)
+        if not np.array_equal(last, th[-1]):
+            clipped.append(i)
+            worst = max(worst, math.degrees(float(np.abs(last - th[-1]).max())))
+        th[-1] = last
+    if warn and clipped:  # one warning for all of them
+        whose = (
+            f"the histories of {len(clipped)} env(s) (first: env {clipped[0]}) end"
+            if n_envs is not None
+            else "the history ends"
+        )
+        gym.logger.warn(
+            f"{where}: {whose} up to {worst:.3g} deg beyond an end stop: it starts at the stop"
+        )
     return theta, u
 
 
@@ -215,7 +231,8 @@ class RecordedStarts:
     """Random starts at recorded moments of a machine's logs, for resets without a pose.
 
     Each draw picks one of the episodes' moments ``k`` uniformly over all of them (every
-    sample with ``window - 1`` samples before it) and returns the history that ends there,
+    sample with ``window - 1`` samples before it whose angles a start pose may take:
+    :func:`check_theta0`) and returns the history that ends there,
     ``theta[k - window + 1 .. k]`` and ``u[k - window + 1 .. k - 1]``: an RL policy or a
     controller then trains and is tested from the states the machine was really in (moving,
     loaded, at the poses operators use), not only from rest.
@@ -250,13 +267,26 @@ class RecordedStarts:
                     f"{where}: episode '{ep.name}' is of another machine than the surrogate "
                     f"({diff}, surrogate vs episode): start from logs of the machine it models"
                 )
-        self.episodes = [ep for ep in episodes if len(ep.u) >= self.window]
-        counts = np.array([len(ep.u) - self.window + 1 for ep in self.episodes], dtype=np.int64)
-        if counts.sum() == 0:
+        # a moment whose angle lies beyond a joint's stop by more than a start pose may (a
+        # test split's run past the training's range) is not drawn: the reset would refuse it
+        lo, hi = joint_limits(spec)
+        span = np.where(np.isfinite(hi - lo), hi - lo, 0.0)
+        lo, hi = lo - THETA0_SLACK * span, hi + THETA0_SLACK * span
+        self.episodes: list[Episode] = []
+        self._moments: list[np.ndarray] = []
+        """Per kept episode, the samples ``k`` a draw may end at."""
+        for ep in episodes:
+            inside = ((ep.theta >= lo) & (ep.theta <= hi)).all(axis=1)
+            k = np.flatnonzero(inside[self.window - 1 :]) + self.window - 1
+            if len(k):
+                self.episodes.append(ep)
+                self._moments.append(k)
+        if not self._moments:
             raise ConfigError(
-                f"{where}: no episode has the {self.window} samples a recorded start needs"
+                f"{where}: no episode has the {self.window} samples a recorded start needs, "
+                "ending inside the joint limits"
             )
-        self._cum = np.cumsum(counts)
+        self._cum = np.cumsum([len(k) for k in self._moments])
         """Running count of the moments, per episode (a draw's index falls into one)."""
 
     @property
@@ -268,7 +298,7 @@ class RecordedStarts:
         """One history: ``theta`` (window, n_joint) [rad] and ``u`` (window - 1, n_u)."""
         r = int(rng.integers(self.n_moment))
         e = int(np.searchsorted(self._cum, r, side="right"))
-        k = r - (int(self._cum[e - 1]) if e else 0) + self.window - 1  # the moment's sample
+        k = int(self._moments[e][r - (int(self._cum[e - 1]) if e else 0)])  # the moment
         ep = self.episodes[e]
         lo = k - self.window + 1
         return np.array(ep.theta[lo : k + 1], dtype=np.float64), np.array(ep.u[lo:k], np.float64)

@@ -257,7 +257,8 @@ class SurrogateVectorEnv(VectorEnv):
         """Reset the envs in ``mask`` (engine, observation rows, counters, task)."""
         history = options.get("history")
         omega = np.zeros((self.num_envs, self.machine.n_joint))
-        if history is None and options.get("theta0") is None and self.recorded is not None:
+        drawn = history is None and options.get("theta0") is None and self.recorded is not None
+        if drawn:
             history = self._recorded_histories(mask)
         if history is None:
             theta0 = self._theta0(mask, options)
@@ -274,6 +275,7 @@ class SurrogateVectorEnv(VectorEnv):
                 where=where,
                 n_envs=self.num_envs,
                 omega_max=self._guard.config.omega_max,
+                warn=not drawn,  # a recorded moment a hair past a stop starts at it silently
             )
             warn_short_history(theta_hist.shape[1], self.engine.window, where=where)
             theta = self.engine.reset_history(theta_hist, u_hist, mask).cpu().numpy()
