@@ -270,8 +270,10 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
                 self.machine,
                 history,
                 where=where,
-                omega_max=self._guard.config.omega_max,
-                warn=not drawn,  # a recorded moment a hair past a stop starts at it silently
+                # a recorded moment is the machine's own state: a hair past a stop starts at
+                # it silently, and a glitch the import let through ends the episode (guard)
+                omega_max=None if drawn else self._guard.config.omega_max,
+                warn=not drawn,
             )
             self._dyn_reset_history(theta_hist, u_hist)
             self.theta = theta_hist[-1].copy()

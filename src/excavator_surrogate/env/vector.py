@@ -274,8 +274,10 @@ class SurrogateVectorEnv(VectorEnv):
                 history,
                 where=where,
                 n_envs=self.num_envs,
-                omega_max=self._guard.config.omega_max,
-                warn=not drawn,  # a recorded moment a hair past a stop starts at it silently
+                # a recorded moment is the machine's own state: a hair past a stop starts at
+                # it silently, and a glitch the import let through ends the episode (guard)
+                omega_max=None if drawn else self._guard.config.omega_max,
+                warn=not drawn,
             )
             warn_short_history(theta_hist.shape[1], self.engine.window, where=where)
             theta = self.engine.reset_history(theta_hist, u_hist, mask).cpu().numpy()
