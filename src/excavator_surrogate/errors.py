@@ -41,6 +41,7 @@ class DataError(ExsurError):
         if fix:
             msg += f" ({fix})"
         self.path = path
+        self.problem = problem
         self.column = column
         self.row = row
         super().__init__(msg)

@@ -93,6 +93,40 @@ def test_command_sources(tmp_path: Path) -> None:
         load_commands(tmp_path / "missing.csv", EXCAVATOR)
 
 
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (
+            "u_swing,u_boom,u_arm,u_bucket\n0,1,2,3\n0,1,abc,3\n",
+            r"column 'u_arm', row 1: non-numeric value 'abc' \(store numbers only\)",
+        ),
+        (
+            "u_swing;u_boom;u_arm;u_bucket\n0;1;2;3\n",
+            r"its header is split by ';': separate the fields by ','",
+        ),
+    ],
+    ids=["text-cell", "semicolons"],
+)
+def test_a_bad_commands_csv_names_the_cell_or_the_separator(tmp_path: Path, text, match) -> None:
+    (tmp_path / "c.csv").write_text(text)
+    with pytest.raises(DataError, match=match):
+        load_commands(tmp_path / "c.csv", EXCAVATOR)
+
+
+@pytest.mark.parametrize(
+    ("source", "match"),
+    [
+        ("steps:seed=x", r"seed must be an integer, got 'x'"),
+        ("steps:seconds=-5", r"need at least 2 samples \(0.1 s\), got seconds=-5"),
+        ("steps:n_step=1", r"need at least 2 samples \(0.1 s\), got n_step=1"),
+        ("steps:seconds=inf", r"seconds must be a finite number"),
+    ],
+)
+def test_a_bad_named_excitation_says_which_option(source: str, match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        load_commands(source, EXCAVATOR)
+
+
 def test_cli_compare(
     stateful_ckpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -114,3 +148,9 @@ def test_cli_compare(
     assert json.loads((out / "metrics.json").read_text())["run"]["theta0"] == [0.0, 0.1, 1.5, 0.5]
     assert main(["compare", str(stateful_ckpt), "--commands", "nope:x"]) == 2
     assert "named excitation" in capsys.readouterr().err
+    # a --theta0 of the wrong length: named as the option, before any excitation is made
+    bad = ["compare", str(stateful_ckpt), "--commands", "steps", "--theta0", "0,0,0"]
+    assert main([*bad, "--out", str(tmp_path / "cmp2")]) == 2
+    err = capsys.readouterr().err
+    assert "compare --theta0: theta0 must be 4 finite angles in rad for joints" in err
+    assert "got [0.0, 0.0, 0.0]" in err and not (tmp_path / "cmp2").exists()

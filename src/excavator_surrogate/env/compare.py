@@ -100,21 +100,29 @@ def _named_excitation(
         raise ConfigError(
             f"commands '{text}': unknown option(s) {unknown}; use seed, n_step or seconds"
         )
-    try:
-        seed = int(kv.get("seed", 0))
-        if "n_step" in kv:
-            n_step = int(kv["n_step"])
-        else:
-            seconds = float(kv.get("seconds", DEFAULT_SECONDS))
-            if not math.isfinite(seconds):
-                raise ValueError(f"seconds must be a finite number, got {seconds}")
-            n_step = round(seconds * spec.rate_hz) + 1
-    except ValueError as e:
-        raise ConfigError(f"commands '{text}': {e}") from e
+
+    def number(key: str, kind: type, default: float) -> float:
+        try:
+            v = kind(kv.get(key, default))
+        except ValueError:
+            what = "an integer" if kind is int else "a number"
+            raise ConfigError(f"commands '{text}': {key} must be {what}, got '{kv[key]}'") from None
+        if not math.isfinite(v):
+            raise ConfigError(f"commands '{text}': {key} must be a finite number, got {v}")
+        return v
+
+    seed = int(number("seed", int, 0))
+    if "n_step" in kv:
+        n_step = int(number("n_step", int, 0))
+    else:
+        n_step = round(number("seconds", float, DEFAULT_SECONDS) * spec.rate_hz) + 1
     if seed < 0:
         raise ConfigError(f"commands '{text}': seed must be >= 0, got {seed}")
     if n_step < 2:
-        raise ConfigError(f"commands '{text}': need at least 2 samples, got n_step={n_step}")
+        which = f"n_step={n_step}" if "n_step" in kv else f"seconds={kv.get('seconds')}"
+        raise ConfigError(
+            f"commands '{text}': need at least 2 samples ({2 / spec.rate_hz:g} s), got {which}"
+        )
     u = generate(kind, seed, n_step, spec, theta0=theta0, omega_max=omega_max)
     return Commands(u=np.asarray(u, dtype=np.float64), theta0=theta0, name=text.replace(":", "_"))
 
@@ -133,21 +141,25 @@ def _read_csv(path: Path, spec: MachineSpec) -> Commands:
     names = table.column_names
 
     def col(c: str) -> np.ndarray:
+        from ..ingest.columns import numeric_column  # names the first cell that is not a number
+
         try:
-            return np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=np.float64)
-        except (TypeError, ValueError) as e:
+            return numeric_column(path, table.column(c), c)
+        except DataError as e:  # the import's advice (--nan, [csv]) is not this file's
             raise DataError(
-                path, "values are not numeric", column=c, fix="store numbers only"
-            ) from e
+                path, e.problem, column=e.column, row=e.row, fix="store numbers only"
+            ) from None
 
     cols_u = [f"u_{j}" for j in spec.names]
     for c in cols_u:
         if c not in names:
+            other = next((d for d in ";\t|" if any(d in n for n in names)), None)
+            split = f"; its header is split by {other!r}: separate the fields by ','"
             raise DataError(
                 path,
                 "required column is missing",
                 column=c,
-                fix=f"the commands CSV needs columns {cols_u}",
+                fix=f"the commands CSV needs columns {cols_u}" + (split if other else ""),
             )
     u = np.stack([col(c) for c in cols_u], axis=1)
     cols_th = [f"theta_{j}" for j in spec.names]
@@ -301,6 +313,8 @@ def compare(
     label = ckpt if not isinstance(ckpt, Surrogate) else f"surrogate '{sur_env.surrogate.name}'"
     plant = checkpoint_plant(spec, plant, ckpt=label, default="ideal")
     mj_env = ExcavatorMujocoEnv(plant=plant, spec=spec, guard=no_guard, action_mode="reject")  # type: ignore[arg-type]
+    if theta0 is not None:  # before a named excitation is generated from it
+        theta0 = check_theta0(spec, np.asarray(theta0).tolist(), where="compare --theta0")
     if not isinstance(commands, Commands):
         commands = load_commands(commands, spec, theta0=theta0, omega_max=mj_env.plant.omega_max)
     start = theta0 if theta0 is not None else commands.theta0
