@@ -141,7 +141,15 @@ def test_cli_merge(spec, episodes, tmp_path: Path, capsys):
     assert main(["merge", *map(str, paths), "--out", str(out)]) == 0
     ens = load_checkpoint(out)
     assert n_member(ens) == 3
-    assert "3 members" in capsys.readouterr().out
+    assert "3 members (3 checkpoints)" in capsys.readouterr().out
+    # one checkpoint is no merge (it is already a model): refused, nothing written
+    assert main(["merge", str(paths[0]), "--out", str(tmp_path / "one.pt")]) == 2
+    assert "needs at least 2 checkpoints" in capsys.readouterr().err
+    assert not (tmp_path / "one.pt").exists()
+    # a merge of merges counts the members it averages
+    again = tmp_path / "ens2.pt"
+    assert main(["merge", str(out), str(paths[0]), "--out", str(again)]) == 0
+    assert f"{n_member(load_checkpoint(again))} members (2 checkpoints)" in capsys.readouterr().out
     # a member that does not fit: one line, non-zero exit, nothing written
     odd = save_checkpoint(tmp_path / "odd.pt", make_surrogate(spec, episodes, mode="windowed"))
     out2 = tmp_path / "bad.pt"

@@ -33,9 +33,16 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import CheckpointError
     from ..outdir import check_out_file
     from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
-    from ..surrogate.ensemble import merge, non_finite_weight
+    from ..surrogate.ensemble import merge, n_member, non_finite_weight
 
     check_out_file(args.out, inputs=args.ckpts, example="ensemble.pt", overwrite=args.overwrite)
+    if len(args.ckpts) < 2:
+        from ..errors import ConfigError
+
+        raise ConfigError(
+            f"exsur merge needs at least 2 checkpoints, got only {args.ckpts[0]}: one is already "
+            "a model (give the members to merge, e.g. the best.pt of each seed)"
+        )
     _check_distinct(args.ckpts)
     members = [load_checkpoint(p) for p in args.ckpts]
     for p, m in zip(args.ckpts, members):
@@ -50,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     out = save_checkpoint(args.out, sur)
     print(
-        f"{out}: {sur.name}, {len(members)} members, {sur.model_cfg.cell} "
+        f"{out}: {sur.name}, {n_member(sur)} members ({len(members)} checkpoints), "
+        f"{sur.model_cfg.cell} "
         f"{sur.model_cfg.n_layer} x {sur.model_cfg.hidden} ({sur.mode})"
     )
     return 0
