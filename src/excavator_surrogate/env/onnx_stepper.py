@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
+from ..surrogate.angles import wrap_angle
 from ..surrogate.command_state import play_np
 from ..surrogate.features_np import scale_commands_np
 from ..surrogate.own_angles import N_OWN_ROWS
@@ -156,8 +157,7 @@ class OnnxStepper:
             )
         # w[0] = 0 (at rest on theta[0]);  w[k] = wrap(theta[k] - theta[k-1]) / T_s
         d = th[:, 1:] - th[:, :-1]
-        p = np.asarray(self.spec.periodic, dtype=bool)
-        d = np.where(p, (d + np.pi) % (2.0 * np.pi) - np.pi, d)
+        d = np.where(np.asarray(self.spec.periodic, dtype=bool), wrap_angle(d), d)
         w = np.concatenate([np.zeros_like(th[:, :1]), d / np.float32(self.spec.dt)], axis=1)
         w = w.astype(np.float32)
         c = self.n_command

@@ -28,6 +28,7 @@ from ..data.episode import Episode
 from ..errors import ConfigError
 from ..plotting.horizon import HOLD
 from ..spec import JointSpec, MachineSpec
+from ..surrogate.angles import wrap_angle
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import ClosedLoop, reference_theta
 
@@ -40,7 +41,7 @@ CHUNK = 1024
 
 def _wrap(d: np.ndarray, periodic: np.ndarray) -> np.ndarray:
     """``d`` (..., n_joint) with periodic joints wrapped to ``[-π, π)``."""
-    return np.where(periodic, (d + math.pi) % (2.0 * math.pi) - math.pi, d)
+    return np.where(periodic, wrap_angle(d), d)
 
 
 def check_horizons(horizons_s: Sequence[float], stride_s: float) -> None:
