@@ -313,8 +313,8 @@ class SurrogateEngine:
 
         The state is the one :class:`~excavator_surrogate.surrogate.rollout.ClosedLoop`
         reaches with ``reset(theta_hist, u_hist)`` (the free run of ``exsur evaluate`` with
-        ``warmup = n_hist``): stepping the recorded commands from here continues that free
-        run.  A windowed model uses the last ``W - 1`` samples; a shorter history is padded
+        ``warmup = n_hist``; a stateful engine runs that warm-up through its own kernels):
+        stepping the recorded commands from here continues that free run.  A windowed model uses the last ``W - 1`` samples; a shorter history is padded
         with its first sample.  The angle starts at ``theta[n_hist-1]``, the velocity feature
         at the last backward difference.
 
@@ -341,43 +341,66 @@ class SurrogateEngine:
     def _reset_history(self, th_hist: np.ndarray, u_hist: np.ndarray, idx_np: np.ndarray) -> None:
         dev = self.device
         idx = torch.as_tensor(idx_np, device=dev)
-        m = idx.numel()
         if self.unc is not None:
             self.unc.reset(idx)
-        # the reference path's own warm-up, then its state in this engine's layout
-        loop = ClosedLoop(self.sur, mode=self.mode)
-        loop.reset(th_hist, u_hist)
         th64 = torch.as_tensor(th_hist, device=dev)
         self.theta.index_copy_(0, idx, th64[:, -1])
         self.theta_prev.index_copy_(0, idx, th64[:, -2])
         if self.omega_in:
             # w = wrap(theta[n_hist-1] - theta[n_hist-2]) / T_s, in float64 as observe() does
             self.w.index_copy_(0, idx, self.norm.velocity(th64[:, -1], th64[:, -2], self.dt))
-        assert loop.z is not None
-        self.z.index_copy_(0, idx, loop.z.to(self.z.dtype))
         if self.mode == "stateful":
-            assert loop.state is not None
-            h, c = (s.to(self.h.dtype) for s in loop.state)  # (n_layer, m, hidden)
-            if self._members is not None:  # (n_layer, m, hidden) -> (n_layer, M, m, width)
-                h = from_dense(h, self._members.n_member)
-                c = from_dense(c, self._members.n_member)
-            env_dim = h.dim() - 2
-            self.h.index_copy_(env_dim, idx, h.contiguous())
-            self.c.index_copy_(env_dim, idx, c.contiguous())
-        else:
-            assert loop.window_rows is not None
-            rows = loop.window_rows.to(self._ring.dtype)  # (m, <= W-1, n_feature), oldest first
-            w1 = self.window - 1
-            if rows.shape[1] < w1:  # a short history: repeat its first sample, as ClosedLoop
-                pad = rows[:, :1].expand(m, w1 - rows.shape[1], rows.shape[2])
-                rows = torch.cat([pad, rows], dim=1)
-            # step() writes the next row at _pos and reads ring[_pos + 1 : _pos + W + 1]:
-            # the W - 1 rows before it sit at (_pos + 1 + j) mod W, twice (the doubled ring)
-            w = self.window
-            slots = [(self._pos + 1 + j) % w for j in range(w1)]
-            for j, q in enumerate(slots):
-                self._ring[idx, q] = rows[:, j]
-                self._ring[idx, q + w] = rows[:, j]
+            z, h, c = self._warm_stateful(th64.float(), torch.as_tensor(u_hist, device=dev).float())
+            env_dim = h.dim() - 2  # (n_layer, [M,] m, width)
+            self.h.index_copy_(env_dim, idx, h)
+            self.c.index_copy_(env_dim, idx, c)
+            self.z.index_copy_(0, idx, z)
+            return
+        # windowed: the reference path's own rows (no network call), into the ring
+        loop = ClosedLoop(self.sur, mode=self.mode)
+        loop.reset(th_hist, u_hist)
+        assert loop.z is not None and loop.window_rows is not None
+        self.z.index_copy_(0, idx, loop.z.to(self.z.dtype))
+        rows = loop.window_rows.to(self._ring.dtype)  # (m, <= W-1, n_feature), oldest first
+        m, w1 = idx.numel(), self.window - 1
+        if rows.shape[1] < w1:  # a short history: repeat its first sample, as ClosedLoop
+            pad = rows[:, :1].expand(m, w1 - rows.shape[1], rows.shape[2])
+            rows = torch.cat([pad, rows], dim=1)
+        # step() writes the next row at _pos and reads ring[_pos + 1 : _pos + W + 1]:
+        # the W - 1 rows before it sit at (_pos + 1 + j) mod W, twice (the doubled ring)
+        w = self.window
+        slots = [(self._pos + 1 + j) % w for j in range(w1)]
+        for j, q in enumerate(slots):
+            self._ring[idx, q] = rows[:, j]
+            self._ring[idx, q + w] = rows[:, j]
+
+    def _warm_stateful(
+        self, theta: torch.Tensor, u: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``ClosedLoop.reset``'s warm-up through this engine's own kernels: the command
+        states from rest before ``u[0]``, every recorded sample's raw features (the recorded
+        angle on every joint, the measured velocity feature), one sequence call.
+
+        Args:
+            theta: (m, n_hist, n_joint) float32 [rad]; u: (m, n_hist - 1, n_u) float32.
+
+        Returns:
+            ``z`` (m, Q + L [+ 2], n_joint) after ``u[n_hist-2]`` (the network's own angle and
+            velocity: the last recorded), and ``h``, ``c`` in the kernel's layout.
+        """
+        m, n_hist, _ = theta.shape
+        w_hist = self.norm.velocity_seq(theta, self.dt) if self.omega_in else None
+        z = self.z.new_zeros(m, *self.z.shape[1:])  # at rest before u[0]
+        rows = []
+        for k in range(n_hist - 1):
+            z, p = self._play_step(z, u[:, k])
+            w_k = None if w_hist is None else w_hist[:, k]
+            rows.append(self.fused.features(theta[:, k], u[:, k], p, w_k))
+        h = torch.zeros(self._state_shape(m), device=self.device)
+        c = torch.zeros_like(h)
+        _, h, c = self._rnn_seq(torch.stack(rows, dim=1), h, c)
+        z = own_start(self.norm, z, theta[:, -1], None if w_hist is None else w_hist[:, -1])
+        return z, h, c
 
     @torch.inference_mode()
     def observe(self, theta: np.ndarray | torch.Tensor) -> None:
