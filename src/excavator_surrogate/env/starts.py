@@ -117,9 +117,10 @@ def check_history(
 
     Returns:
         ``(theta, u)``, (n_hist, n_joint) and (n_hist - 1, n_u), or with ``n_envs`` (n_envs,
-        n_hist, n_joint) and (n_envs, n_hist - 1, n_u), float64.  The last angle of each
-        history passes :func:`check_theta0` (a limited joint up to 2 % of its range beyond a
-        stop is put at the stop; farther out raises).
+        n_hist, n_joint) and (n_envs, n_hist - 1, n_u), float64 (one history for every env:
+        checked once, returned as read-only broadcasts).  The last angle of each history
+        passes :func:`check_theta0` (a limited joint up to 2 % of its range beyond a stop is
+        put at the stop; farther out raises).
 
     Raises:
         ConfigError: one line naming the entry, the sample and the joint or command.
@@ -133,11 +134,11 @@ def check_history(
     theta = _array(history["theta"], what="theta", where=where)
     u = _array(history["u"], what="u", where=where)
     n_joint, n_u = spec.n_joint, spec.n_u
-    batched = n_envs is not None and theta.ndim == 3
-    if n_envs is not None and theta.ndim == 2:  # one history for every env
+    batched = n_envs is not None and (theta.ndim == 3 or u.ndim == 3)
+    if batched and theta.ndim == 2:  # one angle history, per-env commands
         theta = np.broadcast_to(theta, (n_envs, *theta.shape))
-        u = np.broadcast_to(u, (n_envs, *u.shape)) if u.ndim == 2 else u
-    lead = (n_envs,) if n_envs is not None else ()
+    # one history for every env is checked once, and broadcast at the end
+    lead = (n_envs,) if batched else ()
     shape_ok = (
         theta.ndim == len(lead) + 2
         and theta.shape[: len(lead)] == lead
@@ -190,14 +191,17 @@ def check_history(
             worst = max(worst, math.degrees(float(np.abs(last - th[-1]).max())))
         th[-1] = last
     if warn and clipped:  # one warning for all of them
-        whose = (
-            f"the histories of {len(clipped)} env(s) (first: env {clipped[0]}) end"
-            if n_envs is not None
-            else "the history ends"
-        )
+        if n_envs is not None:  # one history for all: each env's is clipped alike
+            n, first = (len(clipped), clipped[0]) if batched else (n_envs, 0)
+            whose = f"the histories of {n} env(s) (first: env {first}) end"
+        else:
+            whose = "the history ends"
         gym.logger.warn(
             f"{where}: {whose} up to {worst:.3g} deg beyond an end stop: it starts at the stop"
         )
+    if n_envs is not None and not batched:
+        theta = np.broadcast_to(theta, (n_envs, *theta.shape))
+        u = np.broadcast_to(u, (n_envs, *u.shape))
     return theta, u
 
 

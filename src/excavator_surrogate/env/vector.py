@@ -223,14 +223,25 @@ class SurrogateVectorEnv(VectorEnv):
             )
         return theta0
 
-    def _recorded_histories(self, mask: np.ndarray) -> dict[str, np.ndarray]:
-        """One recorded history per env in ``mask``, each from that env's generator (the
-        others' rows: copies of the first, never used)."""
+    def _recorded_histories(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One recorded history per env in ``mask``, each from that env's generator, checked
+        as a start (a moment a hair past a stop starts at it, silently; a glitch the import
+        let through is left to the guard): ``(theta, u)`` (n_envs, W, n_joint), (n_envs,
+        W - 1, n_u), the rows of the other envs zero (never read: the resets are masked)."""
         assert self.recorded is not None
-        rows = {int(i): self.recorded.draw(self._rngs[i]) for i in np.flatnonzero(mask)}
-        first = next(iter(rows.values()))
-        pick = [rows.get(i, first) for i in range(self.num_envs)]
-        return {"theta": np.stack([p[0] for p in pick]), "u": np.stack([p[1] for p in pick])}
+        idx = np.flatnonzero(mask)
+        drawn = [self.recorded.draw(self._rngs[i]) for i in idx]
+        theta, u = check_history(
+            self.machine,
+            {"theta": np.stack([d[0] for d in drawn]), "u": np.stack([d[1] for d in drawn])},
+            where=f"{self.env_id}.reset",
+            n_envs=len(idx),
+            warn=False,
+        )
+        full_theta = np.zeros((self.num_envs, *theta.shape[1:]))
+        full_u = np.zeros((self.num_envs, *u.shape[1:]))
+        full_theta[idx], full_u[idx] = theta, u
+        return full_theta, full_u
 
     def _write_obs(self, theta: np.ndarray, omega: np.ndarray, rows: np.ndarray | None) -> None:
         """Write θ (wrapped) and ω, clipped into the observation bounds, into ``self._obs`` for
@@ -257,29 +268,27 @@ class SurrogateVectorEnv(VectorEnv):
         """Reset the envs in ``mask`` (engine, observation rows, counters, task)."""
         history = options.get("history")
         omega = np.zeros((self.num_envs, self.machine.n_joint))
-        drawn = history is None and options.get("theta0") is None and self.recorded is not None
-        if drawn:
-            history = self._recorded_histories(mask)
-        if history is None:
-            theta0 = self._theta0(mask, options)
-            theta = self.engine.reset(theta0, mask).cpu().numpy()
-        else:
-            where = f"{self.env_id}.reset"
-            if options.get("theta0") is not None:
-                raise ConfigError(
-                    f"{where}: give options['theta0'] or options['history'], not both"
-                )
+        where = f"{self.env_id}.reset"
+        if history is not None and options.get("theta0") is not None:
+            raise ConfigError(f"{where}: give options['theta0'] or options['history'], not both")
+        if history is None and options.get("theta0") is None and self.recorded is not None:
+            theta_hist, u_hist = self._recorded_histories(mask)
+        elif history is not None:
             theta_hist, u_hist = check_history(
                 self.machine,
                 history,
                 where=where,
                 n_envs=self.num_envs,
-                # a recorded moment is the machine's own state: a hair past a stop starts at
-                # it silently, and a glitch the import let through ends the episode (guard)
-                omega_max=None if drawn else self._guard.config.omega_max,
-                warn=not drawn,
+                omega_max=self._guard.config.omega_max,
             )
             warn_short_history(theta_hist.shape[1], self.engine.window, where=where)
+        else:
+            theta_hist = u_hist = None
+        if theta_hist is None:
+            theta0 = self._theta0(mask, options)
+            theta = self.engine.reset(theta0, mask).cpu().numpy()
+        else:
+            assert u_hist is not None
             theta = self.engine.reset_history(theta_hist, u_hist, mask).cpu().numpy()
             omega[mask] = last_velocity(self.machine, theta_hist[mask])
         self._elapsed[mask] = 0
