@@ -23,7 +23,7 @@ from ..outdir import check_out_dir, replace_allowed
 from ..spec import MachineSpec
 from .convert import FileResult, convert_log
 from .mapping import ImportOptions, Mapping, SplitOptions
-from .readers import expand_sources, log_kind, log_suffix, nested_logs
+from .readers import expand_sources, log_kind, nested_glob, nested_logs
 from .report import render_markdown
 from .split import assign_splits
 
@@ -168,8 +168,8 @@ def _unsearched(sources: Sequence[str | Path]) -> list[str]:
             if deeper:
                 out.append(
                     f"{p}: its sub-folders hold {len(deeper)} log(s) that were not imported (a "
-                    "folder is not searched recursively); give the sub-folders too, or a quoted "
-                    f'glob such as "{p}/**/*{log_suffix(deeper[0])}"'
+                    "folder is not searched recursively); give the sub-folders too, or "
+                    + nested_glob(p, deeper)
                 )
     return out
 

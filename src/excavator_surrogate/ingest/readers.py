@@ -84,8 +84,7 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
                     deeper = nested_logs(p)
                     fix = (
                         f"its sub-folders hold {len(deeper)} log(s), and a folder is not searched "
-                        f'recursively: give the sub-folders, or a quoted glob such as "{p}/**/*'
-                        f'{log_suffix(deeper[0])}"'
+                        f"recursively: give the sub-folders, or {nested_glob(p, deeper)}"
                         if deeper
                         else f"put {SUPPORTED} in it"
                     )
@@ -129,6 +128,12 @@ def nested_logs(folder: Path, *, limit: int = 10_000) -> list[Path]:
             if len(out) >= limit:
                 return out[:limit]
     return out
+
+
+def nested_glob(folder: Path, deeper: list[Path]) -> str:
+    """The advice that takes the logs :func:`nested_logs` found below ``folder``: a quoted
+    recursive glob of the first one's suffix (``a quoted glob such as "logs/**/*.csv"``)."""
+    return f'a quoted glob such as "{folder}/**/*{log_suffix(deeper[0])}"'
 
 
 def log_suffix(path: Path) -> str:
