@@ -3,6 +3,7 @@ runs, the hold baseline on known motion, and what evaluate writes."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -122,3 +123,25 @@ def test_evaluate_writes_the_horizon_table_figure_and_json(tmp_path) -> None:
     res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", horizons=(), arx=False)
     assert "horizon" not in res and not (tmp_path / "ev" / "horizon.png").exists()
     assert "Prediction horizon" not in (tmp_path / "ev" / "table.md").read_text()
+
+
+def test_the_cli_passes_every_evaluate_field(tmp_path) -> None:
+    """``exsur evaluate --set evaluate.horizons=[...]`` reaches the evaluation (the CLI
+    passes the whole [evaluate] table, as exsur run does)."""
+    from excavator_surrogate.cli import main
+    from excavator_surrogate.data import write_dataset
+    from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+    from excavator_surrogate.surrogate.synthetic import synthetic_spec, synthetic_split
+    from tests.helpers.surrogates import make_surrogate
+
+    spec = synthetic_spec(2)
+    items = synthetic_split(spec, n_train=1, n_val=1, n_test=1, n_step=120, noise=0.001)
+    data = write_dataset(tmp_path / "data", items)
+    ckpt = save_checkpoint(tmp_path / "m.pt", make_surrogate(spec, [items[0][0]], window=5))
+    base = ["evaluate", str(ckpt), str(data), "--no-arx", "-q"]
+    assert main([*base, "--out", str(tmp_path / "a"), "--set", "evaluate.horizons=[0.25]"]) == 0
+    got = json.loads((tmp_path / "a" / "metrics.json").read_text())["horizon"]
+    assert got["horizons_s"] == [0.25] and (tmp_path / "a" / "horizon.png").is_file()
+    assert main([*base, "--out", str(tmp_path / "b"), "--set", "evaluate.horizons=[]"]) == 0
+    assert "horizon" not in json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert not (tmp_path / "b" / "horizon.png").exists()

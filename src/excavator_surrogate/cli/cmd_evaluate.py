@@ -56,6 +56,8 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table."""
+    import dataclasses
+
     from ..data.dataset import load_dataset
     from ..evaluate.cbe import evaluate_checkpoint
     from ..io_utils import log
@@ -72,22 +74,15 @@ def run(args: argparse.Namespace) -> int:
     cfg = configs(args, ("evaluate",), {"evaluate": named})["evaluate"]
     splits = (cfg.split, "train", "val") if cfg.arx else (cfg.split,)
     dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))
+    # every [evaluate] field is an argument of evaluate_checkpoint, as exsur run passes them:
+    # a field added to the config reaches the evaluation without a line here
     evaluate_checkpoint(
         args.checkpoint,
         dataset,
         out=args.out,
-        split=cfg.split,
-        reference=cfg.reference,
         compare=dict(args.compare),
-        arx=cfg.arx,
-        paper=cfg.paper,
-        max_steps=cfg.max_steps,
-        figure=cfg.figure,
-        max_figures=cfg.max_figures,
-        num_threads=cfg.num_threads,
-        horizons=cfg.horizons,
-        horizon_stride=cfg.horizon_stride,
         device=args.device,
+        **dataclasses.asdict(cfg),
     )
     print((Path(args.out) / "table.md").read_text())
     log(
