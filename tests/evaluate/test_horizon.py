@@ -84,7 +84,7 @@ def test_hold_on_known_motion_and_horizons_no_start_reaches() -> None:
         hold = got["rmse"]["hold"][name]
         assert hold[0] == pytest.approx(0.2 * 0.5) and hold[1] == pytest.approx(0.2 * 1.0)
         assert hold[2] is None and got["rmse"]["m"][name][2] is None
-    table = H.horizon_markdown(got, primary="m")
+    table = H.horizon_markdown(got)
     assert "| Swing [°] | m |" in table and "| — |" in table
     assert f"{math.degrees(0.1):.3g}" in table  # hold at 0.5 s, in degrees
 

@@ -279,12 +279,12 @@ def evaluate_checkpoint(
             + "\n"
             + uncertainty_markdown(result["uncertainty"], sur.spec.names)
             + "\n"
-            + horizon_markdown(result.get("horizon") or {}, primary=primary),
+            + horizon_markdown(result.get("horizon") or {}),
         )
         if figure and result.get("horizon", {}).get("n_start"):
             from ..plotting.horizon import plot_horizon
 
-            plot_horizon(tmp / "horizon.png", result["horizon"], primary=primary)
+            plot_horizon(tmp / "horizon.png", result["horizon"])
         if figure:
             from ..plotting.cbe import plot_cbe
 

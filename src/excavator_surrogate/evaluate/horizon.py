@@ -116,8 +116,9 @@ def horizon_errors(
     Returns:
         ``{"horizons_s", "steps", "stride_s", "n_start", "rmse": {label: {joint: [per
         horizon, None where no start reaches it]}}, "curve": {"seconds": (n,), "rmse":
-        {label: {joint: (n,)}}}}``, RMSE in stored units (rad; m for a linear joint); the
-        curve holds every sample up to the longest horizon.
+        {label: {joint: (n,)}}}, "display", "warmup"}``, RMSE in stored units (rad; m for
+        a linear joint), the labels in the order of ``models``, then :data:`HOLD`; the curve
+        holds every sample up to the longest horizon.
     """
     check_horizons(horizons_s, stride_s)
     if HOLD in models:
@@ -179,9 +180,10 @@ def display_unit(joint: JointSpec) -> dict[str, Any]:
     return {"unit": "°", "factor": math.degrees(1.0)}
 
 
-def horizon_markdown(result: Mapping[str, Any], *, primary: str) -> str:
-    """The table of :func:`horizon_errors`: a row per joint and model, a column per horizon,
-    in the display units (°, mm), the hold baseline under each joint's models."""
+def horizon_markdown(result: Mapping[str, Any]) -> str:
+    """The table of :func:`horizon_errors`: a row per joint and model (in its order: the
+    evaluated model first, the hold baseline last), a column per horizon, in the display
+    units (°, mm)."""
     if not result or not result.get("n_start"):
         return ""
     hs = result["horizons_s"]
@@ -197,7 +199,7 @@ def horizon_markdown(result: Mapping[str, Any], *, primary: str) -> str:
         head,
         rule,
     ]
-    labels = [primary] + [k for k in result["rmse"] if k not in (primary, HOLD)] + [HOLD]
+    labels = list(result["rmse"])
     for joint, shown_in in result["display"].items():
         f = shown_in["factor"]
         for k, label in enumerate(labels):

@@ -233,8 +233,7 @@ def _horizon(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     result = metrics.get("horizon")
     if not result or not result.get("n_start"):
         return []
-    primary = next(iter(result["rmse"]))
-    table = horizon_markdown(result, primary=primary).splitlines()
+    table = horizon_markdown(result).splitlines()
     figure = ["", "![prediction horizon](horizon.png)"] if ctx.horizon_figure else []
     return [*table, *figure, ""]
 

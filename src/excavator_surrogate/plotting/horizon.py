@@ -20,12 +20,12 @@ def plot_horizon(
     out: str | Path,
     result: Mapping[str, Any],
     *,
-    primary: str,
     dpi: int = 110,
 ) -> Path:
     """Draw ``result`` (:func:`~excavator_surrogate.evaluate.horizon.horizon_errors`) to the
     PNG ``out`` (written atomically) and return its path: RMSE [° or the joint's display unit]
-    against the horizon [s], the primary model thick, the others thin, hold dashed grey,
+    against the horizon [s], the first model (the evaluated one) thick, the others thin, hold
+    dashed grey,
     and the table's horizons marked."""
     from matplotlib.figure import Figure  # no pyplot: backend-independent, thread-safe
 
@@ -36,7 +36,7 @@ def plot_horizon(
     n = len(shown_in)
     fig = Figure(figsize=(3.2 * n, 3.2), layout="constrained")
     axes = np.atleast_1d(fig.subplots(1, n, sharex=True))
-    labels = [primary] + [k for k in curve["rmse"] if k not in (primary, HOLD)]
+    labels = [k for k in curve["rmse"] if k != HOLD]
     for ax, (joint, disp) in zip(axes, shown_in.items(), strict=True):
 
         def values(label: str, name: str = joint, f: float = disp["factor"]) -> np.ndarray:
