@@ -131,12 +131,6 @@ class ClosedLoop:
         return torch.as_tensor(a, device=self._device, dtype=self._dtype)
 
     @property
-    def state(self) -> State | None:
-        """Stateful: the carried ``(h, c)``, each ``(n_layer, n_batch, hidden)`` (None:
-        windowed, or before :meth:`reset`)."""
-        return self._state
-
-    @property
     def window_rows(self) -> torch.Tensor | None:
         """Windowed: the last (at most ``W - 1``) encoded samples ``(n_batch, n, n_feature)``,
         oldest first, that the next step's window ends with (None: stateful, or before
