@@ -115,13 +115,7 @@ class OnnxStepper:
             self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
             self.c = np.zeros_like(self.h)
             for _ in range(self.window - 1):
-                feed = {"theta": theta0, "u": u0, "h": self.h, "c": self.c}
-                if self.n_state:
-                    feed["z"] = z_rest
-                if self.omega_in:
-                    feed["w"] = self.w
-                if self._omega_prev:
-                    feed["omega_prev"] = self.w
+                feed = self._stateful_feed(theta0, u0, z_rest, self.w)
                 _, _, self.h, self.c, *_ = self.session.run(None, feed)
         else:
             self._theta_win = np.repeat(theta0[:, None], self.window, axis=1)
@@ -178,13 +172,7 @@ class OnnxStepper:
             self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
             self.c = np.zeros_like(self.h)
             for k in range(n_hist - 1):
-                feed = {"theta": th[:, k], "u": u[:, k], "h": self.h, "c": self.c}
-                if self.n_state:
-                    feed["z"] = z_before[k]
-                if self.omega_in:
-                    feed["w"] = w[:, k]
-                if self._omega_prev:
-                    feed["omega_prev"] = w[:, k]
+                feed = self._stateful_feed(th[:, k], u[:, k], z_before[k], w[:, k])
                 _, _, self.h, self.c, *_ = self.session.run(None, feed)
         else:
             # the W - 1 samples before the next one, oldest first (the last slot is rewritten)
@@ -196,6 +184,21 @@ class OnnxStepper:
             self._w_win = w[:, idx].copy()
             self._z_win = np.stack(z_after, axis=1)[:, idx].copy()
         return self.theta
+
+    def _stateful_feed(
+        self, theta: np.ndarray, u: np.ndarray, z: np.ndarray, w: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        """The inputs of one stateful graph call from the current ``(h, c)``: ``z`` and the
+        velocity feature ``w`` only where the graph takes them (``omega_prev``, a prior's
+        input, is the previous step's omega: ``w`` again)."""
+        feed = {"theta": theta, "u": u, "h": self.h, "c": self.c}
+        if self.n_state:
+            feed["z"] = z
+        if self.omega_in:
+            feed["w"] = w
+        if self._omega_prev:
+            feed["omega_prev"] = w
+        return feed
 
     def _play_update(self, z: np.ndarray, u: np.ndarray) -> np.ndarray:
         """Command states after commands ``u`` (n, n_u) from ``z`` (n, Q + L [+ 2], n_joint):
@@ -217,13 +220,7 @@ class OnnxStepper:
         ``(theta[k+1], omega[k+1])`` float32."""
         u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape[0], self.spec.n_u)
         if self.mode == "stateful":
-            feed = {"theta": self.theta, "u": u, "h": self.h, "c": self.c}
-            if self.omega_in:
-                feed["w"] = self.w
-            if self.n_state:
-                feed["z"] = self.z
-            if self._omega_prev:
-                feed["omega_prev"] = self.w  # the previous step's omega
+            feed = self._stateful_feed(self.theta, u, self.z, self.w)
             outs = dict(zip(self._outputs, self.session.run(None, feed)))
             omega, theta, self.h, self.c = (
                 outs[k] for k in ("omega", "theta_next", "h_out", "c_out")
