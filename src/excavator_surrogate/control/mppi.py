@@ -140,19 +140,20 @@ class MPPI:
     def reset(self, theta0: np.ndarray) -> None:
         """Start at rest at ``theta0`` (n_joint,) [rad]: empty plan, fresh noise generator."""
         self.predictor.reset(theta0)
-        self.rng = np.random.default_rng(self.cfg.seed)
-        self.mean[:] = 0.0
-        self.u_prev = (np.clip(0.0, self.u_min, self.u_max) - self.u_center) / self.u_scale
-        self.stats = PlanStats()
+        self._start(np.zeros_like(self.u_prev))
 
     def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
         """Take over mid-motion after the recorded ``theta_hist`` (n_hist, n_joint) [rad] and
         commands ``u_hist`` (n_hist - 1, n_u): the predictor warms up on them, the plan is
         empty, and the smoothness cost starts from the last recorded command."""
         self.predictor.reset_history(theta_hist, u_hist)
+        self._start(np.asarray(u_hist, dtype=np.float64)[-1, : self.u_prev.shape[-1]])
+
+    def _start(self, u_last: np.ndarray) -> None:
+        """Empty plan, fresh noise generator, no statistics; the smoothness cost starts from
+        the command ``u_last`` (n_joint,) [command units], clipped into the range."""
         self.rng = np.random.default_rng(self.cfg.seed)
         self.mean[:] = 0.0
-        u_last = np.asarray(u_hist, dtype=np.float64)[-1, : self.u_prev.shape[-1]]
         self.u_prev = (np.clip(u_last, self.u_min, self.u_max) - self.u_center) / self.u_scale
         self.stats = PlanStats()
 
