@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from excavator_surrogate.env.engine import MEMBERS_MIN_BATCH, SurrogateEngine
+from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.env.kernels import MEMBERS_MIN_BATCH
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.reference import rollout_reference

@@ -3,11 +3,8 @@
 :class:`SurrogateEngine` steps ``n_envs`` copies of a surrogate in one torch batch:
 
 - **stateful** checkpoints (``mode="stateful"``) are stepped one sample at a time carrying
-  ``(h, c)``; small batches use ``torch.lstm_cell``/``torch.gru_cell`` per layer, large ones a
-  folded ``nn.LSTM``/``nn.GRU`` (oneDNN), both with the folded weights; a merged LSTM seed
-  ensemble steps its members' diagonal blocks as one batched matmul from 64 envs on
-  (:mod:`~excavator_surrogate.surrogate.member_lstm`), skipping the zero blocks of the dense
-  kernels;
+  ``(h, c)``, through the folded weights' :class:`~.kernels.RecurrentKernel` (cell ops, a
+  folded ``nn.LSTM``/``nn.GRU`` or a merged ensemble's members, by batch size);
 - **windowed** checkpoints re-run their ``W``-sample window every step from a zero state, as
   they were trained, from a rolling buffer (a doubled ring buffer: no copies per step).
 
@@ -23,29 +20,19 @@ from typing import Literal
 
 import numpy as np
 import torch
-from torch import nn
 
 from ..devices import NoOp, OneThread, resolve_device
 from ..errors import ConfigError
 from ..surrogate.angles import integrate
-from ..surrogate.member_lstm import MemberLSTM, from_dense, member_count, to_dense
-from ..surrogate.model import Surrogate, step_layers
+from ..surrogate.model import Surrogate
 from ..surrogate.own_angles import network_inputs, own_advance, own_members, own_start
 from ..surrogate.parallel import own_gain_dev
 from ..surrogate.rollout import ClosedLoop
 from .fused import FusedStep, play_and_features, rest_command
+from .kernels import Impl, RecurrentKernel, check_impl
 from .uncertainty import StepUncertainty
 
 Mode = Literal["windowed", "stateful"]
-Impl = Literal["auto", "cell", "module", "members"]
-
-MODULE_MIN_BATCH = 256
-"""``impl="auto"`` uses the folded ``nn.LSTM`` module (oneDNN) from this batch size on."""
-
-MEMBERS_MIN_BATCH = 64
-"""``impl="auto"`` steps a merged LSTM ensemble member by member from this batch size on
-(one core, the demo's two members of width 64: a whole engine step takes 1.04 ms against the
-dense cell's 1.42 at 256 envs; a first, slower prototype already broke even at 64)."""
 
 SINGLE_THREAD_MAX_BATCH = 128
 """Below this batch size a step runs with ONE torch thread (restored afterwards): tiny matmuls
@@ -64,9 +51,9 @@ class SurrogateEngine:
         impl: stateful implementation: ``"cell"`` (per-layer cell ops), ``"module"`` (folded
             ``nn.LSTM``), ``"members"`` (a merged LSTM ensemble's members as one batched
             matmul, :mod:`~excavator_surrogate.surrogate.member_lstm`) or ``"auto"``
-            (members from :data:`MEMBERS_MIN_BATCH` envs on when the surrogate is such an
+            (members from :data:`~.kernels.MEMBERS_MIN_BATCH` envs on when the surrogate is such an
             ensemble, else module from
-            :data:`MODULE_MIN_BATCH` envs on, else cell).
+            :data:`~.kernels.MODULE_MIN_BATCH` envs on, else cell).
         uncertainty: also track the members' spread and the out-of-distribution flags
             (:class:`~.uncertainty.StepUncertainty`, in :attr:`unc`): the members' velocities
             come from the same network call, their angle deviations are per-env state.
@@ -95,8 +82,7 @@ class SurrogateEngine:
         self.mode: Mode = mode or sur.mode
         if self.mode not in ("windowed", "stateful"):
             raise ConfigError(f"mode must be 'windowed' or 'stateful', got {self.mode!r}")
-        if impl not in ("auto", "cell", "module", "members"):
-            raise ConfigError(f"impl must be 'auto', 'cell', 'module' or 'members', got {impl!r}")
+        check_impl(impl)
         self.device = resolve_device(device)
         self.sur = sur.to(self.device, torch.float32).eval()
         self.spec = sur.spec
@@ -119,31 +105,17 @@ class SurrogateEngine:
         )
         """Joints on a map in parallel: the members' gain deviations (M, n_joint)
         (:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`), or None."""
-        self._members: MemberLSTM | None = None
         if self.mode == "stateful":
             if sur.model_cfg.cell not in ("lstm", "gru"):
                 raise ConfigError(
                     f"model '{sur.name}' ({sur.model_cfg.cell}) cannot be stepped statefully; use mode='windowed'"
                 )
-            self.fused = f = FusedStep(sur).to(self.device)
-            # plain tensors: indexing ParameterLists costs more than the cell ops at n_envs = 1
-            self._layers = [
-                (f.w_ih[k].data, f.w_hh[k].data, f.b_ih[k].data, f.b_hh[k].data)
-                for k in range(f.n_layer)
-            ]
-            self._head = (f.w1.data, f.b1.data, f.w2.data, f.b2.data)
-            self._is_lstm = f.cell == "lstm"
-            self._members = self._member_kernel(sur, impl)
-            if self._members is not None:
-                self.impl = "members"
-            elif impl == "auto":
-                self.impl = "module" if self.n_envs >= MODULE_MIN_BATCH else "cell"
-            else:
-                self.impl = impl
-            shape = self._state_shape(self.n_envs)
+            self.fused = FusedStep(sur).to(self.device)
+            self.kernel = RecurrentKernel(self.fused, n_envs=self.n_envs, impl=impl, name=sur.name)
+            self.impl: str = self.kernel.impl
+            shape = self.kernel.state_shape(self.n_envs)
             self.h = torch.zeros(shape, device=self.device)
             self.c = torch.zeros(shape, device=self.device)
-            self._module = self._folded_module() if self.impl == "module" else None
         else:
             self.impl = "window"
             w = self.window
@@ -167,75 +139,10 @@ class SurrogateEngine:
             return z, None
         return play_and_features(self.norm, z, u)
 
-    # ---- stateful internals -------------------------------------------------------------------
-
-    def _member_kernel(self, sur: Surrogate, impl: Impl) -> MemberLSTM | None:
-        """The per-member kernel when ``impl`` asks for it (or ``auto`` picks it), else None."""
-        if impl not in ("auto", "members") or (impl == "auto" and self.n_envs < MEMBERS_MIN_BATCH):
-            return None
-        # the finest equal blocks: a merge of merges steps as its smallest members
-        count = member_count(self._layers) if self._is_lstm else None
-        kernel = None if count is None else MemberLSTM.from_layers(self._layers, count)
-        if impl == "members" and kernel is None:
-            raise ConfigError(
-                f"impl='members' needs a merged LSTM seed ensemble of equal members; "
-                f"'{sur.name}' is not one (use impl='auto')"
-            )
-        return kernel
-
-    def _state_shape(self, n: int) -> tuple[int, ...]:
-        """Shape of ``h``/``c`` for ``n`` envs in this engine's layout."""
-        f = self.fused
-        if self._members is not None:
-            m = self._members
-            return (f.n_layer, m.n_member, n, m.width)
-        return (f.n_layer, n, f.hidden)
-
     def dense_state(self, row: int | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """``(h, c)`` as (n_layer, n_envs, hidden) whatever the kernel's layout (``row``:
         only that env, (n_layer, 1, hidden)); copies."""
-        sl = slice(None) if row is None else slice(row, row + 1)
-        if self._members is not None:
-            return to_dense(self.h[:, :, sl]), to_dense(self.c[:, :, sl])
-        return self.h[:, sl].clone(), self.c[:, sl].clone()
-
-    def _folded_module(self) -> nn.Module:
-        f = self.fused
-        cls = nn.LSTM if f.cell == "lstm" else nn.GRU
-        mod = cls(f.n_raw, f.hidden, num_layers=f.n_layer, batch_first=True).to(self.device)
-        with torch.no_grad():
-            for layer in range(f.n_layer):
-                getattr(mod, f"weight_ih_l{layer}").copy_(f.w_ih[layer])
-                getattr(mod, f"weight_hh_l{layer}").copy_(f.w_hh[layer])
-                getattr(mod, f"bias_ih_l{layer}").copy_(f.b_ih[layer])
-                getattr(mod, f"bias_hh_l{layer}").copy_(f.b_hh[layer])
-        mod.requires_grad_(False)
-        return mod.eval()
-
-    def _rnn_cells(
-        self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """One sample through the layers with cell ops (the member kernel's, if any); x (m,
-        n_raw); returns (out, h, c) new tensors."""
-        if self._members is not None:
-            return self._members.step(x, h, c)
-        return step_layers(x, h, c, self._layers, lstm=self._is_lstm)
-
-    def _rnn_seq(
-        self, x: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """A sequence x (m, n_step, n_raw) from state (h, c); returns (last output, h, c)."""
-        if self.impl == "module":
-            assert self._module is not None
-            if self.fused.cell == "lstm":
-                out, (h, c) = self._module(x, (h.contiguous(), c.contiguous()))
-            else:
-                out, h = self._module(x, h.contiguous())
-            return out[:, -1], h, c
-        out = x.new_zeros(x.shape[0], self.fused.hidden)
-        for k in range(x.shape[1]):
-            out, h, c = self._rnn_cells(x[:, k], h, c)
-        return out, h, c
+        return self.kernel.dense(self.h, self.c, row)
 
     def _reset(self, theta0: np.ndarray, mask: np.ndarray | None) -> None:
         theta0 = torch.as_tensor(np.asarray(theta0, dtype=np.float64), device=self.device)
@@ -264,12 +171,11 @@ class SurrogateEngine:
         z0 = own_start(self.norm, z0, th.float())  # the network's own angles: the reset's
         self.z.index_copy_(0, idx, z0)  # at rest: one step reaches the play operators' fixed point
         if self.mode == "stateful":
-            f = self.fused
-            h = torch.zeros(self._state_shape(m), device=self.device)
+            h = torch.zeros(self.kernel.state_shape(m), device=self.device)
             c = torch.zeros_like(h)
             if n_warm > 0:
-                r = f.features(th.float(), u0, p0, w0)
-                _, h, c = self._rnn_seq(r.unsqueeze(1).expand(m, n_warm, -1), h, c)
+                r = self.fused.features(th.float(), u0, p0, w0)
+                _, h, c = self.kernel.seq(r.unsqueeze(1).expand(m, n_warm, -1), h, c)
             env_dim = h.dim() - 2  # (n_layer, [M,] n_envs, width)
             self.h.index_copy_(env_dim, idx, h)
             self.c.index_copy_(env_dim, idx, c)
@@ -396,9 +302,9 @@ class SurrogateEngine:
             z, p = self._play_step(z, u[:, k])
             w_k = None if w_hist is None else w_hist[:, k]
             rows.append(self.fused.features(theta[:, k], u[:, k], p, w_k))
-        h = torch.zeros(self._state_shape(m), device=self.device)
+        h = torch.zeros(self.kernel.state_shape(m), device=self.device)
         c = torch.zeros_like(h)
-        _, h, c = self._rnn_seq(torch.stack(rows, dim=1), h, c)
+        _, h, c = self.kernel.seq(torch.stack(rows, dim=1), h, c)
         z = own_start(self.norm, z, theta[:, -1], None if w_hist is None else w_hist[:, -1])
         return z, h, c
 
@@ -450,10 +356,10 @@ class SurrogateEngine:
         for k in ("theta_prev", "w"):
             getattr(self, k).copy_(torch.as_tensor(state[k], device=dev).expand_as(self.theta))
         if self.mode == "stateful":
-            h = torch.as_tensor(state["h"], device=dev)
-            c = torch.as_tensor(state["c"], device=dev)
-            if self._members is not None:  # (n_layer, 1, hidden) -> (n_layer, M, 1, width)
-                h, c = from_dense(h, self._members.n_member), from_dense(c, self._members.n_member)
+            # (n_layer, 1, hidden) -> the kernel's layout
+            h, c = self.kernel.from_dense(
+                torch.as_tensor(state["h"], device=dev), torch.as_tensor(state["c"], device=dev)
+            )
             self.h = h.expand_as(self.h).contiguous()
             self.c = c.expand_as(self.c).contiguous()
         else:
@@ -499,12 +405,8 @@ class SurrogateEngine:
             if self.mode == "stateful":
                 f = self.fused
                 r = f.features(th_in, u_t, p_t, w_in)
-                if self.impl == "module":
-                    out, self.h, self.c = self._rnn_seq(r.unsqueeze(1), self.h, self.c)
-                else:
-                    out, self.h, self.c = self._rnn_cells(r, self.h, self.c)
-                w1, b1, w2, b2 = self._head
-                a = torch.relu(torch.addmm(b1, out, w1.t()))
+                a, self.h, self.c = self.kernel.step(r, self.h, self.c)
+                _, _, w2, b2 = self.kernel.head
                 omega = torch.addmm(b2, a, w2.t())
                 # omega[k] (residual) or s(u[k - d]) (prior), else None
                 base = f.base(u_t, w_in, self.z)

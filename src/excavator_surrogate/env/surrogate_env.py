@@ -16,7 +16,8 @@ from ..spec import MachineSpec
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from .base import ExcavatorEnv
-from .engine import Impl, Mode, SurrogateEngine
+from .engine import Mode, SurrogateEngine
+from .kernels import Impl
 from .render import RENDER_SIZE, PoseScene
 from .safety import ActionMode, ActionScale, GuardConfig
 from .starts import RecordedStarts, warn_short_history

@@ -46,8 +46,9 @@ from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.model import Surrogate
 from .base import action_space, observation_space
-from .engine import Impl, Mode, SurrogateEngine
+from .engine import Mode, SurrogateEngine
 from .inputs import ActionLayout
+from .kernels import Impl
 from .safety import (
     GUARD_NAN,
     GUARD_OK,
