@@ -24,18 +24,22 @@ def _signals(cols: dict[str, np.ndarray], names: list[str], keep: np.ndarray | N
     return [asammdf.Signal(cols[n][sel], t[sel], name=n) for n in names]
 
 
-def write_mdf(path: Path, cols: dict[str, np.ndarray], *, split_bucket: bool = False) -> Path:
-    """The test arm's log as MDF4; ``split_bucket``: bucket channels in a second channel group
-    that covers 2 s .. 25 s only."""
+def write_mdf(
+    path: Path, cols: dict[str, np.ndarray], *, split_bucket: bool = False, version: str = "4.10"
+) -> Path:
+    """The test arm's log as MDF4 (or another MDF ``version``); ``split_bucket``: bucket
+    channels in a second channel group that covers 2 s .. 25 s only."""
     names = [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]
-    mdf = asammdf.MDF(version="4.10")
+    mdf = asammdf.MDF(version=version)
     bucket = [n for n in names if n.startswith("bucket")] if split_bucket else []
     mdf.append(_signals(cols, [n for n in names if n not in bucket]), comment="main raster")
     if bucket:
         t = cols["t_ms"] * 1e-3
         mdf.append(_signals(cols, bucket, (t >= 2.0) & (t <= 25.0)), comment="slow raster")
-    mdf.save(path, overwrite=True)
+    saved = Path(mdf.save(path, overwrite=True))
     mdf.close()
+    if saved != path:  # asammdf names an MDF 3 file .mdf: give it the name asked for
+        saved.replace(path)
     return path
 
 
@@ -63,6 +67,28 @@ def test_mdf_matches_csv(cli, tmp_path, short_cols):
     rc, text, err = cli("import", log, "--mapping", tmp_path / "mdf.toml", "--dry-run", "--quiet")
     assert rc == 0, err
     assert "run01.mf4" in text
+
+
+def test_mdf3_dat_matches_mdf4(cli, tmp_path, short_cols):
+    """An MDF 3 log saved as ``.dat`` (CANape, INCA) gives the MDF4 log's episode; a folder's
+    other ``.dat`` files are left out, and one given by name is refused in one line."""
+    mapping = _mapping(tmp_path)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    dat = write_mdf(logs / "run01.dat", short_cols, version="3.30")
+    assert dat.read_bytes()[:8] == b"MDF     "
+    (logs / "notes.dat").write_text("operator: A. N. Other\n")
+    ref = convert_log(write_mdf(tmp_path / "run01.mf4", short_cols), mapping).episodes[0]
+    res = convert_log(dat, mapping)
+    ep = res.episodes[0]
+    assert res.entry["kind"] == "mdf" and ep.name == "run01" and ep.n_step == ref.n_step
+    np.testing.assert_allclose(ep.theta, ref.theta, atol=1e-7)
+    np.testing.assert_allclose(ep.u, ref.u, atol=1e-4)
+    rc, text, err = cli("import", logs, "--mapping", tmp_path / "mdf.toml", "--dry-run")
+    assert rc == 0, err
+    assert "run01.dat" in text and "notes.dat" not in text
+    err = _fail(cli, tmp_path, logs / "notes.dat")
+    assert "notes.dat: a .dat file that is not an ASAM MDF log" in err
 
 
 def test_mdf_two_channel_groups(tmp_path, short_cols):

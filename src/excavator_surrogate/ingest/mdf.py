@@ -1,4 +1,8 @@
-"""ASAM MDF (``.mf4``; MDF 3 ``.mdf`` too) logs, read with asammdf (the ``mdf`` extra).
+"""ASAM MDF (``.mf4``; MDF 3 ``.mdf`` and ``.dat`` too) logs, read with asammdf (the ``mdf`` extra).
+
+A ``.dat`` file (the MDF 3 ending of Vector CANape and ETAS INCA) is an MDF log only when it
+starts with MDF's file identifier (``MDF     ``); other ``.dat`` files are not logs exsur
+reads (a folder's are left out, a named one is refused as an unsupported log type).
 
 Channel names are the names in the file's channel database: the channel name, or
 ``<source path>.<name>`` for a channel with a source (asammdf's convention).  A name that
@@ -31,9 +35,28 @@ import numpy as np
 
 from ..errors import ConfigError, DataError
 from .mapping import TABLE, Mapping
-from .sources import RawLog, Reader, Series, has_suffix, missing_channel
+from .sources import RawLog, Reader, Series, missing_channel
 
-SUFFIXES = (".mf4", ".mdf")
+SUFFIXES = (".mf4", ".mdf", ".dat")
+MAGIC = b"MDF     "
+"""The first 8 bytes of every MDF file (the identification block's file identifier)."""
+
+
+def is_mdf(path: Path, _csv_format: str = "auto") -> bool:
+    """A ``Reader.match``: an ``.mf4`` or ``.mdf`` file, or a ``.dat`` file that starts with
+    :data:`MAGIC` (``.dat`` also names many other formats)."""
+    if path.is_dir():
+        return False
+    name = path.name.lower()
+    if name.endswith((".mf4", ".mdf")):
+        return True
+    if not name.endswith(".dat"):
+        return False
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:  # unreadable: not recognised here (the caller names the file)
+        return False
 
 
 @contextmanager
@@ -219,4 +242,4 @@ def _one_table(
     )
 
 
-READER = Reader("mdf", "ASAM MDF4 (.mf4, .mdf)", SUFFIXES, has_suffix(*SUFFIXES), read_mdf)
+READER = Reader("mdf", "ASAM MDF (.mf4, .mdf, MDF 3 .dat)", SUFFIXES, is_mdf, read_mdf)

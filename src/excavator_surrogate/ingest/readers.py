@@ -2,7 +2,7 @@
 
 :data:`READERS` lists the formats in detection order (the first match wins): dSPACE
 ControlDesk CSV exports (:mod:`.dspace`), plain CSV and Parquet
-(:mod:`.tables`), ROS bags (:mod:`.ros`), ASAM MDF4 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
+(:mod:`.tables`), ROS bags (:mod:`.ros`), ASAM MDF 4 and 3 (:mod:`.mdf`).  :func:`log_kind`, :func:`read_log`,
 :func:`log_stem`, :func:`expand_sources` and :data:`SUPPORTED` all derive from it, so adding
 a log format is one reader module plus one entry here.
 """
@@ -66,6 +66,12 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
 
     def add(p: Path) -> None:
         r = reader_for(p)
+        if r is None and p.name.lower().endswith(".dat") and not p.is_dir():
+            raise DataError(
+                p,
+                "a .dat file that is not an ASAM MDF log (its first bytes are not 'MDF')",
+                fix=f"export the log as {SUPPORTED}",
+            )
         if r is None:
             raise DataError(p, "unsupported log type", fix=f"give {SUPPORTED}")
         if r.whole_folder and not p.is_dir():

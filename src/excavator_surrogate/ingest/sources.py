@@ -7,7 +7,7 @@ raw values of the channels that live on it).  A CSV/Parquet file has one series
 missing cells are NaN.  Rows are counted from 0, header not counted.
 
 :data:`excavator_surrogate.ingest.readers.READERS` lists every log format (the tables, CSV
-and Parquet, in :mod:`.tables`, ROS bags in :mod:`.ros`, dSPACE ControlDesk CSV in :mod:`.dspace`, ASAM MDF4 in :mod:`.mdf`).
+and Parquet, in :mod:`.tables`, ROS bags in :mod:`.ros`, dSPACE ControlDesk CSV in :mod:`.dspace`, ASAM MDF 4 and 3 in :mod:`.mdf`).
 """
 
 from __future__ import annotations
