@@ -11,7 +11,13 @@ Measures env-steps per second (one env-step = one 50 ms control step of one mach
 - ``ensemble_n1024_plain`` / ``ensemble_n1024_uncertainty``: the vector env at 1024 envs on a
   merged 2-member ensemble of the same total size (2 x 64 members, calibrated, with a coverage
   record) without and with the uncertainty ``info`` (bands and OOD flags), measured in
-  alternation, best of ``--repeats`` each; goal: the uncertainty costs <= 20 %.
+  alternation, best of ``--repeats`` each; goal: the uncertainty costs <= 20 %;
+- ``reset_*``: the vector env's resets at 1024 envs, from rest and from recorded starts (moments
+  of 8 simulated plant episodes, ``recorded_starts=``): a reset of all envs, a masked reset of
+  10 of them (medians of ``--reset-repeats``), and stepping with 50-step episodes whose
+  autoresets draw recorded moments.  Goals: a masked reset of 10 envs costs <= 10 % of a
+  reset of all 1024 (it draws, checks and warms up only the envs it resets), and recorded
+  starts cost <= 20 % of the stepping rate from rest.
 
 The benchmark model is an UNTRAINED LSTM of the paper's size (2 x 128, head 128, W = 30):
 throughput does not depend on training.  Goals on the 2-core dev machine: >= 100k steps/s at
@@ -36,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from excavator_surrogate.data.episode import Episode
 from excavator_surrogate.env import ExcavatorMujocoEnv, ExcavatorSurrogateEnv, SurrogateVectorEnv
 from excavator_surrogate.simulate.plant import MujocoExcavator, PlantConfig
 from excavator_surrogate.spec import EXCAVATOR
@@ -48,6 +55,8 @@ from excavator_surrogate.surrogate.model import ModelConfig, Surrogate, build_ne
 GOAL_N1024 = 100_000.0
 GOAL_N1 = 1_000.0
 GOAL_UNCERTAINTY_COST = 0.2
+GOAL_MASKED_RESET_SHARE = 0.1
+GOAL_RECORDED_STARTS_COST = 0.2
 
 
 def untrained(*, mode: str, hidden: int = 128, seed: int = 0) -> Surrogate:
@@ -149,6 +158,58 @@ def bench_rollout(n_threads: int, n_batch: int, n_step: int) -> float:
     return n_batch * (n_step - 1) / dt
 
 
+def plant_episodes(n_episode: int = 8, n_step: int = 400) -> list[Episode]:
+    """Plant episodes under held random commands (a new level every 1-3 s), to draw starts from."""
+    plant = MujocoExcavator(PlantConfig(n_threads=2))
+    rng = np.random.default_rng(1)
+    n_joint = EXCAVATOR.n_joint
+    u = np.empty((n_episode, n_step, n_joint))
+    for b in range(n_episode):
+        for j in range(n_joint):
+            k = 0
+            while k < n_step:
+                n_hold = int(rng.integers(20, 60))
+                u[b, k : k + n_hold, j] = rng.uniform(-800, 800)
+                k += n_hold
+    theta0 = np.tile(plant.default_pose(), (n_episode, 1))
+    out = plant.rollout(u, theta0=theta0)
+    plant.close()
+    t = np.arange(n_step) * EXCAVATOR.dt
+    return [
+        Episode(EXCAVATOR, t, u[b], out["theta"][b], out["omega"][b], name=f"plant{b}")
+        for b in range(n_episode)
+    ]
+
+
+def median_ms(call: Callable[[int], None], repeats: int) -> float:
+    """Median wall time of ``call(i)`` over ``repeats`` calls (after one warm-up) [ms]."""
+    call(-1)
+    ts = []
+    for i in range(repeats):
+        t0 = time.perf_counter()
+        call(i)
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)) * 1e3
+
+
+def bench_resets(
+    ckpt: Path, starts: list[Episode] | None, *, n_envs: int, seconds: float, repeats: int
+) -> tuple[float, float, float]:
+    """The vector env's reset of all ``n_envs`` and masked reset of 10 [ms] (medians), and its
+    stepping rate with 50-step episodes [env-steps/s], from rest or from recorded ``starts``."""
+    env = SurrogateVectorEnv(ckpt, n_envs, max_episode_steps=50, recorded_starts=starts)
+    env.reset(seed=0)
+    full = median_ms(lambda i: env.reset(seed=i + 1), repeats)
+    rng = np.random.default_rng(0)
+    masks = np.zeros((repeats + 1, n_envs), dtype=bool)
+    for m in masks:
+        m[rng.choice(n_envs, 10, replace=False)] = True
+    masked = median_ms(lambda i: env.reset(options={"reset_mask": masks[i]}), repeats)
+    env.reset(seed=0)
+    actions = rng.uniform(-1000, 1000, (16, n_envs, EXCAVATOR.n_joint)).astype(np.float32)
+    return full, masked, rate(lambda i: env.step(actions[i % 16]), n_envs, seconds)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
@@ -163,6 +224,9 @@ def main() -> None:
         type=int,
         default=3,
         help="alternating measurements with and without the uncertainty info (default 3)",
+    )
+    ap.add_argument(
+        "--reset-repeats", type=int, default=30, help="resets timed per median (default 30)"
     )
     args = ap.parse_args()
     threads = [int(t) for t in str(args.threads).split(",")]
@@ -201,6 +265,27 @@ def main() -> None:
             f"{res['ensemble_n1024_uncertainty']:12,.0f} with uncertainty info",
             flush=True,
         )
+        starts = plant_episodes()
+        for name, source in (("rest", None), ("recorded", starts)):
+            (
+                res[f"reset_full_{name}_ms"],
+                res[f"reset_masked10_{name}_ms"],
+                res[f"reset_steps_{name}"],
+            ) = bench_resets(
+                stateful,
+                source,
+                n_envs=1024,
+                seconds=args.seconds,
+                repeats=max(3, args.reset_repeats),
+            )
+        print(
+            f"resets of 1024 envs, {min(threads)} thread(s): all "
+            f"{res['reset_full_rest_ms']:.1f} ms from rest, "
+            f"{res['reset_full_recorded_ms']:.1f} ms recorded; 10 masked "
+            f"{res['reset_masked10_rest_ms']:.2f} / {res['reset_masked10_recorded_ms']:.2f} ms; "
+            f"50-step episodes {res['reset_steps_rest']:,.0f} / {res['reset_steps_recorded']:,.0f} steps/s",
+            flush=True,
+        )
         res["surrogate_single"] = bench_single(ExcavatorSurrogateEnv(stateful), args.seconds)
         print(
             f"ExcavatorSurrogate-v0, single env loop:               {res['surrogate_single']:12,.0f} steps/s",
@@ -225,6 +310,9 @@ def main() -> None:
         / res["surrogate_windowed_n1024"],
         "uncertainty_over_plain_n1024": res["ensemble_n1024_uncertainty"]
         / res["ensemble_n1024_plain"],
+        "masked10_over_full_reset_recorded": res["reset_masked10_recorded_ms"]
+        / res["reset_full_recorded_ms"],
+        "recorded_over_rest_steps": res["reset_steps_recorded"] / res["reset_steps_rest"],
     }
     for k, v in ratios.items():
         print(f"ratio {k}: {v:.2f}x")
@@ -233,6 +321,10 @@ def main() -> None:
         "n1_ge_1000": res["surrogate_vec_n1"] >= GOAL_N1,
         "uncertainty_cost_le_20pct": ratios["uncertainty_over_plain_n1024"]
         >= 1.0 - GOAL_UNCERTAINTY_COST,
+        "masked_reset_le_10pct_of_full": ratios["masked10_over_full_reset_recorded"]
+        <= GOAL_MASKED_RESET_SHARE,
+        "recorded_starts_cost_le_20pct": ratios["recorded_over_rest_steps"]
+        >= 1.0 - GOAL_RECORDED_STARTS_COST,
     }
     out = {
         "bench": "env",
@@ -240,7 +332,7 @@ def main() -> None:
         "torch_threads": threads,
         "load_avg_1min": round(os.getloadavg()[0], 2),
         "model": "lstm 2x128 untrained, W=30",
-        **{k: round(v, 1) for k, v in res.items()},
+        **{k: round(v, 2) for k, v in res.items()},
         "ratios": {k: round(v, 3) for k, v in ratios.items()},
         "goals": goals,
     }
