@@ -179,5 +179,6 @@ def test_exsur_info_prints_text_or_json_and_refuses_bad_files(tmp_path, dataset_
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].endswith(
         "notes.txt: not a file exsur info reads; it describes a checkpoint (.pt), an ONNX "
-        "export (.onnx), a dataset folder or an episode file (.parquet)"
+        "export (.onnx), a dataset folder, an episode file (.parquet) or a raw log exsur "
+        "import reads"
     )

@@ -97,8 +97,8 @@ def test_exsur_info_tells_a_dataset_from_a_checkpoint(plain_dir, tmp_path, capsy
     assert "a folder without manifest.json is not a dataset; give a checkpoint file" in err
     assert main(["info", str(tmp_path / "gone")]) == 2
     assert (
-        "gone: not found; give a checkpoint file (.pt), an ONNX export (.onnx), a dataset folder "
-        "or an episode file (.parquet)" in (capsys.readouterr().err)
+        "gone: not found; give a checkpoint file (.pt), an ONNX export (.onnx), a dataset folder, "
+        "an episode file (.parquet) or a raw log" in (capsys.readouterr().err)
     )
 
 

@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..ingest.inventory import LogSummary
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -12,8 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "info",
         help="describe a checkpoint (machine, network, training, validation), an ONNX export "
-        "(its graph's inputs and outputs, units, the checkpoint's card) or a dataset (splits, "
-        "what each covers)",
+        "(its graph's inputs and outputs, units, the checkpoint's card), a dataset (splits, "
+        "what each covers) or a raw log (its channels, units, rates and ranges)",
         description="Describe a trained checkpoint (best.pt) without running it: the machine "
         "it models (joints, units, limits, command ranges, inputs), its network, how its "
         "training ended against the plan, on which computer, and its free-run scores on "
@@ -22,7 +26,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "steps, and the card of the checkpoint it was exported from. Or describe a dataset "
         "folder (the one holding manifest.json): its "
         "splits, and per joint how far each split moves it and commands it; or one episode "
-        "file the same way. Notes flag what "
+        "file the same way. Or list what a raw log holds before you write its mapping (a CSV, "
+        "dSPACE, Parquet, MDF or ROS log, as exsur import reads them): every channel's name "
+        "as a mapping gives it, its unit, samples, rate and range. Notes flag what "
         "to know first (a training the wall-time cap cut short, a joint that validated "
         "poorly; validation that drives a joint over too little of the training's commands, "
         "a test that leaves the training's positions).",
@@ -33,7 +39,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="?",
         default=None,
         help="a checkpoint file (.pt, e.g. runs/quick/model/best.pt), an ONNX export (.onnx), "
-        "a dataset folder (e.g. runs/quick/data) or one of its episode files (.parquet)",
+        "a dataset folder (e.g. runs/quick/data), one of its episode files (.parquet) or a "
+        "raw log (.csv, .parquet, .mf4, .mdf, .dat, .mcap, .bag, a rosbag2 folder)",
     )
     p.add_argument(
         "--computer",
@@ -62,8 +69,17 @@ def run(args: argparse.Namespace) -> int:
 
         raise ConfigError(
             f"{path}: not found; give a checkpoint file (.pt), an ONNX export (.onnx), a "
-            "dataset folder or an episode file (.parquet)"
+            "dataset folder, an episode file (.parquet) or a raw log"
         )
+    if _is_raw_log(path):
+        from ..ingest.inventory import summarize_log
+
+        summary = summarize_log(path)
+        if args.json:
+            print(json.dumps(summary.to_dict(), indent=2, allow_nan=False))
+        else:
+            print(_log_markdown(summary), end="")
+        return 0
     if path.is_dir() and (path / MANIFEST).is_file():
         from ..evaluate.card import public
         from ..evaluate.data_card import dataset_card, dataset_card_markdown
@@ -104,7 +120,8 @@ def run(args: argparse.Namespace) -> int:
                 raise
             raise CheckpointError(  # not named as a checkpoint: say what info reads
                 f"{path}: not a file exsur info reads; it describes a checkpoint (.pt), an "
-                "ONNX export (.onnx), a dataset folder or an episode file (.parquet)"
+                "ONNX export (.onnx), a dataset folder, an episode file (.parquet) or a raw "
+                "log exsur import reads"
             ) from e
         text = card_markdown
     if args.json:
@@ -112,6 +129,76 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(text(card), end="")
     return 0
+
+
+def _is_raw_log(path: Path) -> bool:
+    """A log ``exsur import`` reads (not an exsur episode, dataset or checkpoint)."""
+    from ..ingest.readers import reader_for
+
+    reader = reader_for(path)
+    if reader is None:
+        return False
+    if reader.kind != "parquet":
+        return True
+    import pyarrow.parquet as pq
+
+    try:
+        meta = pq.read_schema(path).metadata or {}
+    except Exception:  # unreadable: the episode card names the damage
+        return False
+    return b"exsur" not in meta
+
+
+def _number(x: float | None, digits: int = 5) -> str:
+    return "" if x is None else f"{x:.{digits}g}"
+
+
+def _short(text: str, n: int = 60) -> str:
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _log_markdown(summary: LogSummary) -> str:
+    """``exsur info LOG``'s Markdown: the log's format, span and channels."""
+    head = [f"# {summary.path.name}: {summary.label}", ""]
+    facts = [f"{len(summary.channels)} channel(s)"]
+    if summary.start:
+        facts.append(f"starts {summary.start}")
+    if summary.duration_s is not None:
+        facts.append(f"{summary.duration_s:.4g} s long")
+    head += ["; ".join(facts), ""]
+    chans = summary.channels
+    # columns no channel fills are left out (a CSV has no units, rates or groups)
+    show = {
+        "group": any(c.group for c in chans),
+        "unit": any(c.unit for c in chans),
+        "rate": any(c.rate_hz is not None for c in chans),
+        "missing": any(c.n_missing for c in chans),
+        "note": any(c.note for c in chans),
+    }
+    titles = {"group": "group / topic", "rate": "rate [Hz]"}
+    cols = ["channel", *[titles.get(k, k) for k in ("group", "unit") if show[k]], "samples"]
+    cols += [*(["rate [Hz]"] if show["rate"] else []), "min", "max"]
+    cols += [k for k in ("missing", "note") if show[k]]
+    rows = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for c in chans:
+        cells = [f"`{c.name}`" if c.name else ""]
+        cells += [v for k, v in (("group", c.group), ("unit", c.unit)) if show[k]]
+        cells += [str(c.n_sample), *([_number(c.rate_hz, 4)] if show["rate"] else [])]
+        cells += [_number(c.lo), _number(c.hi)]
+        cells += [str(c.n_missing) if c.n_missing else ""] if show["missing"] else []
+        cells += [c.note] if show["note"] else []
+        rows.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
+    tail = [""]
+    if summary.meta:
+        tail += ["Metadata (what `[[inputs]] from_metadata` reads):", ""]
+        tail += [f"- `{k}` = `{_short(v)!r}`" for k, v in sorted(summary.meta.items())] + [""]
+    tail += [f"- {n}" for n in summary.notes]
+    tail += [
+        "- A mapping names a channel as the first column shows it (`column = ...`; a ROS "
+        "log's `topic` and `field`); the ranges are raw, before any unit (docs/import.md).",
+        "",
+    ]
+    return "\n".join(head + rows + tail)
 
 
 def _computer(args: argparse.Namespace) -> int:

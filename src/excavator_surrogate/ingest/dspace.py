@@ -105,7 +105,7 @@ def is_dspace(path: Path, csv_format: str) -> bool:
     return cell.decode("latin-1") in (*LABELS, "trace_values")
 
 
-def _read_bytes(path: Path, limit: int) -> bytes:
+def read_export(path: Path, limit: int) -> bytes:
     """The whole (decompressed) file; DataError past ``limit`` bytes."""
     try:
         with bounded_open(path, limit) as f:
@@ -226,7 +226,7 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     """
     import pyarrow.csv as pcsv
 
-    data = _read_bytes(path, memory_limit(mapping.options.max_memory_mb))
+    data = read_export(path, memory_limit(mapping.options.max_memory_mb))
     traces, start, delim, size = parse_header(path, data, encoding=mapping.csv.encoding)
     if delim == mapping.csv.thousands:
         raise DataError(

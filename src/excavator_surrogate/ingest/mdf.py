@@ -60,7 +60,7 @@ def is_mdf(path: Path, _csv_format: str = "auto") -> bool:
 
 
 @contextmanager
-def _quiet() -> Iterator[None]:
+def quiet_asammdf() -> Iterator[None]:
     """asammdf logs its own errors (and a half-opened file complains when it is collected);
     ours are the one-line DataErrors."""
     lg = logging.getLogger("asammdf")
@@ -113,13 +113,13 @@ def _numeric(path: Path, sig: Any, name: str) -> np.ndarray:
     return out
 
 
-def read_mdf(path: Path, mapping: Mapping) -> RawLog:
-    """Read the channels ``mapping`` needs from an MDF file (see the module doc).
+@contextmanager
+def open_mdf(path: Path) -> Iterator[Any]:
+    """The MDF file at ``path`` opened with asammdf (its own logging quiet), closed after.
 
     Raises:
         ConfigError: asammdf is not installed.
-        DataError: unreadable/truncated file, missing or ambiguous channel, non-numeric
-            values, channel groups that share no time span.
+        DataError: not a readable MDF file (one line naming it).
     """
     if importlib.util.find_spec("asammdf") is None:
         raise ConfigError(
@@ -128,8 +128,7 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
         )
     from asammdf import MDF
 
-    keys = [c.key for c in mapping.channels()]
-    with _quiet():
+    with quiet_asammdf():
         problem = ""
         try:
             mdf = MDF(path)
@@ -142,23 +141,36 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
                 fix="the file may be truncated; record or export it again",
             )
         try:
-            where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
-            try:
-                sigs = {k: mdf.get(group=g, index=i) for k, (g, i) in where.items()}
-            except Exception as e:
-                raise DataError(
-                    path,
-                    f"cannot read the samples ({type(e).__name__}: {e})",
-                    fix="the file may be truncated; record or export it again",
-                ) from e
-            start = mdf.header.start_time
-            meta = header_metadata(mdf.header)
-            columns = sorted(k for k in mdf.channels_db if k != "time")
+            yield mdf
         finally:
             mdf.close()
-        raw = _one_table(path, sigs, where, start, columns)
-        raw.meta = meta
-        return raw
+
+
+def read_mdf(path: Path, mapping: Mapping) -> RawLog:
+    """Read the channels ``mapping`` needs from an MDF file (see the module doc).
+
+    Raises:
+        ConfigError: asammdf is not installed.
+        DataError: unreadable/truncated file, missing or ambiguous channel, non-numeric
+            values, channel groups that share no time span.
+    """
+    keys = [c.key for c in mapping.channels()]
+    with open_mdf(path) as mdf:
+        where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
+        try:
+            sigs = {k: mdf.get(group=g, index=i) for k, (g, i) in where.items()}
+        except Exception as e:
+            raise DataError(
+                path,
+                f"cannot read the samples ({type(e).__name__}: {e})",
+                fix="the file may be truncated; record or export it again",
+            ) from e
+        start = mdf.header.start_time
+        meta = header_metadata(mdf.header)
+        columns = sorted(k for k in mdf.channels_db if k != "time")
+    raw = _one_table(path, sigs, where, start, columns)
+    raw.meta = meta
+    return raw
 
 
 def header_metadata(header: Any) -> dict[str, str]:

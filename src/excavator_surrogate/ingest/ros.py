@@ -83,7 +83,7 @@ def _header_ns(msg: Any) -> int | None:
     return int(st.sec) * 1_000_000_000 + int(st.nanosec)
 
 
-def _need_ros(path: Path) -> None:
+def need_ros(path: Path) -> None:
     import importlib.util
 
     for mod in ("rosbags", "mcap"):
@@ -94,12 +94,12 @@ def _need_ros(path: Path) -> None:
             )
 
 
-def _iter_ros(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
+def iter_messages(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
     """Yield ``(topic, log_time_ns, msg)``; raises DataError for missing topics."""
     if kind == "mcap":
         yield from _iter_mcap(path, topics)
         return
-    _need_ros(path)
+    need_ros(path)
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -129,7 +129,7 @@ def _iter_ros(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str, in
 
 
 def _iter_mcap(path: Path, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
-    _need_ros(path)
+    need_ros(path)
     from mcap.reader import make_reader
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -190,7 +190,7 @@ def _read_ros(path: Path, kind: str, mapping: Mapping) -> RawLog:
     times: dict[str, list[int]] = {t: [] for t in by_topic}
     vals: dict[str, list[list[float]]] = {t: [] for t in by_topic}
     used_header: dict[str, bool] = {}
-    for topic, log_ns, msg in _iter_ros(path, kind, set(by_topic)):
+    for topic, log_ns, msg in iter_messages(path, kind, set(by_topic)):
         row = len(times[topic])
         hdr = _header_ns(msg) if stamp != "log" else None
         if stamp == "header" and hdr is None:

@@ -33,7 +33,7 @@ MAX_LINE_BYTES = 64 * 1024**2
 """A header or skipped line longer than this is refused."""
 
 
-def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
+def csv_header(path: Path, opts: CsvOptions) -> list[str]:
     """The header's names, stripped. Only the header line is decoded (in an encoding whose
     line ends are ASCII's), so a stray byte in a column no mapping reads cannot stop it."""
     opener = gzip.open if path.name.lower().endswith(".gz") else open
@@ -84,7 +84,7 @@ def _csv_header(path: Path, opts: CsvOptions) -> list[str]:
     return names
 
 
-def _ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
+def ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
     """The first data row whose field count differs from the header's (streamed)."""
     first_line = opts.skip_rows + 2 + opts.skip_rows_after_header  # of the first sample, from 1
     opener = gzip.open if path.name.lower().endswith(".gz") else open
@@ -164,12 +164,12 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
                 f"{mapping.csv.decimal!r}: a decimal mark cannot also separate the fields "
                 '(a log with decimal commas is usually separated by ";": set [csv] delimiter)'
             )
-        names = _csv_header(path, mapping.csv)
+        names = csv_header(path, mapping.csv)
         _check_columns(path, names, needed, mapping)
         table = _read_csv(path, mapping, needed, value_cols, names=names)
     else:
         table, names = _read_parquet(path, needed, mapping)
-        meta = _parquet_meta(table.schema.metadata)
+        meta = parquet_meta(table.schema.metadata)
     n = table.num_rows
     if n == 0:
         raise DataError(path, "the log has no data rows", fix="remove the file or record data")
@@ -189,7 +189,7 @@ def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     )
 
 
-def _parquet_meta(raw: dict[bytes, bytes] | None) -> dict[str, str]:
+def parquet_meta(raw: dict[bytes, bytes] | None) -> dict[str, str]:
     """A Parquet file's key-value metadata as text (pandas/arrow schema blobs left out)."""
     skip = {"pandas", "ARROW:schema"}
     out = {}
@@ -226,7 +226,7 @@ def _parse_csv(
 
     # a block must hold the header line (pyarrow: "cannot infer number of columns")
     block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
-    # the header's names as _csv_header read them, stripped: "t, boom_deg" names "boom_deg"
+    # the header's names as csv_header read them, stripped: "t, boom_deg" names "boom_deg"
     read = pcsv.ReadOptions(
         skip_rows=mapping.csv.skip_rows + 1 + mapping.csv.skip_rows_after_header,
         column_names=names,
@@ -256,7 +256,7 @@ def _parse_csv(
     except (pa.ArrowInvalid, pa.ArrowKeyError) as e:
         msg = str(e)
         if "conversion error" not in msg and "CSV conversion" not in msg:
-            ragged = _ragged_row(path, mapping.csv, len(names)) if "columns" in msg else None
+            ragged = ragged_row(path, mapping.csv, len(names)) if "columns" in msg else None
             if ragged is not None:
                 raise ragged from e
             raise DataError(

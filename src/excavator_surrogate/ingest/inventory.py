@@ -1,0 +1,450 @@
+"""What a raw log holds, before any mapping: its channels, units, rates and ranges.
+
+A mapping names the log's channels and their units.  For a binary log (MDF, Parquet, a ROS
+bag) the names are not readable with a text editor, and the ranges are what tell degrees
+from radians and percent from raw counts.  :func:`summarize_log` reads every channel of one
+log (``exsur info LOG`` prints it):
+
+- **CSV** (plain): the header's names (the delimiter sniffed among ``, ; tab |``), and per
+  column its number range; a column of decimal commas is read as numbers and says so.
+- **dSPACE ControlDesk exports**: the traces' names (what a mapping gives) and paths, the
+  x axis as the time base.
+- **Parquet** (a raw table, not an exsur episode): the columns, their ranges and the file's
+  key-value metadata.
+- **ASAM MDF** (4 and 3): every channel of every channel group with its unit, samples, rate
+  (from the group's master) and range, and the header's properties.
+- **ROS** (rosbag2, MCAP, ROS 1): per topic its message type, count and rate, and every
+  numeric field path of its messages (``position[1]``, ``pose.position.x``) with the range
+  over its first :data:`ROS_RANGE_MESSAGES` messages.
+
+Nothing is converted or resampled: the values are the log's raw ones.
+"""
+
+from __future__ import annotations
+
+import csv as csv_module
+import dataclasses
+import gzip
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from ..errors import DataError
+from .limits import memory_limit, too_big
+from .options import CsvOptions
+from .readers import reader_for
+
+ROS_RANGE_MESSAGES = 5000
+"""A ROS field's range is taken over this many first messages of its topic (deserialising
+every message of a long bag takes minutes); the count and rate use all of them."""
+
+ARRAY_FIELDS = 16
+"""A numeric array field lists at most this many entries (``position[0]`` ...)."""
+
+
+@dataclass(frozen=True)
+class ChannelSummary:
+    """One channel of a raw log."""
+
+    name: str
+    """The name a mapping gives it: the column, the MDF channel, the ROS field path."""
+    group: str = ""
+    """Where it lives: the MDF channel group, the ROS topic, the dSPACE path ("" in a table)."""
+    unit: str = ""
+    """The log's own unit ("" where the log gives none)."""
+    n_sample: int = 0
+    """Its samples (messages of its topic)."""
+    rate_hz: float | None = None
+    """Median sample rate of its time base [Hz] (None where the log has no known time base)."""
+    lo: float | None = None
+    """Smallest finite value (None: no number)."""
+    hi: float | None = None
+    """Largest finite value (None: no number)."""
+    n_missing: int = 0
+    """Samples that are not finite numbers (empty cells, NaN)."""
+    note: str = ""
+    """What else to know (``text``, ``decimal commas``, ``time base``, ...)."""
+
+
+@dataclass(frozen=True)
+class LogSummary:
+    """What one raw log holds (:func:`summarize_log`)."""
+
+    path: Path
+    kind: str
+    """The reader's kind (``csv``, ``dspace``, ``parquet``, ``mdf``, ``rosbag2`` ...)."""
+    label: str
+    """The format, for people."""
+    channels: list[ChannelSummary]
+    start: str = ""
+    """The absolute time of the log's start, where it records one."""
+    duration_s: float | None = None
+    """Span of its time bases [s] (None where it has no known time base)."""
+    meta: dict[str, str] = field(default_factory=dict)
+    """The log's metadata (what ``[[inputs]] from_metadata`` reads)."""
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able: the path as text, the channels as dicts."""
+        out = dataclasses.asdict(self)
+        out["path"] = str(self.path)
+        return out
+
+
+def summarize_log(path: str | Path, *, max_memory_mb: float | None = None) -> LogSummary:
+    """Every channel of the raw log at ``path`` (see the module doc).
+
+    Args:
+        path: a log file (or a rosbag2 folder) that ``exsur import`` reads.
+        max_memory_mb: the most a table may take in memory (default: a share of the free
+            memory, as the import's).
+
+    Raises:
+        DataError: not a log exsur reads, or a damaged one (one line naming the file).
+        ConfigError: the optional reader package (asammdf, rosbags) is missing.
+    """
+    path = Path(path)
+    reader = reader_for(path)
+    if reader is None:
+        raise DataError(path, "not a log exsur imports", fix="give a CSV, Parquet, MDF or ROS log")
+    limit = memory_limit(max_memory_mb)
+    kind = reader.kind
+    if kind == "csv":
+        channels, notes = _csv_table(path, limit)
+        return LogSummary(path, kind, reader.label, channels, notes=notes)
+    if kind == "dspace":
+        return _dspace(path, limit, reader.label)
+    if kind == "parquet":
+        return _parquet(path, limit, reader.label)
+    if kind == "mdf":
+        return _mdf(path, reader.label)
+    if reader.whole_folder and not path.is_dir():  # a storage file stands for its bag folder
+        path = path.parent
+    return _ros(path, kind, reader.label)
+
+
+# ---- numbers ----------------------------------------------------------------------------------
+
+
+def _range(values: np.ndarray) -> tuple[float | None, float | None, int]:
+    """``(lo, hi, n_missing)`` of float values (NaN / inf missing)."""
+    finite = np.isfinite(values)
+    if not finite.any():
+        return None, None, int(values.size)
+    v = values[finite]
+    return float(v.min()), float(v.max()), int(values.size - v.size)
+
+
+def _rate(t: np.ndarray) -> float | None:
+    """Median sample rate [Hz] of sample times ``t`` [s] (None with < 2 distinct times)."""
+    dt = np.diff(np.asarray(t, dtype=np.float64))
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    return float(1.0 / np.median(dt)) if dt.size else None
+
+
+def _column(name: str, col: pa.ChunkedArray, **kw: Any) -> ChannelSummary:
+    """A table column's summary: numbers, decimal-comma text read as numbers, or text."""
+    t = col.type
+    if pa.types.is_floating(t) or pa.types.is_integer(t) or pa.types.is_boolean(t):
+        vals = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), np.float64)
+        lo, hi, miss = _range(vals)
+        return ChannelSummary(name, n_sample=len(col), lo=lo, hi=hi, n_missing=miss, **kw)
+    if pa.types.is_string(t) or pa.types.is_large_string(t):
+        try:  # decimal commas: "1,25"
+            vals = pc.cast(pc.replace_substring(col, ",", "."), pa.float64())
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+            first = next((v for v in col.to_pylist() if v), "")
+            first = first if len(first) <= 24 else first[:21] + "..."
+            return ChannelSummary(
+                name,
+                n_sample=len(col),
+                n_missing=col.null_count,
+                note=f"text, e.g. {first!r}",
+                **kw,
+            )
+        arr = np.asarray(vals.to_numpy(zero_copy_only=False), np.float64)
+        lo, hi, miss = _range(arr)
+        return ChannelSummary(
+            name,
+            n_sample=len(col),
+            lo=lo,
+            hi=hi,
+            n_missing=miss,
+            note='decimal commas: [csv] decimal = ","',
+            **kw,
+        )
+    return ChannelSummary(name, n_sample=len(col), note=str(t), **kw)
+
+
+# ---- tables -----------------------------------------------------------------------------------
+
+
+def _sniff(path: Path) -> str:
+    """The delimiter of a CSV file's header line among ``, ; tab |`` (default ``,``)."""
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="utf-8", errors="replace", newline="") as f:
+            head = f.read(8192)
+        return csv_module.Sniffer().sniff(head.split("\n", 1)[0], delimiters=",;\t|").delimiter
+    except (OSError, EOFError, csv_module.Error):
+        return ","
+
+
+def _csv_table(path: Path, limit: int) -> tuple[list[ChannelSummary], list[str]]:
+    import pyarrow.csv as pcsv
+
+    from .tables import csv_header, ragged_row
+
+    if not path.name.lower().endswith(".gz") and path.stat().st_size > limit:
+        raise too_big(path, "reading the log", path.stat().st_size, limit)
+    delim = _sniff(path)
+    names = csv_header(path, CsvOptions(delimiter=delim))
+    try:
+        table = pcsv.read_csv(
+            path,
+            read_options=pcsv.ReadOptions(skip_rows=1, column_names=names),
+            parse_options=pcsv.ParseOptions(delimiter=delim),
+            convert_options=pcsv.ConvertOptions(strings_can_be_null=True),
+        )
+    except (pa.ArrowInvalid, OSError, EOFError) as e:
+        ragged = ragged_row(path, CsvOptions(delimiter=delim), len(names))
+        if ragged is not None:
+            raise ragged from e
+        raise DataError(
+            path,
+            f"cannot parse the CSV ({str(e).splitlines()[0]})",
+            fix="check that rows have as many fields as the header",
+        ) from e
+    notes = [] if delim == "," else [f"fields separated by {delim!r}: set [csv] delimiter"]
+    if any(n == "" for n in names):
+        notes.append("a column without a name: a mapping cannot read it")
+    return [_column(n, table.column(i)) for i, n in enumerate(names)], notes
+
+
+def _dspace(path: Path, limit: int, label: str) -> LogSummary:
+    import pyarrow.csv as pcsv
+
+    from .dspace import metadata, parse_header, read_export
+
+    data = read_export(path, limit)
+    traces, start, delim, _ = parse_header(path, data)
+    table = pcsv.read_csv(
+        pa.BufferReader(data[start:]),
+        read_options=pcsv.ReadOptions(autogenerate_column_names=True),
+        parse_options=pcsv.ParseOptions(delimiter=delim),
+        convert_options=pcsv.ConvertOptions(strings_can_be_null=True),
+    )
+    t = table.column(1) if table.num_columns > 1 else None  # cell 0 is the row label
+    t_s = None if t is None else np.asarray(pc.cast(t, pa.float64()).to_numpy(zero_copy_only=False))
+    rate = None if t_s is None else _rate(t_s)
+    out = []
+    for tr in traces:
+        col = tr.index + 1
+        if col >= table.num_columns:
+            continue
+        note = "time base (the x axis)" if tr.index == 0 else ""
+        s = _column(tr.short, table.column(col), group=tr.path, rate_hz=rate)
+        out.append(dataclasses.replace(s, note=", ".join(x for x in (note, s.note) if x)))
+    duration = None if t_s is None or not len(t_s) else float(np.nanmax(t_s) - np.nanmin(t_s))
+    return LogSummary(path, "dspace", label, out, duration_s=duration, meta=metadata(data))
+
+
+def _parquet(path: Path, limit: int, label: str) -> LogSummary:
+    import pyarrow.parquet as pq
+
+    from .tables import parquet_meta
+
+    try:
+        pf = pq.ParquetFile(path)
+        meta = pf.metadata
+    except Exception as e:  # pyarrow raises several types for corrupt files
+        raise DataError(path, f"not a readable Parquet file ({type(e).__name__})") from e
+    if pf.schema_arrow.metadata and b"exsur" in pf.schema_arrow.metadata:
+        raise DataError(
+            path, "an exsur episode, not a raw log", fix="exsur info describes it as an episode"
+        )
+    size = sum(meta.row_group(g).total_byte_size for g in range(meta.num_row_groups))
+    if size > limit:
+        raise too_big(path, "reading the table", size, limit)
+    table = pf.read()
+    channels = [_column(n, table.column(n)) for n in table.column_names]
+    return LogSummary(path, "parquet", label, channels, meta=parquet_meta(pf.schema_arrow.metadata))
+
+
+# ---- MDF ----------------------------------------------------------------------------------------
+
+
+def _mdf(path: Path, label: str) -> LogSummary:
+    from .mdf import header_metadata, open_mdf
+
+    with open_mdf(path) as mdf:
+        channels, spans = [], []
+        for g, grp in enumerate(mdf.groups):
+            master = mdf.masters_db.get(g)
+            comment = str(getattr(grp.channel_group, "comment", "") or "").strip()
+            where = f"group {g}" + (f" ({comment:.40})" if comment else "")
+            for i, ch in enumerate(grp.channels):
+                if i == master:
+                    continue
+                try:
+                    sig = mdf.get(group=g, index=i, raw=False)
+                except Exception as e:  # asammdf raises many types for damaged data
+                    raise DataError(
+                        path,
+                        f"cannot read the samples of {ch.name} ({type(e).__name__}: {e})",
+                        fix="the file may be truncated; record or export it again",
+                    ) from e
+                t = np.asarray(sig.timestamps, dtype=np.float64)
+                if t.size:
+                    spans.append((float(t[0]), float(t[-1])))
+                samples = np.asarray(sig.samples)
+                kw = dict(group=where, unit=str(sig.unit or ""), rate_hz=_rate(t))
+                if samples.dtype.kind in "fiub" and samples.ndim == 1:
+                    lo, hi, miss = _range(samples.astype(np.float64))
+                    channels.append(
+                        ChannelSummary(ch.name, n_sample=t.size, lo=lo, hi=hi, n_missing=miss, **kw)
+                    )
+                else:
+                    channels.append(
+                        ChannelSummary(ch.name, n_sample=t.size, note="not numbers", **kw)
+                    )
+        start = mdf.header.start_time.isoformat()
+        meta = header_metadata(mdf.header)
+    names = [c.name for c in channels]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    notes = (
+        [
+            f"{', '.join(twice[:5])} in several channel groups: a mapping names them "
+            "<source path>.<name> (asammdf's convention)"
+        ]
+        if twice
+        else []
+    )
+    duration = max(b for _, b in spans) - min(a for a, _ in spans) if spans else None
+    return LogSummary(
+        path, "mdf", label, channels, start=start, duration_s=duration, meta=meta, notes=notes
+    )
+
+
+# ---- ROS ----------------------------------------------------------------------------------------
+
+
+def numeric_fields(msg: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
+    """Every numeric field path of a deserialised message and its value: ``pose.position.x``,
+    ``position[1]`` (arrays: their first :data:`ARRAY_FIELDS` entries; not the header, whose
+    stamp ``[time] stamp`` reads)."""
+    for name in getattr(msg, "__dataclass_fields__", {}):
+        if name.startswith("__") or (not prefix and name == "header"):
+            continue
+        value = getattr(msg, name)
+        path = f"{prefix}{name}"
+        if isinstance(value, bool | int | float | np.number):
+            yield path, float(value)
+        elif isinstance(value, np.ndarray) and value.dtype.kind in "fiub" and value.ndim == 1:
+            for k in range(min(value.size, ARRAY_FIELDS)):
+                yield f"{path}[{k}]", float(value[k])
+        elif isinstance(value, list | tuple):
+            for k, item in enumerate(value[:ARRAY_FIELDS]):
+                if isinstance(item, bool | int | float | np.number):
+                    yield f"{path}[{k}]", float(item)
+                elif hasattr(item, "__dataclass_fields__"):
+                    yield from numeric_fields(item, f"{path}[{k}].")
+        elif hasattr(value, "__dataclass_fields__"):
+            yield from numeric_fields(value, f"{path}.")
+
+
+def _ros(path: Path, kind: str, label: str) -> LogSummary:
+    from .ros import iter_messages, need_ros, ros_metadata
+
+    need_ros(path)
+    topics = _topics(path, kind)
+    times: dict[str, list[int]] = {t: [] for t in topics}
+    values: dict[str, dict[str, list[float]]] = {t: {} for t in topics}
+    names: dict[str, list[str]] = {}
+    for topic, ns, msg in iter_messages(path, kind, set(topics)):
+        times[topic].append(ns)
+        if len(times[topic]) > ROS_RANGE_MESSAGES:
+            continue
+        if topic not in names:
+            names[topic] = [str(n) for n in (getattr(msg, "name", None) or [])]
+        for key, v in numeric_fields(msg):
+            values[topic].setdefault(key, []).append(v)
+    channels, spans = [], []
+    for topic, msgtype in topics.items():
+        t = np.asarray(times[topic], dtype=np.float64) * 1e-9
+        if t.size:
+            spans.append((float(t.min()), float(t.max())))
+        rate = _rate(np.sort(t))
+        group = f"{topic} ({msgtype})" if msgtype else topic
+        if not values[topic]:
+            channels.append(
+                ChannelSummary(
+                    "", group=group, n_sample=t.size, rate_hz=rate, note="no numeric field"
+                )
+            )
+        for key, vals in values[topic].items():
+            lo, hi, miss = _range(np.asarray(vals, dtype=np.float64))
+            joint = _joint_name(key, names.get(topic, []))
+            note = f"= {key.split('[')[0]}[{joint[1]}]" if joint else ""
+            channels.append(
+                ChannelSummary(
+                    key,
+                    group=group,
+                    n_sample=t.size,
+                    rate_hz=rate,
+                    lo=lo,
+                    hi=hi,
+                    n_missing=miss,
+                    note=note,
+                )
+            )
+    notes = []
+    if any(len(v) > ROS_RANGE_MESSAGES for v in times.values()):
+        notes.append(f"ranges over each topic's first {ROS_RANGE_MESSAGES} messages")
+    duration = max(b for _, b in spans) - min(a for a, _ in spans) if spans else None
+    return LogSummary(
+        path, kind, label, channels, duration_s=duration, meta=ros_metadata(path, kind), notes=notes
+    )
+
+
+def _joint_name(key: str, names: list[str]) -> tuple[int, str] | None:
+    """For ``position[1]`` of a message with a ``name`` list, ``(1, names[1])``."""
+    if "[" not in key or "." in key or not names:
+        return None
+    try:
+        k = int(key.split("[", 1)[1].rstrip("]"))
+    except ValueError:
+        return None
+    return (k, names[k]) if k < len(names) else None
+
+
+def _topics(path: Path, kind: str) -> dict[str, str]:
+    """Topic -> message type of a bag or MCAP file."""
+    try:
+        if kind == "mcap":
+            from mcap.reader import make_reader
+
+            with open(path, "rb") as fh:
+                summary = make_reader(fh).get_summary()
+            if summary is None:
+                raise ValueError("the file has no summary section")
+            return {
+                c.topic: summary.schemas[c.schema_id].name if c.schema_id in summary.schemas else ""
+                for c in summary.channels.values()
+            }
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+
+        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+            return {t: info.msgtype or "" for t, info in sorted(reader.topics.items())}
+    except Exception as e:  # the bag readers raise several types for broken files
+        raise DataError(
+            path,
+            f"cannot open the log ({type(e).__name__}: {e})",
+            fix="check that it is a complete ROS bag or MCAP file",
+        ) from e

@@ -1,0 +1,156 @@
+"""``exsur info LOG``: what a raw log holds (every channel, its unit, rate and range), in every
+format the import reads."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from excavator_surrogate.data.episode import write_episode
+from excavator_surrogate.errors import DataError
+from excavator_surrogate.ingest.inventory import LogSummary, summarize_log
+from tests.helpers import arm3_plant
+
+
+def _by_name(summary: LogSummary) -> dict[str, object]:
+    return {c.name: c for c in summary.channels}
+
+
+def _check_ranges(summary: LogSummary, cols: dict[str, np.ndarray], names) -> None:
+    got = _by_name(summary)
+    for n in names:
+        c = got[n]
+        assert c.n_sample == cols[n].size and c.n_missing == 0, n
+        assert c.lo == pytest.approx(cols[n].min(), rel=1e-5, abs=1e-6)
+        assert c.hi == pytest.approx(cols[n].max(), rel=1e-5, abs=1e-6)
+
+
+def test_csv_and_parquet_tables(tmp_path, short_cols):
+    """A plain CSV log lists its header's columns with their ranges; a ;-separated one with
+    decimal commas says which [csv] settings read it; a raw Parquet table lists its columns,
+    text ones as text, and its metadata."""
+    log = arm3_plant.write_csv(tmp_path / "run.csv", short_cols)
+    s = summarize_log(log)
+    assert s.kind == "csv" and [c.name for c in s.channels] == list(arm3_plant.LOG_COLUMNS)
+    _check_ranges(s, short_cols, arm3_plant.LOG_COLUMNS)
+    assert s.notes == []
+    eu = tmp_path / "eu.csv"
+    rows = [
+        f"{t / 1e3:.3f};{b:.4f}".replace(".", ",")
+        for t, b in zip(short_cols["t_ms"], short_cols["boom_deg"], strict=True)
+    ]
+    eu.write_text("t;boom\n" + "\n".join(rows) + "\n")
+    s = summarize_log(eu)
+    assert any("';'" in n and "[csv] delimiter" in n for n in s.notes)
+    boom = _by_name(s)["boom"]
+    assert "decimal commas" in boom.note
+    assert boom.lo == pytest.approx(short_cols["boom_deg"].min(), abs=1e-4)
+    table = pa.table({"t": short_cols["t_ms"], "mode": ["H"] * short_cols["t_ms"].size})
+    pq.write_table(table.replace_schema_metadata({"Engine/Mode": "H"}), tmp_path / "raw.parquet")
+    s = summarize_log(tmp_path / "raw.parquet")
+    got = _by_name(s)
+    assert s.kind == "parquet" and got["mode"].note == "text, e.g. 'H'" and got["mode"].lo is None
+    assert got["t"].hi == pytest.approx(short_cols["t_ms"].max())
+    assert s.meta == {"Engine/Mode": "H"}
+
+
+def test_mdf_groups_units_and_rates(tmp_path, short_cols):
+    """Every channel of every MDF channel group, with its unit, rate and range; an MDF 3 .dat
+    the same; a truncated file is one DataError naming it."""
+    asammdf = pytest.importorskip("asammdf")
+    from tests.ingest.test_ingest_mdf import write_mdf
+
+    names = [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]
+    for path, version in ((tmp_path / "two.mf4", "4.10"), (tmp_path / "old.dat", "3.30")):
+        write_mdf(path, short_cols, split_bucket=True, version=version)
+        s = summarize_log(path)
+        assert s.kind == "mdf" and sorted(c.name for c in s.channels) == sorted(names)
+        got = _by_name(s)
+        assert got["boom_deg"].group.startswith("group 0") and got["bucket_deg"].group.startswith(
+            "group 1"
+        )
+        assert got["boom_deg"].rate_hz == pytest.approx(100.0, rel=0.05)
+        t = short_cols["t_ms"] * 1e-3
+        keep = (t >= 2.0) & (t <= 25.0)
+        assert got["bucket_deg"].n_sample == keep.sum()
+        _check_ranges(s, short_cols, [n for n in names if not n.startswith("bucket")])
+        assert s.duration_s == pytest.approx(t[-1] - t[0], abs=1e-6)
+    mdf = asammdf.MDF(version="4.10")
+    tt = np.arange(10) * 0.1
+    mdf.append([asammdf.Signal(tt * 2, tt, name="boom", unit="deg")])
+    mdf.save(tmp_path / "unit.mf4", overwrite=True)
+    mdf.close()
+    assert summarize_log(tmp_path / "unit.mf4").channels[0].unit == "deg"
+    good = (tmp_path / "two.mf4").read_bytes()
+    (tmp_path / "cut.mf4").write_bytes(good[: len(good) // 2])
+    with pytest.raises(DataError, match="cut.mf4: not a readable MDF file"):
+        summarize_log(tmp_path / "cut.mf4")
+
+
+def test_dspace_export(tmp_path, short_cols):
+    """A ControlDesk export lists its traces by the names a mapping gives (specific trace
+    names, else the path's last segment), their paths, and the x axis as the time base."""
+    from tests.ingest.test_ingest_dspace import dspace_traces, write_dspace
+
+    traces = dspace_traces(short_cols)
+    s = summarize_log(write_dspace(tmp_path / "rig.csv", traces))
+    assert s.kind == "dspace"
+    got = _by_name(s)
+    assert {"boom_deg", "boom_up_pct", "p_pump"} <= set(got)
+    assert "time base" in s.channels[0].note
+    assert got["boom_deg"].group == "Model Root/Sensors/boom_deg"
+    assert got["boom_deg"].rate_hz == pytest.approx(100.0, rel=0.05)
+    _check_ranges(s, short_cols, ["boom_deg", "arm_up_pct"])
+    assert s.meta  # the descriptions rows
+
+
+def test_ros_bag_fields(tmp_path):
+    """A bag lists every numeric field path of each topic with its count, rate and range,
+    and a JointState's positions by joint name too; the header is left out."""
+    pytest.importorskip("rosbags")
+    from tests.ingest.test_ingest_ros_resample import _write_bag
+
+    cols = arm3_plant.simulate(duration_s=4.0, seed=5, log_rate_hz=50.0)
+    _write_bag(tmp_path / "bag", cols, storage="sqlite3")
+    for path in (tmp_path / "bag", next((tmp_path / "bag").glob("*.db3"))):
+        s = summarize_log(path)
+        assert s.kind == "rosbag2" and s.path == tmp_path / "bag"
+        got = _by_name(s)
+        assert not any(n.startswith("header") for n in got)
+        boom = got["position[1]"]  # the bag's order: bucket, boom, arm
+        assert boom.note == "= position[boom_joint]"
+        assert boom.group == "/joint_states (sensor_msgs/msg/JointState)"
+        assert boom.n_sample == cols["t_ms"].size and boom.rate_hz == pytest.approx(50.0, rel=0.05)
+        assert boom.lo == pytest.approx(np.radians(cols["boom_deg"]).min())
+        assert got["data[0]"].n_sample == (cols["t_ms"].size + 1) // 2
+
+
+def test_cli_info_on_a_log(cli, tmp_path, short_cols):
+    """``exsur info LOG`` prints the channel table (or ``--json``); an exsur episode file is
+    still described as an episode; an unreadable log is one line with exit code 2."""
+    log = arm3_plant.write_csv(tmp_path / "run.csv", short_cols)
+    rc, out, err = cli("info", log)
+    assert rc == 0, err
+    assert out.startswith("# run.csv: CSV") and "| `boom_deg` | 1000 |" in out
+    rc, out, err = cli("info", log, "--json")
+    assert rc == 0, err
+    doc = json.loads(out)
+    assert doc["kind"] == "csv" and doc["channels"][1]["name"] == "boom_deg"
+    (tmp_path / "bad.csv").write_text("a,b\n1,2\n3\n")
+    rc, _, err = cli("info", tmp_path / "bad.csv")
+    assert rc == 2 and err.count("\n") == 1 and "bad.csv, row 1: ragged rows: line 3" in err
+    import tomllib
+
+    from excavator_surrogate.ingest import convert_log, parse_mapping
+
+    ep = convert_log(log, parse_mapping(tomllib.loads(arm3_plant.MAPPING_TOML))).episodes[0]
+    ep_path = write_episode(tmp_path / "ep.parquet", ep)
+    rc, out, err = cli("info", ep_path)
+    assert rc == 0, err
+    assert "boom" in out and "| `" not in out.split("\n")[0]
+    with pytest.raises(DataError, match="an exsur episode, not a raw log"):
+        summarize_log(ep_path)
