@@ -154,3 +154,27 @@ def test_cli_info_on_a_log(cli, tmp_path, short_cols):
     assert "boom" in out and "| `" not in out.split("\n")[0]
     with pytest.raises(DataError, match="an exsur episode, not a raw log"):
         summarize_log(ep_path)
+
+
+def test_csv_read_as_a_mapping_would(cli, tmp_path):
+    """A logger's CSV (preamble lines, a units row, cp1252, decimal commas and grouped
+    thousands) is refused without options, naming csv.skip_rows, and read with ``--set
+    csv.*`` as a mapping's [csv] table reads it; the options are refused on other logs."""
+    text = "Logger v2\nserial 42\nt;boom;note\ns;deg;-\n0,00;1.000,5;Meßung\n0,05;1.001,0;x\n"
+    log = tmp_path / "pre.csv"
+    log.write_bytes(text.encode("cp1252"))
+    rc, _, err = cli("info", log)
+    assert rc == 2 and "--set csv.skip_rows=N" in err and err.count("\n") == 1
+    opts = ["skip_rows=2", "skip_rows_after_header=1", "delimiter=';'", "decimal=','"]
+    opts += ["thousands='.'", "encoding=cp1252"]
+    rc, out, err = cli("info", log, "--json", *[a for o in opts for a in ("--set", f"csv.{o}")])
+    assert rc == 0, err
+    got = {c["name"]: c for c in json.loads(out)["channels"]}
+    assert (got["boom"]["lo"], got["boom"]["hi"]) == (1000.5, 1001.0) and got["t"]["hi"] == 0.05
+    assert got["note"]["note"] == "text, e.g. 'Meßung'"
+    rc, _, err = cli("info", log, "--set", "csv.skip=2")
+    assert rc == 2 and "did you mean 'skip_rows'" in err
+    parquet = tmp_path / "raw.parquet"
+    pq.write_table(pa.table({"t": [0.0, 1.0]}), parquet)
+    rc, _, err = cli("info", parquet, "--set", "csv.skip_rows=2")
+    assert rc == 2 and "--set csv.* reads a CSV log or a dSPACE export" in err

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from ..ingest.inventory import LogSummary
+    from ..ingest.options import CsvOptions
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -52,6 +53,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--json", action="store_true", help="print the description as one JSON object instead"
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        dest="sets",
+        metavar="csv.KEY=VALUE",
+        help="a raw CSV log or dSPACE export: read it as a mapping's [csv] table would, e.g. "
+        "csv.skip_rows=3, csv.delimiter=';', csv.decimal=',', csv.encoding=cp1252 "
+        "(repeatable; default: the delimiter is sniffed and decimal commas recognised)",
+    )
     p.set_defaults(func=run, shows=True)  # -q does not mute what it was asked to show
 
 
@@ -71,15 +82,28 @@ def run(args: argparse.Namespace) -> int:
             f"{path}: not found; give a checkpoint file (.pt), an ONNX export (.onnx), a "
             "dataset folder, an episode file (.parquet) or a raw log"
         )
-    if _is_raw_log(path):
+    csv = _csv_options(args.sets)
+    if _is_raw_log(path, csv_format=csv.format if csv is not None else "auto"):
+        from ..ingest.readers import log_kind
+
+        if csv is not None and log_kind(path, csv_format=csv.format) not in ("csv", "dspace"):
+            from ..errors import ConfigError
+
+            raise ConfigError(
+                f"{path}: --set csv.* reads a CSV log or a dSPACE export; this log needs none"
+            )
         from ..ingest.inventory import summarize_log
 
-        summary = summarize_log(path)
+        summary = summarize_log(path, csv=csv)
         if args.json:
             print(json.dumps(summary.to_dict(), indent=2, allow_nan=False))
         else:
             print(_log_markdown(summary), end="")
         return 0
+    if csv is not None:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"{path}: --set csv.* reads a raw CSV log or dSPACE export, not this")
     if path.is_dir() and (path / MANIFEST).is_file():
         from ..evaluate.card import public
         from ..evaluate.data_card import dataset_card, dataset_card_markdown
@@ -131,11 +155,22 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _is_raw_log(path: Path) -> bool:
+def _csv_options(sets: list[str]) -> CsvOptions | None:
+    """``--set csv.KEY=VALUE`` as the ``[csv]`` options (None without any)."""
+    if not sets:
+        return None
+    from ..config import from_dict, parse_sets
+    from ..ingest.options import CsvOptions
+
+    table = parse_sets(sets, sections=["csv"])["csv"]
+    return from_dict(CsvOptions, table, where="--set csv")
+
+
+def _is_raw_log(path: Path, *, csv_format: str = "auto") -> bool:
     """A log ``exsur import`` reads (not an exsur episode, dataset or checkpoint)."""
     from ..ingest.readers import reader_for
 
-    reader = reader_for(path)
+    reader = reader_for(path, csv_format=csv_format)
     if reader is None:
         return False
     if reader.kind != "parquet":

@@ -96,11 +96,16 @@ class LogSummary:
         return out
 
 
-def summarize_log(path: str | Path, *, max_memory_mb: float | None = None) -> LogSummary:
+def summarize_log(
+    path: str | Path, *, csv: CsvOptions | None = None, max_memory_mb: float | None = None
+) -> LogSummary:
     """Every channel of the raw log at ``path`` (see the module doc).
 
     Args:
         path: a log file (or a rosbag2 folder) that ``exsur import`` reads.
+        csv: how to read a CSV log or a dSPACE export (a mapping's ``[csv]``: preamble lines,
+            a units row, the encoding, the marks); None: a plain CSV's delimiter is sniffed
+            among ``, ; tab |`` and decimal commas are recognised.
         max_memory_mb: the most a table may take in memory (default: a share of the free
             memory, as the import's).
 
@@ -109,16 +114,16 @@ def summarize_log(path: str | Path, *, max_memory_mb: float | None = None) -> Lo
         ConfigError: the optional reader package (asammdf, rosbags) is missing.
     """
     path = Path(path)
-    reader = reader_for(path)
+    reader = reader_for(path, csv_format=csv.format if csv is not None else "auto")
     if reader is None:
         raise DataError(path, "not a log exsur imports", fix="give a CSV, Parquet, MDF or ROS log")
     limit = memory_limit(max_memory_mb)
     kind = reader.kind
     if kind == "csv":
-        channels, notes = _csv_table(path, limit)
+        channels, notes = _csv_table(path, limit, csv)
         return LogSummary(path, kind, reader.label, channels, notes=notes)
     if kind == "dspace":
-        return _dspace(path, limit, reader.label)
+        return _dspace(path, limit, reader.label, csv or CsvOptions())
     if kind == "parquet":
         return _parquet(path, limit, reader.label)
     if kind == "mdf":
@@ -147,16 +152,25 @@ def _rate(t: np.ndarray) -> float | None:
     return float(1.0 / np.median(dt)) if dt.size else None
 
 
-def _column(name: str, col: pa.ChunkedArray, **kw: Any) -> ChannelSummary:
-    """A table column's summary: numbers, decimal-comma text read as numbers, or text."""
+def _column(
+    name: str, col: pa.ChunkedArray, *, csv: CsvOptions | None = None, **kw: Any
+) -> ChannelSummary:
+    """A table column's summary: numbers, text read as numbers with ``csv``'s marks (None:
+    with decimal commas, said in the note), or text."""
     t = col.type
     if pa.types.is_floating(t) or pa.types.is_integer(t) or pa.types.is_boolean(t):
         vals = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), np.float64)
         lo, hi, miss = _range(vals)
         return ChannelSummary(name, n_sample=len(col), lo=lo, hi=hi, n_missing=miss, **kw)
     if pa.types.is_string(t) or pa.types.is_large_string(t):
+        text = col
+        if csv is not None and csv.thousands:
+            text = pc.replace_substring(text, csv.thousands, "")
+        mark = "," if csv is None else csv.decimal
         try:  # decimal commas: "1,25"
-            vals = pc.cast(pc.replace_substring(col, ",", "."), pa.float64())
+            if mark != ".":
+                text = pc.replace_substring(text, mark, ".")
+            vals = pc.cast(text, pa.float64())
         except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
             first = next((v for v in col.to_pylist() if v), "")
             first = first if len(first) <= 24 else first[:21] + "..."
@@ -175,7 +189,7 @@ def _column(name: str, col: pa.ChunkedArray, **kw: Any) -> ChannelSummary:
             lo=lo,
             hi=hi,
             n_missing=miss,
-            note='decimal commas: [csv] decimal = ","',
+            note='decimal commas: [csv] decimal = ","' if csv is None else "",
             **kw,
         )
     return ChannelSummary(name, n_sample=len(col), note=str(t), **kw)
@@ -195,52 +209,86 @@ def _sniff(path: Path) -> str:
         return ","
 
 
-def _csv_table(path: Path, limit: int) -> tuple[list[ChannelSummary], list[str]]:
+def _csv_table(
+    path: Path, limit: int, opts: CsvOptions | None
+) -> tuple[list[ChannelSummary], list[str]]:
     import pyarrow.csv as pcsv
 
     from .tables import csv_header, ragged_row
 
     if not path.name.lower().endswith(".gz") and path.stat().st_size > limit:
         raise too_big(path, "reading the log", path.stat().st_size, limit)
-    delim = _sniff(path)
-    names = csv_header(path, CsvOptions(delimiter=delim))
+    given = opts is not None
+    if opts is None:
+        opts = CsvOptions(delimiter=_sniff(path))
+    delim = opts.delimiter
+    names = csv_header(path, opts)
     try:
         table = pcsv.read_csv(
             path,
-            read_options=pcsv.ReadOptions(skip_rows=1, column_names=names),
+            read_options=pcsv.ReadOptions(
+                skip_rows=opts.skip_rows + 1 + opts.skip_rows_after_header,
+                column_names=names,
+                **({} if opts.is_utf8 else {"encoding": opts.encoding}),
+            ),
             parse_options=pcsv.ParseOptions(delimiter=delim),
-            convert_options=pcsv.ConvertOptions(strings_can_be_null=True),
+            convert_options=pcsv.ConvertOptions(
+                strings_can_be_null=True,
+                decimal_point=opts.decimal,
+                column_types=dict.fromkeys(names, pa.string()) if opts.thousands else None,
+            ),
         )
     except (pa.ArrowInvalid, OSError, EOFError) as e:
-        ragged = ragged_row(path, CsvOptions(delimiter=delim), len(names))
+        ragged = ragged_row(path, opts, len(names))
+        if ragged is not None and not given and ragged.problem.endswith("(too many)"):
+            # more fields below the header than in it: lines of a logger's preamble?
+            raise DataError(
+                path,
+                ragged.problem,
+                row=ragged.row,
+                fix="lines before the header? skip them with --set csv.skip_rows=N, as "
+                "[csv] skip_rows does in a mapping",
+            ) from e
         if ragged is not None:
             raise ragged from e
         raise DataError(
             path,
             f"cannot parse the CSV ({str(e).splitlines()[0]})",
-            fix="check that rows have as many fields as the header",
+            fix="check that rows have as many fields as the header"
+            + ("" if given else "; lines before it? skip them with --set csv.skip_rows=N"),
         ) from e
-    notes = [] if delim == "," else [f"fields separated by {delim!r}: set [csv] delimiter"]
+    notes = [] if given or delim == "," else [f"fields separated by {delim!r}: set [csv] delimiter"]
     if any(n == "" for n in names):
         notes.append("a column without a name: a mapping cannot read it")
-    return [_column(n, table.column(i)) for i, n in enumerate(names)], notes
+    cols = [_column(n, table.column(i), csv=opts if given else None) for i, n in enumerate(names)]
+    return cols, notes
 
 
-def _dspace(path: Path, limit: int, label: str) -> LogSummary:
+def _dspace(path: Path, limit: int, label: str, opts: CsvOptions) -> LogSummary:
     import pyarrow.csv as pcsv
 
     from .dspace import metadata, parse_header, read_export
 
     data = read_export(path, limit)
-    traces, start, delim, _ = parse_header(path, data)
-    table = pcsv.read_csv(
-        pa.BufferReader(data[start:]),
-        read_options=pcsv.ReadOptions(autogenerate_column_names=True),
-        parse_options=pcsv.ParseOptions(delimiter=delim),
-        convert_options=pcsv.ConvertOptions(strings_can_be_null=True),
-    )
+    traces, start, delim, _ = parse_header(path, data, encoding=opts.encoding)
+    try:
+        table = pcsv.read_csv(
+            pa.BufferReader(data[start:]),
+            read_options=pcsv.ReadOptions(autogenerate_column_names=True),
+            parse_options=pcsv.ParseOptions(delimiter=delim),
+            convert_options=pcsv.ConvertOptions(
+                strings_can_be_null=True, decimal_point=opts.decimal
+            ),
+        )
+    except pa.ArrowInvalid as e:
+        raise DataError(
+            path,
+            f"cannot parse the samples ({str(e).splitlines()[0]})",
+            fix="re-export the measurement from ControlDesk",
+        ) from e
     t = table.column(1) if table.num_columns > 1 else None  # cell 0 is the row label
-    t_s = None if t is None else np.asarray(pc.cast(t, pa.float64()).to_numpy(zero_copy_only=False))
+    numeric = t is not None and (pa.types.is_floating(t.type) or pa.types.is_integer(t.type))
+    t_s = np.asarray(pc.cast(t, pa.float64()).to_numpy(zero_copy_only=False)) if numeric else None
     rate = None if t_s is None else _rate(t_s)
     out = []
     for tr in traces:
@@ -248,10 +296,11 @@ def _dspace(path: Path, limit: int, label: str) -> LogSummary:
         if col >= table.num_columns:
             continue
         note = "time base (the x axis)" if tr.index == 0 else ""
-        s = _column(tr.short, table.column(col), group=tr.path, rate_hz=rate)
+        s = _column(tr.short, table.column(col), csv=opts, group=tr.path, rate_hz=rate)
         out.append(dataclasses.replace(s, note=", ".join(x for x in (note, s.note) if x)))
     duration = None if t_s is None or not len(t_s) else float(np.nanmax(t_s) - np.nanmin(t_s))
-    return LogSummary(path, "dspace", label, out, duration_s=duration, meta=metadata(data))
+    meta = metadata(data, encoding=opts.encoding)
+    return LogSummary(path, "dspace", label, out, duration_s=duration, meta=meta)
 
 
 def _parquet(path: Path, limit: int, label: str) -> LogSummary:
