@@ -12,7 +12,8 @@ import pytest
 
 from excavator_surrogate.data.episode import write_episode
 from excavator_surrogate.errors import DataError
-from excavator_surrogate.ingest.inventory import LogSummary, summarize_log
+from excavator_surrogate.ingest.inventory import summarize_log
+from excavator_surrogate.ingest.summary import LogSummary
 from tests.helpers import arm3_plant
 
 
@@ -178,3 +179,31 @@ def test_csv_read_as_a_mapping_would(cli, tmp_path):
     pq.write_table(pa.table({"t": [0.0, 1.0]}), parquet)
     rc, _, err = cli("info", parquet, "--set", "csv.skip_rows=2")
     assert rc == 2 and "--set csv.* reads a CSV log or a dSPACE export" in err
+
+
+def test_mcap_topics_the_import_cannot_read(tmp_path):
+    """A bare MCAP file lists its ROS 2 fields; a JSON channel is listed as one the import
+    cannot read, instead of failing the whole file."""
+    pytest.importorskip("rosbags")
+    from mcap.writer import Writer
+
+    from tests.ingest.test_ingest_ros_resample import _write_bag
+
+    cols = arm3_plant.simulate(duration_s=2.0, seed=5, log_rate_hz=50.0)
+    _write_bag(tmp_path / "bag", cols, storage="mcap")
+    bare = tmp_path / "bare.mcap"  # without its metadata.yaml: read as a bare MCAP file
+    bare.write_bytes(next((tmp_path / "bag").glob("*.mcap")).read_bytes())
+    s = summarize_log(bare)
+    assert s.kind == "mcap" and {c.name for c in s.channels} >= {"position[0]", "data[5]"}
+    path = tmp_path / "mixed.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema(name="Status", encoding="jsonschema", data=b"{}")
+        channel = w.register_channel(topic="/status", message_encoding="json", schema_id=schema)
+        w.add_message(channel, log_time=1, publish_time=1, data=b'{"ok": true}')
+        w.finish()
+    s = summarize_log(path)
+    assert [(c.group, c.note) for c in s.channels] == [
+        ("/status (Status)", "json messages, not ROS 2: the import cannot read them")
+    ]

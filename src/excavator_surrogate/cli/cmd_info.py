@@ -8,8 +8,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..ingest.inventory import LogSummary
     from ..ingest.options import CsvOptions
+    from ..ingest.summary import LogSummary
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

@@ -15,7 +15,7 @@ log (``exsur info LOG`` prints it):
   (from the group's master) and range, and the header's properties.
 - **ROS** (rosbag2, MCAP, ROS 1): per topic its message type, count and rate, and every
   numeric field path of its messages (``position[1]``, ``pose.position.x``) with the range
-  over its first :data:`ROS_RANGE_MESSAGES` messages.
+  over its first messages (:mod:`.inventory_ros`).
 
 Nothing is converted or resampled: the values are the log's raw ones.
 """
@@ -25,8 +25,6 @@ from __future__ import annotations
 import csv as csv_module
 import dataclasses
 import gzip
-from collections.abc import Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,62 +36,7 @@ from ..errors import DataError
 from .limits import memory_limit, too_big
 from .options import CsvOptions
 from .readers import reader_for
-
-ROS_RANGE_MESSAGES = 5000
-"""A ROS field's range is taken over this many first messages of its topic (deserialising
-every message of a long bag takes minutes); the count and rate use all of them."""
-
-ARRAY_FIELDS = 16
-"""A numeric array field lists at most this many entries (``position[0]`` ...)."""
-
-
-@dataclass(frozen=True)
-class ChannelSummary:
-    """One channel of a raw log."""
-
-    name: str
-    """The name a mapping gives it: the column, the MDF channel, the ROS field path."""
-    group: str = ""
-    """Where it lives: the MDF channel group, the ROS topic, the dSPACE path ("" in a table)."""
-    unit: str = ""
-    """The log's own unit ("" where the log gives none)."""
-    n_sample: int = 0
-    """Its samples (messages of its topic)."""
-    rate_hz: float | None = None
-    """Median sample rate of its time base [Hz] (None where the log has no known time base)."""
-    lo: float | None = None
-    """Smallest finite value (None: no number)."""
-    hi: float | None = None
-    """Largest finite value (None: no number)."""
-    n_missing: int = 0
-    """Samples that are not finite numbers (empty cells, NaN)."""
-    note: str = ""
-    """What else to know (``text``, ``decimal commas``, ``time base``, ...)."""
-
-
-@dataclass(frozen=True)
-class LogSummary:
-    """What one raw log holds (:func:`summarize_log`)."""
-
-    path: Path
-    kind: str
-    """The reader's kind (``csv``, ``dspace``, ``parquet``, ``mdf``, ``rosbag2`` ...)."""
-    label: str
-    """The format, for people."""
-    channels: list[ChannelSummary]
-    start: str = ""
-    """The absolute time of the log's start, where it records one."""
-    duration_s: float | None = None
-    """Span of its time bases [s] (None where it has no known time base)."""
-    meta: dict[str, str] = field(default_factory=dict)
-    """The log's metadata (what ``[[inputs]] from_metadata`` reads)."""
-    notes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able: the path as text, the channels as dicts."""
-        out = dataclasses.asdict(self)
-        out["path"] = str(self.path)
-        return out
+from .summary import ChannelSummary, LogSummary, sample_rate, value_range
 
 
 def summarize_log(
@@ -128,28 +71,11 @@ def summarize_log(
         return _parquet(path, limit, reader.label)
     if kind == "mdf":
         return _mdf(path, reader.label)
+    from .inventory_ros import summarize_ros
+
     if reader.whole_folder and not path.is_dir():  # a storage file stands for its bag folder
         path = path.parent
-    return _ros(path, kind, reader.label)
-
-
-# ---- numbers ----------------------------------------------------------------------------------
-
-
-def _range(values: np.ndarray) -> tuple[float | None, float | None, int]:
-    """``(lo, hi, n_missing)`` of float values (NaN / inf missing)."""
-    finite = np.isfinite(values)
-    if not finite.any():
-        return None, None, int(values.size)
-    v = values[finite]
-    return float(v.min()), float(v.max()), int(values.size - v.size)
-
-
-def _rate(t: np.ndarray) -> float | None:
-    """Median sample rate [Hz] of sample times ``t`` [s] (None with < 2 distinct times)."""
-    dt = np.diff(np.asarray(t, dtype=np.float64))
-    dt = dt[np.isfinite(dt) & (dt > 0)]
-    return float(1.0 / np.median(dt)) if dt.size else None
+    return summarize_ros(path, kind, reader.label)
 
 
 def _column(
@@ -160,7 +86,7 @@ def _column(
     t = col.type
     if pa.types.is_floating(t) or pa.types.is_integer(t) or pa.types.is_boolean(t):
         vals = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), np.float64)
-        lo, hi, miss = _range(vals)
+        lo, hi, miss = value_range(vals)
         return ChannelSummary(name, n_sample=len(col), lo=lo, hi=hi, n_missing=miss, **kw)
     if pa.types.is_string(t) or pa.types.is_large_string(t):
         text = col
@@ -182,7 +108,7 @@ def _column(
                 **kw,
             )
         arr = np.asarray(vals.to_numpy(zero_copy_only=False), np.float64)
-        lo, hi, miss = _range(arr)
+        lo, hi, miss = value_range(arr)
         return ChannelSummary(
             name,
             n_sample=len(col),
@@ -289,7 +215,7 @@ def _dspace(path: Path, limit: int, label: str, opts: CsvOptions) -> LogSummary:
     t = table.column(1) if table.num_columns > 1 else None  # cell 0 is the row label
     numeric = t is not None and (pa.types.is_floating(t.type) or pa.types.is_integer(t.type))
     t_s = np.asarray(pc.cast(t, pa.float64()).to_numpy(zero_copy_only=False)) if numeric else None
-    rate = None if t_s is None else _rate(t_s)
+    rate = None if t_s is None else sample_rate(t_s)
     out = []
     for tr in traces:
         col = tr.index + 1
@@ -352,9 +278,9 @@ def _mdf(path: Path, label: str) -> LogSummary:
                 if t.size:
                     spans.append((float(t[0]), float(t[-1])))
                 samples = np.asarray(sig.samples)
-                kw = dict(group=where, unit=str(sig.unit or ""), rate_hz=_rate(t))
+                kw = dict(group=where, unit=str(sig.unit or ""), rate_hz=sample_rate(t))
                 if samples.dtype.kind in "fiub" and samples.ndim == 1:
-                    lo, hi, miss = _range(samples.astype(np.float64))
+                    lo, hi, miss = value_range(samples.astype(np.float64))
                     channels.append(
                         ChannelSummary(ch.name, n_sample=t.size, lo=lo, hi=hi, n_missing=miss, **kw)
                     )
@@ -378,122 +304,3 @@ def _mdf(path: Path, label: str) -> LogSummary:
     return LogSummary(
         path, "mdf", label, channels, start=start, duration_s=duration, meta=meta, notes=notes
     )
-
-
-# ---- ROS ----------------------------------------------------------------------------------------
-
-
-def numeric_fields(msg: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
-    """Every numeric field path of a deserialised message and its value: ``pose.position.x``,
-    ``position[1]`` (arrays: their first :data:`ARRAY_FIELDS` entries; not the header, whose
-    stamp ``[time] stamp`` reads)."""
-    for name in getattr(msg, "__dataclass_fields__", {}):
-        if name.startswith("__") or (not prefix and name == "header"):
-            continue
-        value = getattr(msg, name)
-        path = f"{prefix}{name}"
-        if isinstance(value, bool | int | float | np.number):
-            yield path, float(value)
-        elif isinstance(value, np.ndarray) and value.dtype.kind in "fiub" and value.ndim == 1:
-            for k in range(min(value.size, ARRAY_FIELDS)):
-                yield f"{path}[{k}]", float(value[k])
-        elif isinstance(value, list | tuple):
-            for k, item in enumerate(value[:ARRAY_FIELDS]):
-                if isinstance(item, bool | int | float | np.number):
-                    yield f"{path}[{k}]", float(item)
-                elif hasattr(item, "__dataclass_fields__"):
-                    yield from numeric_fields(item, f"{path}[{k}].")
-        elif hasattr(value, "__dataclass_fields__"):
-            yield from numeric_fields(value, f"{path}.")
-
-
-def _ros(path: Path, kind: str, label: str) -> LogSummary:
-    from .ros import iter_messages, need_ros, ros_metadata
-
-    need_ros(path)
-    topics = _topics(path, kind)
-    times: dict[str, list[int]] = {t: [] for t in topics}
-    values: dict[str, dict[str, list[float]]] = {t: {} for t in topics}
-    names: dict[str, list[str]] = {}
-    for topic, ns, msg in iter_messages(path, kind, set(topics)):
-        times[topic].append(ns)
-        if len(times[topic]) > ROS_RANGE_MESSAGES:
-            continue
-        if topic not in names:
-            names[topic] = [str(n) for n in (getattr(msg, "name", None) or [])]
-        for key, v in numeric_fields(msg):
-            values[topic].setdefault(key, []).append(v)
-    channels, spans = [], []
-    for topic, msgtype in topics.items():
-        t = np.asarray(times[topic], dtype=np.float64) * 1e-9
-        if t.size:
-            spans.append((float(t.min()), float(t.max())))
-        rate = _rate(np.sort(t))
-        group = f"{topic} ({msgtype})" if msgtype else topic
-        if not values[topic]:
-            channels.append(
-                ChannelSummary(
-                    "", group=group, n_sample=t.size, rate_hz=rate, note="no numeric field"
-                )
-            )
-        for key, vals in values[topic].items():
-            lo, hi, miss = _range(np.asarray(vals, dtype=np.float64))
-            joint = _joint_name(key, names.get(topic, []))
-            note = f"= {key.split('[')[0]}[{joint[1]}]" if joint else ""
-            channels.append(
-                ChannelSummary(
-                    key,
-                    group=group,
-                    n_sample=t.size,
-                    rate_hz=rate,
-                    lo=lo,
-                    hi=hi,
-                    n_missing=miss,
-                    note=note,
-                )
-            )
-    notes = []
-    if any(len(v) > ROS_RANGE_MESSAGES for v in times.values()):
-        notes.append(f"ranges over each topic's first {ROS_RANGE_MESSAGES} messages")
-    duration = max(b for _, b in spans) - min(a for a, _ in spans) if spans else None
-    return LogSummary(
-        path, kind, label, channels, duration_s=duration, meta=ros_metadata(path, kind), notes=notes
-    )
-
-
-def _joint_name(key: str, names: list[str]) -> tuple[int, str] | None:
-    """For ``position[1]`` of a message with a ``name`` list, ``(1, names[1])``."""
-    if "[" not in key or "." in key or not names:
-        return None
-    try:
-        k = int(key.split("[", 1)[1].rstrip("]"))
-    except ValueError:
-        return None
-    return (k, names[k]) if k < len(names) else None
-
-
-def _topics(path: Path, kind: str) -> dict[str, str]:
-    """Topic -> message type of a bag or MCAP file."""
-    try:
-        if kind == "mcap":
-            from mcap.reader import make_reader
-
-            with open(path, "rb") as fh:
-                summary = make_reader(fh).get_summary()
-            if summary is None:
-                raise ValueError("the file has no summary section")
-            return {
-                c.topic: summary.schemas[c.schema_id].name if c.schema_id in summary.schemas else ""
-                for c in summary.channels.values()
-            }
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-
-        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
-            return {t: info.msgtype or "" for t, info in sorted(reader.topics.items())}
-    except Exception as e:  # the bag readers raise several types for broken files
-        raise DataError(
-            path,
-            f"cannot open the log ({type(e).__name__}: {e})",
-            fix="check that it is a complete ROS bag or MCAP file",
-        ) from e
