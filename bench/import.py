@@ -156,7 +156,6 @@ def main(argv: list[str] | None = None) -> int:
                 "plain_again_seconds": round(t_plain, 3),
                 "grouped_seconds": round(t_grouped, 3),
                 "grouped_over_plain": round(grouped_over_plain, 2),
-                "grouped_equals_plain": same,
                 "goals": {
                     "one_million_rows_le_10s": t_import <= budget,
                     f"import_le_{GOAL_OVER_PARSE:g}x_parse": over_parse <= GOAL_OVER_PARSE,

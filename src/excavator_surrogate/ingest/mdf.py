@@ -1,8 +1,8 @@
-"""ASAM MDF (``.mf4``; MDF 3 ``.mdf`` and ``.dat`` too) logs, read with asammdf (the ``mdf`` extra).
+"""ASAM MDF logs (``.mf4``; MDF 3 ``.mdf`` and ``.dat``), read with asammdf (the ``mdf`` extra).
 
 A ``.dat`` file (the MDF 3 ending of Vector CANape and ETAS INCA) is an MDF log only when it
 starts with MDF's file identifier (``MDF     ``); other ``.dat`` files are not logs exsur
-reads (a folder's are left out, a named one is refused as an unsupported log type).
+reads (a folder's are left out; one given by name is refused, saying it is not MDF).
 
 Channel names are the names in the file's channel database: the channel name, or
 ``<source path>.<name>`` for a channel with a source (asammdf's convention).  A name that
