@@ -29,6 +29,12 @@ def test_missing_column(cli, work, short_cols):
     err = _fail(cli, work, log)
     assert f"{log}, column 'arm_deg': mapped column is missing" in err
     assert "fix the column name in" in err and "the log has: t_ms" in err
+    assert "exsur info" not in err  # all 9 names are shown
+    # a log of more columns than the message shows: it says how to list them all
+    wide = dict(short_cols) | {f"p{k}": short_cols["t_ms"] for k in range(6)}
+    log = write_lines(work / "b.csv", wide, columns=(*cols, *(f"p{k}" for k in range(6))))
+    err = _fail(cli, work, log)
+    assert f" ... (15 in all: exsur info {log} lists them)" in err
 
 
 def test_duplicated_column(cli, work, short_cols):

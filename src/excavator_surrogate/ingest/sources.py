@@ -95,10 +95,11 @@ def missing_channel(
     path: Path, name: str, names: Sequence[str], mapping: Mapping, *, what: str = "channel"
 ) -> DataError:
     """The error for a mapped ``what`` (channel, column) that the log lacks: the nearest name
-    and the first 12."""
+    and the first 12 (past 12, ``exsur info`` lists them all)."""
     close = difflib.get_close_matches(name, list(names), n=1)
     hint = f"did you mean '{close[0]}'? " if close else ""
-    shown = ", ".join(names[:12]) + (" ..." if len(names) > 12 else "")
+    more = f" ... ({len(names)} in all: exsur info {path} lists them)"
+    shown = ", ".join(names[:12]) + (more if len(names) > 12 else "")
     return DataError(
         path,
         "mapped column is missing",
