@@ -7,6 +7,7 @@ made-up model paths (metadata rows, generic ``In1`` trace names, a ``path`` row)
 from __future__ import annotations
 
 import gzip
+import json
 import tomllib
 from pathlib import Path
 
@@ -42,6 +43,7 @@ def write_dspace(
     delimiter: str = ",",
     preamble: bool = True,
     cut_bytes: int = 0,
+    units: dict[str, str] | None = None,
 ) -> Path:
     """Write ``traces`` in the ControlDesk CSV layout (gzip if ``.gz``); ``cut_bytes`` truncates."""
     d = delimiter
@@ -64,7 +66,8 @@ def write_dspace(
     head += row("trace_size", [str(n)])
     head += row("trace_types", ["5"] + ["4"] * (len(traces) - 1))
     head += row("trace_names", [t[0] for t in traces])
-    head += row("trace_units", [""] * len(traces))
+    units = units or {}
+    head += row("trace_units", [units.get(t[1].rsplit("/", 1)[-1] or t[0], "") for t in traces])
     head += row("path", [t[1] for t in traces])
     head += row("flags", ["2"] * len(traces))
     data = np.column_stack([t[2] for t in traces])
@@ -218,3 +221,18 @@ def test_dspace_bad_cells(cli, dsp, short_cols):
     no_values.write_bytes(b"\r\n".join(ln for ln in lines if not ln.startswith((b"trace_v", b","))))
     err = _fail(cli, dsp, no_values)
     assert "no trace_values row: not a dSPACE ControlDesk CSV export" in err
+
+
+def test_dspace_trace_units_against_the_mapping(cli, dsp, short_cols):
+    """The export's trace_units row is checked as an MDF channel's unit: "deg" passes, a
+    "rad" for a degree-mapped angle is one line; exsur info shows the units."""
+    traces = dspace_traces(short_cols)
+    ok = write_dspace(dsp / "ok" / "a.dspace.csv", traces, units={"boom_deg": "deg"})
+    rc, out, err = cli("info", ok, "--json")
+    assert rc == 0, err
+    assert {c["name"]: c["unit"] for c in json.loads(out)["channels"]}["boom_deg"] == "deg"
+    rc, _, err = cli("import", ok, "--mapping", dsp / "dspace.toml", "--dry-run", "--quiet")
+    assert rc == 0, err
+    bad = write_dspace(dsp / "bad" / "a.dspace.csv", traces, units={"arm_deg": "rad"})
+    err = _fail(cli, dsp, bad)
+    assert "column 'arm_deg': the log gives this channel the unit 'rad', the mapping 'deg'" in err

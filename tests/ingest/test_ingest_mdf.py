@@ -18,21 +18,34 @@ MAPPING = arm3_plant.MAPPING_TOML.replace('[time]\ncolumn = "t_ms"\nunit = "ms"\
 """The test arm's mapping without [time]: MDF channels carry their group's master time."""
 
 
-def _signals(cols: dict[str, np.ndarray], names: list[str], keep: np.ndarray | None = None):
+def _signals(
+    cols: dict[str, np.ndarray],
+    names: list[str],
+    keep: np.ndarray | None = None,
+    units: dict[str, str] | None = None,
+):
     t = cols["t_ms"] * 1e-3
     sel = slice(None) if keep is None else keep
-    return [asammdf.Signal(cols[n][sel], t[sel], name=n) for n in names]
+    units = units or {}
+    return [asammdf.Signal(cols[n][sel], t[sel], name=n, unit=units.get(n, "")) for n in names]
 
 
 def write_mdf(
-    path: Path, cols: dict[str, np.ndarray], *, split_bucket: bool = False, version: str = "4.10"
+    path: Path,
+    cols: dict[str, np.ndarray],
+    *,
+    split_bucket: bool = False,
+    version: str = "4.10",
+    units: dict[str, str] | None = None,
 ) -> Path:
     """The test arm's log as MDF4 (or another MDF ``version``); ``split_bucket``: bucket
-    channels in a second channel group that covers 2 s .. 25 s only."""
+    channels in a second channel group that covers 2 s .. 25 s only; ``units``: the
+    channels' own units (none by default)."""
     names = [c for c in arm3_plant.LOG_COLUMNS if c != "t_ms"]
     mdf = asammdf.MDF(version=version)
     bucket = [n for n in names if n.startswith("bucket")] if split_bucket else []
-    mdf.append(_signals(cols, [n for n in names if n not in bucket]), comment="main raster")
+    main = [n for n in names if n not in bucket]
+    mdf.append(_signals(cols, main, units=units), comment="main raster")
     if bucket:
         t = cols["t_ms"] * 1e-3
         mdf.append(_signals(cols, bucket, (t >= 2.0) & (t <= 25.0)), comment="slow raster")
@@ -89,6 +102,37 @@ def test_mdf3_dat_matches_mdf4(cli, tmp_path, short_cols):
     assert "run01.dat" in text and "notes.dat" not in text
     err = _fail(cli, tmp_path, logs / "notes.dat")
     assert "notes.dat: a .dat file that is not an ASAM MDF log" in err
+
+
+def test_mdf_channel_units_against_the_mapping(cli, tmp_path, short_cols):
+    """The units an MDF log gives its channels are checked against the mapping: the same
+    unit under another label passes; an angle the log says is in rad, mapped as deg, is one
+    line naming both; a length mapped as an angle says to map a linear joint; ``--log-units
+    ignore`` (a log whose labels are wrong) imports it."""
+    _mapping(tmp_path)
+    same = {"boom_deg": "°", "arm_deg": "Degrees", "boom_up_pct": "rad"}  # a command: unchecked
+    log = write_mdf(tmp_path / "same.mf4", short_cols, units=same)
+    rc, _, err = cli("import", log, "--mapping", tmp_path / "mdf.toml", "--dry-run", "--quiet")
+    assert rc == 0, err
+    write_mdf(tmp_path / "rad.mf4", short_cols, units={"arm_deg": "rad"})
+    err = _fail(cli, tmp_path, tmp_path / "rad.mf4")
+    assert "column 'arm_deg': the log gives this channel the unit 'rad', the mapping 'deg'" in err
+    assert "set unit = \"rad\" in the angle of joint 'arm'" in err
+    assert '[import] log_units = "ignore"' in err
+    write_mdf(tmp_path / "mm.mf4", short_cols, units={"boom_deg": "mm"})
+    err = _fail(cli, tmp_path, tmp_path / "mm.mf4")
+    assert "the log measures a length: map the position of joint 'boom' as a linear joint" in err
+    rc, _, err = cli(
+        "import",
+        tmp_path / "rad.mf4",
+        "--mapping",
+        tmp_path / "mdf.toml",
+        "--dry-run",
+        "--quiet",
+        "--log-units",
+        "ignore",
+    )
+    assert rc == 0, err
 
 
 def test_mdf_two_channel_groups(tmp_path, short_cols):

@@ -88,6 +88,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "limits: fail, drop the rows, or clip to the limits (docs/import.md)",
     )
     p.add_argument(
+        "--log-units",
+        choices=("check", "ignore"),
+        help="a position or velocity whose log (MDF, dSPACE) gives it another unit than the "
+        "mapping is an error (check, the default), or not (ignore: the log's labels are wrong)",
+    )
+    p.add_argument(
         "--max-upsample",
         type=float,
         metavar="X",
@@ -201,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
         outliers=args.outliers,
         max_upsample=args.max_upsample,
         max_memory_mb=args.max_memory,
+        log_units=args.log_units,
     )
     split = _split_options(args, mapping.split)
     report = import_logs(

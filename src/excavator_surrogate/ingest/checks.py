@@ -145,6 +145,51 @@ def apply_nan_policy(
     return x, int(bad.sum()), int(starts.shape[0])
 
 
+LOG_UNITS: dict[str, str] = {
+    **dict.fromkeys(("rad", "radian", "radians"), "rad"),
+    **dict.fromkeys(("deg", "°", "degree", "degrees"), "deg"),
+    **dict.fromkeys(("m", "meter", "metre", "meters", "metres"), "m"),
+    "cm": "cm",
+    "mm": "mm",
+    **dict.fromkeys(("rad/s", "rad/sec", "rad s^-1", "rad*s^-1"), "rad/s"),
+    **dict.fromkeys(("deg/s", "°/s", "deg/sec", "degree/s", "degrees/s"), "deg/s"),
+    "m/s": "m/s",
+    "cm/s": "cm/s",
+    "mm/s": "mm/s",
+}
+"""The unit labels a log may give a position or a velocity, as the mapping's unit names
+(case-insensitive; anything else is not compared)."""
+
+_LENGTHS = {"m", "cm", "mm", "m/s", "cm/s", "mm/s"}
+
+
+def check_log_unit(
+    path: Path, log_unit: str, mapped: str, *, label: str, what: str, where: str
+) -> None:
+    """The unit the log gives a channel (``log_unit``: an MDF channel's, a dSPACE trace's)
+    against the mapping's (``mapped``), for ``what`` (``the angle of joint 'boom'``): both
+    known and different is an error naming both and the fix (a label the log gets wrong:
+    ``[import] log_units = "ignore"``)."""
+    theirs = LOG_UNITS.get(log_unit.strip().lower())
+    if theirs is None or theirs == mapped:
+        return
+    if (theirs in _LENGTHS) == (mapped in _LENGTHS):
+        fix = f'set unit = "{theirs}" in {what} in {where}'
+    elif theirs in _LENGTHS:
+        fix = (
+            f"the log measures a length: map {what.replace('the angle', 'the position')} as a "
+            f'linear joint (position = {{ ..., unit = "{theirs}" }}) in {where}'
+        )
+    else:
+        fix = f'the log measures an angle: set unit = "{theirs}" in {what} in {where}'
+    raise DataError(
+        path,
+        f"the log gives this channel the unit {log_unit.strip()!r}, the mapping {mapped!r}",
+        column=label,
+        fix=f'{fix}; if the log\'s label is wrong, set [import] log_units = "ignore"',
+    )
+
+
 def check_angle_unit(
     path: Path, t: np.ndarray, th: np.ndarray, j: JointMap, label: str, where: str
 ) -> None:

@@ -27,6 +27,7 @@ from ..spec import MachineSpec
 from .checks import (
     apply_nan_policy,
     check_angle_unit,
+    check_log_unit,
     check_rate,
     check_time,
     check_upsampling,
@@ -217,8 +218,17 @@ def _to_units(
         chans = mapping.command_channels(src)
         return command_of(path, src, chans, vals, options=options, where=where, entry=entry)
 
+    def log_unit(ch: Channel, mapped: str | None, scale: float, what: str) -> None:
+        """The log's own unit of ``ch`` against the mapping's (not for a scaled channel,
+        whose log unit is not the mapped one: raw counts, volts)."""
+        if options.log_units == "ignore" or mapped is None or scale != 1.0:
+            return
+        theirs = raw.series[ch.series].units.get(ch.key, "")
+        check_log_unit(path, theirs, mapped, label=ch.label, what=what, where=where)
+
     for j in mapping.joints:
         ach = mapping.angle_channel(j)
+        log_unit(ach, j.angle.unit, j.angle.scale, f"the angle of joint '{j.name}'")
         t = raw.series[ach.series].time
         th = vals[ach] * j.angle.scale + j.angle.offset
         check_angle_unit(path, t, th, j, ach.label, where)
@@ -226,6 +236,8 @@ def _to_units(
         theta.append(np.unwrap(th) if j.periodic else th)
         vch = mapping.velocity_channel(j)
         if vch is not None and j.velocity is not None:
+            what = f"the velocity of joint '{j.name}'"
+            log_unit(vch, j.velocity.unit, j.velocity.scale, what)
             v = vals[vch] * j.velocity.scale + j.velocity.offset
             omega.append(v * to_si(j.velocity.unit))
             entry["velocity"][j.name] = "measured"

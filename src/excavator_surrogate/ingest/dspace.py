@@ -60,6 +60,8 @@ class Trace:
     """The ``trace_names`` entry (often ``In1``)."""
     path: str
     """The ``path`` entry (``Model Root/Subsystem/Signal``)."""
+    unit: str = ""
+    """The ``trace_units`` entry ("" where the export gives none)."""
 
     @property
     def specific(self) -> bool:
@@ -155,7 +157,8 @@ def parse_header(
         )
     names = rows.get("trace_names", []) + [""] * n_trace
     paths = rows.get("path", []) + [""] * n_trace
-    traces = [Trace(i, names[i], paths[i]) for i in range(n_trace)]
+    units = rows.get("trace_units", []) + [""] * n_trace
+    traces = [Trace(i, names[i], paths[i], units[i]) for i in range(n_trace)]
     size = rows.get("trace_size", [""])[0] if rows.get("trace_size") else ""
     return traces, start, delim, int(size) if size.isdigit() else None
 
@@ -304,7 +307,15 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     return RawLog(
         path=path,
         kind="dspace",
-        series={TABLE: Series(TABLE, time_s, values, tlabel)},
+        series={
+            TABLE: Series(
+                TABLE,
+                time_s,
+                values,
+                tlabel,
+                units={k: t.unit for k, t in chosen.items() if t.unit},
+            )
+        },
         origin=origin,
         columns=[t.short for t in traces if t.short],
         meta=metadata(data[:start], encoding=mapping.csv.encoding),

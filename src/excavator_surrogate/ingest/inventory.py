@@ -222,7 +222,9 @@ def _dspace(path: Path, limit: int, label: str, opts: CsvOptions) -> LogSummary:
         if col >= table.num_columns:
             continue
         note = "time base (the x axis)" if tr.index == 0 else ""
-        s = _column(tr.short, table.column(col), csv=opts, group=tr.path, rate_hz=rate)
+        s = _column(
+            tr.short, table.column(col), csv=opts, group=tr.path, unit=tr.unit, rate_hz=rate
+        )
         out.append(dataclasses.replace(s, note=", ".join(x for x in (note, s.note) if x)))
     duration = None if t_s is None or not len(t_s) else float(np.nanmax(t_s) - np.nanmin(t_s))
     meta = metadata(data, encoding=opts.encoding)

@@ -248,7 +248,15 @@ def _one_table(
     return RawLog(
         path=path,
         kind="mdf",
-        series={TABLE: Series(TABLE, t - t[0], values, f"master of channel group {master}")},
+        series={
+            TABLE: Series(
+                TABLE,
+                t - t[0],
+                values,
+                f"master of channel group {master}",
+                units={k: str(s.unit).strip() for k, s in sigs.items() if s.unit},
+            )
+        },
         origin=origin.isoformat(),
         columns=columns,
     )

@@ -95,6 +95,10 @@ class ImportOptions:
     max_memory_mb: float | None = None
     """Bound on a log's decompressed text and its resampled output [MB]; None: a quarter of
     the memory available when the import starts."""
+    log_units: Literal["check", "ignore"] = "check"
+    """``check``: a position or velocity whose log gives it a unit (an MDF channel's, a dSPACE
+    ``trace_units`` entry) other than the mapping's is an error; ``ignore``: for a log whose
+    unit labels are wrong."""
 
     def __post_init__(self) -> None:
         if self.rate_hz is not None and not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):

@@ -40,6 +40,9 @@ class Series:
     """Channel key -> (n,) raw float64 values (NaN where missing)."""
     time_label: str
     """Name of the time source in messages (the column, or ``/topic header.stamp``)."""
+    units: dict[str, str] = field(default_factory=dict)
+    """Channel key -> the unit the log itself gives it (MDF channels, dSPACE
+    ``trace_units``); absent where the log gives none."""
 
 
 @dataclass
