@@ -144,6 +144,9 @@ def test_cli_info_on_a_log(cli, tmp_path, short_cols):
     (tmp_path / "bad.csv").write_text("a,b\n1,2\n3\n")
     rc, _, err = cli("info", tmp_path / "bad.csv")
     assert rc == 2 and err.count("\n") == 1 and "bad.csv, row 1: ragged rows: line 3" in err
+    rc, _, err = cli("info", tmp_path)  # a folder of logs: name one of them
+    assert rc == 2 and "a folder of 2 raw log(s), not a dataset; give one of them, e.g. " in err
+    assert f"exsur info {tmp_path / 'bad.csv'}, to list its channels" in err
     import tomllib
 
     from excavator_surrogate.ingest import convert_log, parse_mapping

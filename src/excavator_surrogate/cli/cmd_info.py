@@ -114,9 +114,16 @@ def run(args: argparse.Namespace) -> int:
         from ..errors import ConfigError
         from ..surrogate.checkpoint import checkpoint_in
 
+        ckpt = checkpoint_in(path)
+        logs = [] if ckpt.is_file() else [c for c in sorted(path.iterdir()) if _is_raw_log(c)]
+        if logs:  # a folder of raw logs: one of them is what info describes
+            raise ConfigError(
+                f"{path}: a folder of {len(logs)} raw log(s), not a dataset; give one of "
+                f"them, e.g. exsur info {logs[0]}, to list its channels"
+            )
         raise ConfigError(
             f"{path}: a folder without {MANIFEST} is not a dataset; give a checkpoint file, "
-            f"e.g. {checkpoint_in(path)}, or a dataset folder"
+            f"e.g. {ckpt}, or a dataset folder"
         )
     elif path.suffix.lower() == ".parquet":
         from ..evaluate.card import public
