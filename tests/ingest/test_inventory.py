@@ -210,3 +210,15 @@ def test_mcap_topics_the_import_cannot_read(tmp_path):
     assert [(c.group, c.note) for c in s.channels] == [
         ("/status (Status)", "json messages, not ROS 2: the import cannot read them")
     ]
+
+
+def test_a_gzipped_csv_stays_within_the_memory_bound(tmp_path, short_cols):
+    """A gzipped CSV is decompressed within the import's memory bound, as the import reads
+    it: past it, one DataError naming the file; a plain one past it likewise."""
+    log = arm3_plant.write_csv(tmp_path / "run.csv.gz", short_cols)
+    assert summarize_log(log).channels[1].name == "boom_deg"
+    with pytest.raises(DataError, match=r"run\.csv\.gz: decompressing the log needs more than"):
+        summarize_log(log, max_memory_mb=0.01)
+    plain = arm3_plant.write_csv(tmp_path / "run.csv", short_cols)
+    with pytest.raises(DataError, match=r"run\.csv: reading the log needs"):
+        summarize_log(plain, max_memory_mb=0.01)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import csv as csv_module
 import dataclasses
 import gzip
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +34,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from ..errors import DataError
-from .limits import memory_limit, too_big
+from .columns import numeric_column
+from .limits import memory_limit
 from .options import CsvOptions
 from .readers import reader_for
 from .summary import ChannelSummary, LogSummary, sample_rate, value_range
@@ -81,23 +83,25 @@ def summarize_log(
 def _column(
     name: str, col: pa.ChunkedArray, *, csv: CsvOptions | None = None, **kw: Any
 ) -> ChannelSummary:
-    """A table column's summary: numbers, text read as numbers with ``csv``'s marks (None:
-    with decimal commas, said in the note), or text."""
+    """A table column's summary: numbers, text read as numbers with ``csv``'s marks as
+    :func:`~.columns.numeric_column` reads them (None: with decimal commas, said in the
+    note), or text."""
     t = col.type
     if pa.types.is_floating(t) or pa.types.is_integer(t) or pa.types.is_boolean(t):
         vals = np.asarray(pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False), np.float64)
         lo, hi, miss = value_range(vals)
         return ChannelSummary(name, n_sample=len(col), lo=lo, hi=hi, n_missing=miss, **kw)
     if pa.types.is_string(t) or pa.types.is_large_string(t):
-        text = col
-        if csv is not None and csv.thousands:
-            text = pc.replace_substring(text, csv.thousands, "")
-        mark = "," if csv is None else csv.decimal
-        try:  # decimal commas: "1,25"
-            if mark != ".":
-                text = pc.replace_substring(text, mark, ".")
-            vals = pc.cast(text, pa.float64())
-        except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        # read as the import reads a text column, with the [csv] marks (without them: as
+        # decimal commas, the one mark pyarrow's own parse leaves as text)
+        marks = (
+            {"decimal": ","}
+            if csv is None
+            else {"decimal": csv.decimal, "thousands": csv.thousands}
+        )
+        try:
+            arr = numeric_column(Path(name), col, name, **marks)
+        except DataError:
             first = next((v for v in col.to_pylist() if v), "")
             first = first if len(first) <= 24 else first[:21] + "..."
             return ChannelSummary(
@@ -107,7 +111,6 @@ def _column(
                 note=f"text, e.g. {first!r}",
                 **kw,
             )
-        arr = np.asarray(vals.to_numpy(zero_copy_only=False), np.float64)
         lo, hi, miss = value_range(arr)
         return ChannelSummary(
             name,
@@ -140,31 +143,21 @@ def _csv_table(
 ) -> tuple[list[ChannelSummary], list[str]]:
     import pyarrow.csv as pcsv
 
-    from .tables import csv_header, ragged_row
+    from .tables import csv_header, ragged_row, read_csv_body
 
-    if not path.name.lower().endswith(".gz") and path.stat().st_size > limit:
-        raise too_big(path, "reading the log", path.stat().st_size, limit)
     given = opts is not None
     if opts is None:
         opts = CsvOptions(delimiter=_sniff(path))
     delim = opts.delimiter
     names = csv_header(path, opts)
+    convert = pcsv.ConvertOptions(
+        strings_can_be_null=True,
+        decimal_point=opts.decimal,
+        column_types=dict.fromkeys(names, pa.string()) if opts.thousands else None,
+    )
     try:
-        table = pcsv.read_csv(
-            path,
-            read_options=pcsv.ReadOptions(
-                skip_rows=opts.skip_rows + 1 + opts.skip_rows_after_header,
-                column_names=names,
-                **({} if opts.is_utf8 else {"encoding": opts.encoding}),
-            ),
-            parse_options=pcsv.ParseOptions(delimiter=delim),
-            convert_options=pcsv.ConvertOptions(
-                strings_can_be_null=True,
-                decimal_point=opts.decimal,
-                column_types=dict.fromkeys(names, pa.string()) if opts.thousands else None,
-            ),
-        )
-    except (pa.ArrowInvalid, OSError, EOFError) as e:
+        table = read_csv_body(path, opts, names, limit=limit, convert=convert)
+    except (pa.ArrowInvalid, OSError, EOFError, zlib.error) as e:
         ragged = ragged_row(path, opts, len(names))
         if ragged is not None and not given and ragged.problem.endswith("(too many)"):
             # more fields below the header than in it: lines of a logger's preamble?
@@ -232,23 +225,11 @@ def _dspace(path: Path, limit: int, label: str, opts: CsvOptions) -> LogSummary:
 
 
 def _parquet(path: Path, limit: int, label: str) -> LogSummary:
-    import pyarrow.parquet as pq
+    from .tables import open_parquet, parquet_meta, read_parquet
 
-    from .tables import parquet_meta
-
-    try:
-        pf = pq.ParquetFile(path)
-        meta = pf.metadata
-    except Exception as e:  # pyarrow raises several types for corrupt files
-        raise DataError(path, f"not a readable Parquet file ({type(e).__name__})") from e
-    if pf.schema_arrow.metadata and b"exsur" in pf.schema_arrow.metadata:
-        raise DataError(
-            path, "an exsur episode, not a raw log", fix="exsur info describes it as an episode"
-        )
-    size = sum(meta.row_group(g).total_byte_size for g in range(meta.num_row_groups))
-    if size > limit:
-        raise too_big(path, "reading the table", size, limit)
-    table = pf.read()
+    pf = open_parquet(path)
+    names = list(pf.schema_arrow.names)
+    table = read_parquet(path, pf, names, limit=limit, what="reading the table")
     channels = [_column(n, table.column(n)) for n in table.column_names]
     return LogSummary(path, "parquet", label, channels, meta=parquet_meta(pf.schema_arrow.metadata))
 
@@ -257,7 +238,7 @@ def _parquet(path: Path, limit: int, label: str) -> LogSummary:
 
 
 def _mdf(path: Path, label: str) -> LogSummary:
-    from .mdf import header_metadata, open_mdf
+    from .mdf import header_metadata, open_mdf, read_signal
 
     with open_mdf(path) as mdf:
         channels, spans = [], []
@@ -268,14 +249,7 @@ def _mdf(path: Path, label: str) -> LogSummary:
             for i, ch in enumerate(grp.channels):
                 if i == master:
                     continue
-                try:
-                    sig = mdf.get(group=g, index=i, raw=False)
-                except Exception as e:  # asammdf raises many types for damaged data
-                    raise DataError(
-                        path,
-                        f"cannot read the samples of {ch.name} ({type(e).__name__}: {e})",
-                        fix="the file may be truncated; record or export it again",
-                    ) from e
+                sig = read_signal(path, mdf, g, i, name=ch.name)
                 t = np.asarray(sig.timestamps, dtype=np.float64)
                 if t.size:
                     spans.append((float(t[0]), float(t[-1])))

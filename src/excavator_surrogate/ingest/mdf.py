@@ -146,6 +146,24 @@ def open_mdf(path: Path) -> Iterator[Any]:
             mdf.close()
 
 
+def read_signal(path: Path, mdf: Any, group: int, index: int, *, name: str) -> Any:
+    """Channel ``index`` of channel group ``group`` of the open ``mdf`` (asammdf's
+    ``Signal``: physical values and their master's times).
+
+    Raises:
+        DataError: damaged samples (one line naming the file and the channel ``name``).
+    """
+    try:
+        return mdf.get(group=group, index=index)
+    except Exception as e:  # asammdf raises many types for damaged data
+        raise DataError(
+            path,
+            f"cannot read the samples ({type(e).__name__}: {e})",
+            column=name,
+            fix="the file may be truncated; record or export it again",
+        ) from e
+
+
 def read_mdf(path: Path, mapping: Mapping) -> RawLog:
     """Read the channels ``mapping`` needs from an MDF file (see the module doc).
 
@@ -157,14 +175,7 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
     keys = [c.key for c in mapping.channels()]
     with open_mdf(path) as mdf:
         where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
-        try:
-            sigs = {k: mdf.get(group=g, index=i) for k, (g, i) in where.items()}
-        except Exception as e:
-            raise DataError(
-                path,
-                f"cannot read the samples ({type(e).__name__}: {e})",
-                fix="the file may be truncated; record or export it again",
-            ) from e
+        sigs = {k: read_signal(path, mdf, g, i, name=k) for k, (g, i) in where.items()}
         start = mdf.header.start_time
         meta = header_metadata(mdf.header)
         columns = sorted(k for k in mdf.channels_db if k != "time")

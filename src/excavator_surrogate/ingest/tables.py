@@ -9,6 +9,7 @@ import csv as _csv
 import gzip
 import zlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -200,40 +201,49 @@ def parquet_meta(raw: dict[bytes, bytes] | None) -> dict[str, str]:
     return out
 
 
-def _read_csv(
-    path: Path, mapping: Mapping, needed: list[str], value_cols: list[str], *, names: list[str]
+def read_csv_body(
+    path: Path, opts: CsvOptions, names: list[str], *, limit: int, convert: Any
 ) -> pa.Table:
-    limit = memory_limit(mapping.options.max_memory_mb)
+    """The rows of a CSV log under the header's ``names`` (:func:`csv_header`'s), read as the
+    ``[csv]`` options ``opts`` say (the lines before and after the header skipped, the
+    encoding, the delimiter) and converted by ``convert`` (``pyarrow.csv.ConvertOptions``).
+
+    Raises:
+        DataError: a plain file larger than ``limit`` bytes, or a gzipped one that
+            decompresses past it (counted while it streams).
+    """
+    import pyarrow.csv as pcsv
+
     gz = path.name.lower().endswith(".gz")
     if not gz and path.stat().st_size > limit:
         raise too_big(path, "reading the log", path.stat().st_size, limit)
-    try:
-        return _parse_csv(path, mapping, needed, value_cols, limit=limit, names=names)
-    except TooBig as e:
-        raise too_big(path, "decompressing the log", e.n_read, limit, more=True) from None
-
-
-def _parse_csv(
-    path: Path,
-    mapping: Mapping,
-    needed: list[str],
-    value_cols: list[str],
-    *,
-    limit: int,
-    names: list[str],
-) -> pa.Table:
-    import pyarrow.csv as pcsv
-
     # a block must hold the header line (pyarrow: "cannot infer number of columns")
     block = max(1 << 22, 2 * sum(len(c.encode()) + 1 for c in names))
     # the header's names as csv_header read them, stripped: "t, boom_deg" names "boom_deg"
     read = pcsv.ReadOptions(
-        skip_rows=mapping.csv.skip_rows + 1 + mapping.csv.skip_rows_after_header,
+        skip_rows=opts.skip_rows + 1 + opts.skip_rows_after_header,
         column_names=names,
         block_size=block,
-        **({} if mapping.csv.is_utf8 else {"encoding": mapping.csv.encoding}),
+        **({} if opts.is_utf8 else {"encoding": opts.encoding}),
     )
-    parse = pcsv.ParseOptions(delimiter=mapping.csv.delimiter)
+    parse = pcsv.ParseOptions(delimiter=opts.delimiter)
+    if not gz:  # its size was checked: read it natively
+        return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=convert)
+    try:
+        with bounded_open(path, limit) as src:  # decompressed while counting
+            return pcsv.read_csv(
+                src, read_options=read, parse_options=parse, convert_options=convert
+            )
+    except TooBig as e:
+        raise too_big(path, "decompressing the log", e.n_read, limit, more=True) from None
+
+
+def _read_csv(
+    path: Path, mapping: Mapping, needed: list[str], value_cols: list[str], *, names: list[str]
+) -> pa.Table:
+    import pyarrow.csv as pcsv
+
+    limit = memory_limit(mapping.options.max_memory_mb)
     types: dict[str, pa.DataType] = {c: pa.float64() for c in value_cols}
     tcol = str(mapping.time.column)
     if mapping.time.unit == "datetime":
@@ -246,10 +256,7 @@ def _parse_csv(
             strings_can_be_null=True,
             decimal_point=mapping.csv.decimal,
         )
-        if not path.name.lower().endswith(".gz"):  # its size was checked: read it natively
-            return pcsv.read_csv(path, read_options=read, parse_options=parse, convert_options=conv)
-        with bounded_open(path, limit) as src:  # decompressed while counting
-            return pcsv.read_csv(src, read_options=read, parse_options=parse, convert_options=conv)
+        return read_csv_body(path, mapping.csv, names, limit=limit, convert=conv)
 
     try:
         return go(types)
@@ -307,7 +314,12 @@ def _units_row(text: pa.Table, columns: list[str]) -> list[str] | None:
     return [repr(v) for v in text_cells[:4]] + (["..."] if len(text_cells) > 4 else [])
 
 
-def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.Table, list[str]]:
+def open_parquet(path: Path) -> Any:
+    """A raw Parquet log opened, not read (a ``pyarrow.parquet.ParquetFile``).
+
+    Raises:
+        DataError: a file pyarrow cannot open, or an exsur episode (not a raw log).
+    """
     import pyarrow.parquet as pq
 
     try:
@@ -325,26 +337,41 @@ def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.T
             "this is already an exsur episode, not a raw log",
             fix="put episodes in a dataset folder (exsur validate) instead of importing them",
         )
-    names = list(schema.names)
-    _check_columns(path, names, needed, mapping)
+    return pf
+
+
+def read_parquet(path: Path, pf: Any, columns: list[str], *, limit: int, what: str) -> pa.Table:
+    """``columns`` of the opened log ``pf`` (:func:`open_parquet`).
+
+    Raises:
+        DataError: the columns take more than ``limit`` bytes uncompressed (``what``: the
+            reading, for the message), or their data is corrupt.
+    """
     meta = pf.metadata
-    limit = memory_limit(mapping.options.max_memory_mb)
-    cols = [i for i in range(meta.num_columns) if meta.schema.column(i).name in needed]
+    cols = [i for i in range(meta.num_columns) if meta.schema.column(i).name in columns]
     size = sum(
         meta.row_group(g).column(i).total_uncompressed_size
         for g in range(meta.num_row_groups)
         for i in cols
     )
     if size > limit:
-        raise too_big(path, "reading the mapped columns", size, limit)
+        raise too_big(path, what, size, limit)
     try:
-        return pf.read(columns=needed), names
+        return pf.read(columns=columns)
     except Exception as e:
         raise DataError(
             path,
             f"cannot read Parquet data ({type(e).__name__}: {e})",
             fix="the file is corrupt; re-export it",
         ) from e
+
+
+def _read_parquet(path: Path, needed: list[str], mapping: Mapping) -> tuple[pa.Table, list[str]]:
+    pf = open_parquet(path)
+    names = list(pf.schema_arrow.names)
+    _check_columns(path, names, needed, mapping)
+    limit = memory_limit(mapping.options.max_memory_mb)
+    return read_parquet(path, pf, needed, limit=limit, what="reading the mapped columns"), names
 
 
 # --------------------------------------------------------------------------------------
