@@ -212,6 +212,24 @@ def test_mcap_topics_the_import_cannot_read(tmp_path):
     ]
 
 
+def test_ros_ranges_decode_only_the_first_messages(tmp_path, monkeypatch):
+    """Past ``ROS_RANGE_MESSAGES`` a topic's messages are counted, not deserialised: the
+    count and rate use all of them, the range the first ones, and a note says so."""
+    pytest.importorskip("rosbags")
+    from excavator_surrogate.ingest import inventory_ros
+    from tests.ingest.test_ingest_ros_resample import _write_bag
+
+    cols = arm3_plant.simulate(duration_s=4.0, seed=5, log_rate_hz=50.0)
+    _write_bag(tmp_path / "bag", cols, storage="sqlite3")
+    monkeypatch.setattr(inventory_ros, "ROS_RANGE_MESSAGES", 20)
+    s = summarize_log(tmp_path / "bag")
+    boom = _by_name(s)["position[1]"]
+    assert boom.n_sample == cols["t_ms"].size and boom.rate_hz == pytest.approx(50.0, rel=0.05)
+    first = np.radians(cols["boom_deg"][:20])
+    assert (boom.lo, boom.hi) == pytest.approx((first.min(), first.max()))
+    assert s.notes == ["ranges over each topic's first 20 messages"]
+
+
 def test_a_gzipped_csv_stays_within_the_memory_bound(tmp_path, short_cols):
     """A gzipped CSV is decompressed within the import's memory bound, as the import reads
     it: past it, one DataError naming the file; a plain one past it likewise."""

@@ -18,8 +18,8 @@ from ..errors import DataError
 from .summary import ChannelSummary, LogSummary, sample_rate, value_range
 
 ROS_RANGE_MESSAGES = 5000
-"""A field's range is taken over this many first messages of its topic (deserialising every
-message of a long bag takes minutes); the count and rate use all of them."""
+"""A field's range is taken over this many first messages of its topic, the only ones
+deserialised (every message of a long bag takes minutes); the count and rate use all."""
 
 ARRAY_FIELDS = 16
 """A numeric array field lists at most this many entries (``position[0]`` ...)."""
@@ -60,9 +60,10 @@ def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
     values: dict[str, dict[str, list[float]]] = {t: {} for t in topics}
     names: dict[str, list[str]] = {}
     readable = {t for t in topics if t not in foreign}
-    for topic, ns, msg in iter_messages(path, kind, readable) if readable else ():
+    messages = iter_messages(path, kind, readable, max_decoded=ROS_RANGE_MESSAGES)
+    for topic, ns, msg in messages if readable else ():
         times[topic].append(ns)
-        if len(times[topic]) > ROS_RANGE_MESSAGES:
+        if msg is None:  # past the first ROS_RANGE_MESSAGES: its time only
             continue
         if topic not in names:
             names[topic] = [str(n) for n in (getattr(msg, "name", None) or [])]

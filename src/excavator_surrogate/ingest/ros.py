@@ -4,7 +4,7 @@ bags, read through ``rosbags`` / ``mcap`` into one :class:`~.sources.Series` per
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -94,10 +94,21 @@ def need_ros(path: Path) -> None:
             )
 
 
-def iter_messages(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
-    """Yield ``(topic, log_time_ns, msg)``; raises DataError for missing topics."""
+def iter_messages(
+    path: Path, kind: str, topics: set[str], *, max_decoded: int | None = None
+) -> Iterator[tuple[str, int, Any]]:
+    """Yield ``(topic, log_time_ns, msg)``; raises DataError for missing topics.
+
+    ``max_decoded``: each topic's messages past this many are yielded as ``None``, not
+    deserialised (their times only; None: every message is deserialised)."""
+    count = dict.fromkeys(topics, 0)
+
+    def wanted(topic: str) -> bool:
+        count[topic] += 1
+        return max_decoded is None or count[topic] <= max_decoded
+
     if kind == "mcap":
-        yield from _iter_mcap(path, topics)
+        yield from _iter_mcap(path, topics, wanted)
         return
     need_ros(path)
     from rosbags.highlevel import AnyReader
@@ -123,12 +134,15 @@ def iter_messages(path: Path, kind: str, topics: set[str]) -> Iterator[tuple[str
                 )
         conns = [c for c in reader.connections if c.topic in topics]
         for con, ts, raw in reader.messages(connections=conns):
-            yield con.topic, int(ts), reader.deserialize(raw, con.msgtype)
+            msg = reader.deserialize(raw, con.msgtype) if wanted(con.topic) else None
+            yield con.topic, int(ts), msg
     finally:
         reader.close()
 
 
-def _iter_mcap(path: Path, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
+def _iter_mcap(
+    path: Path, topics: set[str], wanted: Callable[[str], bool]
+) -> Iterator[tuple[str, int, Any]]:
     need_ros(path)
     from mcap.reader import make_reader
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -158,11 +172,12 @@ def _iter_mcap(path: Path, topics: set[str]) -> Iterator[tuple[str, int, Any]]:
                 if schema.name not in registered:
                     store.register(get_types_from_msg(schema.data.decode(), schema.name))
                     registered.add(schema.name)
-                yield (
-                    channel.topic,
-                    int(message.log_time),
-                    store.deserialize_cdr(message.data, schema.name),
+                msg = (
+                    store.deserialize_cdr(message.data, schema.name)
+                    if wanted(channel.topic)
+                    else None
                 )
+                yield channel.topic, int(message.log_time), msg
     except DataError:
         raise
     except Exception as e:
