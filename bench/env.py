@@ -45,6 +45,7 @@ import torch
 
 from excavator_surrogate.data.episode import Episode
 from excavator_surrogate.env import ExcavatorMujocoEnv, ExcavatorSurrogateEnv, SurrogateVectorEnv
+from excavator_surrogate.simulate.excitation import generate
 from excavator_surrogate.simulate.plant import MujocoExcavator, PlantConfig
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
@@ -160,19 +161,12 @@ def bench_rollout(n_threads: int, n_batch: int, n_step: int) -> float:
 
 
 def plant_episodes(n_episode: int = 8, n_step: int = 400) -> list[Episode]:
-    """Plant episodes under held random commands (a new level every 1-3 s), to draw starts from."""
+    """Plant episodes under the ``steps`` excitation (held random commands, kept off the end
+    stops), to draw recorded starts from."""
     plant = MujocoExcavator(PlantConfig(n_threads=2))
     rng = np.random.default_rng(1)
-    n_joint = EXCAVATOR.n_joint
-    u = np.empty((n_episode, n_step, n_joint))
-    for b in range(n_episode):
-        for j in range(n_joint):
-            k = 0
-            while k < n_step:
-                n_hold = int(rng.integers(20, 60))
-                u[b, k : k + n_hold, j] = rng.uniform(-800, 800)
-                k += n_hold
     theta0 = np.tile(plant.default_pose(), (n_episode, 1))
+    u = np.stack([generate("steps", rng, n_step, EXCAVATOR, theta0=th) for th in theta0])
     out = plant.rollout(u, theta0=theta0)
     plant.close()
     t = np.arange(n_step) * EXCAVATOR.dt
