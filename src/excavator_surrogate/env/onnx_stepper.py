@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import CheckpointError
 from ..spec import MachineSpec
-from ..surrogate.angles import wrap_angle
+from ..surrogate.angles import wrap_periodic
 from ..surrogate.command_state import play_np
 from ..surrogate.features_np import scale_commands_np
 from ..surrogate.own_angles import N_OWN_ROWS
@@ -150,8 +150,7 @@ class OnnxStepper:
                 f"u_hist must be (n_batch, n_hist-1={n_hist - 1}, {n_u}), got {u.shape}"
             )
         # w[0] = 0 (at rest on theta[0]);  w[k] = wrap(theta[k] - theta[k-1]) / T_s
-        d = th[:, 1:] - th[:, :-1]
-        d = np.where(np.asarray(self.spec.periodic, dtype=bool), wrap_angle(d), d)
+        d = wrap_periodic(th[:, 1:] - th[:, :-1], self.spec.periodic)
         w = np.concatenate([np.zeros_like(th[:, :1]), d / np.float32(self.spec.dt)], axis=1)
         w = w.astype(np.float32)
         c = self.n_command

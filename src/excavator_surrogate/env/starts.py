@@ -34,7 +34,7 @@ import numpy as np
 from ..data.episode import Episode
 from ..errors import ConfigError
 from ..spec import MachineSpec
-from ..surrogate.angles import joint_limits, wrap_angle
+from ..surrogate.angles import joint_limits, wrap_periodic
 
 THETA0_SLACK = 0.02
 """A given start pose may lie this fraction of a joint's range beyond its end stop: it starts
@@ -220,7 +220,7 @@ def velocities(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
     """``wrap(theta[k] - theta[k-1]) / T_s`` [rad/s] along a history (..., n_hist, n_joint)
     [rad] -> (..., n_hist - 1, n_joint), ``wrap`` on periodic joints: the observation's ω."""
     d = theta[..., 1:, :] - theta[..., :-1, :]
-    return np.where(np.asarray(spec.periodic, dtype=bool), wrap_angle(d), d) / spec.dt
+    return wrap_periodic(d, spec.periodic) / spec.dt
 
 
 def last_velocity(spec: MachineSpec, theta: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from ..data.episode import Episode
 from ..errors import ConfigError
 from ..plotting.horizon import HOLD
 from ..spec import JointSpec, MachineSpec
-from ..surrogate.angles import wrap_angle
+from ..surrogate.angles import wrap_periodic
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import ClosedLoop, reference_theta
 
@@ -37,11 +37,6 @@ HORIZONS_S = (0.5, 1.0, 2.0, 5.0)
 
 CHUNK = 1024
 """Starts rolled out in one batch (bounds the memory on long logs)."""
-
-
-def _wrap(d: np.ndarray, periodic: np.ndarray) -> np.ndarray:
-    """``d`` (..., n_joint) with periodic joints wrapped to ``[-π, π)``."""
-    return np.where(periodic, wrap_angle(d), d)
 
 
 def check_horizons(horizons_s: Sequence[float], stride_s: float) -> None:
@@ -85,7 +80,7 @@ def _squared_errors(
                 pred = theta[k]
             else:
                 pred = loop.step(u[np.minimum(k + j, n_step - 1)])[0].double().cpu().numpy()
-            err = _wrap(pred - theta[t], periodic)[ok]
+            err = wrap_periodic(pred - theta[t], periodic)[ok]
             sq[j] += (err**2).sum(axis=0)
             count[j] += int(ok.sum())
     return sq, count

@@ -25,6 +25,12 @@ def wrap_angle(d: np.ndarray) -> np.ndarray:
     return (np.asarray(d) + math.pi) % (2.0 * math.pi) - math.pi
 
 
+def wrap_periodic(d: np.ndarray, periodic: np.ndarray | tuple[bool, ...]) -> np.ndarray:
+    """``d`` (..., n_joint) with the periodic joints' entries wrapped to ``[-pi, pi)`` [rad]
+    (``periodic``: (n_joint,) flags, e.g. ``spec.periodic``): the shorter way round."""
+    return np.where(np.asarray(periodic, dtype=bool), wrap_angle(d), d)
+
+
 def omega_target(theta: np.ndarray, spec: MachineSpec) -> np.ndarray:
     """Training target: backward difference of the angle.
 

@@ -22,7 +22,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..data.episode import Episode
-from .angles import omega_target
+from .angles import omega_target, wrap_periodic
 from .checkpoint import read_checkpoint, surrogate_from_dict, write_checkpoint_dict
 from .coverage import CoverageRecord, fit_coverage
 from .ensemble import member_head
@@ -177,8 +177,7 @@ def _error(
 ) -> np.ndarray:
     err = pred - ref
     if angle and spec_periodic.any():  # periodic joints: the shorter way round
-        wrapped = (err + np.pi) % (2 * np.pi) - np.pi
-        err = np.where(spec_periodic, wrapped, err)
+        err = wrap_periodic(err, spec_periodic)
     return err
 
 
