@@ -182,13 +182,14 @@ def _is_raw_log(path: Path, *, csv_format: str = "auto") -> bool:
         return False
     if reader.kind != "parquet":
         return True
-    import pyarrow.parquet as pq
+    from ..errors import DataError
+    from ..ingest.tables import open_parquet
 
     try:
-        meta = pq.read_schema(path).metadata or {}
-    except Exception:  # unreadable: the episode card names the damage
+        open_parquet(path)  # the import's own test: not an exsur episode
+    except DataError:  # an episode, or unreadable: the episode card names the damage
         return False
-    return b"exsur" not in meta
+    return True
 
 
 def _number(x: float | None, digits: int = 5) -> str:
