@@ -1,10 +1,12 @@
-"""ROS 2 bags (sqlite3 and MCAP storage, bare MCAP) and the anti-aliased resampling."""
+"""ROS bags (rosbag2 with sqlite3 and MCAP storage, bare MCAP, ROS 1) and the anti-aliased
+resampling."""
 
 from __future__ import annotations
 
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -42,12 +44,13 @@ command = {{ topic = "/valves", up = "data[{2 * _i}]", down = "data[{2 * _i + 1}
 
 
 def _write_bag(path: Path, cols: dict[str, np.ndarray], *, storage: str) -> None:
-    """JointState at the log rate (joints in another order, header stamps) and valve duties at half rate."""
-    from rosbags.rosbag2 import Writer
-    from rosbags.rosbag2.enums import StoragePlugin
+    """JointState at the log rate (joints in another order, header stamps) and valve duties
+    at half rate: a rosbag2 folder (``storage`` "sqlite3" or "mcap") or, with "rosbag1", a
+    ROS 1 bag file."""
     from rosbags.typesys import Stores, get_typestore
 
-    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ros1 = storage == "rosbag1"
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     js_t, hdr_t, time_t = (
         ts.types[k]
         for k in (
@@ -60,32 +63,40 @@ def _write_bag(path: Path, cols: dict[str, np.ndarray], *, storage: str) -> None
         ts.types["std_msgs/msg/Float64MultiArray"],
         ts.types["std_msgs/msg/MultiArrayLayout"],
     )
+    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
     t0 = 1_717_000_000_000_000_000
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     order = ("bucket", "boom", "arm")
-    with Writer(path, version=9, storage_plugin=plugin) as w:
+    if ros1:
+        from rosbags.rosbag1 import Writer as Writer1
+
+        writer: Any = Writer1(path)
+    else:
+        from rosbags.rosbag2 import Writer
+        from rosbags.rosbag2.enums import StoragePlugin
+
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer(path, version=9, storage_plugin=plugin)
+    with writer as w:
         cj = w.add_connection("/joint_states", js_t.__msgtype__, typestore=ts)
         cv = w.add_connection("/valves", arr_t.__msgtype__, typestore=ts)
         for k, t_ms in enumerate(cols["t_ms"]):
             ns = t0 + round(t_ms * 1e6)
+            stamp = time_t(sec=ns // 10**9, nanosec=ns % 10**9)
+            header = hdr_t(seq=k, stamp=stamp, frame_id="arm") if ros1 else hdr_t(stamp, "arm")
             msg = js_t(
-                header=hdr_t(stamp=time_t(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="arm"),
+                header=header,
                 name=[f"{j}_joint" for j in order],
                 position=np.radians([cols[f"{j}_deg"][k] for j in order]),
                 velocity=np.zeros(0),
                 effort=np.zeros(0),
             )
             # received 2 ms after the header stamp
-            w.write(cj, ns + 2_000_000, ts.serialize_cdr(msg, js_t.__msgtype__))
+            w.write(cj, ns + 2_000_000, serialize(msg, js_t.__msgtype__))
             if k % 2 == 0:
                 duty = [cols[f"{j}_{d}_pct"][k] for j in arm3_plant.JOINTS for d in ("up", "down")]
+                layout = lay_t(dim=[], data_offset=0)
                 w.write(
-                    cv,
-                    ns,
-                    ts.serialize_cdr(
-                        arr_t(layout=lay_t(dim=[], data_offset=0), data=np.array(duty)),
-                        arr_t.__msgtype__,
-                    ),
+                    cv, ns, serialize(arr_t(layout=layout, data=np.array(duty)), arr_t.__msgtype__)
                 )
 
 
@@ -95,11 +106,13 @@ def ros_logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
     cols = arm3_plant.simulate(duration_s=20.0, seed=5, log_rate_hz=50.0)
     _write_bag(root / "bag_sqlite", cols, storage="sqlite3")
     _write_bag(root / "bag_mcap", cols, storage="mcap")
+    _write_bag(root / "ros1.bag", cols, storage="rosbag1")
     (root / "ros.toml").write_text(ROS_MAPPING)
     return root, cols
 
 
-def test_ros2_bags(cli, ros_logs, tmp_path):
+def test_ros_bags(cli, ros_logs, tmp_path):
+    """Each kind of ROS log gives the same episode from the same messages."""
     root, cols = ros_logs
     bare = tmp_path / "bare.mcap"
     # an MCAP file without metadata.yaml
@@ -110,6 +123,7 @@ def test_ros2_bags(cli, ros_logs, tmp_path):
         root / "bag_sqlite",
         root / "bag_mcap",
         bare,
+        root / "ros1.bag",
         "--mapping",
         root / "ros.toml",
         "--out",
@@ -126,9 +140,9 @@ def test_ros2_bags(cli, ros_logs, tmp_path):
     ds = load_dataset(out)
     assert ds.spec.names == arm3_plant.JOINTS and ds.spec.rate_hz == 10.0
     eps = {e.name: e for e in ds.train + ds.val + ds.test}
-    assert set(eps) == {"bag_sqlite", "bag_mcap", "bare"}
+    assert set(eps) == {"bag_sqlite", "bag_mcap", "bare", "ros1"}
     ref = eps["bag_sqlite"]
-    for name in ("bag_mcap", "bare"):
+    for name in ("bag_mcap", "bare", "ros1"):  # a ROS 1 bag of the same messages too
         np.testing.assert_allclose(eps[name].theta, ref.theta, atol=1e-12)
         np.testing.assert_allclose(eps[name].u, ref.u, atol=1e-9)
     t_log = cols["t_ms"] * 1e-3

@@ -212,22 +212,79 @@ def test_mcap_topics_the_import_cannot_read(tmp_path):
     ]
 
 
-def test_ros_ranges_decode_only_the_first_messages(tmp_path, monkeypatch):
-    """Past ``ROS_RANGE_MESSAGES`` a topic's messages are counted, not deserialised: the
-    count and rate use all of them, the range the first ones, and a note says so."""
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap", "bare mcap", "rosbag1"])
+def test_ros_reads_only_the_first_messages(tmp_path, monkeypatch, storage):
+    """Where the log's index gives the counts (a rosbag2 folder's metadata, an MCAP file's
+    statistics, a ROS 1 bag's index), reading stops once every topic has given its
+    first ``ROS_RANGE_MESSAGES`` messages: the count and the duration are the whole log's,
+    the rate and the range the first messages', and a note says so."""
     pytest.importorskip("rosbags")
-    from excavator_surrogate.ingest import inventory_ros
+    from excavator_surrogate.ingest import inventory_ros, ros
     from tests.ingest.test_ingest_ros_resample import _write_bag
 
     cols = arm3_plant.simulate(duration_s=4.0, seed=5, log_rate_hz=50.0)
-    _write_bag(tmp_path / "bag", cols, storage="sqlite3")
+    log = tmp_path / ("ros1.bag" if storage == "rosbag1" else "bag")
+    _write_bag(log, cols, storage=storage.split()[-1])
+    if storage == "bare mcap":  # without its metadata.yaml: the MCAP file's statistics
+        log = tmp_path / "bare.mcap"
+        log.write_bytes(next((tmp_path / "bag").glob("*.mcap")).read_bytes())
+    read = []
+    real = ros.iter_messages
+
+    def counting(*args, **kwargs):
+        for item in real(*args, **kwargs):
+            read.append(item[0])
+            yield item
+
+    monkeypatch.setattr(ros, "iter_messages", counting)
     monkeypatch.setattr(inventory_ros, "ROS_RANGE_MESSAGES", 20)
-    s = summarize_log(tmp_path / "bag")
+    s = summarize_log(log)
+    n = cols["t_ms"].size
     boom = _by_name(s)["position[1]"]
-    assert boom.n_sample == cols["t_ms"].size and boom.rate_hz == pytest.approx(50.0, rel=0.05)
+    assert boom.n_sample == n and boom.rate_hz == pytest.approx(50.0, rel=0.05)
+    assert _by_name(s)["data[0]"].n_sample == (n + 1) // 2
     first = np.radians(cols["boom_deg"][:20])
     assert (boom.lo, boom.hi) == pytest.approx((first.min(), first.max()))
     assert s.notes == ["ranges over each topic's first 20 messages"]
+    # the valves come at half rate: 40 joint states give their 20, and reading stops there
+    assert read.count("/valves") == 20 and read.count("/joint_states") <= 41
+    assert s.duration_s == pytest.approx((cols["t_ms"][-1] - cols["t_ms"][0]) * 1e-3, abs=0.01)
+
+
+def test_ros_log_without_counts_is_read_whole(tmp_path, monkeypatch):
+    """An MCAP file without statistics gives no counts: every message is read (the first
+    ones deserialised) to count them."""
+    pytest.importorskip("rosbags")
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from excavator_surrogate.ingest import inventory_ros
+    from tests.ingest.test_ingest_ros_resample import _write_bag
+
+    cols = arm3_plant.simulate(duration_s=2.0, seed=5, log_rate_hz=50.0)
+    _write_bag(tmp_path / "bag", cols, storage="mcap")
+    with open(next((tmp_path / "bag").glob("*.mcap")), "rb") as fh:
+        reader = make_reader(fh)
+        records = list(reader.iter_messages())
+    path = tmp_path / "nostats.mcap"
+    with open(path, "wb") as f:  # the same messages, no statistics record
+        w = Writer(f, use_statistics=False)
+        w.start()
+        ids: dict[str, int] = {}
+        for schema, channel, message in records:
+            if channel.topic not in ids:
+                sid = w.register_schema(schema.name, schema.encoding, schema.data)
+                ids[channel.topic] = w.register_channel(
+                    channel.topic, channel.message_encoding, schema_id=sid
+                )
+            w.add_message(ids[channel.topic], message.log_time, message.data, message.publish_time)
+        w.finish()
+    monkeypatch.setattr(inventory_ros, "ROS_RANGE_MESSAGES", 20)
+    s = summarize_log(path)
+    boom = _by_name(s)["position[1]"]
+    assert boom.n_sample == cols["t_ms"].size and boom.rate_hz == pytest.approx(50.0, rel=0.05)
+    assert s.notes == ["ranges over each topic's first 20 messages"]
+    assert s.duration_s == pytest.approx((cols["t_ms"][-1] - cols["t_ms"][0]) * 1e-3, abs=0.01)
 
 
 def test_a_gzipped_csv_stays_within_the_memory_bound(tmp_path, short_cols):

@@ -4,11 +4,18 @@ Per topic: its message type, count and rate, and every numeric field path of its
 (``position[1]``, ``pose.position.x``; not the header, whose stamp ``[time] stamp`` reads)
 with the range over its first :data:`ROS_RANGE_MESSAGES` messages.  An MCAP file's topics
 whose messages are not ROS 2 CDR are listed as such: the import cannot read them.
+
+The counts and the duration come from the log's index (a rosbag2 ``metadata.yaml``, an
+MCAP file's statistics, a ROS 1 bag's index), so the reading stops once every topic has
+given its first messages: a bag of many GB is summarised in the time its first
+:data:`ROS_RANGE_MESSAGES` messages per topic take.  A log without counts is read whole.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from contextlib import closing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +25,9 @@ from ..errors import DataError
 from .summary import ChannelSummary, LogSummary, sample_rate, value_range
 
 ROS_RANGE_MESSAGES = 5000
-"""A field's range is taken over this many first messages of its topic, the only ones
-deserialised (every message of a long bag takes minutes); the count and rate use all."""
+"""A field's range and its topic's rate are taken over this many first messages of the
+topic, the only ones read where the log's index gives the counts (the only ones
+deserialised where it does not); the count is the whole topic's."""
 
 ARRAY_FIELDS = 16
 """A numeric array field lists at most this many entries (``position[0]`` ...)."""
@@ -55,35 +63,40 @@ def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
     from .ros import iter_messages, need_ros, ros_metadata
 
     need_ros(path)
-    topics, foreign = _topics(path, kind)
+    index = _index(path, kind)
+    topics, foreign, counts = index.types, index.foreign, index.counts
     times: dict[str, list[int]] = {t: [] for t in topics}
     values: dict[str, dict[str, list[float]]] = {t: {} for t in topics}
     names: dict[str, list[str]] = {}
     readable = {t for t in topics if t not in foreign}
-    messages = iter_messages(path, kind, readable, max_decoded=ROS_RANGE_MESSAGES)
-    for topic, ns, msg in messages if readable else ():
-        times[topic].append(ns)
-        if msg is None:  # past the first ROS_RANGE_MESSAGES: its time only
-            continue
-        if topic not in names:
-            names[topic] = [str(n) for n in (getattr(msg, "name", None) or [])]
-        for key, v in numeric_fields(msg):
-            values[topic].setdefault(key, []).append(v)
-    channels, spans = [], []
+    cap = ROS_RANGE_MESSAGES
+    # the topics still short of their first `cap` messages; with no counts, every message
+    pending = {t for t in readable if counts is None or min(counts.get(t, 0), cap) > 0}
+    if readable and pending:
+        with closing(iter_messages(path, kind, readable, max_decoded=cap)) as messages:
+            for topic, ns, msg in messages:
+                times[topic].append(ns)
+                if msg is not None:
+                    if topic not in names:
+                        names[topic] = [str(n) for n in (getattr(msg, "name", None) or [])]
+                    for key, v in numeric_fields(msg):
+                        values[topic].setdefault(key, []).append(v)
+                if counts is not None and len(times[topic]) >= min(counts[topic], cap):
+                    pending.discard(topic)
+                    if not pending:
+                        break
+    channels = []
     for topic, msgtype in topics.items():
-        t = np.asarray(times[topic], dtype=np.float64) * 1e-9
-        if t.size:
-            spans.append((float(t.min()), float(t.max())))
-        rate = sample_rate(np.sort(t))
+        t = np.sort(np.asarray(times[topic][:cap], dtype=np.float64) * 1e-9)
+        n = counts.get(topic, 0) if counts is not None else len(times[topic])
+        rate = sample_rate(t)
         group = f"{topic} ({msgtype})" if msgtype else topic
         if topic in foreign:
             note = f"{foreign[topic]} messages, not ROS 2: the import cannot read them"
             channels.append(ChannelSummary("", group=group, note=note))
         elif not values[topic]:
             channels.append(
-                ChannelSummary(
-                    "", group=group, n_sample=t.size, rate_hz=rate, note="no numeric field"
-                )
+                ChannelSummary("", group=group, n_sample=n, rate_hz=rate, note="no numeric field")
             )
         for key, vals in values[topic].items():
             lo, hi, miss = value_range(np.asarray(vals, dtype=np.float64))
@@ -93,7 +106,7 @@ def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
                 ChannelSummary(
                     key,
                     group=group,
-                    n_sample=t.size,
+                    n_sample=n,
                     rate_hz=rate,
                     lo=lo,
                     hi=hi,
@@ -102,9 +115,12 @@ def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
                 )
             )
     notes = []
-    if any(len(v) > ROS_RANGE_MESSAGES for v in times.values()):
-        notes.append(f"ranges over each topic's first {ROS_RANGE_MESSAGES} messages")
-    duration = max(b for _, b in spans) - min(a for a, _ in spans) if spans else None
+    if any(c.n_sample is not None and c.n_sample > cap for c in channels):
+        notes.append(f"ranges over each topic's first {cap} messages")
+    duration = index.duration_s
+    if duration is None:
+        seen = [ns for t in times.values() for ns in t]
+        duration = (max(seen) - min(seen)) * 1e-9 if seen else None
     return LogSummary(
         path, kind, label, channels, duration_s=duration, meta=ros_metadata(path, kind), notes=notes
     )
@@ -121,9 +137,24 @@ def _joint_name(key: str, names: list[str]) -> tuple[int, str] | None:
     return (k, names[k]) if k < len(names) else None
 
 
-def _topics(path: Path, kind: str) -> tuple[dict[str, str], dict[str, str]]:
-    """Topic -> message type of a bag or MCAP file, and the topics whose messages are not
-    ROS 2 CDR (an MCAP file's JSON or Protobuf channels) -> their encoding."""
+@dataclass(frozen=True)
+class _Index:
+    """What a ROS log's index says, before any message is read."""
+
+    types: dict[str, str]
+    """Topic -> message type."""
+    foreign: dict[str, str]
+    """The topics whose messages are not ROS 2 CDR (an MCAP file's JSON or Protobuf
+    channels) -> their encoding."""
+    counts: dict[str, int] | None
+    """Topic -> its number of messages; None where the log does not say (then every message
+    is read to count them)."""
+    duration_s: float | None
+    """From the first message to the last [s], or None where the log does not say."""
+
+
+def _index(path: Path, kind: str) -> _Index:
+    """The topics, their types and counts and the log's duration, from its index."""
     try:
         if kind == "mcap":
             from mcap.reader import make_reader
@@ -132,18 +163,31 @@ def _topics(path: Path, kind: str) -> tuple[dict[str, str], dict[str, str]]:
                 summary = make_reader(fh).get_summary()
             if summary is None:
                 raise ValueError("the file has no summary section")
-            types, foreign = {}, {}
+            types, foreign, by_id = {}, {}, {}
             for c in sorted(summary.channels.values(), key=lambda c: c.topic):
                 schema = summary.schemas.get(c.schema_id)
                 types[c.topic] = schema.name if schema is not None else ""
+                by_id[c.id] = c.topic
                 if schema is None or schema.encoding != "ros2msg":
                     foreign[c.topic] = c.message_encoding or "schema-less"
-            return types, foreign
+            stats = summary.statistics
+            if stats is None or not stats.channel_message_counts:
+                return _Index(types, foreign, None, None)
+            counts = dict.fromkeys(types, 0)
+            for cid, n in stats.channel_message_counts.items():
+                if cid in by_id:
+                    counts[by_id[cid]] += int(n)
+            span = (stats.message_end_time - stats.message_start_time) * 1e-9
+            return _Index(types, foreign, counts, span if stats.message_count else None)
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
 
         with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
-            return {t: info.msgtype or "" for t, info in sorted(reader.topics.items())}, {}
+            items = sorted(reader.topics.items())
+            types = {t: info.msgtype or "" for t, info in items}
+            counts = {t: int(info.msgcount) for t, info in items}
+            span = reader.duration * 1e-9 if sum(counts.values()) else None
+            return _Index(types, {}, counts, span)
     except Exception as e:  # the bag readers raise several types for broken files
         raise DataError(
             path,
