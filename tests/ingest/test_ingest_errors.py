@@ -283,3 +283,37 @@ def test_nan_values_fail_in_every_mapped_column(cli, work, short_cols):
     cols["bucket_deg"][-1] = np.nan
     err = _fail(cli, work, write_lines(work / "a.csv", cols))
     assert "column 'bucket_deg', row 999" in err
+
+
+def test_log_unit_labels():
+    """A log's unit label is read as the mapping's unit name whatever its case, brackets or
+    way of writing per second; an unknown label is not compared, a known different one is
+    the one-line error."""
+    import pytest
+
+    from excavator_surrogate.errors import DataError
+    from excavator_surrogate.ingest.checks import check_log_unit, log_unit_name
+
+    named = {
+        "deg": "deg",
+        " Degrees ": "deg",
+        "[°]": "deg",
+        "(RAD)": "rad",
+        "Millimetres": "mm",
+        "rad/s": "rad/s",
+        "Rad/Sec": "rad/s",
+        "deg s^-1": "deg/s",
+        "°/s": "deg/s",
+        "[deg/s]": "deg/s",
+        "mm*s^-1": "mm/s",
+        "cm s-1": "cm/s",
+        "m/second": "m/s",
+    }
+    assert {k: log_unit_name(k) for k in named} == named
+    for unknown in ("", "Grad", "ms", "%", "bar", "1/s", "/s", "[]", "rpm"):
+        assert log_unit_name(unknown) is None, unknown
+    where = dict(label="arm", what="the angle of joint 'arm'", where="m.toml")
+    check_log_unit(Path("a.mf4"), "[Deg]", "deg", **where)
+    check_log_unit(Path("a.mf4"), "Grad", "deg", **where)  # not compared
+    with pytest.raises(DataError, match=r"the unit 'rad/sec', the mapping 'deg/s'"):
+        check_log_unit(Path("a.mf4"), "rad/sec", "deg/s", **where)

@@ -149,16 +149,29 @@ LOG_UNITS: dict[str, str] = {
     **dict.fromkeys(("rad", "radian", "radians"), "rad"),
     **dict.fromkeys(("deg", "°", "degree", "degrees"), "deg"),
     **dict.fromkeys(("m", "meter", "metre", "meters", "metres"), "m"),
-    "cm": "cm",
-    "mm": "mm",
-    **dict.fromkeys(("rad/s", "rad/sec", "rad s^-1", "rad*s^-1"), "rad/s"),
-    **dict.fromkeys(("deg/s", "°/s", "deg/sec", "degree/s", "degrees/s"), "deg/s"),
-    "m/s": "m/s",
-    "cm/s": "cm/s",
-    "mm/s": "mm/s",
+    **dict.fromkeys(("cm", "centimeter", "centimetre", "centimeters", "centimetres"), "cm"),
+    **dict.fromkeys(("mm", "millimeter", "millimetre", "millimeters", "millimetres"), "mm"),
 }
-"""The unit labels a log may give a position or a velocity, as the mapping's unit names
-(case-insensitive; anything else is not compared)."""
+"""The unit labels a log may give a position, as the mapping's unit names (a velocity is
+one of them per second; compared after :func:`log_unit_name`; anything else is not
+compared: ``Grad`` may be degrees or gradians)."""
+
+
+def log_unit_name(label: str) -> str | None:
+    """The mapping's unit name for a log's unit label, or None for a label not known.
+
+    Case, spaces and one pair of enclosing brackets do not count (``[Deg]``, ``(mm)``), and
+    per second is written any of the usual ways: ``deg/s``, ``deg/sec``, ``deg s^-1``,
+    ``deg*s^-1``, ``deg s-1``, ``deg/second``."""
+    s = label.strip().lower()
+    if len(s) > 2 and (s[0], s[-1]) in (("[", "]"), ("(", ")")):
+        s = s[1:-1].strip()
+    for per_s in ("/second", "/sec", "*s^-1", " s^-1", "s^-1", "*s-1", " s-1", "/s"):
+        if s.endswith(per_s):
+            base = LOG_UNITS.get(s[: -len(per_s)].strip())
+            return None if base is None else f"{base}/s"
+    return LOG_UNITS.get(s)
+
 
 _LENGTHS = {"m", "cm", "mm", "m/s", "cm/s", "mm/s"}
 
@@ -170,7 +183,7 @@ def check_log_unit(
     against the mapping's (``mapped``), for ``what`` (``the angle of joint 'boom'``): both
     known and different is an error naming both and the fix (a label the log gets wrong:
     ``[import] log_units = "ignore"``)."""
-    theirs = LOG_UNITS.get(log_unit.strip().lower())
+    theirs = log_unit_name(log_unit)
     if theirs is None or theirs == mapped:
         return
     if (theirs in _LENGTHS) == (mapped in _LENGTHS):
