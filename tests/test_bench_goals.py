@@ -19,6 +19,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 
 SMALL: dict[str, list[str]] = {
     "import.py": ["--rows", "20000"],
+    "info.py": ["--seconds", "20", "--rate", "50", "--camera-hz", "10", "--cap", "100"],
     "simulate.py": ["--batch", "2", "--steps", "20", "--loop-episodes", "1"],
     "ensemble.py": ["--seconds", "0.01"],
     "clean.py": ["--episodes", "2", "--steps", "400", "--slice", "200", "--long-steps", "400"],
