@@ -171,11 +171,12 @@ def atomic_files(path: str | Path, *, kind: str, replaces: Sequence[str] = ()) -
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
         yield tmp
-        mark_output(path, kind)
         written = sorted(tmp.iterdir())
-        for f in written:
+        for f in written:  # before the first rename: all or nothing
             if f.is_dir():
                 raise IsADirectoryError(f"atomic_files: {f.name} is a folder; use atomic_dir")
+        mark_output(path, kind)
+        for f in written:
             os.chmod(f, 0o666 & ~_umask())
             os.replace(f, path / f.name)
         names = {f.name for f in written}

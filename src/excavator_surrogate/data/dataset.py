@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import DataError
+from ..errors import ConfigError, DataError
 from ..io_utils import atomic_dir, write_json, write_text
 from ..spec import MachineSpec
 from .episode import SCHEMA_VERSION, Episode, read_episode, write_episode
@@ -161,7 +161,11 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
     if not isinstance(manifest, dict) or not isinstance(manifest.get("episodes"), list):
         raise DataError(mpath, "no 'episodes' list", fix="regenerate the dataset")
     for i, e in enumerate(manifest["episodes"]):
-        if not isinstance(e, dict) or "file" not in e or e.get("split") not in SPLITS:
+        if (
+            not isinstance(e, dict)
+            or not isinstance(e.get("file"), str)
+            or e.get("split") not in SPLITS
+        ):
             raise DataError(
                 mpath,
                 f"episode entry {i} needs 'file' and 'split' in {SPLITS}",
@@ -183,7 +187,12 @@ def load_dataset(
     """
     root = Path(root)
     manifest = read_manifest(root)
-    spec = MachineSpec.from_dict(manifest["spec"]) if "spec" in manifest else None
+    try:
+        spec = MachineSpec.from_dict(manifest["spec"]) if "spec" in manifest else None
+    except (ConfigError, ValueError) as e:
+        raise DataError(
+            root / MANIFEST, f"'spec' is malformed ({e})", fix="regenerate the dataset"
+        ) from e
     ds_eps: dict[str, list[Episode]] = {s: [] for s in SPLITS}
     for e in manifest["episodes"]:
         if e["split"] not in splits:

@@ -182,6 +182,11 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+def _first_null(col: pa.ChunkedArray) -> int:
+    """Row of the first null of ``col`` (an Arrow null, not a float NaN)."""
+    return int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+
+
 def write_episode(path: str | Path, episode: Episode, *, validate: bool = True) -> Path:
     """Write ``episode`` to ``path`` (Parquet, zstd), atomically.  Returns the path."""
     path = Path(path)
@@ -310,14 +315,28 @@ def read_episode(
                 fix="store numbers only",
             )
         if col.null_count:
-            arr = col.to_numpy(zero_copy_only=False)
-            row = (
-                int(np.flatnonzero(np.isnan(arr.astype(float)))[0]) if arr.dtype.kind == "f" else 0
-            )
             raise DataError(
-                path, "contains a null value", column=c, row=row, fix="fill or drop the gap"
+                path,
+                "contains a null value",
+                column=c,
+                row=_first_null(col),
+                fix="fill or drop the gap",
             )
         return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+
+    def flag(c: str) -> np.ndarray:
+        col = table.column(c)
+        fix = "store true/false (or 1/0) in every row, or drop all trusted_* columns"
+        if not (pa.types.is_boolean(col.type) or pa.types.is_integer(col.type)):
+            raise DataError(path, f"values are of type {col.type}, not bool", column=c, fix=fix)
+        if col.null_count:
+            raise DataError(path, "contains a null value", column=c, row=_first_null(col), fix=fix)
+        arr = col.to_numpy(zero_copy_only=False)
+        bad = (arr != 0) & (arr != 1)
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise DataError(path, f"flag {arr[row]} is not true/false", column=c, row=row, fix=fix)
+        return np.asarray(arr, dtype=bool)
 
     def stack(role: str) -> np.ndarray | None:
         cs = cols[role]
@@ -327,7 +346,10 @@ def read_episode(
         if not all(present):
             missing = cs[present.index(False)]
             raise DataError(
-                path, f"optional '{role}' columns must be given for every joint", column=missing
+                path,
+                f"optional '{role}' columns must be given for every joint",
+                column=missing,
+                fix=f"add it, or drop all {role.replace('_', '_*_')} columns",
             )
         return np.stack([num(c) for c in cs], axis=1)
 
@@ -335,14 +357,13 @@ def read_episode(
     if any(c in names for c in cols["trusted"]):
         if not all(c in names for c in cols["trusted"]):
             missing = next(c for c in cols["trusted"] if c not in names)
-            raise DataError(path, "trusted flags must be given for every joint", column=missing)
-        trusted = np.stack(
-            [
-                np.asarray(table.column(c).to_numpy(zero_copy_only=False), dtype=bool)
-                for c in cols["trusted"]
-            ],
-            axis=1,
-        )
+            raise DataError(
+                path,
+                "trusted flags must be given for every joint",
+                column=missing,
+                fix="add it, or drop all trusted_* columns",
+            )
+        trusted = np.stack([flag(c) for c in cols["trusted"]], axis=1)
 
     ep = Episode(
         spec=file_spec,
@@ -378,18 +399,24 @@ def validate_episode(ep: Episode, *, where: str | Path | None = None, min_steps:
     spec = ep.spec
     n = ep.time.shape[0] if ep.time.ndim == 1 else -1
     if ep.time.ndim != 1:
-        raise DataError(where, f"time must be 1-D, got shape {ep.time.shape}", column="time")
+        raise DataError(
+            where,
+            f"time must be 1-D, got shape {ep.time.shape}",
+            column="time",
+            fix="give one timestamp per sample",
+        )
     cols = columns_for(spec)
     for role in ("u", "theta", "omega", "theta_true", "omega_true", "trusted"):
         arr = getattr(ep, role)
         if arr is None:
             continue
-        width = spec.n_u if role == "u" else spec.n_joint
+        width, per = (spec.n_u, "command") if role == "u" else (spec.n_joint, "joint")
         if arr.shape != (n, width):
             raise DataError(
                 where,
                 f"'{role}' has shape {arr.shape}, expected ({n}, {width})",
                 column=cols[role][0],
+                fix=f"give one row per sample and one column per {per} of the spec",
             )
     if n < min_steps:
         raise DataError(

@@ -43,6 +43,7 @@ from .sizes import check_fits, n_param
 
 FORMAT = "exsur-surrogate"
 FORMAT_VERSION = 1
+_FIX = "re-train or copy the file again"
 
 
 def checkpoint_dict(
@@ -103,7 +104,7 @@ def _write_errors(path: Path) -> Iterator[None]:
     try:
         yield
     except OSError as e:
-        raise CheckpointError(f"{path}: cannot write the checkpoint ({_why(e)})") from e
+        raise CheckpointError(f"{path}: cannot write the checkpoint ({_why(e, path)})") from e
     except RuntimeError as e:
         text = str(e)
         if not any(s in text for s in ("unexpected pos", "write failed", "PytorchStreamWriter")):
@@ -114,9 +115,13 @@ def _write_errors(path: Path) -> Iterator[None]:
         ) from e
 
 
-def _why(e: OSError) -> str:
+def _why(e: OSError, path: Path) -> str:
     if e.errno in (errno.ENOSPC, errno.EDQUOT):
         return f"{e.strerror}; free disk space or write elsewhere"
+    if e.errno in (errno.EEXIST, errno.ENOTDIR):  # the folder to create is a file
+        file = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+        if file is not None:
+            return f"{file} is a file, not a folder; write the checkpoint elsewhere"
     return f"{e.strerror or e}; check the folder and its permissions"
 
 
@@ -178,29 +183,33 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
     """Build a :class:`Surrogate` from a checkpoint dict (see :func:`read_checkpoint`)."""
     try:
         spec = MachineSpec.from_dict(ckpt["spec"])
-    except ConfigError as e:
-        raise CheckpointError(f"{where}: malformed joint spec ({e})") from e
+    except (ConfigError, ValueError) as e:  # ValueError: a joint or rate_hz of the wrong type
+        raise CheckpointError(f"{where}: malformed joint spec ({e}); {_FIX}") from e
     try:
         mcfg = ModelConfig.from_dict(ckpt["model"])
         norm = Normalization.from_state_dict(ckpt["norm"], spec)
     except CheckpointError as e:
-        raise CheckpointError(f"{where}: {e}") from e
+        raise CheckpointError(f"{where}: {e}; {_FIX}") from e
     if mcfg.n_feature != norm.n_feature or mcfg.n_joint != spec.n_joint:
         raise CheckpointError(
             f"{where}: model sizes ({mcfg.n_feature} features, {mcfg.n_joint} joints) do not match its "
-            f"spec and features ({norm.n_feature}, {spec.n_joint})"
+            f"spec and features ({norm.n_feature}, {spec.n_joint}); {_FIX}"
         )
     mode = ckpt["mode"]
     if mode not in ("windowed", "stateful"):
-        raise CheckpointError(f"{where}: unknown mode {mode!r} (windowed or stateful)")
-    n = n_param(mcfg)  # before allocating: a crafted or corrupt size must not exhaust memory
-    check_fits(
-        4 * n,
-        what=f"{where}: the stored network (hidden = {mcfg.hidden}, {n:.3g} parameters x 4 B)",
-        fix="this is not a checkpoint exsur wrote for this machine; re-train or copy it again",
-        error=CheckpointError,
-    )
-    net = build_net(mcfg)
+        raise CheckpointError(f"{where}: unknown mode {mode!r} (windowed or stateful); {_FIX}")
+    try:
+        n = n_param(mcfg)  # before allocating: a crafted or corrupt size must not exhaust memory
+        check_fits(
+            4 * n,
+            what=f"{where}: the stored network (hidden = {mcfg.hidden}, {n:.3g} parameters x 4 B)",
+            fix="this is not a checkpoint exsur wrote for this machine; re-train or copy it again",
+            error=CheckpointError,
+        )
+        net = build_net(mcfg)
+    except (TypeError, ValueError) as e:  # sizes of the wrong type or sign ("big", 12.5, -3)
+        msg = _first_line(e, 160)
+        raise CheckpointError(f"{where}: model entry is malformed ({msg}); {_FIX}") from e
     try:
         net.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, AttributeError) as e:
