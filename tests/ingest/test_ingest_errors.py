@@ -317,3 +317,14 @@ def test_log_unit_labels():
     check_log_unit(Path("a.mf4"), "Grad", "deg", **where)  # not compared
     with pytest.raises(DataError, match=r"the unit 'rad/sec', the mapping 'deg/s'"):
         check_log_unit(Path("a.mf4"), "rad/sec", "deg/s", **where)
+    # a log that measures a length or an angle the mapping takes for the other kind
+    stroke = dict(label="boom", what="the angle of joint 'boom'", where="m.toml")
+    with pytest.raises(DataError, match=r"map the position of joint 'boom' as a linear joint"):
+        check_log_unit(Path("a.mf4"), "mm", "deg", **stroke)
+    with pytest.raises(DataError) as e:
+        check_log_unit(Path("a.mf4"), "deg", "mm", **stroke)
+    assert (
+        "a.mf4, column 'boom': the log gives this channel the unit 'deg', the mapping 'mm' "
+        "(the log measures an angle: set unit = \"deg\" in the angle of joint 'boom' in m.toml; "
+        'if the log\'s label is wrong, set [import] log_units = "ignore")'
+    ) == str(e.value)

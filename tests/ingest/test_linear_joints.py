@@ -195,3 +195,4 @@ def test_si_factors() -> None:
         [1.0, 0.01, 0.001, 1.0, 1.0, 0.001]
     )
     assert to_si("deg") == pytest.approx(np.pi / 180)
+    assert to_si(None) == 1.0  # no unit: already SI

@@ -131,6 +131,13 @@ def test_no_match_names_the_default_fix(tmp_path, short_cols):
         convert_log(log, _mapping(tmp_path, CONDITION))
 
 
+def test_the_source_is_named_as_the_mapping_writes_it():
+    from excavator_surrogate.ingest.run_inputs import RunInputMap
+
+    assert RunInputMap(from_name="-(H)$").source == "from_name = '-(H)$'"
+    assert RunInputMap(from_metadata="Test/Load").source == "from_metadata = 'Test/Load'"
+
+
 @pytest.mark.parametrize(
     ("extra", "needle"),
     [
@@ -156,6 +163,21 @@ def test_no_match_names_the_default_fix(tmp_path, short_cols):
         (CONDITION.replace("}", "}\nrange = [0.5, 1.0]"), "values.L is outside range [0.5, 1.0]"),
         (CONDITION.replace("}", "}\ndefault = 2.0"), "default 2 is outside range [0.0, 1.0]"),
         (CONDITION.replace("L = 0.0", "L = 1.0"), "values all map to 1; add range"),
+        (CONDITION.replace("'-(?P<value>[HL])$'", "''"), "from_name must be a regex string"),
+        (
+            CONDITION.replace("from_name = '-(?P<value>[HL])$'", "from_metadata = ' '"),
+            'from_metadata must be a key, e.g. "Engine/Mode"',
+        ),
+        (CONDITION.replace("}", "}\ndefault = 'H'"), "default must be a number, got 'H'"),
+        (CONDITION.replace("}", "}\nphysical_unit = ''"), "physical_unit must be a unit name"),
+        (
+            CONDITION.replace("{ H = 1.0, L = 0.0 }", "{}"),
+            "values must be a table of text -> number",
+        ),
+        (
+            CONDITION.replace("}", "}\nrange = [1.0]"),
+            "range must be [lo, hi] with hi > lo, got [1.0]",
+        ),
     ],
 )
 def test_mapping_errors(tmp_path, extra, needle):

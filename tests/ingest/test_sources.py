@@ -69,3 +69,44 @@ def test_a_folder_with_logs_only_below_names_the_glob(cli, tree: Path, arm3_dir:
     empty.mkdir()
     with pytest.raises(DataError, match=r"folder holds no log files \(put "):
         expand_sources([empty])
+
+
+def _bag(folder: Path) -> Path:
+    """A rosbag2 folder as the detection sees it (metadata.yaml and a storage file); its
+    contents are never read here."""
+    folder.mkdir(parents=True)
+    (folder / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    (folder / "bag_0.db3").write_bytes(b"")
+    return folder
+
+
+def test_a_bag_folder_is_one_log_wherever_it_is_named(tree: Path) -> None:
+    """Its storage file stands for the folder; below a folder source it is one nested log,
+    not searched further."""
+    top = _bag(tree / "bag")
+    deep = _bag(tree / "day3" / "drive")
+    (deep / "nested.csv").write_text("t\n")  # inside the bag: not a separate log
+    assert expand_sources([top / "bag_0.db3", top]) == [top]
+    assert nested_logs(tree) == [
+        tree / "day2" / "run02.csv",
+        tree / "day2" / "deep" / "run04.csv.gz",
+        deep,
+    ]
+    assert nested_logs(tree, limit=1) == [tree / "day2" / "run02.csv"]
+
+
+def test_a_glob_that_matches_no_log(tree: Path) -> None:
+    with pytest.raises(DataError) as e:
+        expand_sources([f"{tree}/**/*.parquet"])
+    msg = str(e.value)
+    assert msg.startswith(f"{tree}/**/*.parquet: glob pattern matches no log files"), msg
+    assert "(check the pattern; supported: dSPACE" in msg and "\n" not in msg
+
+
+def test_read_log_refuses_a_file_no_reader_takes(tree: Path, arm3_dir: Path) -> None:
+    """The API's read_log (the CLI refuses such a file in expand_sources first)."""
+    from excavator_surrogate.ingest import load_mapping
+    from excavator_surrogate.ingest.readers import read_log
+
+    with pytest.raises(DataError, match=r"README\.txt: unsupported log type \(give "):
+        read_log(tree / "README.txt", load_mapping(arm3_dir / "arm3.toml"))

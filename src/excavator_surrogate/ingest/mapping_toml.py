@@ -70,6 +70,11 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
             raise
         raise ConfigError(f"{where}: {e}") from e
     raw_joints = data.get("joints")
+    if isinstance(raw_joints, dict):  # [joints] instead of [[joints]]
+        raise ConfigError(
+            f"{where}: 'joints' must be a list of tables: write [[joints]] (two brackets), "
+            "one table per joint"
+        )
     if not isinstance(raw_joints, list) or not raw_joints:
         raise ConfigError(
             f"{where}: no joints; add one [[joints]] table per joint (name, angle, command)"
@@ -97,10 +102,11 @@ def parse_mapping(data: dict[str, Any], *, path: str | Path | None = None) -> Ma
         path=Path(path) if path is not None else None,
         raw=data,
     )
-    kinds = {c.series == TABLE for c in m.channels()}
-    if len(kinds) > 1:
+    first = {c.series == TABLE: c for c in reversed(m.channels())}
+    if len(first) > 1:
         raise ConfigError(
-            f"{where}: mixes table columns and ROS topics; map either columns or topic+field"
+            f"{where}: mixes table columns ('{first[True].label}') and ROS topics "
+            f"('{first[False].label}'); map either columns or topic + field"
         )
     _check_shared_channels(m, where)
     m.spec()  # checks names and ranges

@@ -102,22 +102,35 @@ class ImportOptions:
 
     def __post_init__(self) -> None:
         if self.rate_hz is not None and not (self.rate_hz > 0 and math.isfinite(self.rate_hz)):
-            raise ConfigError(f"rate_hz must be positive and finite, got {self.rate_hz:.6g}")
+            raise ConfigError(
+                f"[import] rate_hz (--rate) must be positive and finite, got {self.rate_hz:.6g}"
+            )
         if not (self.max_upsample >= 1 and math.isfinite(self.max_upsample)):
-            raise ConfigError(f"max_upsample must be >= 1 and finite, got {self.max_upsample:.6g}")
+            raise ConfigError(
+                "[import] max_upsample (--max-upsample) must be >= 1 and finite, "
+                f"got {self.max_upsample:.6g}"
+            )
         if self.max_memory_mb is not None and not (
             self.max_memory_mb > 0 and math.isfinite(self.max_memory_mb)
         ):
-            raise ConfigError(f"max_memory_mb must be positive, got {self.max_memory_mb:.6g}")
+            raise ConfigError(
+                "[import] max_memory_mb (--max-memory) must be positive and finite, "
+                f"got {self.max_memory_mb:.6g}"
+            )
         if self.max_fill < 0:
-            raise ConfigError(f"max_fill must be >= 0, got {self.max_fill}")
+            raise ConfigError(f"[import] max_fill (--max-fill) must be >= 0, got {self.max_fill}")
         if self.max_gap_s is not None and not self.max_gap_s > 0:
-            raise ConfigError(f"max_gap_s must be positive, got {self.max_gap_s}")
+            raise ConfigError(
+                f"[import] max_gap_s (--max-gap) must be positive, got {self.max_gap_s}"
+            )
         if self.min_steps < 2:
-            raise ConfigError(f"min_steps must be >= 2, got {self.min_steps}")
+            raise ConfigError(
+                f"[import] min_steps (--min-steps) must be >= 2, got {self.min_steps}"
+            )
         if not 0.0 <= self.lowpass < 1.0:
             raise ConfigError(
-                f"lowpass must be in [0, 1) (fraction of the output Nyquist), got {self.lowpass}"
+                "[import] lowpass (--lowpass) must be in [0, 1) (a fraction of the output Nyquist "
+                f"rate; 0: off), got {self.lowpass}"
             )
 
 
@@ -137,7 +150,10 @@ class SplitOptions:
 
     def __post_init__(self) -> None:
         if self.seed < 0:
-            raise ConfigError(f"split seed must be >= 0, got {self.seed}")
+            raise ConfigError(f"[split] seed (--seed) must be >= 0, got {self.seed}")
         f = self.fractions
         if any(x < 0 for x in f) or not math.isclose(sum(f), 1.0, abs_tol=1e-6):
-            raise ConfigError(f"split fractions {list(f)} must be >= 0 and sum to 1")
+            raise ConfigError(
+                f"[split] fractions (--fractions) {list(f)} must be >= 0 and sum to 1, "
+                "e.g. [0.7, 0.15, 0.15]"
+            )

@@ -233,15 +233,3 @@ def _fallback(
         f"{what}: {problem}",
         fix=f"rename the log, fix the input in {where}, or set default = ... to allow a fallback",
     )
-
-
-def flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, str]:
-    """Nested metadata ``{"Engine": {"Mode": "H"}}`` -> ``{"Engine/Mode": "H"}`` (texts)."""
-    out: dict[str, str] = {}
-    for k, v in tree.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(flatten(v, f"{key}/"))
-        elif v is not None and not isinstance(v, list):
-            out[key] = str(v)
-    return out

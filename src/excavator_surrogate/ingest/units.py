@@ -71,16 +71,26 @@ def parse_linkage(raw: Any, unit: str | None, where: str) -> Linkage | None:
         raise ConfigError(
             f"{where}: linkage needs a and b (and optionally l0, phi); got keys {sorted(raw)}"
         )
+    bad = [
+        k
+        for k, v in raw.items()
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v)
+    ]
+    if bad:
+        raise ConfigError(f"{where}: linkage.{bad[0]} must be a finite number, got {raw[bad[0]]!r}")
+    vals = {k: float(v) for k, v in raw.items()}
+    if not (vals["a"] > 0 and vals["b"] > 0 and vals.get("l0", 0.0) >= 0):
+        raise ConfigError(
+            f"{where}: linkage a = {vals['a']:g} and b = {vals['b']:g} must be positive and "
+            f"l0 = {vals.get('l0', 0.0):g} >= 0 (lengths in {unit})"
+        )
     f = to_si(unit)
     try:
-        vals = {k: float(v) for k, v in raw.items()}
         return Linkage(
             a=vals["a"] * f,
             b=vals["b"] * f,
             l0=vals.get("l0", 0.0) * f,
             phi=vals.get("phi", 0.0) * DEG,
         )
-    except (TypeError, ValueError) as e:
-        raise ConfigError(f"{where}: linkage values must be numbers ({e})") from None
-    except ConfigError as e:
+    except ConfigError as e:  # pragma: no cover - the values are checked above
         raise ConfigError(f"{where}: {e}") from None
