@@ -368,7 +368,7 @@ class MachineSpec:
                 meta=dict(d.get("meta", {})),
                 inputs=tuple(InputSpec(**i) for i in d.get("inputs", ())),
             )
-        except (KeyError, TypeError) as e:
+        except (KeyError, TypeError, ValueError) as e:  # ValueError: rate_hz = "fast"
             raise ConfigError(
                 f"malformed machine spec ({e}): expected keys name, rate_hz, joints"
             ) from e

@@ -189,7 +189,7 @@ def load_dataset(
     manifest = read_manifest(root)
     try:
         spec = MachineSpec.from_dict(manifest["spec"]) if "spec" in manifest else None
-    except (ConfigError, ValueError) as e:
+    except ConfigError as e:
         raise DataError(
             root / MANIFEST, f"'spec' is malformed ({e})", fix="regenerate the dataset"
         ) from e

@@ -74,6 +74,17 @@ class ModelConfig:
             cfg = cls(**d)
         except TypeError as e:
             raise CheckpointError(f"model entry is malformed ({e})") from e
+        for name in ("n_feature", "n_joint", "window", "hidden", "n_layer", "head_hidden"):
+            v = getattr(cfg, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise CheckpointError(
+                    f"model entry is malformed ({name} = {v!r}: not a positive integer)"
+                )
+        for name in ("residual", "prior"):
+            if not isinstance(getattr(cfg, name), bool):
+                raise CheckpointError(
+                    f"model entry is malformed ({name} = {getattr(cfg, name)!r}: not true/false)"
+                )
         if cfg.cell not in ("lstm", "gru", "arx"):
             raise CheckpointError(f"unknown cell '{cfg.cell}' (this exsur knows lstm, gru, arx)")
         if cfg.residual and (cfg.cell == "arx" or cfg.n_feature <= cfg.n_joint):
