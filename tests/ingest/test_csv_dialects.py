@@ -410,3 +410,33 @@ def test_a_time_of_day_across_midnight_is_refused(cli, work, short_cols) -> None
     mapping = _mapping(work, "tod.toml", time='unit = "datetime"\nformat = "%H:%M:%S.%f"')
     err = _fail(cli, log, mapping, work / "X")
     assert "column 't_ms', row 501: time goes backwards (4.999567 s -> -86394.989077 s)" in err
+
+
+def test_a_log_with_old_mac_line_ends_imports_as_the_plain_one(cli, work, short_cols) -> None:
+    """Lines ending in ``\\r`` alone: the header is cut at the first one."""
+    log = write_lines(work / "cr.csv", short_cols)
+    log.write_bytes(log.read_bytes().replace(b"\n", b"\r"))
+    _same_as_plain(cli, work, short_cols, log, work / "arm3.toml")
+
+
+def test_a_utf16_log_with_a_preamble_line(cli, work, short_cols) -> None:
+    text = write_lines(work / "tmp.csv", short_cols).read_text()
+    log = work / "wide.csv"
+    log.write_bytes(("exported by rig 2\n" + text).encode("utf-16"))
+    mapping = _mapping(work, "utf16.toml", '[csv]\nencoding = "utf-16"\nskip_rows = 1\n')
+    _same_as_plain(cli, work, short_cols, log, mapping)
+
+
+def test_a_value_column_with_thousands_separators(cli, work, short_cols) -> None:
+    """An engine speed of ``1.850,5`` rpm is read with ``[csv] thousands`` (the columns are
+    read as text, then converted) as the plain log's ``1850.5``."""
+    cols = {**short_cols, "rpm": 1000.0 + 5.0 * np.round(np.arange(short_cols["t_ms"].size) / 7)}
+    columns = (*arm3_plant.LOG_COLUMNS, "rpm")
+    inputs = '[[inputs]]\nname = "engine_rpm"\ncolumn = "rpm"\nunit = "physical"\n'
+    inputs += "range = [800.0, 2200.0]\n"
+    plain = write_lines(work / "plain.csv", cols, columns=columns)
+    grouped = write_lines(work / "grouped.csv", cols, _grouped(",", ".", ";"), columns=columns)
+    assert ";1.000\n" in grouped.read_text() and ";1.005\n" in grouped.read_text()
+    extra = '[csv]\ndelimiter = ";"\ndecimal = ","\nthousands = "."\n'
+    a = (plain, _mapping(work, "plain.toml", inputs))
+    _same(cli, a, (grouped, _mapping(work, "grouped.toml", inputs + extra)), work / "out")

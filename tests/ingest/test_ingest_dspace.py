@@ -236,3 +236,59 @@ def test_dspace_trace_units_against_the_mapping(cli, dsp, short_cols):
     bad = write_dspace(dsp / "bad" / "a.dspace.csv", traces, units={"arm_deg": "rad"})
     err = _fail(cli, dsp, bad)
     assert "column 'arm_deg': the log gives this channel the unit 'rad', the mapping 'deg'" in err
+
+
+def test_a_damaged_gzip_is_named_not_taken_for_a_plain_csv(cli, dsp, short_cols):
+    """Content detection cannot read a .csv.gz that is not gzip: the CSV reader names the
+    damage (not the missing [time] column the exports' mapping leaves out)."""
+    blob = write_dspace(dsp / "a.dspace.csv", dspace_traces(short_cols)).read_bytes()
+    (dsp / "run.csv.gz").write_bytes(blob)  # gzip by its name only
+    err = _fail(cli, dsp, dsp / "run.csv.gz")
+    assert "run.csv.gz: cannot read the header (BadGzipFile" in err and "gzip if .gz" in err
+
+
+def test_dspace_export_errors(cli, dsp, short_cols):
+    """An export past the memory bound, without trace names, separated by the mapping's
+    thousands mark, or ending in NUL bytes (a crash): one line each, with the fix."""
+    log = write_dspace(dsp / "big.dspace.csv.gz", dspace_traces(short_cols))
+    rc, _, err = cli(
+        "import", log, "--mapping", dsp / "dspace.toml", "--dry-run", "--max-memory", "0.05"
+    )
+    assert rc == 2 and "big.dspace.csv.gz: decompressing the export needs more than" in err
+    assert "--max-memory" in err
+    lines = write_dspace(dsp / "a.dspace.csv", dspace_traces(short_cols)).read_bytes()
+    unnamed = dsp / "unnamed.dspace.csv"
+    rows = lines.split(b"\r\n")
+    unnamed.write_bytes(
+        b"\r\n".join(r for r in rows if not r.startswith((b"trace_names", b"path")))
+    )
+    err = _fail(cli, dsp, unnamed)
+    assert "unnamed.dspace.csv: no trace_names or path row before trace_values" in err
+    assert "export the measurement again" in err
+    (dsp / "th.toml").write_text(dspace_mapping_toml() + '[csv]\nthousands = ","\n')
+    err = _fail(cli, dsp, dsp / "a.dspace.csv", "th.toml")
+    assert (
+        "a.dspace.csv: the export separates its fields by ',', the mapping's [csv] thousands" in err
+    )
+    assert "remove [csv] thousands from" in err
+    nul = dsp / "nul.dspace.csv"
+    nul.write_bytes(lines + bytes(200_000))  # one cell past the csv module's 128 KiB limit
+    err = _fail(cli, dsp, nul)
+    assert "nul.dspace.csv, row 1000: sample row cannot be split into cells (field larger" in err
+    assert "re-export it from ControlDesk" in err
+
+
+def test_a_time_trace_named_in_the_mapping(dsp, short_cols):
+    """``[time] column`` naming a recorded trace (not the x axis) takes the time from it."""
+    traces = dspace_traces(short_cols)
+    clock = ("In1", "Model Root/Clock/t_rig", short_cols["t_ms"] * 1e-3 + 100.0)
+    traces = [(traces[0][0], traces[0][1], np.arange(traces[0][2].size) * 7.0), clock, *traces[1:]]
+    log = write_dspace(dsp / "clock.dspace.csv", traces)
+    data = tomllib.loads(dspace_mapping_toml())
+    mapping = parse_mapping({**data, "time": {"column": "t_rig", "unit": "s"}}, path=dsp / "m.toml")
+    res = convert_log(log, mapping)
+    assert res.entry["series"]["table"]["rate_hz"] == pytest.approx(100.0, rel=1e-3)
+    plain = write_dspace(dsp / "ref.dspace.csv", dspace_traces(short_cols))
+    ref = convert_log(plain, parse_mapping(data, path=dsp / "m.toml")).episodes[0]
+    assert res.episodes[0].n_step == ref.n_step
+    np.testing.assert_allclose(res.episodes[0].theta, ref.theta, atol=1e-9)

@@ -261,3 +261,118 @@ def test_mdf_needs_asammdf(tmp_path, short_cols, monkeypatch):
     )
     with pytest.raises(ConfigError, match="pip install 'excavator-surrogate\\[mdf\\]'"):
         convert_log(log, _mapping(tmp_path))
+
+
+def _one_group(path: Path, cols: dict[str, np.ndarray], arm: object) -> Path:
+    """An MDF4 log whose ``arm_deg`` is the Signal ``arm`` (the other channels as usual)."""
+    mdf = asammdf.MDF(version="4.10")
+    names = [c for c in arm3_plant.LOG_COLUMNS if c not in ("t_ms", "arm_deg")]
+    mdf.append([*_signals(cols, names), arm])
+    mdf.save(path, overwrite=True)
+    mdf.close()
+    return path
+
+
+def test_mdf_channel_errors(cli, tmp_path, short_cols):
+    """A text channel, a channel group without samples and damaged compressed samples: one
+    line each, naming the file and the channel."""
+    _mapping(tmp_path)
+    t = short_cols["t_ms"] * 1e-3
+    text = asammdf.Signal(np.array([b"abc"] * t.size), t, name="arm_deg", encoding="utf-8")
+    err = _fail(cli, tmp_path, _one_group(tmp_path / "text.mf4", short_cols, text))
+    assert "text.mf4, column 'arm_deg': values are of type |S3 (shape (1000,)), not numbers" in err
+    assert "(map a numeric channel)" in err
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS[1:] if c != "arm_deg"]))
+    mdf.append([asammdf.Signal(np.zeros(0), np.zeros(0), name="arm_deg")])
+    mdf.save(tmp_path / "empty.mf4", overwrite=True)
+    mdf.close()
+    err = _fail(cli, tmp_path, tmp_path / "empty.mf4")
+    assert "empty.mf4, column 'arm_deg': the channel has no samples (map a recorded channel)" in err
+    # deflated data blocks (asammdf's compression=2) with a run of zeros in the first one:
+    # the file opens, its samples cannot be read
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(_signals(short_cols, list(arm3_plant.LOG_COLUMNS[1:])))
+    mdf.save(tmp_path / "z.mf4", overwrite=True, compression=2)
+    mdf.close()
+    blob = bytearray((tmp_path / "z.mf4").read_bytes())
+    at = blob.index(b"##DZ")
+    blob[at + 80 : at + 200] = bytes(120)
+    (tmp_path / "damaged.mf4").write_bytes(bytes(blob))
+    err = _fail(cli, tmp_path, tmp_path / "damaged.mf4")
+    assert "damaged.mf4, column 'boom_deg': cannot read the samples (" in err
+    assert "record or export it again" in err
+
+
+def test_mdf_invalid_samples_become_missing(cli, tmp_path, short_cols):
+    """Samples flagged invalid are NaN at their rows (the log keeps its rows), in the master's
+    group and resampled from another; the import names the first one and the fix."""
+    from excavator_surrogate.ingest.readers import read_log
+
+    t = short_cols["t_ms"] * 1e-3
+    bad = np.zeros(t.size, dtype=bool)
+    bad[100:110] = True
+    arm = asammdf.Signal(short_cols["arm_deg"], t, name="arm_deg", invalidation_bits=bad)
+    log = _one_group(tmp_path / "inv.mf4", short_cols, arm)
+    raw = read_log(log, _mapping(tmp_path))
+    values = raw.series["table"].values
+    assert raw.series["table"].time.size == t.size
+    np.testing.assert_array_equal(np.flatnonzero(np.isnan(values["arm_deg"])), np.arange(100, 110))
+    np.testing.assert_array_equal(values["boom_deg"], short_cols["boom_deg"])
+    err = _fail(cli, tmp_path, log)
+    assert "inv.mf4, column 'arm_deg', row 100: missing or non-finite value" in err
+    assert "--nan fill" in err
+    # the flagged channel in a slower group, resampled onto the master
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS[1:] if c != "arm_deg"]))
+    slow = np.arange(0, t.size, 10)
+    mdf.append(
+        [
+            asammdf.Signal(
+                short_cols["arm_deg"][slow], t[slow], name="arm_deg", invalidation_bits=bad[slow]
+            )
+        ]
+    )
+    mdf.save(tmp_path / "slow.mf4", overwrite=True)
+    mdf.close()
+    arm_deg = read_log(tmp_path / "slow.mf4", _mapping(tmp_path)).series["table"].values["arm_deg"]
+    gone = np.flatnonzero(np.isnan(arm_deg))
+    assert gone.size and 100 - 10 < gone[0] <= 100 and gone[-1] < 120
+
+
+def test_an_unreadable_dat_file_is_not_taken_for_mdf(cli, tmp_path, short_cols):
+    """A .dat file that cannot be opened (a dangling link) is not an MDF log: a folder's is
+    left out."""
+    from excavator_surrogate.ingest.mdf import is_mdf
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    write_mdf(logs / "run01.mf4", short_cols)
+    (logs / "gone.dat").symlink_to(tmp_path / "nowhere.dat")
+    assert not is_mdf(logs / "gone.dat")
+    _mapping(tmp_path)
+    rc, text, err = cli("import", logs, "--mapping", tmp_path / "mdf.toml", "--dry-run")
+    assert rc == 0, err
+    assert "run01.mf4" in text and "gone.dat" not in text
+
+
+def test_mdf_header_metadata_of_every_comment():
+    """MDF 3 plain text, MDF4 XML (nested trees; unnamed and unknown elements skipped),
+    and text that only looks like XML."""
+    from types import SimpleNamespace
+
+    from excavator_surrogate.ingest.mdf import header_metadata
+
+    plain = SimpleNamespace(comment="  Rig 2, operator A \n", author="A. N. Other", project=None)
+    assert header_metadata(plain) == {"comment": "Rig 2, operator A", "author": "A. N. Other"}
+    assert header_metadata(SimpleNamespace(comment="<rig 2 & co")) == {"comment": "<rig 2 & co"}
+    xml = (
+        "<HDcomment><TX> run 7 </TX><common_properties>"
+        '<e name="Mode">H</e><e>unnamed</e><li name="x">list</li>'
+        '<tree name="Engine"><e name="rpm">1800</e></tree>'
+        "</common_properties></HDcomment>"
+    )
+    got = header_metadata(SimpleNamespace(comment=xml, author="", subject="soil"))
+    assert got == {"comment": "run 7", "Mode": "H", "Engine/rpm": "1800", "subject": "soil"}
+    assert header_metadata(SimpleNamespace(comment="<HDcomment/>")) == {}
+    assert header_metadata(SimpleNamespace(comment=" ")) == {}

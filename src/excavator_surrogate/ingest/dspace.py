@@ -208,16 +208,19 @@ def resolve(path: Path, traces: list[Trace], name: str, mapping: Mapping) -> Tra
 
 
 def _bad_row(path: Path, body: bytes, delim: str, n_cells: int) -> DataError | None:
-    """The first sample row whose cell count differs from the ``trace_values`` row."""
+    """The first sample row whose cell count differs from the ``trace_values`` row, or that
+    cannot be split into cells (a cell past the csv module's size limit: a tail of NUL bytes)."""
     text = body.decode("utf-8", errors="replace")
-    for i, row in enumerate(csv.reader(io.StringIO(text, newline=""), delimiter=delim)):
-        if row and len(row) != n_cells:
-            return DataError(
-                path,
-                f"sample row has {len(row)} cells, the trace_values row {n_cells}",
-                row=i,
-                fix="the file is truncated or damaged; re-export it from ControlDesk",
-            )
+    fix = "the file is truncated or damaged; re-export it from ControlDesk"
+    i = 0  # the rows read
+    try:
+        for row in csv.reader(io.StringIO(text, newline=""), delimiter=delim):
+            if row and len(row) != n_cells:
+                problem = f"sample row has {len(row)} cells, the trace_values row {n_cells}"
+                return DataError(path, problem, row=i, fix=fix)
+            i += 1
+    except csv.Error as e:
+        return DataError(path, f"sample row cannot be split into cells ({e})", row=i, fix=fix)
     return None
 
 

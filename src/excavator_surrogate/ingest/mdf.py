@@ -146,15 +146,21 @@ def open_mdf(path: Path) -> Iterator[Any]:
             mdf.close()
 
 
-def read_signal(path: Path, mdf: Any, group: int, index: int, *, name: str) -> Any:
+def read_signal(
+    path: Path, mdf: Any, group: int, index: int, *, name: str, keep_invalid: bool = False
+) -> Any:
     """Channel ``index`` of channel group ``group`` of the open ``mdf`` (asammdf's
     ``Signal``: physical values and their master's times).
+
+    ``keep_invalid``: keep the samples flagged invalid, with the flags in the signal's
+    ``invalidation_bits`` (every channel of a group then has the group's samples); False:
+    asammdf leaves them out (the signal has fewer samples than its group).
 
     Raises:
         DataError: damaged samples (one line naming the file and the channel ``name``).
     """
     try:
-        return mdf.get(group=group, index=index)
+        return mdf.get(group=group, index=index, ignore_invalidation_bits=keep_invalid)
     except Exception as e:  # asammdf raises many types for damaged data
         raise DataError(
             path,
@@ -175,7 +181,10 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
     keys = [c.key for c in mapping.channels()]
     with open_mdf(path) as mdf:
         where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
-        sigs = {k: read_signal(path, mdf, g, i, name=k) for k, (g, i) in where.items()}
+        sigs = {
+            k: read_signal(path, mdf, g, i, name=k, keep_invalid=True)
+            for k, (g, i) in where.items()
+        }
         start = mdf.header.start_time
         meta = header_metadata(mdf.header)
         columns = sorted(k for k in mdf.channels_db if k != "time")

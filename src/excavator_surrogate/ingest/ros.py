@@ -49,6 +49,31 @@ def parse_field_path(path: str) -> list[tuple[str, Any]]:
     return out
 
 
+def _fields(obj: Any) -> list[str]:
+    """The field names of a deserialised message (none for other values)."""
+    return [f for f in getattr(obj, "__dataclass_fields__", {}) if not f.startswith("__")]
+
+
+def _is_array(obj: Any) -> bool:
+    return (
+        not isinstance(obj, str | bytes) and hasattr(obj, "__len__") and hasattr(obj, "__getitem__")
+    )
+
+
+def _what(obj: Any) -> tuple[str, str]:
+    """What a value that is not a number is, and how to reach a number in it ("": no way)."""
+    if isinstance(obj, str | bytes):
+        return "text", ""
+    fields = _fields(obj)
+    if fields:
+        msgtype = getattr(obj, "__msgtype__", type(obj).__name__)
+        return f"a {msgtype} message", f"add one of its fields ({', '.join(fields)})"
+    if _is_array(obj):
+        return f"an array of {len(obj)} values", "add an index, e.g. [0]"
+    number = isinstance(obj, bool | int | float | np.number)
+    return f"{'a number' if number else 'a value'} ({type(obj).__name__})", ""
+
+
 def _extract(msg: Any, tokens: list[tuple[str, Any]]) -> float:
     obj = msg
     parent = msg
@@ -56,23 +81,40 @@ def _extract(msg: Any, tokens: list[tuple[str, Any]]) -> float:
         if kind == "attr":
             parent = obj
             if not hasattr(obj, arg):
-                fields = [
-                    f for f in getattr(obj, "__dataclass_fields__", {}) if not f.startswith("__")
-                ]
-                raise ValueError(f"no field '{arg}' (fields: {', '.join(fields)})")
+                fields = _fields(obj)
+                if fields:
+                    raise ValueError(f"no field '{arg}' (fields: {', '.join(fields)})")
+                what, hint = _what(obj)
+                raise ValueError(
+                    f"no field '{arg}': the value before it is {what}"
+                    + (f"; {hint}" if hint else "")
+                )
             obj = getattr(obj, arg)
-        elif kind == "index":
-            if arg >= len(obj) or arg < -len(obj):
-                raise ValueError(f"index {arg} out of range (the array has {len(obj)} values)")
-            obj = obj[arg]
-        else:
+            continue
+        if not _is_array(obj):
+            what, hint = _what(obj)
+            raise ValueError(
+                f"[{arg}] indexes an array, but the value is {what}" + (f"; {hint}" if hint else "")
+            )
+        if kind == "name":
             names = list(getattr(parent, "name", []) or [])
             if arg not in names:
                 raise ValueError(f"no joint named '{arg}' in the message's name list {names}")
-            obj = obj[names.index(arg)]
+            k = names.index(arg)
+            if k >= len(obj):
+                raise ValueError(
+                    f"'{arg}' is entry {k} of the name list, but the array has {len(obj)} "
+                    "values (the message does not fill this field for every joint)"
+                )
+            obj = obj[k]
+        else:
+            if arg >= len(obj) or arg < -len(obj):
+                raise ValueError(f"index {arg} out of range (the array has {len(obj)} values)")
+            obj = obj[arg]
     if isinstance(obj, bool | int | float | np.number):
         return float(obj)
-    raise ValueError(f"value of type {type(obj).__name__} is not a number")
+    what, hint = _what(obj)
+    raise ValueError(f"the value is {what}, not a number" + (f"; {hint}" if hint else ""))
 
 
 def _header_ns(msg: Any) -> int | None:
@@ -118,11 +160,14 @@ def iter_messages(
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
     except Exception as e:  # rosbags raises several types for broken bags
-        raise DataError(
-            path,
-            f"cannot open the bag ({type(e).__name__}: {e})",
-            fix="check that it is a complete ROS bag (rosbag2 folder with metadata.yaml)",
-        ) from e
+        fix = (
+            "check that it is a complete ROS 1 bag; one left unindexed by a crash can be "
+            "repaired with 'rosbag reindex'"
+            if kind == "rosbag1"
+            else "check that it is a complete ROS 2 bag (a rosbag2 folder with a readable "
+            "metadata.yaml; 'ros2 bag reindex' writes a lost one again)"
+        )
+        raise DataError(path, f"cannot open the bag ({type(e).__name__}: {e})", fix=fix) from e
     try:
         present = sorted(reader.topics)
         for t in sorted(topics):
@@ -164,10 +209,12 @@ def _iter_mcap(
                         )
             for schema, channel, message in reader.iter_messages(topics=sorted(topics)):
                 if schema is None or schema.encoding != "ros2msg":
+                    enc = f"'{schema.encoding}'" if schema is not None else "none"
                     raise DataError(
                         path,
-                        f"topic '{channel.topic}' is not ROS 2 CDR (schema {getattr(schema, 'encoding', None)})",
-                        fix="only ROS 2 messages can be imported from MCAP",
+                        f"topic '{channel.topic}' holds '{channel.message_encoding}' messages "
+                        f"(schema encoding {enc}), not ROS 2 CDR messages with a ros2msg schema",
+                        fix="only ROS 2 messages can be imported from MCAP; map a ROS 2 topic",
                     )
                 if schema.name not in registered:
                     store.register(get_types_from_msg(schema.data.decode(), schema.name))

@@ -74,7 +74,15 @@ def csv_header(path: Path, opts: CsvOptions) -> list[str]:
             f"the header (line {opts.skip_rows + 1}) is longer than {MAX_LINE_BYTES // 1024**2} MB",
             fix="the file is not a CSV log (or its line ends are not \\n); re-export it",
         )
-    names = [c.strip() for c in next(_csv.reader([line], delimiter=opts.delimiter))]
+    try:
+        names = [c.strip() for c in next(_csv.reader([line], delimiter=opts.delimiter))]
+    except _csv.Error as e:  # a name past the csv module's size limit
+        raise DataError(
+            path,
+            f"cannot split the header (line {opts.skip_rows + 1}) into column names ({e})",
+            fix="the file is not a CSV log or is damaged (e.g. NUL bytes left by a crash); "
+            "re-export it",
+        ) from None
     if len(names) > MAX_CSV_COLUMNS:
         raise DataError(
             path,
@@ -86,14 +94,18 @@ def csv_header(path: Path, opts: CsvOptions) -> list[str]:
 
 
 def ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
-    """The first data row whose field count differs from the header's (streamed)."""
+    """The first data row whose field count differs from the header's, or that cannot be
+    split into fields (a field past the csv module's size limit: a tail of NUL bytes);
+    streamed, bytes the encoding cannot decode replaced (only fields are counted)."""
     first_line = opts.skip_rows + 2 + opts.skip_rows_after_header  # of the first sample, from 1
     opener = gzip.open if path.name.lower().endswith(".gz") else open
+    fix = "repair or cut the damaged line, or check [csv] delimiter"
+    i = 0  # the rows read
     try:
-        with opener(path, "rt", encoding=opts.text_encoding, newline="") as f:
+        with opener(path, "rt", encoding=opts.text_encoding, errors="replace", newline="") as f:
             for _ in range(opts.skip_rows + 1 + opts.skip_rows_after_header):
                 f.readline()
-            for i, row in enumerate(_csv.reader(f, delimiter=opts.delimiter)):
+            for row in _csv.reader(f, delimiter=opts.delimiter):
                 if row and len(row) != n_header:
                     what = "too many" if len(row) > n_header else "too few"
                     return DataError(
@@ -101,9 +113,17 @@ def ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
                         f"ragged rows: line {first_line + i} of the file has "
                         f"{len(row)} fields, the header {n_header} ({what})",
                         row=i,
-                        fix="repair or cut the damaged line, or check [csv] delimiter",
+                        fix=fix,
                     )
-    except (OSError, UnicodeDecodeError, EOFError, _csv.Error):
+                i += 1
+    except _csv.Error as e:
+        return DataError(
+            path,
+            f"line {first_line + i} of the file cannot be split into fields ({e})",
+            row=i,
+            fix="repair or cut the damaged line (a crash can leave a tail of NUL bytes)",
+        )
+    except (OSError, EOFError):  # the caller reports the file's damage
         return None
     return None
 
@@ -145,6 +165,8 @@ def _toml_str(text: str) -> str:
 def _read_table(path: Path, kind: str, mapping: Mapping) -> RawLog:
     tm = mapping.time
     if tm.column is None:
+        if kind == "csv":  # a damaged file (a .csv.gz that is not gzip) is named as such
+            csv_header(path, mapping.csv)
         raise ConfigError(
             f'{mapping.where}: time.column is required for CSV/Parquet logs (add [time] column = "...")'
         )
@@ -266,6 +288,15 @@ def _read_csv(
             ragged = ragged_row(path, mapping.csv, len(names)) if "columns" in msg else None
             if ragged is not None:
                 raise ragged from e
+            if "Could not skip initial" in msg:  # pyarrow: the file ends in the skipped lines
+                n = mapping.csv.skip_rows_after_header
+                raise DataError(
+                    path,
+                    f"the log has no data rows: it ends within the {n} line(s) under the header "
+                    "that [csv] skip_rows_after_header skips",
+                    fix=f"remove the file or record data, or check skip_rows_after_header in "
+                    f"{mapping.where}",
+                ) from None
             raise DataError(
                 path,
                 f"cannot parse the CSV ({msg.splitlines()[0]})",
