@@ -251,10 +251,14 @@ def parse_sets(items: Sequence[str], *, sections: Sequence[str] | None = None) -
         except tomllib.TOMLDecodeError:
             value = text.strip()
         node = out
-        for part in path[:-1]:
+        for i, part in enumerate(path[:-1]):
             node = node.setdefault(part, {})
             if not isinstance(node, dict):
-                raise ConfigError(f"--set {item!r}: {part} was set to a value above")
+                above = ".".join(path[: i + 1])
+                raise ConfigError(
+                    f"--set {item!r}: an earlier --set gave {above} a value, so it cannot hold "
+                    "keys; keep one of the two"
+                )
         node[path[-1]] = value
     return out
 

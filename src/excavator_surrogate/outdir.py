@@ -135,7 +135,12 @@ def foreign_entry(path: Path, *, top: bool = True) -> str | None:
             return name
         if e.is_dir():
             if name in DIRS:
-                bad = next((c.name for c in e.iterdir() if not _match(c.name, DIRS[name])), None)
+                try:
+                    bad = next(
+                        (c.name for c in e.iterdir() if not _match(c.name, DIRS[name])), None
+                    )
+                except OSError as err:  # an unreadable episodes/ is not known to be exsur's
+                    return f"{name} ({err.strerror})"
                 if bad is not None:
                     return f"{name}/{bad}"
                 continue
@@ -195,9 +200,7 @@ def check_not_cwd(path: Path, flag: str = "--out") -> None:
 def _writable(path: Path, flag: str) -> None:
     """The nearest existing folder of ``path`` accepts new entries."""
     p = path
-    while not p.exists():
-        if p.parent == p:
-            break
+    while not p.exists() and p.parent != p:
         p = p.parent
     if p.exists() and not p.is_dir():
         raise ConfigError(f"{path}: {p} is a file, not a folder; give another {flag}")
@@ -256,9 +259,7 @@ def check_out_dir(
             )
         if not overwrite and foreign_entry(out) is not None:
             raise ConfigError(refusal(out, flag))
-        if not os.access(out, os.W_OK | os.X_OK):
-            raise ConfigError(f"{out}: {flag} is not writable; give another {flag}")
-    return out
+    return out  # _writable checked that an existing ``out`` accepts new entries
 
 
 def check_out_file(

@@ -104,6 +104,7 @@ class JointSpec:
                 f"joint name '{self.name}' is invalid: use lower-case letters, digits and '_'"
             )
         self._check_kind()
+        self._check_finite()  # first: a NaN is named as such, not as a range that fails
         if self.omega_max is not None and not self.omega_max > 0:
             raise ConfigError(
                 f"joint '{self.name}': omega_max ({self.omega_max}) must be positive or None"
@@ -112,7 +113,6 @@ class JointSpec:
             raise ConfigError(
                 f"joint '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
             )
-        self._check_finite()
 
     def _check_finite(self) -> None:
         """Command ranges and limits are finite numbers (NaN or inf poison every rollout)."""

@@ -145,9 +145,16 @@ def _split_options(args: argparse.Namespace, base: SplitOptions) -> SplitOptions
     changes: dict[str, object] = {}
     if args.split_file is not None:
         if not args.split_file.is_file():
-            raise ConfigError(f"{args.split_file}: split file not found")
+            raise ConfigError(
+                f"{args.split_file}: --split-file not found; give a TOML file with "
+                "train = [...], val = [...], test = [...] file names"
+            )
         try:
-            data = tomllib.loads(args.split_file.read_text())
+            data = tomllib.loads(args.split_file.read_text(encoding="utf-8"))
+        except UnicodeDecodeError as e:
+            raise ConfigError(
+                f"{args.split_file}: --split-file is not a TOML text file (not UTF-8: {e.reason})"
+            ) from e
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"{args.split_file}: invalid TOML ({e})") from e
         unknown = sorted(set(data) - {"train", "val", "test"})

@@ -103,7 +103,9 @@ def run(args: argparse.Namespace) -> int:
     if csv is not None:
         from ..errors import ConfigError
 
-        raise ConfigError(f"{path}: --set csv.* reads a raw CSV log or dSPACE export, not this")
+        raise ConfigError(
+            f"{path}: --set csv.* reads a raw CSV log or dSPACE export, not this; leave it out"
+        )
     if path.is_dir() and (path / MANIFEST).is_file():
         from ..evaluate.card import public
         from ..evaluate.data_card import dataset_card, dataset_card_markdown

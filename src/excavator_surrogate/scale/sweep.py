@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import shutil
 import socket
 import time
 import warnings
@@ -104,15 +105,17 @@ class SweepConfig(PresetConfig, table="sweep"):
             raise ConfigError(
                 f"[sweep] mode must list windowed and/or stateful, got {list(self.mode)}"
             )
-        if self.epochs < 1 or self.top < 1:
-            raise ConfigError("[sweep] epochs and top must be >= 1")
+        for name in ("epochs", "top"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"[sweep] {name} = {getattr(self, name)} must be >= 1")
         if not self.max_train_seconds >= 0:  # every trial would fail, and the sweep exit 0
             raise ConfigError(
                 f"[sweep] max_train_seconds = {self.max_train_seconds!r} must be >= 0 "
                 "(0 = unlimited; --trial-seconds)"
             )
-        if self.pruner_startup < 0 or self.pruner_warmup < 0 or self.sampler_startup < 0:
-            raise ConfigError("[sweep] pruner_startup, pruner_warmup, sampler_startup must be >= 0")
+        for name in ("pruner_startup", "pruner_warmup", "sampler_startup"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"[sweep] {name} = {getattr(self, name)} must be >= 0")
 
 
 def _optuna() -> Any:
@@ -166,9 +169,11 @@ def open_study(
                 n_startup_trials=scfg.pruner_startup, n_warmup_steps=scfg.pruner_warmup
             ),
         )
-    except (ImportError, ModuleNotFoundError) as e:
+    except ImportError as e:
+        scheme = storage.split(":", 1)[0]
         raise ConfigError(
-            f"storage '{safe_url(storage)}': database driver missing ({e}); e.g. pip install psycopg2-binary"
+            f"storage '{safe_url(storage)}': database driver missing ({e}); install the driver "
+            f"of {scheme} (postgresql: pip install psycopg2-binary) or give another --storage"
         ) from e
     except Exception as e:
         if type(e).__module__.startswith(("sqlalchemy", "optuna")):
@@ -284,6 +289,15 @@ class _Objective:
         return value if math.isfinite(value) else _CAP
 
 
+def _first_missing(path: Path) -> Path | None:
+    """The outermost folder of ``path`` that does not exist yet (None: ``path`` exists)."""
+    new = None
+    p = path.absolute()
+    while not p.exists() and p.parent != p:
+        new, p = p, p.parent
+    return new
+
+
 def _fmt_params(p: Mapping[str, Any]) -> str:
     def one(v: Any) -> str:
         return f"{v:.3g}" if isinstance(v, float) else str(v)
@@ -328,10 +342,16 @@ def run_sweep(
     scfg = sweep or SweepConfig()
     base = base or TrainConfig()
     out = Path(out)
+    new = _first_missing(out)
     mark_output(out, "sweep")
     storage = storage or default_storage(out)
-    dataset = data if isinstance(data, Dataset) else load_dataset(data, splits=("train", "val"))
-    study = open_study(storage=storage, study_name=study_name, scfg=scfg)
+    try:
+        dataset = data if isinstance(data, Dataset) else load_dataset(data, splits=("train", "val"))
+        study = open_study(storage=storage, study_name=study_name, scfg=scfg)
+    except BaseException:  # no trial ran: leave no folder behind that only holds the marker
+        if new is not None:
+            shutil.rmtree(new, ignore_errors=True)
+        raise
     _log.info(f"sweep: study '{study_name}' at {safe_url(storage)}; running {trials} trial(s)")
     study.optimize(
         _Objective(dataset, base, scfg, out),

@@ -127,7 +127,8 @@ def _plot(path: Path, rows: list[dict[str, Any]], *, top: int, study: str) -> No
     ax0.set_ylabel("validation free-run error")
     ax0.set_yscale("log")
     ax0.set_title(f"study '{study}'")
-    ax0.legend(fontsize=8)
+    if done or pruned:  # a study of failed trials only has nothing to label
+        ax0.legend(fontsize=8)
     for k, r in enumerate(sorted(done, key=lambda r: r["value"])[:top]):
         if r["curve"]:
             e, v = zip(*r["curve"])

@@ -1,0 +1,302 @@
+"""Edge cases of the command line: the entry point's exits (no command, Ctrl-C, bad numbers),
+and the user-facing error branches of validate, import's split options, calibrate, info and
+train.  Nothing here trains a network."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import errno
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from excavator_surrogate.cli import cmd_validate, main
+from excavator_surrogate.data import load_dataset, write_dataset, write_episode
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.surrogate.synthetic import (
+    synthetic_episode,
+    synthetic_spec,
+    synthetic_split,
+)
+
+
+@pytest.fixture
+def cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
+    """Run ``exsur`` in-process: ``cli("validate", ...) -> (exit code, stdout, stderr)``."""
+
+    def run(*argv: str | Path) -> tuple[int, str, str]:
+        rc = main([str(a) for a in argv])
+        cap = capsys.readouterr()
+        return rc, cap.out, cap.err
+
+    return run
+
+
+def _last(err: str) -> str:
+    return err.rstrip("\n").split("\n")[-1]
+
+
+# ---- the entry point ------------------------------------------------------------------------
+
+
+def test_no_command_prints_the_help_and_exits_2(cli) -> None:
+    rc, out, _ = cli()
+    assert rc == 2 and "usage: exsur" in out and "COMMAND" in out
+
+
+def test_a_seed_that_is_not_a_number_is_argparses_one_line(capsys) -> None:
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--preset", "tiny", "--seed", "many"])
+    assert e.value.code == 2
+    assert "argument --seed: invalid int: 'many'" in _last(capsys.readouterr().err)
+
+
+def test_ctrl_c_exits_130_in_one_line(cli, monkeypatch, tmp_path: Path) -> None:
+    def interrupted(args: argparse.Namespace) -> int:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cmd_validate, "run", interrupted)
+    rc, _, err = cli("validate", tmp_path)
+    assert rc == 130 and err == "exsur: interrupted\n"
+
+
+def test_an_os_error_a_path_does_not_explain_is_not_hidden(monkeypatch, tmp_path: Path) -> None:
+    def broken(args: argparse.Namespace) -> int:
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(cmd_validate, "run", broken)
+    with pytest.raises(OSError, match="Input/output error"):
+        main(["validate", str(tmp_path)])
+
+
+# ---- --max-seconds (knobs.positive_seconds) -------------------------------------------------
+
+
+def test_max_seconds_parses_a_number_and_refuses_a_word(data_dir: Path, capsys) -> None:
+    from excavator_surrogate.cli.knobs import positive_seconds
+
+    assert positive_seconds("--max-seconds")("7.5") == pytest.approx(7.5)
+    with pytest.raises(SystemExit) as e:
+        main(["train", str(data_dir / "ds3"), "--dry-run", "--max-seconds", "soon"])
+    assert e.value.code == 2
+    assert "argument --max-seconds: invalid float: 'soon'" in _last(capsys.readouterr().err)
+
+
+# ---- validate -------------------------------------------------------------------------------
+
+
+def test_validate_an_episode_file(cli, tmp_path: Path) -> None:
+    ep = synthetic_episode(synthetic_spec(3), n_step=50, seed=1, name="ep")
+    path = write_episode(tmp_path / "ep.parquet", ep)
+    rc, out, err = cli("validate", path)
+    assert rc == 0, err
+    assert out == (
+        f"{path}: ok, joints ['swing', 'boom', 'arm'] at 20 Hz, 50 samples, source {ep.source}\n"
+    )
+
+
+def test_validate_names_an_angle_far_outside_the_limits(cli, tmp_path: Path) -> None:
+    ep = synthetic_episode(synthetic_spec(3), n_step=50, seed=1, name="ep")
+    theta = ep.theta.copy()
+    theta[10:13, 1] = 3.0  # boom limits [-1.2, 1.2] + 50 % of the range: 2.4
+    path = write_episode(tmp_path / "ep.parquet", dataclasses.replace(ep, theta=theta))
+    rc, out, err = cli("validate", path)
+    assert rc != 0 and out == ""
+    line = _last(err)
+    assert line.startswith(f"exsur: error: {path}")
+    assert "joint 'boom': angle 3 rad is outside the limits [-1.2, 1.2] rad" in line
+    assert "in 3 sample(s)" in line and "theta_boom" in line and "outliers" in line
+
+
+# ---- import: the split options --------------------------------------------------------------
+
+
+def _split_args(**kw: object) -> argparse.Namespace:
+    base = dict(split_file=None, train=None, val=None, test=None, split_by=None)
+    return argparse.Namespace(**{**base, "fractions": None, "seed": None, **kw})
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (None, "--split-file not found; give a TOML file with train = [...]"),
+        (b"train = [\n", "invalid TOML ("),
+        (b"\xff\xfe train", "--split-file is not a TOML text file (not UTF-8"),
+        (b"train = ['a']\nvalidation = ['b']\n", "unknown key(s) ['validation']; use train, val"),
+        (b"val = 'b.csv'\n", "'val' must be a list of file names"),
+    ],
+)
+def test_a_split_file_error_names_the_file(
+    tmp_path: Path, text: bytes | None, message: str
+) -> None:
+    from excavator_surrogate.cli.cmd_import import _split_options
+    from excavator_surrogate.ingest.options import SplitOptions
+
+    f = tmp_path / "split.toml"
+    if text is not None:
+        f.write_bytes(text)
+    with pytest.raises(ConfigError) as e:
+        _split_options(_split_args(split_file=f), SplitOptions())
+    assert str(e.value).startswith(f"{f}: ") and message in str(e.value)
+
+
+def test_a_split_file_and_fractions_are_read(tmp_path: Path) -> None:
+    from excavator_surrogate.cli.cmd_import import _split_options
+    from excavator_surrogate.ingest.options import SplitOptions
+
+    f = tmp_path / "split.toml"
+    f.write_text("train = ['a.csv']\ntest = ['c.csv']\n")
+    s = _split_options(_split_args(split_file=f), SplitOptions())
+    assert (s.by, s.train, s.val, s.test) == ("file", ("a.csv",), (), ("c.csv",))
+    s = _split_options(_split_args(fractions="0.6,0.2,0.2", seed=3), SplitOptions())
+    assert s.fractions == pytest.approx((0.6, 0.2, 0.2)) and s.seed == 3
+
+
+@pytest.mark.parametrize(
+    ("fractions", "message"),
+    [
+        ("0.7;0.15;0.15", "--fractions '0.7;0.15;0.15': give three numbers, e.g. 0.7,0.15,0.15"),
+        ("0.7,0.3", "--fractions '0.7,0.3': give three numbers (train,val,test)"),
+    ],
+)
+def test_fractions_that_are_not_three_numbers(fractions: str, message: str) -> None:
+    from excavator_surrogate.cli.cmd_import import _split_options
+    from excavator_surrogate.ingest.options import SplitOptions
+
+    with pytest.raises(ConfigError) as e:
+        _split_options(_split_args(fractions=fractions), SplitOptions())
+    assert str(e.value) == message
+
+
+# ---- calibrate ------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Untrained 2-joint checkpoints (one network, a 2-member ensemble) and three datasets:
+    whole, without val, without train."""
+    from tests.helpers.surrogates import make_surrogate
+
+    from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+    from excavator_surrogate.surrogate.ensemble import merge
+
+    root = tmp_path_factory.mktemp("calibrate")
+    spec = synthetic_spec(2)
+    items = synthetic_split(spec, n_train=2, n_val=1, n_test=1, n_step=80, noise=0.001)
+    whole = write_dataset(root / "whole", items)
+    no_val = write_dataset(root / "no_val", [(e, s) for e, s in items if s != "val"])
+    no_train = write_dataset(root / "no_train", [(e, s) for e, s in items if s != "train"])
+    ds = load_dataset(whole)
+    surs = [
+        make_surrogate(spec, ds.train, mode="stateful", window=5, hidden=8, seed=s) for s in (0, 1)
+    ]
+    return {
+        "whole": whole,
+        "no_val": no_val,
+        "no_train": no_train,
+        "one": save_checkpoint(root / "one.pt", surs[0]),
+        "ens": save_checkpoint(root / "ens.pt", merge(surs)),
+    }
+
+
+def test_calibrate_refuses_a_negative_max_steps(cli, small) -> None:
+    rc, _, err = cli("calibrate", small["one"], small["whole"], "--max-steps", "-3")
+    assert rc == 2 and _last(err) == "exsur: error: --max-steps must be >= 0, got -3"
+
+
+def test_calibrate_needs_training_episodes(cli, small) -> None:
+    rc, _, err = cli("calibrate", small["one"], small["no_train"])
+    assert rc == 2
+    line = _last(err)
+    assert (
+        line.startswith(f"exsur: error: {small['no_train']}") and "has no training episodes" in line
+    )
+    assert "give the training dataset" in line
+
+
+def test_calibrate_a_single_network_records_the_coverage_only(cli, small) -> None:
+    rc, out, err = cli("calibrate", small["one"], small["whole"], "--max-steps", "40")
+    assert rc == 0, err
+    assert out.strip().endswith("(single network: no uncertainty bands)")
+    assert "coverage of" in out and "training samples" in out
+
+
+def test_calibrate_an_ensemble_on_training_runs_without_a_val_split(cli, small) -> None:
+    rc, out, err = cli(
+        "calibrate", small["ens"], small["no_val"], "--train-runs", "0", "--max-steps", "40"
+    )
+    assert rc == 0, err
+    assert "bands calibrated on" in out and "2 training runs (no val split)" in out
+
+
+# ---- info -----------------------------------------------------------------------------------
+
+
+def test_info_refuses_csv_options_for_a_dataset(cli, data_dir: Path) -> None:
+    rc, out, err = cli("info", data_dir / "ds3", "--set", "csv.delimiter=';'")
+    assert rc == 2 and out == ""
+    assert _last(err) == (
+        f"exsur: error: {data_dir / 'ds3'}: --set csv.* reads a raw CSV log or dSPACE export, "
+        "not this; leave it out"
+    )
+
+
+def test_info_lists_a_raw_parquet_logs_metadata(cli, tmp_path: Path) -> None:
+    table = pa.table({"t": np.arange(5.0) * 0.1, "boom": np.linspace(0.0, 1.0, 5)})
+    long = "x" * 80
+    table = table.replace_schema_metadata({"machine": "SY750H", "notes": long})
+    pq.write_table(table, tmp_path / "log.parquet")
+    rc, out, err = cli("info", tmp_path / "log.parquet")
+    assert rc == 0, err
+    assert "Metadata (what `[[inputs]] from_metadata` reads):" in out
+    assert "- `machine` = `'SY750H'`" in out
+    assert f"- `notes` = `'{'x' * 57}...'`" in out and long not in out
+
+
+def test_log_markdown_shows_the_start_and_span() -> None:
+    from excavator_surrogate.cli.cmd_info import _log_markdown
+    from excavator_surrogate.ingest.summary import ChannelSummary, LogSummary
+
+    s = LogSummary(
+        Path("run.mf4"),
+        "mdf",
+        "MDF 4.10",
+        [ChannelSummary("boom", group="CG1", unit="deg", n_sample=10, rate_hz=100.0, lo=0, hi=1)],
+        start="2024-05-01T10:00:00+00:00",
+        duration_s=12.5,
+    )
+    head = _log_markdown(s).splitlines()
+    assert head[0] == "# run.mf4: MDF 4.10"
+    assert head[2] == "1 channel(s); starts 2024-05-01T10:00:00+00:00; 12.5 s long"
+
+
+# ---- train ----------------------------------------------------------------------------------
+
+
+def test_train_ddp_without_torchrun_is_one_line_and_writes_nothing(
+    cli, data_dir: Path, tmp_path: Path, monkeypatch
+) -> None:
+    for k in ("RANK", "WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT"):
+        monkeypatch.delenv(k, raising=False)
+    out = tmp_path / "m"
+    rc, _, err = cli(
+        "train", data_dir / "ds3", "--out", out, "--preset", data_dir / "tiny.toml", "--ddp"
+    )
+    assert rc == 2
+    assert _last(err).startswith("exsur: error: --ddp needs a torchrun launch (")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_learning_curves_that_cannot_be_drawn_are_a_warning(tmp_path: Path, caplog) -> None:
+    from excavator_surrogate.cli.cmd_train import _learning_curves
+
+    with caplog.at_level(logging.WARNING, logger="excavator_surrogate"):
+        _learning_curves(tmp_path)  # no log.csv: nothing to draw
+    assert "learning curves not drawn:" in caplog.text and "no epoch log" in caplog.text
+    assert not (tmp_path / "learning_curve.png").exists()

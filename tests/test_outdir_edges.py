@@ -1,0 +1,162 @@
+"""Edge cases of the output-folder rule (outdir.py): unreadable folders, temporary names, links,
+read-only files, files of other kinds, and a writer lock on file systems that misbehave."""
+
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+from pathlib import Path
+
+import pytest
+
+from excavator_surrogate import outdir
+from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.io_utils import mark_output
+from excavator_surrogate.outdir import (
+    MARKER,
+    check_out_dir,
+    check_out_file,
+    foreign_entry,
+    is_exsur_file,
+    lock_file,
+    lock_out,
+    release_locks,
+)
+
+
+def _unlistable(monkeypatch: pytest.MonkeyPatch, *folders: Path) -> None:
+    """``Path.iterdir`` of ``folders`` fails as a folder without read permission does (the
+    tests run as any user, root included, so permissions alone cannot make one)."""
+    real = Path.iterdir
+
+    def iterdir(self: Path):
+        if self in folders:
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(Path, "iterdir", iterdir)
+
+
+def _dataset(root: Path) -> Path:
+    mark_output(root, "dataset")
+    (root / "episodes").mkdir()
+    (root / "episodes" / "a.parquet").write_bytes(b"x")
+    (root / "manifest.json").write_text("{}")
+    return root
+
+
+def test_an_unreadable_folder_is_not_known_to_be_exsurs(tmp_path: Path, monkeypatch) -> None:
+    ds = _dataset(tmp_path / "ds")
+    (ds / "model").mkdir()
+    _unlistable(monkeypatch, ds / "episodes", ds / "model")
+    assert foreign_entry(ds) == "episodes (Permission denied)"
+    with pytest.raises(ConfigError, match=r"holds 'episodes \(Permission denied\)'.*--overwrite"):
+        check_out_dir(ds)
+    _unlistable(monkeypatch, ds)
+    assert foreign_entry(ds) == "ds (Permission denied)"
+
+
+def test_temporary_names_of_killed_writers_are_exsurs(tmp_path: Path) -> None:
+    ds = _dataset(tmp_path / "ds")
+    (ds / ".manifest.json.tmp").write_text("")
+    (ds / ".best.pt.old-123").write_text("")
+    assert foreign_entry(ds) is None
+    (ds / "notes.txt").write_text("")
+    assert foreign_entry(ds) == "notes.txt"
+
+
+def test_a_linked_out_folder_needs_overwrite(tmp_path: Path) -> None:
+    real = _dataset(tmp_path / "real")
+    link = tmp_path / "link"
+    link.symlink_to(real, target_is_directory=True)
+    with pytest.raises(ConfigError) as e:
+        check_out_dir(link)
+    assert str(e.value) == (
+        f"{link}: --out is a symbolic link; give a real folder, or pass --overwrite"
+    )
+    assert check_out_dir(link, overwrite=True) == link
+
+
+def test_a_read_only_file_output_is_named(tmp_path: Path, monkeypatch) -> None:
+    torch = pytest.importorskip("torch")
+    out = tmp_path / "m.pt"
+    torch.save({"format": "exsur-surrogate"}, out)
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: Path(p) != out and real(p, m))
+    with pytest.raises(ConfigError) as e:
+        check_out_file(out, example="merged.pt")
+    assert str(e.value) == f"{out}: --out is not writable; give another file"
+
+
+def test_only_regular_files_of_the_known_kinds_are_exsurs(tmp_path: Path) -> None:
+    (tmp_path / "d.pt").mkdir()
+    (tmp_path / "notes.txt").write_text("exsur")
+    (tmp_path / "link.png").symlink_to(tmp_path / "notes.txt")
+    assert not any(is_exsur_file(tmp_path / n) for n in ("d.pt", "notes.txt", "link.png"))
+    assert not is_exsur_file(tmp_path / "absent.onnx")
+
+
+def test_a_file_system_without_locks_writes_unlocked(tmp_path: Path, monkeypatch) -> None:
+    def no_locks(fd: int, op: int) -> None:
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    lock_out(tmp_path / "M")  # no error: the command runs as it did before locks
+    assert lock_file(tmp_path / "M") not in outdir._HELD
+
+
+def test_a_lock_file_replaced_under_the_opener_is_retried_then_named(
+    tmp_path: Path, monkeypatch
+) -> None:
+    lock = lock_file(tmp_path / "M")
+    real = os.stat
+
+    def stat(p, *a, **k):
+        if Path(p) == lock:  # the releasing owner unlinked it between open and flock
+            raise FileNotFoundError(errno.ENOENT, "No such file or directory", str(p))
+        return real(p, *a, **k)
+
+    monkeypatch.setattr(os, "stat", stat)
+    try:
+        with pytest.raises(ConfigError) as e:
+            lock_out(tmp_path / "M")
+    finally:
+        release_locks()
+    assert str(e.value) == f"{tmp_path / 'M'}: could not lock {lock}; retry"
+    assert lock not in outdir._HELD
+
+
+def test_a_held_lock_without_a_readable_owner_is_named_without_pid(
+    tmp_path: Path, monkeypatch
+) -> None:
+    def held(fd: int, op: int) -> None:
+        raise BlockingIOError(errno.EWOULDBLOCK, "Resource temporarily unavailable")
+
+    def unreadable(fd: int, n: int, offset: int) -> bytes:
+        raise OSError(errno.EIO, "Input/output error")
+
+    monkeypatch.setattr(fcntl, "flock", held)
+    monkeypatch.setattr(os, "pread", unreadable)
+    with pytest.raises(ConfigError) as e:
+        lock_out(tmp_path / "M", "--out")
+    assert str(e.value) == (
+        f"{tmp_path / 'M'}: another exsur process is writing this --out; wait for it to "
+        "finish or give another --out"
+    )
+
+
+def test_a_world_size_that_is_not_a_number_is_no_torchrun_job(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.setenv("WORLD_SIZE", "two")
+    monkeypatch.setenv("RANK", "1")
+    try:
+        lock_out(tmp_path / "M")  # rank 0 of no job: takes the lock itself
+        assert lock_file(tmp_path / "M") in outdir._HELD
+    finally:
+        release_locks()
+
+
+def test_the_marker_alone_is_an_empty_output(tmp_path: Path) -> None:
+    d = tmp_path / "d"
+    mark_output(d, "model")
+    assert [p.name for p in d.iterdir()] == [MARKER] and foreign_entry(d) is None
