@@ -93,12 +93,20 @@ def test_a_set_below_a_value_set_before_is_refused() -> None:
         ({"theta_min": math.inf}, "joint 'a': theta_min must be a finite number, got inf"),
         ({"u_min": math.nan}, "joint 'a': u_min must be a finite number, got nan"),
         ({"omega_max": math.nan}, "joint 'a': omega_max must be a finite number, got nan"),
+        (
+            {"theta_min": 1.0, "theta_max": -1.0},
+            "joint 'a': theta_max (-1) is below theta_min (1); give the limits as [lower, upper]",
+        ),
     ],
 )
 def test_joint_ranges(kwargs: dict, message: str) -> None:
     with pytest.raises(ConfigError) as e:
         JointSpec("a", **kwargs)
     assert str(e.value) == message
+
+
+def test_equal_limits_are_a_joint_that_does_not_move() -> None:
+    assert JointSpec("a", theta_min=0.5, theta_max=0.5).theta_max == 0.5
 
 
 def test_an_input_follows_a_joint_commands_rules_under_its_own_name() -> None:

@@ -160,3 +160,23 @@ def test_the_marker_alone_is_an_empty_output(tmp_path: Path) -> None:
     d = tmp_path / "d"
     mark_output(d, "model")
     assert [p.name for p in d.iterdir()] == [MARKER] and foreign_entry(d) is None
+
+
+def test_folders_made_for_a_lock_go_when_nothing_was_written(tmp_path: Path) -> None:
+    """The folders ``lock_out`` creates to hold the lock beside ``--out`` are removed at
+    release when the command wrote nothing into them; a written output, and folders that
+    existed before, stay."""
+    out = tmp_path / "new" / "deeper" / "ds"
+    lock_out(out)
+    assert lock_file(out).is_file()
+    release_locks()
+    assert not (tmp_path / "new").exists() and tmp_path.is_dir()
+    lock_out(out)
+    out.mkdir()  # the command wrote its output
+    release_locks()
+    assert out.is_dir() and not lock_file(out).exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    lock_out(kept / "ds")
+    release_locks()
+    assert kept.is_dir()

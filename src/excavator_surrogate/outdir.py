@@ -355,6 +355,10 @@ def lock_file(out: str | Path) -> Path:
 
 _HELD: dict[Path, int] = {}
 
+_MADE: dict[Path, Path] = {}
+"""Lock file -> the outermost folder :func:`lock_out` created to hold it: removed again at
+release when it is still empty (a command that failed before writing leaves no folders)."""
+
 
 def lock_out(out: str | Path, flag: str = "--out") -> None:
     """Take the exclusive writer lock of output folder ``out`` (an OS ``flock``, held until
@@ -370,6 +374,10 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
     path = lock_file(out)
     if path in _HELD or _torchrun_rank() > 0:
         return
+    made = path.parent
+    while not made.parent.exists() and made.parent != made.parent.parent:
+        made = made.parent
+    made = None if made.exists() else made  # the outermost folder about to be created
     for _ in range(5):  # the file may be unlinked by its releasing owner between open and lock
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -397,6 +405,8 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
             os.ftruncate(fd, 0)
             os.write(fd, f"{os.getpid()}\n".encode())
             _HELD[path] = fd
+            if made is not None:
+                _MADE[path] = made
             return
         os.close(fd)
     raise ConfigError(f"{out}: could not lock {path}; retry")
@@ -427,6 +437,14 @@ def release_locks() -> None:
             path.unlink()  # while still locked: a waiting opener re-checks the inode
         os.close(fd)
         del _HELD[path]
+        made = _MADE.pop(path, None)
+        folder = path.parent
+        while made is not None and (folder == made or made in folder.parents):
+            try:
+                folder.rmdir()  # only an empty folder: what the command wrote stays
+            except OSError:
+                break
+            folder = folder.parent
 
 
 @contextlib.contextmanager

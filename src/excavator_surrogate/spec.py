@@ -113,6 +113,15 @@ class JointSpec:
             raise ConfigError(
                 f"joint '{self.name}': u_max ({self.u_max}) must exceed u_min ({self.u_min})"
             )
+        if (
+            self.theta_min is not None
+            and self.theta_max is not None
+            and self.theta_max < self.theta_min
+        ):
+            raise ConfigError(
+                f"joint '{self.name}': theta_max ({self.theta_max:.6g}) is below theta_min "
+                f"({self.theta_min:.6g}); give the limits as [lower, upper]"
+            )
 
     def _check_finite(self) -> None:
         """Command ranges and limits are finite numbers (NaN or inf poison every rollout)."""

@@ -328,3 +328,16 @@ def test_log_unit_labels():
         "(the log measures an angle: set unit = \"deg\" in the angle of joint 'boom' in m.toml; "
         'if the log\'s label is wrong, set [import] log_units = "ignore")'
     ) == str(e.value)
+
+
+def test_a_failed_import_leaves_no_folders(cli, tmp_path) -> None:
+    """An import that fails on its log leaves none of the folders it made for ``--out``."""
+    log = tmp_path / "bad.csv"
+    log.write_text("t,a\n0,1\n")
+    (tmp_path / "m.toml").write_text(
+        '[time]\ncolumn = "t"\n[[joints]]\nname = "boom"\n'
+        'angle = { column = "boom_deg", unit = "deg" }\ncommand = { column = "u", unit = "%" }\n'
+    )
+    rc, _, err = cli("import", log, "--mapping", tmp_path / "m.toml", "--out", tmp_path / "a" / "b")
+    assert rc == 2, err
+    assert not (tmp_path / "a").exists()
