@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 
@@ -24,3 +26,16 @@ def _short_speed_probe(monkeypatch) -> None:
     from excavator_surrogate.training import speed_probe
 
     monkeypatch.setattr(speed_probe, "PROBE_SECONDS", 0.02)
+
+
+@pytest.fixture
+def cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
+    """Run ``exsur`` in-process: ``cli("import", ...) -> (exit code, stdout, stderr)``."""
+    from excavator_surrogate.cli import main
+
+    def run(*argv: str | Path) -> tuple[int, str, str]:
+        rc = main([str(a) for a in argv])
+        cap = capsys.readouterr()
+        return rc, cap.out, cap.err
+
+    return run

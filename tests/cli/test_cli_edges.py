@@ -8,7 +8,6 @@ import argparse
 import dataclasses
 import errno
 import logging
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,18 +23,6 @@ from excavator_surrogate.surrogate.synthetic import (
     synthetic_spec,
     synthetic_split,
 )
-
-
-@pytest.fixture
-def cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
-    """Run ``exsur`` in-process: ``cli("validate", ...) -> (exit code, stdout, stderr)``."""
-
-    def run(*argv: str | Path) -> tuple[int, str, str]:
-        rc = main([str(a) for a in argv])
-        cap = capsys.readouterr()
-        return rc, cap.out, cap.err
-
-    return run
 
 
 def _last(err: str) -> str:

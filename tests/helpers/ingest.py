@@ -38,3 +38,15 @@ def set_cell(lines: list[str], row: int, col: str, value: str) -> list[str]:
     cells[header.index(col)] = value
     lines[row + 1] = ",".join(cells)
     return lines
+
+
+def import_fails(
+    cli: Callable[..., tuple[int, str, str]], log: Path, mapping: Path, out: Path, *extra: str
+) -> str:
+    """``exsur import LOG --mapping MAPPING --out OUT --quiet EXTRA...`` fails as a user error
+    should: exit code 2, one line on stderr, nothing written; returns that line."""
+    rc, _, err = cli("import", log, "--mapping", mapping, "--out", out, "--quiet", *extra)
+    assert rc == 2, err
+    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
+    assert_nothing_written(out)
+    return err

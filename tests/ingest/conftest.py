@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import shutil
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from excavator_surrogate.cli import main
 from tests.helpers import arm3_plant
 
 
@@ -35,15 +33,3 @@ def work(tmp_path: Path, arm3_dir: Path) -> Path:
     """A scratch folder holding a copy of arm3.toml."""
     shutil.copy(arm3_dir / "arm3.toml", tmp_path / "arm3.toml")
     return tmp_path
-
-
-@pytest.fixture
-def cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
-    """Run ``exsur`` in-process: ``cli("import", ...) -> (exit code, stdout, stderr)``."""
-
-    def run(*argv: str | Path) -> tuple[int, str, str]:
-        rc = main([str(a) for a in argv])
-        cap = capsys.readouterr()
-        return rc, cap.out, cap.err
-
-    return run

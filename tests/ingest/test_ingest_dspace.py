@@ -18,7 +18,7 @@ from excavator_surrogate.errors import ConfigError, DataError
 from excavator_surrogate.ingest import convert_log, parse_mapping
 from excavator_surrogate.ingest.readers import log_kind
 from tests.helpers import arm3_plant
-from tests.helpers.ingest import assert_nothing_written
+from tests.helpers.ingest import import_fails
 
 SENSORS = "Model Root/Sensors"
 VALVES = "Model Root/Valve commands"
@@ -97,12 +97,7 @@ def dsp(tmp_path: Path, short_cols) -> Path:
 
 
 def _fail(cli, work: Path, log: Path, mapping: str = "dspace.toml") -> str:
-    out = work / "ds"
-    rc, _, err = cli("import", log, "--mapping", work / mapping, "--out", out, "--quiet")
-    assert rc == 2, err
-    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
-    assert_nothing_written(out)
-    return err
+    return import_fails(cli, log, work / mapping, work / "ds")
 
 
 def test_dspace_import_matches_plain_csv(cli, dsp, arm3_dir):

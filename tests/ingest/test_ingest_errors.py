@@ -8,16 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from tests.helpers import arm3_plant
-from tests.helpers.ingest import assert_nothing_written, set_cell, write_lines
+from tests.helpers.ingest import import_fails, set_cell, write_lines
 
 
 def _fail(cli, work: Path, log: Path, *extra: str, mapping: str = "arm3.toml") -> str:
-    out = work / "ds"
-    rc, _, err = cli("import", log, "--mapping", work / mapping, "--out", out, "--quiet", *extra)
-    assert rc == 2, err
-    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
-    assert_nothing_written(out)
-    return err
+    return import_fails(cli, log, work / mapping, work / "ds", *extra)
 
 
 _set = set_cell

@@ -10,7 +10,7 @@ import pytest
 
 from excavator_surrogate.ingest import convert_log, parse_mapping
 from tests.helpers import arm3_plant
-from tests.helpers.ingest import assert_nothing_written
+from tests.helpers.ingest import import_fails
 
 asammdf = pytest.importorskip("asammdf")
 
@@ -152,12 +152,7 @@ def test_mdf_two_channel_groups(tmp_path, short_cols):
 
 
 def _fail(cli, tmp_path: Path, log: Path) -> str:
-    out = tmp_path / "ds"
-    rc, _, err = cli("import", log, "--mapping", tmp_path / "mdf.toml", "--out", out, "--quiet")
-    assert rc == 2, err
-    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
-    assert_nothing_written(out)
-    return err
+    return import_fails(cli, log, tmp_path / "mdf.toml", tmp_path / "ds")
 
 
 def test_mdf_errors(cli, tmp_path, short_cols):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -22,6 +21,7 @@ from excavator_surrogate.ingest import (
 )
 from tests.helpers import arm3_plant
 from tests.helpers.ingest import assert_nothing_written, write_lines
+from tests.helpers.ros_bags import write_bag
 
 pytest.importorskip("rosbags")
 
@@ -44,60 +44,19 @@ command = {{ topic = "/valves", up = "data[{2 * _i}]", down = "data[{2 * _i + 1}
 
 
 def _write_bag(path: Path, cols: dict[str, np.ndarray], *, storage: str) -> None:
-    """JointState at the log rate (joints in another order, header stamps) and valve duties
-    at half rate: a rosbag2 folder (``storage`` "sqlite3" or "mcap") or, with "rosbag1", a
-    ROS 1 bag file."""
-    from rosbags.typesys import Stores, get_typestore
-
-    ros1 = storage == "rosbag1"
-    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    js_t, hdr_t, time_t = (
-        ts.types[k]
-        for k in (
-            "sensor_msgs/msg/JointState",
-            "std_msgs/msg/Header",
-            "builtin_interfaces/msg/Time",
-        )
+    """JointState at the log rate (joints in another order, received 2 ms after their header
+    stamps) and valve duties at half rate: a rosbag2 folder (``storage`` "sqlite3" or
+    "mcap") or, with "rosbag1", a ROS 1 bag file."""
+    n = cols["t_ms"].size
+    write_bag(
+        path,
+        cols,
+        storage=storage,
+        order=("bucket", "boom", "arm"),
+        valve_rows=np.arange(0, n, 2),
+        delay_ns=2_000_000,
+        frame_id="arm",
     )
-    arr_t, lay_t = (
-        ts.types["std_msgs/msg/Float64MultiArray"],
-        ts.types["std_msgs/msg/MultiArrayLayout"],
-    )
-    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
-    t0 = 1_717_000_000_000_000_000
-    order = ("bucket", "boom", "arm")
-    if ros1:
-        from rosbags.rosbag1 import Writer as Writer1
-
-        writer: Any = Writer1(path)
-    else:
-        from rosbags.rosbag2 import Writer
-        from rosbags.rosbag2.enums import StoragePlugin
-
-        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        writer = Writer(path, version=9, storage_plugin=plugin)
-    with writer as w:
-        cj = w.add_connection("/joint_states", js_t.__msgtype__, typestore=ts)
-        cv = w.add_connection("/valves", arr_t.__msgtype__, typestore=ts)
-        for k, t_ms in enumerate(cols["t_ms"]):
-            ns = t0 + round(t_ms * 1e6)
-            stamp = time_t(sec=ns // 10**9, nanosec=ns % 10**9)
-            header = hdr_t(seq=k, stamp=stamp, frame_id="arm") if ros1 else hdr_t(stamp, "arm")
-            msg = js_t(
-                header=header,
-                name=[f"{j}_joint" for j in order],
-                position=np.radians([cols[f"{j}_deg"][k] for j in order]),
-                velocity=np.zeros(0),
-                effort=np.zeros(0),
-            )
-            # received 2 ms after the header stamp
-            w.write(cj, ns + 2_000_000, serialize(msg, js_t.__msgtype__))
-            if k % 2 == 0:
-                duty = [cols[f"{j}_{d}_pct"][k] for j in arm3_plant.JOINTS for d in ("up", "down")]
-                layout = lay_t(dim=[], data_offset=0)
-                w.write(
-                    cv, ns, serialize(arr_t(layout=layout, data=np.array(duty)), arr_t.__msgtype__)
-                )
 
 
 @pytest.fixture(scope="module")

@@ -19,16 +19,11 @@ from excavator_surrogate.errors import DataError
 from excavator_surrogate.ingest.columns import numeric_column, parse_time
 from excavator_surrogate.ingest.mapping import TimeMap
 from tests.helpers import arm3_plant
-from tests.helpers.ingest import assert_nothing_written, set_cell, write_lines
+from tests.helpers.ingest import import_fails, set_cell, write_lines
 
 
 def _fail(cli, work: Path, log: Path, mapping: Path, *extra: str) -> str:
-    out = work / "ds"
-    rc, _, err = cli("import", log, "--mapping", mapping, "--out", out, "--quiet", *extra)
-    assert rc == 2, err
-    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
-    assert_nothing_written(out)
-    return err
+    return import_fails(cli, log, mapping, work / "ds", *extra)
 
 
 def _with(work: Path, name: str, old: str, new: str) -> Path:

@@ -17,16 +17,11 @@ from excavator_surrogate.data import load_dataset
 from excavator_surrogate.ingest import convert_log, kalman_velocity, parse_mapping, tables
 from excavator_surrogate.ingest.convert import kalman_fuse
 from tests.helpers import arm3_plant
-from tests.helpers.ingest import assert_nothing_written, write_lines
+from tests.helpers.ingest import import_fails, write_lines
 
 
 def _fail(cli, work: Path, log: Path, mapping: str = "arm3.toml") -> str:
-    out = work / "ds"
-    rc, _, err = cli("import", log, "--mapping", work / mapping, "--out", out, "--quiet")
-    assert rc == 2, err
-    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
-    assert_nothing_written(out)
-    return err
+    return import_fails(cli, log, work / mapping, work / "ds")
 
 
 def test_csv_files_without_data(cli, work):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import importlib.util
 import shutil
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -15,71 +14,11 @@ from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.ingest import convert_log, load_mapping
 from excavator_surrogate.ingest.ros import ros_metadata
 from tests.helpers import arm3_plant
-from tests.helpers.ingest import assert_nothing_written
+from tests.helpers.ingest import import_fails
+from tests.helpers.ros_bags import T0, write_bag
 from tests.ingest.test_ingest_ros_resample import ROS_MAPPING
 
 pytest.importorskip("rosbags")
-
-T0 = 1_717_000_000_000_000_000
-"""The first message's time [ns]."""
-
-
-def write_bag(
-    path: Path,
-    cols: dict[str, np.ndarray],
-    *,
-    storage: str = "mcap",
-    joint_rows: np.ndarray | None = None,
-    valve_rows: np.ndarray | None = None,
-) -> Path:
-    """The test arm's log as a bag: JointState (header stamps) at ``joint_rows`` of ``cols``
-    and valve duties (Float64MultiArray, no header) at ``valve_rows`` (default: every row);
-    ``storage``: "mcap" or "sqlite3" (rosbag2 folders) or "rosbag1" (a .bag file)."""
-    from rosbags.typesys import Stores, get_typestore
-
-    ros1 = storage == "rosbag1"
-    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    js_t = ts.types["sensor_msgs/msg/JointState"]
-    hdr_t, time_t = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
-    arr_t, lay_t = (
-        ts.types["std_msgs/msg/Float64MultiArray"],
-        ts.types["std_msgs/msg/MultiArrayLayout"],
-    )
-    serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
-    n = cols["t_ms"].size
-    joint_rows = np.arange(n) if joint_rows is None else joint_rows
-    valve_rows = np.arange(n) if valve_rows is None else valve_rows
-    if ros1:
-        from rosbags.rosbag1 import Writer as Writer1
-
-        writer: Any = Writer1(path)
-    else:
-        from rosbags.rosbag2 import Writer
-        from rosbags.rosbag2.enums import StoragePlugin
-
-        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-        writer = Writer(path, version=9, storage_plugin=plugin)
-    with writer as w:
-        cj = w.add_connection("/joint_states", js_t.__msgtype__, typestore=ts)
-        cv = w.add_connection("/valves", arr_t.__msgtype__, typestore=ts)
-        for k in range(n):
-            ns = T0 + round(cols["t_ms"][k] * 1e6)
-            if k in joint_rows:
-                stamp = time_t(sec=ns // 10**9, nanosec=ns % 10**9)
-                header = hdr_t(seq=k, stamp=stamp, frame_id="") if ros1 else hdr_t(stamp, "")
-                msg = js_t(
-                    header=header,
-                    name=[f"{j}_joint" for j in arm3_plant.JOINTS],
-                    position=np.radians([cols[f"{j}_deg"][k] for j in arm3_plant.JOINTS]),
-                    velocity=np.zeros(0),
-                    effort=np.zeros(0),
-                )
-                w.write(cj, ns, serialize(msg, js_t.__msgtype__))
-            if k in valve_rows:
-                duty = [cols[f"{j}_{d}_pct"][k] for j in arm3_plant.JOINTS for d in ("up", "down")]
-                msg = arr_t(layout=lay_t(dim=[], data_offset=0), data=np.array(duty))
-                w.write(cv, ns, serialize(msg, arr_t.__msgtype__))
-    return path
 
 
 @pytest.fixture(scope="module")
@@ -96,12 +35,7 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _fail(cli, log: Path, mapping: str, tmp_path: Path) -> str:
     """Import ``log`` with the mapping text ``mapping``: exit 2, one line, nothing written."""
     (tmp_path / "m.toml").write_text(mapping)
-    out = tmp_path / "ds"
-    rc, _, err = cli("import", log, "--mapping", tmp_path / "m.toml", "--out", out, "--quiet")
-    assert rc == 2, err
-    assert err.startswith("exsur: error: ") and err.count("\n") == 1, err
-    assert_nothing_written(out)
-    return err
+    return import_fails(cli, log, tmp_path / "m.toml", tmp_path / "ds")
 
 
 def _angle(field: str) -> str:
