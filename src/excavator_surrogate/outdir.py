@@ -346,6 +346,15 @@ def is_exsur_file(path: str | Path) -> bool:
     return False
 
 
+def first_missing(path: str | Path) -> Path | None:
+    """The outermost folder of ``path`` (absolute) that does not exist yet: the one a
+    ``mkdir(parents=True)`` of ``path`` would create first (None: ``path`` exists)."""
+    new, p = None, Path(os.path.abspath(path))
+    while not p.exists() and p.parent != p:
+        new, p = p, p.parent
+    return new
+
+
 def lock_file(out: str | Path) -> Path:
     """The writer lock of output folder ``out``: ``.<name>.lock`` next to it (a sibling, so a
     command that replaces the whole folder holds it across the swap)."""
@@ -374,10 +383,7 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
     path = lock_file(out)
     if path in _HELD or _torchrun_rank() > 0:
         return
-    made = path.parent
-    while not made.parent.exists() and made.parent != made.parent.parent:
-        made = made.parent
-    made = None if made.exists() else made  # the outermost folder about to be created
+    made = first_missing(path.parent)
     for _ in range(5):  # the file may be unlinked by its releasing owner between open and lock
         try:
             path.parent.mkdir(parents=True, exist_ok=True)

@@ -40,6 +40,7 @@ from ..config import PresetConfig, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
 from ..io_utils import mark_output
+from ..outdir import first_missing
 
 _log = logging.getLogger(__name__)
 
@@ -289,15 +290,6 @@ class _Objective:
         return value if math.isfinite(value) else _CAP
 
 
-def _first_missing(path: Path) -> Path | None:
-    """The outermost folder of ``path`` that does not exist yet (None: ``path`` exists)."""
-    new = None
-    p = path.absolute()
-    while not p.exists() and p.parent != p:
-        new, p = p, p.parent
-    return new
-
-
 def _fmt_params(p: Mapping[str, Any]) -> str:
     def one(v: Any) -> str:
         return f"{v:.3g}" if isinstance(v, float) else str(v)
@@ -342,7 +334,7 @@ def run_sweep(
     scfg = sweep or SweepConfig()
     base = base or TrainConfig()
     out = Path(out)
-    new = _first_missing(out)
+    new = first_missing(out)
     mark_output(out, "sweep")
     storage = storage or default_storage(out)
     try:
