@@ -104,6 +104,9 @@ def test_a_file_system_without_locks_writes_unlocked(tmp_path: Path, monkeypatch
     monkeypatch.setattr(fcntl, "flock", no_locks)
     lock_out(tmp_path / "M")  # no error: the command runs as it did before locks
     assert lock_file(tmp_path / "M") not in outdir._HELD
+    assert not lock_file(tmp_path / "M").exists()  # and no lock file is left behind
+    lock_out(tmp_path / "new" / "M")
+    assert not (tmp_path / "new").exists()  # nor the folder made to hold it
 
 
 def test_a_lock_file_replaced_under_the_opener_is_retried_then_named(

@@ -402,7 +402,11 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
                     f"{out}: another exsur process{owner} is writing this {flag}; wait for it "
                     f"to finish or give another {flag}"
                 ) from None
-            return  # a file system without locks: write unlocked, as before
+            # a file system without locks: write unlocked, as before, and leave no lock file
+            with contextlib.suppress(OSError):
+                path.unlink()
+            _remove_made(path.parent, made)
+            return
         try:
             same = os.fstat(fd).st_ino == os.stat(path).st_ino
         except OSError:
@@ -443,14 +447,18 @@ def release_locks() -> None:
             path.unlink()  # while still locked: a waiting opener re-checks the inode
         os.close(fd)
         del _HELD[path]
-        made = _MADE.pop(path, None)
-        folder = path.parent
-        while made is not None and (folder == made or made in folder.parents):
-            try:
-                folder.rmdir()  # only an empty folder: what the command wrote stays
-            except OSError:
-                break
-            folder = folder.parent
+        _remove_made(path.parent, _MADE.pop(path, None))
+
+
+def _remove_made(folder: Path, made: Path | None) -> None:
+    """Remove ``folder`` and its parents up to ``made`` (the outermost one a lock created)
+    while they are empty: ``rmdir`` only, so what a command wrote there stays."""
+    while made is not None and (folder == made or made in folder.parents):
+        try:
+            folder.rmdir()
+        except OSError:
+            return
+        folder = folder.parent
 
 
 @contextlib.contextmanager
