@@ -297,3 +297,24 @@ def test_a_gzipped_csv_stays_within_the_memory_bound(tmp_path, short_cols):
     plain = arm3_plant.write_csv(tmp_path / "run.csv", short_cols)
     with pytest.raises(DataError, match=r"run\.csv: reading the log needs"):
         summarize_log(plain, max_memory_mb=0.01)
+
+
+def test_mdf_samples_flagged_invalid_are_missing(tmp_path, short_cols):
+    """An MDF channel's samples flagged invalid count as missing, as the import reads them,
+    and the range leaves them out."""
+    asammdf = pytest.importorskip("asammdf")
+    from tests.ingest.test_ingest_mdf import _one_group
+
+    t = short_cols["t_ms"] * 1e-3
+    bad = np.zeros(t.size, dtype=bool)
+    bad[100:110] = True
+    arm = short_cols["arm_deg"].copy()
+    arm[100:110] = 1e6  # garbage under the invalid flags
+    log = _one_group(
+        tmp_path / "inv.mf4",
+        short_cols,
+        asammdf.Signal(arm, t, name="arm_deg", invalidation_bits=bad),
+    )
+    got = _by_name(summarize_log(log))["arm_deg"]
+    assert (got.n_sample, got.n_missing) == (t.size, 10)
+    assert got.hi == pytest.approx(np.delete(arm, np.arange(100, 110)).max())

@@ -238,7 +238,7 @@ def _parquet(path: Path, limit: int, label: str) -> LogSummary:
 
 
 def _mdf(path: Path, label: str) -> LogSummary:
-    from .mdf import header_metadata, open_mdf, read_signal
+    from .mdf import header_metadata, numeric_samples, open_mdf, read_signal
 
     with open_mdf(path) as mdf:
         channels, spans = [], []
@@ -249,14 +249,15 @@ def _mdf(path: Path, label: str) -> LogSummary:
             for i, ch in enumerate(grp.channels):
                 if i == master:
                     continue
+                # samples flagged invalid count as missing, as the import reads them
                 sig = read_signal(path, mdf, g, i, name=ch.name)
                 t = np.asarray(sig.timestamps, dtype=np.float64)
                 if t.size:
                     spans.append((float(t[0]), float(t[-1])))
-                samples = np.asarray(sig.samples)
+                samples = numeric_samples(sig)
                 kw = dict(group=where, unit=str(sig.unit or ""), rate_hz=sample_rate(t))
-                if samples.dtype.kind in "fiub" and samples.ndim == 1:
-                    lo, hi, miss = value_range(samples.astype(np.float64))
+                if samples is not None:
+                    lo, hi, miss = value_range(samples)
                     channels.append(
                         ChannelSummary(ch.name, n_sample=t.size, lo=lo, hi=hi, n_missing=miss, **kw)
                     )

@@ -97,19 +97,29 @@ def _locate(path: Path, db: Any, name: str, mapping: Mapping) -> tuple[int, int]
     return int(occ[0][0]), int(occ[0][1])
 
 
-def _numeric(path: Path, sig: Any, name: str) -> np.ndarray:
+def numeric_samples(sig: Any) -> np.ndarray | None:
+    """An asammdf ``Signal``'s samples as float64, those flagged invalid NaN (see
+    :func:`read_signal`); None when they are not one number each."""
     x = np.asarray(sig.samples)
     if x.dtype.kind not in "fiub" or x.ndim != 1:
+        return None
+    out = x.astype(np.float64)
+    inv = getattr(sig, "invalidation_bits", None)
+    if inv is not None:
+        out[np.asarray(inv, dtype=bool)] = np.nan
+    return out
+
+
+def _numeric(path: Path, sig: Any, name: str) -> np.ndarray:
+    out = numeric_samples(sig)
+    if out is None:
+        x = np.asarray(sig.samples)
         raise DataError(
             path,
             f"values are of type {x.dtype} (shape {x.shape}), not numbers",
             column=name,
             fix="map a numeric channel",
         )
-    out = x.astype(np.float64)
-    inv = getattr(sig, "invalidation_bits", None)
-    if inv is not None:
-        out[np.asarray(inv, dtype=bool)] = np.nan
     return out
 
 
@@ -146,21 +156,18 @@ def open_mdf(path: Path) -> Iterator[Any]:
             mdf.close()
 
 
-def read_signal(
-    path: Path, mdf: Any, group: int, index: int, *, name: str, keep_invalid: bool = False
-) -> Any:
+def read_signal(path: Path, mdf: Any, group: int, index: int, *, name: str) -> Any:
     """Channel ``index`` of channel group ``group`` of the open ``mdf`` (asammdf's
-    ``Signal``: physical values and their master's times).
-
-    ``keep_invalid``: keep the samples flagged invalid, with the flags in the signal's
-    ``invalidation_bits`` (every channel of a group then has the group's samples); False:
-    asammdf leaves them out (the signal has fewer samples than its group).
+    ``Signal``: physical values and their master's times), every sample of its group: those
+    flagged invalid are kept, with the flags in ``invalidation_bits`` (asammdf would leave
+    them out, and the channel would no longer match its group's times;
+    :func:`numeric_samples` makes them NaN).
 
     Raises:
         DataError: damaged samples (one line naming the file and the channel ``name``).
     """
     try:
-        return mdf.get(group=group, index=index, ignore_invalidation_bits=keep_invalid)
+        return mdf.get(group=group, index=index, ignore_invalidation_bits=True)
     except Exception as e:  # asammdf raises many types for damaged data
         raise DataError(
             path,
@@ -181,10 +188,7 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
     keys = [c.key for c in mapping.channels()]
     with open_mdf(path) as mdf:
         where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
-        sigs = {
-            k: read_signal(path, mdf, g, i, name=k, keep_invalid=True)
-            for k, (g, i) in where.items()
-        }
+        sigs = {k: read_signal(path, mdf, g, i, name=k) for k, (g, i) in where.items()}
         start = mdf.header.start_time
         meta = header_metadata(mdf.header)
         columns = sorted(k for k in mdf.channels_db if k != "time")
