@@ -38,7 +38,7 @@ from ..errors import DataError
 from .columns import numeric_column, parse_time
 from .limits import TooBig, bounded_open, memory_limit, too_big
 from .mapping import TABLE, Mapping
-from .sources import CSV_SUFFIXES, RawLog, Reader, Series, missing_channel
+from .sources import CSV_SUFFIXES, RawLog, Reader, Series, first_ragged_row, missing_channel
 
 SUFFIXES = (".dspace.csv.gz", ".dspace.csv")
 GENERIC = re.compile(r"(?:In|Out)\d*", re.IGNORECASE)
@@ -209,19 +209,23 @@ def resolve(path: Path, traces: list[Trace], name: str, mapping: Mapping) -> Tra
 
 def _bad_row(path: Path, body: bytes, delim: str, n_cells: int) -> DataError | None:
     """The first sample row whose cell count differs from the ``trace_values`` row, or that
-    cannot be split into cells (a cell past the csv module's size limit: a tail of NUL bytes)."""
+    cannot be split into cells (:func:`~.sources.first_ragged_row`)."""
     text = body.decode("utf-8", errors="replace")
-    fix = "the file is truncated or damaged; re-export it from ControlDesk"
-    i = 0  # the rows read
-    try:
-        for row in csv.reader(io.StringIO(text, newline=""), delimiter=delim):
-            if row and len(row) != n_cells:
-                problem = f"sample row has {len(row)} cells, the trace_values row {n_cells}"
-                return DataError(path, problem, row=i, fix=fix)
-            i += 1
-    except csv.Error as e:
-        return DataError(path, f"sample row cannot be split into cells ({e})", row=i, fix=fix)
-    return None
+    bad = first_ragged_row(io.StringIO(text, newline=""), delim, n_cells)
+    if bad is None:
+        return None
+    row, got = bad
+    problem = (
+        f"sample row has {got} cells, the trace_values row {n_cells}"
+        if isinstance(got, int)
+        else f"sample row cannot be split into cells ({got})"
+    )
+    return DataError(
+        path,
+        problem,
+        row=row,
+        fix="the file is truncated or damaged; re-export it from ControlDesk",
+    )
 
 
 def read_dspace(path: Path, mapping: Mapping) -> RawLog:

@@ -12,8 +12,9 @@ and Parquet, in :mod:`.tables`, ROS bags in :mod:`.ros`, dSPACE ControlDesk CSV 
 
 from __future__ import annotations
 
+import csv
 import difflib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -109,3 +110,21 @@ def missing_channel(
         column=name,
         fix=f"{hint}fix the {what} name in {mapping.where}; the log has: {shown}",
     )
+
+
+def first_ragged_row(
+    lines: Iterable[str], delimiter: str, n_fields: int
+) -> tuple[int, int | str] | None:
+    """The first row of the text ``lines`` (rows counted from 0, empty ones skipped) whose
+    field count is not ``n_fields``: ``(row, its field count)``, or ``(row, the csv module's
+    error)`` for a row it cannot split (a field past its size limit: a tail of NUL bytes left
+    by a crash); None when every row holds ``n_fields``."""
+    i = 0  # the rows read
+    try:
+        for row in csv.reader(lines, delimiter=delimiter):
+            if row and len(row) != n_fields:
+                return i, len(row)
+            i += 1
+    except csv.Error as e:
+        return i, str(e)
+    return None

@@ -24,6 +24,7 @@ from .sources import (
     RawLog,
     Reader,
     Series,
+    first_ragged_row,
     has_suffix,
     missing_channel,
 )
@@ -95,37 +96,35 @@ def csv_header(path: Path, opts: CsvOptions) -> list[str]:
 
 def ragged_row(path: Path, opts: CsvOptions, n_header: int) -> DataError | None:
     """The first data row whose field count differs from the header's, or that cannot be
-    split into fields (a field past the csv module's size limit: a tail of NUL bytes);
-    streamed, bytes the encoding cannot decode replaced (only fields are counted)."""
+    split into fields (:func:`~.sources.first_ragged_row`); streamed, bytes the encoding
+    cannot decode replaced (only fields are counted)."""
     first_line = opts.skip_rows + 2 + opts.skip_rows_after_header  # of the first sample, from 1
     opener = gzip.open if path.name.lower().endswith(".gz") else open
-    fix = "repair or cut the damaged line, or check [csv] delimiter"
-    i = 0  # the rows read
     try:
         with opener(path, "rt", encoding=opts.text_encoding, errors="replace", newline="") as f:
             for _ in range(opts.skip_rows + 1 + opts.skip_rows_after_header):
                 f.readline()
-            for row in _csv.reader(f, delimiter=opts.delimiter):
-                if row and len(row) != n_header:
-                    what = "too many" if len(row) > n_header else "too few"
-                    return DataError(
-                        path,
-                        f"ragged rows: line {first_line + i} of the file has "
-                        f"{len(row)} fields, the header {n_header} ({what})",
-                        row=i,
-                        fix=fix,
-                    )
-                i += 1
-    except _csv.Error as e:
-        return DataError(
-            path,
-            f"line {first_line + i} of the file cannot be split into fields ({e})",
-            row=i,
-            fix="repair or cut the damaged line (a crash can leave a tail of NUL bytes)",
-        )
+            bad = first_ragged_row(f, opts.delimiter, n_header)
     except (OSError, EOFError):  # the caller reports the file's damage
         return None
-    return None
+    if bad is None:
+        return None
+    row, got = bad
+    if isinstance(got, str):
+        return DataError(
+            path,
+            f"line {first_line + row} of the file cannot be split into fields ({got})",
+            row=row,
+            fix="repair or cut the damaged line (a crash can leave a tail of NUL bytes)",
+        )
+    what = "too many" if got > n_header else "too few"
+    return DataError(
+        path,
+        f"ragged rows: line {first_line + row} of the file has {got} fields, "
+        f"the header {n_header} ({what})",
+        row=row,
+        fix="repair or cut the damaged line, or check [csv] delimiter",
+    )
 
 
 def _check_columns(path: Path, names: list[str], needed: list[str], mapping: Mapping) -> None:
