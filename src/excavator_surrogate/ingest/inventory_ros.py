@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError
+from .ros import is_ros2_schema, message_fields
 from .summary import ChannelSummary, LogSummary, sample_rate, value_range
 
 ROS_RANGE_MESSAGES = 5000
@@ -37,8 +38,8 @@ def numeric_fields(msg: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
     """Every numeric field path of a deserialised message and its value: ``pose.position.x``,
     ``position[1]`` (arrays: their first :data:`ARRAY_FIELDS` entries; not the header, whose
     stamp ``[time] stamp`` reads)."""
-    for name in getattr(msg, "__dataclass_fields__", {}):
-        if name.startswith("__") or (not prefix and name == "header"):
+    for name in message_fields(msg):
+        if not prefix and name == "header":
             continue
         value = getattr(msg, name)
         path = f"{prefix}{name}"
@@ -168,7 +169,7 @@ def _index(path: Path, kind: str) -> _Index:
                 schema = summary.schemas.get(c.schema_id)
                 types[c.topic] = schema.name if schema is not None else ""
                 by_id[c.id] = c.topic
-                if schema is None or schema.encoding != "ros2msg":
+                if not is_ros2_schema(schema):
                     foreign[c.topic] = c.message_encoding or "schema-less"
             stats = summary.statistics
             if stats is None or not stats.channel_message_counts:

@@ -49,9 +49,15 @@ def parse_field_path(path: str) -> list[tuple[str, Any]]:
     return out
 
 
-def _fields(obj: Any) -> list[str]:
+def message_fields(obj: Any) -> list[str]:
     """The field names of a deserialised message (none for other values)."""
     return [f for f in getattr(obj, "__dataclass_fields__", {}) if not f.startswith("__")]
+
+
+def is_ros2_schema(schema: Any) -> bool:
+    """An MCAP channel's schema describes ROS 2 messages (CDR with a ``ros2msg`` schema), the
+    only ones exsur reads."""
+    return schema is not None and schema.encoding == "ros2msg"
 
 
 def _is_array(obj: Any) -> bool:
@@ -64,7 +70,7 @@ def _what(obj: Any) -> tuple[str, str]:
     """What a value that is not a number is, and how to reach a number in it ("": no way)."""
     if isinstance(obj, str | bytes):
         return "text", ""
-    fields = _fields(obj)
+    fields = message_fields(obj)
     if fields:
         msgtype = getattr(obj, "__msgtype__", type(obj).__name__)
         return f"a {msgtype} message", f"add one of its fields ({', '.join(fields)})"
@@ -81,7 +87,7 @@ def _extract(msg: Any, tokens: list[tuple[str, Any]]) -> float:
         if kind == "attr":
             parent = obj
             if not hasattr(obj, arg):
-                fields = _fields(obj)
+                fields = message_fields(obj)
                 if fields:
                     raise ValueError(f"no field '{arg}' (fields: {', '.join(fields)})")
                 what, hint = _what(obj)
@@ -208,7 +214,7 @@ def _iter_mcap(
                             fix=f"topics present: {', '.join(present)}",
                         )
             for schema, channel, message in reader.iter_messages(topics=sorted(topics)):
-                if schema is None or schema.encoding != "ros2msg":
+                if not is_ros2_schema(schema):
                     enc = f"'{schema.encoding}'" if schema is not None else "none"
                     raise DataError(
                         path,
