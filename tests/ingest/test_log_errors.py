@@ -190,31 +190,45 @@ def _six_fails(cli, tmp_path: Path, log: Path, mapping: Path) -> str:
     return _fail(cli, tmp_path, log, mapping, "--split-by", "glob", "--test", "six*")
 
 
-def test_a_velocity_of_the_opposite_sign(cli, tmp_path):
-    log, mp, _ = _six(
-        tmp_path,
-        mapping=(
-            'velocity = { column = "swing_rate", unit = "deg/s" }',
-            'velocity = { column = "swing_rate", unit = "deg/s", scale = -1.0 }',
-        ),
-    )
-    err = _six_fails(cli, tmp_path, log, mp)
-    assert "column 'swing_rate': measured velocity has the opposite sign" in err
-    assert "(set scale = -1 in the velocity of joint 'swing' in six.toml)" in err
+MAPPED_WRONG = {
+    "a velocity of the opposite sign": (
+        'velocity = { column = "swing_rate", unit = "deg/s" }',
+        'velocity = { column = "swing_rate", unit = "deg/s", scale = -1.0 }',
+        [
+            "column 'swing_rate': measured velocity has the opposite sign",
+            "(set scale = -1 in the velocity of joint 'swing' in six.toml)",
+        ],
+    ),
+    "a velocity in rad/s mapped as deg/s": (
+        'velocity = { column = "boom_rate", unit = "rad/s" }',
+        'velocity = { column = "boom_rate", unit = "deg/s" }',
+        [
+            "column 'boom_rate': measured velocity is 0.0175x the angle's rate of change",
+            "looks like rad/s",
+            "(set unit = \"rad/s\" in the velocity of joint 'boom' in six.toml)",
+        ],
+    ),
+    "a periodic angle in degrees mapped as rad": (
+        '{ column = "swing_deg", unit = "deg" }',
+        '{ column = "swing_deg", unit = "rad" }',
+        [
+            "column 'swing_deg', row ",
+            "is beyond ±2π in a rad column",
+            "(set unit = \"deg\" in the angle of joint 'swing' in six.toml)",
+        ],
+    ),
+}
+"""The six-joint log with one channel mapped wrong: the mapping's text before and after,
+and what the one-line error says."""
 
 
-def test_a_velocity_in_rad_s_mapped_as_deg_s(cli, tmp_path):
-    log, mp, _ = _six(
-        tmp_path,
-        mapping=(
-            'velocity = { column = "boom_rate", unit = "rad/s" }',
-            'velocity = { column = "boom_rate", unit = "deg/s" }',
-        ),
-    )
+@pytest.mark.parametrize("case", list(MAPPED_WRONG))
+def test_a_channel_mapped_wrong(cli, tmp_path, case):
+    old, new, expected = MAPPED_WRONG[case]
+    log, mp, _ = _six(tmp_path, mapping=(old, new))
     err = _six_fails(cli, tmp_path, log, mp)
-    assert "column 'boom_rate': measured velocity is 0.0175x the angle's rate of change" in err
-    assert "looks like rad/s" in err
-    assert "(set unit = \"rad/s\" in the velocity of joint 'boom' in six.toml)" in err
+    for text in expected:
+        assert text in err
 
 
 def test_a_still_velocity_channel_is_not_compared(cli, tmp_path):
@@ -222,19 +236,6 @@ def test_a_still_velocity_channel_is_not_compared(cli, tmp_path):
     log, mp, _ = _six(tmp_path, boom_rate=lambda tr: np.zeros_like(tr["t"]))
     rc, _, err = cli("import", log, "--mapping", mp, "--out", tmp_path / "ds", "--quiet")
     assert rc == 0, err
-
-
-def test_a_periodic_angle_in_degrees_mapped_as_rad(cli, tmp_path):
-    log, mp, _ = _six(
-        tmp_path,
-        mapping=(
-            '{ column = "swing_deg", unit = "deg" }',
-            '{ column = "swing_deg", unit = "rad" }',
-        ),
-    )
-    err = _six_fails(cli, tmp_path, log, mp)
-    assert "column 'swing_deg', row " in err and "is beyond ±2π in a rad column" in err
-    assert "(set unit = \"deg\" in the angle of joint 'swing' in six.toml)" in err
 
 
 def test_an_unwrapped_periodic_angle_in_rad_is_kept(cli, tmp_path):
