@@ -21,6 +21,7 @@ import dataclasses
 import difflib
 import itertools
 import math
+import re
 import tomllib
 import types
 import typing
@@ -46,12 +47,28 @@ PresetCheck = Callable[[Mapping[str, Any], str], None]
 """``check(tables, where)``: raises :class:`ConfigError` on an unknown table or key of one file."""
 
 
-def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -> dict[str, Any]:
+class Preset(dict[str, Any]):
+    """A loaded preset: the nested tables, and where each of their keys was written.
+
+    ``origins`` maps ``"section.key"`` to the file that set it last (a path, or ``preset
+    'name'`` for a shipped one), through every ``extends``, so that a bad value's error can
+    name the file to edit (:func:`stage_config`).  A plain dict in its place has no origins.
+    """
+
+    origins: dict[str, str]
+
+    def __init__(self, *args: Any, origins: Mapping[str, str] | None = None, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self.origins = dict(origins or {})
+
+
+def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -> Preset:
     """Load a preset by name (shipped) or by path to a TOML file.
 
-    Returns the raw nested dict (one table per stage).  A preset may ``extends = "other"``
-    another preset; tables are merged key by key.  ``check`` is applied to every file's own
-    tables (the preset and each one it extends), so an error names the file with the typo
+    Returns the raw nested dict (one table per stage) as a :class:`Preset`, which also records
+    the file of every key.  A preset may ``extends = "other"`` another preset; tables are
+    merged key by key.  ``check`` is applied to every file's own tables (the preset and each
+    one it extends), so an error names the file with the typo
     (:func:`excavator_surrogate.stages.load_preset` checks every table and key).
     """
     p = Path(str(name_or_path))
@@ -83,16 +100,15 @@ def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -
     own_name = data.get(
         "name", Path(str(name_or_path)).stem if p.suffix == ".toml" else str(name_or_path)
     )
-    if base is not None:
-        merged = load_preset(base, check=check)
-        for k, v in data.items():
-            if isinstance(v, dict) and isinstance(merged.get(k), dict):
-                merged[k] = {**merged[k], **v}
-            else:
-                merged[k] = v
-        data = merged
-    data["name"] = own_name
-    return data
+    merged = Preset() if base is None else load_preset(base, check=check)
+    for k, v in data.items():
+        if isinstance(v, dict):
+            merged.origins.update({f"{k}.{key}": where for key in v})
+            if isinstance(merged.get(k), dict):
+                v = {**merged[k], **v}
+        merged[k] = v
+    merged["name"] = own_name
+    return merged
 
 
 INF_OK = frozenset({"tau_jump", "tau_cons", "max_untrusted_s"})
@@ -290,14 +306,53 @@ def stage_config(
     an override makes meaningless (``TrainConfig``: the other mode's knobs when ``mode`` changes).
 
     Raises:
-        ConfigError: unknown key or bad value, naming ``where [section].key``.
+        ConfigError: unknown key or bad value, naming ``where [section].key`` and, where
+            ``preset`` is a :class:`Preset`, the file that set it (:func:`origin_hint`).
     """
     over = {k: v for k, v in (overrides or {}).items() if v is not None}
     table = merge_tables(dict(preset.get(section) or {}), over)
-    adapt = getattr(cls, "adapt_table", None)
-    if adapt is not None:
-        table = adapt(table, changed=set(over))
-    return from_dict(cls, table, where=f"{where} [{section}]".strip())
+    try:
+        adapt = getattr(cls, "adapt_table", None)
+        if adapt is not None:
+            table = adapt(table, changed=set(over))
+        return from_dict(cls, table, where=f"{where} [{section}]".strip())
+    except ConfigError as e:
+        origins = getattr(preset, "origins", {})
+        raise ConfigError(f"{e}{origin_hint(str(e), section, table, over, origins)}") from e
+
+
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+OVERRIDE = "--set or a flag"
+"""Where :func:`origin_hint` says a key came from when the command, not a file, set it."""
+
+
+def origin_hint(
+    message: str,
+    section: str,
+    table: Mapping[str, Any],
+    overrides: Mapping[str, Any],
+    origins: Mapping[str, str],
+) -> str:
+    """Where the keys a config error names were written: ``" (train.epochs: from b.toml)"``.
+
+    The keys are those of ``table`` (the ``[section]`` table as built) that the message names;
+    each one's source is ``overrides`` if it is there, else its file in ``origins``
+    (:attr:`Preset.origins`), and keys of one source are listed together.  A message that
+    names none of them (a check across keys) gets the sources of the whole table.  Empty when
+    no source is known (a plain dict, every key at its default).
+    """
+
+    def source(key: str) -> str | None:
+        return OVERRIDE if key in overrides else origins.get(f"{section}.{key}")
+
+    named = [k for k in dict.fromkeys(_NAME.findall(message)) if k in table and source(k)]
+    if not named:
+        sources = list(dict.fromkeys(s for k in table if (s := source(k)) is not None))
+        return f" ([{section}]: from {' and '.join(sources)})" if sources else ""
+    by_source: dict[str, list[str]] = {}
+    for k in named:
+        by_source.setdefault(str(source(k)), []).append(f"{section}.{k}")
+    return " (" + "; ".join(f"{', '.join(ks)}: from {s}" for s, ks in by_source.items()) + ")"
 
 
 class PresetConfig:
