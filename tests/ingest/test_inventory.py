@@ -238,7 +238,19 @@ def test_ros_reads_only_the_first_messages(tmp_path, monkeypatch, storage):
 
     monkeypatch.setattr(ros, "iter_messages", counting)
     monkeypatch.setattr(inventory_ros, "ROS_RANGE_MESSAGES", 20)
+    from rosbags.highlevel import AnyReader
+
+    opened = []
+    real_open = AnyReader.open
+
+    def open_counted(self):
+        opened.append(self)
+        return real_open(self)
+
+    monkeypatch.setattr(AnyReader, "open", open_counted)
     s = summarize_log(log)
+    # the bag is opened once, for its index and its messages (a sqlite3 bag's opening scans)
+    assert len(opened) == (0 if storage == "bare mcap" else 1)
     n = cols["t_ms"].size
     boom = _by_name(s)["position[1]"]
     assert boom.n_sample == n and boom.rate_hz == pytest.approx(50.0, rel=0.05)

@@ -107,6 +107,10 @@ def test_a_bag_that_cannot_be_opened(cli, bags, tmp_path):
     err = _fail(cli, tmp_path / "broken", ROS_MAPPING, tmp_path)
     assert "broken: cannot open the bag (" in err
     assert "a rosbag2 folder with a readable metadata.yaml; 'ros2 bag reindex'" in err
+    # exsur info opens them the same way, with the same fixes
+    for name, fix in [("cut.bag", "'rosbag reindex'"), ("broken", "'ros2 bag reindex'")]:
+        rc, _, err = cli("info", tmp_path / name)
+        assert rc != 0 and f"{name}: cannot open the bag (" in err and fix in err
 
 
 def test_mcap_errors(cli, bags, tmp_path):

@@ -61,10 +61,20 @@ def numeric_fields(msg: Any, prefix: str = "") -> Iterator[tuple[str, float]]:
 def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
     """What a ROS log (a rosbag2 folder, an MCAP file, a ROS 1 bag) holds, per topic and
     numeric field (:func:`~.inventory.summarize_log` for ROS logs)."""
-    from .ros import iter_messages, need_ros, ros_metadata
+    from .ros import need_ros, open_bag
 
     need_ros(path)
-    index = _index(path, kind)
+    if kind == "mcap":
+        return _summarize(path, kind, label, _mcap_index(path), reader=None)
+    with open_bag(path, kind) as reader:  # opened once: a sqlite3 bag's opening scans its index
+        return _summarize(path, kind, label, _bag_index(reader), reader=reader)
+
+
+def _summarize(path: Path, kind: str, label: str, index: _Index, *, reader: Any) -> LogSummary:
+    """:func:`summarize_ros` from the log's index; ``reader``: the bag opened by
+    :func:`~.ros.open_bag` (None for an MCAP file)."""
+    from .ros import iter_messages, ros_metadata
+
     topics, foreign, counts = index.types, index.foreign, index.counts
     times: dict[str, list[int]] = {t: [] for t in topics}
     values: dict[str, dict[str, list[float]]] = {t: {} for t in topics}
@@ -74,7 +84,9 @@ def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
     # the topics still short of their first `cap` messages; with no counts, every message
     pending = {t for t in readable if counts is None or min(counts.get(t, 0), cap) > 0}
     if readable and pending:
-        with closing(iter_messages(path, kind, readable, max_decoded=cap)) as messages:
+        with closing(
+            iter_messages(path, kind, readable, max_decoded=cap, reader=reader)
+        ) as messages:
             for topic, ns, msg in messages:
                 times[topic].append(ns)
                 if msg is not None:
@@ -154,44 +166,44 @@ class _Index:
     """From the first message to the last [s], or None where the log does not say."""
 
 
-def _index(path: Path, kind: str) -> _Index:
-    """The topics, their types and counts and the log's duration, from its index."""
+def _mcap_index(path: Path) -> _Index:
+    """An MCAP file's topics, their types and counts and its duration, from its summary."""
     try:
-        if kind == "mcap":
-            from mcap.reader import make_reader
+        from mcap.reader import make_reader
 
-            with open(path, "rb") as fh:
-                summary = make_reader(fh).get_summary()
-            if summary is None:
-                raise ValueError("the file has no summary section")
-            types, foreign, by_id = {}, {}, {}
-            for c in sorted(summary.channels.values(), key=lambda c: c.topic):
-                schema = summary.schemas.get(c.schema_id)
-                types[c.topic] = schema.name if schema is not None else ""
-                by_id[c.id] = c.topic
-                if not is_ros2_schema(schema):
-                    foreign[c.topic] = c.message_encoding or "schema-less"
-            stats = summary.statistics
-            if stats is None or not stats.channel_message_counts:
-                return _Index(types, foreign, None, None)
-            counts = dict.fromkeys(types, 0)
-            for cid, n in stats.channel_message_counts.items():
-                if cid in by_id:
-                    counts[by_id[cid]] += int(n)
-            span = (stats.message_end_time - stats.message_start_time) * 1e-9
-            return _Index(types, foreign, counts, span if stats.message_count else None)
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-
-        with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
-            items = sorted(reader.topics.items())
-            types = {t: info.msgtype or "" for t, info in items}
-            counts = {t: int(info.msgcount) for t, info in items}
-            span = reader.duration * 1e-9 if sum(counts.values()) else None
-            return _Index(types, {}, counts, span)
-    except Exception as e:  # the bag readers raise several types for broken files
+        with open(path, "rb") as fh:
+            summary = make_reader(fh).get_summary()
+        if summary is None:
+            raise ValueError("the file has no summary section")
+        types, foreign, by_id = {}, {}, {}
+        for c in sorted(summary.channels.values(), key=lambda c: c.topic):
+            schema = summary.schemas.get(c.schema_id)
+            types[c.topic] = schema.name if schema is not None else ""
+            by_id[c.id] = c.topic
+            if not is_ros2_schema(schema):
+                foreign[c.topic] = c.message_encoding or "schema-less"
+        stats = summary.statistics
+        if stats is None or not stats.channel_message_counts:
+            return _Index(types, foreign, None, None)
+        counts = dict.fromkeys(types, 0)
+        for cid, n in stats.channel_message_counts.items():
+            if cid in by_id:
+                counts[by_id[cid]] += int(n)
+        span = (stats.message_end_time - stats.message_start_time) * 1e-9
+        return _Index(types, foreign, counts, span if stats.message_count else None)
+    except Exception as e:  # the MCAP reader raises several types for broken files
         raise DataError(
             path,
             f"cannot open the log ({type(e).__name__}: {e})",
-            fix="check that it is a complete ROS bag or MCAP file",
+            fix="check that it is a complete MCAP file",
         ) from e
+
+
+def _bag_index(reader: Any) -> _Index:
+    """A bag's topics, their types and counts and its duration, from the index of its
+    :func:`~.ros.open_bag` reader (a rosbag2 ``metadata.yaml``, a ROS 1 bag's index)."""
+    items = sorted(reader.topics.items())
+    types = {t: info.msgtype or "" for t, info in items}
+    counts = {t: int(info.msgcount) for t, info in items}
+    span = reader.duration * 1e-9 if sum(counts.values()) else None
+    return _Index(types, {}, counts, span)

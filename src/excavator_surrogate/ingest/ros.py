@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -143,12 +144,18 @@ def need_ros(path: Path) -> None:
 
 
 def iter_messages(
-    path: Path, kind: str, topics: set[str], *, max_decoded: int | None = None
+    path: Path,
+    kind: str,
+    topics: set[str],
+    *,
+    max_decoded: int | None = None,
+    reader: Any = None,
 ) -> Iterator[tuple[str, int, Any]]:
     """Yield ``(topic, log_time_ns, msg)``; raises DataError for missing topics.
 
     ``max_decoded``: each topic's messages past this many are yielded as ``None``, not
-    deserialised (their times only; None: every message is deserialised)."""
+    deserialised (their times only; None: every message is deserialised).  ``reader``: a bag
+    already opened by :func:`open_bag` (not an MCAP file), read instead of opening it again."""
     count = dict.fromkeys(topics, 0)
 
     def wanted(topic: str) -> bool:
@@ -157,7 +164,20 @@ def iter_messages(
 
     if kind == "mcap":
         yield from _iter_mcap(path, topics, wanted)
-        return
+    elif reader is not None:
+        yield from _bag_messages(reader, path, topics, wanted)
+    else:
+        with open_bag(path, kind) as opened:
+            yield from _bag_messages(opened, path, topics, wanted)
+
+
+@contextmanager
+def open_bag(path: Path, kind: str) -> Iterator[Any]:
+    """A rosbags ``AnyReader`` opened on a rosbag2 folder or ROS 1 bag, closed on exit.
+
+    Raises:
+        DataError: the bag cannot be opened (with the fix for its kind).
+    """
     need_ros(path)
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
@@ -175,20 +195,26 @@ def iter_messages(
         )
         raise DataError(path, f"cannot open the bag ({type(e).__name__}: {e})", fix=fix) from e
     try:
-        present = sorted(reader.topics)
-        for t in sorted(topics):
-            if t not in present:
-                raise DataError(
-                    path,
-                    f"topic '{t}' is not in the bag",
-                    fix=f"topics present: {', '.join(present)}",
-                )
-        conns = [c for c in reader.connections if c.topic in topics]
-        for con, ts, raw in reader.messages(connections=conns):
-            msg = reader.deserialize(raw, con.msgtype) if wanted(con.topic) else None
-            yield con.topic, int(ts), msg
+        yield reader
     finally:
         reader.close()
+
+
+def _bag_messages(
+    reader: Any, path: Path, topics: set[str], wanted: Callable[[str], bool]
+) -> Iterator[tuple[str, int, Any]]:
+    """``(topic, log_time_ns, msg)`` of ``topics`` from an :func:`open_bag` reader; ``msg`` is
+    None where ``wanted(topic)`` is false.  Raises DataError for a topic not in the bag."""
+    present = sorted(reader.topics)
+    for t in sorted(topics):
+        if t not in present:
+            raise DataError(
+                path, f"topic '{t}' is not in the bag", fix=f"topics present: {', '.join(present)}"
+            )
+    conns = [c for c in reader.connections if c.topic in topics]
+    for con, ts, raw in reader.messages(connections=conns):
+        msg = reader.deserialize(raw, con.msgtype) if wanted(con.topic) else None
+        yield con.topic, int(ts), msg
 
 
 def _iter_mcap(
