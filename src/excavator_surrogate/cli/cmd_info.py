@@ -63,6 +63,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "csv.skip_rows=3, csv.delimiter=';', csv.decimal=',', csv.encoding=cp1252 "
         "(repeatable; default: the delimiter is sniffed and decimal commas recognised)",
     )
+    p.add_argument(
+        "--draft-mapping",
+        metavar="MAP.toml",
+        default=None,
+        help="a raw log: also write a first import mapping for it, guessed from its channels' "
+        "names, units and ranges (joints, angle/velocity/command channels, units, the time "
+        "column), each guess marked '# guessed' and what it could not decide '# TODO'",
+    )
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="with --draft-mapping: replace an existing file",
+    )
     p.set_defaults(func=run, shows=True)  # -q does not mute what it was asked to show
 
 
@@ -94,12 +107,32 @@ def run(args: argparse.Namespace) -> int:
             )
         from ..ingest.inventory import summarize_log
 
+        draft_out = None
+        if args.draft_mapping is not None:
+            from ..outdir import check_out_file
+
+            draft_out = check_out_file(
+                args.draft_mapping,
+                inputs=[path],
+                flag="--draft-mapping",
+                example="mapping.toml",
+                overwrite=args.overwrite,
+            )
         summary = summarize_log(path, csv=csv)
         if args.json:
             print(json.dumps(summary.to_dict(), indent=2, allow_nan=False))
         else:
             print(_log_markdown(summary), end="")
+        if draft_out is not None:
+            _write_draft(summary, draft_out, csv=csv)
         return 0
+    if args.draft_mapping is not None:
+        from ..errors import ConfigError
+
+        raise ConfigError(
+            f"{path}: --draft-mapping drafts a mapping for a raw log (.csv, .parquet, .mf4, "
+            "a ROS bag ...), not for this"
+        )
     if csv is not None:
         from ..errors import ConfigError
 
@@ -162,6 +195,24 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(text(card), end="")
     return 0
+
+
+def _write_draft(summary: LogSummary, out: Path, *, csv: CsvOptions | None) -> None:
+    """Write the drafted mapping of ``summary`` to ``out`` and say what it holds (stderr)."""
+    import sys
+
+    from ..ingest.draft import draft_mapping
+    from ..io_utils import write_text
+
+    draft = draft_mapping(summary, csv=csv)
+    write_text(out, draft.text)
+    joints = ", ".join(draft.joints) if draft.joints else "no joint"
+    print(
+        f"wrote {out}: {joints}; {len(draft.todo)} TODO, {len(draft.unused)} channel(s) not "
+        f"mapped. Check the lines marked '# guessed', then: exsur import {summary.path} "
+        f"--mapping {out} --dry-run",
+        file=sys.stderr,
+    )
 
 
 def _csv_options(sets: list[str]) -> CsvOptions | None:
