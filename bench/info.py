@@ -16,8 +16,9 @@ Goals: the long bag's summary within 1.5x the short one's; within half of the wh
 and the two summaries agree (the same ranges and rates, the counts and the duration in the
 ratio of the lengths).  The goals are for MCAP storage, the default (rosbag2's since ROS 2
 Iron).  With ``--storage sqlite3`` the bag reader's own opening scans the message table's
-index (about 0.25 s per 460,000 messages here), so the long bag costs more, though no more
-than a whole read of it, whose blobs of a real camera topic would cost far more::
+index (about 0.25 s per 460,000 messages here; the summary opens the bag once), so the
+long bag costs more, though no more than a whole read of it, whose blobs of a real camera
+topic would cost far more::
 
     python bench/info.py                       # 200 s and 2000 s at 200 Hz + 30 Hz
     python bench/info.py --long-factor 20
