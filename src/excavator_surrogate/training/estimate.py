@@ -51,8 +51,9 @@ validation run, one core [s]; plus :data:`VAL_RUN_STEP_S` for each run in the ba
 network's mean time per validated epoch over its own training pace against
 :data:`~.plan.STEP_S` (0.79-0.97), per sample: one 2000-sample segment (the continuous and
 7-minute loader logs, 24 networks) 1.09-1.27e-4 s, two sessions of 3000 samples
-1.30-1.43e-4 s, h1-dev's 24 runs of at most 641 samples 4.2-5.6e-4 s.  Measured on B only:
-another CPU's validation may run at another ratio to its training steps."""
+1.30-1.43e-4 s, h1-dev's 24 runs of at most 641 samples 4.2-5.6e-4 s.  On a Zen 4 (AVX-512,
+no AMX; session 108) the continuous log's 36 networks validated at 0.79-1.12x this price
+over their own pace (median 1.00): validation kept B's ratio to the training steps there."""
 VAL_RUN_STEP_S = 1.5e-5
 """Reference machine: what each validation run adds to a step of :data:`VAL_PAIR_STEP_S` [s]."""
 
