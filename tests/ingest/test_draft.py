@@ -195,3 +195,7 @@ def test_the_cli_never_replaces_a_file_it_did_not_write(
     assert rc != 0 and "--draft-mapping must end in .toml" in err
     rc, _, err = cli("info", arm3_dir / "arm3.toml", "--draft-mapping", tmp_path / "y.toml")
     assert rc != 0 and not (tmp_path / "y.toml").exists()
+    assert "--draft-mapping drafts a mapping for a raw log" in err
+    rc, _, err = cli("info", arm3_dir / "logs", "--draft-mapping", tmp_path / "y.toml")
+    assert rc != 0 and not (tmp_path / "y.toml").exists()
+    assert f"a folder of 4 raw log(s); draft from one of them, e.g. exsur info {log}" in err

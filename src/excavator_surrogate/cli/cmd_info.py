@@ -129,6 +129,12 @@ def run(args: argparse.Namespace) -> int:
     if args.draft_mapping is not None:
         from ..errors import ConfigError
 
+        logs = [c for c in sorted(path.iterdir()) if _is_raw_log(c)] if path.is_dir() else []
+        if logs:
+            raise ConfigError(
+                f"{path}: a folder of {len(logs)} raw log(s); draft from one of them, e.g. "
+                f"exsur info {logs[0]} --draft-mapping {args.draft_mapping}"
+            )
         raise ConfigError(
             f"{path}: --draft-mapping drafts a mapping for a raw log (.csv, .parquet, .mf4, "
             "a ROS bag ...), not for this"
