@@ -199,3 +199,26 @@ def test_the_cli_never_replaces_a_file_it_did_not_write(
     rc, _, err = cli("info", arm3_dir / "logs", "--draft-mapping", tmp_path / "y.toml")
     assert rc != 0 and not (tmp_path / "y.toml").exists()
     assert f"a folder of 4 raw log(s); draft from one of them, e.g. exsur info {log}" in err
+
+
+def test_an_mdf_logs_own_units_win_over_the_range(tmp_path: Path) -> None:
+    """An MDF channel's unit (``°``, ``°/s``) decides, even where the range would fit radians;
+    a command in mA that leaves ±100 is ``raw`` over the span the log shows."""
+    asammdf = pytest.importorskip("asammdf")
+    t = np.arange(0.0, 5.0, 0.01)
+    angle = 2.0 + np.sin(t)  # 1..3: small enough for radians, but the log says degrees
+    signals = [
+        asammdf.Signal(angle, t, name="BoomPos", unit="°"),
+        asammdf.Signal(np.gradient(angle, t), t, name="BoomRate", unit="°/s"),
+        asammdf.Signal(300.0 + 250.0 * np.sin(t), t, name="BoomValve", unit="mA"),
+    ]
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append(signals)
+    mdf.save(tmp_path / "run.mf4", overwrite=True)
+    mdf.close()
+    draft = draft_mapping(summarize_log(tmp_path / "run.mf4"))
+    assert 'angle = { column = "BoomPos", unit = "deg" }\n' in draft.text
+    assert 'velocity = { column = "BoomRate", unit = "deg/s" }\n' in draft.text
+    assert 'command = { column = "BoomValve", unit = "raw", raw_range = [50.0' in draft.text
+    m = parse_mapping(tomllib.loads(draft.text))
+    assert m.joints[0].command.raw_range[1] == pytest.approx(550.0, abs=0.1)
