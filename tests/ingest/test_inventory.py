@@ -330,3 +330,20 @@ def test_mdf_samples_flagged_invalid_are_missing(tmp_path, short_cols):
     got = _by_name(summarize_log(log))["arm_deg"]
     assert (got.n_sample, got.n_missing) == (t.size, 10)
     assert got.hi == pytest.approx(np.delete(arm, np.arange(100, 110)).max())
+
+
+def test_a_bag_index_that_opens_but_does_not_read_is_one_line(tmp_path):
+    """A bag whose reader opened but whose index raises (a damaged index) is a DataError that
+    names the bag and the reindex tools, not a traceback."""
+    from excavator_surrogate.errors import DataError
+    from excavator_surrogate.ingest import inventory_ros
+
+    class Broken:
+        @property
+        def topics(self):
+            raise KeyError("connections")
+
+    with pytest.raises(
+        DataError, match=r"bag: cannot read the bag's index \(KeyError: 'connections'\)"
+    ):
+        inventory_ros._bag_index(tmp_path / "bag", Broken())

@@ -67,7 +67,7 @@ def summarize_ros(path: Path, kind: str, label: str) -> LogSummary:
     if kind == "mcap":
         return _summarize(path, kind, label, _mcap_index(path), reader=None)
     with open_bag(path, kind) as reader:  # opened once: a sqlite3 bag's opening scans its index
-        return _summarize(path, kind, label, _bag_index(reader), reader=reader)
+        return _summarize(path, kind, label, _bag_index(path, reader), reader=reader)
 
 
 def _summarize(path: Path, kind: str, label: str, index: _Index, *, reader: Any) -> LogSummary:
@@ -199,11 +199,19 @@ def _mcap_index(path: Path) -> _Index:
         ) from e
 
 
-def _bag_index(reader: Any) -> _Index:
+def _bag_index(path: Path, reader: Any) -> _Index:
     """A bag's topics, their types and counts and its duration, from the index of its
     :func:`~.ros.open_bag` reader (a rosbag2 ``metadata.yaml``, a ROS 1 bag's index)."""
-    items = sorted(reader.topics.items())
-    types = {t: info.msgtype or "" for t, info in items}
-    counts = {t: int(info.msgcount) for t, info in items}
-    span = reader.duration * 1e-9 if sum(counts.values()) else None
+    try:
+        items = sorted(reader.topics.items())
+        types = {t: info.msgtype or "" for t, info in items}
+        counts = {t: int(info.msgcount) for t, info in items}
+        span = reader.duration * 1e-9 if sum(counts.values()) else None
+    except Exception as e:  # an index that opened but does not read: a damaged bag
+        raise DataError(
+            path,
+            f"cannot read the bag's index ({type(e).__name__}: {e})",
+            fix="check that it is a complete ROS bag; 'ros2 bag reindex' or 'rosbag reindex' "
+            "writes the index again",
+        ) from e
     return _Index(types, {}, counts, span)
