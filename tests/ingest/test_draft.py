@@ -222,3 +222,24 @@ def test_an_mdf_logs_own_units_win_over_the_range(tmp_path: Path) -> None:
     assert 'command = { column = "BoomValve", unit = "raw", raw_range = [50.0' in draft.text
     m = parse_mapping(tomllib.loads(draft.text))
     assert m.joints[0].command.raw_range[1] == pytest.approx(550.0, abs=0.1)
+
+
+def test_a_wheel_loaders_lift_and_tilt_are_its_boom_and_bucket() -> None:
+    draft = draft_mapping(
+        _summary(
+            _ch("Time", 0.0, 42.0, n=841),
+            _ch("LiftAngle", -40.0, 45.0),
+            _ch("TiltAngle", -50.0, 60.0),
+            _ch("LiftJoystick", -100.0, 100.0),
+            _ch("Tilt_dump", 0.0, 100.0),
+            _ch("Tilt_crowd", 0.0, 100.0),
+            _ch("EngineSpeed", 700.0, 2100.0, unit="rpm"),
+        )
+    )
+    m = parse_mapping(tomllib.loads(draft.text))
+    assert [j.name for j in m.joints] == ["boom", "bucket"]
+    assert m.joints[0].command.column == "LiftJoystick"
+    assert (m.joints[1].command.up, m.joints[1].command.down) == ("Tilt_dump", "Tilt_crowd")
+    assert (m.time.column, m.time.unit) == ("Time", "s")
+    assert "rate_hz = 20.0  # the log runs at 20 Hz" in draft.text
+    assert '# name = "engine_speed"' in draft.text

@@ -42,11 +42,12 @@ from .summary import ChannelSummary, LogSummary
 
 JOINT_WORDS: dict[str, tuple[str, ...]] = {
     "swing": ("swing", "slew", "turret", "house"),
-    "boom": ("boom",),
+    "boom": ("boom", "lift"),
     "arm": ("arm", "stick", "dipper"),
-    "bucket": ("bucket", "bkt", "bck"),
+    "bucket": ("bucket", "bkt", "bck", "tilt"),
 }
-"""The excavator's joints, in the mapping's order, and the words that name each in a channel."""
+"""The excavator's joints, in the mapping's order, and the words that name each in a channel
+(a wheel loader's lift arm and tilt are its boom and bucket)."""
 VELOCITY_WORDS = ("vel", "velocity", "omega", "speed", "dot", "dps", "degps", "radps", "dq")
 """Words of a velocity channel (``boom_vel``, ``ArmOmega``, ``bucket_dps``)."""
 COMMAND_WORDS = (
@@ -79,6 +80,7 @@ MEASURE_WORDS += ("temp", "temperature", "flow", "force", "load", "torque", "bar
 UP_WORDS = ("up", "out", "extend", "ext", "raise", "open", "left", "cw", "plus", "fwd", "dump")
 """Direction words of the one-way channel that is the command's ``up`` (positive) part."""
 DOWN_WORDS = ("dn", "down", "in", "retract", "ret", "lower", "close", "right", "ccw", "minus")
+DOWN_WORDS += ("crowd", "curl")
 """Direction words of the ``down`` (negative) part."""
 INPUT_WORDS = ("rpm", "engine", "eng", "throttle", "pressure", "pump", "gear", "load", "bar")
 """Words of a channel that may be an exogenous input (engine speed, throttle, pump pressure)."""
@@ -188,6 +190,8 @@ def _classify(ch: _Channel, *, table: bool) -> None:
         ch.role, ch.used = "time", True
     elif table and ch.joint is None and _has(ws, TIME_WORDS):
         ch.role = "time"
+    elif ch.joint is None and _has(ws, INPUT_WORDS):  # EngineSpeed: not a joint's velocity
+        ch.role = "input"
     elif _has(ws, VELOCITY_WORDS) or (unit or "").endswith("/s"):
         ch.role = "velocity"
     elif not _has(ws, MEASURE_WORDS) and (
@@ -199,8 +203,6 @@ def _classify(ch: _Channel, *, table: bool) -> None:
         ch.role = "stroke"
     elif _has(ws, ANGLE_WORDS) or unit in ("deg", "rad"):
         ch.role = "angle"
-    if ch.role is None and ch.joint is None and _has(ws, INPUT_WORDS):
-        ch.role = "input"
     if ch.role == "time" and c.lo is None and "text" not in c.note and "timestamp" not in c.note:
         ch.role = None
 
