@@ -51,8 +51,9 @@ def test_the_example_arms_logs_give_its_mapping(arm3_dir: Path, cli, tmp_path: P
     """The arm's logs (``boom_deg``, ``boom_up_pct`` / ``boom_down_pct``, ``t_ms``) give the
     hand-written mapping's channels and units, and the import takes the draft."""
     out = tmp_path / "draft.toml"
-    rc, _, err = cli("info", arm3_dir / "logs" / "run01.csv", "--draft-mapping", out)
+    rc, text, err = cli("info", arm3_dir / "logs" / "run01.csv", "--draft-mapping", out)
     assert rc == 0
+    assert "- `--draft-mapping MAP.toml` writes a first mapping guessed from these" in text
     assert f"wrote {out}: boom, arm, bucket; 0 TODO, 0 channel(s) not mapped" in err
     draft, hand = load_mapping(out), load_mapping(arm3_dir / "arm3.toml")
     assert draft.time == hand.time

@@ -298,6 +298,8 @@ def _log_markdown(summary: LogSummary) -> str:
     tail += [
         "- A mapping names a channel as the first column shows it (`column = ...`; a ROS "
         "log's `topic` and `field`); the ranges are raw, before any unit (docs/import.md).",
+        "- `--draft-mapping MAP.toml` writes a first mapping guessed from these channels, "
+        "each guess marked.",
         "",
     ]
     return "\n".join(head + rows + tail)
