@@ -15,7 +15,16 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError
-from .mapping import DEG, Channel, CommandMap, ImportOptions, InputMap, JointMap, Mapping
+from .mapping import (
+    DEG,
+    TIME_UNIT_S,
+    Channel,
+    CommandMap,
+    ImportOptions,
+    InputMap,
+    JointMap,
+    Mapping,
+)
 from .sources import Series
 
 MAX_PLAUSIBLE_SPEED = 10.0
@@ -70,10 +79,9 @@ def check_rate(path: Path, s: Series, dt_in: float, mapping: Mapping) -> None:
         return
     fix = "check the time column"
     unit = mapping.time.unit
-    if s.name == "table" and unit in ("s", "ms", "us", "ns"):
-        scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
-        for cand, f in scale.items():
-            r = rate * scale[unit] / f
+    if s.name == "table" and unit in TIME_UNIT_S:
+        for cand, f in TIME_UNIT_S.items():
+            r = rate * TIME_UNIT_S[unit] / f
             if cand != unit and 5 <= r <= 1000:
                 fix = f'the time unit looks wrong: set [time] unit = "{cand}" ({r:.4g} Hz)'
                 break

@@ -29,14 +29,15 @@ as a commented ``[[inputs]]`` table, not mapped: whether one helps is for the da
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..config import toml_value
 from .checks import log_unit_name
+from .mapping import TIME_UNIT_S
 from .options import CsvOptions
 from .summary import ChannelSummary, LogSummary
 
@@ -115,6 +116,8 @@ class _Channel:
     ref: dict[str, str]
     """How a mapping names it: ``{"column": ...}`` or ``{"topic": ..., "field": ...}``."""
     words: list[str]
+    unit: str | None
+    """The log's unit label as a mapping's unit name (:func:`~.checks.log_unit_name`), or None."""
     joint: str | None = None
     role: str | None = None
     """``angle``, ``stroke``, ``velocity``, ``command``, ``input``, ``time`` or None."""
@@ -142,21 +145,9 @@ def _has(ws: Sequence[str], cues: Sequence[str]) -> bool:
     return any(w in cues or (len(w) > 3 and w[-1] == "s" and w[:-1] in cues) for w in ws)
 
 
-def _fmt(v: Any) -> str:
-    """A TOML value."""
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        return repr(float(f"{v:.6g}"))
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    return str(v)
-
-
-def _inline(table: dict[str, Any]) -> str:
-    return "{ " + ", ".join(f"{k} = {_fmt(v)}" for k, v in table.items()) + " }"
+def _sig(x: float) -> float:
+    """A value the log shows, to 6 significant digits (for the draft's text)."""
+    return float(f"{x:.6g}")
 
 
 def _channels(summary: LogSummary) -> list[_Channel]:
@@ -176,7 +167,7 @@ def _channels(summary: LogSummary) -> list[_Channel]:
         else:
             ref = {"column": c.name}
             ws = words(c.name) + words(c.unit)
-        out.append(_Channel(c, ref, ws))
+        out.append(_Channel(c, ref, ws, log_unit_name(c.unit)))
     return out
 
 
@@ -185,7 +176,7 @@ def _classify(ch: _Channel, *, table: bool) -> None:
     ws, c = ch.words, ch.summary
     joints = [j for j, cues in JOINT_WORDS.items() if _has(ws, cues)]
     ch.joint = joints[0] if len(joints) == 1 else None
-    unit = log_unit_name(c.unit) if c.unit else None
+    unit = ch.unit
     if c.note.startswith("time base"):  # a dSPACE export's x axis: the time by default
         ch.role, ch.used = "time", True
     elif table and ch.joint is None and _has(ws, TIME_WORDS):
@@ -203,14 +194,11 @@ def _classify(ch: _Channel, *, table: bool) -> None:
         ch.role = "stroke"
     elif _has(ws, ANGLE_WORDS) or unit in ("deg", "rad"):
         ch.role = "angle"
-    if ch.role == "time" and c.lo is None and "text" not in c.note and "timestamp" not in c.note:
-        ch.role = None
 
 
 def _position_unit(ch: _Channel) -> tuple[str, str]:
     """``(unit, why)`` of an angle or stroke channel; ``why`` is empty where the log says."""
-    c = ch.summary
-    unit = log_unit_name(c.unit) if c.unit else None
+    c, unit = ch.summary, ch.unit
     if unit in ("deg", "rad", "m", "cm", "mm"):
         return unit, ""
     for w in ("deg", "rad", "mm", "cm"):
@@ -244,7 +232,7 @@ def _assign_by_order(chs: list[_Channel]) -> None:
         c.joint, c.by_order = waiting[k // per], True
 
 
-def _command(chs: list[_Channel], name: str) -> tuple[dict[str, Any], list[str]] | None:
+def _command(chs: list[_Channel]) -> tuple[dict[str, Any], list[str]] | None:
     """The ``command`` table of a joint from its command channels, and its guesses."""
     guesses: list[str] = []
     if any(c.by_order for c in chs):
@@ -270,7 +258,7 @@ def _command(chs: list[_Channel], name: str) -> tuple[dict[str, Any], list[str]]
         return None
     lo = min(c.summary.lo or 0.0 for c in parts)
     hi = max(c.summary.hi or 0.0 for c in parts)
-    units = {log_unit_name(c.summary.unit) or c.summary.unit.strip() for c in parts}
+    units = {c.unit or c.summary.unit.strip() for c in parts}
     pct = _has([w for c in parts for w in c.words], ("pct", "percent", "duty")) or units == {"%"}
     if pct or (-100.5 <= lo and hi <= 100.5):
         table["unit"] = "%"
@@ -281,7 +269,7 @@ def _command(chs: list[_Channel], name: str) -> tuple[dict[str, Any], list[str]]
     else:
         span = max(abs(lo), abs(hi)) if len(parts) == 2 else None
         raw = [-span, span] if span is not None else [lo, hi]
-        table |= {"unit": "raw", "raw_range": [float(x) for x in raw]}
+        table |= {"unit": "raw", "raw_range": [_sig(x) for x in raw]}
         guesses.append(f"raw, full scale {raw[0]:.4g} .. {raw[1]:.4g} as seen in this log")
     return table, guesses
 
@@ -313,7 +301,7 @@ def draft_mapping(summary: LogSummary, *, csv: CsvOptions | None = None) -> Draf
     log_rate = max(rates) if rates else _table_rate(chs) if table else None
     rate = 20.0 if log_rate is None or log_rate >= 20.0 else float(f"{log_rate:.3g}")
     why = f"  # the log runs at {log_rate:.4g} Hz" if log_rate else ""
-    lines.append(f"rate_hz = {_fmt(rate)}{why}")
+    lines.append(f"rate_hz = {toml_value(rate)}{why}")
     todo: list[str] = []
     if table:
         lines += ["", "[time]", *_time_lines(chs, todo)]
@@ -321,7 +309,7 @@ def draft_mapping(summary: LogSummary, *, csv: CsvOptions | None = None) -> Draf
         lines += ["", "[csv]"]
         for k, v in vars(csv).items():
             if v != getattr(CsvOptions(), k):
-                lines.append(f"{k} = {_fmt(v)}")
+                lines.append(f"{k} = {toml_value(v)}")
     _assign_by_order(chs)
     joints = []
     for name in JOINT_WORDS:
@@ -347,12 +335,13 @@ def draft_mapping(summary: LogSummary, *, csv: CsvOptions | None = None) -> Draf
             unit = c.summary.unit.strip() or "physical"
             lines += [
                 "# [[inputs]]",
-                f"# name = {_fmt(name)}",
-                *(f"# {k} = {_fmt(v)}" for k, v in c.ref.items()),
+                f"# name = {toml_value(name)}",
+                *(f"# {k} = {toml_value(v)}" for k, v in c.ref.items()),
                 '# unit = "physical"',
-                f"# physical_unit = {_fmt(unit)}",
-                f"# range = {_fmt([c.summary.lo, c.summary.hi])}",
+                f"# physical_unit = {toml_value(unit)}",
             ]
+            if c.summary.lo is not None and c.summary.hi is not None:
+                lines.append(f"# range = {toml_value([_sig(c.summary.lo), _sig(c.summary.hi)])}")
     unused = [_label(c) for c in chs if not c.used]
     if todo:
         lines += ["", *(f"# TODO: {t}" for t in todo)]
@@ -369,25 +358,27 @@ def _label(c: _Channel) -> str:
     return f"{name}{unit}{rng}"
 
 
+def _mean_step(s: ChannelSummary) -> float:
+    """A numeric time column's mean step, in its own unit."""
+    return ((s.hi or 0.0) - (s.lo or 0.0)) / max(s.n_sample - 1, 1)
+
+
 def _table_rate(chs: list[_Channel]) -> float | None:
     """A table's sample rate [Hz] from its time column's span (None: no numeric one)."""
-    t = next((c.summary for c in chs if c.role == "time" and c.summary.lo is not None), None)
-    if t is None or t.hi is None or t.n_sample < 2 or t.hi <= t.lo:
+    t = next((c for c in chs if c.role == "time" and c.summary.lo is not None), None)
+    if t is None or t.summary.hi is None or t.summary.n_sample < 2 or t.summary.hi <= t.summary.lo:
         return None
-    step = (t.hi - t.lo) / (t.n_sample - 1)
-    unit = _time_unit(next(c for c in chs if c.summary is t))[0]
-    return 1.0 / (step * {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[unit])
+    return 1.0 / (_mean_step(t.summary) * TIME_UNIT_S[_time_unit(t)[0]])
 
 
 def _time_unit(t: _Channel) -> tuple[str, str]:
     """``(unit, why)`` of a time column; ``why`` is empty where its name says."""
-    s = t.summary
     unit_word = next((TIME_UNITS[w] for w in t.words if w in TIME_UNITS), None)
-    if s.lo is None:  # text or a timestamp type
+    if t.summary.lo is None:  # text or a timestamp type
         return "datetime", "text or timestamps"
     if unit_word is not None:
         return unit_word, ""
-    step = ((s.hi or 0.0) - s.lo) / max(s.n_sample - 1, 1)
+    step = _mean_step(t.summary)
     unit = "s" if step <= 1.0 else "ms" if step <= 1e3 else "us" if step <= 1e6 else "ns"
     return unit, f"a mean step of {step:.4g} per sample"
 
@@ -402,7 +393,7 @@ def _time_lines(chs: list[_Channel], todo: list[str]) -> list[str]:
     t.used = True
     unit, why = _time_unit(t)
     mark = f"  # guessed: {why}" if why else ""
-    return [f"column = {_fmt(t.ref['column'])}", f"unit = {_fmt(unit)}{mark}"]
+    return [f"column = {toml_value(t.ref['column'])}", f"unit = {toml_value(unit)}{mark}"]
 
 
 def _joint_lines(name: str, chs: list[_Channel], todo: list[str]) -> list[str]:
@@ -421,7 +412,7 @@ def _joint_lines(name: str, chs: list[_Channel], todo: list[str]) -> list[str]:
             + ("found" if not pos else f"({', '.join(_label(c) for c in pos)}): keep one")
         )
         return []
-    command = _command(cmd, name) if cmd else None
+    command = _command(cmd) if cmd else None
     if command is None:
         what = "no command channel" if not cmd else f"{len(cmd)} command channels"
         todo.append(f"{name}: {what} ({', '.join(_label(c) for c in cmd) or 'none'}): map it")
@@ -429,19 +420,18 @@ def _joint_lines(name: str, chs: list[_Channel], todo: list[str]) -> list[str]:
     p = pos[0]
     unit, why = _position_unit(p)
     linear = unit in ("m", "cm", "mm")
-    out = ["[[joints]]", f"name = {_fmt(name)}"]
+    out = ["[[joints]]", f"name = {toml_value(name)}"]
     if name == "swing" and not linear:
         out.append("periodic = true  # guessed: the swing turns without end stops; else false")
     key = "position" if linear else "angle"
     out.append(
-        f"{key} = {_inline(p.ref | {'unit': unit})}" + (f"  # guessed: {why}" if why else "")
+        f"{key} = {toml_value(p.ref | {'unit': unit})}" + (f"  # guessed: {why}" if why else "")
     )
     p.used = True
     if len(vel) == 1:
         v = vel[0]
-        vunit = log_unit_name(v.summary.unit) if v.summary.unit else None
-        mark = "" if vunit == f"{unit}/s" else f"  # guessed: the {key}'s unit per second"
-        out.append(f"velocity = {_inline(v.ref | {'unit': f'{unit}/s'})}{mark}")
+        mark = "" if v.unit == f"{unit}/s" else f"  # guessed: the {key}'s unit per second"
+        out.append(f"velocity = {toml_value(v.ref | {'unit': f'{unit}/s'})}{mark}")
         v.used = True
     elif len(vel) > 1:
         todo.append(
@@ -449,7 +439,7 @@ def _joint_lines(name: str, chs: list[_Channel], todo: list[str]) -> list[str]:
         )
     table, guesses = command
     mark = f"  # guessed: {'; '.join(guesses)}" if guesses else ""
-    out.append(f"command = {_inline(table)}{mark}")
+    out.append(f"command = {toml_value(table)}{mark}")
     for c in cmd:
         c.used = True
     return out

@@ -177,6 +177,10 @@ class MachineTable:
     """Free-form description stored in the spec."""
 
 
+TIME_UNIT_S: dict[str, float] = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+"""A numeric ``[time] unit`` -> seconds per unit."""
+
+
 @dataclass(frozen=True)
 class TimeMap:
     """``[time]``: the time base."""
