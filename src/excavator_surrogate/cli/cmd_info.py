@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
     if args.draft_mapping is not None:
         from ..errors import ConfigError
 
-        logs = [c for c in sorted(path.iterdir()) if _is_raw_log(c)] if path.is_dir() else []
+        logs = _raw_logs_in(path) if path.is_dir() else []
         if logs:
             raise ConfigError(
                 f"{path}: a folder of {len(logs)} raw log(s); draft from one of them, e.g. "
@@ -156,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         from ..surrogate.checkpoint import checkpoint_in
 
         ckpt = checkpoint_in(path)
-        logs = [] if ckpt.is_file() else [c for c in sorted(path.iterdir()) if _is_raw_log(c)]
+        logs = [] if ckpt.is_file() else _raw_logs_in(path)
         if logs:  # a folder of raw logs: one of them is what info describes
             raise ConfigError(
                 f"{path}: a folder of {len(logs)} raw log(s), not a dataset; give one of "
@@ -230,6 +230,11 @@ def _csv_options(sets: list[str]) -> CsvOptions | None:
 
     table = parse_sets(sets, sections=["csv"])["csv"]
     return from_dict(CsvOptions, table, where="--set csv")
+
+
+def _raw_logs_in(folder: Path) -> list[Path]:
+    """The raw logs in ``folder``, sorted (what a folder given as PATH points to)."""
+    return [c for c in sorted(folder.iterdir()) if _is_raw_log(c)]
 
 
 def _is_raw_log(path: Path, *, csv_format: str = "auto") -> bool:
