@@ -24,12 +24,16 @@ def write_bag(
     order: Sequence[str] = arm3_plant.JOINTS,
     delay_ns: int = 0,
     frame_id: str = "",
+    split_valves: tuple[np.ndarray, np.ndarray] | None = None,
+    down_delay_ns: int = 0,
 ) -> Path:
     """The test arm's log ``cols`` as a bag: ``/joint_states`` (JointState, header stamps,
     the joints in ``order``, received ``delay_ns`` after the stamp) at ``joint_rows`` and
     ``/valves`` (Float64MultiArray of the up/down duties, no header) at ``valve_rows``
     (default: every row); ``storage``: "mcap" or "sqlite3" (a rosbag2 folder) or "rosbag1"
-    (a ``.bag`` file)."""
+    (a ``.bag`` file).  With ``split_valves = (up_rows, down_rows)`` each duty is a
+    ``std_msgs/Float64`` topic of its own instead, ``/<joint>/up`` at ``up_rows`` and
+    ``/<joint>/down`` at ``down_rows``, ``down_delay_ns`` after the row's time."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = storage == "rosbag1"
@@ -40,6 +44,7 @@ def write_bag(
         ts.types["std_msgs/msg/Float64MultiArray"],
         ts.types["std_msgs/msg/MultiArrayLayout"],
     )
+    f64_t = ts.types["std_msgs/msg/Float64"]
     serialize = ts.serialize_ros1 if ros1 else ts.serialize_cdr
     n = cols["t_ms"].size
     joints = set(range(n) if joint_rows is None else np.asarray(joint_rows).tolist())
@@ -56,7 +61,17 @@ def write_bag(
         writer = Writer(path, version=9, storage_plugin=plugin)
     with writer as w:
         cj = w.add_connection("/joint_states", js_t.__msgtype__, typestore=ts)
-        cv = w.add_connection("/valves", arr_t.__msgtype__, typestore=ts)
+        if split_valves is None:
+            cv = w.add_connection("/valves", arr_t.__msgtype__, typestore=ts)
+        else:
+            one_way = {
+                (j, d): (
+                    w.add_connection(f"/{j}/{d}", f64_t.__msgtype__, typestore=ts),
+                    set(np.asarray(r).tolist()),
+                )
+                for j in arm3_plant.JOINTS
+                for d, r in zip(("up", "down"), split_valves)
+            }
         for k in range(n):
             ns = T0 + round(cols["t_ms"][k] * 1e6)
             if k in joints:
@@ -72,7 +87,13 @@ def write_bag(
                     effort=np.zeros(0),
                 )
                 w.write(cj, ns + delay_ns, serialize(msg, js_t.__msgtype__))
-            if k in valves:
+            if split_valves is not None:
+                for (j, d), (con, rows) in one_way.items():
+                    if k in rows:
+                        msg = f64_t(data=float(cols[f"{j}_{d}_pct"][k]))
+                        late = down_delay_ns if d == "down" else 0
+                        w.write(con, ns + late, serialize(msg, f64_t.__msgtype__))
+            elif k in valves:
                 duty = [cols[f"{j}_{d}_pct"][k] for j in arm3_plant.JOINTS for d in ("up", "down")]
                 msg = arr_t(layout=lay_t(dim=[], data_offset=0), data=np.array(duty))
                 w.write(cv, ns, serialize(msg, arr_t.__msgtype__))

@@ -181,6 +181,36 @@ def test_a_ros_bags_joint_states_by_name(tmp_path: Path, cli) -> None:
     assert rc == 0, err
 
 
+def test_a_valves_two_directions_on_two_topics(tmp_path: Path, cli) -> None:
+    """``/boom/up`` and ``/boom/down`` (a ``Float64`` each) are drafted as ``up = { topic,
+    field }`` and ``down = { ... }``, and the import takes the draft."""
+    pytest.importorskip("rosbags")
+    from tests.helpers.ros_bags import write_bag
+
+    cols = arm3_plant.simulate(duration_s=6.0, seed=2, log_rate_hz=50.0)
+    n = cols["t_ms"].size
+    write_bag(tmp_path / "bag", cols, storage="mcap", split_valves=(np.arange(n), np.arange(n)))
+    draft = draft_mapping(summarize_log(tmp_path / "bag"))
+    assert draft.joints == list(arm3_plant.JOINTS) and not draft.todo and not draft.unused
+    assert 'up = { topic = "/boom/up", field = "data" }' in draft.text
+    m = parse_mapping(tomllib.loads(draft.text))
+    assert [c.label for c in m.command_channels(m.joints[2])] == [
+        "/bucket/up:data",
+        "/bucket/down:data",
+    ]
+    (tmp_path / "m.toml").write_text(draft.text)
+    rc, _, err = cli(
+        "import",
+        tmp_path / "bag",
+        "--mapping",
+        tmp_path / "m.toml",
+        "--dry-run",
+        "--min-steps",
+        "20",
+    )
+    assert rc == 0, err
+
+
 def test_the_cli_never_replaces_a_file_it_did_not_write(
     arm3_dir: Path, cli, tmp_path: Path
 ) -> None:

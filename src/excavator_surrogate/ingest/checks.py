@@ -247,6 +247,68 @@ def _to_command(x: np.ndarray, c: CommandMap) -> np.ndarray:
     return x
 
 
+def _full_scale(c: CommandMap) -> tuple[float, float]:
+    """The channel values (after scale/offset) that :func:`_to_command` maps onto
+    ``c.range``'s ends: ``(x at u_min, x at u_max)``."""
+    lo, hi = c.range
+    if c.unit == "%":
+        return -100.0, 100.0
+    if c.unit == "raw":
+        rlo, rhi = c.raw_range  # type: ignore[misc]
+        return float(rlo), float(rhi)
+    return float(lo), float(hi)
+
+
+def check_one_way(
+    path: Path,
+    j: JointMap | InputMap,
+    ch: Channel,
+    x: np.ndarray,
+    *,
+    down: bool,
+    full: bool,
+    options: ImportOptions,
+    where: str,
+) -> None:
+    """One one-way command channel ``x`` (its own rows, after scale/offset) is never negative
+    and, with ``full``, never beyond its direction's end of the command range (the check of a
+    channel on a topic of its own, whose rows the other direction's do not share).
+
+    Raises:
+        DataError: naming the channel and its row (not with ``options.clip_commands``, where
+            :func:`command_of` clips instead).
+    """
+    if options.clip_commands:
+        return
+    c = j.command
+    what = f"joint '{j.name}' command" if isinstance(j, JointMap) else f"input '{j.name}'"
+    tol = 1e-9 * (c.range[1] - c.range[0])
+    neg = x < -tol
+    if neg.any():
+        row = int(np.flatnonzero(neg)[0])
+        raise DataError(
+            path,
+            f"one-way command channel is negative ({x[row]:.6g})",
+            column=ch.label,
+            row=row,
+            fix=f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
+        )
+    if not full:
+        return
+    x_lo, x_hi = _full_scale(c)
+    top = -x_lo if down else x_hi
+    over = x > top + 1e-9 * (x_hi - x_lo)
+    if over.any():
+        row = int(np.flatnonzero(over)[0])
+        raise DataError(
+            path,
+            f"one-way command channel {x[row]:.6g} {c.unit} is beyond full command ({top:g})",
+            column=ch.label,
+            row=row,
+            fix=f"check unit/scale/range of {what} in {where}, or use --clip-commands",
+        )
+
+
 def command_of(
     path: Path,
     j: JointMap | InputMap,
@@ -257,7 +319,8 @@ def command_of(
     where: str,
     entry: dict[str, Any],
 ) -> np.ndarray:
-    """(n_row,) command of joint or input ``j`` in its range, from its ``chans`` in ``vals``.
+    """(n_row,) command of joint or input ``j`` in its range, from its ``chans`` in ``vals``
+    (all on the same rows).
 
     A two-channel command is ``up - down``; out-of-range values are an error, or clipped
     (and counted in ``entry["clipped"]``) with ``options.clip_commands``.
@@ -268,17 +331,8 @@ def command_of(
     tol = 1e-9 * span
     raw = [vals[ch] * c.scale + c.offset for ch in chans]
     if c.two_channel:
-        for ch, x in zip(chans, raw):
-            neg = x < -tol
-            if neg.any() and not options.clip_commands:
-                row = int(np.flatnonzero(neg)[0])
-                raise DataError(
-                    path,
-                    f"one-way command channel is negative ({x[row]:.6g})",
-                    column=ch.label,
-                    row=row,
-                    fix=f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
-                )
+        for k, (ch, x) in enumerate(zip(chans, raw)):
+            check_one_way(path, j, ch, x, down=k == 1, full=False, options=options, where=where)
         x = (
             np.maximum(raw[0], 0.0) - np.maximum(raw[1], 0.0)
             if options.clip_commands

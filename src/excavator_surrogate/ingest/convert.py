@@ -28,6 +28,7 @@ from .checks import (
     apply_nan_policy,
     check_angle_unit,
     check_log_unit,
+    check_one_way,
     check_rate,
     check_time,
     check_upsampling,
@@ -42,6 +43,7 @@ from .resample import (
     antialias_sos,
     cumulative_trapezoid,
     decimation_factor,
+    hold,
     interval_mean,
     resample_smooth,
 )
@@ -70,6 +72,9 @@ class _Signals:
     u: list[np.ndarray]
     """Per command column (joints, then inputs): command in its range; a 0-d array for a
     per-run constant input (``from_name`` / ``from_metadata``)."""
+    u_time: list[np.ndarray | None]
+    """Per command column: its own time base [s] where its up and down channels lie on two
+    topics (the union of their times, both held on it), else None (its channels' series)."""
 
 
 def convert_log(
@@ -213,10 +218,25 @@ def _to_units(
     theta: list[np.ndarray] = []
     omega: list[np.ndarray | None] = []
     u: list[np.ndarray] = []
+    u_time: list[np.ndarray | None] = []
 
-    def command(src: JointMap | InputMap) -> np.ndarray:
+    def command(src: JointMap | InputMap) -> None:
         chans = mapping.command_channels(src)
-        return command_of(path, src, chans, vals, options=options, where=where, entry=entry)
+        if len({ch.series for ch in chans}) == 1:
+            u.append(command_of(path, src, chans, vals, options=options, where=where, entry=entry))
+            u_time.append(None)
+            return
+        # up and down on two topics: each checked on its own messages, then both held on
+        # the union of their times, where up - down is the command the valve saw
+        c = src.command
+        times = [raw.series[ch.series].time for ch in chans]
+        for k, ch in enumerate(chans):
+            x = vals[ch] * c.scale + c.offset
+            check_one_way(path, src, ch, x, down=k == 1, full=True, options=options, where=where)
+        t = np.union1d(*times)
+        held = {ch: hold(tk, vals[ch], t) for ch, tk in zip(chans, times)}
+        u.append(command_of(path, src, chans, held, options=options, where=where, entry=entry))
+        u_time.append(t)
 
     def log_unit(ch: Channel, mapped: str | None, scale: float, what: str) -> None:
         """The log's own unit of ``ch`` against the mapping's (not for a scaled channel,
@@ -244,10 +264,10 @@ def _to_units(
         else:
             omega.append(None)
             entry["velocity"][j.name] = options.velocity
-        u.append(command(j))
+        command(j)
     for inp in mapping.inputs:  # exogenous inputs: after the joints'
         if inp.run is None:
-            u.append(command(inp))
+            command(inp)
             continue
         rng = (float(inp.command.range[0]), float(inp.command.range[1]))
         value, note = run_input_value(
@@ -255,7 +275,8 @@ def _to_units(
         )
         entry.setdefault("run_inputs", {})[inp.name] = {"value": value, "from": note}
         u.append(np.asarray(value, dtype=np.float64))
-    return _Signals(theta=theta, omega=omega, u=u)
+        u_time.append(None)
+    return _Signals(theta=theta, omega=omega, u=u, u_time=u_time)
 
 
 def _common_segments(
@@ -411,11 +432,7 @@ def _resample_segment(
     phi_grid: dict[int, tuple[np.ndarray, str]] = {}
     u = np.empty((n, spec.n_u))
     edges = a + dt * np.arange(1, n + 2)
-    rows: dict[str, slice] = {}
-    for name, s in raw.series.items():
-        i0 = max(int(np.searchsorted(s.time, a, side="right")) - 1, 0)
-        i1 = min(int(np.searchsorted(s.time, b, side="left")), s.time.shape[0] - 1)
-        rows[name] = slice(i0, i1 + 1)
+    rows = {name: _rows(s.time, a, b) for name, s in raw.series.items()}
     for i, j in enumerate(mapping.joints):
         sname = mapping.angle_channel(j).series
         sl = rows[sname]
@@ -454,9 +471,11 @@ def _resample_segment(
         if sig.u[i].ndim == 0:  # a per-run constant input
             u[:, i] = sig.u[i]
             continue
+        own = sig.u_time[i]
         cname = mapping.command_channels(src)[0].series
-        cs = rows[cname]
-        u[:, i] = interval_mean(raw.series[cname].time[cs], sig.u[i][cs], edges)
+        tu = own if own is not None else raw.series[cname].time
+        cs = _rows(own, a, b) if own is not None else rows[cname]
+        u[:, i] = interval_mean(tu[cs], sig.u[i][cs], edges)
     lo = np.array([c.u_min for c in spec.u_specs])
     hi = np.array([c.u_max for c in spec.u_specs])
     u = np.clip(u, lo, hi)  # the means lie in range; this only removes rounding error
@@ -468,6 +487,14 @@ def _resample_segment(
         omega[:, i] = measured
     time = a + dt * np.arange(1, n + 1)
     return Episode(spec=spec, time=time, u=u, theta=theta, omega=omega, source="import")
+
+
+def _rows(t: np.ndarray, a: float, b: float) -> slice:
+    """The rows of increasing times ``t`` [s] a segment ``[a, b]`` reads: from the last one at
+    or before ``a`` (its value holds at ``a``) to the first one at or after ``b``."""
+    i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t, b, side="left")), t.shape[0] - 1)
+    return slice(i0, i1 + 1)
 
 
 def _kalman_velocities(episodes: list[Episode], omega: list[np.ndarray | None]) -> list[Episode]:

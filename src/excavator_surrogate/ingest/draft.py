@@ -14,7 +14,8 @@ names of most loggers already say most of it: ``Boom_ang``, ``boom_up_pct``,
   ±2π is in degrees); a command in % where the name or unit says so or it stays within
   ±100, else ``raw`` over the span the log shows;
 - a joint's **two one-way command channels** (``up``/``down``) from direction words (up/dn,
-  out/in, extend/retract, raise/lower, open/close, left/right ...);
+  out/in, extend/retract, raise/lower, open/close, left/right ...), with a topic each where
+  a ROS machine publishes the two directions on two topics;
 - the **time column** of a table (``t``, ``time``, ``timestamp`` ...) and its unit from the
   name (``t_ms``) or the time step.
 
@@ -249,11 +250,13 @@ def _command(chs: list[_Channel]) -> tuple[dict[str, Any], list[str]] | None:
         else:
             parts = list(chs)
             guesses.append("up/down: no direction words, check which one raises the joint")
-        key = "field" if "field" in parts[0].ref else "column"
-        table = {"topic": parts[0].ref["topic"]} if key == "field" else {}
-        if key == "field" and parts[1].ref["topic"] != parts[0].ref["topic"]:
-            return None
-        table |= {"up": parts[0].ref[key], "down": parts[1].ref[key]}
+        if "column" in parts[0].ref:
+            table = {"up": parts[0].ref["column"], "down": parts[1].ref["column"]}
+        elif parts[1].ref["topic"] == parts[0].ref["topic"]:
+            table = {"topic": parts[0].ref["topic"]}
+            table |= {"up": parts[0].ref["field"], "down": parts[1].ref["field"]}
+        else:  # each direction on a topic of its own
+            table = {"up": dict(parts[0].ref), "down": dict(parts[1].ref)}
     else:
         return None
     lo = min(c.summary.lo or 0.0 for c in parts)

@@ -22,7 +22,8 @@ Layout (see ``docs/import.md`` for the full reference)::
     [csv]                    # delimiter, decimal, thousands, encoding, skip_rows(_after_header), format
 
 For ROS bags a channel names ``topic`` and ``field`` (e.g. ``field = "position[1]"``)
-instead of ``column``; for two-channel commands ``up``/``down`` are field paths of ``topic``.
+instead of ``column``; for two-channel commands ``up``/``down`` are field paths of ``topic``,
+or each its own ``{ topic = ..., field = ... }`` where the two directions are two topics.
 
 These are the parsed mapping's types; :func:`~.mapping_toml.load_mapping` reads and checks
 the file and raises :class:`~excavator_surrogate.errors.ConfigError` with a one-line message
@@ -98,14 +99,24 @@ class CommandMap:
     """Where a joint command comes from and how it maps onto the joint's command range.
 
     Either one signed channel (``column`` or ``topic``+``field``) or two one-way channels
-    ``up``/``down`` (columns, or field paths of ``topic``) combined as ``up - down``.
+    ``up``/``down`` (columns, or field paths of ``topic``, or of ``up_topic`` and
+    ``down_topic``) combined as ``up - down``.
     """
 
     column: str | None = None
+    """CSV/Parquet column of a signed command."""
     up: str | None = None
+    """The one-way channel whose value raises the command: a column or a field path."""
     down: str | None = None
+    """The one-way channel whose value lowers the command: a column or a field path."""
     topic: str | None = None
+    """ROS topic of ``field``, or of ``up`` and ``down``."""
     field: str | None = None
+    """Field path of a signed command in ``topic``'s message."""
+    up_topic: str | None = None
+    """ROS topic of ``up`` where it is not ``topic`` (``up = { topic = ..., field = ... }``)."""
+    down_topic: str | None = None
+    """ROS topic of ``down`` where it is not ``topic`` (``down = { topic = ..., field = ... }``)."""
     unit: Literal["%", "raw", "physical"] | None = None
     """``%``: -100..100 (signed) spans ``range``; ``raw``: ``raw_range`` spans ``range``;
     ``physical``: the value already is the command in ``physical_unit`` (required)."""
@@ -244,13 +255,16 @@ class Mapping:
         return _channel(j.velocity.topic, j.velocity.column, j.velocity.field)
 
     def command_channels(self, j: JointMap | InputMap) -> tuple[Channel, ...]:
-        """``(signed,)`` or ``(up, down)`` channels of joint (or input) ``j``."""
+        """``(signed,)`` or ``(up, down)`` channels of joint (or input) ``j`` (a ROS command's
+        up and down may lie on two topics)."""
         c = j.command
         if isinstance(j, InputMap) and j.run is not None:
             return ()  # a per-run constant reads no channel
         if c.two_channel:
-            series = c.topic or TABLE
-            return (Channel(series, str(c.up)), Channel(series, str(c.down)))
+            return (
+                Channel(c.up_topic or c.topic or TABLE, str(c.up)),
+                Channel(c.down_topic or c.topic or TABLE, str(c.down)),
+            )
         return (_channel(c.topic, c.column, c.field),)
 
     def channels(self) -> list[Channel]:

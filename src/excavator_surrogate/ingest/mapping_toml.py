@@ -180,7 +180,9 @@ def _parse_joint(raw: Any, i: int, where: str) -> JointMap:
         if not isinstance(raw["velocity"], dict):
             raise ConfigError(f"{jw}: 'velocity' must be a table {{ column = ..., unit = ... }}")
         velocity = from_dict(VelocityMap, raw["velocity"], where=f"{jw}: velocity")
-    command = from_dict(CommandMap, raw["command"], where=f"{jw}: command")
+    command = from_dict(
+        CommandMap, _one_way_tables(raw["command"], f"{jw}: command"), where=f"{jw}: command"
+    )
     _check_source(angle.column, angle.topic, angle.field, f"{jw}: angle")
     if angle.unit is None:
         units = ", ".join(f'"{u}"' for u in POSITION_UNITS)
@@ -216,7 +218,7 @@ def _parse_input(raw: Any, k: int, where: str) -> InputMap:
     body = {key: v for key, v in raw.items() if key != "name"}
     if "range" not in body:
         raise ConfigError(f"{iw}: range = [lo, hi] is required (the input's valid values)")
-    c = from_dict(CommandMap, body, where=iw)
+    c = from_dict(CommandMap, _one_way_tables(body, iw), where=iw)
     _check_command(c, iw)
     unit = c.physical_unit if c.unit == "physical" else str(c.unit)
     if c.unit == "%":  # 0..100 % spans the range (inputs are not signed)
@@ -238,6 +240,29 @@ def _check_source(column: str | None, topic: str | None, fld: str | None, where:
         raise ConfigError(f"{where}: field is only used with topic; for tables use column")
 
 
+def _one_way_tables(raw: dict[str, Any], where: str) -> dict[str, Any]:
+    """A command table with ``up = { topic = ..., field = ... }`` (and ``down``) as the flat
+    keys of :class:`CommandMap` (``up`` the field, ``up_topic`` its topic): a ROS machine
+    that publishes each direction of a valve on a topic of its own."""
+    out = dict(raw)
+    for key in ("up", "down"):
+        v = raw.get(key)
+        if not isinstance(v, dict):
+            continue
+        if set(v) != {"topic", "field"} or not all(isinstance(x, str) for x in v.values()):
+            raise ConfigError(
+                f'{where}: {key} = {{ topic = "...", field = "..." }} names a channel of a ROS '
+                f"topic by both keys and nothing else (got {sorted(v)}); a table column is "
+                f'{key} = "column"'
+            )
+        if f"{key}_topic" in raw:
+            raise ConfigError(
+                f"{where}: give {key}'s topic in its table or as {key}_topic, not both"
+            )
+        out[key], out[f"{key}_topic"] = v["field"], v["topic"]
+    return out
+
+
 def _check_command(c: CommandMap, where: str) -> None:
     if c.two_channel:
         if c.up is None or c.down is None:
@@ -246,6 +271,14 @@ def _check_command(c: CommandMap, where: str) -> None:
             raise ConfigError(
                 f"{where}: give either up + down or one signed column/field, not both"
             )
+        for key, own in (("up", c.up_topic), ("down", c.down_topic)):
+            if (c.up_topic or c.down_topic) and not (own or c.topic):
+                raise ConfigError(
+                    f'{where}: {key} needs a topic too: {key} = {{ topic = "...", field = '
+                    f'"{getattr(c, key)}" }}, or topic = "..." for both'
+                )
+    elif c.up_topic is not None or c.down_topic is not None:
+        raise ConfigError(f"{where}: up_topic and down_topic are for up + down commands")
     else:
         _check_source(c.column, c.topic, c.field, where)
     if c.unit is None:

@@ -130,6 +130,22 @@ def interval_mean(t_in: np.ndarray, x_in: np.ndarray, t_edges: np.ndarray) -> np
     return out[:, 0] if one_d else out
 
 
+def hold(t_in: np.ndarray, x_in: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """A zero-order-hold signal's values at times ``t``, held as :func:`interval_mean` holds
+    it: ``x_in[i]`` from ``t_in[i]`` until ``t_in[i+1]``, the first value before ``t_in[0]``.
+
+    Args:
+        t_in: (m,) increasing log times [s].
+        x_in: (m,) values.
+        t: (n,) times [s].
+
+    Returns:
+        (n,) the held values.
+    """
+    idx = np.clip(np.searchsorted(t_in, t, side="right") - 1, 0, len(t_in) - 1)
+    return np.asarray(x_in)[idx]
+
+
 def cumulative_trapezoid(t: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(m,) running integral of ``v`` over ``t`` (trapezoid rule), starting at 0."""
     inc = 0.5 * (v[1:] + v[:-1]) * np.diff(t)
