@@ -41,6 +41,10 @@ def _ch(name: str, lo: float, hi: float, *, unit: str = "", n: int = 101, **kw) 
         ("bktang", ["bkt", "ang"]),
         ("position[1]", ["position", "1"]),
         ("boom1-cmd", ["boom", "cmd"]),
+        ("Löffel_Winkel", ["loffel", "winkel"]),
+        ("LoeffelstielWinkel", ["loeffelstiel", "winkel"]),
+        ("Schwenkwerk_Drehrate", ["schwenkwerk", "drehrate"]),
+        ("flèche_angle", ["fleche", "angle"]),
     ],
 )
 def test_words(name: str, expected: list[str]) -> None:
@@ -89,6 +93,49 @@ def test_a_dspace_style_rig_with_measurements_beside_the_duties(tmp_path: Path) 
     assert arm.command.unit == "%"
     assert sorted(draft.unused)[0].startswith("Arm_UpH_Cyl_P")
     assert len(draft.unused) == 6 and not draft.todo
+
+
+def test_a_german_rigs_names(tmp_path: Path, cli) -> None:
+    """``Ausleger`` / ``Stiel`` / ``Löffel`` with ``Winkel``, ``Heben`` / ``Senken``, ``Aus`` /
+    ``Ein``; a cylinder pressure (``Druck``) is no command, an engine speed (``Drehzahl``) is
+    offered as an input; the import takes the draft."""
+    cols = arm3_plant.simulate(duration_s=5.0, seed=4)
+    n = cols["t_ms"].size
+    table = {"Zeit": cols["t_ms"] / 1000.0}
+    for short, j, (up, down) in (
+        ("Ausleger", "boom", ("Heben", "Senken")),
+        ("Stiel", "arm", ("Aus", "Ein")),
+        ("Löffel", "bucket", ("Auf", "Ab")),
+    ):
+        table[f"{short}_Winkel"] = cols[f"{j}_deg"]
+        table[f"{short}_{up}_Druck"] = np.full(n, 120.0)
+        table[f"{short}_{up}"] = cols[f"{j}_up_pct"]
+        table[f"{short}_{down}"] = cols[f"{j}_down_pct"]
+    table["Motor_Drehzahl"] = np.full(n, 1800.0)
+    log = _csv(tmp_path / "pruefstand.csv", table)
+    draft = draft_mapping(summarize_log(log))
+    m = parse_mapping(tomllib.loads(draft.text))
+    assert (m.time.column, m.time.unit) == ("Zeit", "s")
+    assert [j.name for j in m.joints] == ["boom", "arm", "bucket"]
+    assert [(j.angle.column, j.angle.unit) for j in m.joints] == [
+        ("Ausleger_Winkel", "deg"),
+        ("Stiel_Winkel", "deg"),
+        ("Löffel_Winkel", "deg"),
+    ]
+    assert [(j.command.up, j.command.down) for j in m.joints] == [
+        ("Ausleger_Heben", "Ausleger_Senken"),
+        ("Stiel_Aus", "Stiel_Ein"),
+        ("Löffel_Auf", "Löffel_Ab"),
+    ]
+    assert '# column = "Motor_Drehzahl"' in draft.text and not draft.todo
+    assert sorted(u.split(" ")[0] for u in draft.unused) == [
+        "Ausleger_Heben_Druck",
+        "Löffel_Auf_Druck",
+        "Stiel_Aus_Druck",
+    ]
+    (tmp_path / "m.toml").write_text(draft.text)
+    rc, _, err = cli("import", log, "--mapping", tmp_path / "m.toml", "--dry-run")
+    assert rc == 0, err
 
 
 def test_units_velocities_swing_strokes_and_raw_commands() -> None:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import re
+import unicodedata
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -43,15 +44,29 @@ from .options import CsvOptions
 from .summary import ChannelSummary, LogSummary
 
 JOINT_WORDS: dict[str, tuple[str, ...]] = {
-    "swing": ("swing", "slew", "turret", "house"),
-    "boom": ("boom", "lift"),
-    "arm": ("arm", "stick", "dipper"),
-    "bucket": ("bucket", "bkt", "bck", "tilt"),
+    "swing": (
+        *("swing", "slew", "turret", "house"),
+        *("schwenk", "schwenkwerk", "drehwerk", "oberwagen", "tourelle", "giro", "senkai"),
+    ),
+    "boom": ("boom", "lift", "ausleger", "fleche", "pluma"),
+    "arm": (
+        *("arm", "stick", "dipper"),
+        *("stiel", "loeffelstiel", "loffelstiel", "balancier", "brazo"),
+    ),
+    "bucket": (
+        *("bucket", "bkt", "bck", "tilt"),
+        *("loeffel", "loffel", "schaufel", "godet", "cuchara", "cucharon"),
+    ),
 }
 """The excavator's joints, in the mapping's order, and the words that name each in a channel
-(a wheel loader's lift arm and tilt are its boom and bucket)."""
+(a wheel loader's lift arm and tilt are its boom and bucket), in English, German
+(``Ausleger``, ``Stiel``, ``Löffel``, ``Drehwerk``), French (``flèche``, ``balancier``,
+``godet``, ``tourelle``) and Spanish (``pluma``, ``brazo``, ``cucharón``, ``giro``)."""
 VELOCITY_WORDS = ("vel", "velocity", "omega", "speed", "dot", "dps", "degps", "radps", "dq")
-"""Words of a velocity channel (``boom_vel``, ``ArmOmega``, ``bucket_dps``)."""
+VELOCITY_WORDS += ("geschw", "geschwindigkeit", "winkelgeschwindigkeit", "drehrate")
+VELOCITY_WORDS += ("vitesse", "velocidad")
+"""Words of a velocity channel (``boom_vel``, ``ArmOmega``, ``bucket_dps``,
+``Stiel_Geschw``)."""
 COMMAND_WORDS = (
     "cmd",
     "command",
@@ -70,37 +85,54 @@ COMMAND_WORDS = (
     "setpoint",
     "demand",
 )
-"""Words of a command channel (``boom_cmd``, ``Arm_out_duty``, ``bkt_valve``)."""
+COMMAND_WORDS += ("ventil", "sollwert", "soll", "ansteuerung", "strom", "hebel", "steuer")
+COMMAND_WORDS += ("commande", "consigne", "vanne", "comando", "mando", "valvula")
+"""Words of a command channel (``boom_cmd``, ``Arm_out_duty``, ``bkt_valve``,
+``Ausleger_Ventil``)."""
 ANGLE_WORDS = ("ang", "angle", "pos", "position", "theta", "deg", "rad", "q", "enc", "encoder")
-"""Words of an angle channel (``Boom_ang``, ``arm_deg``, ``bucket_pos``)."""
+ANGLE_WORDS += ("winkel", "angulo", "posicion")
+"""Words of an angle channel (``Boom_ang``, ``arm_deg``, ``bucket_pos``, ``Stiel_Winkel``)."""
 STROKE_WORDS = ("stroke", "len", "length", "extension")
 """Words of a stroke channel (``boom_stroke_mm``), a linear joint's position."""
 MEASURE_WORDS = ("p", "pressure", "press", "fb", "feedback", "meas", "measured", "actual")
 MEASURE_WORDS += ("temp", "temperature", "flow", "force", "load", "torque", "bar", "psi")
+MEASURE_WORDS += ("druck", "ist", "istwert", "temperatur", "kraft", "pression", "presion")
 """Words of a measurement that is not a command, though it may name a direction
-(``Boom_UpH_Cyl_P``, a cylinder pressure; ``Arm_in_FB``, a valve's feedback)."""
+(``Boom_UpH_Cyl_P``, a cylinder pressure; ``Arm_in_FB``, a valve's feedback;
+``Ausleger_Heben_Druck``)."""
 UP_WORDS = ("up", "out", "extend", "ext", "raise", "open", "left", "cw", "plus", "fwd", "dump")
+UP_WORDS += ("heben", "auf", "aus", "ausfahren", "links", "monter", "montee", "sortie")
+UP_WORDS += ("gauche", "subir", "arriba", "izquierda")
 """Direction words of the one-way channel that is the command's ``up`` (positive) part."""
 DOWN_WORDS = ("dn", "down", "in", "retract", "ret", "lower", "close", "right", "ccw", "minus")
-DOWN_WORDS += ("crowd", "curl")
+DOWN_WORDS += ("crowd", "curl", "senken", "ab", "ein", "einfahren", "rechts", "descendre")
+DOWN_WORDS += ("descente", "rentree", "droite", "bajar", "abajo", "derecha")
 """Direction words of the ``down`` (negative) part."""
 INPUT_WORDS = ("rpm", "engine", "eng", "throttle", "pressure", "pump", "gear", "load", "bar")
+INPUT_WORDS += ("drehzahl", "motor", "gas", "pumpe", "gang", "moteur")
 """Words of a channel that may be an exogenous input (engine speed, throttle, pump pressure)."""
-TIME_WORDS = ("t", "time", "timestamp", "stamp", "ts", "zeit", "sec", "seconds")
+TIME_WORDS = ("t", "time", "timestamp", "stamp", "ts", "zeit", "sec", "seconds", "tiempo")
 """Words of a table's time column."""
+_ALL_JOINT_WORDS = frozenset(w for ws in JOINT_WORDS.values() for w in ws)
 TIME_UNITS = {"s": "s", "sec": "s", "ms": "ms", "msec": "ms", "us": "us", "usec": "us"}
 TIME_UNITS |= {"ns": "ns", "nsec": "ns"}
 
 
 def words(name: str) -> list[str]:
     """The lower-case words of a channel name: ``"BoomAngle_deg"`` -> boom, angle, deg;
-    ``"bktang"`` -> bkt, ang (a joint word glued to the rest is split off)."""
-    s = re.sub(r"([a-z0-9])([A-Z])", r"\1 \2", name)
+    ``"bktang"`` -> bkt, ang (a joint word glued to the rest is split off); accents and
+    umlauts lose their marks (``"Löffel_Winkel"`` -> loffel, winkel)."""
+    s = unicodedata.normalize("NFKD", name.replace("ß", "ss"))
+    s = "".join(ch for ch in s if not unicodedata.combining(ch))
+    s = re.sub(r"([a-z0-9])([A-Z])", r"\1 \2", s)
     s = re.sub(r"([A-Z]+)([A-Z][a-z])", r"\1 \2", s)
     out: list[str] = []
     for w in re.split(r"[^A-Za-z0-9]+", s.lower()):
         w = w.strip("0123456789") or w
         if not w:
+            continue
+        if w in _ALL_JOINT_WORDS:  # Loeffelstiel is the arm, not the bucket and a stick
+            out.append(w)
             continue
         glued = next(
             (j for js in JOINT_WORDS.values() for j in js if w.startswith(j) and w != j), None
