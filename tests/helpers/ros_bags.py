@@ -26,6 +26,7 @@ def write_bag(
     frame_id: str = "",
     split_valves: tuple[np.ndarray, np.ndarray] | None = None,
     down_delay_ns: int = 0,
+    custom_data: dict[str, str] | None = None,
 ) -> Path:
     """The test arm's log ``cols`` as a bag: ``/joint_states`` (JointState, header stamps,
     the joints in ``order``, received ``delay_ns`` after the stamp) at ``joint_rows`` and
@@ -33,7 +34,8 @@ def write_bag(
     (default: every row); ``storage``: "mcap" or "sqlite3" (a rosbag2 folder) or "rosbag1"
     (a ``.bag`` file).  With ``split_valves = (up_rows, down_rows)`` each duty is a
     ``std_msgs/Float64`` topic of its own instead, ``/<joint>/up`` at ``up_rows`` and
-    ``/<joint>/down`` at ``down_rows``, ``down_delay_ns`` after the row's time."""
+    ``/<joint>/down`` at ``down_rows``, ``down_delay_ns`` after the row's time.
+    ``custom_data``: rosbag2 only, what ``ros2 bag record --custom-data KEY=VALUE`` records."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = storage == "rosbag1"
@@ -60,6 +62,8 @@ def write_bag(
         plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
         writer = Writer(path, version=9, storage_plugin=plugin)
     with writer as w:
+        for key, value in (custom_data or {}).items():
+            w.set_custom_data(key, value)
         cj = w.add_connection("/joint_states", js_t.__msgtype__, typestore=ts)
         if split_valves is None:
             cv = w.add_connection("/valves", arr_t.__msgtype__, typestore=ts)

@@ -259,3 +259,25 @@ def test_from_rosbag2_custom_data(tmp_path):
         yaml.dump(doc, f)
     ep = convert_log(bag, _mapping(tmp_path, _metadata_input("Test/Load"), ROS_MAPPING)).episodes[0]
     assert np.all(ep.u[:, 3] == 1.0)
+
+
+def test_a_bare_mcap_keeps_its_custom_data(tmp_path):
+    """rosbag2's MCAP storage copies ``metadata.yaml`` into the file: an ``.mcap`` copied out
+    of its bag folder still gives its ``custom_data`` keys, and not the copy itself."""
+    pytest.importorskip("rosbags")
+    import shutil
+
+    from excavator_surrogate.ingest.inventory import summarize_log
+    from tests.helpers.ros_bags import write_bag
+    from tests.ingest.test_ingest_ros_resample import ROS_MAPPING
+
+    cols = arm3_plant.simulate(duration_s=5.0, seed=5, log_rate_hz=50.0)
+    bag = write_bag(tmp_path / "bag", cols, storage="mcap", custom_data={"Test/Load": "heavy"})
+    bare = tmp_path / "run.mcap"
+    shutil.copy(next(bag.glob("*.mcap")), bare)
+    for log in (bag, bare):
+        meta = summarize_log(log).meta
+        assert meta.get("Test/Load") == "heavy", (log, meta)
+        assert not any("serialized_metadata" in k for k in meta)
+    mapping = _mapping(tmp_path, _metadata_input("Test/Load"), ROS_MAPPING)
+    assert np.all(convert_log(bare, mapping).episodes[0].u[:, 3] == 1.0)

@@ -343,21 +343,17 @@ def _read_ros(path: Path, kind: str, mapping: Mapping) -> RawLog:
 def ros_metadata(path: Path, kind: str) -> dict[str, str]:
     """A bag's user metadata: rosbag2 ``custom_data`` (``metadata.yaml``, ROS 2 Iron and
     later; ``ros2 bag record --custom-data KEY=VALUE``) and, in MCAP files, the metadata
-    records as ``<record name>/<key>``.  Empty when there is none (ROS 1 bags)."""
+    records as ``<record name>/<key>``.  Empty when there is none (ROS 1 bags).
+
+    rosbag2's MCAP storage keeps a copy of ``metadata.yaml`` in each file (the record
+    ``rosbag2``, key ``serialized_metadata``): its ``custom_data`` is read from there, so an
+    ``.mcap`` file copied out of its bag folder keeps its keys, and the copy itself is left
+    out (it is the bag's bookkeeping, not a user's key)."""
     out: dict[str, str] = {}
     folder = path if path.is_dir() else path.parent
     yml = folder / "metadata.yaml"
     if kind == "rosbag2" and yml.is_file():
-        from ruamel.yaml import YAML
-
-        try:
-            doc = YAML(typ="safe", pure=True).load(yml.read_text(encoding="utf-8"))
-        except Exception:  # the bag reader reports a broken metadata.yaml
-            doc = None
-        info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
-        custom = info.get("custom_data") if isinstance(info, dict) else None
-        if isinstance(custom, dict):
-            out.update({str(k): str(v) for k, v in custom.items() if v is not None})
+        out.update(_custom_data(yml.read_text(encoding="utf-8"), top=True))
     files = sorted(folder.glob("*.mcap")) if kind == "rosbag2" else [path]
     if kind in ("rosbag2", "mcap"):
         from mcap.reader import make_reader
@@ -369,10 +365,31 @@ def ros_metadata(path: Path, kind: str) -> dict[str, str]:
                 with open(f, "rb") as fh:
                     for rec in make_reader(fh).iter_metadata():
                         for k, v in rec.metadata.items():
+                            if (rec.name, k) == ("rosbag2", "serialized_metadata"):
+                                for ck, cv in _custom_data(v, top=False).items():
+                                    out.setdefault(ck, cv)
+                                continue
                             out.setdefault(f"{rec.name}/{k}", str(v))
             except Exception:  # the message reader reports a damaged file
                 continue
     return out
+
+
+def _custom_data(text: str, *, top: bool) -> dict[str, str]:
+    """The ``custom_data`` map of rosbag2 metadata YAML ``text``: a ``metadata.yaml`` (under
+    its ``rosbag2_bagfile_information`` key, ``top``) or the copy an MCAP file holds (without
+    it); {} where it has none or does not parse (the bag reader reports a broken file)."""
+    from ruamel.yaml import YAML
+
+    try:
+        doc = YAML(typ="safe", pure=True).load(text)
+    except Exception:
+        return {}
+    info = doc.get("rosbag2_bagfile_information") if top and isinstance(doc, dict) else doc
+    custom = info.get("custom_data") if isinstance(info, dict) else None
+    if not isinstance(custom, dict):
+        return {}
+    return {str(k): str(v) for k, v in custom.items() if v is not None}
 
 
 # --------------------------------------------------------------------------------------
