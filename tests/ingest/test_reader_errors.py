@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 
 from excavator_surrogate.data import load_dataset
 from excavator_surrogate.ingest import convert_log, kalman_velocity, parse_mapping, tables
-from excavator_surrogate.ingest.convert import kalman_fuse
+from excavator_surrogate.ingest.velocity import kalman_fuse
 from tests.helpers import arm3_plant
 from tests.helpers.ingest import import_fails, write_lines
 

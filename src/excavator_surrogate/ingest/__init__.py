@@ -10,7 +10,7 @@ assigns train/val/test by source file and writes a dataset folder atomically, wi
 
 from __future__ import annotations
 
-from .convert import FileResult, convert_log, kalman_velocity
+from .convert import FileResult, convert_log
 from .importer import REPORT_JSON, REPORT_MD, import_logs, options_with
 from .mapping import (
     AngleMap,
@@ -32,6 +32,7 @@ from .report import render_markdown
 from .resample import antialias_sos, decimation_factor, interval_mean, resample_smooth
 from .sources import RawLog, Series
 from .split import assign_splits
+from .velocity import kalman_velocity
 
 __all__ = [
     "REPORT_JSON",

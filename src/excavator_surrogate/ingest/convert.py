@@ -4,7 +4,7 @@
 (:func:`_time_bases`), missing values (:func:`_fill_missing`), spikes and joint limits
 (:func:`~.outliers.screen_angles`), units (:func:`_to_units`), gap-free segments
 (:func:`_common_segments`), resampling (:func:`_cut_episodes`) and, for ``velocity =
-"kalman"``, angle-only filtering (:func:`_kalman_velocities`).  The checks they run are in
+"kalman"``, angle-only filtering (:func:`.velocity.kalman_velocities`).  The checks they run are in
 :mod:`.checks`; :func:`~.importer.import_logs` runs this over many logs.
 """
 
@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 
-from ..clean import CleanConfig, clean_episode
 from ..config import to_dict
 from ..data import Episode
 from ..spec import MachineSpec
@@ -46,10 +45,12 @@ from .resample import (
     hold,
     interval_mean,
     resample_smooth,
+    span_rows,
 )
 from .run_inputs import run_input_value
 from .sources import RawLog
 from .units import to_si
+from .velocity import kalman_velocities
 
 
 @dataclass
@@ -134,7 +135,7 @@ def convert_log(
         entry=entry,
     )
     if options.velocity == "kalman":
-        episodes = _kalman_velocities(episodes, sig.omega)
+        episodes = kalman_velocities(episodes, sig.omega)
     if not episodes:
         entry["status"] = "dropped"
     return FileResult(path, episodes, entry)
@@ -432,7 +433,7 @@ def _resample_segment(
     phi_grid: dict[int, tuple[np.ndarray, str]] = {}
     u = np.empty((n, spec.n_u))
     edges = a + dt * np.arange(1, n + 2)
-    rows = {name: _rows(s.time, a, b) for name, s in raw.series.items()}
+    rows = {name: span_rows(s.time, a, b) for name, s in raw.series.items()}
     for i, j in enumerate(mapping.joints):
         sname = mapping.angle_channel(j).series
         sl = rows[sname]
@@ -474,7 +475,7 @@ def _resample_segment(
         own = sig.u_time[i]
         cname = mapping.command_channels(src)[0].series
         tu = own if own is not None else raw.series[cname].time
-        cs = _rows(own, a, b) if own is not None else rows[cname]
+        cs = span_rows(own, a, b) if own is not None else rows[cname]
         u[:, i] = interval_mean(tu[cs], sig.u[i][cs], edges)
     lo = np.array([c.u_min for c in spec.u_specs])
     hi = np.array([c.u_max for c in spec.u_specs])
@@ -487,47 +488,6 @@ def _resample_segment(
         omega[:, i] = measured
     time = a + dt * np.arange(1, n + 1)
     return Episode(spec=spec, time=time, u=u, theta=theta, omega=omega, source="import")
-
-
-def _rows(t: np.ndarray, a: float, b: float) -> slice:
-    """The rows of increasing times ``t`` [s] a segment ``[a, b]`` reads: from the last one at
-    or before ``a`` (its value holds at ``a``) to the first one at or after ``b``."""
-    i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
-    i1 = min(int(np.searchsorted(t, b, side="left")), t.shape[0] - 1)
-    return slice(i0, i1 + 1)
-
-
-def _kalman_velocities(episodes: list[Episode], omega: list[np.ndarray | None]) -> list[Episode]:
-    """Episodes whose joints without a measured velocity (``omega[i] is None``) are
-    replaced by angle-only Kalman filtering (:func:`kalman_fuse`)."""
-    derived = [i for i, o in enumerate(omega) if o is None]
-    if not derived:
-        return episodes
-    out = []
-    for ep in episodes:
-        # Angle-only filtering: fused theta and omega = backward difference of it, so
-        # the pair stays kinematically consistent (theta[k+1] = theta[k] + T_s*omega[k+1]).
-        fused = kalman_fuse(ep)
-        th, om = ep.theta.copy(), ep.omega.copy()
-        th[:, derived] = fused.theta[:, derived]
-        om[:, derived] = fused.omega[:, derived]
-        out.append(ep.replace(theta=th, omega=om))
-    return out
-
-
-def kalman_fuse(ep: Episode) -> Episode:
-    """Angle-only Kalman filtering of ``ep`` for logs without a velocity channel.
-
-    Uses the paper's constant-velocity filter with the jump test and no integration
-    consistency test (there is no gyro to integrate): ``method="paper"``, ``tau_cons=inf``.
-    Returns the cleaned episode (fused ``theta``, ``omega`` = backward difference of it).
-    """
-    return clean_episode(ep, config=CleanConfig(method="paper", tau_cons=float("inf")))
-
-
-def kalman_velocity(ep: Episode) -> np.ndarray:
-    """(n_step, n_joint) velocities [rad/s] from angle-only Kalman filtering (:func:`kalman_fuse`)."""
-    return np.asarray(kalman_fuse(ep).omega, dtype=np.float64)
 
 
 _SAFE = re.compile(r"[^A-Za-z0-9_.-]+")

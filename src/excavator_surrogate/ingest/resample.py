@@ -130,6 +130,14 @@ def interval_mean(t_in: np.ndarray, x_in: np.ndarray, t_edges: np.ndarray) -> np
     return out[:, 0] if one_d else out
 
 
+def span_rows(t: np.ndarray, a: float, b: float) -> slice:
+    """The rows of increasing times ``t`` [s] a span ``[a, b]`` reads: from the last one at
+    or before ``a`` (its value holds at ``a``) to the first one at or after ``b``."""
+    i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t, b, side="left")), t.shape[0] - 1)
+    return slice(i0, i1 + 1)
+
+
 def hold(t_in: np.ndarray, x_in: np.ndarray, t: np.ndarray) -> np.ndarray:
     """A zero-order-hold signal's values at times ``t``, held as :func:`interval_mean` holds
     it: ``x_in[i]`` from ``t_in[i]`` until ``t_in[i+1]``, the first value before ``t_in[0]``.
