@@ -74,6 +74,15 @@ def test_same_times_as_one_array(logs):
     assert np.abs(ref[0].u).max() > 300
 
 
+def test_the_report_names_each_topics_rate(logs, cli, tmp_path):
+    root, _ = logs
+    rc, out, err = cli(
+        "import", root / "apart.mcap", "--mapping", root / "topics.toml", "--dry-run"
+    )
+    assert rc == 0, err
+    assert "/joint_states 50 Hz, /boom/up 25 Hz, /boom/down 16.67 Hz" in out
+
+
 def _held_mean(t: np.ndarray, x: np.ndarray, lo: float, hi: float) -> float:
     """Reference: the mean over [lo, hi] of x held from each t until the next (a plain loop)."""
     total = 0.0

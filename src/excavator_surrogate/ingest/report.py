@@ -43,7 +43,11 @@ def render_markdown(report: dict[str, Any]) -> str:
         if f["status"] == "failed":
             lines.append(f"| {f['file']} | - | - | - | 0 | 0 | - | FAILED: {f['error']} |")
             continue
-        rates = ", ".join(f"{s['rate_hz']:.4g} Hz" for s in f["series"].values())
+        series = f["series"]  # a bag's topics by name; a table's one time base alone
+        rates = ", ".join(
+            f"{name} {s['rate_hz']:.4g} Hz" if len(series) > 1 else f"{s['rate_hz']:.4g} Hz"
+            for name, s in series.items()
+        )
         segs = [s for s in f["segments"] if s["status"] == "imported"]
         filled = sum(v["values"] for v in f["filled"].values())
         notes = []
