@@ -191,6 +191,26 @@ command = {{ {command}, unit = "%" }}
         parse_mapping(tomllib.loads(text), path="m.toml")
 
 
+def test_an_input_is_one_channel():
+    text = (
+        HEAD
+        + """
+[[joints]]
+name = "boom"
+angle = { topic = "/joint_states", field = "position[boom_joint]", unit = "rad" }
+command = { topic = "/valves", field = "data[0]", unit = "%" }
+[[inputs]]
+name = "travel"
+up = { topic = "/travel/fwd", field = "data" }
+down = { topic = "/travel/back", field = "data" }
+unit = "physical"
+range = [-1.0, 1.0]
+"""
+    )
+    with pytest.raises(ConfigError, match=r"input 'travel': an input is one channel"):
+        parse_mapping(tomllib.loads(text), path="m.toml")
+
+
 def test_two_topics_and_a_shared_topic_mix(logs):
     """``topic`` serves the direction that names none of its own."""
     text = (

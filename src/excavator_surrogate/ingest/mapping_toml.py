@@ -218,7 +218,12 @@ def _parse_input(raw: Any, k: int, where: str) -> InputMap:
     body = {key: v for key, v in raw.items() if key != "name"}
     if "range" not in body:
         raise ConfigError(f"{iw}: range = [lo, hi] is required (the input's valid values)")
-    c = from_dict(CommandMap, _one_way_tables(body, iw), where=iw)
+    if any(k in body for k in ("up", "down", "up_topic", "down_topic")):
+        raise ConfigError(
+            f"{iw}: an input is one channel (column, or topic + field); up/down are for a "
+            "joint's two one-way commands"
+        )
+    c = from_dict(CommandMap, body, where=iw)
     _check_command(c, iw)
     unit = c.physical_unit if c.unit == "physical" else str(c.unit)
     if c.unit == "%":  # 0..100 % spans the range (inputs are not signed)
