@@ -110,3 +110,16 @@ def test_no_usable_episode_is_one_clear_error():
         fit_structured([])
     with pytest.raises(DataError, match="longer than the delay search"):
         fit_joint([np.zeros(3)], [np.zeros(3)], u_min=-1.0, u_max=1.0, max_delay=5)
+
+
+def test_speed_ratio_is_the_least_squares_scale_of_the_maps_speed() -> None:
+    """Speeds 1.3x the map's (after its delay) give 1.3; a map that never moves gives 1."""
+    from excavator_surrogate.surrogate.structured import JointFit, speed_ratio
+
+    fit = JointFit(delay=2, a_pos=100.0, a_neg=-50.0, k_pos=1e-3, k_neg=2e-3, rmse=0.0)
+    rng = np.random.default_rng(0)
+    u = [rng.uniform(-1000, 1000, 300), rng.uniform(-1000, 1000, 200)]
+    w = [np.concatenate([[np.nan], np.zeros(2), 1.3 * fit.speed(x[:-3])]) for x in u]
+    assert speed_ratio(fit, u, w) == pytest.approx(1.3, rel=1e-12)
+    idle = [np.zeros(50)]
+    assert speed_ratio(fit, idle, [np.ones(50)]) == 1.0

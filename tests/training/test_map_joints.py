@@ -233,7 +233,7 @@ def test_a_periodic_joint_that_the_map_runs_well_follows_it_whatever_the_network
     joints by far, but the map still runs the periodic joint with R^2 >= 0.95, so that joint
     follows the map; the other joint keeps the network.  With ``periodic=False``, neither."""
     net, train, val = _periodic_case(1.1)
-    new, rec = choose_map_joints(net, train, val)
+    new, rec = choose_map_joints(net, train, val, val_gain=False)  # the training's map
     assert rec["val_theta_r2_map_delayed"][0] >= PERIODIC_MAP_R2
     assert rec["val_theta_rmse_map"][0] > 10 * max(rec["val_theta_rmse_network"][0], 1e-6)
     assert rec["pinned"] == ["a"] and rec["chosen"] == ["a"] and rec["candidates"] == []
@@ -282,7 +282,7 @@ def test_the_all_map_set_reuses_the_all_map_free_run(monkeypatch) -> None:
     train = [_static_episode(s) for s in range(3)]
     val = [_static_episode(s) for s in (7, 8)]
     net = _net()
-    _, rec = choose_map_joints(net, train, val)
+    _, rec = choose_map_joints(net, train, val, val_gain=False)  # no rescored model after it
     # the network, the all-map run, then "a" alone and "b" alone (the pair is known)
     assert len(calls) == 4 and [t["joints"] for t in rec["tried"]] == [["a", "b"], ["a"], ["b"]]
     fresh = real(with_map_joints(net, fit_prior(train, SPEC), [True, True]), val)
@@ -299,7 +299,7 @@ def test_in_parallel_a_joint_the_map_runs_well_is_pinned_and_the_network_keeps_i
     train = [_static_episode(s) for s in range(3)]
     val = [_scaled(_static_episode(s), np.array([1.1, 3.0])) for s in (7, 8)]
     net = with_map_joints(_net(), fit_prior(val, SPEC), [True, True])
-    new, rec = choose_map_joints(net, train, val, parallel=True)
+    new, rec = choose_map_joints(net, train, val, parallel=True, val_gain=False)
     assert (
         rec["val_theta_r2_map_delayed"][0] >= PERIODIC_MAP_R2 > rec["val_theta_r2_map_delayed"][1]
     )
@@ -320,7 +320,7 @@ def test_in_parallel_a_joint_the_map_runs_well_is_pinned_and_the_network_keeps_i
     assert pinned_joints(_net(), train, val) == [False, False]  # in series: periodic joints only
     # through the checkpoint: rewritten in place, the free run kept
     path = save_checkpoint(tmp_path / "best.pt", net)
-    apply_map_choice(path, train, val, parallel=True)
+    apply_map_choice(path, train, val, parallel=True, val_gain=False)
     back = load_checkpoint(path)
     assert back.norm.own is not None and back.norm.own.own == (True, False)
     assert back.metrics["training"]["static_map"]["composition"] == "parallel"
@@ -369,7 +369,7 @@ def test_the_map_is_refitted_on_both_splits_only_where_validation_is_a_large_sha
     with ``refit_share`` at or below validation's share of the samples (2/3 here) the joints
     on the map take the map fitted on both splits (gains between the two plants'), in series
     and in parallel; above it, or at 0, the map of the training split stays."""
-    from excavator_surrogate.training.map_joints import refit_due
+    from excavator_surrogate.training.map_fit import refit_due
 
     train = [_static_episode(s) for s in range(3)]
     val = [_scaled(_static_episode(s), 1.1) for s in (7, 8)]
@@ -377,9 +377,10 @@ def test_the_map_is_refitted_on_both_splits_only_where_validation_is_a_large_sha
     assert refit_due(train, val, share=0.5) == 2 / 3
     k_train = np.array(fit_prior(train, SPEC)["k_pos"])
     for parallel in (False, True):
-        kept, rec0 = choose_map_joints(_net(), train, val, parallel=parallel)
-        high, rec_h = choose_map_joints(_net(), train, val, parallel=parallel, refit_share=0.9)
-        new, rec = choose_map_joints(_net(), train, val, parallel=parallel, refit_share=0.5)
+        opts = {"parallel": parallel, "val_gain": False}  # the refit alone
+        kept, rec0 = choose_map_joints(_net(), train, val, **opts)
+        high, rec_h = choose_map_joints(_net(), train, val, **opts, refit_share=0.9)
+        new, rec = choose_map_joints(_net(), train, val, **opts, refit_share=0.5)
         assert rec0["chosen"] == rec["chosen"] == ["a", "b"]
         assert "refit" not in rec0 and "refit" not in rec_h
         assert high.metrics["val_error"] == kept.metrics["val_error"]
@@ -390,3 +391,28 @@ def test_the_map_is_refitted_on_both_splits_only_where_validation_is_a_large_sha
         )
         # the validation scores are those of the model returned: in-sample on the map joints
         assert new.metrics["val_error"] < 0.8 * kept.metrics["val_error"]
+
+
+def test_the_map_joints_take_validations_speed() -> None:
+    """Validation from a plant 10 % faster than training's: by default the joints on the map
+    take the map's gains times validation's speed ratio (1.1), in series and in parallel,
+    recorded and said, and then run validation as its plant does; with ``val_gain = False``
+    they keep the training's gains.  The scale is clipped to ``GAIN_RANGE`` and is 1 off the
+    map."""
+    from excavator_surrogate.training.map_fit import GAIN_RANGE, validation_gains
+
+    train = [_static_episode(s) for s in range(3)]
+    val = [_scaled(_static_episode(s), 1.1) for s in (7, 8)]
+    for parallel in (False, True):
+        off, rec_off = choose_map_joints(_net(), train, val, parallel=parallel, val_gain=False)
+        on, rec = choose_map_joints(_net(), train, val, parallel=parallel)
+        assert rec["chosen"] == rec_off["chosen"] == ["a", "b"] and "val_gain" not in rec_off
+        assert rec["val_gain"]["joints"] == ["a", "b"]
+        assert np.allclose(rec["val_gain"]["gain"], 1.1, atol=0.005)
+        assert "the map joints' speeds then scaled to validation's (a x1.1" in rec["why"]
+        assert on.metrics["val_error"] < 1e-3 < off.metrics["val_error"]  # the plant is the map
+    fit = fit_prior(train, SPEC)
+    fast = [_scaled(_static_episode(s), 1.6) for s in (7, 8)]
+    slow = [_scaled(_static_episode(s), 0.5) for s in (7, 8)]
+    assert validation_gains(fit, fast, [True, False]) == [GAIN_RANGE[1], 1.0]
+    assert validation_gains(fit, slow, [False, True]) == [1.0, GAIN_RANGE[0]]

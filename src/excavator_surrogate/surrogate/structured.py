@@ -306,10 +306,7 @@ def gain_spread(
     n = max(2, round(CHUNK_S * rate))
     num, den = [], []
     for ui, wi in zip(u, w):
-        s = fit.speed(ui[: len(ui) - 1 - fit.delay])
-        wt = wi[1 + fit.delay :]
-        ok = np.isfinite(s) & np.isfinite(wt)
-        s, wt = np.where(ok, s, 0.0), np.where(ok, wt, 0.0)
+        s, wt = _aligned(fit, ui, wi)
         for a in range(0, len(s), n):
             num.append(float(np.dot(wt[a : a + n], s[a : a + n])))
             den.append(float(np.dot(s[a : a + n], s[a : a + n])))
@@ -322,3 +319,34 @@ def gain_spread(
         rms = float(np.sqrt(sc.sum() / max(1, sum(len(ui) for ui in u))))
         sigma = fit.rmse / rms if rms > 0 else 1.0
     return max(MIN_GAIN_SPREAD, sigma)
+
+
+def _aligned(fit: JointFit, u: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The map's speed ``s[t] = s(u[t - 1 - d])`` beside the speed ``w[t]`` it should reach,
+    ``(s, w)`` of one episode, with 0 in both wherever either is not finite."""
+    s = fit.speed(u[: len(u) - 1 - fit.delay])
+    wt = w[1 + fit.delay :]
+    ok = np.isfinite(s) & np.isfinite(wt)
+    return np.where(ok, s, 0.0), np.where(ok, wt, 0.0)
+
+
+def speed_ratio(fit: JointFit, u: Sequence[np.ndarray], w: Sequence[np.ndarray]) -> float:
+    """The least-squares scale of the map's speed to the measured one over the episodes (1 where
+    the map is right)::
+
+        rho = sum_t w[t] s(u[t-1-d]) / sum_t s(u[t-1-d])^2
+
+    Args:
+        fit: the joint's map (its delay is used).
+        u: per episode, the joint's commands ``(n_step,)`` [command units].
+        w: per episode, its speeds ``(n_step,)`` [rad/s] (``w[t]`` reached at ``t``).
+
+    Returns:
+        ``rho``, or 1.0 where the map never moves the joint in these episodes.
+    """
+    num = den = 0.0
+    for ui, wi in zip(u, w):
+        s, wt = _aligned(fit, ui, wi)
+        num += float(np.dot(wt, s))
+        den += float(np.dot(s, s))
+    return num / den if den > 0 else 1.0

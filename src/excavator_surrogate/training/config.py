@@ -199,7 +199,11 @@ class TrainConfig(PresetConfig, table="train"):
     map_refit_share: float = 0.0
     """With ``static_map``: when the validation episodes hold at least this share of the
     training's samples, the joints on the map take it fitted again on both splits after the
-    choice (:func:`~.map_joints.refit_map`; 0 = never)."""
+    choice (:func:`~.map_fit.refit_map`; 0 = never)."""
+    map_val_gain: bool = True
+    """With ``static_map``: after the choice, the joints on the map take its gains scaled to
+    validation's speed, the data nearest the test in time (:mod:`.map_fit`; ours, since
+    session 109; false: the training's gains, as before)."""
     map_blocks: bool = True
     """With ``static_map`` and one validation episode: a joint the map ties or beats on the
     whole validation free run follows it only if it also does on both halves of the episode,

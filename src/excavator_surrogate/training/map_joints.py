@@ -36,12 +36,18 @@ own angles of them (:func:`~excavator_surrogate.surrogate.parallel.with_parallel
 no map joint moves the others (:func:`choose_parallel`).
 
 **End stops** (``end_stops``, ``[train] map_end_stops``): a joint on the map stops at the
-training data's angle range, as the structured baseline does (:func:`map_end_stops`), where
-the network's end stops leave ``[train] limit_margin`` beyond it.  The map integrates its
+training data's angle range, as the structured baseline does
+(:func:`.map_fit.map_end_stops`), where the network's end stops leave ``[train]
+limit_margin`` beyond it.  The map integrates its
 command with no angle to correct it, and an end stop is its only reset: on the simulated
 operator logs and h1-dev, every map clipped at the training range scored at least as well
 on the more test data as with the margin, by up to 9 % (docs/real-history.md).  In parallel
 the network's own angles keep the network's end stops.
+
+**After the choice** (:mod:`.map_fit`): the joints on the map take its gains scaled to
+validation's speed, the data nearest the test in time (``val_gain``, ``[train]
+map_val_gain``, the recipe's since session 109), after a refit on both splits where one is
+due (``refit_share``).
 
 The choice and both scores are recorded in ``best.pt`` (``metrics.training.static_map``),
 in the log and in ``metrics.json`` (:func:`.map_apply.apply_map_choice`, which applies the
@@ -58,14 +64,14 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..data.episode import Episode
-from ..surrogate.angles import joint_limits
 from ..surrogate.model import Surrogate
 from ..surrogate.parallel import with_parallel_map
 from ..surrogate.series import with_map_joints
-from ..surrogate.structured import fit_prior, max_map_delay, training_range_spec
+from ..surrogate.structured import fit_prior, max_map_delay
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .map_blocks import all_on_map, check_blocks
+from .map_fit import map_end_stops, refit_due, refit_map, say_gain, say_refit, scale_gains
 from .sets import SET_MARGIN, best_set
 from .span import joint_spans, span_note
 
@@ -86,13 +92,6 @@ and drifted up to 4.9x further; on the stroke case's lab runs it scored 0.02
 (docs/real-history.md)."""
 
 
-def map_end_stops(train: Sequence[Episode]) -> tuple[Any, Any]:
-    """The end stops ``(lo, hi)``, (n_joint,) each [rad], of a joint on the static map: those
-    the training episodes' spec declares, else the training data's angle range (+-inf on a
-    periodic joint), the structured baseline's (:func:`.structured.training_range_spec`)."""
-    return joint_limits(training_range_spec(train[0].spec, train))
-
-
 def map_options(cfg: TrainConfig) -> dict[str, Any]:
     """The keyword options of :func:`choose_map_joints`, :func:`.map_apply.apply_map_choice` and
     :func:`pinned_joints` that ``cfg`` sets: every caller makes the map choice, or predicts
@@ -105,41 +104,8 @@ def map_options(cfg: TrainConfig) -> dict[str, Any]:
         "min_span": cfg.choice_min_span,
         "refit_share": cfg.map_refit_share,
         "blocks": cfg.map_blocks,
+        "val_gain": cfg.map_val_gain,
     }
-
-
-def refit_map(
-    pick: Sequence[int],
-    train: Sequence[Episode],
-    val: Sequence[Episode],
-    *,
-    max_delay: int,
-    end_stops: bool,
-) -> tuple[dict[str, Any], tuple[Any, Any] | None]:
-    """The static map fitted again on the training and validation episodes together, after the
-    choice was made on validation with the map of the training split: ``(fit, stops)``.
-
-    Args:
-        pick: (n_joint,) each joint's variant of the choice: 0 the map with delays up to
-            ``max_delay`` [samples], 1 the map without delays.
-        end_stops: the end stops come from both splits (:func:`map_end_stops`); else None
-            (the network's).
-    """
-    both = [*train, *val]
-    spec = both[0].spec
-    fits = [fit_prior(both, spec, max_delay=max_delay)]
-    if any(pick):
-        fits.append(fit_prior(both, spec))
-    fit = {k: [fits[v][k][j] for j, v in enumerate(pick)] for k in fits[0]}
-    return fit, (map_end_stops(both) if end_stops else None)
-
-
-def refit_due(train: Sequence[Episode], val: Sequence[Episode], *, share: float) -> float | None:
-    """Validation's samples over the training's, if a map refit is due (``share > 0`` and
-    validation holds at least ``share`` times the training's samples), else None."""
-    n_train = sum(e.n_step for e in train)
-    ratio = sum(e.n_step for e in val) / max(n_train, 1)
-    return ratio if share > 0 and ratio >= share else None
 
 
 def _delayed_map(
@@ -151,7 +117,7 @@ def _delayed_map(
     end_stops: bool,
 ) -> tuple[dict[str, Any], tuple[Any, Any] | None, dict[str, Any]]:
     """``(fit, stops, run)``: the map fitted on ``train`` with delays up to ``sur``'s window,
-    the end stops a map joint gets (:func:`map_end_stops`, or ``sur``'s without
+    the end stops a map joint gets (:func:`.map_fit.map_end_stops`, or ``sur``'s without
     ``end_stops``), and the validation free run of every joint on that map alone."""
     fit = fit_prior(train, sur.spec, max_delay=max_map_delay(sur.window, sur.spec))
     stops = map_end_stops(train) if end_stops and sur.end_stops else None
@@ -180,6 +146,7 @@ def pinned_joints(
     min_span: float = MIN_SPAN,
     refit_share: float = 0.0,
     blocks: bool = True,
+    val_gain: bool = True,
 ) -> list[bool]:
     """The joints that :func:`choose_map_joints` (with the same options) puts on the map
     whatever the network: with ``periodic``, a joint (a periodic one; with ``parallel``, any)
@@ -187,9 +154,10 @@ def pinned_joints(
     :data:`PERIODIC_MAP_R2`.  A map joint's angle depends on its own command only, so this
     reads nothing of ``sur`` but its window, spec and end stops: the kind choice, which runs
     before the map choice on other networks of the same run, gets the same joints
-    (``record["pinned"]`` of the map choice; ``refit_share`` changes the map after the choice
-    and ``blocks`` checks the other candidates, neither changes which joints it pins)."""
-    del refit_share, blocks
+    (``record["pinned"]`` of the map choice; ``refit_share`` and ``val_gain`` change the map
+    after the choice and ``blocks`` checks the other candidates: none changes which joints it
+    pins)."""
+    del refit_share, blocks, val_gain
     if not periodic:
         return [False] * sur.spec.n_joint
     _, spanned = joint_spans(train, val, sur.spec, min_span=min_span)
@@ -212,6 +180,7 @@ def choose_map_joints(
     min_span: float = MIN_SPAN,
     refit_share: float = 0.0,
     blocks: bool = True,
+    val_gain: bool = True,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The surrogate with the chosen joints on the static map, or None to keep ``sur``.
 
@@ -232,11 +201,15 @@ def choose_map_joints(
             training's command range (:func:`~.span.command_span`) keeps the network.
         refit_share: when the validation episodes hold at least this share of the training's
             samples (0: never), the joints on the map take it fitted again on both splits
-            after the choice (:func:`refit_map`; each keeps its variant), and their end stops
-            from both; the model's validation scores are then in-sample on those joints.
+            after the choice (:func:`.map_fit.refit_map`; each keeps its variant), and their
+            end stops from both; the model's validation scores are then in-sample on those
+            joints.
         blocks: on a single validation episode, a candidate (one not pinned by the R^2 rule
             in parallel) must also be within :data:`MAP_TIE` of the network on both of its
             halves (:mod:`.map_blocks`).
+        val_gain: after the choice (and a refit), the joints on the map take its gains
+            scaled to validation's speed (:mod:`.map_fit`); their validation scores are
+            then in-sample.
 
     Returns:
         ``(new or None, record)``; ``record`` holds the map, both validation scores, the
@@ -384,29 +357,23 @@ def choose_map_joints(
             "val_share": ratio,
             "map": {k: fit[k] for k in ("a_pos", "a_neg", "k_pos", "k_neg", "delay")},
         }
+    if val_gain:
+        fit = scale_gains(fit, val, on_map, record=record)
     if parallel:
         chosen = choose_parallel(
             sur, fit, net, kept, good, val, record=record, max_steps=max_steps, map_stops=stops
         )
-        _say_refit(record)
+        say_refit(record)
+        say_gain(record)
         return chosen
-    if ratio is not None:  # the chosen joints, on the map of both splits
+    if ratio is not None or "val_gain" in record:  # the chosen joints, on the map as changed
         model = with_map_joints(sur, fit, kept, map_stops=stops)
         got = free_run_error(model, list(val), max_steps=max_steps)
-        _say_refit(record)
+        say_refit(record)
+        say_gain(record)
     if got is None:  # no candidate: the network, or the pinned joints on the map
         model, got = pinned_only()
     return _chosen(model, got), record
-
-
-def _say_refit(record: dict[str, Any]) -> None:
-    """Add the refit (:func:`refit_map`) to ``record``'s ``why``, if there was one."""
-    if "refit" in record:
-        record["why"] += (
-            f"; the map then refitted on training + validation (validation holds "
-            f"{record['refit']['val_share']:.0%} of the training's samples; its validation "
-            "scores are in-sample on the map joints)"
-        )
 
 
 def choose_parallel(
