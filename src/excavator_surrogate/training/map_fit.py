@@ -21,13 +21,12 @@ data's angle range (:func:`map_end_stops`).  After the choice the map can change
 
 Either way the map joints' validation scores are then in-sample.
 
-Evidence for the gains (``docs/real-history.md``, session 109; offline on the four
-simulated operator logs, the map joints free-run as the structured model): the continuous
-log's swing 9.70 -> 6.46 deg on the test and 35.71 -> 34.22 on the 8 more segments, its
-bucket 3.44 -> 3.20 and 14.90 -> 14.65 (the wheel loader's alike), the 7-minute loader's
-bucket 13.92 -> 12.41 and 16.78 -> 14.67; on the sessions log, whose sessions each draw
-their own oil temperature, the swing and the arm gain 0.3-0.5 % on the test and lose 0.6 %
-and 5 % on the 12 more sessions.
+Evidence for the gains (``docs/real-history.md``, session 109; ``bench/real.py``, medians of
+three seeds, angle RMSE on the test and on the more test data): the continuous log's swing
+9.70 -> 8.74 and 35.71 -> 35.26 deg, its bucket 3.44 -> 3.20 and 14.90 -> 14.65 (the
+10-minute loader's bucket alike), the 7-minute loader's bucket 13.92 -> 12.42 and 16.78 ->
+14.68; on the sessions log, whose sessions each draw their own oil temperature, the swing and
+the arm gain 0.3-0.5 % on the test and lose 0.6 % and 5 % on the 12 more sessions.
 """
 
 from __future__ import annotations
