@@ -28,6 +28,13 @@ def _summary(*channels: ChannelSummary, kind: str = "csv") -> LogSummary:
     return LogSummary(Path("log.csv"), kind, "CSV", list(channels))
 
 
+def _imports(cli, log: Path, draft, tmp_path: Path, *options: str) -> None:
+    """The import takes the draft (a dry run of ``log`` with it)."""
+    (tmp_path / "m.toml").write_text(draft.text)
+    rc, _, err = cli("import", log, "--mapping", tmp_path / "m.toml", "--dry-run", *options)
+    assert rc == 0, err
+
+
 def _ch(name: str, lo: float, hi: float, *, unit: str = "", n: int = 101, **kw) -> ChannelSummary:
     return ChannelSummary(name, unit=unit, n_sample=n, lo=lo, hi=hi, **kw)
 
@@ -133,9 +140,7 @@ def test_a_german_rigs_names(tmp_path: Path, cli) -> None:
         "Löffel_Auf_Druck",
         "Stiel_Aus_Druck",
     ]
-    (tmp_path / "m.toml").write_text(draft.text)
-    rc, _, err = cli("import", log, "--mapping", tmp_path / "m.toml", "--dry-run")
-    assert rc == 0, err
+    _imports(cli, log, draft, tmp_path)
 
 
 def test_units_velocities_swing_strokes_and_raw_commands() -> None:
@@ -215,17 +220,7 @@ def test_a_ros_bags_joint_states_by_name(tmp_path: Path, cli) -> None:
         "data[3]",
     )
     assert "by its order among commands that name no joint" in draft.text
-    (tmp_path / "m.toml").write_text(draft.text)
-    rc, _, err = cli(
-        "import",
-        tmp_path / "bag",
-        "--mapping",
-        tmp_path / "m.toml",
-        "--dry-run",
-        "--min-steps",
-        "20",
-    )
-    assert rc == 0, err
+    _imports(cli, tmp_path / "bag", draft, tmp_path, "--min-steps", "20")
 
 
 def test_a_valves_two_directions_on_two_topics(tmp_path: Path, cli) -> None:
@@ -245,17 +240,7 @@ def test_a_valves_two_directions_on_two_topics(tmp_path: Path, cli) -> None:
         "/bucket/up:data",
         "/bucket/down:data",
     ]
-    (tmp_path / "m.toml").write_text(draft.text)
-    rc, _, err = cli(
-        "import",
-        tmp_path / "bag",
-        "--mapping",
-        tmp_path / "m.toml",
-        "--dry-run",
-        "--min-steps",
-        "20",
-    )
-    assert rc == 0, err
+    _imports(cli, tmp_path / "bag", draft, tmp_path, "--min-steps", "20")
 
 
 def test_the_cli_never_replaces_a_file_it_did_not_write(

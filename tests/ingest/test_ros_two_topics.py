@@ -156,6 +156,19 @@ def test_errors_name_the_topic_and_its_row(logs, tmp_path):
     assert res.episodes[0].u[:, 0].max() <= 1000.0
 
 
+def _boom(command: str, more: str = "") -> str:
+    """A mapping of one joint, boom, with the ``command`` table's keys ``command``."""
+    return (
+        HEAD
+        + f"""
+[[joints]]
+name = "boom"
+angle = {{ topic = "/joint_states", field = "position[boom_joint]", unit = "rad" }}
+command = {{ {command}, unit = "%" }}
+{more}"""
+    )
+
+
 @pytest.mark.parametrize(
     ("command", "message"),
     [
@@ -178,50 +191,28 @@ def test_errors_name_the_topic_and_its_row(logs, tmp_path):
     ],
 )
 def test_mapping_errors(command, message):
-    text = (
-        HEAD
-        + f"""
-[[joints]]
-name = "boom"
-angle = {{ topic = "/joint_states", field = "position[boom_joint]", unit = "rad" }}
-command = {{ {command}, unit = "%" }}
-"""
-    )
     with pytest.raises(ConfigError, match=r"joint 'boom': command: " + message):
-        parse_mapping(tomllib.loads(text), path="m.toml")
+        parse_mapping(tomllib.loads(_boom(command)), path="m.toml")
 
 
 def test_an_input_is_one_channel():
-    text = (
-        HEAD
-        + """
-[[joints]]
-name = "boom"
-angle = { topic = "/joint_states", field = "position[boom_joint]", unit = "rad" }
-command = { topic = "/valves", field = "data[0]", unit = "%" }
-[[inputs]]
+    text = _boom(
+        'topic = "/valves", field = "data[0]"',
+        """[[inputs]]
 name = "travel"
 up = { topic = "/travel/fwd", field = "data" }
 down = { topic = "/travel/back", field = "data" }
 unit = "physical"
 range = [-1.0, 1.0]
-"""
+""",
     )
     with pytest.raises(ConfigError, match=r"input 'travel': an input is one channel"):
         parse_mapping(tomllib.loads(text), path="m.toml")
 
 
-def test_two_topics_and_a_shared_topic_mix(logs):
+def test_two_topics_and_a_shared_topic_mix():
     """``topic`` serves the direction that names none of its own."""
-    text = (
-        HEAD
-        + """
-[[joints]]
-name = "boom"
-angle = { topic = "/joint_states", field = "position[boom_joint]", unit = "rad" }
-command = { topic = "/boom/up", up = "data", down = { topic = "/boom/down", field = "data" }, unit = "%" }
-"""
-    )
+    text = _boom('topic = "/boom/up", up = "data", down = { topic = "/boom/down", field = "data" }')
     m = parse_mapping(tomllib.loads(text), path="m.toml")
     assert [c.label for c in m.command_channels(m.joints[0])] == [
         "/boom/up:data",

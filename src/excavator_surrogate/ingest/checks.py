@@ -283,30 +283,33 @@ def check_one_way(
     c = j.command
     what = f"joint '{j.name}' command" if isinstance(j, JointMap) else f"input '{j.name}'"
     tol = 1e-9 * (c.range[1] - c.range[0])
-    neg = x < -tol
-    if neg.any():
-        row = int(np.flatnonzero(neg)[0])
-        raise DataError(
-            path,
-            f"one-way command channel is negative ({x[row]:.6g})",
-            column=ch.label,
-            row=row,
-            fix=f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
+    checks = [
+        (
+            x < -tol,
+            "is negative ({:.6g})",
+            f"up/down channels must be >= 0; check scale/offset of {what} in {where}",
         )
-    if not full:
-        return
-    x_lo, x_hi = _full_scale(c)
-    top = -x_lo if down else x_hi
-    over = x > top + 1e-9 * (x_hi - x_lo)
-    if over.any():
-        row = int(np.flatnonzero(over)[0])
-        raise DataError(
-            path,
-            f"one-way command channel {x[row]:.6g} {c.unit} is beyond full command ({top:g})",
-            column=ch.label,
-            row=row,
-            fix=f"check unit/scale/range of {what} in {where}, or use --clip-commands",
+    ]
+    if full:
+        x_lo, x_hi = _full_scale(c)
+        top = -x_lo if down else x_hi
+        checks.append(
+            (
+                x > top + 1e-9 * (x_hi - x_lo),
+                f"{{:.6g}} {c.unit} is beyond full command ({top:g})",
+                f"check unit/scale/range of {what} in {where}, or use --clip-commands",
+            )
         )
+    for bad, problem, fix in checks:
+        if bad.any():
+            row = int(np.flatnonzero(bad)[0])
+            raise DataError(
+                path,
+                "one-way command channel " + problem.format(x[row]),
+                column=ch.label,
+                row=row,
+                fix=fix,
+            )
 
 
 def command_of(
