@@ -4,8 +4,8 @@
 (:func:`_time_bases`), missing values (:func:`_fill_missing`), spikes and joint limits
 (:func:`~.outliers.screen_angles`), units (:func:`_to_units`), gap-free segments
 (:func:`_common_segments`), resampling (:func:`_cut_episodes`) and, for ``velocity =
-"kalman"``, angle-only filtering (:func:`.velocity.kalman_velocities`).  The checks they run are in
-:mod:`.checks`; :func:`~.importer.import_logs` runs this over many logs.
+"kalman"``, angle-only filtering (:func:`.velocity.kalman_velocities`).  The checks they
+run are in :mod:`.checks`; :func:`~.importer.import_logs` runs this over many logs.
 """
 
 from __future__ import annotations
@@ -472,10 +472,10 @@ def _resample_segment(
         if sig.u[i].ndim == 0:  # a per-run constant input
             u[:, i] = sig.u[i]
             continue
-        own = sig.u_time[i]
-        cname = mapping.command_channels(src)[0].series
-        tu = own if own is not None else raw.series[cname].time
-        cs = span_rows(own, a, b) if own is not None else rows[cname]
+        tu = sig.u_time[i]
+        if tu is None:  # on its channel's series
+            tu = raw.series[mapping.command_channels(src)[0].series].time
+        cs = span_rows(tu, a, b)
         u[:, i] = interval_mean(tu[cs], sig.u[i][cs], edges)
     lo = np.array([c.u_min for c in spec.u_specs])
     hi = np.array([c.u_max for c in spec.u_specs])

@@ -62,6 +62,7 @@ JOINT_WORDS: dict[str, tuple[str, ...]] = {
 (a wheel loader's lift arm and tilt are its boom and bucket), in English, German
 (``Ausleger``, ``Stiel``, ``Löffel``, ``Drehwerk``), French (``flèche``, ``balancier``,
 ``godet``, ``tourelle``) and Spanish (``pluma``, ``brazo``, ``cucharón``, ``giro``)."""
+_ALL_JOINT_WORDS = frozenset(w for ws in JOINT_WORDS.values() for w in ws)
 VELOCITY_WORDS = ("vel", "velocity", "omega", "speed", "dot", "dps", "degps", "radps", "dq")
 VELOCITY_WORDS += ("geschw", "geschwindigkeit", "winkelgeschwindigkeit", "drehrate")
 VELOCITY_WORDS += ("vitesse", "velocidad")
@@ -113,7 +114,6 @@ INPUT_WORDS += ("drehzahl", "motor", "gas", "pumpe", "gang", "moteur")
 """Words of a channel that may be an exogenous input (engine speed, throttle, pump pressure)."""
 TIME_WORDS = ("t", "time", "timestamp", "stamp", "ts", "zeit", "sec", "seconds", "tiempo")
 """Words of a table's time column."""
-_ALL_JOINT_WORDS = frozenset(w for ws in JOINT_WORDS.values() for w in ws)
 TIME_UNITS = {"s": "s", "sec": "s", "ms": "ms", "msec": "ms", "us": "us", "usec": "us"}
 TIME_UNITS |= {"ns": "ns", "nsec": "ns"}
 

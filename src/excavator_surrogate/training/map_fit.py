@@ -90,7 +90,7 @@ def refit_due(train: Sequence[Episode], val: Sequence[Episode], *, share: float)
     return ratio if share > 0 and ratio >= share else None
 
 
-def say_refit(record: dict[str, Any]) -> None:
+def _say_refit(record: dict[str, Any]) -> None:
     """Add the refit (:func:`refit_map`) to ``record``'s ``why``, if there was one."""
     if "refit" in record:
         record["why"] += (
@@ -153,7 +153,7 @@ def scale_gains(
     }
 
 
-def say_gain(record: dict[str, Any]) -> None:
+def _say_gain(record: dict[str, Any]) -> None:
     """Add the validation gains (:func:`scale_gains`) to ``record``'s ``why``, if any."""
     got = record.get("val_gain")
     if not got:
@@ -163,3 +163,10 @@ def say_gain(record: dict[str, Any]) -> None:
         f"; the map joints' speeds then scaled to validation's ({each}: validation is the "
         "data nearest the test in time; their validation scores are in-sample)"
     )
+
+
+def say_changes(record: dict[str, Any]) -> None:
+    """Add what changed the map after the choice (a refit, validation's speed) to
+    ``record``'s ``why``."""
+    _say_refit(record)
+    _say_gain(record)

@@ -38,11 +38,11 @@ no map joint moves the others (:func:`choose_parallel`).
 **End stops** (``end_stops``, ``[train] map_end_stops``): a joint on the map stops at the
 training data's angle range, as the structured baseline does
 (:func:`.map_fit.map_end_stops`), where the network's end stops leave ``[train]
-limit_margin`` beyond it.  The map integrates its
-command with no angle to correct it, and an end stop is its only reset: on the simulated
-operator logs and h1-dev, every map clipped at the training range scored at least as well
-on the more test data as with the margin, by up to 9 % (docs/real-history.md).  In parallel
-the network's own angles keep the network's end stops.
+limit_margin`` beyond it.  The map integrates its command with no angle to correct it, and
+an end stop is its only reset: on the simulated operator logs and h1-dev, every map clipped
+at the training range scored at least as well on the more test data as with the margin, by
+up to 9 % (docs/real-history.md).  In parallel the network's own angles keep the network's
+end stops.
 
 **After the choice** (:mod:`.map_fit`): the joints on the map take its gains scaled to
 validation's speed, the data nearest the test in time (``val_gain``, ``[train]
@@ -71,7 +71,7 @@ from ..surrogate.structured import fit_prior, max_map_delay
 from ..surrogate.validation import free_run_error
 from .config import TrainConfig
 from .map_blocks import all_on_map, check_blocks
-from .map_fit import map_end_stops, refit_due, refit_map, say_gain, say_refit, scale_gains
+from .map_fit import map_end_stops, refit_due, refit_map, say_changes, scale_gains
 from .sets import SET_MARGIN, best_set
 from .span import joint_spans, span_note
 
@@ -363,14 +363,12 @@ def choose_map_joints(
         chosen = choose_parallel(
             sur, fit, net, kept, good, val, record=record, max_steps=max_steps, map_stops=stops
         )
-        say_refit(record)
-        say_gain(record)
+        say_changes(record)
         return chosen
     if ratio is not None or "val_gain" in record:  # the chosen joints, on the map as changed
         model = with_map_joints(sur, fit, kept, map_stops=stops)
         got = free_run_error(model, list(val), max_steps=max_steps)
-        say_refit(record)
-        say_gain(record)
+        say_changes(record)
     if got is None:  # no candidate: the network, or the pinned joints on the map
         model, got = pinned_only()
     return _chosen(model, got), record
