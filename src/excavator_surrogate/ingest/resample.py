@@ -29,6 +29,7 @@ Choices:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -102,6 +103,12 @@ def resample_smooth(
     return out[:, 0] if one_d else out
 
 
+def _held(t_in: np.ndarray, t: Any) -> Any:
+    """The row of increasing log times ``t_in`` whose value holds at each time ``t``: the last
+    one at or before it, row 0 before ``t_in[0]`` (the first value is held backwards)."""
+    return np.clip(np.searchsorted(t_in, t, side="right") - 1, 0, len(t_in) - 1)
+
+
 def interval_mean(t_in: np.ndarray, x_in: np.ndarray, t_edges: np.ndarray) -> np.ndarray:
     """Mean of a zero-order-hold signal over each interval ``[t_edges[k], t_edges[k+1])``.
 
@@ -124,7 +131,7 @@ def interval_mean(t_in: np.ndarray, x_in: np.ndarray, t_edges: np.ndarray) -> np
     # cumulative integral of the held signal at each log time, relative to t_in[0]
     seg = np.diff(t_in)[:, None] * x[:-1]
     cum = np.vstack([np.zeros((1, x.shape[1])), np.cumsum(seg, axis=0)])
-    idx = np.clip(np.searchsorted(t_in, t_edges, side="right") - 1, 0, len(t_in) - 1)
+    idx = _held(t_in, t_edges)
     integral = cum[idx] + x[idx] * (t_edges - t_in[idx])[:, None]
     out = np.diff(integral, axis=0) / np.diff(t_edges)[:, None]
     return out[:, 0] if one_d else out
@@ -133,7 +140,7 @@ def interval_mean(t_in: np.ndarray, x_in: np.ndarray, t_edges: np.ndarray) -> np
 def span_rows(t: np.ndarray, a: float, b: float) -> slice:
     """The rows of increasing times ``t`` [s] a span ``[a, b]`` reads: from the last one at
     or before ``a`` (its value holds at ``a``) to the first one at or after ``b``."""
-    i0 = max(int(np.searchsorted(t, a, side="right")) - 1, 0)
+    i0 = int(_held(t, a))
     i1 = min(int(np.searchsorted(t, b, side="left")), t.shape[0] - 1)
     return slice(i0, i1 + 1)
 
@@ -150,8 +157,7 @@ def hold(t_in: np.ndarray, x_in: np.ndarray, t: np.ndarray) -> np.ndarray:
     Returns:
         (n,) the held values.
     """
-    idx = np.clip(np.searchsorted(t_in, t, side="right") - 1, 0, len(t_in) - 1)
-    return np.asarray(x_in)[idx]
+    return np.asarray(x_in)[_held(t_in, t)]
 
 
 def cumulative_trapezoid(t: np.ndarray, v: np.ndarray) -> np.ndarray:
