@@ -1,6 +1,6 @@
-"""Real-machine fidelity: the default recipe on seven data shapes, next to its baselines.
+"""Real-machine fidelity: the default recipe on eight data shapes, next to its baselines.
 
-Seven cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
+Eight cases (:data:`real_cases.CASES`, a dict of case builders in ``bench/real_cases.py``;
 add a shape by adding a builder):
 
 - ``h1``: the h1-dev development set (``../shared/real/h1-dev``: 143 valve-duty step runs of a
@@ -20,6 +20,11 @@ add a shape by adding a builder):
   its own oil temperature (the machine up to 25 % slower cold), so the speed differs from
   session to session as from day to day; 12 sessions of 150 s train, 2 validate, the last
   (180 s) is scored.  Imported like the continuous log.
+- ``sessions-days``: the same shape in five days of three sessions (preset ``sessions-days``),
+  where the machine's speed drifts from day to day: each day draws its own slow-down (up to
+  20 %) that its sessions share, each session still its own oil temperature (up to 10 %).
+  The last day's three sessions validate (2) and test (1): validation is the test's day.  Its
+  more test data are 12 more sessions of that day.
 - ``stroke``: linear joints.  ``quick-hydraulic``'s runs written by
   ``examples/stroke_make_logs.py`` as a stroke-sensing machine's CSV logs (the swing an
   encoder in deg; boom, arm and bucket cylinder strokes in mm through a made-up linkage) and
@@ -47,7 +52,7 @@ For each shape, in one run on the same data:
   mapping's unit for a stroke).
 
 The simulated shapes are also scored on more test data of the same machine (``--more-test
-N``, :data:`MORE_TEST`: the continuous log's next 8 x 160 s, 12 more sessions; 0 for none),
+N``, :data:`MORE_TEST`: the continuous log's next 8 x 160 s, 12 more sessions (of the test's day with days); 0 for none),
 in a second table and the JSON's ``more`` block: one test segment can rank models the other
 way from many (docs/real-history.md, *More test data*).
 
@@ -73,7 +78,7 @@ baseline on every joint; its worst seed is within 1.5x of the median; each seed 
 median beats each baseline there too (``more_median_beats_*``).  A shape whose data is missing
 (h1 without ``../shared``) is reported as skipped.  Usage::
 
-    python bench/real.py [--shape h1|h1-duty80|continuous|sessions|stroke|loader|loader-7min|all] [--seeds 0,10,20] [--plain-epochs 30]
+    python bench/real.py [--shape h1|h1-duty80|continuous|sessions|sessions-days|stroke|loader|loader-7min|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
                          [--more-test N] [--sim-seed S]
                          [--set train.KEY=VALUE ...]

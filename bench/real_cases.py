@@ -24,9 +24,9 @@ MAPPING_CONDITION = REPO / "examples" / "real_excavator_condition.toml"
 """The same mapping plus the run names' H/L condition as a per-run input."""
 STROKE_EXAMPLE = REPO / "examples" / "stroke_make_logs.py"
 """Writes the stroke-sensing machine's logs and mapping (``make_logs``)."""
-MORE_TEST = {"continuous": 8, "continuous-7min": 8, "sessions": 12}
+MORE_TEST = {"continuous": 8, "continuous-7min": 8, "sessions": 12, "sessions-days": 12}
 """More test segments per simulated log (``--more-test`` default): 8 x 160 s of the log's
-continuation, 12 more sessions of 180 s."""
+continuation, 12 more sessions of 180 s (``sessions-days``: on the test's day)."""
 SHORT_LOG_S = 420.0
 """``loader-7min``: the wheel loader's own log length (7 min at 20 Hz: 160 s train | 100 s
 validate | 160 s test), the first 420 s of the continuous log of the same seed."""
@@ -34,6 +34,7 @@ SIMULATED = {
     "continuous": ("continuous-dig", None),
     "continuous-7min": ("continuous-dig", SHORT_LOG_S),
     "sessions": ("sessions-dig", None),
+    "sessions-days": ("sessions-days", None),
 }
 """The simulated logs by name: their preset, and the length of the whole log in seconds where
 it is not the preset's (train, validation and test together)."""
@@ -200,14 +201,17 @@ def _segments(cfg, ep: Episode, n: int) -> list[Episode]:
 
 def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode], str]:
     """``n`` more test sessions: test episodes ``1 .. n`` of the same seed (each episode's seed
-    depends on its split and index only, so episode 0 is the case's test, which is checked)."""
+    depends on its split and index only, so episode 0 is the case's test, which is checked);
+    with days, all on the test's day (which draws the same slow-down as in the case)."""
     from excavator_surrogate.simulate.generate import simulate_dataset
 
-    more = dataclasses.replace(cfg, n_train=0, n_val=0, n_test=1 + n)
+    days = (0,) * (len(cfg.days) - 1) + (1 + n,) if cfg.days else ()
+    more = dataclasses.replace(cfg, n_train=0, n_val=0, n_test=1 + n, days=days)
     test = load_dataset(simulate_dataset(more, out=out)).test
     if not np.array_equal(test[0].theta, sim.test[0].theta):
         raise RuntimeError(f"{out}: the first test session is not the case's")
-    return list(test[1:]), f"{n} more test sessions of {cfg.steps_test / cfg.rate_hz:.0f} s"
+    where = " on the test's day" if cfg.days else ""
+    return list(test[1:]), f"{n} more test sessions of {cfg.steps_test / cfg.rate_hz:.0f} s{where}"
 
 
 def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
@@ -219,7 +223,7 @@ def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
     if base not in MORE_TEST or not (work / f"{base}_more").is_dir():
         return []
     more = load_dataset(work / f"{base}_more")
-    if base == "sessions":
+    if base.startswith("sessions"):
         return as_spec(more.test[1:], spec)
     cfg = sim_config(base, sim_seed)
     (ep,) = more.train
@@ -243,10 +247,18 @@ def _in_time(cfg) -> str:
 
 
 def _by_session(cfg) -> str:
+    days = (
+        f"; {len(cfg.days)} days of {'/'.join(map(str, cfg.days))} sessions, each day its own "
+        f"speed (up to {cfg.hydraulics.day_slowdown:.0%} slower), the last day validates and "
+        "tests"
+        if cfg.days
+        else ""
+    )
     return (
         f"{cfg.n_train} sessions of {cfg.steps_train / cfg.rate_hz:.0f} s train | {cfg.n_val} "
         f"validate | 1 of {cfg.steps_test / cfg.rate_hz:.0f} s tests (scored); each session "
         f"its own oil temperature (up to {cfg.hydraulics.drift_amplitude:.0%} slower cold)"
+        f"{days}"
     )
 
 
@@ -321,6 +333,11 @@ def _sessions(work: Path, args: argparse.Namespace) -> Case:
     return _simulated(work, args, "sessions", _by_session, _more_sessions)
 
 
+def _sessions_days(work: Path, args: argparse.Namespace) -> Case:
+    """The sessions in days, each day its own speed: validation is the test's day."""
+    return _simulated(work, args, "sessions-days", _by_session, _more_sessions)
+
+
 def _stroke(work: Path, args: argparse.Namespace) -> Case:
     import importlib.util
 
@@ -348,6 +365,7 @@ CASES: dict[str, Callable[[Path, argparse.Namespace], Case | str]] = {
     "h1-duty80": _h1_duty80,
     "continuous": _continuous,
     "sessions": _sessions,
+    "sessions-days": _sessions_days,
     "stroke": _stroke,
     "loader": _loader,
     "loader-7min": _loader_7min,

@@ -54,6 +54,7 @@ def _reference(
             if cfg.drift:
                 f = 1.0 - cfg.drift_amplitude * math.exp(-k * dt / cfg.drift_tau_s)
                 q = [v * f for v in q]
+            q = [v * (1.0 - cfg.day_slowdown) for v in q]
             if cfg.flow_sharing:
                 demand = sum(abs(v) * p.flow[j] for j, v in enumerate(q))
                 if demand > cfg.pump_max_lpm:
@@ -91,7 +92,7 @@ def _transform(cfg: HydraulicConfig, *, n_batch: int = 1, substeps: int = 25) ->
 @pytest.mark.parametrize("which", ["all", "one_by_one"])
 def test_vectorised_transform_matches_plain_loop_reference(which: str) -> None:
     u = _commands(0)
-    base = dataclasses.replace(HydraulicConfig(drift=True), drift_tau_s=0.5)  # visible drift
+    base = dataclasses.replace(HydraulicConfig(drift=True), drift_tau_s=0.5, day_slowdown=0.15)
     cfgs = [base] if which == "all" else [HydraulicConfig.ideal(**{e: True}) for e in EFFECTS]
     for cfg in cfgs:
         got = _transform(cfg, n_batch=2, substeps=10)(u)
@@ -251,6 +252,15 @@ def test_drift_changes_speed_slowly() -> None:
     assert np.all(np.diff(out) > 0)
 
 
+def test_the_days_slow_down_scales_every_valves_speed() -> None:
+    u = _commands(1)
+    cfg = HydraulicConfig.ideal(dead_zone=True, gain_curve=True, asymmetry=True, valve_lag=True)
+    base = _transform(cfg, n_batch=2, substeps=10)(u)
+    slow = _transform(dataclasses.replace(cfg, day_slowdown=0.2), n_batch=2, substeps=10)(u)
+    np.testing.assert_allclose(slow, 0.8 * base, rtol=1e-12, atol=1e-9)  # the linear stages
+    assert np.abs(base).max() > 100.0
+
+
 class _Load:
     """External torque on one joint during [t0, t1) (an obstacle the arm pushes against)."""
 
@@ -316,6 +326,8 @@ def test_config_errors_and_generic_spec() -> None:
         HydraulicConfig.ideal(soil=True)
     with pytest.raises(ConfigError):
         HydraulicConfig(pump_max_lpm=0.0)
+    with pytest.raises(ConfigError, match="day_slowdown"):
+        HydraulicConfig(day_slowdown=1.0)
     # two joints: scalars broadcast, nothing assumes four joints
     spec = MachineSpec(
         joints=(JointSpec("a", theta_min=-1, theta_max=1), JointSpec("b")), rate_hz=20.0

@@ -106,6 +106,46 @@ def test_sessions_are_separate_runs_each_with_its_own_oil_temperature(tmp_path):
     assert np.ptp(starts[:, 1:], axis=0).max() > 0.05  # each session starts somewhere else
 
 
+def test_sessions_of_one_day_share_its_slow_down(tmp_path):
+    preset = SimulateConfig.from_preset(load_preset("sessions-days"))
+    assert preset.days == (3, 3, 3, 3, 3) and preset.hydraulics.day_slowdown == 0.2
+    assert sum(preset.days) == preset.n_train + preset.n_val + preset.n_test
+    # four short sessions in two days: the day's draw is shared, the oil's is each session's
+    cfg = dataclasses.replace(
+        preset, n_train=2, n_val=1, days=(2, 2), steps_train=60, steps_val=60, steps_test=60
+    )
+    ds = load_dataset(simulate_dataset(cfg, out=tmp_path / "ds"))
+    plant = [e.generator["plant"] for e in ds.train + ds.val + ds.test]
+    assert [p["day"] for p in plant] == [0, 0, 1, 1]
+    slow = [p["day_slowdown"] for p in plant]
+    assert slow[0] == slow[1] != slow[2] == slow[3]
+    assert all(0 <= s < 0.2 for s in slow)
+    assert len({p["drift_amplitude"] for p in plant}) == 4
+    # the test session alone, on its day: the same draws, so the same session
+    alone = dataclasses.replace(cfg, n_train=0, n_val=0, days=(0, 1))
+    (test,) = load_dataset(simulate_dataset(alone, out=tmp_path / "alone")).test
+    assert test.generator["plant"] == plant[-1]
+    np.testing.assert_array_equal(test.theta, ds.test[0].theta)
+    # a slower day is slower: the same session on another day's draw
+    other = dataclasses.replace(alone, days=(1, 0))
+    (moved,) = load_dataset(simulate_dataset(other, out=tmp_path / "other")).test
+    assert moved.generator["plant"]["day_slowdown"] == slow[0]
+    assert not np.array_equal(moved.theta, test.theta)
+
+
+def test_days_must_count_every_session_once():
+    with pytest.raises(ConfigError, match=r"simulate.days \[3, 3\] must count each of the 15"):
+        dataclasses.replace(load_preset_config(), days=(3, 3))
+    with pytest.raises(ConfigError, match="no day below 0"):
+        dataclasses.replace(load_preset_config(), days=(16, -1))
+    with pytest.raises(ConfigError, match="plant = 'hydraulic'"):
+        dataclasses.replace(load_preset_config(), plant="ideal")
+
+
+def load_preset_config() -> SimulateConfig:
+    return SimulateConfig.from_preset(load_preset("sessions-days"))
+
+
 def test_the_preset_is_one_long_log_cut_in_time():
     cfg = SimulateConfig.from_preset(load_preset("continuous-dig"))
     assert (cfg.n_train, cfg.n_val, cfg.n_test) == (1, 0, 0)

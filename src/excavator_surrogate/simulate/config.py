@@ -84,6 +84,9 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
     validation episode [s] (0: none; docs/real.md, "One long log")."""
     test_s: float = 0.0
     """Split in time: cut this much of each training episode's end into a test episode [s]."""
+    days: tuple[int, ...] = ()
+    """Sessions per day, in dataset order (train, val, test; a day may log none): the sessions
+    of a day share its draw of ``hydraulics.day_slowdown``.  Empty: no days."""
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -118,6 +121,14 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
         for name in ("val_s", "test_s"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ConfigError(f"simulate.{name} must be >= 0 [s], got {getattr(self, name)}")
+        n_episode = self.n_train + self.n_val + self.n_test
+        if self.days and (min(self.days) < 0 or sum(self.days) != n_episode):
+            raise ConfigError(
+                f"simulate.days {list(self.days)} must count each of the {n_episode} sessions "
+                "(n_train + n_val + n_test) once, with no day below 0"
+            )
+        if self.days and self.plant != "hydraulic":
+            raise ConfigError("simulate.days needs plant = 'hydraulic' (the day's slow-down)")
         if self.plant not in SOURCES:
             raise ConfigError(
                 f"simulate.plant must be one of {', '.join(SOURCES)}, got {self.plant!r}"

@@ -15,7 +15,8 @@ batched ``mujoco.rollout``.  With ``sensors = true`` the sensor model
 (:mod:`.sensors`) turns the true angles/velocities into measured ones; the truth is kept in
 ``theta_<j>_true`` / ``omega_<j>_true``.  Per-episode random streams: ``default_rng(seed)``
 (pose, commands, operator), ``default_rng([seed, 1])`` (sensor faults),
-``default_rng([seed, 2])`` (plant variation: initial oil temperature).
+``default_rng([seed, 2])`` (plant variation: initial oil temperature), and per day of
+``days`` ``default_rng([root seed, 3, day])`` (the day's slow-down).
 """
 
 from __future__ import annotations
@@ -71,6 +72,8 @@ class EpisodeJob:
     """Samples."""
     seed: int
     """Episode seed (``numpy.random.default_rng(seed)`` reproduces the episode)."""
+    day: int | None = None
+    """The episode's day in ``SimulateConfig.days`` (None: no days)."""
 
     @property
     def name(self) -> str:
@@ -88,10 +91,12 @@ def plan_episodes(cfg: SimulateConfig) -> list[EpisodeJob]:
         ("val", cfg.n_val, cfg.steps_val, cfg.val_signals),
         ("test", cfg.n_test, cfg.steps_test, cfg.test_signals),
     )
+    day_of = [d for d, n in enumerate(cfg.days) for _ in range(n)]
     for (split, n, n_step, kinds), seq in zip(plan, split_seqs):
         for i, child in enumerate(seq.spawn(n)):
             seed = int(child.generate_state(1, dtype=np.uint32)[0])
-            jobs.append(EpisodeJob(split, i, kinds[i % len(kinds)], n_step, seed))
+            day = day_of[len(jobs)] if day_of else None
+            jobs.append(EpisodeJob(split, i, kinds[i % len(kinds)], n_step, seed, day))
     return jobs
 
 
@@ -235,8 +240,13 @@ def simulate_episode(
             prng = np.random.default_rng([job.seed, 2])
             amp = float(prng.uniform(0.0, hcfg.drift_amplitude))
             hcfg = dataclasses.replace(hcfg, drift_amplitude=amp)
-            plant.transform = HydraulicTransform(hcfg, spec=plant.spec)
             info["drift_amplitude"] = round(amp, 6)
+        if job.day is not None:  # the day's speed, shared by the day's sessions
+            drng = np.random.default_rng([cfg.seed, 3, job.day])
+            slow = float(drng.uniform(0.0, hcfg.day_slowdown))
+            hcfg = dataclasses.replace(hcfg, day_slowdown=slow)
+            info["day"], info["day_slowdown"] = job.day, round(slow, 6)
+        plant.transform = HydraulicTransform(hcfg, spec=plant.spec)  # (the plant is cached)
         velocity_map = plant.transform.nominal_model(omega_max=plant.omega_max)
 
     if closed:

@@ -7,7 +7,7 @@ command history only, so the batched ``mujoco.rollout`` path can use it.  Signal
 joint ``j`` (``x = u / u_max`` for ``u >= 0``, ``u / |u_min|`` for ``u < 0``)::
 
     x --play (hysteresis)--> s --dead zone, progressive curve, asymmetric gain--> q
-      --drift (oil temperature)--> --flow sharing (one pump)--> --acceleration limit-->
+      --drift (oil temperature), the day's slow-down--> --flow sharing (one pump)--> --acceleration limit-->
       --transport delay--> --first-order valve lag--> y;   ctrl = y * u_max  (y<0: y*|u_min|)
 
 The play, the static map, the drift and the flow sharing act on the piecewise-constant
@@ -104,6 +104,10 @@ class HydraulicConfig:
     """Speed deficit of cold oil at t = 0 (dataset generation draws it per episode in [0, this])."""
     drift_tau_s: float = 600.0
     """Warm-up time constant of the drift [s]."""
+    day_slowdown: float = 0.0
+    """Speed deficit of the day: every valve's speed times ``1 - day_slowdown`` (ambient
+    temperature, oil grade, pump wear; dataset generation with ``simulate.days`` draws it per
+    day in [0, this])."""
     flow_full_lpm: PerJoint = (350.0, 700.0, 700.0, 450.0)
     """Pump flow a joint draws at full speed [L/min]."""
     pump_max_lpm: float = 1000.0
@@ -128,6 +132,8 @@ class HydraulicConfig:
             raise ConfigError(
                 f"hydraulics.drift_amplitude must be in [0, 1), got {self.drift_amplitude}"
             )
+        if not 0 <= self.day_slowdown < 1:
+            raise ConfigError(f"hydraulics.day_slowdown must be in [0, 1), got {self.day_slowdown}")
         if self.delay_s < 0:
             raise ConfigError(f"hydraulics.delay_s must be >= 0, got {self.delay_s}")
 
@@ -336,10 +342,12 @@ class HydraulicTransform:
             s = x
         # 2. static valve map
         q = spool_map(s, p)
-        # 3. drift (oil warming up): slow multiplicative speed change
+        # 3. drift (oil warming up): slow multiplicative speed change; the day's slow-down
         if c.drift and c.drift_amplitude > 0:
             t = (self.k + np.arange(n_step)) * self.dt
             q = q * (1.0 - c.drift_amplitude * np.exp(-t / c.drift_tau_s))[None, :, None]
+        if c.day_slowdown > 0:
+            q = q * (1.0 - c.day_slowdown)
         # 4. flow sharing: one pump
         if c.flow_sharing:
             aq = np.abs(q)
