@@ -52,9 +52,9 @@ For each shape, in one run on the same data:
   mapping's unit for a stroke).
 
 The simulated shapes are also scored on more test data of the same machine (``--more-test
-N``, :data:`MORE_TEST`: the continuous log's next 8 x 160 s, 12 more sessions (of the test's day with days); 0 for none),
-in a second table and the JSON's ``more`` block: one test segment can rank models the other
-way from many (docs/real-history.md, *More test data*).
+N``, :data:`MORE_TEST`: the continuous log's next 8 x 160 s, 12 more sessions, of the test's
+day with days; 0 for none), in a second table and the JSON's ``more`` block: one test segment
+can rank models the other way from many (docs/real-history.md, *More test data*).
 
 ``--condition`` also trains the recipe on the shape's run-condition variant: h1's H/L run
 condition as a per-run input (``examples/real_excavator_condition.toml``; h1 and h1-duty80);

@@ -106,8 +106,12 @@ def test_sessions_are_separate_runs_each_with_its_own_oil_temperature(tmp_path):
     assert np.ptp(starts[:, 1:], axis=0).max() > 0.05  # each session starts somewhere else
 
 
+def _days_preset() -> SimulateConfig:
+    return SimulateConfig.from_preset(load_preset("sessions-days"))
+
+
 def test_sessions_of_one_day_share_its_slow_down(tmp_path):
-    preset = SimulateConfig.from_preset(load_preset("sessions-days"))
+    preset = _days_preset()
     assert preset.days == (3, 3, 3, 3, 3) and preset.hydraulics.day_slowdown == 0.2
     assert sum(preset.days) == preset.n_train + preset.n_val + preset.n_test
     # four short sessions in two days: the day's draw is shared, the oil's is each session's
@@ -126,7 +130,7 @@ def test_sessions_of_one_day_share_its_slow_down(tmp_path):
     (test,) = load_dataset(simulate_dataset(alone, out=tmp_path / "alone")).test
     assert test.generator["plant"] == plant[-1]
     np.testing.assert_array_equal(test.theta, ds.test[0].theta)
-    # a slower day is slower: the same session on another day's draw
+    # the same session on the other day runs at that day's speed
     other = dataclasses.replace(alone, days=(1, 0))
     (moved,) = load_dataset(simulate_dataset(other, out=tmp_path / "other")).test
     assert moved.generator["plant"]["day_slowdown"] == slow[0]
@@ -135,15 +139,11 @@ def test_sessions_of_one_day_share_its_slow_down(tmp_path):
 
 def test_days_must_count_every_session_once():
     with pytest.raises(ConfigError, match=r"simulate.days \[3, 3\] must count each of the 15"):
-        dataclasses.replace(load_preset_config(), days=(3, 3))
+        dataclasses.replace(_days_preset(), days=(3, 3))
     with pytest.raises(ConfigError, match="no day below 0"):
-        dataclasses.replace(load_preset_config(), days=(16, -1))
+        dataclasses.replace(_days_preset(), days=(16, -1))
     with pytest.raises(ConfigError, match="plant = 'hydraulic'"):
-        dataclasses.replace(load_preset_config(), plant="ideal")
-
-
-def load_preset_config() -> SimulateConfig:
-    return SimulateConfig.from_preset(load_preset("sessions-days"))
+        dataclasses.replace(_days_preset(), plant="ideal")
 
 
 def test_the_preset_is_one_long_log_cut_in_time():

@@ -7,8 +7,9 @@ command history only, so the batched ``mujoco.rollout`` path can use it.  Signal
 joint ``j`` (``x = u / u_max`` for ``u >= 0``, ``u / |u_min|`` for ``u < 0``)::
 
     x --play (hysteresis)--> s --dead zone, progressive curve, asymmetric gain--> q
-      --drift (oil temperature), the day's slow-down--> --flow sharing (one pump)--> --acceleration limit-->
-      --transport delay--> --first-order valve lag--> y;   ctrl = y * u_max  (y<0: y*|u_min|)
+      --drift (oil temperature), the day's slow-down--> --flow sharing (one pump)-->
+      --acceleration limit--> --transport delay--> --first-order valve lag--> y;
+      ctrl = y * u_max  (y<0: y*|u_min|)
 
 The play, the static map, the drift and the flow sharing act on the piecewise-constant
 command (control rate); the acceleration limit, delay and lag at the physics rate.  All
