@@ -123,3 +123,16 @@ def test_speed_ratio_is_the_least_squares_scale_of_the_maps_speed() -> None:
     assert speed_ratio(fit, u, w) == pytest.approx(1.3, rel=1e-12)
     idle = [np.zeros(50)]
     assert speed_ratio(fit, idle, [np.ones(50)]) == 1.0
+
+
+def test_joint_fit_reads_back_each_joint_of_fit_prior() -> None:
+    """``joint_fit`` is ``fit_prior``'s lists read back: every joint's ``JointFit`` as
+    ``fit_joints`` gave it, and ``rmse`` 0 where the lists keep none."""
+    from excavator_surrogate.surrogate.structured import fit_joints, fit_prior, joint_fit
+
+    eps = [_episode(s) for s in range(2)]
+    fit = fit_prior(eps, SPEC, max_delay=6)
+    for j, want in enumerate(fit_joints(eps, SPEC, max_delay=6)):
+        assert joint_fit(fit, j) == want
+    bare = {k: v for k, v in fit.items() if k != "rmse"}
+    assert joint_fit(bare, 1).rmse == 0.0 and joint_fit(bare, 1).k_pos == fit["k_pos"][1]

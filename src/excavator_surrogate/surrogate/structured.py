@@ -24,7 +24,7 @@ baseline, not a checkpoint: it is not saved.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -271,6 +271,19 @@ def fit_prior(
             for j, f in enumerate(fits)
         ],
     }
+
+
+def joint_fit(fit: Mapping[str, Sequence[float]], j: int) -> JointFit:
+    """Joint ``j``'s map as a :class:`JointFit`, from a map in :func:`fit_prior`'s lists (its
+    ``rmse`` where the lists keep one, else 0)."""
+    return JointFit(
+        delay=int(fit["delay"][j]),
+        a_pos=float(fit["a_pos"][j]),
+        a_neg=float(fit["a_neg"][j]),
+        k_pos=float(fit["k_pos"][j]),
+        k_neg=float(fit["k_neg"][j]),
+        rmse=float(fit["rmse"][j]) if "rmse" in fit else 0.0,
+    )
 
 
 CHUNK_S = 10.0

@@ -38,12 +38,7 @@ import numpy as np
 
 from ..data.episode import Episode
 from ..surrogate.angles import joint_limits, omega_target
-from ..surrogate.structured import (
-    JointFit,
-    fit_prior,
-    speed_ratio,
-    training_range_spec,
-)
+from ..surrogate.structured import fit_prior, joint_fit, speed_ratio, training_range_spec
 
 GAIN_RANGE = (0.8, 1.25)
 """The least and the largest scale a map joint's gains take from validation."""
@@ -119,14 +114,7 @@ def validation_gains(
         if not on:
             out.append(1.0)
             continue
-        jf = JointFit(
-            delay=int(fit["delay"][j]),
-            a_pos=float(fit["a_pos"][j]),
-            a_neg=float(fit["a_neg"][j]),
-            k_pos=float(fit["k_pos"][j]),
-            k_neg=float(fit["k_neg"][j]),
-            rmse=0.0,
-        )
+        jf = joint_fit(fit, j)
         g = speed_ratio(jf, [e.u[:, j] for e in val], [om[:, j] for om in omegas])
         out.append(float(np.clip(g, *GAIN_RANGE)))
     return out
