@@ -226,14 +226,29 @@ def _datetime_ns(
     return _parsed_ns(path, col, name, fmt=None)  # mixed or unusual forms: row by row
 
 
+_LONG_FRACTION = re.compile(r"(?<=[.,])(\d{6})(\d{1,3})(?!\d)")
+"""A fraction of a second of 7 to 9 digits: Python's parsers keep 6 (``%f``), the rest are ns."""
+
+
+def _split_ns(text: str) -> tuple[str, int]:
+    """``text`` with a fraction of a second cut to its first 6 digits, and the nanoseconds
+    cut off: ``"12:00:00.123456789"`` -> ``("12:00:00.123456", 789)``; ``(text, 0)`` where
+    the fraction has 6 digits or fewer (``strptime``'s ``%f`` takes at most 6)."""
+    m = _LONG_FRACTION.search(text)
+    if m is None:
+        return text, 0
+    return text[: m.start(2)] + text[m.end(2) :], int(m.group(2).ljust(3, "0"))
+
+
 def _parsed_ns(path: Path, col: pa.ChunkedArray, name: str, *, fmt: str | None) -> np.ndarray:
     """Date-time text parsed row by row in Python, as nanoseconds since 1970: ISO-8601
     (``fmt`` None), or the ``strptime`` format ``fmt`` (Arrow's parser has no ``%f``; about
-    10 µs a row). The first row that does not parse is a DataError."""
+    10 µs a row). A fraction of a second may have up to 9 digits (:func:`_split_ns`). The
+    first row that does not parse is a DataError."""
     out = np.empty(len(col), dtype=np.int64)
     epoch = datetime(1970, 1, 1)
     for i, v in enumerate(col.to_pylist()):
-        text = str(v).strip()
+        text, sub_us = _split_ns(str(v).strip())
         try:
             d = datetime.fromisoformat(text) if fmt is None else datetime.strptime(text, fmt)
         except ValueError as e:
@@ -247,12 +262,13 @@ def _parsed_ns(path: Path, col: pa.ChunkedArray, name: str, *, fmt: str | None) 
                 problem = f"time value {v!r} does not match [time] format {fmt!r} ({e})"
                 fix = 'write the format with Python\'s strptime directives, e.g. "%d.%m.%Y %H:%M:%S.%f"'
             raise DataError(path, problem, column=name, row=i, fix=fix) from None
-        out[i] = _ns(d, epoch)
+        out[i] = _ns(d, epoch) + sub_us
     return out
 
 
 def _ns(d: datetime, epoch: datetime) -> int:
-    """``d`` as whole microseconds since ``epoch``, in ns (an aware ``d`` is taken to UTC)."""
+    """``d`` as whole microseconds since ``epoch``, in ns (an aware ``d`` is taken to UTC),
+    in integers: a float's seconds would be a microsecond short on about 1 % of stamps."""
     if d.tzinfo is not None:
         d = (d - (d.utcoffset() or timedelta(0))).replace(tzinfo=None)
-    return int((d - epoch).total_seconds() * 1e6) * 1000
+    return (d - epoch) // timedelta(microseconds=1) * 1000
