@@ -57,7 +57,9 @@ from excavator_surrogate.training.kinds import (
     choose_kinds,
 )
 from excavator_surrogate.training.map_joints import choose_map_joints, map_options
+from excavator_surrogate.training.net_gain import choose_network_gains
 from excavator_surrogate.training.plan import prior_members
+from excavator_surrogate.training.span import joint_spans
 
 sys.path.insert(0, str(Path(__file__).parent))
 from real import WARMUP
@@ -79,7 +81,8 @@ def members(run: Path, kind: str) -> list:
 def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     """The model ``exsur train`` would make from the networks saved in ``run`` under ``cfg``'s
     choice fields (fitted on ``train_eps``, chosen on ``val_eps``: ``split_episodes``), and
-    the two choices' records (None where a choice is off)."""
+    the records of the two choices and of the network joints' speeds (None where one is
+    off)."""
     # a plan of fewer members trains the first networks of one of more (a member's seed and
     # training do not depend on how many there are), so a run of more stands in for it
     plains = members(run, "plain")[: cfg.members]
@@ -96,7 +99,19 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
     if cfg.static_map:
         new, maps = choose_map_joints(model, train_eps, val_eps, **map_options(cfg))
         model = new if new is not None else model
-    return model, kinds, maps
+    gains = None
+    if cfg.net_val_gain:
+        chosen = set((maps or {}).get("chosen") or [])
+        _, spanned = joint_spans(train_eps, val_eps, model.spec, min_span=cfg.choice_min_span)
+        new, gains = choose_network_gains(
+            model,
+            val_eps,
+            on_map=[n in chosen for n in model.spec.names],
+            spanned=spanned,
+            trained_on_val=cfg.train_on_val,
+        )
+        model = new if new is not None else model
+    return model, kinds, maps, gains
 
 
 def main() -> None:
@@ -133,14 +148,19 @@ def main() -> None:
         run = args.work / f"{args.shape}_auto_seed{seed}"
         cfg, _ = auto_config(ds, overrides={"seed": seed, "tensorboard": False, **overrides})
         train_eps, val_eps = split_episodes(cfg, ds)
-        model, kinds, maps = rechoose(run, cfg, train_eps, val_eps)
+        model, kinds, maps, gains = rechoose(run, cfg, train_eps, val_eps)
         recorded = (load_checkpoint(run / "best.pt").metrics or {}).get("training", {})
         now = {
             "kinds": None if kinds is None else kinds["chosen"],
             "static_map": None if maps is None else maps["chosen"],
+            "net_val_gain": None if gains is None else gains["joints"],
         }
-        then = {k: (recorded.get(k) or {}).get("chosen") for k in now}
-        same.append(now == then)
+        then = {
+            k: (recorded.get(k) or {}).get("joints" if k == "net_val_gain" else "chosen")
+            for k in now
+            if k != "net_val_gain" or k in recorded  # a run before session 111 has none
+        }
+        same.append(all(now[k] == v for k, v in then.items()))
         label = f"recipe, seed {seed}"
         rows[label] = score(model, ds.split(split))
         if more:
@@ -149,7 +169,7 @@ def main() -> None:
         per_seed[seed] = {
             **now,
             "recorded": then,
-            "why": [r["why"] for r in (kinds, maps) if r is not None],
+            "why": [r["why"] for r in (kinds, maps, gains) if r is not None],
             "val_rmse": [round(float(v), 3) for v in factor * np.asarray(val["theta_rmse"])],
         }
         print(f"seed {seed}: kinds {now['kinds']}, static map {now['static_map']}")

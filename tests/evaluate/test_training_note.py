@@ -53,6 +53,16 @@ def test_ensembles_report_the_members_that_were_cut_and_old_checkpoints_nothing(
     assert training_markdown(None) == ""
 
 
+def test_network_joints_scaled_to_validations_speed_get_a_line_and_unscaled_none():
+    scaled = {"joints": ["arm", "bucket"], "gain": [1.142, 0.913], "why": "every one agrees"}
+    text = training_markdown({"epochs_planned": 3, "net_val_gain": scaled})
+    assert "Network joints at validation's speed: arm x1.142, bucket x0.913 (every one" in text
+    kept = {"joints": [], "gain": [], "why": "no joint a network drives has ..."}
+    assert "validation's speed" not in training_markdown(
+        {"epochs_planned": 3, "net_val_gain": kept}
+    )
+
+
 def test_the_environment_line_and_an_ensembles_record():
     env = {
         "numerics": "portable",

@@ -38,6 +38,7 @@ def training_markdown(
         + _inputs_markdown(training.get("exogenous"), kinds="kinds" in training)
         + _kinds_markdown(training.get("kinds"))
         + _map_markdown(training.get("static_map"))
+        + _net_gain_markdown(training.get("net_val_gain"))
         + choices_markdown(training, spec=spec)
     )
 
@@ -266,6 +267,15 @@ def _map_markdown(record: Mapping[str, Any] | None) -> str:
         f"({record.get('why', '')}); its band comes from the map's gain spread over the "
         "training log, not from the members.\n" + _pinned_cost(record)
     )
+
+
+def _net_gain_markdown(record: Mapping[str, Any] | None) -> str:
+    """One line on the network joints scaled to validation's speed
+    (``training.net_val_gain``), or "" where none was."""
+    if not isinstance(record, Mapping) or not record.get("joints"):
+        return ""
+    each = ", ".join(f"{n} x{g:.3f}" for n, g in zip(record["joints"], record["gain"]))
+    return f"\nNetwork joints at validation's speed: {each} ({record.get('why', '')}).\n"
 
 
 PINNED_COST = 1.5

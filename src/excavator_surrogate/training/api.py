@@ -23,6 +23,7 @@ from .loop import EpochCallback, train_network
 from .loss import LossFn
 from .map_apply import apply_map_choice
 from .map_joints import map_options
+from .net_gain import apply_network_gains
 from .parallel import Parallel
 from .variants import train_choosing_inputs
 
@@ -134,6 +135,15 @@ def train(
                     val_eps,
                     **map_options(cfg),
                     config=Path(best).parent / "config.toml",  # its [exogenous] note too
+                )
+            if cfg.net_val_gain:  # the network joints at validation's speed, if it agrees
+                train_eps, val_eps = split_episodes(cfg, dataset)
+                apply_network_gains(
+                    best,
+                    train_eps,
+                    val_eps,
+                    min_span=cfg.choice_min_span,
+                    trained_on_val=cfg.train_on_val,
                 )
             calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
         return best

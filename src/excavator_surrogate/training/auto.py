@@ -404,6 +404,7 @@ def auto_config(
         input_dropout=dropout,
         periodic_offsets=bool(turning),
         static_map=True,
+        net_val_gain=True,
         prior_choice=kinds,
     )
     if overrides:

@@ -204,6 +204,10 @@ class TrainConfig(PresetConfig, table="train"):
     """With ``static_map``: after the choice, the joints on the map take its gains scaled to
     validation's speed, the data nearest the test in time (:mod:`.map_fit`; ours, since
     session 109; false: the training's gains, as before)."""
+    net_val_gain: bool = False
+    """After training (and the static map choice), a joint a network drives takes validation's
+    speed where every one of at least 2 validation episodes measured the network more than 5 %
+    too slow, or too fast (:mod:`.net_gain`; ours, since session 111; the recipe turns it on)."""
     map_blocks: bool = True
     """With ``static_map`` and one validation episode: a joint the map ties or beats on the
     whole validation free run follows it only if it also does on both halves of the episode,
