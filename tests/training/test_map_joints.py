@@ -416,3 +416,9 @@ def test_the_map_joints_take_validations_speed() -> None:
     slow = [_scaled(_static_episode(s), 0.5) for s in (7, 8)]
     assert validation_gains(fit, fast, [True, False]) == [GAIN_RANGE[1], 1.0]
     assert validation_gains(fit, slow, [False, True]) == [1.0, GAIN_RANGE[0]]
+    # episodes that disagree on the side (one faster, one slower) leave the gains alone;
+    # one episode decides alone
+    mixed = [_scaled(_static_episode(7), 1.2), _scaled(_static_episode(8), 0.9)]
+    assert validation_gains(fit, mixed, [True, True]) == [1.0, 1.0]
+    g = validation_gains(fit, mixed[:1], [True, True])
+    assert np.allclose(g, 1.2, atol=0.005)
