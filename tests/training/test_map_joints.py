@@ -420,5 +420,7 @@ def test_the_map_joints_take_validations_speed() -> None:
     # one episode decides alone
     mixed = [_scaled(_static_episode(7), 1.2), _scaled(_static_episode(8), 0.9)]
     assert validation_gains(fit, mixed, [True, True]) == [1.0, 1.0]
+    _, rec = choose_map_joints(_net(), train, mixed)
+    assert "(a x1, its validation episodes disagreeing on the side, b x1, its" in rec["why"]
     g = validation_gains(fit, mixed[:1], [True, True])
     assert np.allclose(g, 1.2, atol=0.005)

@@ -157,7 +157,10 @@ def _say_gain(record: dict[str, Any]) -> None:
     got = record.get("val_gain")
     if not got:
         return
-    each = ", ".join(f"{n} x{g:.3f}" for n, g in zip(got["joints"], got["gain"]))
+    each = ", ".join(
+        f"{n} x{g:.3f}" if g != 1.0 else f"{n} x1, its validation episodes disagreeing on the side"
+        for n, g in zip(got["joints"], got["gain"])
+    )
     record["why"] += (
         f"; the map joints' speeds then scaled to validation's ({each}: validation is the "
         "data nearest the test in time; their validation scores are in-sample)"
