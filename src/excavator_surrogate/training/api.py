@@ -127,8 +127,9 @@ def train(
                 notes=notes,
             )
         if dist is None or dist.is_main:
-            if cfg.static_map:  # joints on the static valve map, if validation says so
+            if cfg.static_map or cfg.net_val_gain:
                 train_eps, val_eps = split_episodes(cfg, dataset)
+            if cfg.static_map:  # joints on the static valve map, if validation says so
                 apply_map_choice(
                     best,
                     train_eps,
@@ -137,7 +138,6 @@ def train(
                     config=Path(best).parent / "config.toml",  # its [exogenous] note too
                 )
             if cfg.net_val_gain:  # the network joints at validation's speed, if it agrees
-                train_eps, val_eps = split_episodes(cfg, dataset)
                 apply_network_gains(
                     best,
                     train_eps,

@@ -97,6 +97,13 @@ def _say_refit(record: dict[str, Any]) -> None:
         )
 
 
+def one_side(ratios: Sequence[float], *, shift: float = 0.0) -> bool:
+    """Whether every ratio lies above ``1 + shift``, or every one below ``1 - shift`` (none
+    NaN): validation episodes that each find the machine off the same way."""
+    r = np.asarray(ratios, dtype=float)
+    return bool(np.all(r > 1.0 + shift) or np.all(r < 1.0 - shift))
+
+
 def validation_gains(
     fit: Mapping[str, Any], val: Sequence[Episode], on_map: Sequence[bool]
 ) -> list[float]:
@@ -123,8 +130,7 @@ def validation_gains(
         jf = joint_fit(fit, j)
         u, w = [e.u[:, j] for e in val], [om[:, j] for om in omegas]
         if len(val) > 1:  # several episodes: each must find the machine off the same way
-            each = np.array([speed_ratio(jf, [a], [b]) for a, b in zip(u, w)])
-            if not (np.all(each > 1.0) or np.all(each < 1.0)):
+            if not one_side([speed_ratio(jf, [a], [b]) for a, b in zip(u, w)]):
                 out.append(1.0)
                 continue
         out.append(float(np.clip(speed_ratio(jf, u, w), *GAIN_RANGE)))

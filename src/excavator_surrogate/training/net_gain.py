@@ -58,7 +58,7 @@ from ..surrogate.checkpoint import (
 )
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import ClosedLoop
-from .map_fit import GAIN_RANGE
+from .map_fit import GAIN_RANGE, one_side
 from .span import joint_spans
 
 _log = logging.getLogger(__name__)
@@ -136,9 +136,7 @@ def network_gains(
     out = []
     for j, ok in enumerate(eligible):
         r = per[:, j] if per.ndim == 2 else np.array([])
-        agree = bool(len(r) >= MIN_EPISODES and np.all(np.isfinite(r))) and bool(
-            np.all(r > 1 + MIN_SHIFT) or np.all(r < 1 - MIN_SHIFT)
-        )
+        agree = len(r) >= MIN_EPISODES and one_side(r, shift=MIN_SHIFT)
         out.append(float(np.clip(pooled[j], *GAIN_RANGE)) if ok and agree else 1.0)
     return out
 
