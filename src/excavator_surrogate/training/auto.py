@@ -55,7 +55,8 @@ The recipe is documented in ``docs/real.md``, and the measurement behind each ch
   logs no trial helped a joint held out) are ignored without a trial: the plan, the
   networks and the training on the validation runs are those without them;
 - after training, the static valve map as a candidate per joint, chosen on validation
-  (:mod:`.map_joints`);
+  (:mod:`.map_joints`); then validation's speed on the map joints (:mod:`.map_fit`) and,
+  where several validation episodes agree on it, on the network joints (:mod:`.net_gain`);
 - neither the map nor the map-correcting networks for a joint whose validation commands span
   less than half its training command range beyond the dead zone (:mod:`.span`): there
   validation cannot vouch for them, and the plain networks drive it.  Where no joint spans
@@ -374,6 +375,13 @@ def auto_config(
         f"{100 * min_span:.0f} % of its training command range beyond the dead zone (a "
         "valve's speed is not linear in its command: validation at one command level cannot "
         "vouch for the map at the others)"
+    )
+    why.append(
+        "then validation's speed, the data nearest the test in time: a map joint's gains times "
+        "validation's speed ratio (where several validation episodes each find it on the same "
+        "side of 1), and a joint a network drives only where at least 2 validation episodes "
+        "each measured its network more than 5 % too slow, or each too fast (one segment of a "
+        "log cannot tell a day's speed from a network's error on it)"
     )
     cfg = TrainConfig(
         window=window,
