@@ -17,6 +17,7 @@ from excavator_surrogate.surrogate.checkpoint import (
 )
 from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.training import net_gain
 from excavator_surrogate.training.map_fit import GAIN_RANGE
 from excavator_surrogate.training.net_gain import (
     MIN_SHIFT,
@@ -39,8 +40,9 @@ def _episodes(n: int, seed: int, n_step: int = 90):
 
 
 @pytest.mark.parametrize("mode", ["stateful", "windowed"])
-def test_the_batched_short_runs_are_a_plain_loop_of_single_ones(mode):
-    """Every start in one batch gives the sums of one run per start, each alone."""
+def test_the_batched_short_runs_are_a_plain_loop_of_single_ones(mode, monkeypatch):
+    """Every start in one batch, or in chunks of 4, gives the sums of one run per start,
+    each alone."""
     eps = _episodes(3, 0)
     sur = tiny_surrogate(SPEC, eps, mode=mode, window=6, seed=1)
     ep, n_h, stride = eps[1], 5, 3
@@ -58,6 +60,10 @@ def test_the_batched_short_runs_are_a_plain_loop_of_single_ones(mode):
         ref_den += d_net * d_net
     np.testing.assert_allclose(num, ref_num, rtol=1e-4, atol=1e-9)
     np.testing.assert_allclose(den, ref_den, rtol=1e-4, atol=1e-9)
+    monkeypatch.setattr(net_gain, "CHUNK", 4)
+    chunked = displacement_sums(sur, ep, n_h=n_h, stride=stride)
+    np.testing.assert_allclose(chunked[0], ref_num, rtol=1e-4, atol=1e-9)
+    np.testing.assert_allclose(chunked[1], ref_den, rtol=1e-4, atol=1e-9)
 
 
 @pytest.mark.parametrize("kind", ["plain", "prior", "parallel-map"])

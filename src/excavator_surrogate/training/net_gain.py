@@ -74,6 +74,8 @@ HORIZON_S = 1.0
 """Length of each short run from a measured start [s]."""
 STRIDE = 2
 """A short run starts at every ``STRIDE``-th sample."""
+CHUNK = 4096
+"""Short runs stepped in one batch at most (a long log's starts go in chunks: bounded memory)."""
 
 
 def displacement_sums(
@@ -81,7 +83,7 @@ def displacement_sums(
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(sum_k dth_meas dth_net, sum_k dth_net^2)``, (n_joint,) each [rad^2], over the
     ``n_h``-sample runs of ``sur`` from every ``stride``-th measured start of ``ep`` (each after
-    ``W - 1`` measured samples of warm-up), all starts in one batch.
+    ``W - 1`` measured samples of warm-up), up to :data:`CHUNK` starts in one batch.
 
     Args:
         sur: the surrogate; ``ep``: an episode of its spec (``theta: (n_step, n_joint)``
@@ -89,19 +91,20 @@ def displacement_sums(
         n_h: samples each run lasts (>= 1).
     """
     w = sur.window
-    n_joint = sur.spec.n_joint
-    k = np.arange(w - 1, ep.n_step - n_h, stride)
-    if len(k) == 0:
-        return np.zeros(n_joint), np.zeros(n_joint)
-    loop = ClosedLoop(sur)
-    hist = k[:, None] + np.arange(-w + 1, 1)  # (n_start, W): theta[k - W + 1 .. k]
-    loop.reset(ep.theta[hist], ep.u[hist[:, :-1]])
-    for j in range(n_h):
-        theta, _ = loop.step(ep.u[k + j])
-    periodic = sur.spec.periodic
-    d_net = wrap_periodic(theta.double().cpu().numpy() - ep.theta[k], periodic)
-    d_meas = wrap_periodic(ep.theta[k + n_h] - ep.theta[k], periodic)
-    return (d_meas * d_net).sum(axis=0), (d_net * d_net).sum(axis=0)
+    num, den = np.zeros(sur.spec.n_joint), np.zeros(sur.spec.n_joint)
+    starts = np.arange(w - 1, ep.n_step - n_h, stride)
+    for at in range(0, len(starts), CHUNK):
+        k = starts[at : at + CHUNK]
+        loop = ClosedLoop(sur)
+        hist = k[:, None] + np.arange(-w + 1, 1)  # (n_start, W): theta[k - W + 1 .. k]
+        loop.reset(ep.theta[hist], ep.u[hist[:, :-1]])
+        for j in range(n_h):
+            theta, _ = loop.step(ep.u[k + j])
+        d_net = wrap_periodic(theta.double().cpu().numpy() - ep.theta[k], sur.spec.periodic)
+        d_meas = wrap_periodic(ep.theta[k + n_h] - ep.theta[k], sur.spec.periodic)
+        num += (d_meas * d_net).sum(axis=0)
+        den += (d_net * d_net).sum(axis=0)
+    return num, den
 
 
 def episode_ratios(
@@ -197,7 +200,7 @@ def choose_network_gains(
     changed = [j for j, g in enumerate(gains) if g != 1.0]
     record["joints"] = [names[j] for j in changed]
     record["gain"] = [gains[j] for j in changed]
-    span = ", ".join(
+    measured = ", ".join(
         f"{n} {' / '.join(f'{r:.3f}' for r in per[:, j])}"
         for j, n in enumerate(names)
         if eligible[j]
@@ -210,13 +213,13 @@ def choose_network_gains(
         record["why"] = (
             "the network joints keep the training's speed: no joint a network drives has "
             + rule
-            + (f" ({span})" if span else "")
+            + (f" ({measured})" if measured else "")
         )
         return None, record
     each = ", ".join(f"{names[j]} x{gains[j]:.3f}" for j in changed)
     record["why"] = (
         f"the network joints' speeds scaled to validation's ({each}): {rule} (validation is the "
-        f"data nearest the test in time; {span}); their validation scores are in-sample"
+        f"data nearest the test in time; {measured}); their validation scores are in-sample"
     )
     return scaled_outputs(sur, gains), record
 
@@ -245,7 +248,8 @@ def apply_network_gains(
     training = dict(metrics.get("training") or {})
     chosen = set((training.get("static_map") or {}).get("chosen") or [])
     on_map = [n in chosen for n in sur.spec.names]
-    _, spanned = joint_spans(train, val or train, sur.spec, min_span=min_span)
+    can_act = not trained_on_val and len(val) >= MIN_EPISODES  # else no span is needed
+    spanned = joint_spans(train, val, sur.spec, min_span=min_span)[1] if can_act else None
     new, record = choose_network_gains(
         sur, val, on_map=on_map, spanned=spanned, trained_on_val=trained_on_val
     )
