@@ -15,6 +15,7 @@ from excavator_surrogate.surrogate.checkpoint import (
     read_checkpoint,
     write_checkpoint_dict,
 )
+from excavator_surrogate.surrogate.own_angles import network_inputs
 from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
 from excavator_surrogate.training import net_gain
@@ -90,11 +91,11 @@ def test_the_scaled_outputs_are_the_velocity_times_the_gain(kind):
 
 
 def _normalised(loop: ClosedLoop, u: np.ndarray) -> torch.Tensor:
-    """The network's normalised output for the step on ``u`` (what ``norm.omega`` scales)."""
+    """The network's normalised output for the step on ``u`` (what ``norm.omega`` scales),
+    as :meth:`ClosedLoop.step` computes it before the map joints' speeds replace the
+    network's (which a parallel map's network still integrates into its own angles)."""
     norm = loop.norm
     z = norm.play_update(loop.z, loop._t(u))
-    from excavator_surrogate.surrogate.own_angles import network_inputs
-
     theta_in, omega_in = network_inputs(norm, loop.theta, z, loop.omega)
     row = norm.encode(theta_in, loop._t(u), z, omega_in)
     with torch.no_grad():
