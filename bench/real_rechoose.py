@@ -109,6 +109,7 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
             on_map=[n in chosen for n in model.spec.names],
             spanned=spanned,
             trained_on_val=cfg.train_on_val,
+            max_steps=cfg.val_steps or None,
         )
         model = new if new is not None else model
     return model, kinds, maps, gains

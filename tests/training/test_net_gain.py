@@ -18,6 +18,7 @@ from excavator_surrogate.surrogate.checkpoint import (
 from excavator_surrogate.surrogate.own_angles import network_inputs
 from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout
 from excavator_surrogate.surrogate.synthetic import synthetic_episode, synthetic_spec
+from excavator_surrogate.surrogate.validation import free_run_error
 from excavator_surrogate.training import net_gain
 from excavator_surrogate.training.map_fit import GAIN_RANGE
 from excavator_surrogate.training.net_gain import (
@@ -146,6 +147,9 @@ def test_validation_days_that_run_faster_scale_the_network_joints(tmp_path):
     new = load_checkpoint(best)
     assert (new.metrics or {})["training"]["net_val_gain"] == record
     np.testing.assert_allclose(new.norm.y_std, sur.norm.y_std * 1.2, rtol=1e-6)
+    # the checkpoint's validation scores are the scaled model's: it runs the faster days
+    assert new.metrics["val_error"] == free_run_error(new, val)["val_error"]
+    assert new.metrics["val_error"] < 0.1 * free_run_error(sur, val)["val_error"]
     # the training's speed on validation, or one validation episode: nothing changes
     for speed, n_val, why in ((1.0, 2, "no joint a network drives"), (1.2, 1, "fewer than 2")):
         sur, train, val = _model_and_days(speed, n_val)

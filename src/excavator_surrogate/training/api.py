@@ -144,6 +144,7 @@ def train(
                     val_eps,
                     min_span=cfg.choice_min_span,
                     trained_on_val=cfg.train_on_val,
+                    max_steps=cfg.val_steps or None,
                 )
             calibrate_best(cfg, dataset, best)  # best.pt is final: coverage record, ensemble bands
         return best

@@ -58,6 +58,7 @@ from ..surrogate.checkpoint import (
 )
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import ClosedLoop
+from ..surrogate.validation import free_run_error
 from .map_fit import GAIN_RANGE, one_side
 from .span import joint_spans
 
@@ -169,15 +170,19 @@ def choose_network_gains(
     on_map: Sequence[bool],
     spanned: Sequence[bool] | None,
     trained_on_val: bool,
+    max_steps: int | None = None,
 ) -> tuple[Surrogate | None, dict[str, Any]]:
     """The module's rule on ``sur`` (the run's final model): ``(scaled, record)``, ``scaled``
-    None where no joint changes.  ``record``: ``joints`` and ``gain`` (the scaled ones),
-    ``ratios`` (per validation episode, per joint), ``pooled``, ``why``.
+    None where no joint changes, else with its own validation free-run scores in its metrics
+    (``val_error``, ``val``: in-sample on the scaled joints).  ``record``: ``joints`` and
+    ``gain`` (the scaled ones), ``ratios`` (per validation episode, per joint), ``pooled``,
+    ``why``.
 
     Args:
         val: the validation episodes; ``on_map``: (n_joint,) the joints on the static map;
         spanned: (n_joint,) the joints whose commands validation spans (None: all).
         trained_on_val: the networks trained on ``val`` (then nothing is scaled).
+        max_steps: the validation free run's steps per episode (``[train] val_steps``).
     """
     names = list(sur.spec.names)
     n_h = max(1, round(HORIZON_S * sur.spec.rate_hz))
@@ -221,7 +226,15 @@ def choose_network_gains(
         f"the network joints' speeds scaled to validation's ({each}): {rule} (validation is the "
         f"data nearest the test in time; {measured}); their validation scores are in-sample"
     )
-    return scaled_outputs(sur, gains), record
+    scaled = scaled_outputs(sur, gains)
+    got = free_run_error(scaled, list(val), max_steps=max_steps)
+    scaled.metrics = {
+        **(sur.metrics or {}),
+        "val_error": got["val_error"],
+        "val": dict(got),
+        "best_val_error": got["val_error"],
+    }
+    return scaled, record
 
 
 def apply_network_gains(
@@ -231,6 +244,7 @@ def apply_network_gains(
     *,
     min_span: float,
     trained_on_val: bool,
+    max_steps: int | None = None,
 ) -> dict[str, Any]:
     """:func:`choose_network_gains` on the checkpoint ``best`` (after the static map choice,
     whose record names the map joints): rewrites it atomically with the scaled model, if any
@@ -239,7 +253,8 @@ def apply_network_gains(
 
     Args:
         train, val: the run's training and validation episodes (the span is measured on them).
-        min_span: ``[train] choice_min_span``; ``trained_on_val``: ``[train] train_on_val``.
+        min_span: ``[train] choice_min_span``; ``trained_on_val``: ``[train] train_on_val``;
+        max_steps: ``[train] val_steps`` (None: whole episodes).
     """
     path = Path(best)
     ckpt = read_checkpoint(path)
@@ -251,7 +266,12 @@ def apply_network_gains(
     can_act = not trained_on_val and len(val) >= MIN_EPISODES  # else no span is needed
     spanned = joint_spans(train, val, sur.spec, min_span=min_span)[1] if can_act else None
     new, record = choose_network_gains(
-        sur, val, on_map=on_map, spanned=spanned, trained_on_val=trained_on_val
+        sur,
+        val,
+        on_map=on_map,
+        spanned=spanned,
+        trained_on_val=trained_on_val,
+        max_steps=max_steps,
     )
     if new is not None:
         ckpt = checkpoint_dict(new, history=ckpt.get("history"))  # no resuming into it
