@@ -57,9 +57,8 @@ from excavator_surrogate.training.kinds import (
     choose_kinds,
 )
 from excavator_surrogate.training.map_joints import choose_map_joints, map_options
-from excavator_surrogate.training.net_gain import choose_network_gains
+from excavator_surrogate.training.net_gain import after_map_choice
 from excavator_surrogate.training.plan import prior_members
-from excavator_surrogate.training.span import joint_spans
 
 sys.path.insert(0, str(Path(__file__).parent))
 from real import WARMUP
@@ -101,13 +100,12 @@ def rechoose(run: Path, cfg, train_eps, val_eps) -> tuple:
         model = new if new is not None else model
     gains = None
     if cfg.net_val_gain:
-        chosen = set((maps or {}).get("chosen") or [])
-        _, spanned = joint_spans(train_eps, val_eps, model.spec, min_span=cfg.choice_min_span)
-        new, gains = choose_network_gains(
+        new, gains = after_map_choice(
             model,
+            train_eps,
             val_eps,
-            on_map=[n in chosen for n in model.spec.names],
-            spanned=spanned,
+            map_record=maps,
+            min_span=cfg.choice_min_span,
             trained_on_val=cfg.train_on_val,
             max_steps=cfg.val_steps or None,
         )

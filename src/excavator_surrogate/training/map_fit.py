@@ -129,10 +129,10 @@ def validation_gains(
             continue
         jf = joint_fit(fit, j)
         u, w = [e.u[:, j] for e in val], [om[:, j] for om in omegas]
-        if len(val) > 1:  # several episodes: each must find the machine off the same way
-            if not one_side([speed_ratio(jf, [a], [b]) for a, b in zip(u, w)]):
-                out.append(1.0)
-                continue
+        # several episodes: each must find the machine off the same way
+        if len(val) > 1 and not one_side([speed_ratio(jf, [a], [b]) for a, b in zip(u, w)]):
+            out.append(1.0)
+            continue
         out.append(float(np.clip(speed_ratio(jf, u, w), *GAIN_RANGE)))
     return out
 

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -139,8 +139,7 @@ def network_gains(
     per = np.asarray(per_episode, dtype=float)
     out = []
     for j, ok in enumerate(eligible):
-        r = per[:, j] if per.ndim == 2 else np.array([])
-        agree = len(r) >= MIN_EPISODES and one_side(r, shift=MIN_SHIFT)
+        agree = len(per) >= MIN_EPISODES and one_side(per[:, j], shift=MIN_SHIFT)
         out.append(float(np.clip(pooled[j], *GAIN_RANGE)) if ok and agree else 1.0)
     return out
 
@@ -237,6 +236,38 @@ def choose_network_gains(
     return scaled, record
 
 
+def after_map_choice(
+    sur: Surrogate,
+    train: Sequence[Episode],
+    val: Sequence[Episode],
+    *,
+    map_record: Mapping[str, Any] | None,
+    min_span: float,
+    trained_on_val: bool,
+    max_steps: int | None = None,
+) -> tuple[Surrogate | None, dict[str, Any]]:
+    """:func:`choose_network_gains` on a run's model after its static map choice, whose
+    record (``map_record``, None without one) names the map joints; validation's span is
+    measured only where the rule can act.
+
+    Args:
+        train, val: the run's training and validation episodes (the span is measured on them).
+        min_span: ``[train] choice_min_span``; ``trained_on_val``: ``[train] train_on_val``;
+        max_steps: ``[train] val_steps`` (None: whole episodes).
+    """
+    chosen = set((map_record or {}).get("chosen") or [])
+    can_act = not trained_on_val and len(val) >= MIN_EPISODES  # else no span is needed
+    spanned = joint_spans(train, val, sur.spec, min_span=min_span)[1] if can_act else None
+    return choose_network_gains(
+        sur,
+        val,
+        on_map=[n in chosen for n in sur.spec.names],
+        spanned=spanned,
+        trained_on_val=trained_on_val,
+        max_steps=max_steps,
+    )
+
+
 def apply_network_gains(
     best: str | Path,
     train: Sequence[Episode],
@@ -246,30 +277,21 @@ def apply_network_gains(
     trained_on_val: bool,
     max_steps: int | None = None,
 ) -> dict[str, Any]:
-    """:func:`choose_network_gains` on the checkpoint ``best`` (after the static map choice,
-    whose record names the map joints): rewrites it atomically with the scaled model, if any
-    joint changes, and records the rule's outcome either way in
-    ``metrics.training.net_val_gain``.  Returns the record.
-
-    Args:
-        train, val: the run's training and validation episodes (the span is measured on them).
-        min_span: ``[train] choice_min_span``; ``trained_on_val``: ``[train] train_on_val``;
-        max_steps: ``[train] val_steps`` (None: whole episodes).
-    """
+    """:func:`after_map_choice` on the checkpoint ``best``: rewrites it atomically with the
+    scaled model, if any joint changes, and records the rule's outcome either way in
+    ``metrics.training.net_val_gain``.  Returns the record (the arguments: as
+    :func:`after_map_choice`'s)."""
     path = Path(best)
     ckpt = read_checkpoint(path)
     sur = surrogate_from_dict(ckpt, where=str(path))
     metrics = dict(ckpt.get("metrics") or {})
     training = dict(metrics.get("training") or {})
-    chosen = set((training.get("static_map") or {}).get("chosen") or [])
-    on_map = [n in chosen for n in sur.spec.names]
-    can_act = not trained_on_val and len(val) >= MIN_EPISODES  # else no span is needed
-    spanned = joint_spans(train, val, sur.spec, min_span=min_span)[1] if can_act else None
-    new, record = choose_network_gains(
+    new, record = after_map_choice(
         sur,
+        train,
         val,
-        on_map=on_map,
-        spanned=spanned,
+        map_record=training.get("static_map"),
+        min_span=min_span,
         trained_on_val=trained_on_val,
         max_steps=max_steps,
     )
