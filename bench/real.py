@@ -80,12 +80,13 @@ median beats each baseline there too (``more_median_beats_*``).  A shape whose d
 
     python bench/real.py [--shape h1|h1-duty80|continuous|sessions|sessions-days|stroke|loader|loader-7min|all] [--seeds 0,10,20] [--plain-epochs 30]
                          [--condition] [--budget SECONDS] [--smoke] [--data ../shared/real/h1-dev]
-                         [--more-test N] [--sim-seed S]
+                         [--more-test N] [--sim-seed S] [--rate-hz HZ]
                          [--set train.KEY=VALUE ...]
 
 ``--sim-seed S`` simulates another log of the simulated shapes (another operator run on the
 same machine; recorded as ``sim_seed`` in the JSON line): a check on logs the recipe was not
-developed on (seed 0).
+developed on (seed 0).  ``--rate-hz HZ`` logs them at another rate than their presets' 20 Hz
+(every length in seconds kept; recorded as ``rate_hz``), as a machine logged at 10 Hz gives them.
 
 ``--set train.KEY=VALUE`` changes a ``[train]`` field of the recipe, as ``exsur train --set``
 does (repeatable; recorded as ``recipe_set`` in the JSON line), e.g. ``--set
@@ -429,6 +430,12 @@ def main() -> None:
     )
     ap.add_argument("--sim-seed", type=int, default=0, help="seed of the simulated log")
     ap.add_argument(
+        "--rate-hz",
+        type=float,
+        default=None,
+        help="log the simulated shapes at this rate (default: their presets', 20 Hz)",
+    )
+    ap.add_argument(
         "--more-test",
         type=int,
         default=None,
@@ -488,6 +495,7 @@ def main() -> None:
         smoke=bool(args.smoke),
         recipe_set=args.recipe_set,
         sim_seed=args.sim_seed,
+        rate_hz=args.rate_hz,
         environment=numerics.environment(),  # simulated shapes draw other logs elsewhere
         goals={
             f"{name}/{goal}": ok

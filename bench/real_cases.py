@@ -38,6 +38,8 @@ SIMULATED = {
 }
 """The simulated logs by name: their preset, and the length of the whole log in seconds where
 it is not the preset's (train, validation and test together)."""
+STEP_FIELDS = ("steps_train", "steps_val", "steps_test")
+"""The simulate config's lengths in samples (``--rate-hz`` rescales them to keep seconds)."""
 LOADER_BASE = {"loader": "continuous", "loader-7min": "continuous-7min"}
 """Each loader shape's simulated log (with four joints observed)."""
 
@@ -135,12 +137,16 @@ def _as_logged(src: Dataset, out: Path, *, inputs: bool) -> Dataset:
     return load_dataset(out)
 
 
-def sim_config(name: str, sim_seed: int):
-    """The simulate config of the simulated log ``name`` (:data:`SIMULATED`), seed ``sim_seed``."""
+def sim_config(name: str, sim_seed: int, rate_hz: float | None = None):
+    """The simulate config of the simulated log ``name`` (:data:`SIMULATED`), seed ``sim_seed``;
+    ``rate_hz``: logged at this rate instead of the preset's (every length in seconds kept)."""
     from excavator_surrogate.simulate.config import SimulateConfig
 
     preset, total_s = SIMULATED[name]
     cfg = SimulateConfig.from_preset(load_preset(preset), seed=sim_seed)
+    if rate_hz is not None and rate_hz != cfg.rate_hz:
+        steps = {k: round(getattr(cfg, k) * rate_hz / cfg.rate_hz) for k in STEP_FIELDS}
+        cfg = dataclasses.replace(cfg, rate_hz=rate_hz, **steps)
     if total_s is not None:
         cfg = dataclasses.replace(cfg, steps_train=round(total_s * cfg.rate_hz))
     return cfg
@@ -159,7 +165,7 @@ def _simulated(
     (``--more-test``)."""
     from excavator_surrogate.simulate.generate import simulate_dataset
 
-    cfg = sim_config(name, args.sim_seed)
+    cfg = sim_config(name, args.sim_seed, args.rate_hz)
     simulate_dataset(cfg, out=work / f"{name}_sim")
     sim = load_dataset(work / f"{name}_sim")
     n_more = MORE_TEST[name] if args.more_test is None else args.more_test
@@ -214,7 +220,9 @@ def _more_sessions(cfg, sim: Dataset, n: int, out: Path) -> tuple[list[Episode],
     return list(test[1:]), f"{n} more test sessions of {cfg.steps_test / cfg.rate_hz:.0f} s{where}"
 
 
-def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
+def saved_more(
+    work: Path, name: str, sim_seed: int, spec, rate_hz: float | None = None
+) -> list[Episode]:
     """The more test data that ``python bench/real.py --work WORK`` simulated for the shape
     ``name`` (``WORK/<log>_more`` of its simulated log, a loader shape's its
     :data:`LOADER_BASE`; none for h1 and stroke), as a dataset of ``spec`` holds them,
@@ -225,7 +233,7 @@ def saved_more(work: Path, name: str, sim_seed: int, spec) -> list[Episode]:
     more = load_dataset(work / f"{base}_more")
     if base.startswith("sessions"):
         return as_spec(more.test[1:], spec)
-    cfg = sim_config(base, sim_seed)
+    cfg = sim_config(base, sim_seed, rate_hz)
     (ep,) = more.train
     n_test = round(cfg.test_s * cfg.rate_hz)
     segments = _segments(cfg, ep, (len(ep.theta) - cfg.steps_train) // n_test)

@@ -25,8 +25,8 @@ as no wall-time cap cut them).
 ``prior_margin``, ``prior_blend``, ``prior_skip_pinned``, ``static_map``, ``map_periodic``,
 ``map_parallel``, ``map_blocks``; e.g. ``--set train.prior_drive=validation``, the choice of
 sessions 25-86, or ``--set train.map_blocks=false``, the map choice before session 100).
-``--sim-seed`` must be the one the
-run simulated (its JSON line's ``sim_seed``).  Prints each seed's choices and a table per
+``--sim-seed`` and ``--rate-hz`` must be the
+ones the run simulated (its JSON line's ``sim_seed`` and ``rate_hz``).  Prints each seed's choices and a table per
 scored set, and ends with ONE JSON line whose ``goals`` say whether the median beats the
 structured baseline on every joint and whether every seed chose what its ``best.pt`` records
 (``same_choices_as_recorded``: expected whenever the rules and ``--set`` are the run's).
@@ -119,6 +119,7 @@ def main() -> None:
     ap.add_argument("--shape", choices=list(CASES), required=True, help="data shape")
     ap.add_argument("--seeds", default="0,10,20", help="comma-separated recipe seeds")
     ap.add_argument("--sim-seed", type=int, default=0, help="the run's --sim-seed")
+    ap.add_argument("--rate-hz", type=float, default=None, help="the run's --rate-hz")
     ap.add_argument(
         "--set", action="append", default=[], metavar="train.KEY=VALUE", help="a choice field"
     )
@@ -134,7 +135,7 @@ def main() -> None:
         raise SystemExit(f"{data_dir}: no dataset; run bench/real.py --work {args.work} first")
     ds = load_dataset(data_dir)
     split = "val" if args.shape == "h1" else "test"
-    more = saved_more(args.work, args.shape, args.sim_seed, ds.spec)
+    more = saved_more(args.work, args.shape, args.sim_seed, ds.spec, args.rate_hz)
     factor, units = shown(ds.spec)
     names = list(ds.spec.names)
 
