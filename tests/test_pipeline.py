@@ -52,7 +52,7 @@ def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     joints = ["swing", "boom", "arm", "bucket"]
     assert list(m["omega"]) == joints and list(m["theta"]) == joints
     assert set(m["theta"]["boom"]) >= {"rmse", "mae", "r2"}
-    assert set(m["compare"]) == {"GRU", "ARX"}
+    assert set(m["compare"]) == {"GRU", "ARX", "Structured"}
     assert m["run"]["preset"] == "tiny-test" and "total" in m["run"]["timings_s"]
     # Paths inside the run folder are relative to it: right after the temporary build folder
     # is renamed into place, and after the folder is moved.
@@ -64,7 +64,10 @@ def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     # the data the model trained on: its splits, and the command to see each joint
     assert "## Data" in report and "| train | 2 |" in report and "| test | 1 |" in report
     # how far ahead it can be trusted: every model and the hold baseline, with the figure
-    assert set(m["horizon"]["rmse"]) == {"LSTM", "GRU", "ARX", "hold"}
+    assert set(m["horizon"]["rmse"]) == {"LSTM", "GRU", "ARX", "Structured", "hold"}
+    # the summary's one line against every model of the comparison
+    assert "**Free-run angle RMSE of the surrogate:** lower than GRU on" in report
+    assert "; lower than Structured on" in report
     assert "## Prediction horizon" in report and "![prediction horizon](horizon.png)" in report
     assert f"`exsur info {out.resolve() / 'data'}`" in report
     cfg = tomllib.loads((out / "config.toml").read_text())

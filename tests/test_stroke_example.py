@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import re
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -63,9 +64,15 @@ def test_report_prints_mm_not_deg(run: dict[str, Path]) -> None:
         assert f"| {joint} [mm] |" in table and f"| {joint} [mm/s] |" in table
     # strokes never in degrees: only the revolute swing's prediction-horizon row is in °
     assert "deg" not in table
-    assert [line for line in table.splitlines() if "°" in line] == [
-        line for line in table.splitlines() if line.startswith("| Swing [°] |")
+    lines = table.splitlines()
+    (verdict,) = [line for line in lines if line.startswith("**Free-run position RMSE of ")]
+    assert [line for line in lines if "°" in line and line != verdict] == [
+        line for line in lines if line.startswith("| Swing [°] |")
     ]
+    # the verdict's joints each in their own unit: the swing in °, the strokes in mm
+    for joint, a, b in re.findall(r"the (\w+): ([^,;)]+) against ([^,;)]+)", verdict):
+        unit = "°" if joint == "swing" else " mm"
+        assert a.endswith(unit) and b.endswith(unit), (joint, a, b)
     assert "| Boom [mm] | " in table.split("## Prediction horizon")[1]
     assert "Paper RMSE" not in table  # the paper's machine senses angles
     assert "Joint angles through the linkage" in table

@@ -187,6 +187,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
         )
         ev = dataclasses.asdict(eval_cfg)
         ev["arx"] = run_cfg.arx and ev["arx"]
+        ev["structured"] = run_cfg.structured and ev["structured"]
         ev["paper"] = run_cfg.paper_table == "II" and ev["paper"]
         # Paths inside the run folder are recorded relative to it ("model/best.pt"), so they
         # stay right when the temporary folder is renamed into place.
@@ -206,7 +207,13 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
                 out=tmp / "eval_cleaned",
                 root=tmp,
                 compare=None,
-                **{**ev, "reference": "measured", "arx": False, "paper": False},
+                **{
+                    **ev,
+                    "reference": "measured",
+                    "arx": False,
+                    "structured": False,
+                    "paper": False,
+                },
             )
             result_extra["against_cleaned"] = {k: against[k] for k in ("omega", "theta")}
         if raw_best is not None:

@@ -164,11 +164,23 @@ def _describe(
         f"evaluate: {why_val}"
         if why_val
         else f"evaluate: closed-loop free run on the '{eval_cfg.split}' split against the "
-        f"{run_cfg.reference} angles"
-        + (", beside a linear ARX" if run_cfg.arx and eval_cfg.arx else "")
+        f"{run_cfg.reference} angles" + _beside(run_cfg, eval_cfg)
     )
     record = req.record(train=train_cfg, evaluate=eval_cfg, recipe=recipe)
     return "\n".join(lines) + "\n\nconfig.toml:\n" + dumps_toml(record)
+
+
+def _beside(run_cfg: Any, eval_cfg: Any) -> str:
+    """The baselines the evaluation scores beside the model, as the plan's words ("" for none)."""
+    got = [
+        what
+        for on, what in (
+            (run_cfg.arx and eval_cfg.arx, "a linear ARX"),
+            (run_cfg.structured and eval_cfg.structured, "the structured model"),
+        )
+        if on
+    ]
+    return f", beside {' and '.join(got)}" if got else ""
 
 
 def _lengths(ds: Any) -> dict[str, list[int]]:

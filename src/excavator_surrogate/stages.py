@@ -34,6 +34,9 @@ class RunConfig(PresetConfig, table="run"):
     """Also train the same-size GRU baseline for the comparison table."""
     arx: bool = True
     """Also fit the linear ARX baseline for the comparison table."""
+    structured: bool = True
+    """Also fit the structured baseline (dead zone, gain, delay, end stops per joint) for the
+    comparison table."""
     raw_baseline: bool = False
     """With ``clean``: also train on the raw (uncleaned) data, for the effect-of-cleaning table."""
     reference: Literal["measured", "true"] = "measured"

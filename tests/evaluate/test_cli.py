@@ -68,7 +68,7 @@ def test_train_then_evaluate(tmp_path, dataset_dir, capsys):
         and m["run"]["n_episode"] == 2
         and m["run"]["mode"] == "stateful"
     )
-    assert "ARX" in m["compare"]
+    assert list(m["compare"]) == ["ARX", "Structured"]
     # the checkpoint and the dataset lie outside --out: recorded absolute
     assert m["run"]["checkpoint"] == str((run / "best.pt").resolve())
     assert m["run"]["dataset"] == str(dataset_dir.resolve())
@@ -85,6 +85,7 @@ def test_train_then_evaluate(tmp_path, dataset_dir, capsys):
             "--compare",
             f"LAST={run / 'last.pt'}",
             "--no-arx",
+            "--no-structured",
         ]
     )
     assert rc == 0

@@ -116,7 +116,12 @@ def test_evaluate_writes_the_horizon_table_figure_and_json(tmp_path) -> None:
     ckpt = save_checkpoint(tmp_path / "m.pt", make_surrogate(ds.spec, ds.train, window=5))
     res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", horizons=(0.5, 1.0))
     hz = res["horizon"]
-    assert list(hz["rmse"]) == [load_checkpoint(ckpt).name.upper(), "ARX", "hold"]
+    assert list(hz["rmse"]) == [
+        load_checkpoint(ckpt).name.upper(),
+        "ARX",
+        "Structured",
+        "hold",
+    ]
     assert hz["n_start"] > 0
     assert (tmp_path / "ev" / "horizon.png").is_file()
     assert "## Prediction horizon" in (tmp_path / "ev" / "table.md").read_text()

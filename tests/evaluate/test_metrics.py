@@ -144,8 +144,8 @@ def test_evaluate_writes_each_episodes_scores_into_its_figure(tmp_path, monkeypa
 
     monkeypatch.setattr(plots, "plot_cbe", spy)
     res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", max_figures=1)
-    assert set(seen["scores"]) == set(seen["predictions"]) == {"LSTM", "ARX"}
-    for label, part in (("LSTM", res), ("ARX", res["compare"]["ARX"])):
+    assert set(seen["scores"]) == set(seen["predictions"]) == {"LSTM", "ARX", "Structured"}
+    for label, part in (("LSTM", res), *res["compare"].items()):
         omega_r2, theta_r2 = seen["scores"][label]
         assert omega_r2 == [part["omega"][n]["r2"] for n in ds.spec.names]
         assert theta_r2 == [part["theta"][n]["r2"] for n in ds.spec.names]

@@ -46,6 +46,11 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--no-arx", action="store_true", help="do not fit the ARX baseline")
     p.add_argument(
+        "--no-structured",
+        action="store_true",
+        help="do not fit the structured baseline (dead zone, gain, delay, end stops per joint)",
+    )
+    p.add_argument(
         "--no-paper", action="store_true", help="do not show the paper's Table II values"
     )
     p.add_argument("--max-steps", type=int, default=None, help="truncate test episodes")
@@ -67,12 +72,13 @@ def run(args: argparse.Namespace) -> int:
         split=args.split,
         reference=args.reference,
         arx=False if args.no_arx else None,
+        structured=False if args.no_structured else None,
         paper=False if args.no_paper else None,
         max_steps=args.max_steps,
     )
     check_out_dir(args.out, overwrite=args.overwrite, lock=True)
     cfg = configs(args, ("evaluate",), {"evaluate": named})["evaluate"]
-    splits = (cfg.split, "train", "val") if cfg.arx else (cfg.split,)
+    splits = (cfg.split, "train", "val") if cfg.arx or cfg.structured else (cfg.split,)
     dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))
     # every [evaluate] field is an argument of evaluate_checkpoint, as exsur run passes them:
     # a field added to the config reaches the evaluation without a line here

@@ -3,7 +3,7 @@
 - :func:`evaluate_models`: several surrogates (LSTM, GRU, ARX ...) on the same episodes ->
   metrics per model (and the rollouts, for plotting).
 - :func:`evaluate_checkpoint`: one checkpoint (+ optional comparison checkpoints and the ARX
-  baseline fitted on the training split) on a dataset split; writes ``metrics.json``,
+  and structured baselines fitted on the training split) on a dataset split; writes ``metrics.json``,
   ``table.md`` and ``cbe.png`` (the first episode; ``cbe_<episode>.png`` for the further
   episodes holding the largest shares of the error, :func:`figure_episodes`) into ``out``.
 
@@ -38,7 +38,7 @@ from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, recorded_path, write_json, write_text
 from ..spec import MachineSpec
 from ..surrogate.angles import unwrap_periodic
-from ..surrogate.baselines import fit_arx
+from ..surrogate.baselines import fit_arx, fit_structured
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
@@ -52,6 +52,10 @@ from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics
 _log = logging.getLogger(__name__)
 
 
+STRUCTURED = "Structured"
+"""The structured baseline's label in the tables and ``metrics.json``'s ``compare``."""
+
+
 @dataclass(frozen=True)
 class EvaluateConfig(PresetConfig, table="evaluate"):
     """CBE evaluation options (``[evaluate]`` table of a preset)."""
@@ -62,6 +66,9 @@ class EvaluateConfig(PresetConfig, table="evaluate"):
     """Compare against (and warm up from) measured ``theta`` or ground-truth ``theta_true``."""
     arx: bool = True
     """Fit the linear ARX baseline on the training split and add it to the table."""
+    structured: bool = True
+    """Fit the structured baseline (per joint: dead zone, gain per direction, delay, end stops
+    at the training range) on the training split and add it to the table."""
     paper: bool = True
     """Show the paper's Table II values alongside (only for swing/boom/arm/bucket joints)."""
     max_steps: int = 0
@@ -131,6 +138,7 @@ def evaluate_checkpoint(
     reference: Literal["measured", "true"] = "measured",
     compare: Mapping[str, str | Path] | None = None,
     arx: bool = True,
+    structured: bool = True,
     paper: bool = True,
     max_steps: int = 0,
     figure: bool = True,
@@ -151,6 +159,10 @@ def evaluate_checkpoint(
         reference: ``measured`` or ``true``.
         compare: extra checkpoints, label -> path (e.g. ``{"gru": ".../best.pt"}``).
         arx: also fit and evaluate the ARX baseline on the training split (ridge chosen on ``val``).
+        structured: also fit and evaluate the structured baseline on the training split
+            (:func:`~..surrogate.structured.fit_structured`: per joint a dead zone, a gain per
+            direction and a delay, stopped at the training range; it reads no other joint and
+            no exogenous input).
         paper: show the paper's Table II values alongside.
         max_steps: truncate episodes (0 = full).
         figure: write the figure(s).
@@ -194,20 +206,23 @@ def evaluate_checkpoint(
     check_compatible(sur.spec, dataset.spec, ckpt=ckpt, data_name=where)
     for label, path in (compare or {}).items():
         check_compatible(models[label].spec, dataset.spec, ckpt=path, data_name=where)
-    if arx:
-        if dataset.train:
-            models["ARX"] = fit_arx(
-                dataset.train,
-                window=sur.window,
-                spec=dataset.spec,
-                # the surrogate's features, fitted in NumPy; not its map joints: the baseline
-                # is ARX on every joint, not ARX beside the recipe's static map
-                norm=sur.norm.with_own(None).to("cpu"),
-                val=dataset.val,
-                end_stops=sur.end_stops,
-            ).to(dev)
-        else:
-            _log.info("no training split loaded: skipping the ARX baseline")
+    if arx and dataset.train:
+        models["ARX"] = fit_arx(
+            dataset.train,
+            window=sur.window,
+            spec=dataset.spec,
+            # the surrogate's features, fitted in NumPy; not its map joints: the baseline
+            # is ARX on every joint, not ARX beside the recipe's static map
+            norm=sur.norm.with_own(None).to("cpu"),
+            val=dataset.val,
+            end_stops=sur.end_stops,
+        ).to(dev)
+    if structured and dataset.train:
+        models[STRUCTURED] = fit_structured(dataset.train, window=sur.window, spec=dataset.spec).to(
+            dev
+        )
+    if (arx or structured) and not dataset.train:
+        _log.info("no training split loaded: skipping the baselines")
     metrics, runs = evaluate_models(
         models, episodes, reference=reference, max_steps=max_steps or None
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -189,8 +190,66 @@ def report_markdown(
     if linkage:
         parts += [linkage_markdown(linkage)]
     if len(by_model) > 1:
-        parts += ["## Comparison", "", comparison_table(by_model, spec=spec)]
+        parts += [
+            "## Comparison",
+            "",
+            comparison_table(by_model, spec=spec),
+            against_others(by_model, primary=primary, units=linear_units(spec)),
+            "",
+        ]
     return "\n".join(parts)
+
+
+def against_others(
+    by_model: Mapping[str, Mapping[str, Any]],
+    *,
+    primary: str,
+    units: Mapping[str, tuple[float, str]] | None = None,
+) -> str:
+    """One line: per other model of the table, on how many joints ``primary``'s free-run
+    angle (position) RMSE is lower, and each joint where it is not, both RMSEs in degrees, or
+    for a joint in ``units`` (joint -> (factor, unit): a linear joint's stored m times factor
+    is its unit) in its own unit; e.g. ``lower than ARX on 4 of 4 joints; lower than
+    Structured on 3 of 4 (not the arm: 27.2° against 5.86°)``.  Empty without other models."""
+    own = by_model[primary]["theta"]
+    units = units or {}
+
+    def shown(joint: str, v: float) -> str:  # 3 significant digits: 0.520°, 30.0°, 123 mm
+        f, unit = units.get(joint, (math.degrees(1.0), "°"))
+        return f"{v * f:#.3g}".rstrip(".") + ("" if unit == "°" else " ") + unit
+
+    parts = []
+    for label, m in by_model.items():
+        if label == primary:
+            continue
+        pairs = [
+            (joint, own[joint]["rmse"], v["rmse"])
+            for joint, v in m["theta"].items()
+            if joint in own and own[joint]["rmse"] is not None and v["rmse"] is not None
+        ]
+        if not pairs:
+            continue
+        lost = [(j, a, b) for j, a, b in pairs if not a < b]
+        text = f"lower than {label} on {len(pairs) - len(lost)} of {len(pairs)} joints"
+        if lost:
+            text += (
+                " (not "
+                + ", ".join(f"the {j}: {shown(j, a)} against {shown(j, b)}" for j, a, b in lost)
+                + ")"
+            )
+        parts.append(text)
+    if not parts:
+        return ""
+    what = "position" if units else "angle"
+    return f"**Free-run {what} RMSE of {primary}:** " + "; ".join(parts) + "."
+
+
+def linear_units(spec: MachineSpec | None) -> dict[str, tuple[float, str]]:
+    """Joint -> (factor, unit) of each linear joint of ``spec``: its stored m times factor is
+    its mapping's unit (:func:`against_others`' ``units``)."""
+    if spec is None:
+        return {}
+    return {j.name: (j.display_factor, j.display_unit) for j in spec.joints if j.linear}
 
 
 EPISODES_TOP = 3

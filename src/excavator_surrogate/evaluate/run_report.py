@@ -17,7 +17,7 @@ from ..spec import LINEAR_UNITS
 from .data_card import notes_lines, reach_lines, splits_lines
 from .horizon import horizon_markdown
 from .metrics import min_r2
-from .report import PAPER_TABLE_III
+from .report import PAPER_TABLE_III, against_others
 from .uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
 
 
@@ -68,12 +68,29 @@ def _summary(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
         f"worst-joint ω R² {worst_omega:.4f}**.",
         "",
         *([_no_test(run), ""] if run.get("split", "test") != "test" else []),
+        *([against, ""] if (against := _against(metrics)) else []),
         "Timings [s]: " + ", ".join(f"{k} {v}" for k, v in run.get("timings_s", {}).items()),
         "",
         "![closed-loop comparison](cbe.png)",
         "",
     ]
     return lines
+
+
+def _against(metrics: Mapping[str, Any]) -> str:
+    """The surrogate's angle RMSE against each model of the comparison (the baselines), one
+    line (:func:`.report.against_others`), or ""."""
+    others = metrics.get("compare") or {}
+    if not others:
+        return ""
+    units = {
+        joint: _unit(metrics, joint)
+        for joint in metrics["theta"]
+        if _unit(metrics, joint)[1] != "rad"
+    }
+    return against_others(
+        {"the surrogate": metrics, **others}, primary="the surrogate", units=units
+    )
 
 
 def _no_test(run: Mapping[str, Any]) -> str:
