@@ -424,3 +424,10 @@ def test_the_map_joints_take_validations_speed() -> None:
     assert "(a x1, its validation episodes disagreeing on the side, b x1, its" in rec["why"]
     g = validation_gains(fit, mixed[:1], [True, True])
     assert np.allclose(g, 1.2, atol=0.005)
+    # one episode, a log's next stretch: only faster (the machine warms over a log); slower
+    # leaves the gains alone, and the why says so
+    assert validation_gains(fit, mixed[1:], [True, True]) == [1.0, 1.0]
+    assert validation_gains(fit, slow[:1], [True, True]) == [1.0, 1.0]
+    _, rec = choose_map_joints(_net(), train, mixed[1:])
+    assert rec["val_gain"] == {"joints": ["a", "b"], "gain": [1.0, 1.0], "episodes": 1}
+    assert "(a x1, one validation stretch not faster than the training" in rec["why"]
