@@ -116,9 +116,10 @@ def validation_gains(
     measured 0.68-1.01, pooled 0.88, and the scale took its test R^2 from 0.947 to 0.894).
     With one validation episode (a log's next stretch), only where it is faster: a machine's
     oil warms over a log and does not cool while it works, so a next stretch slower than the
-    training is the map's error at its operating points (on 7-minute logs of five machines
-    the bench's rules were not set on, the three scaled x0.93-0.98 lost 6-21 % on the test and
-    the continuation; session 112).
+    training is the map's error at its operating points (on 7-minute logs of six machines
+    the bench's rules were not set on, three of the four joints it slowed, x0.93-0.98, lost
+    6-21 % on the test and the continuation, and the fourth, x0.99, moved 0.2 %; session
+    112).
 
     Args:
         fit: the map (:func:`~..surrogate.structured.fit_prior`'s lists: ``delay``,
