@@ -174,7 +174,7 @@ def _say_gain(record: dict[str, Any]) -> None:
         return
     kept = (
         "its validation episodes disagreeing on the side"
-        if got.get("episodes", 2) > 1
+        if got["episodes"] > 1
         else "one validation stretch not faster than the training (a machine warms over a log)"
     )
     each = ", ".join(
