@@ -84,3 +84,24 @@ def test_short_warmup_matches_plain_loop(spec, episodes, mode, warmup):
         th_r, om_r = rollout_reference(sur, theta[i], u[i], warmup=warmup)
         np.testing.assert_allclose(th_b[i], th_r, atol=1e-5)
         np.testing.assert_allclose(om_b[i], om_r, atol=1e-5)
+
+
+@pytest.mark.parametrize("mode", ["windowed", "stateful"])
+def test_reset_at_measured_starts_is_a_reset_on_each_ones_own_history(spec, episodes, mode):
+    """``ClosedLoop.reset_at`` (one row per measured start) steps as one loop per start, each
+    reset on its own slice of the episode: the warm-up ``theta[k - n + 1 .. k]``, the
+    commands ``u[k - n + 1 .. k - 1]``, then ``u[k]`` predicts sample ``k + 1``."""
+    sur = make_surrogate(spec, episodes, mode=mode, window=6)
+    ep = episodes[0]
+    starts = np.array([5, 9, 17, 30])
+    for n in (sur.window, sur.window + 3):  # the model's window, and a longer warm-up
+        ks = starts[starts >= n - 1]
+        loop = ClosedLoop(sur)
+        loop.reset_at(ep.theta, ep.u, ks, n_hist=n)
+        got = [loop.step(ep.u[ks + j])[0].double().numpy() for j in range(3)]
+        for row, k in enumerate(ks):
+            one = ClosedLoop(sur)
+            one.reset(ep.theta[None, k - n + 1 : k + 1], ep.u[None, k - n + 1 : k])
+            for j in range(3):
+                ref = one.step(ep.u[None, k + j])[0][0].double().numpy()
+                np.testing.assert_allclose(got[j][row], ref, atol=1e-5)

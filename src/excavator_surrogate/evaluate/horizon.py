@@ -70,8 +70,7 @@ def _squared_errors(
         n_run = min(n_max, n_step - 1 - int(k[0]))  # the earliest start reaches farthest
         if sur is not None:
             loop = ClosedLoop(sur)
-            hist = k[:, None] + np.arange(-window + 1, 1)  # (n_start, W) sample indices
-            loop.reset(theta[hist], u[hist[:, :-1]])
+            loop.reset_at(theta, u, k, n_hist=window)
         for j in range(n_run):
             t = k + j + 1  # the predicted sample
             ok = t <= n_step - 1

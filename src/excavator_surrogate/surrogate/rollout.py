@@ -137,6 +137,27 @@ class ClosedLoop:
         :meth:`reset`)."""
         return self._rows
 
+    def reset_at(
+        self,
+        theta: np.ndarray,
+        u: np.ndarray,
+        starts: np.ndarray,
+        *,
+        n_hist: int | None = None,
+    ) -> torch.Tensor:
+        """:meth:`reset` with one batch row per measured start ``k`` of one episode: warmed
+        up on ``theta[k - n_hist + 1 .. k]`` and the commands ``u[k - n_hist + 1 .. k - 1]``
+        between them, so the next :meth:`step` (with ``u[k]``) predicts sample ``k + 1``.
+
+        Args:
+            theta: (n_step, n_joint) the episode's angles [rad]; ``u``: (n_step, n_u).
+            starts: (n_start,) sample indices, each ``>= n_hist - 1``.
+            n_hist: recorded samples per warm-up (default the model's window ``W``).
+        """
+        n = self.sur.window if n_hist is None else n_hist
+        hist = np.asarray(starts)[:, None] + np.arange(-n + 1, 1)  # (n_start, n_hist)
+        return self.reset(theta[hist], u[hist[:, :-1]])
+
     @torch.no_grad()
     def reset(
         self, theta_hist: np.ndarray | torch.Tensor, u_hist: np.ndarray | torch.Tensor

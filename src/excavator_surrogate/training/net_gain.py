@@ -97,8 +97,7 @@ def displacement_sums(
     for at in range(0, len(starts), CHUNK):
         k = starts[at : at + CHUNK]
         loop = ClosedLoop(sur)
-        hist = k[:, None] + np.arange(-w + 1, 1)  # (n_start, W): theta[k - W + 1 .. k]
-        loop.reset(ep.theta[hist], ep.u[hist[:, :-1]])
+        loop.reset_at(ep.theta, ep.u, k)
         for j in range(n_h):
             theta, _ = loop.step(ep.u[k + j])
         d_net = wrap_periodic(theta.double().cpu().numpy() - ep.theta[k], sur.spec.periodic)
