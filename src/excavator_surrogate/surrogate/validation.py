@@ -10,6 +10,7 @@ candidates of one architecture in one batched free run (:mod:`.stacked`), steppe
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -33,6 +34,19 @@ def free_run_error(
     """
     sur.net.eval()
     return score_runs(rollout_episodes(sur, episodes, max_steps=max_steps), sur)
+
+
+def with_val_scores(model: Surrogate, got: Mapping[str, Any]) -> Surrogate:
+    """``model`` with its own validation free-run scores ``got`` (:func:`free_run_error`) in
+    its metrics (``val_error``, ``val``, ``best_val_error``): a model that a choice after
+    training changed records its own validation, not that of the model it came from."""
+    model.metrics = {
+        **(model.metrics or {}),
+        "val_error": got["val_error"],
+        "val": dict(got),
+        "best_val_error": got["val_error"],
+    }
+    return model
 
 
 def free_run_errors(

@@ -68,7 +68,7 @@ from ..surrogate.model import Surrogate
 from ..surrogate.parallel import with_parallel_map
 from ..surrogate.series import with_map_joints
 from ..surrogate.structured import fit_prior, max_map_delay
-from ..surrogate.validation import free_run_error
+from ..surrogate.validation import free_run_error, with_val_scores
 from .config import TrainConfig
 from .map_blocks import all_on_map, check_blocks
 from .map_fit import map_end_stops, refit_due, refit_map, say_changes, scale_gains
@@ -451,11 +451,4 @@ def _refused_note(record: Mapping[str, Any], end: str = "") -> str:
 
 def _chosen(model: Surrogate | None, got: Mapping[str, Any]) -> Surrogate | None:
     """``model`` (if any) with its validation scores ``got`` in its metrics."""
-    if model is not None:
-        model.metrics = {
-            **(model.metrics or {}),
-            "val_error": got["val_error"],
-            "val": dict(got),
-            "best_val_error": got["val_error"],
-        }
-    return model
+    return None if model is None else with_val_scores(model, got)

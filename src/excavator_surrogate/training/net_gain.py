@@ -58,7 +58,7 @@ from ..surrogate.checkpoint import (
 )
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import ClosedLoop
-from ..surrogate.validation import free_run_error
+from ..surrogate.validation import free_run_error, with_val_scores
 from .map_fit import GAIN_RANGE, one_side
 from .span import joint_spans
 
@@ -224,15 +224,8 @@ def choose_network_gains(
         f"the network joints' speeds scaled to validation's ({each}): {rule} (validation is the "
         f"data nearest the test in time; {measured}); their validation scores are in-sample"
     )
-    scaled = scaled_outputs(sur, gains)
-    got = free_run_error(scaled, list(val), max_steps=max_steps)
-    scaled.metrics = {
-        **(sur.metrics or {}),
-        "val_error": got["val_error"],
-        "val": dict(got),
-        "best_val_error": got["val_error"],
-    }
-    return scaled, record
+    scaled = scaled_outputs(sur, gains)  # sur's metrics, then its own validation scores
+    return with_val_scores(scaled, free_run_error(scaled, list(val), max_steps=max_steps)), record
 
 
 def after_map_choice(
