@@ -22,6 +22,7 @@ from excavator_surrogate.env import (
 from excavator_surrogate.env.safety import GuardConfig
 from excavator_surrogate.errors import ConfigError, ExsurError
 from excavator_surrogate.spec import EXCAVATOR, JointSpec, MachineSpec
+from excavator_surrogate.surrogate.angles import joint_limits
 
 
 def _env(kind: str, ckpt: Path, **kw: object) -> gym.Env:
@@ -177,6 +178,24 @@ def test_divergence_guard_truncates_without_crashing(make_surrogate) -> None:
     env.reset(options={"theta0": [0.0, 0.8, 1.5, 0.5]})
     _, _, _, truncated, info = env.step(np.zeros(4))
     assert info["limit_violation"][1] and truncated and info["guard"] == "joint_limit"
+
+
+@pytest.mark.parametrize("mode", ["stateful", "windowed"])
+def test_resting_at_its_own_end_stop_is_no_limit_violation(make_surrogate, mode: str) -> None:
+    # float32's nearest 2.65 (the arm's upper stop) is 2.6500001 and its -0.6 (the bucket's
+    # lower stop) is -0.60000002: clipped there, the env read outside its own float64 limits
+    sur = make_surrogate(mode=mode, end_stops=True)
+    with torch.no_grad():
+        sur.net.head[2].weight.zero_()
+        sur.net.head[2].bias.fill_(0.0)
+        sur.norm.y_mean[:] = torch.tensor([0.0, 0.0, 4.0, -4.0])  # arm out, bucket in
+    env = ExcavatorSurrogateEnv(sur, guard=GuardConfig(limit_margin=0.0, omega_max=None))
+    env.reset(options={"theta0": [0.0, 0.8, 2.6, -0.5]})
+    for _ in range(5):
+        _, _, _, truncated, info = env.step(np.zeros(4))
+    lo, hi = joint_limits(sur.spec)
+    assert env.theta[2] == hi[2] and env.theta[3] == lo[3]
+    assert not info["limit_violation"].any() and not truncated and info["guard"] == ""
 
 
 def test_hydraulic_plant_option_errors_clearly() -> None:

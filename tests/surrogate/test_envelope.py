@@ -15,6 +15,7 @@ from excavator_surrogate.spec import MachineSpec
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.angles import (
     envelope,
+    envelope_inward,
     integrate,
     integrate_np,
     omega_target,
@@ -38,6 +39,23 @@ def _open(spec: MachineSpec) -> MachineSpec:
         dataclasses.replace(j, theta_min=None, theta_max=None, omega_max=None) for j in spec.joints
     )
     return dataclasses.replace(spec, joints=joints)
+
+
+def test_envelope_inward_never_rounds_a_bound_outward():
+    lo = np.array([-math.inf, -0.6, 0.3])
+    hi = np.array([math.inf, 0.85, 2.65])
+    w = np.array([1.1, math.inf, 0.7])
+    got32 = [t.double().numpy() for t in envelope_inward((lo, hi, w), dtype=torch.float32)]
+    assert (got32[0] >= lo).all() and (got32[1] <= hi).all() and (got32[2] <= w).all()
+    # each finite bound at most one float32 step from the float64 one (the cast, or one inward)
+    want = np.array([lo, hi, w])
+    fin = np.isfinite(want)
+    step = np.abs(np.spacing(want[fin].astype(np.float32)))
+    assert (np.abs(np.array(got32)[fin] - want[fin]) <= step).all()
+    assert np.isinf(got32[0][0]) and np.isinf(got32[1][0]) and np.isinf(got32[2][1])
+    got64 = envelope_inward((lo, hi, w), dtype=torch.float64)
+    for a, t in zip((lo, hi, w), got64):
+        np.testing.assert_array_equal(t.numpy(), a)  # float64: the bounds themselves
 
 
 def test_integrate_bounds_the_speed_before_the_stops():

@@ -23,7 +23,7 @@ import torch
 
 from ..devices import NoOp, OneThread, resolve_device
 from ..errors import ConfigError
-from ..surrogate.angles import integrate
+from ..surrogate.angles import envelope_inward, integrate
 from ..surrogate.model import Surrogate
 from ..surrogate.own_angles import network_inputs, own_advance, own_members, own_start
 from ..surrogate.parallel import own_gain_dev
@@ -98,8 +98,10 @@ class SurrogateEngine:
         self.omega_in = bool(self.norm.omega_in)
         self.w = torch.zeros_like(self.theta)
         self.theta_prev = torch.zeros_like(self.theta)
-        lim = sur.limits()
-        self._limits = None if lim is None else tuple(a.double() for a in lim)
+        lim = sur.limits_np()  # the float64 angles stop at the spec's own limits
+        self._limits = (
+            None if lim is None else envelope_inward(lim, dtype=torch.float64, device=self.device)
+        )
         self._own_dev = (
             None if self.norm.own is None else own_gain_dev(sur).to(self.device, torch.float32)
         )

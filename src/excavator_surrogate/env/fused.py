@@ -18,7 +18,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
-from ..surrogate.angles import integrate
+from ..surrogate.angles import envelope_inward, integrate
 from ..surrogate.command_state import command_features, command_rows_step, delayed_commands
 from ..surrogate.ensemble import member_head
 from ..surrogate.features import Normalization
@@ -136,12 +136,14 @@ def _prior_lagged(sur: Surrogate) -> list[bool]:
 
 def add_end_stops(module: nn.Module, sur: Surrogate) -> None:
     """Register the surrogate's envelope on ``module`` as float32 buffers ``theta_lo`` /
-    ``theta_hi`` (n_joint,) [rad] and ``omega_max`` (n_joint,) [rad/s], each None when the
+    ``theta_hi`` (n_joint,) [rad] and ``omega_max`` (n_joint,) [rad/s], each rounded inward
+    (:func:`~excavator_surrogate.surrogate.angles.envelope_inward`) and None when the
     surrogate has none (they then stay out of the graph)."""
     lim = sur.limits_np()
+    stops = None if lim is None else envelope_inward(lim, dtype=torch.float32)
     for name, k in (("theta_lo", 0), ("theta_hi", 1), ("omega_max", 2)):
-        has = lim is not None and k < len(lim)
-        module.register_buffer(name, torch.tensor(lim[k], dtype=torch.float32) if has else None)
+        has = stops is not None and k < len(stops)
+        module.register_buffer(name, stops[k] if has else None)
 
 
 def end_stops(module: nn.Module) -> tuple[torch.Tensor, ...] | None:

@@ -76,6 +76,24 @@ def envelope(spec: MachineSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return lo, hi, speed_limits(spec)
 
 
+def envelope_inward(
+    lim: tuple[np.ndarray, ...], *, dtype: torch.dtype, device: torch.device | str | None = None
+) -> tuple[torch.Tensor, ...]:
+    """The envelope ``lim`` (``(lo, hi[, omega_max])`` float64, as :meth:`Surrogate.limits_np`
+    gives it) as ``dtype`` tensors, each bound moved to the inside where the cast rounds it
+    outward (float32's nearest 2.65 is 2.6500001): an angle clipped to them reads inside the
+    float64 limits, so an env at its own end stop reports no limit violation."""
+    out = []
+    for k, a in enumerate(lim):
+        t = torch.as_tensor(a, dtype=dtype, device=device)
+        back = t.double().cpu().numpy()
+        outside = back < a if k == 0 else back > a  # lo rounded down; hi, omega_max up
+        toward = torch.full_like(t, math.inf if k == 0 else -math.inf)
+        t = torch.where(torch.as_tensor(outside, device=t.device), torch.nextafter(t, toward), t)
+        out.append(t)
+    return tuple(out)
+
+
 Limits = tuple[torch.Tensor, torch.Tensor] | tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 """``(lo, hi)`` end stops [rad], optionally with ``omega_max`` [rad/s], each (n_joint,)."""
 
