@@ -82,6 +82,12 @@ def test_matches_sync_vector_env_of_single_envs(
         np.testing.assert_allclose(rew, rew2, atol=1e-5)
         np.testing.assert_array_equal(term, term2)
         np.testing.assert_array_equal(trunc, trunc2)
+        # which envs hold each entry (on a NEXT_STEP reset, the reset's entries only)
+        none = np.zeros(N_ENVS, dtype=bool)
+        for k in {k for k in (*info, *info2) if not k.startswith(("_", "final_"))}:
+            np.testing.assert_array_equal(
+                info.get(f"_{k}", none), info2.get(f"_{k}", none), err_msg=k
+            )
         n_done += int(trunc.sum())
         if mode == AutoresetMode.SAME_STEP and "final_obs" in info2:
             np.testing.assert_array_equal(info["_final_obs"], info2["_final_obs"])

@@ -23,8 +23,10 @@ entries, each with gymnasium's ``_key`` mask: the keys of the single environment
 ``info`` (whose ``guard`` is the name, ``safety.GUARD_NAMES[code]``), including the
 surrogate's uncertainty (:func:`~.uncertainty.step_info`: ``theta_band`` / ``omega_band``
 (n_envs, n_joint), ``ood`` (n_envs, n_joint) bool, ``uncertainty``, ``band_calibrated``,
-``ood_any``, ``ood_checked`` (n_envs,) bool; on a NEXT_STEP autoreset step their mask is
-False for the envs that were reset).
+``ood_any``, ``ood_checked`` (n_envs,) bool).  On a step that autoresets an env (either
+mode) that env holds a single env's reset info, as in ``SyncVectorEnv``: ``theta`` and the
+task's reset entries; every step entry's mask (``_u``, ``_guard``, ``_limit_violation``, ...)
+is False for it (SAME_STEP: the step's own are in ``final_info``).
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ from .starts import (
 )
 from .surrogate_env import load_surrogate, recorded_starts_of
 from .tasks import Task, start_pose
-from .uncertainty import INFO_KEYS, notes, step_info, wanted
+from .uncertainty import notes, step_info, wanted
 
 
 class SurrogateVectorEnv(VectorEnv):
@@ -392,17 +394,12 @@ class SurrogateVectorEnv(VectorEnv):
         if mode == AutoresetMode.NEXT_STEP:
             was_done = self._autoreset.copy()
             if was_done.any():
-                extra = self._reset_envs(was_done, {})
                 reward[was_done] = 0.0
                 terminated[was_done] = False
                 truncated[was_done] = False
                 code[was_done] = GUARD_OK
                 violation[was_done] = False
-                info["theta"][was_done] = self.engine.theta.cpu().numpy()[was_done]
-                for k in INFO_KEYS:  # a reset, not a step: as a single env's reset info
-                    info[f"_{k}"] = ~was_done
-                for k, v in extra.items():
-                    info[k], info[f"_{k}"] = v, self._ones
+                self._reset_in_step(was_done, info)
             self._autoreset = terminated | truncated
         elif mode == AutoresetMode.SAME_STEP:
             done = terminated | truncated
@@ -419,8 +416,17 @@ class SurrogateVectorEnv(VectorEnv):
                 info["_final_info"] = done
                 info["final_obs"] = final_obs
                 info["_final_obs"] = done
-                extra = self._reset_envs(done.copy(), {})
-                info["theta"][done] = self.engine.theta.cpu().numpy()[done]
-                for k, v in extra.items():
-                    info[k], info[f"_{k}"] = v, self._ones
+                self._reset_in_step(done.copy(), info)
         return self._obs.copy(), reward, terminated, truncated, info
+
+    def _reset_in_step(self, mask: np.ndarray, info: dict[str, Any]) -> None:
+        """Reset the envs ``mask`` (n_envs,) within a step (autoreset): in ``info`` they then
+        hold a single env's reset info, as in ``SyncVectorEnv``: the angles and the task's
+        reset entries; every step entry's mask (``_u``, ``_guard``, ...) is False for them."""
+        extra = self._reset_envs(mask, {})
+        info["theta"][mask] = self.engine.theta.cpu().numpy()[mask]
+        for k in list(info):
+            if not k.startswith(("_", "final_")) and k != "theta":
+                info[f"_{k}"] = info[f"_{k}"] & ~mask
+        for k, v in extra.items():
+            info[k], info[f"_{k}"] = v, self._ones
