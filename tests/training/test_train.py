@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -125,6 +126,23 @@ def test_resume_continues_epochs_and_budget_stops(tmp_path):
     )
     train(quick, ds, out=tmp_path / "c", show_progress=False)
     assert len(read_checkpoint(tmp_path / "c" / "last.pt")["history"]) == 1
+
+
+def test_resuming_into_another_folder_keeps_the_resumed_runs_best(tmp_path):
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    train(tiny_train_config(epochs=2), ds, out=tmp_path / "a", show_progress=False)
+    best_a = read_checkpoint(tmp_path / "a" / "best.pt")
+    never = tiny_train_config(epochs=4, min_delta=0.99)  # no later epoch beats the resumed best
+    train(never, ds, out=tmp_path / "b", resume=tmp_path / "a" / "last.pt", show_progress=False)
+    best_b = read_checkpoint(tmp_path / "b" / "best.pt")
+    assert best_b["metrics"]["val_error"] == best_a["metrics"]["val_error"]
+    for k, v in best_a["state_dict"].items():
+        assert torch.equal(best_b["state_dict"][k], v), k
+    # a last.pt alone, its best.pt not beside it: the best is one of the resumed run's epochs
+    (tmp_path / "lone").mkdir()
+    shutil.copyfile(tmp_path / "a" / "last.pt", tmp_path / "lone" / "last.pt")
+    train(never, ds, out=tmp_path / "c", resume=tmp_path / "lone" / "last.pt", show_progress=False)
+    assert read_checkpoint(tmp_path / "c" / "best.pt")["metrics"]["epoch"] >= 2
 
 
 def test_train_config_from_preset_and_validation():

@@ -62,7 +62,13 @@ def register(subparsers: Any) -> None:
         help="seed ensemble: train this many members (seeds SEED, SEED+1, ...) in parallel "
         "processes and merge them into OUT/best.pt (members in OUT/member_<i>/)",
     )
-    p.add_argument("--resume", type=Path, default=None, help="continue from a checkpoint (last.pt)")
+    p.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        help="continue from a checkpoint (last.pt; into another --out, the best.pt beside it "
+        "is carried over)",
+    )
     p.add_argument("--device", default=None, help="torch device (cpu, cuda, cuda:N, auto)")
     p.add_argument(
         "--ddp",

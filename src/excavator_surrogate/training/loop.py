@@ -52,7 +52,7 @@ from .records import (
     write_config,
     write_log,
 )
-from .resume import fit_norm, start
+from .resume import carry_best, fit_norm, start
 from .selection import (
     averaged,
     choose,
@@ -158,10 +158,24 @@ def train_network(
     sur = st.surrogate(cfg, par.device)
     data = make_data(train_eps, st.norm, par.device)
     optim = Optimisation.build(cfg, sur)
+    best_val, bad = st.best_val, st.bad_epochs
+    best_path, last_path = out / "best.pt", out / "last.pt"
     if st.train_state:
+        assert resume is not None
         optim.load(st.train_state, where=str(resume))
         say(f"resuming from {resume} at epoch {st.epoch} (best val_error {st.best_val:.4g})")
-    best_val, bad = st.best_val, st.bad_epochs
+        keep = True  # the resumed best: rank 0 looks for its weights, every rank follows
+        if main and not best_path.exists() and math.isfinite(best_val):
+            keep = carry_best(resume, best_path, best_val)
+            say(
+                f"{best_path} starts as the resumed run's best (val_error {best_val:.4g}); "
+                "an epoch that beats it replaces it"
+                if keep
+                else f"no best.pt of val_error {best_val:.4g} beside {resume}: the best "
+                "checkpoint is chosen among this run's epochs"
+            )
+        if not par.broadcast(keep):
+            best_val, bad = math.inf, 0
 
     if main:
         write_config(out, cfg, notes=notes)
@@ -172,7 +186,6 @@ def train_network(
     show = _progress(show_progress, main)
     mode = make_mode(cfg, data, sur)
     dnet = par.wrap(net)
-    best_path, last_path = out / "best.pt", out / "last.pt"
     n_param = sum(p.numel() for p in net.parameters())
     say(
         f"training {cfg.cell} ({n_param} parameters, {cfg.mode}) on {len(train_eps)} episode(s) "

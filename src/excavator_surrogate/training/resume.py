@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import shutil
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -11,6 +13,7 @@ import torch
 from ..config import to_dict
 from ..data.episode import Episode
 from ..errors import CheckpointError
+from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.envelope import fill_envelope
@@ -192,3 +195,27 @@ def start(
         train_state=ck.get("train_state") or None,
         history=list(ck.get("history") or []),
     )
+
+
+def carry_best(resume: str | Path, best_path: Path, best_val: float) -> bool:
+    """Start a run resumed into another folder from the resumed run's ``best.pt``.
+
+    ``resume`` is the resumed ``last.pt``; its run's best weights are not in it but in the
+    ``best.pt`` beside it.  That file is copied to ``best_path`` (atomically) when it is that
+    run's best: its recorded ``best_val_error`` equals ``best_val``, the resumed state's.  A
+    resumed run whose epochs never beat it then keeps it, where it would otherwise keep its
+    last epoch.  Returns False (nothing copied) when ``best_path`` is that file itself, or
+    there is no such file: the caller restarts the selection among its own epochs.
+    """
+    src = Path(resume).parent / "best.pt"
+    if not src.is_file() or src.resolve() == Path(best_path).resolve():
+        return False
+    try:
+        recorded = (read_checkpoint(src).get("metrics") or {}).get("best_val_error")
+    except CheckpointError:
+        return False
+    if recorded is None or not math.isclose(float(recorded), best_val, rel_tol=1e-12):
+        return False
+    with atomic_path(best_path) as tmp:
+        shutil.copyfile(src, tmp)
+    return True
