@@ -245,6 +245,38 @@ def test_env_action_with_inputs_or_fixed(rpm_dataset, tmp_path):
         SurrogateVectorEnv(sur, 2, inputs={"engine_rpm": 5000.0})
 
 
+def test_planner_predictor_holds_the_inputs_it_is_given(rpm_dataset):
+    """A planner plans the joints' commands: ``SurrogatePredictor(inputs=...)`` holds the
+    exogenous inputs, and its candidates equal the env's steps with the same fixed inputs."""
+    from excavator_surrogate.control.predict import SurrogatePredictor
+    from excavator_surrogate.env import ExcavatorSurrogateEnv
+
+    sur = make_surrogate(rpm_dataset.spec, rpm_dataset.train, mode="stateful")
+    with pytest.raises(ConfigError, match="exogenous input\\(s\\) engine_rpm, throttle"):
+        SurrogatePredictor(sur, n_batch=2)
+    with pytest.raises(ConfigError, match="exogenous input\\(s\\) throttle, which a planner"):
+        SurrogatePredictor(sur, n_batch=2, inputs={"engine_rpm": 1800.0})
+    held = {"engine_rpm": 1800.0, "throttle": 0.7}
+    pred = SurrogatePredictor(sur, n_batch=2, inputs=held)
+    env = ExcavatorSurrogateEnv(sur, inputs=held)
+    theta0 = np.array([0.5, 0.6])
+    pred.reset(theta0)
+    env.reset(options={"theta0": theta0})
+    for u in ([300.0, -200.0], [100.0, 50.0]):  # joint commands, and the whole vector
+        pred.observe(u if u[0] == 300.0 else [*u, *held.values()], env.step(np.array(u))[0][:2])
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-1000, 1000, (2, 4, 2))
+    got = pred.predict(u)
+    for i in range(2):
+        ref = ExcavatorSurrogateEnv(sur, inputs=held)
+        ref.reset(options={"theta0": theta0})
+        ref.step(np.array([300.0, -200.0]))
+        ref.step(np.array([100.0, 50.0]))
+        for n in range(4):
+            ref.step(u[i, n])
+            np.testing.assert_allclose(got[i, n], ref.theta, atol=2e-5)
+
+
 def test_train_with_inputs(rpm_dataset, tmp_path):
     """``train`` on a dataset with inputs: the checkpoint's model reads them (feature width)."""
     from excavator_surrogate.training import train

@@ -20,6 +20,7 @@ out from the machine's current state in ONE batched call (``predict``):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from contextlib import nullcontext
 from functools import partial
 from itertools import pairwise
@@ -90,6 +91,14 @@ class SurrogatePredictor:
         workers: processes the candidates are split over (1: this process only; ``k > 1``:
             this one and ``k - 1`` spawned :class:`~.workers.RolloutWorker`; ``close()``
             ends them).  Each process runs one torch thread.
+        inputs: the value of each exogenous input of the surrogate (``spec.inputs``, e.g.
+            ``{"throttle": 1.0}``), held on every step: a planner plans the joints' commands
+            only, so a surrogate with inputs needs all of them here (as the envs' ``inputs=``,
+            :mod:`~excavator_surrogate.env.inputs`).  ``observe`` and ``reset_history`` take
+            commands with or without their columns.
+
+    Raises:
+        ConfigError: an exogenous input without a value, an unknown one or one out of range.
     """
 
     def __init__(
@@ -100,9 +109,19 @@ class SurrogatePredictor:
         mode: str | None = None,
         bias_gain: float = 0.0,
         workers: int = 1,
+        inputs: Mapping[str, float] | None = None,
     ) -> None:
         from ..env.engine import SurrogateEngine
+        from ..env.inputs import ActionLayout
 
+        self.layout = ActionLayout.make(sur.spec, inputs, where="SurrogatePredictor")
+        free = [c.name for c in self.layout.columns[sur.spec.n_joint :]]
+        if free:
+            raise ConfigError(
+                f"SurrogatePredictor: the surrogate also takes the exogenous input(s) "
+                f"{', '.join(free)}, which a planner does not plan: hold each at a value, "
+                f"inputs={{{', '.join(repr(n) + ': ...' for n in free)}}}"
+            )
         if not 0.0 <= bias_gain <= 1.0:
             raise ConfigError(f"SurrogatePredictor: bias_gain must be in [0, 1], got {bias_gain}")
         if not 1 <= workers <= n_batch:
@@ -116,6 +135,7 @@ class SurrogatePredictor:
         self._edges = edges.tolist()
         self._engine = partial(SurrogateEngine, sur, mode=mode)
         self.sync = self._engine(n_envs=1)
+        self.sync.u_rest = self.layout.rest()  # the at-rest warm-up holds the inputs too
         self.batch = self._engine(n_envs=int(edges[1]))
         self.workers: list[RolloutWorker] = []
         try:
@@ -143,13 +163,18 @@ class SurrogatePredictor:
         (n_hist, n_joint) [rad] and ``u_hist`` (n_hist - 1, n_u)
         (:meth:`~excavator_surrogate.env.engine.SurrogateEngine.reset_history`)."""
         th = np.asarray(theta_hist, dtype=np.float64)[None]
-        self.sync.reset_history(th, np.asarray(u_hist, dtype=np.float64)[None])
+        self.sync.reset_history(th, self._full(u_hist)[None])
         self.bias[:] = 0.0
+
+    def _full(self, u: Any) -> np.ndarray:
+        """Commands (..., n_u) from (..., n_joint) (the held inputs filled in) or (..., n_u)."""
+        u = np.asarray(u, dtype=np.float64)
+        return u if u.shape[-1:] == (self.spec.n_u,) else self.layout.full(u)
 
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
         """Consume the applied ``u`` from the current (measured) angle, then take the measured
         ``theta`` as the new current angle."""
-        pred, _ = self.sync.step(np.asarray(u, dtype=np.float64)[None])
+        pred, _ = self.sync.step(self._full(u)[None])
         theta = np.asarray(theta, dtype=np.float64)
         if self.bias_gain:
             err = (theta - pred[0].cpu().numpy()) / self.spec.dt
@@ -157,12 +182,14 @@ class SurrogatePredictor:
         self.sync.observe(theta[None])
 
     def _check(self, u: np.ndarray) -> np.ndarray:
+        """The candidates ``u`` (n_batch, n_step, n_joint) as the engine's commands (n_batch,
+        n_step, n_u) float32, the held inputs filled in."""
         u = np.asarray(u, dtype=np.float32)
         if u.ndim != 3 or u.shape[0] != self.n_batch or u.shape[2] != self.spec.n_joint:
             raise ConfigError(
                 f"SurrogatePredictor: u must have shape ({self.n_batch}, n_step, {self.spec.n_joint}), got {u.shape}"
             )
-        return u
+        return u if not self.layout.fixed else self.layout.full(u).astype(np.float32)
 
     @torch.inference_mode()
     def _run(self, u: np.ndarray, members: bool) -> np.ndarray:
