@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Add to CKPT (rewritten in place, atomically) what 'exsur train' adds at the "
         "end of training: the record of what DATASET's training split covered (command, angle "
         "and speed ranges, angle/command occupancy: the out-of-distribution flag) and, for a "
-        "merged seed ensemble, the 50 %% and 90 %% band scales fitted on free runs (per joint: "
+        "merged seed ensemble, the 50 % and 90 % band scales fitted on free runs (per joint: "
         "on up to --train-runs training runs, raised where the validation runs significantly "
         "need more). Use it after 'exsur merge', or to re-calibrate on other data of the same "
         "machine.",
