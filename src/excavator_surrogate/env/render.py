@@ -28,7 +28,7 @@ from ..spec import MachineSpec
 RENDER_MODES: tuple[str, ...] = ("rgb_array", "human")
 """The render modes of both single environments."""
 RENDER_SIZE: tuple[int, int] = (480, 360)
-"""Default frame size ``(width, height)`` [pixels] (at most the MJCF's offscreen buffer, 640 x 480)."""
+"""Default frame size ``(width, height)`` [pixels] (at most the MJCF's offscreen buffer, 1280 x 720)."""
 INSTALL = (
     "install EGL (apt-get install -y libegl1 libgl1) or OSMesa (apt-get install -y libosmesa6 "
     "and set MUJOCO_GL=osmesa), or set MUJOCO_GL to a backend that works here"
