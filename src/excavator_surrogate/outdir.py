@@ -64,6 +64,7 @@ FILES = (
     "table.md",
     "cbe.png",
     "cbe_*.png",
+    "horizon.png",
     "fusion_*.png",
     "compare.png",
     "tracking.png",

@@ -106,6 +106,7 @@ def test_evaluate_writes_the_horizon_table_figure_and_json(tmp_path) -> None:
     from excavator_surrogate.data import write_dataset
     from excavator_surrogate.data.dataset import load_dataset
     from excavator_surrogate.evaluate import evaluate_checkpoint
+    from excavator_surrogate.outdir import foreign_entry
     from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
     from excavator_surrogate.surrogate.synthetic import synthetic_spec, synthetic_split
     from tests.helpers.surrogates import make_surrogate
@@ -125,6 +126,8 @@ def test_evaluate_writes_the_horizon_table_figure_and_json(tmp_path) -> None:
     assert hz["n_start"] > 0
     assert (tmp_path / "ev" / "horizon.png").is_file()
     assert "## Prediction horizon" in (tmp_path / "ev" / "table.md").read_text()
+    # every file of it is exsur's: a second evaluation (or a resumed run) may write there
+    assert foreign_entry(tmp_path / "ev") is None
     res = evaluate_checkpoint(ckpt, ds, out=tmp_path / "ev", horizons=(), arx=False)
     assert "horizon" not in res and not (tmp_path / "ev" / "horizon.png").exists()
     assert "Prediction horizon" not in (tmp_path / "ev" / "table.md").read_text()
