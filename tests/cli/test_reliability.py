@@ -81,11 +81,18 @@ def test_b3_clean_replaces_its_own_output(tmp_path: Path, data_dir: Path, capsys
     capsys.readouterr()
 
 
-def test_b3_clean_refuses_its_input_as_out(data_dir: Path, capsys) -> None:
+@pytest.mark.parametrize("cmd", ["clean", "train", "evaluate", "sweep"])
+def test_b3_a_dataset_read_is_never_the_out(cmd: str, data_dir: Path, model3: Path, capsys) -> None:
     ds = data_dir / "ds3"
-    err = fails(capsys, "clean", ds, "--out", ds, "--overwrite")
-    assert "this input lies inside --out" in err
-    assert (ds / "manifest.json").is_file()
+    before = {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()}
+    argv = {
+        "clean": ["clean", ds, "--out", ds, "--overwrite"],
+        "train": ["train", ds, "--out", ds, "--epochs", "1"],  # its config.toml was rewritten
+        "evaluate": ["evaluate", model3 / "best.pt", ds, "--out", ds],
+        "sweep": ["sweep", ds, "--out", ds, "--trials", "1"],
+    }[cmd]
+    assert "this input lies inside --out" in fails(capsys, *argv)
+    assert {p.name: p.read_bytes() for p in ds.iterdir() if p.is_file()} == before
 
 
 # --- W8 / W3: wrong or unusable output paths -------------------------------------------------

@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from ..stages import load_preset
     from ..training import TrainConfig
 
-    check_out_dir(args.out, overwrite=args.overwrite, lock=True)
+    check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
     read_manifest(args.dataset)  # a missing dataset is an error before --out is created
     named = {
         "train": {"device": args.device},

@@ -93,7 +93,7 @@ def checked_run(args: argparse.Namespace) -> int:
         return run(args)
     if args.out is None:
         raise ConfigError("--out DIR is required (or --dry-run to only print the plan)")
-    check_out_dir(args.out, overwrite=args.overwrite, lock=True)
+    check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
     if args.resume is not None:
         resumed = load_checkpoint(args.resume)
         spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
