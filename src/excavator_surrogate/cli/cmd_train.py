@@ -8,6 +8,7 @@ Data-parallel (DDP) when launched by torchrun (``WORLD_SIZE`` > 1) or with ``--d
 from __future__ import annotations
 
 import argparse
+import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -93,12 +94,19 @@ def checked_run(args: argparse.Namespace) -> int:
         return run(args)
     if args.out is None:
         raise ConfigError("--out DIR is required (or --dry-run to only print the plan)")
-    check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
-    if args.resume is not None:
-        resumed = load_checkpoint(args.resume)
-        spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
-        check_compatible(resumed.spec, spec, ckpt=args.resume, data_name=args.dataset)
-    return run(args)
+    out = Path(args.out)
+    new = not out.exists() or (out.is_dir() and not any(out.iterdir()))
+    check_out_dir(out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
+    try:
+        if args.resume is not None:
+            resumed = load_checkpoint(args.resume)
+            spec = load_dataset(args.dataset, splits=()).spec  # the manifest only
+            check_compatible(resumed.spec, spec, ckpt=args.resume, data_name=args.dataset)
+        return run(args)
+    except BaseException:
+        if new and not any(out.rglob("*.pt")):  # a checkpoint stays: --resume continues it
+            shutil.rmtree(out, ignore_errors=True)  # this command's folder, nothing in it yet
+        raise
 
 
 def run(args: argparse.Namespace) -> int:
