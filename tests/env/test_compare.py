@@ -154,3 +154,13 @@ def test_cli_compare(
     err = capsys.readouterr().err
     assert "compare --theta0: theta0 must be 4 finite angles in rad for joints" in err
     assert "got [0.0, 0.0, 0.0]" in err and not (tmp_path / "cmp2").exists()
+
+
+def test_a_gap_in_a_commands_csv_names_its_cell(tmp_path: Path) -> None:
+    path = tmp_path / "cmds.csv"
+    u = np.zeros((5, EXCAVATOR.n_u))
+    u[3, 1] = np.nan
+    header = ",".join(f"u_{n}" for n in EXCAVATOR.u_names)
+    np.savetxt(path, u, delimiter=",", header=header, comments="")
+    with pytest.raises(DataError, match=r"cmds.csv, column 'u_boom', row 3: non-finite command nan \(fill"):
+        load_commands(path, EXCAVATOR)

@@ -143,3 +143,22 @@ def test_a_folder_names_the_checkpoint_in_it(
     assert checkpoint_in(tmp_path) == tmp_path / "best.pt"  # a guess, still a path to name
     with pytest.raises(CheckpointError, match=r"is a folder, not a checkpoint file; give the file"):
         read_checkpoint(tmp_path)
+
+
+@pytest.mark.parametrize(("suffix", "what"), [(".onnx", "an ONNX export"), (".csv", "a CSV file")])
+def test_a_file_of_another_kind_is_named_as_such(tmp_path: Path, suffix: str, what: str) -> None:
+    path = tmp_path / f"model{suffix}"
+    path.write_bytes(b"\x08\x07onnx-or-text")
+    with pytest.raises(CheckpointError, match=f"{what} .*, not a checkpoint; give the .pt") as e:
+        load_checkpoint(path)
+    assert "re-train" not in str(e.value)  # nothing is wrong with the model
+
+
+def test_altered_weights_say_what_to_do(tmp_path: Path, spec, episodes) -> None:
+    ck = checkpoint_dict(make_surrogate(spec, episodes))
+    name = next(iter(ck["state_dict"]))
+    ck["state_dict"][name] = torch.zeros(3, 3)  # another shape than the stored architecture
+    path = tmp_path / "altered.pt"
+    torch.save(ck, path)
+    with pytest.raises(CheckpointError, match="do not fit the stored architecture .*re-train"):
+        load_checkpoint(path)

@@ -228,7 +228,7 @@ def _validate(u: np.ndarray, spec: MachineSpec, *, where: Path | None) -> None:
         row, k = (int(x) for x in np.argwhere(bad)[0])
         raise DataError(
             where,
-            f"non-finite command {u[row, k]!r}",
+            f"non-finite command {float(u[row, k])}",
             column=cols[k],
             row=row,
             fix="fill or drop the gap",

@@ -45,6 +45,15 @@ FORMAT = "exsur-surrogate"
 FORMAT_VERSION = 1
 _FIX = "re-train or copy the file again"
 
+_NOT_CHECKPOINTS = {
+    ".onnx": "an ONNX export (exsur info describes it; env.OnnxStepper runs it)",
+    ".parquet": "a Parquet file (a dataset's episode or a log)",
+    ".csv": "a CSV file (a log)",
+    ".toml": "a TOML file (a preset or a mapping)",
+    ".json": "a JSON file",
+}
+"""Files exsur writes or reads that a user may give where a checkpoint is expected."""
+
 
 def checkpoint_dict(
     sur: Surrogate,
@@ -143,6 +152,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         raise CheckpointError(
             f"{path}: checkpoint not found (train one with 'exsur train DATASET --out DIR')"
         )
+    if path.suffix.lower() in _NOT_CHECKPOINTS:
+        raise CheckpointError(
+            f"{path}: {_NOT_CHECKPOINTS[path.suffix.lower()]}, not a checkpoint; give the .pt "
+            "file 'exsur train' wrote (best.pt)"
+        )
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # zip/pickle/unpickler errors come in many types
@@ -210,7 +224,10 @@ def surrogate_from_dict(ckpt: dict[str, Any], *, where: str = "checkpoint") -> S
         net.load_state_dict(ckpt["state_dict"])
     except (RuntimeError, TypeError, AttributeError) as e:
         msg = _first_line(e, 160)
-        raise CheckpointError(f"{where}: weights do not fit the stored architecture ({msg})") from e
+        raise CheckpointError(
+            f"{where}: weights do not fit the stored architecture ({msg}); the file was "
+            "altered or is damaged: re-train or copy it again"
+        ) from e
     _check_finite(net, norm, where)
     net.eval()
     return Surrogate(
