@@ -162,5 +162,7 @@ def test_a_gap_in_a_commands_csv_names_its_cell(tmp_path: Path) -> None:
     u[3, 1] = np.nan
     header = ",".join(f"u_{n}" for n in EXCAVATOR.u_names)
     np.savetxt(path, u, delimiter=",", header=header, comments="")
-    with pytest.raises(DataError, match=r"cmds.csv, column 'u_boom', row 3: non-finite command nan \(fill"):
+    with pytest.raises(
+        DataError, match=r"cmds.csv, column 'u_boom', row 3: non-finite command nan \(fill"
+    ):
         load_commands(path, EXCAVATOR)

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
                 f"{p}: non-finite weights ({bad}): its training diverged; re-train it (lower "
                 "train.lr) or leave it out of the merge"
             )
-    sur = merge(members, name=args.name)
+    sur = merge(members, name=args.name, labels=[str(p) for p in args.ckpts])
     sur.metrics["ensemble"]["sources"] = [str(p) for p in args.ckpts]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     out = save_checkpoint(args.out, sur)

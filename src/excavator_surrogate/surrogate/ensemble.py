@@ -38,9 +38,16 @@ from .model import CELL_GATES, ModelConfig, Surrogate, SurrogateNet
 from .prior import PRIOR_MAP
 
 
-def check_members(surs: Sequence[Surrogate], *, same_gains: bool = True) -> None:
+def check_members(
+    surs: Sequence[Surrogate], *, same_gains: bool = True, labels: Sequence[str] | None = None
+) -> None:
     """Raise :class:`ConfigError` naming the first member that cannot join the first one
-    (``same_gains=False``: speed priors may differ in their gains, as in a composite)."""
+    (``same_gains=False``: speed priors may differ in their gains, as in a composite;
+    ``labels``: what to call each member, e.g. its file, instead of its index)."""
+
+    def who(i: int) -> str:
+        return labels[i] if labels is not None else f"ensemble member {i} ({surs[i].name})"
+
     if len(surs) < 1:
         raise ConfigError("an ensemble needs at least one member")
     ref = surs[0]
@@ -50,7 +57,7 @@ def check_members(surs: Sequence[Surrogate], *, same_gains: bool = True) -> None
         bad = non_finite_weight(s)
         if bad is not None:
             raise ConfigError(
-                f"ensemble member {i} ({s.name}) has non-finite weights ({bad}): its training "
+                f"{who(i)} has non-finite weights ({bad}): its training "
                 "diverged; re-train it (lower train.lr) or leave it out"
             )
     for i, s in enumerate(surs[1:], start=1):
@@ -74,14 +81,14 @@ def check_members(surs: Sequence[Surrogate], *, same_gains: bool = True) -> None
         for ok, what in checks:
             if not ok:
                 raise ConfigError(
-                    f"ensemble member {i} ({s.name}) differs from member 0 in its {what}; "
+                    f"{who(i)} differs from {who(0)} in its {what}; "
                     "merge surrogates trained on the same machine with the same architecture"
                 )
     for i, s in enumerate(surs):
         for k, t in enumerate(surs[:i]):
             if _same_weights(s, t):
                 raise ConfigError(
-                    f"ensemble member {i} ({s.name}) has the same weights as member {k}: the "
+                    f"{who(i)} has the same weights as {who(k)}: the "
                     "same model twice is no ensemble; give each member once"
                 )
 
@@ -128,6 +135,7 @@ def merge(
     *,
     name: str | None = None,
     joint_weights: Sequence[Sequence[float]] | None = None,
+    labels: Sequence[str] | None = None,
 ) -> Surrogate:
     """Merge K surrogates into one whose omega is the mean of theirs (see the module docstring).
 
@@ -142,6 +150,7 @@ def merge(
             have to read the same columns: the merged map's gain on joint ``j`` is
             ``sum_m W[m, j] k_m,j`` (exact: the map is linear in its gains), its dead zone
             that of the members that drive joint ``j`` with a non-zero gain (they must agree).
+        labels: what the errors call each member (e.g. its file); default its index.
 
     Returns:
         A :class:`Surrogate` with hidden width ``sum_m hidden_m`` and head width
@@ -151,7 +160,7 @@ def merge(
     Raises:
         ConfigError: members that cannot be merged (one line naming the member and what differs).
     """
-    check_members(surs, same_gains=joint_weights is None)
+    check_members(surs, same_gains=joint_weights is None, labels=labels)
     ref = surs[0]
     n_member = len(surs)
     n_joint = ref.spec.n_joint
