@@ -155,7 +155,7 @@ def test_cli_merge(spec, episodes, tmp_path: Path, capsys):
     out2 = tmp_path / "bad.pt"
     assert main(["merge", str(paths[0]), str(odd), "--out", str(out2)]) != 0
     err = capsys.readouterr().err
-    assert "member 1" in err and len(err.strip().splitlines()) == 1
+    assert f"{odd} differs from {paths[0]}" in err and len(err.strip().splitlines()) == 1
     assert not out2.exists()
     torch.save({"x": 1}, tmp_path / "junk.pt")
     assert main(["merge", str(paths[0]), str(tmp_path / "junk.pt"), "--out", str(out2)]) != 0

@@ -26,6 +26,6 @@ def test_merge_refuses_a_member_with_nan_weights(spec, episodes):
 def test_merge_refuses_the_same_member_twice(spec, episodes):
     a = make_surrogate(spec, episodes, seed=0, window=5)
     b = make_surrogate(spec, episodes, seed=1, window=5)
-    with pytest.raises(ConfigError, match="member 2 .* has the same weights as member 0"):
+    with pytest.raises(ConfigError, match="member 2 .* has the same weights as ensemble member 0"):
         merge([a, b, a])
     assert merge([a, b]).metrics["ensemble"]["n_member"] == 2
