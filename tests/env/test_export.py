@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,11 +16,12 @@ from excavator_surrogate.cli import main
 from excavator_surrogate.env import OnnxStepper, export_onnx
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.env.fused import rest_command
-from excavator_surrogate.errors import CheckpointError
+from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.spec import EXCAVATOR
 from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.rollout import ClosedLoop
+from tests.helpers.cli import fails
 from tests.helpers.surrogates import (
     PARALLEL_JOINTS,
     VARIANTS,
@@ -218,3 +221,98 @@ def test_parallel_map_members_match_the_closed_loop(tmp_path: Path) -> None:
         np.testing.assert_allclose(stepper.omega_members, om_m, atol=1e-5, rtol=1e-5)
         spread.append(np.std(stepper.omega_members, axis=0))
     assert np.stack(spread)[..., pick].max() > 1e-4  # the map joints spread by the gains
+
+
+@pytest.mark.parametrize("existing", [False, True], ids=["new", "existing"])
+def test_a_graph_onnxruntime_cannot_load_leaves_nothing_at_out(
+    existing: bool, stateful_ckpt: Path, tmp_path: Path
+) -> None:
+    """Opset 17 of a stateful graph through the dynamo exporter (its version converter) is a
+    graph onnxruntime refuses (InvalidGraph).  It used to be renamed onto ``out`` before
+    anything loaded it: a broken file, or a good earlier export replaced by one."""
+    out = tmp_path / "m.onnx"
+    if existing:
+        out.write_bytes(b"an earlier export")
+    with pytest.raises(ConfigError) as err:
+        export_onnx(stateful_ckpt, out, opset=17, exporter="dynamo")
+    msg = str(err.value)
+    assert msg.startswith(f"{out}: the dynamo exporter wrote opset 17 but onnxruntime cannot load")
+    assert "--opset 18" in msg and "--exporter torchscript" in msg  # what to do instead
+    if existing:
+        assert out.read_bytes() == b"an earlier export"
+    else:
+        assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == (["m.onnx"] if existing else [])
+
+
+def test_verify_runs_on_the_temporary_file_before_the_rename(
+    stateful_ckpt: Path, tmp_path: Path
+) -> None:
+    """``verify`` sees the complete graph, not yet at ``out``; its failure leaves ``out``."""
+    out = tmp_path / "m.onnx"
+    out.write_bytes(b"an earlier export")
+    seen: list[Path] = []
+
+    def refuse(path: Path) -> None:
+        assert path != out and path.parent == out.parent
+        assert OnnxStepper(path).spec == EXCAVATOR and out.read_bytes() == b"an earlier export"
+        seen.append(path)
+        raise ConfigError("the graph does not match torch")
+
+    with pytest.raises(ConfigError, match="does not match torch"):
+        export_onnx(stateful_ckpt, out, exporter="torchscript", verify=refuse)
+    assert len(seen) == 1 and not seen[0].exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["m.onnx"]
+    assert out.read_bytes() == b"an earlier export"
+    assert export_onnx(stateful_ckpt, out, exporter="torchscript", verify=seen.append) == out
+    assert len(seen) == 2 and OnnxStepper(out).mode == "stateful"
+
+
+def test_cli_export_of_an_opset_onnxruntime_refuses_keeps_the_earlier_file(
+    stateful_ckpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "m.onnx"
+    assert main(["export", str(stateful_ckpt), "--out", str(out), "--exporter", "torchscript"]) == 0
+    before = out.read_bytes()
+    capsys.readouterr()
+    line = fails(capsys, "export", stateful_ckpt, "--out", out, "--opset", 17)
+    assert out.read_bytes() == before  # the refused graph never replaced it
+    assert [p.name for p in tmp_path.iterdir()] == ["m.onnx"]
+    assert line.startswith(f"exsur: error: {out}: the dynamo exporter wrote opset 17 but")
+    assert "--exporter torchscript" in line
+
+
+def test_cli_torchscript_export_of_an_opset_it_cannot_write_is_one_line(
+    stateful_ckpt: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """torchscript at opset 24 (past its last) raised RuntimeError (a traceback, exit 1) after
+    torch's C++ log printed the whole TorchScript graph on stdout."""
+    out = tmp_path / "m.onnx"
+    argv = ("export", stateful_ckpt, "--out", out, "--exporter", "torchscript", "--opset", 24)
+    line = fails(capfd, *argv)
+    assert f"{out}: the torchscript ONNX exporter cannot write opset 24" in line
+    assert "use an opset from 11 to 23" in line
+    assert capfd.readouterr().out == ""
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_refused_opset_prints_one_line_and_no_library_traceback(
+    stateful_ckpt: Path, tmp_path: Path
+) -> None:
+    """``exsur export --opset 11``: onnxscript's version converter logged a warning and its
+    traceback (17 lines) on stderr before exsur's line.  A separate process: in-process,
+    pytest's log capture on the root logger would take those lines off stderr."""
+    out = tmp_path / "m.onnx"
+    argv = ["export", str(stateful_ckpt), "--out", str(out), "--opset", "11"]
+    run = subprocess.run(
+        [sys.executable, "-m", "excavator_surrogate.cli", *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 2, run.stderr
+    err = run.stderr.splitlines()
+    assert len(err) == 1 and "Traceback" not in run.stderr, run.stderr
+    assert err[0].startswith(f"exsur: error: {out}: the ONNX exporter cannot write opset 11")
+    assert "--exporter torchscript" in err[0]
+    assert run.stdout == "" and list(tmp_path.iterdir()) == []

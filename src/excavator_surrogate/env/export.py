@@ -78,8 +78,11 @@ environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import warnings
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Literal
 
@@ -107,6 +110,15 @@ from .uncertainty import OodFlags
 
 OPSET = 18
 Exporter = Literal["auto", "dynamo", "torchscript"]
+TORCHSCRIPT_OPSETS = (11, 23)
+"""The opsets the torchscript exporter wrote loadable graphs of for every graph kind tried
+(torch 2.13, onnxruntime 1.32; above 23 torch refuses; below 11 it depends on the graph: it
+fails on end stops' ``where`` at 7 and 8, and some graphs of 9 and 10 onnxruntime refuses).
+The dynamo exporter builds opset 18 and converts down: a stateful graph of 15 to 17 is one
+onnxruntime refuses (InvalidGraph), below that the converter fails (and writes 18)."""
+QUIET_LOGGERS = ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "onnx_ir")
+"""Loggers muted to errors during a dynamo export: their warnings (an opset the version
+converter cannot reach, with its traceback) are exsur's one-line error instead."""
 
 
 def export_onnx(
@@ -117,8 +129,13 @@ def export_onnx(
     opset: int = OPSET,
     exporter: Exporter = "auto",
     uncertainty: bool = False,
+    verify: Callable[[Path], object] | None = None,
 ) -> Path:
     """Export a checkpoint to ONNX (atomically).
+
+    The graph is written to a temporary file next to ``out`` and renamed onto it only once
+    it has the opset asked for, onnxruntime loads it and ``verify`` (if given) returned: a
+    failed export leaves nothing at ``out`` (an existing file there is left untouched).
 
     Args:
         ckpt: checkpoint path or loaded surrogate.
@@ -132,12 +149,17 @@ def export_onnx(
         uncertainty: add the ``omega_members`` output (a merged seed ensemble, stateful
             export) and, with a coverage record in the checkpoint, the ``ood`` output (see the
             module docstring).
+        verify: called with the temporary file (complete, with its metadata, loadable by
+            onnxruntime) before it is renamed onto ``out``; an exception from it leaves
+            ``out`` untouched (``exsur export`` steps it against torch here).
 
     Returns:
         The written path.
 
     Raises:
-        ConfigError: ``uncertainty`` for a single network or a windowed export.
+        ConfigError: ``uncertainty`` for a single network or a windowed export; an opset
+            the exporter cannot write for this graph, or a graph onnxruntime cannot load
+            (the message says which exporter and opset to use instead).
     """
     sur = load_surrogate(ckpt, device="cpu")
     sur.to("cpu", torch.float32).eval()
@@ -218,18 +240,7 @@ def export_onnx(
         raise ConfigError(f"exporter must be 'auto', 'dynamo' or 'torchscript', got {exporter!r}")
     out = Path(out)
     with atomic_path(out) as tmp:
-        if exporter in ("auto", "dynamo"):
-            try:
-                _export_dynamo(module, args, tmp, inputs, outputs, axes, opset)
-            except Exception as e:
-                if exporter == "dynamo":
-                    raise ConfigError(
-                        f"dynamo ONNX export failed ({type(e).__name__}: "
-                        f"{str(e).splitlines()[0][:160]}); try exporter='torchscript'"
-                    ) from e
-                _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
-        else:
-            _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
+        used = _export(module, args, tmp, inputs, outputs, axes, opset, exporter, out)
         got = _add_metadata(
             tmp,
             sur,
@@ -241,9 +252,83 @@ def export_onnx(
         if got != opset:  # the exporter falls back to its own opset with only a logged warning
             raise ConfigError(
                 f"{out}: the ONNX exporter cannot write opset {opset} for this graph (it wrote "
-                f"opset {got}); use --opset {got} or leave the option out (default {OPSET})"
+                f"opset {got}); {_opset_advice(opset, used)}"
             )
+        _check_loads(tmp, out, opset, used)
+        if verify is not None:
+            verify(tmp)
     return out
+
+
+def _opset_advice(opset: int, used: str) -> str:
+    """What to do when exporter ``used`` could not write a loadable graph of ``opset``."""
+    lo, hi = TORCHSCRIPT_OPSETS
+    if used == "dynamo" and lo <= opset < OPSET:
+        return (
+            f"use --opset {OPSET} or leave the option out (default {OPSET}), or keep opset "
+            f"{opset} with --exporter torchscript (it writes opsets {lo} to {hi})"
+        )
+    if used == "dynamo":
+        return f"use --opset {OPSET} or leave the option out (default {OPSET})"
+    if lo <= opset <= hi:
+        return f"use --exporter dynamo, or leave --opset out (default {OPSET})"
+    return f"use an opset from {lo} to {hi} or leave --opset out (default {OPSET})"
+
+
+def _export(
+    module: nn.Module,
+    args: tuple[torch.Tensor, ...],
+    tmp: Path,
+    inputs: list[str],
+    outputs: list[str],
+    axes: dict[str, dict[int, str]],
+    opset: int,
+    exporter: Exporter,
+    out: Path,
+) -> str:
+    """Write the graph to ``tmp`` with ``exporter``; return the one that wrote it
+    (``dynamo`` or ``torchscript``).  A failure is a one-line :class:`ConfigError` on ``out``."""
+    if exporter in ("auto", "dynamo"):
+        try:
+            _export_dynamo(module, args, tmp, inputs, outputs, axes, opset)
+            return "dynamo"
+        except Exception as e:
+            if exporter == "dynamo":
+                raise ConfigError(
+                    f"dynamo ONNX export failed ({type(e).__name__}: "
+                    f"{_first_line(e)}); try exporter='torchscript'"
+                ) from e
+    try:
+        _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
+    except Exception as e:
+        raise ConfigError(
+            f"{out}: the torchscript ONNX exporter cannot write opset {opset} for this graph "
+            f"({type(e).__name__}: {_first_line(e)}); {_opset_advice(opset, 'torchscript')}"
+        ) from e
+    return "torchscript"
+
+
+def _first_line(e: BaseException) -> str:
+    lines = str(e).strip().splitlines()
+    return lines[0][:160] if lines else "no message"
+
+
+def _check_loads(tmp: Path, out: Path, opset: int, used: str) -> None:
+    """Refuse a graph onnxruntime cannot load (the dynamo exporter's version converter writes
+    some: opset 17 of this graph is InvalidGraph); skipped without onnxruntime."""
+    try:
+        import onnxruntime as ort
+    except ImportError:  # pragma: no cover - installed with the export extra
+        return
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3  # errors only: the failure is the ConfigError below
+    try:
+        ort.InferenceSession(str(tmp), opts, providers=["CPUExecutionProvider"])
+    except Exception as e:
+        raise ConfigError(
+            f"{out}: the {used} exporter wrote opset {opset} but onnxruntime cannot load the "
+            f"graph ({type(e).__name__}); {_opset_advice(opset, used)}"
+        ) from e
 
 
 def _export_dynamo(
@@ -255,14 +340,13 @@ def _export_dynamo(
     axes: dict[str, dict[int, str]],
     opset: int,
 ) -> None:
-    """``torch.onnx.export(dynamo=True)`` with a dynamic batch dimension (quiet)."""
-    import logging
-
+    """``torch.onnx.export(dynamo=True)`` with a dynamic batch dimension (quiet: the loggers
+    of :data:`QUIET_LOGGERS` show errors only, warnings are ignored)."""
     from torch.export import Dim
 
     batch = Dim("batch", min=1)
     shapes = tuple({ax: batch for ax in axes[name]} for name in inputs)  # positional
-    loggers = [logging.getLogger(n) for n in ("torch.onnx", "torch.export", "torch._dynamo")]
+    loggers = [logging.getLogger(n) for n in QUIET_LOGGERS]
     levels = [lg.level for lg in loggers]
     try:
         for lg in loggers:
@@ -295,8 +379,9 @@ def _export_torchscript(
     axes: dict[str, dict[int, str]],
     opset: int,
 ) -> None:
-    """Legacy ``torch.onnx.export(dynamo=False)`` (deprecated in torch >= 2.9, still fast)."""
-    with warnings.catch_warnings():
+    """Legacy ``torch.onnx.export(dynamo=False)`` (deprecated in torch >= 2.9, still fast;
+    quiet: warnings ignored, no graph dump on a failure)."""
+    with warnings.catch_warnings(), _no_graph_dump():
         warnings.simplefilter("ignore")
         torch.onnx.export(
             module,
@@ -308,6 +393,24 @@ def _export_torchscript(
             opset_version=opset,
             dynamo=False,
         )
+
+
+@contextlib.contextmanager
+def _no_graph_dump() -> Iterator[None]:
+    """Mute the torchscript exporter's C++ ONNX log while it runs: torch turns it on for good
+    at the first export (``setup_onnx_logging`` tests the function ``_jit_is_onnx_log_enabled``,
+    not its result) and, when the export fails (an opset it cannot write), prints the whole
+    TorchScript graph on stdout.  With ``verbose=False`` that dump is all it logs."""
+    c = torch._C
+    dump = getattr(c, "_jit_onnx_log", None)
+    if dump is None:  # pragma: no cover - other torch versions
+        yield
+        return
+    c._jit_onnx_log = lambda *a, **k: None
+    try:
+        yield
+    finally:
+        c._jit_onnx_log = dump
 
 
 def _add_metadata(
