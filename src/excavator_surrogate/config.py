@@ -195,14 +195,21 @@ def from_dict(cls: type[C], data: dict[str, Any] | None, *, where: str = "config
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
-    """Plain-data form of a (nested) config dataclass, tuples as lists, None dropped (TOML has no null)."""
+    """Plain-data form of a (nested) config dataclass, tuples as lists, None dropped (TOML has no null).
+
+    The fields a config names in its optional ``unread_fields()`` (``TrainConfig``: the other
+    mode's knobs, which must keep their defaults) are dropped too, as the strict check of a
+    preset table (``TrainConfig.adapt_table``) refuses them even at their defaults: a
+    ``config.toml`` written from this form loads back as a preset to the same config.
+    """
 
     def conv(v: Any) -> Any:
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            unread = set(v.unread_fields()) if hasattr(v, "unread_fields") else set()
             return {
                 f.name: conv(getattr(v, f.name))
                 for f in dataclasses.fields(v)
-                if getattr(v, f.name) is not None
+                if getattr(v, f.name) is not None and f.name not in unread
             }
         if isinstance(v, tuple | list):
             return [conv(x) for x in v]
