@@ -4,7 +4,9 @@ simulation can record."""
 
 from __future__ import annotations
 
+import functools
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
 from .. import config as config_mod
@@ -22,6 +24,36 @@ INPUTS: dict[str, InputSpec] = {
     "throttle": InputSpec("throttle", u_min=0.0, u_max=1.0, unit="fraction of full throttle")
 }
 """Exogenous inputs a simulation can record (``SimulateConfig.inputs``)."""
+MIN_RATE_HZ = 1.0
+"""Slowest sample rate a simulation takes [Hz]: the packaged joints cross their range in 3-4 s
+at full command and the excitation moves faster (multisine up to 1 Hz, PRBS holds from
+0.3 s), so a sample period beyond 1 s skips whole moves (docs/plant.md); far slower, the swing
+turns more than 10 times between two samples, which the episode contract refuses."""
+RATE_EXAMPLES = (10.0, 20.0, 50.0, 100.0)
+"""Sample rates an error suggests (the presets use 10 and 20 Hz)."""
+
+
+@functools.cache
+def packaged_timestep() -> float | None:
+    """The physics timestep [s] of the packaged MJCF (``<option timestep>``, MuJoCo's default
+    0.002 s without it), read without loading MuJoCo; None if the file cannot be read."""
+    from .plant import default_xml
+
+    try:
+        option = ET.parse(default_xml()).getroot().find("option")
+    except (OSError, ET.ParseError):
+        return None
+    try:
+        return float(option.get("timestep", "0.002")) if option is not None else 0.002
+    except ValueError:
+        return None
+
+
+def rate_fits(rate_hz: float, timestep: float) -> bool:
+    """Whether the sample period ``1 / rate_hz`` is a whole number (>= 1) of physics steps of
+    ``timestep`` [s] (as :class:`~.plant.MujocoExcavator` requires)."""
+    ratio = 1.0 / rate_hz / timestep
+    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6
 
 
 @dataclass(frozen=True)
@@ -89,6 +121,12 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
     of a day share its draw of ``hydraulics.day_slowdown``.  Empty: no days."""
 
     def __post_init__(self) -> None:
+        self._check_rate()
+        if not (math.isfinite(self.delay_s) and self.delay_s >= 0):
+            raise ConfigError(
+                f"simulate.delay_s = {self.delay_s:g} must be >= 0 [s] (the actuation delay; "
+                "the packaged excavator's: 0.05)"
+            )
         if self.seed < 0:
             raise ConfigError(f"simulate.seed must be >= 0, got {self.seed}")
         for name in ("n_train", "n_val", "n_test"):
@@ -133,6 +171,37 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
             raise ConfigError(
                 f"simulate.plant must be one of {', '.join(SOURCES)}, got {self.plant!r}"
             )
+
+    def _check_rate(self) -> None:
+        """Refuse a ``rate_hz`` the simulator cannot sample at, before anything is simulated:
+        not positive, below :data:`MIN_RATE_HZ`, or (packaged MJCF) a sample period that is not
+        a whole number of its physics steps; a custom ``xml``'s timestep is checked when its
+        plant loads (:class:`~.plant.MujocoExcavator`, also before any episode)."""
+        rate = self.rate_hz
+        step = packaged_timestep() if not self.xml else None
+        if not (math.isfinite(rate) and rate > 0):
+            why = "is not a sample rate"
+        elif rate < MIN_RATE_HZ:
+            why = (
+                f"samples every {1.0 / rate:g} s, too slowly for the excavator's moves (a full "
+                "stroke takes 3-4 s)"
+            )
+        elif step is not None and not rate_fits(rate, step):
+            why = (
+                f"has a sample period of {1.0 / rate:g} s, not a whole number of the packaged "
+                f"excavator's {step * 1000:g} ms physics steps"
+            )
+        else:
+            return
+        if step is None:
+            works = f"use {MIN_RATE_HZ:g} Hz or more, 1/rate_hz a whole number of MJCF timesteps"
+        else:
+            top = 1.0 / step
+            ok = [r for r in RATE_EXAMPLES if r <= top and rate_fits(r, step)]
+            works = f"use {top:g} Hz / n from {MIN_RATE_HZ:g} to {top:g} Hz" + (
+                f" (e.g. {', '.join(f'{r:g}' for r in ok)} Hz)" if ok else ""
+            )
+        raise ConfigError(f"simulate.rate_hz = {rate:g} Hz {why}; {works}")
 
     @property
     def source(self) -> str:

@@ -37,7 +37,7 @@ from .. import config as config_mod
 from .. import numerics
 from ..data import Episode, write_dataset
 from ..data.timesplit import split_in_time
-from ..errors import ConfigError
+from ..errors import ConfigError, DataError
 from ..io_utils import init_worker_logging, progress, worker_log_config
 from ..orphans import die_with_parent, parent_args
 from ..spec import EXCAVATOR, MachineSpec
@@ -315,6 +315,25 @@ def _worker(args: tuple[EpisodeJob, SimulateConfig, MachineSpec]) -> dict[str, A
     return simulate_episode(job, cfg, spec=spec)
 
 
+def simulated_data_error(err: DataError, cfg: SimulateConfig) -> DataError:
+    """``err``, an episode the simulation produced that breaks the episode contract, reworded
+    for ``exsur simulate``: it names the episode (not the temporary file it was being written
+    to) and the ``[simulate]`` settings to change, not the import's advice for a raw log.
+    Errors about anything other than an episode file pass through unchanged."""
+    path = Path(str(err.path)) if err.path is not None else None
+    if path is None or path.suffix != ".parquet":
+        return err
+    return DataError(
+        f"simulated episode '{path.stem}'",
+        err.problem,
+        column=err.column,
+        row=err.row,
+        fix=f"the [simulate] settings (rate_hz = {cfg.rate_hz:g} Hz, plant = '{cfg.plant}') "
+        "drive the simulator outside its working range: change them (exsur config show "
+        "PRESET --section simulate lists them)",
+    )
+
+
 def simulate_dataset(
     cfg: SimulateConfig,
     *,
@@ -410,6 +429,9 @@ def simulate_dataset(
     # the computer's numerics and library versions: a closed-loop operator grows a last-bit
     # difference between two computers into another log (docs/real.md)
     extra = {"environment": numerics.environment(), **(extra or {})}
-    path = write_dataset(out, items, config={"simulate": cfg_dict}, extra=extra)
+    try:
+        path = write_dataset(out, items, config={"simulate": cfg_dict}, extra=extra)
+    except DataError as e:
+        raise simulated_data_error(e, cfg) from e
     _log.info(f"simulate: wrote {path} in {time.perf_counter() - t0:.1f} s")
     return path

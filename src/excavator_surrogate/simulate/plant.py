@@ -119,8 +119,9 @@ class MujocoExcavator:
         self.substeps = round(ratio)
         if self.substeps < 1 or abs(ratio - self.substeps) > 1e-6:
             raise ConfigError(
-                f"{xml}: sample period {self.dt:g} s is not a whole number of MJCF timesteps "
-                f"({m.opt.timestep:g} s); change rate_hz or the MJCF timestep"
+                f"{xml}: rate_hz = {config.rate_hz:g} Hz samples every {self.dt:g} s, not a "
+                f"whole number of the MJCF's {m.opt.timestep:g} s timesteps; use rate_hz = "
+                f"{1.0 / m.opt.timestep:g} Hz / n, or change the MJCF timestep"
             )
         self._jnt = np.array([self._named(mujoco.mjtObj.mjOBJ_JOINT, n, xml) for n in spec.names])
         self._act = np.array(
