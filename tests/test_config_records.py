@@ -8,6 +8,7 @@ default (a hand-written preset's slip), so the records must leave those knobs ou
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from collections.abc import Callable
 from pathlib import Path
@@ -99,8 +100,29 @@ def test_run_record_of_every_preset_and_mode_loads_back(
     path = tmp_path / "config.toml"
     path.write_text(dumps_toml(record))
     again = resolve_run(preset=str(path))
-    assert again.configs == req.configs
+    # a recipe run records its plan as it ran, to be trained as is (auto_train off)
+    run = dataclasses.replace(req.configs["run"], auto_train=False)
+    assert again.configs == {**req.configs, "run": run}
     assert again.record(train=again.configs["train"], evaluate=again.configs["evaluate"]) == record
+
+
+def test_a_recipe_runs_record_trains_its_plan_again(tmp_path: Path) -> None:
+    """``[run] auto_train``: the record holds the recipe's plan for the data; read back with
+    the recipe on, its per-network time cap was planned as the whole budget (76.5 s became
+    10.8 s a network)."""
+    from excavator_surrogate.data import load_dataset, write_dataset
+    from excavator_surrogate.surrogate.synthetic import synthetic_spec, synthetic_split
+
+    items = synthetic_split(synthetic_spec(2), n_train=3, n_val=1, n_test=1, n_step=200)
+    data = write_dataset(tmp_path / "data", items)
+    req = resolve_run(preset="real", data=str(data))
+    assert req.configs["run"].auto_train
+    planned, _ = req.train_recipe(load_dataset(data), cpus=2)
+    path = tmp_path / "config.toml"
+    path.write_text(dumps_toml(req.record(train=planned, evaluate=req.configs["evaluate"])))
+    again = resolve_run(preset=str(path), data=str(data))
+    assert not again.configs["run"].auto_train
+    assert again.configs["train"] == planned
 
 
 @pytest.mark.parametrize("mode", sorted(MODE_FIELDS))

@@ -307,6 +307,9 @@ class RunRequest:
         if self.logs is not None or self.data is not None:
             used.pop("simulate")
         record: dict[str, Any] = {"name": self.name, **{k: to_dict(v) for k, v in used.items()}}
+        if run_cfg.auto_train:  # [train] is the recipe's plan for this data, as it ran: read
+            # back with auto_train on, its per-network time cap would be planned as the budget
+            record["run"]["auto_train"] = False
         if self.data is not None:
             record["data"] = str(self.data)
         if self.logs is not None:
