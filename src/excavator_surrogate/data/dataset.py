@@ -14,10 +14,13 @@ episode contributes windows to both training and test.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_dir, write_json, write_text
@@ -26,6 +29,8 @@ from .episode import SCHEMA_VERSION, Episode, read_episode, write_episode
 
 SPLITS = ("train", "val", "test")
 MANIFEST = "manifest.json"
+NEWER_FIX = "upgrade exsur: pip install -U excavator-surrogate"
+"""What to do about a manifest whose ``schema_version`` is above :data:`SCHEMA_VERSION`."""
 
 
 @dataclass
@@ -158,6 +163,8 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
         raise DataError(
             mpath, f"invalid JSON at line {e.lineno}", fix="regenerate the dataset"
         ) from e
+    if isinstance(manifest, dict):  # first: a newer manifest may be laid out differently
+        _check_schema_version(mpath, manifest)
     if not isinstance(manifest, dict) or not isinstance(manifest.get("episodes"), list):
         raise DataError(mpath, "no 'episodes' list", fix="regenerate the dataset")
     for i, e in enumerate(manifest["episodes"]):
@@ -171,7 +178,64 @@ def read_manifest(root: str | Path) -> dict[str, Any]:
                 f"episode entry {i} needs 'file' and 'split' in {SPLITS}",
                 fix="fix or regenerate the manifest",
             )
+        n_step = e.get("n_step")
+        if n_step is not None and (
+            isinstance(n_step, bool) or not isinstance(n_step, int) or n_step < 0
+        ):
+            raise DataError(
+                mpath,
+                f"episode entry {i} ({e['file']}): n_step {n_step!r} is not a sample count",
+                fix="fix or regenerate the manifest",
+            )
+    _check_entries_distinct(root, mpath, manifest["episodes"])
     return manifest
+
+
+def _check_schema_version(mpath: Path, manifest: dict[str, Any]) -> None:
+    """The manifest's ``schema_version`` (absent in old manifests) is the one this exsur reads."""
+    if "schema_version" not in manifest:
+        return
+    version = manifest["schema_version"]
+    if version == SCHEMA_VERSION and not isinstance(version, bool):
+        return
+    newer = isinstance(version, int) and not isinstance(version, bool) and version > SCHEMA_VERSION
+    raise DataError(
+        mpath,
+        f"schema_version {version!r} is not supported (this exsur reads {SCHEMA_VERSION})"
+        + (": written by a newer exsur" if newer else ""),
+        fix=NEWER_FIX if newer else "re-create the dataset with this version of exsur",
+    )
+
+
+def _check_entries_distinct(root: Path, mpath: Path, entries: list[dict[str, Any]]) -> None:
+    """No two manifest entries name the same episode file (also through ``..`` or a link):
+    an episode listed twice would weigh double, and one listed in two splits leaks test (or
+    validation) data into training."""
+    seen: dict[str, int] = {}
+    for i, e in enumerate(entries):
+        key = os.path.realpath(root / e["file"])
+        j = seen.setdefault(key, i)
+        if j == i:
+            continue
+        first = entries[j]
+        same = first["file"] == e["file"]
+        what = f"the file {e['file']}" if same else f"the same file ({first['file']}, {e['file']})"
+        if first["split"] == e["split"]:
+            problem = (
+                f"episode entries {j} and {i} both name {what}: "
+                f"the {e['split']} episode is listed twice"
+            )
+            fix = "remove the repeated entry, or regenerate the dataset"
+        else:
+            problem = (
+                f"episode entries {j} ({first['split']}) and {i} ({e['split']}) both name "
+                f"{what}: the {e['split']} episode is also a {first['split']} episode"
+            )
+            fix = (
+                "an episode belongs to one split only: give each entry its own file, "
+                "or regenerate the dataset"
+            )
+        raise DataError(mpath, problem, fix=fix)
 
 
 def load_dataset(
@@ -193,16 +257,118 @@ def load_dataset(
         raise DataError(
             root / MANIFEST, f"'spec' is malformed ({e})", fix="regenerate the dataset"
         ) from e
+    rates = _declared_rates(root / MANIFEST, manifest, spec)
     ds_eps: dict[str, list[Episode]] = {s: [] for s in SPLITS}
-    for e in manifest["episodes"]:
+    by_name: dict[str, tuple[int, Episode]] = {}
+    for i, e in enumerate(manifest["episodes"]):
         if e["split"] not in splits:
             continue
-        ep = read_episode(root / e["file"], min_steps=min_steps, spec=spec)
+        path = root / e["file"]
+        ep = read_episode(path, min_steps=min_steps, spec=spec)
         if spec is None:
             spec = ep.spec
+        if not rates:  # an old manifest without spec or rate_hz: the first episode's rate
+            rates = [("the first episode's rate", ep.spec.rate_hz)]
+        _check_entry(path, i, e, ep, rates)
+        _check_not_a_copy(path, i, e, ep, by_name, manifest["episodes"])
         ds_eps[e["split"]].append(ep)
     if spec is None:
         raise DataError(
             root / MANIFEST, "dataset has no episodes and no spec", fix="regenerate the dataset"
         )
+    if len(rates) > 1 and not _same_rate(rates[0][1], rates[1][1]):  # no episode was read
+        (k1, r1), (k2, r2) = rates[0], rates[1]
+        raise DataError(
+            root / MANIFEST,
+            f"{k1} {r1:g} Hz disagrees with {k2} {r2:g} Hz",
+            fix="fix or regenerate the manifest",
+        )
     return Dataset(spec=spec, episodes=ds_eps, root=root, manifest=manifest)
+
+
+def _declared_rates(
+    mpath: Path, manifest: dict[str, Any], spec: MachineSpec | None
+) -> list[tuple[str, float]]:
+    """The sample rates the manifest declares: ``[(key, Hz)]`` for ``rate_hz`` and
+    ``spec.rate_hz`` (either may be absent in an old manifest)."""
+    out: list[tuple[str, float]] = []
+    if "rate_hz" in manifest:
+        rate = manifest["rate_hz"]
+        if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
+            raise DataError(
+                mpath,
+                f"rate_hz {rate!r} is not a positive number",
+                fix="fix or regenerate the manifest",
+            )
+        out.append(("rate_hz", float(rate)))
+    if spec is not None:
+        out.append(("spec.rate_hz", float(spec.rate_hz)))
+    return out
+
+
+def _rate_label(key: str) -> str:
+    return key if key.startswith("the ") else f"the manifest's {key}"
+
+
+def _same_rate(a: float, b: float) -> bool:
+    return abs(a - b) <= 1e-9 * max(abs(a), abs(b))
+
+
+def _check_entry(
+    path: Path, i: int, entry: dict[str, Any], ep: Episode, rates: list[tuple[str, float]]
+) -> None:
+    """The episode read from ``path`` is what manifest entry ``i`` says: the dataset's rate
+    (the episode's own rate is checked against its time column by :func:`read_episode`) and
+    ``n_step`` rows."""
+    for key, rate in rates:
+        if not _same_rate(ep.spec.rate_hz, rate):
+            raise DataError(
+                path,
+                f"manifest entry {i}: the episode is sampled at {ep.spec.rate_hz:g} Hz (its "
+                f"metadata and time column) but {_rate_label(key)} is {rate:g} Hz",
+                fix="a dataset holds one rate: fix the manifest's rate, or regenerate the dataset",
+            )
+    n_step = entry.get("n_step")
+    if n_step is not None and n_step != ep.n_step:
+        raise DataError(
+            path,
+            f"manifest entry {i}: n_step is {n_step} but the episode has {ep.n_step} rows",
+            fix="the file or the manifest was changed after writing: regenerate the dataset",
+        )
+
+
+def _check_not_a_copy(
+    path: Path,
+    i: int,
+    entry: dict[str, Any],
+    ep: Episode,
+    by_name: dict[str, tuple[int, Episode]],
+    entries: list[dict[str, Any]],
+) -> None:
+    """Two files of one dataset never hold the same episode (a copy under another name): the
+    dataset writer keeps episode names unique, so only files whose stored names agree are
+    compared, sample by sample."""
+    prev = by_name.setdefault(ep.name, (i, ep))
+    if prev[0] == i:
+        return
+    j, other = prev
+    if not (
+        other.n_step == ep.n_step
+        and np.array_equal(other.time, ep.time)
+        and np.array_equal(other.u, ep.u)
+        and np.array_equal(other.theta, ep.theta)
+        and np.array_equal(other.omega, ep.omega)
+    ):
+        return
+    first = entries[j]
+    where = (
+        f"the {entry['split']} episode is also a {first['split']} episode"
+        if first["split"] != entry["split"]
+        else f"the {entry['split']} episode is listed twice"
+    )
+    raise DataError(
+        path,
+        f"manifest entry {i} ({entry['split']}) holds the same episode '{ep.name}' as entry "
+        f"{j} ({first['split']}, {first['file']}): {where}",
+        fix="remove the copy and its manifest entry, or regenerate the dataset",
+    )
