@@ -71,35 +71,24 @@ def ros_logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, 
 
 
 def test_ros_bags(cli, ros_logs, tmp_path):
-    """Each kind of ROS log gives the same episode from the same messages."""
+    """Each kind of ROS log gives the same episode from the same messages (each imported on
+    its own: together they are one recording four times, refused)."""
     root, cols = ros_logs
     bare = tmp_path / "bare.mcap"
     # an MCAP file without metadata.yaml
     shutil.copy(next((root / "bag_mcap").glob("*.mcap")), bare)
-    out = tmp_path / "ds"
-    rc, _, err = cli(
-        "import",
-        root / "bag_sqlite",
-        root / "bag_mcap",
-        bare,
-        root / "ros1.bag",
-        "--mapping",
-        root / "ros.toml",
-        "--out",
-        out,
-        "--quiet",
-        "--split-by",
-        "glob",
-        "--val",
-        "bag_mcap",
-        "--test",
-        "*.mcap",
-    )
-    assert rc == 0, err
-    ds = load_dataset(out)
-    assert ds.spec.names == arm3_plant.JOINTS and ds.spec.rate_hz == 10.0
-    eps = {e.name: e for e in ds.train + ds.val + ds.test}
-    assert set(eps) == {"bag_sqlite", "bag_mcap", "bare", "ros1"}
+    sources = {"bag_sqlite": root / "bag_sqlite", "bag_mcap": root / "bag_mcap", "bare": bare}
+    sources["ros1"] = root / "ros1.bag"
+    eps = {}
+    for name, src in sources.items():
+        out = tmp_path / f"ds_{name}"
+        rc, _, err = cli("import", src, "--mapping", root / "ros.toml", "--out", out, "--quiet")
+        assert rc == 0, err
+        ds = load_dataset(out)
+        assert ds.spec.names == arm3_plant.JOINTS and ds.spec.rate_hz == 10.0
+        (eps[name],) = ds.train + ds.val + ds.test
+    assert {e.name for e in eps.values()} == set(sources)
+    out = tmp_path / "ds_bag_sqlite"
     ref = eps["bag_sqlite"]
     for name in ("bag_mcap", "bare", "ros1"):  # a ROS 1 bag of the same messages too
         np.testing.assert_allclose(eps[name].theta, ref.theta, atol=1e-12)
@@ -114,6 +103,21 @@ def test_ros_bags(cli, ros_logs, tmp_path):
     assert f["series"]["/joint_states"]["rate_hz"] == pytest.approx(50, rel=0.02)
     assert f["series"]["/valves"]["rate_hz"] == pytest.approx(25, rel=0.02)
     assert f["origin"].startswith("2024-05-29")
+    # the same messages in two storage formats are one recording: refused, nothing written
+    both = tmp_path / "both"
+    rc, _, err = cli(
+        "import",
+        root / "bag_sqlite",
+        root / "ros1.bag",
+        "--mapping",
+        root / "ros.toml",
+        "--out",
+        both,
+        "--quiet",
+    )
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"{root / 'ros1.bag'}: holds the same samples as {root / 'bag_sqlite'}" in err
+    assert not both.exists()
 
 
 def test_ros_errors(cli, ros_logs, tmp_path):

@@ -108,10 +108,11 @@ def test_parquet_without_rows_or_with_corrupt_data(cli, work, short_cols):
 
 
 def test_logs_of_the_same_name_get_unique_episode_names(cli, work, arm3_dir):
-    """run01.csv from two folders: the second's episode (and its report segment) is run01_2."""
-    for sub in ("a", "b"):
+    """run01.csv from two folders (two recordings): the second's episode (and its report
+    segment) is run01_2."""
+    for sub, log in (("a", "run01.csv"), ("b", "run02.csv")):
         (work / sub).mkdir()
-        shutil.copy(arm3_dir / "logs" / "run01.csv", work / sub / "run01.csv")
+        shutil.copy(arm3_dir / "logs" / log, work / sub / "run01.csv")
     out = work / "ds"
     rc, _, err = cli(
         "import", work / "a", work / "b", "--mapping", work / "arm3.toml", "--out", out, "--quiet"

@@ -60,6 +60,8 @@ class FileResult:
     path: Path
     episodes: list[Episode]
     entry: dict[str, Any] = field(default_factory=dict)
+    digest: str = ""
+    """:meth:`RawLog.digest` of the log: equal for two copies of one recording."""
 
 
 @dataclass(frozen=True)
@@ -138,7 +140,7 @@ def convert_log(
         episodes = kalman_velocities(episodes, sig.omega)
     if not episodes:
         entry["status"] = "dropped"
-    return FileResult(path, episodes, entry)
+    return FileResult(path, episodes, entry, digest=raw.digest())
 
 
 def _new_entry(path: Path, raw: RawLog) -> dict[str, Any]:

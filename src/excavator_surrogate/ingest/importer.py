@@ -122,9 +122,11 @@ def _convert_all(
     skipped (``on_error = "skip"``; otherwise the first failure is raised)."""
     results: list[FileResult] = []
     failed: list[dict[str, Any]] = []
+    seen: dict[str, Path] = {}
     for p in progress(paths, total=len(paths), desc="import", disable=True if quiet else None):
         try:
             res = convert_log(p, mapping, options=options, spec=spec)
+            _check_twin(res, seen)
             results.append(res)
             if not quiet:
                 n_out = sum(e.n_step for e in res.episodes)
@@ -133,12 +135,30 @@ def _convert_all(
                     f"{n_out} samples"
                 )
         except DataError as e:
-            if options.on_error != "skip":
+            if options.on_error != "skip" or isinstance(e, ImportTwinError):
                 raise
             failed.append({"file": str(p), "status": "failed", "error": str(e), "segments": []})
             if not quiet:
                 _log.warning(f"skipped {p}: {e}")
     return results, failed
+
+
+class ImportTwinError(DataError):
+    """Two logs of one import hold the same recording (never skipped)."""
+
+
+def _check_twin(res: FileResult, seen: dict[str, Path]) -> None:
+    """Refuse a log whose samples equal an earlier one's (``seen``: digest -> path): one
+    recording imported twice (``run.csv`` and ``run.csv.gz``, a copy in another folder) would
+    be split like two, into training and test.  Not skipped by ``on_error = "skip"``."""
+    first = seen.setdefault(res.digest, res.path)
+    if first != res.path:
+        raise ImportTwinError(
+            res.path,
+            f"holds the same samples as {first}: one recording imported twice can land in "
+            "both training and test",
+            fix="remove one of the two files, or pass only one of them",
+        )
 
 
 def _unique_names(results: list[FileResult]) -> None:

@@ -57,12 +57,14 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
     """Turn SOURCE arguments (files, folders, glob patterns) into a sorted-per-argument file list.
 
     A folder contributes its supported files and rosbag2 sub-folders (not recursive); a
-    rosbag2 folder (with ``metadata.yaml``) is one log.  Duplicates are removed.
+    rosbag2 folder (with ``metadata.yaml``) is one log.  Duplicates (the same file, also
+    spelled differently or through a link) are removed.
 
     Raises:
         DataError: a source that does not exist, is unsupported, or matches nothing.
     """
     out: list[Path] = []
+    seen: set[str] = set()  # one file reached by two spellings (./a, a, /abs/a, a link) is one log
 
     def add(p: Path) -> None:
         r = reader_for(p)
@@ -76,7 +78,9 @@ def expand_sources(sources: Sequence[str | Path]) -> list[Path]:
             raise DataError(p, "unsupported log type", fix=f"give {SUPPORTED}")
         if r.whole_folder and not p.is_dir():
             p = p.parent  # a storage file inside a bag folder: read the whole bag
-        if p not in out:
+        key = os.path.realpath(p)
+        if key not in seen:
+            seen.add(key)
             out.append(p)
 
     for s in sources:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 import difflib
+import hashlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -67,6 +68,20 @@ class RawLog:
     def n_rows(self) -> int:
         """Total samples over all series."""
         return sum(int(s.time.shape[0]) for s in self.series.values())
+
+    def digest(self) -> str:
+        """A hash of the decoded samples (every series' times and mapped channels), the same
+        for one recording stored twice (``.csv`` and ``.csv.gz``, a copy in another folder,
+        another format): the import refuses such twins, which could land in two splits."""
+        h = hashlib.blake2b(digest_size=16)
+        for name in sorted(self.series):
+            s = self.series[name]
+            h.update(f"series {name!r} {s.time.shape[0]}\n".encode())
+            h.update(np.ascontiguousarray(s.time, dtype=np.float64))
+            for key in sorted(s.values):
+                h.update(f"channel {key!r}\n".encode())
+                h.update(np.ascontiguousarray(s.values[key], dtype=np.float64))
+        return h.hexdigest()
 
 
 @dataclass(frozen=True)
