@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..spec import InputSpec
 from .excitation import CLOSED_LOOP, SIGNALS, ExcitationConfig
 from .hydraulics import HydraulicConfig
-from .plant import PlantConfig
+from .plant import PlantConfig, rate_fits
 from .sensors import SensorConfig
 from .soil import SoilConfig
 
@@ -47,13 +47,6 @@ def packaged_timestep() -> float | None:
         return float(option.get("timestep", "0.002")) if option is not None else 0.002
     except ValueError:
         return None
-
-
-def rate_fits(rate_hz: float, timestep: float) -> bool:
-    """Whether the sample period ``1 / rate_hz`` is a whole number (>= 1) of physics steps of
-    ``timestep`` [s] (as :class:`~.plant.MujocoExcavator` requires)."""
-    ratio = 1.0 / rate_hz / timestep
-    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6
 
 
 @dataclass(frozen=True)

@@ -74,6 +74,13 @@ def _state_offsets(model: mujoco.MjModel) -> dict[str, int]:
     return offsets
 
 
+def rate_fits(rate_hz: float, timestep: float) -> bool:
+    """Whether the sample period ``1 / rate_hz`` is a whole number (>= 1) of physics steps of
+    ``timestep`` [s] (as :class:`MujocoExcavator` requires)."""
+    ratio = 1.0 / rate_hz / timestep
+    return round(ratio) >= 1 and abs(ratio - round(ratio)) <= 1e-6
+
+
 class MujocoExcavator:
     """A MuJoCo machine driven by joint commands at the control rate.
 
@@ -115,9 +122,8 @@ class MujocoExcavator:
         m = self.model
         self.data = mujoco.MjData(m)
         self.dt = 1.0 / config.rate_hz
-        ratio = self.dt / m.opt.timestep
-        self.substeps = round(ratio)
-        if self.substeps < 1 or abs(ratio - self.substeps) > 1e-6:
+        self.substeps = round(self.dt / m.opt.timestep)
+        if not rate_fits(config.rate_hz, m.opt.timestep):
             raise ConfigError(
                 f"{xml}: rate_hz = {config.rate_hz:g} Hz samples every {self.dt:g} s, not a "
                 f"whole number of the MJCF's {m.opt.timestep:g} s timesteps; use rate_hz = "
