@@ -275,7 +275,9 @@ def test_cli_export_of_an_opset_onnxruntime_refuses_keeps_the_earlier_file(
     assert main(["export", str(stateful_ckpt), "--out", str(out), "--exporter", "torchscript"]) == 0
     before = out.read_bytes()
     capsys.readouterr()
-    line = fails(capsys, "export", stateful_ckpt, "--out", out, "--opset", 17)
+    line = fails(
+        capsys, "export", stateful_ckpt, "--out", out, "--opset", 17, "--exporter", "dynamo"
+    )
     assert out.read_bytes() == before  # the refused graph never replaced it
     assert [p.name for p in tmp_path.iterdir()] == ["m.onnx"]
     assert line.startswith(f"exsur: error: {out}: the dynamo exporter wrote opset 17 but")
@@ -303,7 +305,16 @@ def test_cli_refused_opset_prints_one_line_and_no_library_traceback(
     traceback (17 lines) on stderr before exsur's line.  A separate process: in-process,
     pytest's log capture on the root logger would take those lines off stderr."""
     out = tmp_path / "m.onnx"
-    argv = ["export", str(stateful_ckpt), "--out", str(out), "--opset", "11"]
+    argv = [
+        "export",
+        str(stateful_ckpt),
+        "--out",
+        str(out),
+        "--opset",
+        "11",
+        "--exporter",
+        "dynamo",
+    ]
     run = subprocess.run(
         [sys.executable, "-m", "excavator_surrogate.cli", *argv],
         capture_output=True,
@@ -316,3 +327,17 @@ def test_cli_refused_opset_prints_one_line_and_no_library_traceback(
     assert err[0].startswith(f"exsur: error: {out}: the ONNX exporter cannot write opset 11")
     assert "--exporter torchscript" in err[0]
     assert run.stdout == "" and list(tmp_path.iterdir()) == []
+
+
+def test_auto_exports_an_opset_below_18_with_torchscript(
+    stateful_ckpt: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--exporter auto`` (the default) with ``--opset 17``: dynamo's down-conversion gives a
+    graph onnxruntime refuses, so auto takes torchscript, which writes it."""
+    import onnx
+
+    out = tmp_path / "m17.onnx"
+    assert main(["export", str(stateful_ckpt), "--out", str(out), "--opset", "17"]) == 0
+    assert "max |torch - onnxruntime|" in capsys.readouterr().out  # stepped against torch
+    opsets = {o.domain: o.version for o in onnx.load(str(out)).opset_import}
+    assert opsets.get("", opsets.get("ai.onnx")) == 17

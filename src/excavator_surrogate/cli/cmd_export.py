@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=["auto", "dynamo", "torchscript"],
         default="auto",
         help="torch exporter: dynamo (torch.export), torchscript (legacy, fast) or auto "
-        "(dynamo, falling back to torchscript)",
+        "(dynamo, falling back to torchscript; torchscript for opsets 11 to 17)",
     )
     p.add_argument(
         "--uncertainty",

@@ -287,7 +287,12 @@ def _export(
     out: Path,
 ) -> str:
     """Write the graph to ``tmp`` with ``exporter``; return the one that wrote it
-    (``dynamo`` or ``torchscript``).  A failure is a one-line :class:`ConfigError` on ``out``."""
+    (``dynamo`` or ``torchscript``).  ``auto`` is dynamo, falling back to torchscript if it
+    fails, and torchscript for an opset below :data:`OPSET` that torchscript writes
+    (:data:`TORCHSCRIPT_OPSETS`): dynamo builds opset 18 and converts it down, which fails or
+    gives graphs onnxruntime refuses.  A failure is a one-line :class:`ConfigError` on ``out``."""
+    if exporter == "auto" and TORCHSCRIPT_OPSETS[0] <= opset < OPSET:
+        exporter = "torchscript"
     if exporter in ("auto", "dynamo"):
         try:
             _export_dynamo(module, args, tmp, inputs, outputs, axes, opset)
