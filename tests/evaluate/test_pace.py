@@ -75,6 +75,21 @@ def test_unknown_reference_cut_runs_and_no_logs(tmp_path: Path) -> None:
     assert pace_markdown(None, {"budget_cut": False}) == "" == pace_markdown(pace, None)
 
 
+def test_a_run_resumed_from_a_best_pt_sums_its_timed_epochs(tmp_path: Path) -> None:
+    """best.pt holds no wall-clock entries, so a run resumed from it logs its earlier epochs
+    without times: the sums cover the timed ones (they read 'nan s')."""
+    rows = _epochs(2, epoch_s=1.0, ref=1.0) + _epochs(3, epoch_s=2.0, ref=1.0)
+    for r in rows[:2]:
+        r["epoch_s"] = r["ref_epoch_s"] = ""
+    _log(tmp_path / "log.csv", rows)
+    pace = training_pace(tmp_path)
+    assert pace is not None
+    assert (pace["epochs"], pace["timed_epochs"], pace["train_s"]) == (5, 3, 6.0)
+    assert pace["pace"] == 2.0
+    text = pace_markdown(pace, {"max_train_seconds": 20.0})
+    assert "took 6 s (the 3 timed ones: a run resumed from a best.pt" in text and "nan" not in text
+
+
 def test_the_recipes_network_logs_the_reference_time_and_best_pt_does_not(tmp_path: Path) -> None:
     """The recipe's 2 x 128 LSTM is the cost model's network: each log.csv row carries the
     reference machine's time for the epoch's training steps, the estimate's; ``best.pt``'s

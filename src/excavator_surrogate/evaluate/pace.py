@@ -30,9 +30,10 @@ def training_pace(model_dir: str | Path) -> dict[str, Any] | None:
     of :data:`LOGS` with an ``epoch_s`` column; other runs' folders inside it are not read).
 
     Returns:
-        ``None`` without such logs, else ``{"networks", "epochs", "train_s",
+        ``None`` without such logs, else ``{"networks", "epochs", "timed_epochs", "train_s",
         "reference_train_s", "pace", "longest_s", "per_network"}``: the training steps' wall
-        time [s] summed over networks and epochs, the reference machine's for the same
+        time [s] summed over networks and their timed epochs (a run resumed from a
+        ``best.pt`` carries its earlier epochs without times), the reference machine's for the same
         steps [s] (NaN if any network's is unknown), their ratio (``pace``: 1.3 means 30 %
         slower than the reference), the longest network's wall time from start to last
         epoch [s], and per network its log (relative to ``model_dir``), epochs and times.
@@ -47,12 +48,15 @@ def training_pace(model_dir: str | Path) -> dict[str, Any] | None:
             continue  # a log that cannot be read tells nothing about time
         if not rows or "epoch_s" not in rows[0]:
             continue  # an ensemble's summary of its members, not a network's epochs
+        # a run resumed from a best.pt carries its earlier epochs without times
+        timed = [r for r in rows if math.isfinite(_num(r.get("epoch_s")))]
         nets.append(
             {
                 "log": log.relative_to(root).as_posix(),
                 "epochs": len(rows),
-                "train_s": round(sum(_num(r.get("epoch_s")) for r in rows), 1),
-                "reference_train_s": round(sum(_num(r.get("ref_epoch_s")) for r in rows), 1),
+                "timed_epochs": len(timed),
+                "train_s": round(sum(_num(r.get("epoch_s")) for r in timed), 1),
+                "reference_train_s": round(sum(_num(r.get("ref_epoch_s")) for r in timed), 1),
                 "wall_s": round(_num(rows[-1].get("time_s")), 1),
             }
         )
@@ -63,6 +67,7 @@ def training_pace(model_dir: str | Path) -> dict[str, Any] | None:
     return {
         "networks": len(nets),
         "epochs": sum(n["epochs"] for n in nets),
+        "timed_epochs": sum(n["timed_epochs"] for n in nets),
         "train_s": round(train_s, 1),
         "reference_train_s": round(ref_s, 1),
         "pace": round(train_s / ref_s, 3) if ref_s > 0 else math.nan,
@@ -83,6 +88,9 @@ def pace_markdown(pace: Mapping[str, Any] | None, training: Mapping[str, Any] | 
         f"\nTime on this computer: {pace['networks']} network(s), {pace['epochs']} epochs in all; "
         f"their training steps took {pace['train_s']:.0f} s"
     )
+    timed = pace.get("timed_epochs", pace["epochs"])
+    if timed < pace["epochs"]:
+        text += f" (the {timed} timed ones: a run resumed from a best.pt carries no earlier times)"
     ratio = pace.get("pace")  # NaN, or None once through JSON: no reference time
     if isinstance(ratio, int | float) and math.isfinite(ratio):
         text += (
