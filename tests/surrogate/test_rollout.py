@@ -105,3 +105,15 @@ def test_reset_at_measured_starts_is_a_reset_on_each_ones_own_history(spec, epis
             for j in range(3):
                 ref = one.step(ep.u[None, k + j])[0][0].double().numpy()
                 np.testing.assert_allclose(got[j][row], ref, atol=1e-5)
+
+
+def test_the_true_reference_of_a_log_without_ground_truth_says_what_to_do(episodes):
+    from excavator_surrogate.errors import DataError
+    from excavator_surrogate.surrogate.rollout import reference_theta
+
+    ep = episodes[0].replace(theta_true=None, omega_true=None)
+    np.testing.assert_array_equal(reference_theta(ep, "measured"), ep.theta)
+    with pytest.raises(
+        DataError, match=f"episode '{ep.name}': has no ground truth .*--reference measured"
+    ):
+        reference_theta(ep, "true")

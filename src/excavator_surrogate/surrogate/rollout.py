@@ -324,9 +324,10 @@ def reference_theta(ep: Episode, reference: Literal["measured", "true"]) -> np.n
     if reference == "true":
         if ep.theta_true is None:
             raise DataError(
-                ep.name,
-                "has no theta_<joint>_true columns",
-                fix="evaluate with reference='measured'",
+                f"episode '{ep.name}'",
+                "has no ground truth (theta_<joint>_true columns: a simulated dataset with "
+                "sensor faults has them, a machine's log does not)",
+                fix="evaluate against the measured angles: --reference measured",
             )
         return ep.theta_true
     raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
