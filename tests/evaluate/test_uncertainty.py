@@ -78,6 +78,13 @@ def test_uncertainty_table_lists_every_joint_and_band():
         "| ω [rad/s] | a | 40 % | 0.2000 | 80 % | 0.5000 |",
     ]
     assert "any joint 2 %" in md
+    # a stroke (stored in m) in its mapping's unit, as the CBE table prints it
+    md = uncertainty_markdown(unc, ["a"], units={"a": (1000.0, "mm")})
+    rows = [r for r in md.splitlines() if r.startswith("| θ") or r.startswith("| ω")]
+    assert rows == [
+        "| θ | a [mm] | 50 % | 100.0000 | 90 % | 300.0000 |",
+        "| ω | a [mm/s] | 40 % | 200.0000 | 80 % | 500.0000 |",
+    ]
 
 
 def test_run_report_shows_the_uncertainty_section_only_when_scored():
@@ -174,3 +181,24 @@ def test_bands_that_covered_far_less_than_their_level_are_named():
     fine = {**unc, "theta": {n: band(0.5, 0.9) for n in "abc"}}
     assert "too narrow" not in uncertainty_markdown(fine, ["a", "b", "c"])
     assert undercovered({"available": False, "notes": ["single network"]}, ["a"]) == []
+
+
+def test_run_report_prints_a_strokes_bands_in_its_unit():
+    from excavator_surrogate.evaluate.run_report import ReportContext, render_run_report
+
+    unc = {
+        "available": True,
+        "notes": [],
+        "levels": [0.5],
+        "theta": {"a": {"coverage_50": 0.5, "width_50": 0.002}},
+        "omega": {"a": {"coverage_50": 0.4, "width_50": 0.01}},
+        "ood": None,
+    }
+    metrics = {
+        "theta": {"a": {"rmse": 0.001, "mae": 0.001, "r2": 0.9}},
+        "omega": {"a": {"rmse": 0.01, "mae": 0.01, "r2": 0.8}},
+        "run": {"split": "test", "units": {"a": {"display": "mm"}}},
+        "uncertainty": unc,
+    }
+    text = render_run_report(metrics, ReportContext(name="s", spec_names=("a",), table_md=""))
+    assert "| θ | a [mm] | 50 % | 2.0000 |" in text and "| ω | a [mm/s] | 40 % | 10.0000 |" in text

@@ -45,7 +45,7 @@ from ..surrogate.rollout import EpisodeRollout, rollout_episodes
 from .horizon import HORIZONS_S, check_horizons, horizon_errors, horizon_markdown
 from .metrics import cbe_metrics, episode_errors, regression_metrics
 from .pace import pace_markdown, training_pace
-from .report import episodes_markdown, report_markdown
+from .report import episodes_markdown, linear_units, report_markdown
 from .training_report import training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
@@ -292,7 +292,9 @@ def evaluate_checkpoint(
             + training_markdown(result["training"], spec=sur.spec)
             + pace_markdown(result["pace"], result["training"])
             + "\n"
-            + uncertainty_markdown(result["uncertainty"], sur.spec.names)
+            + uncertainty_markdown(
+                result["uncertainty"], sur.spec.names, units=linear_units(sur.spec)
+            )
             + "\n"
             + horizon_markdown(result.get("horizon") or {}),
         )

@@ -233,7 +233,8 @@ def _uncertainty(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     unc = metrics.get("uncertainty")
     if not unc:
         return []
-    return uncertainty_markdown(unc, ctx.spec_names).splitlines()
+    units = {j: u for j in ctx.spec_names if (u := _unit(metrics, j))[1] != "rad"}
+    return uncertainty_markdown(unc, ctx.spec_names, units=units).splitlines()
 
 
 def _cbe_table(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:

@@ -118,8 +118,18 @@ UNCERTAINTY_HEADING = "## Uncertainty and out-of-distribution"
 """The heading of :func:`uncertainty_markdown`'s section (``table.md`` and ``report.md``)."""
 
 
-def uncertainty_markdown(unc: Mapping[str, Any], names: Sequence[str]) -> str:
-    """Markdown lines: per joint the bands' coverage and width and the flagged share."""
+def uncertainty_markdown(
+    unc: Mapping[str, Any],
+    names: Sequence[str],
+    *,
+    units: Mapping[str, tuple[float, str]] | None = None,
+) -> str:
+    """Markdown lines: per joint the bands' coverage and width and the flagged share.
+
+    ``units``: joint -> ``(factor, unit)`` of each linear joint (its stored m times factor is
+    its mapping's unit, :func:`.report.linear_units`): its widths print in that unit and its
+    row names it, as the CBE table's do; other joints' in rad and rad/s."""
+    units = units or {}
     lines = [UNCERTAINTY_HEADING, ""]
     for note in unc.get("notes") or []:
         lines.append(f"Note: {note}.")
@@ -131,12 +141,14 @@ def uncertainty_markdown(unc: Mapping[str, Any], names: Sequence[str]) -> str:
         for t in tags:
             head += [f"{t} % band coverage", f"{t} % width"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-        for q, sym in (("theta", "θ [rad]"), ("omega", "ω [rad/s]")):
+        for q, sym, rad in (("theta", "θ", "rad"), ("omega", "ω", "rad/s")):
             for n in names:
                 d = unc[q][n]
-                cells = [sym, n]
+                f, unit = units.get(n, (1.0, ""))
+                per_s = "/s" if q == "omega" else ""
+                cells = [sym, f"{n} [{unit}{per_s}]"] if unit else [f"{sym} [{rad}]", n]
                 for t in tags:
-                    cells += [_pct(d[f"coverage_{t}"]), format_value(d[f"width_{t}"])]
+                    cells += [_pct(d[f"coverage_{t}"]), format_value(d[f"width_{t}"], f)]
                 lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
         short = undercovered(unc, names)
