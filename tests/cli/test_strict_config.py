@@ -154,12 +154,20 @@ def test_a_checkpoint_too_large_to_build_is_refused_before_allocating(capsys, mo
 
 
 def test_exsur_run_names_an_undefined_r2_instead_of_printing_minus_inf():
-    from excavator_surrogate.cli.cmd_run import _r2_text
+    from excavator_surrogate.evaluate.metrics import worst_r2_text
+    from excavator_surrogate.evaluate.run_report import ReportContext, render_run_report
 
     m = {"theta": {"swing": {"r2": 0.9}, "boom": {"r2": None}, "arm": {"r2": 0.5}}}
-    text = _r2_text(m, "theta")
+    text = worst_r2_text(m, "theta")
     assert text.startswith("0.5000 (undefined for boom")
-    assert _r2_text({"theta": {"a": {"r2": None}}}, "theta").startswith("undefined")
+    assert worst_r2_text({"theta": {"a": {"r2": None}}}, "theta").startswith("undefined")
+    # the report's headline says the same (it dropped the boom, and crashed with no R² at all)
+    idle = {k: {"a": {"rmse": 0.0, "mae": 0.0, "r2": None}} for k in ("theta", "omega")}
+    ctx = ReportContext(name="t", spec_names=("a",), table_md="")
+    assert "worst-joint angle R² undefined (undefined for a" in render_run_report(idle, ctx)
+    m = {**m, "omega": m["theta"]}
+    ctx = ReportContext(name="t", spec_names=("swing", "boom", "arm"), table_md="")
+    assert "R² 0.5000 (undefined for boom" in render_run_report(m, ctx)
 
 
 def test_config_show_still_reads_every_shipped_preset(capsys):

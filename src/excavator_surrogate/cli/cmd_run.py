@@ -110,12 +110,13 @@ def checked_run(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Handler of ``exsur run``."""
+    from ..evaluate.metrics import worst_r2_text
     from ..pipeline import run_pipeline
 
     metrics = run_pipeline(out=args.out, **_request(args))
     print(
-        f"{args.out}: worst-joint angle R² {_r2_text(metrics, 'theta')}, "
-        f"worst-joint ω R² {_r2_text(metrics, 'omega')} (report: {args.out / 'report.md'})"
+        f"{args.out}: worst-joint angle R² {worst_r2_text(metrics, 'theta')}, "
+        f"worst-joint ω R² {worst_r2_text(metrics, 'omega')} (report: {args.out / 'report.md'})"
     )
     return 0
 
@@ -150,18 +151,6 @@ def _request(args: argparse.Namespace) -> dict:
         members=args.members,
         sets=overrides(args, RUN_SECTIONS),
     )
-
-
-def _r2_text(metrics: dict, key: str) -> str:
-    """The worst defined R² of ``metrics[key]``, with the joints whose R² is undefined named."""
-    from ..evaluate.metrics import undefined_r2
-
-    bad = undefined_r2(metrics, key)
-    vals = [v["r2"] for j, v in metrics[key].items() if j not in bad]
-    text = f"{min(vals):.4f}" if vals else "undefined"
-    if bad:
-        text += f" (undefined for {', '.join(bad)}: constant reference or non-finite prediction)"
-    return text
 
 
 def _check_request(args: argparse.Namespace, preset: str) -> None:

@@ -10,7 +10,7 @@ the reference's mean; it is ``None`` in JSON when the reference is constant (up 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
@@ -100,10 +100,21 @@ def cbe_metrics(runs: Sequence[RunLike], spec: MachineSpec) -> dict[str, Any]:
     return out
 
 
-def undefined_r2(metrics: dict[str, Any], key: str = "theta") -> list[str]:
+def undefined_r2(metrics: Mapping[str, Any], key: str = "theta") -> list[str]:
     """Joints of ``metrics[key]`` whose R^2 is undefined (constant reference, or a non-finite
     prediction)."""
     return [j for j, v in metrics[key].items() if v.get("r2") is None]
+
+
+def worst_r2_text(metrics: Mapping[str, Any], key: str = "theta") -> str:
+    """The worst defined R^2 of ``metrics[key]`` to 4 decimals, with the joints whose R^2 is
+    undefined named (``"undefined"`` when none is defined): the run's headline."""
+    bad = undefined_r2(metrics, key)
+    vals = [v["r2"] for j, v in metrics[key].items() if j not in bad]
+    text = f"{min(vals):.4f}" if vals else "undefined"
+    if bad:
+        text += f" (undefined for {', '.join(bad)}: constant reference or non-finite prediction)"
+    return text
 
 
 def min_r2(metrics: dict[str, Any], key: str = "theta") -> float:

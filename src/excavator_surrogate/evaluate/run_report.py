@@ -16,7 +16,7 @@ from typing import Any
 from ..spec import LINEAR_UNITS
 from .data_card import notes_lines, reach_lines, splits_lines
 from .horizon import horizon_markdown
-from .metrics import min_r2
+from .metrics import min_r2, worst_r2_text
 from .report import PAPER_TABLE_III, against_others
 from .uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
 
@@ -55,17 +55,13 @@ def _unit(metrics: Mapping[str, Any], joint: str) -> tuple[float, str]:
 def _summary(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """Title, worst-joint R², the split scored, timings and the figure."""
     run = metrics.get("run", {})
-    th = metrics["theta"]
-    om = metrics["omega"]
     lines = [f"# exsur run: preset `{ctx.name}`", ""]
     what = "position" if run.get("units") else "angle"  # strokes of linear joints too
-    worst_theta = min(v["r2"] for v in th.values() if v.get("r2") is not None)
-    worst_omega = min(v["r2"] for v in om.values() if v.get("r2") is not None)
     lines += [
         f"Closed-loop free run on the {run.get('split', 'test')} split "
         f"({run.get('n_step_scored', '?')} scored steps, "
-        f"reference: {run.get('reference', '?')}): **worst-joint {what} R² {worst_theta:.4f}, "
-        f"worst-joint ω R² {worst_omega:.4f}**.",
+        f"reference: {run.get('reference', '?')}): **worst-joint {what} R² "
+        f"{worst_r2_text(metrics, 'theta')}, worst-joint ω R² {worst_r2_text(metrics, 'omega')}**.",
         "",
         *([_no_test(run), ""] if run.get("split", "test") != "test" else []),
         *([against, ""] if (against := _against(metrics)) else []),
