@@ -144,3 +144,16 @@ def test_run_failure_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixtur
     assert not out.exists()
     assert main(["run", "--preset", "no-such-preset", "--out", str(out)]) == 2
     assert "unknown preset 'no-such-preset'" in capsys.readouterr().err
+
+
+def test_a_dataset_outside_the_run_is_named_by_its_absolute_path(tmp_path, monkeypatch) -> None:
+    """``exsur run --data rel/data``: the report's ``exsur info`` command must resolve from
+    anywhere (it read RUN/rel/data, a folder that does not exist)."""
+    from excavator_surrogate.pipeline import _in_run
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "rel" / "data").mkdir(parents=True)
+    run = tmp_path / "runs" / ".r1.tmp"
+    (run / "data").mkdir(parents=True)
+    assert _in_run(Path("rel/data"), run) == str(tmp_path.resolve() / "rel" / "data")
+    assert _in_run(run / "data", run) == "data"  # inside the run: relative to it

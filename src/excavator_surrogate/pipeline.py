@@ -383,13 +383,14 @@ def evaluated_split(
 
 def _in_run(path: Path | None, tmp: Path) -> str:
     """``path`` relative to the run folder being written (``tmp``, renamed into place later)
-    when it lies inside, else as given: what the report names."""
+    when it lies inside, else absolute: what the report names (a path relative to where the
+    command ran would not resolve from the run folder, which the report reads from)."""
     if path is None:
         return "the dataset"
     try:
         return Path(path).resolve().relative_to(tmp.resolve()).as_posix()
     except ValueError:
-        return str(path)
+        return str(Path(path).resolve())
 
 
 def _score_models(
