@@ -100,9 +100,11 @@ def test_run_record_of_every_preset_and_mode_loads_back(
     path = tmp_path / "config.toml"
     path.write_text(dumps_toml(record))
     again = resolve_run(preset=str(path))
-    # a recipe run records its plan as it ran, to be trained as is (auto_train off)
+    # a recipe run records its plan as it ran, to be trained as is (auto_train off), and the
+    # reference it scores against is run.reference, whatever [evaluate] said
     run = dataclasses.replace(req.configs["run"], auto_train=False)
-    assert again.configs == {**req.configs, "run": run}
+    ev = dataclasses.replace(req.configs["evaluate"], reference=run.reference)
+    assert again.configs == {**req.configs, "run": run, "evaluate": ev}
     assert again.record(train=again.configs["train"], evaluate=again.configs["evaluate"]) == record
 
 

@@ -303,6 +303,8 @@ class RunRequest:
 
         run_cfg: RunConfig = self.configs["run"]
         used = {k: v for k, v in self.configs.items() if k != "clean" or run_cfg.clean}
+        # a run scores against run.reference, whatever [evaluate] says: record what it used
+        evaluate = dataclasses.replace(evaluate, reference=run_cfg.reference)
         used.update(train=train, evaluate=evaluate)
         if self.logs is not None or self.data is not None:
             used.pop("simulate")

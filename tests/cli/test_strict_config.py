@@ -63,6 +63,13 @@ def test_simulate_knobs_with_data_are_refused(capsys, data_dir, tmp_path):
     assert "--set simulate.n_train: not read, this run trains on --data" in line
 
 
+def test_a_runs_evaluate_reference_is_refused_for_run_reference(capsys, data_dir, tmp_path):
+    argv = ["run", "--preset", "tiny", "--data", data_dir / "ds3", "--out", tmp_path / "r"]
+    line = _fails(capsys, *argv, "--set", 'evaluate.reference="true"')
+    assert "--set evaluate.reference: not read, exsur run scores against run.reference" in line
+    assert "--set run.reference=" in line and not (tmp_path / "r").exists()
+
+
 def test_sensor_and_hydraulic_knobs_of_a_switched_off_model_are_refused(capsys, tmp_path):
     out = tmp_path / "d"
     line = _fails(

@@ -157,6 +157,7 @@ def _check_request(args: argparse.Namespace, preset: str) -> None:
     """Before anything runs: refuse ``--set`` knobs this run will not read, and a dataset to
     simulate that cannot fit in memory or on disk."""
     from ..config import parse_sets
+    from ..errors import ConfigError
     from ..pipeline import RUN_SECTIONS
     from ..stages import check_dataset_size, check_sets_read
 
@@ -169,5 +170,10 @@ def _check_request(args: argparse.Namespace, preset: str) -> None:
         given = "--data" if args.data is not None else "--logs"
         skipped["simulate"] = f"this run trains on {given} and simulates nothing"
     check_sets_read(sets, cfgs, skipped=skipped)
+    if "reference" in (sets.get("evaluate") or {}):
+        raise ConfigError(
+            "--set evaluate.reference: not read, exsur run scores against run.reference "
+            f"(now {cfgs['run'].reference!r}); use --set run.reference=... instead"
+        )
     if "simulate" not in skipped:
         check_dataset_size(cfgs["simulate"], out=args.out or Path.cwd())
