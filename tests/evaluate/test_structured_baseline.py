@@ -53,8 +53,12 @@ def test_the_line_counts_the_joints_and_names_each_one_lost():
     line = against_others(by_model, primary="LSTM")
     assert line == (
         "**Free-run angle RMSE of LSTM:** lower than ARX on 3 of 3 joints; lower than "
-        "Structured on 0 of 2 joints (not the boom: 2.00° against 2.00°, the arm: 27.1° "
+        "Structured on 1 of 3 joints (not the boom: 2.00° against 2.00°, the arm: 27.1° "
         "against 5.86°)."
+    )  # the bucket counts: a model without a finite error there (a diverged run) loses it
+    diverged = {**by_model, "LSTM": _theta({"boom": None, "arm": 1.0 * deg, "bucket": 0.5 * deg})}
+    assert "lower than ARX on 2 of 3 joints (not the boom: no finite error against 9.00°)" in (
+        against_others(diverged, primary="LSTM")
     )
     # a linear joint in its own unit; the table's only model gives no line
     strokes = {"LSTM": _theta({"boom": 0.0512}), "ARX": _theta({"boom": 0.0123})}
@@ -63,6 +67,10 @@ def test_the_line_counts_the_joints_and_names_each_one_lost():
         "**Free-run position RMSE of LSTM:** lower than ARX on 0 of 1 joints (not the boom: "
         "51.2 mm against 12.3 mm)."
     )
+    big = {"LSTM": _theta({"boom": 1.2345}), "ARX": _theta({"boom": 0.5})}
+    assert "1234 mm against 500 mm" in against_others(
+        big, primary="LSTM", units={"boom": (1000.0, "mm")}
+    )  # not 1.23e+03 mm
     assert against_others({"LSTM": by_model["LSTM"]}, primary="LSTM") == ""
 
 

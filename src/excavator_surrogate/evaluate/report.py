@@ -214,9 +214,16 @@ def against_others(
     own = by_model[primary]["theta"]
     units = units or {}
 
-    def shown(joint: str, v: float) -> str:  # 3 significant digits: 0.520°, 30.0°, 123 mm
+    def shown(joint: str, v: float | None) -> str:  # 3 significant digits: 0.520°, 30.0°, 123 mm
+        if v is None:
+            return "no finite error"
         f, unit = units.get(joint, (math.degrees(1.0), "°"))
-        return f"{v * f:#.3g}".rstrip(".") + ("" if unit == "°" else " ") + unit
+        x = v * f
+        text = f"{x:.0f}" if abs(x) >= 1000 else f"{x:#.3g}".rstrip(".")  # 1234 mm, not 1.23e+03
+        return text + ("" if unit == "°" else " ") + unit
+
+    def lower(a: float | None, b: float | None) -> bool:  # None: a diverged (NaN) free run
+        return a is not None and (b is None or a < b)
 
     parts = []
     for label, m in by_model.items():
@@ -225,11 +232,11 @@ def against_others(
         pairs = [
             (joint, own[joint]["rmse"], v["rmse"])
             for joint, v in m["theta"].items()
-            if joint in own and own[joint]["rmse"] is not None and v["rmse"] is not None
+            if joint in own
         ]
         if not pairs:
             continue
-        lost = [(j, a, b) for j, a, b in pairs if not a < b]
+        lost = [(j, a, b) for j, a, b in pairs if not lower(a, b)]
         text = f"lower than {label} on {len(pairs) - len(lost)} of {len(pairs)} joints"
         if lost:
             text += (
