@@ -182,3 +182,13 @@ def test_exsur_info_prints_text_or_json_and_refuses_bad_files(tmp_path, dataset_
         "export (.onnx), a dataset folder, an episode file (.parquet) or a raw log exsur "
         "import reads"
     )
+
+
+def test_a_linear_joints_card_holds_its_whole_linkage():
+    """The card alone turns strokes into angles: a, b, phi and the stroke offset l0."""
+    from excavator_surrogate.evaluate.card import _joint
+    from excavator_surrogate.spec import Linkage
+
+    link = Linkage(a=1.2, b=0.4, phi=0.1, l0=0.9)
+    j = JointSpec("boom", kind="linear", unit="mm", theta_min=0.0, theta_max=0.5, linkage=link)
+    assert _joint(j)["linkage"] == {"a": 1.2, "b": 0.4, "phi": 0.1, "l0": 0.9}

@@ -10,6 +10,7 @@ reads.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Mapping, Sequence
@@ -168,7 +169,7 @@ def _joint(j: JointSpec) -> dict[str, Any]:
         "u_unit": j.u_unit,
     }
     if j.linkage is not None:
-        d["linkage"] = {"a": j.linkage.a, "b": j.linkage.b, "phi": j.linkage.phi}
+        d["linkage"] = dataclasses.asdict(j.linkage)  # a, b, phi, l0: all it takes to get angles
     return d
 
 
