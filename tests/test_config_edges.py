@@ -172,3 +172,26 @@ def test_simulate_config_ranges(kwargs: dict, message: str) -> None:
     with pytest.raises(ConfigError) as e:
         SimulateConfig(**kwargs)
     assert message in str(e.value)
+
+
+def test_a_simulation_too_big_is_refused_and_a_long_one_announced(tmp_path, caplog) -> None:
+    """``steps_train`` with an extra zero or three: refused before anything runs when it
+    cannot fit, announced with its size and time when it only takes long."""
+    import dataclasses
+    import logging
+
+    from excavator_surrogate.simulate.config import SimulateConfig
+    from excavator_surrogate.stages import check_dataset_size
+
+    base = SimulateConfig(n_train=2, n_val=1, n_test=1, steps_train=200, workers=1)
+    with caplog.at_level(logging.WARNING, logger="excavator_surrogate.stages"):
+        check_dataset_size(base, out=tmp_path / "d")
+    assert not caplog.records  # a small one says nothing
+    huge = dataclasses.replace(base, steps_train=10**12)
+    with pytest.raises(ConfigError, match=r"2e\+12 samples .* lower simulate.n_train"):
+        check_dataset_size(huge, out=tmp_path / "d")
+    long = dataclasses.replace(base, steps_train=10**7)  # 20M samples: ~1.1 h, 2 GB
+    with caplog.at_level(logging.WARNING, logger="excavator_surrogate.stages"):
+        check_dataset_size(long, out=tmp_path / "d")
+    assert "take ~1.11 h on 1 worker(s)" in caplog.text and "interrupt (Ctrl-C" in caplog.text
+    assert not (tmp_path / "d").exists()

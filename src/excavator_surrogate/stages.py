@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import logging
 import types
 import typing
 from collections.abc import Mapping, Sequence
@@ -22,6 +23,8 @@ from typing import Any, Literal
 from . import config as _config
 from .config import PresetConfig, describe_config, stage_config
 from .errors import ConfigError
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -219,6 +222,8 @@ def check_sets_read(
 SAMPLE_BYTES = 8 * 13
 """Bytes of one simulated sample in memory, a lower bound: float64 time, 4 commands, 4 angles,
 4 velocities (the excavator; ground truth and flags add to it)."""
+LONG_SIMULATION_MIN = 30.0
+"""A simulation planned longer than this [min] is announced with its size before it starts."""
 SAMPLES_PER_S = 5000.0
 """Simulated samples per second per worker, roughly (the hydraulic plant: 300k samples in
 ~17 s on 2 workers; closed-loop digging is slower) -- for the time in messages only."""
@@ -260,6 +265,13 @@ def check_dataset_size(sim: Any, *, out: str | Path) -> None:
                 f"{human_bytes(need)} and ~{hours:.3g} h to simulate, but {human_bytes(have)} of "
                 f"{what} is available: lower simulate.n_train / simulate.steps_train"
             )
+    if hours * 60 > LONG_SIMULATION_MIN:  # it fits, but a typo (an extra zero) would look so
+        _log.warning(
+            f"[simulate] {n:.3g} samples (n_train x steps_train + val + test) take ~{hours:.3g} h "
+            f"on {max(1, int(sim.workers))} worker(s) and {human_bytes(need)} of memory to "
+            "train on: interrupt (Ctrl-C, nothing is left) and lower simulate.n_train / "
+            "simulate.steps_train if that is not what you meant"
+        )
 
 
 def show_configs(
