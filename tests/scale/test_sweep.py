@@ -146,3 +146,40 @@ def test_sweep_config_validation_and_url_masking() -> None:
         SweepConfig.from_preset({"sweep": {"widow": [1, 2]}})
     assert SweepConfig.from_preset({"sweep": {"lr": [1e-3, 1e-3]}}, epochs=4).epochs == 4
     assert safe_url("postgresql://me:secret@db:5432/x") == "postgresql://me:***@db:5432/x"
+
+
+def test_a_sweep_whose_every_trial_fails_says_why_and_exits_2(tmp_path: Path, capsys) -> None:
+    """A window longer than the episodes fails every trial: each failure is one logged line
+    (no traceback), and the command ends in one error line with exit code 2 (it exited 0)."""
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=2, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "s.toml").write_text(PRESET.replace("window = [4, 8]", "window = [300, 300]"))
+    argv = ["sweep", str(data), "--out", str(tmp_path / "s"), "--trials", "1"]
+    assert main([*argv, "--preset", str(tmp_path / "s.toml")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "trial 0 failed: " in err
+    assert (
+        err.strip()
+        .splitlines()[-1]
+        .startswith(f"exsur: error: {tmp_path / 's'}: no trial of the study completed (1 failed")
+    )
+    # a device this computer lacks: one line before anything is written
+    if not __import__("torch").cuda.is_available():
+        assert (
+            main(
+                [
+                    "sweep",
+                    str(data),
+                    "--out",
+                    str(tmp_path / "c"),
+                    "--device",
+                    "cuda",
+                    "--trials",
+                    "1",
+                ]
+            )
+            == 2
+        )
+        assert "device 'cuda' is not available" in capsys.readouterr().err
+        assert not (tmp_path / "c").exists()

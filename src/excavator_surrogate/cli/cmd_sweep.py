@@ -54,11 +54,16 @@ def run(args: argparse.Namespace) -> int:
     """Handler: returns 0 and prints the table of the best trials."""
     from ..config import merge_tables
     from ..data.dataset import read_manifest
+    from ..errors import ConfigError
     from ..outdir import check_out_dir
     from ..scale.sweep import SweepConfig, run_sweep
     from ..stages import load_preset
     from ..training import TrainConfig
 
+    if args.device is not None:  # a device this computer lacks: one line before any trial
+        from ..devices import resolve_device
+
+        resolve_device(args.device)
     check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
     read_manifest(args.dataset)  # a missing dataset is an error before --out is created
     named = {
@@ -87,4 +92,10 @@ def run(args: argparse.Namespace) -> int:
         print(res.table.read_text())
     if res.best_checkpoint is not None:
         print(res.best_checkpoint)
+    if res.n_complete == 0:
+        raise ConfigError(
+            f"{args.out}: no trial of the study completed ({res.n_fail} failed, {res.n_pruned} "
+            "pruned; each failure's reason is in the log above): fix the data "
+            "or the [sweep] / [train] settings and run it again"
+        )
     return 0

@@ -276,7 +276,12 @@ class _Objective:
 
         t0 = time.monotonic()
         _log.info(f"trial {trial.number}: {_fmt_params(trial.params)}")
-        best = train(cfg, self.dataset, out=tdir, show_progress=False, on_epoch=on_epoch)
+        try:
+            best = train(cfg, self.dataset, out=tdir, show_progress=False, on_epoch=on_epoch)
+        except ExsurError as e:  # the user's data or config: one line, the trial FAILs (NaN)
+            trial.set_user_attr("error", str(e))
+            _log.warning(f"trial {trial.number} failed: {e}")
+            return math.nan
         metrics = read_checkpoint(best).get("metrics") or {}
         last = tdir / "last.pt"
         history = (read_checkpoint(last) if last.is_file() else {}).get("history") or []
