@@ -76,6 +76,9 @@ def test_control_bad_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
         (["--replan", "50"], "replan"),
         (["--cpus", "0"], "--cpus"),
         (["--mppi-seeds", "0"], "--mppi-seeds"),
+        (["--samples", "1"], "--samples must be >= 2"),  # it blamed --cpus
+        (["--rl-eval", "0"], "--rl-eval"),  # IndexError after MPPI had run
+        (["--rl-episode-steps", "-3"], "--rl-episode-steps"),  # gymnasium's ValueError
     ],
 )
 def test_control_bad_option_is_one_line(

@@ -127,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
 
     out_dir = check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.ckpt], lock=True)
     torch.set_num_threads(1)
+    if args.samples < 2:  # MPPI weighs at least two candidates
+        raise ConfigError(f"--samples must be >= 2 (MPPI candidates), got {args.samples}")
     cpus = min(usable_cpus(), 4) if args.cpus is None else args.cpus
     if not 1 <= cpus <= args.samples:
         raise ConfigError(f"--cpus must be in [1, --samples = {args.samples}], got {cpus}")

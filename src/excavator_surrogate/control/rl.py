@@ -80,6 +80,13 @@ class RLConfig:
                 f"rl: need n_envs >= 1 and total_steps >= n_envs * n_steps, got {self.n_envs}, "
                 f"{self.total_steps}, {self.n_steps}"
             )
+        flags = {"n_eval": "--rl-eval", "episode_steps": "--rl-episode-steps", "n_curve": ""}
+        for name, flag in flags.items():
+            if getattr(self, name) < 1:  # checked before any run (MPPI ran first, then PPO failed)
+                raise ConfigError(
+                    f"rl: {name}{f' ({flag})' if flag else ''} must be >= 1, got "
+                    f"{getattr(self, name)}"
+                )
 
 
 def _task(spec: MachineSpec, cfg: RLConfig) -> Any:
