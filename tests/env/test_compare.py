@@ -119,6 +119,10 @@ def test_a_bad_commands_csv_names_the_cell_or_the_separator(tmp_path: Path, text
         ("steps:seed=x", r"seed must be an integer, got 'x'"),
         ("steps:seconds=-5", r"need at least 2 samples \(0.1 s\), got seconds=-5"),
         ("steps:n_step=1", r"need at least 2 samples \(0.1 s\), got n_step=1"),
+        (
+            "steps:seconds=1e9",
+            r"seconds=1e9 is more than a day of machine time \(at most seconds=86400",
+        ),
         ("steps:seconds=inf", r"seconds must be a finite number"),
     ],
 )

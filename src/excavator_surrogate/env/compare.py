@@ -38,6 +38,9 @@ from .safety import GuardConfig
 from .starts import check_theta0
 
 DEFAULT_SECONDS = 90.0
+MAX_SECONDS = 24 * 3600.0
+"""Longest named excitation [s] (a day of machine time): longer is a typo (``seconds=1e9``
+asked for 596 GiB of commands)."""
 """Length of named excitations unless given (the paper's 1800-step test)."""
 
 _NAMED = re.compile(r"^([a-z_]+)(?::(.*))?$")
@@ -118,10 +121,16 @@ def _named_excitation(
         n_step = round(number("seconds", float, DEFAULT_SECONDS) * spec.rate_hz) + 1
     if seed < 0:
         raise ConfigError(f"commands '{text}': seed must be >= 0, got {seed}")
+    which = f"n_step={n_step}" if "n_step" in kv else f"seconds={kv.get('seconds')}"
     if n_step < 2:
-        which = f"n_step={n_step}" if "n_step" in kv else f"seconds={kv.get('seconds')}"
         raise ConfigError(
             f"commands '{text}': need at least 2 samples ({2 / spec.rate_hz:g} s), got {which}"
+        )
+    if n_step > MAX_SECONDS * spec.rate_hz + 1:
+        raise ConfigError(
+            f"commands '{text}': {which} is more than a day of machine time (at most "
+            f"seconds={MAX_SECONDS:g}, n_step={round(MAX_SECONDS * spec.rate_hz) + 1}); "
+            "give a shorter run"
         )
     u = generate(kind, seed, n_step, spec, theta0=theta0, omega_max=omega_max)
     return Commands(u=np.asarray(u, dtype=np.float64), theta0=theta0, name=text.replace(":", "_"))
