@@ -250,10 +250,13 @@ def test_the_cli_never_replaces_a_file_it_did_not_write(
     mine = tmp_path / "mine.toml"
     mine.write_text("# my own mapping\n")
     rc, _, err = cli("info", log, "--draft-mapping", mine)
-    assert rc != 0 and "--draft-mapping exists and exsur did not write it" in err
+    assert rc != 0 and "--draft-mapping exists (a mapping, perhaps edited" in err
     assert mine.read_text() == "# my own mapping\n"
     rc, _, _ = cli("info", log, "--draft-mapping", mine, "--overwrite")
     assert rc == 0 and mine.read_text().startswith("# exsur import mapping drafted from run01.csv")
+    # exsur's own draft is not replaced either (it said 'exsur did not write it')
+    rc, _, err = cli("info", log, "--draft-mapping", mine)
+    assert rc != 0 and "--draft-mapping exists (a mapping, perhaps edited" in err
     rc, _, err = cli("info", log, "--draft-mapping", tmp_path / "x.json")
     assert rc != 0 and "--draft-mapping must end in .toml" in err
     rc, _, err = cli("info", arm3_dir / "arm3.toml", "--draft-mapping", tmp_path / "y.toml")

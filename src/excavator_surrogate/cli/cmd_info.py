@@ -109,8 +109,15 @@ def run(args: argparse.Namespace) -> int:
 
         draft_out = None
         if args.draft_mapping is not None:
+            from ..errors import ConfigError
             from ..outdir import check_out_file
 
+            if Path(args.draft_mapping).is_file() and not args.overwrite:
+                raise ConfigError(  # exsur's own draft too: the user may have edited it since
+                    f"{args.draft_mapping}: --draft-mapping exists (a mapping, perhaps edited "
+                    "since it was drafted); give a new file name, or pass --overwrite to "
+                    "replace it"
+                )
             draft_out = check_out_file(
                 args.draft_mapping,
                 inputs=[path],
