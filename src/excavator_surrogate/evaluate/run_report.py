@@ -8,7 +8,7 @@ to the report folder.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,6 +52,14 @@ def _unit(metrics: Mapping[str, Any], joint: str) -> tuple[float, str]:
     return LINEAR_UNITS.get(u, 1.0), u
 
 
+def _linear_units(
+    metrics: Mapping[str, Any], joints: Iterable[str]
+) -> dict[str, tuple[float, str]]:
+    """Joint -> ``(factor, unit)`` (:func:`_unit`) of each linear joint of ``joints``: the
+    run report's twin of :func:`.report.linear_units`, read from ``metrics.json``."""
+    return {j: u for j in joints if (u := _unit(metrics, j))[1] != "rad"}
+
+
 def _summary(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     """Title, worst-joint R², the split scored, timings and the figure."""
     run = metrics.get("run", {})
@@ -79,13 +87,10 @@ def _against(metrics: Mapping[str, Any]) -> str:
     others = metrics.get("compare") or {}
     if not others:
         return ""
-    units = {
-        joint: _unit(metrics, joint)
-        for joint in metrics["theta"]
-        if _unit(metrics, joint)[1] != "rad"
-    }
     return against_others(
-        {"the surrogate": metrics, **others}, primary="the surrogate", units=units
+        {"the surrogate": metrics, **others},
+        primary="the surrogate",
+        units=_linear_units(metrics, metrics["theta"]),
     )
 
 
@@ -229,7 +234,7 @@ def _uncertainty(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
     unc = metrics.get("uncertainty")
     if not unc:
         return []
-    units = {j: u for j in ctx.spec_names if (u := _unit(metrics, j))[1] != "rad"}
+    units = _linear_units(metrics, ctx.spec_names)
     return uncertainty_markdown(unc, ctx.spec_names, units=units).splitlines()
 
 
