@@ -53,3 +53,10 @@ class ConfigError(ExsurError):
 
 class CheckpointError(ExsurError):
     """A checkpoint that is missing, corrupt, or from an incompatible version."""
+
+
+def error_summary(e: BaseException, n: int = 120) -> str:
+    """``Type: first line of the message`` (the line cut at ``n`` characters), or ``Type``
+    alone without a message: another library's exception inside one of exsur's lines."""
+    text = str(e).strip().splitlines()
+    return f"{type(e).__name__}: {text[0][:n]}" if text else type(e).__name__

@@ -89,7 +89,7 @@ from typing import Literal
 import torch
 from torch import nn
 
-from ..errors import ConfigError
+from ..errors import ConfigError, error_summary
 from ..evaluate.card import describe_surrogate, full_json
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
@@ -300,22 +300,17 @@ def _export(
         except Exception as e:
             if exporter == "dynamo":
                 raise ConfigError(
-                    f"dynamo ONNX export failed ({type(e).__name__}: "
-                    f"{_first_line(e)}); try exporter='torchscript'"
+                    f"dynamo ONNX export failed ({error_summary(e, 160)}); "
+                    "try exporter='torchscript'"
                 ) from e
     try:
         _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
     except Exception as e:
         raise ConfigError(
             f"{out}: the torchscript ONNX exporter cannot write opset {opset} for this graph "
-            f"({type(e).__name__}: {_first_line(e)}); {_opset_advice(opset, 'torchscript')}"
+            f"({error_summary(e, 160)}); {_opset_advice(opset, 'torchscript')}"
         ) from e
     return "torchscript"
-
-
-def _first_line(e: BaseException) -> str:
-    lines = str(e).strip().splitlines()
-    return lines[0][:160] if lines else "no message"
 
 
 def _check_loads(tmp: Path, out: Path, opset: int, used: str) -> None:

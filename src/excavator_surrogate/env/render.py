@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from ..errors import ConfigError, ExsurError
+from ..errors import ConfigError, ExsurError, error_summary
 from ..spec import MachineSpec
 
 RENDER_MODES: tuple[str, ...] = ("rgb_array", "human")
@@ -74,11 +74,6 @@ def gl_backend() -> str:
     return "egl"
 
 
-def _first_line(e: BaseException) -> str:
-    text = str(e).strip().splitlines()
-    return f"{type(e).__name__}: {text[0][:120]}" if text else type(e).__name__
-
-
 def check_render_mode(render_mode: str | None, *, where: str) -> str | None:
     """Raise :class:`ConfigError` unless ``render_mode`` is None or one of :data:`RENDER_MODES`."""
     if render_mode is not None and render_mode not in RENDER_MODES:
@@ -127,7 +122,7 @@ class FrameRenderer:
         except Exception as e:  # every GL failure becomes one line
             raise RenderError(
                 f"{where}: render_mode='rgb_array' needs an OpenGL backend, and MUJOCO_GL="
-                f"{backend} failed ({_first_line(e)}); {INSTALL}"
+                f"{backend} failed ({error_summary(e)}); {INSTALL}"
             ) from e
         self.camera = mujoco.MjvCamera()
         mujoco.mjv_defaultFreeCamera(model, self.camera)
@@ -163,7 +158,7 @@ class Viewer:
             self._viewer = mujoco.viewer.launch_passive(model, data)
         except Exception as e:  # one line, whatever the GUI stack raises
             raise RenderError(
-                f"{where}: MuJoCo's viewer cannot open ({_first_line(e)}); use "
+                f"{where}: MuJoCo's viewer cannot open ({error_summary(e)}); use "
                 "render_mode='rgb_array'"
             ) from e
 
