@@ -270,3 +270,6 @@ def test_w6_a_failed_train_leaves_no_out_folder(tmp_path: Path, data_dir: Path, 
     last = capsys.readouterr().err.strip().splitlines()[-1]
     assert last.startswith("exsur: error: ") and "warm-up of 100000" in last
     assert not out.exists()  # no marker, config.toml or TensorBoard folder left behind
+    out.mkdir()  # an empty folder of the user's stays, empty
+    assert main([str(a) for a in [*argv, "--set", "train.window=100000"]]) == 2
+    assert out.is_dir() and not any(out.iterdir())

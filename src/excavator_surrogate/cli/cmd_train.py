@@ -95,7 +95,8 @@ def checked_run(args: argparse.Namespace) -> int:
     if args.out is None:
         raise ConfigError("--out DIR is required (or --dry-run to only print the plan)")
     out = Path(args.out)
-    new = not out.exists() or (out.is_dir() and not any(out.iterdir()))
+    existed = out.is_dir()
+    new = not existed or not any(out.iterdir())  # all that ends up in it is this command's
     check_out_dir(out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
     try:
         if args.resume is not None:
@@ -105,7 +106,9 @@ def checked_run(args: argparse.Namespace) -> int:
         return run(args)
     except BaseException:
         if new and not any(out.rglob("*.pt")):  # a checkpoint stays: --resume continues it
-            shutil.rmtree(out, ignore_errors=True)  # this command's folder, nothing in it yet
+            shutil.rmtree(out, ignore_errors=True)  # what this command wrote, nothing else
+            if existed:  # the user's empty folder stays, empty
+                out.mkdir(exist_ok=True)
         raise
 
 
