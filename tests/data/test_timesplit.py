@@ -73,3 +73,33 @@ def test_dataset_split_keeps_existing_val_and_test(tmp_path):
     assert [e.name for e in ds.val] == ["shift_val"]
     assert sorted(e.name for e in ds.test) == ["other", "shift_test"]
     assert ds.manifest["time_split"]["val_s"] == 20.0
+
+
+def test_parts_carry_their_own_sensor_jump_runs():
+    """The sensor model's jump runs are indexed on samples: each part keeps the runs inside
+    it, counted from its first sample (a part used to keep the whole recording's runs, so
+    cleaning scored its detector against the wrong samples)."""
+    from excavator_surrogate.data.jumps import jump_mask_of, runs_to_mask
+
+    ep = _log()
+    runs = [[0, 10, 20], [1, 1390, 1410], [0, 1500, 1505], [1, 1990, 2000]]
+    ep = ep.replace(extra={"sensor": {"model": "m", "jump_runs": runs}})
+    full = runs_to_mask(runs, ep.n_step, 2)
+    start = 0
+    for part, _ in split_in_time(ep, val_s=20.0, test_s=30.0):
+        np.testing.assert_array_equal(jump_mask_of(part), full[start : start + part.n_step])
+        assert part.extra["sensor"]["model"] == "m"
+        start += part.n_step
+    _, val, test = (
+        p.extra["sensor"]["jump_runs"] for p, _ in split_in_time(ep, val_s=20.0, test_s=30.0)
+    )
+    assert val == [[1, 390, 400]]  # samples 1000-1399
+    assert test == [[1, 0, 10], [0, 100, 105], [1, 590, 600]]  # samples 1400-1999
+
+
+def test_a_jump_run_outside_the_episode_is_one_clear_error():
+    from excavator_surrogate.data.jumps import jump_mask_of
+
+    ep = _log(n_step=100).replace(extra={"sensor": {"jump_runs": [[0, 90, 120]]}})
+    with pytest.raises(DataError, match=r"shift: sensor jump run \[0, 90, 120\) lies outside"):
+        jump_mask_of(ep)

@@ -120,12 +120,27 @@ class Episode:
         return replace(self, **changes)
 
     def slice(self, start: int, stop: int) -> Episode:
-        """Samples ``[start, stop)`` as a new episode."""
+        """Samples ``[start, stop)`` as a new episode.
+
+        Sample-indexed metadata follows the cut: the sensor model's jump runs
+        (``extra["sensor"]["jump_runs"]``, ``[[joint, a, b), ...]``) are clipped to the part
+        and counted from its first sample.
+        """
+        start, stop, _ = slice(start, stop).indices(self.n_step)
         sl = slice(start, stop)
 
         def cut(a: np.ndarray | None) -> np.ndarray | None:
             return None if a is None else a[sl]
 
+        extra = self.extra
+        sensor = extra.get("sensor") if isinstance(extra, dict) else None
+        if isinstance(sensor, dict) and "jump_runs" in sensor:
+            runs = [
+                [int(j), max(int(a), start) - start, min(int(b), stop) - start]
+                for j, a, b in sensor["jump_runs"]
+                if min(int(b), stop) > max(int(a), start)
+            ]
+            extra = {**extra, "sensor": {**sensor, "jump_runs": runs}}
         return replace(
             self,
             time=self.time[sl],
@@ -135,6 +150,7 @@ class Episode:
             theta_true=cut(self.theta_true),
             omega_true=cut(self.omega_true),
             trusted=cut(self.trusted),
+            extra=extra,
         )
 
     def metadata(self) -> dict[str, Any]:

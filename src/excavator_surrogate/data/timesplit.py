@@ -59,10 +59,11 @@ def split_in_time(
     out: list[tuple[Episode, str]] = []
     start = 0
     for n, split, suffix in made:
-        part = episode.slice(start, start + n).replace(
+        part = episode.slice(start, start + n)
+        part = part.replace(
             name=f"{episode.name}{suffix}",
             extra={
-                **episode.extra,
+                **part.extra,
                 "time_split": {"from": episode.name, "start": start, "stop": start + n},
             },
         )
