@@ -132,9 +132,16 @@ def plot_fusion(
         if sel.sum() < 2:
             raise ConfigError(f"fusion plot: t_range {t_range} selects fewer than 2 samples")
     theta_raw = raw.theta[:, k]
+    theta_true = None if raw.theta_true is None else raw.theta_true[:, k]
     if raw.spec.joints[k].periodic:
         theta_raw = np.unwrap(theta_raw)
-    truth = None if raw.theta_true is None else raw.theta_true[sel, k]
+        if theta_true is not None:
+            # the truth on the raw angle's branch: unwrapped, then shifted by whole turns
+            theta_true = np.unwrap(theta_true)
+            theta_true = theta_true + 2 * np.pi * np.round(
+                (theta_raw[0] - theta_true[0]) / (2 * np.pi)
+            )
+    truth = None if theta_true is None else theta_true[sel]
     trusted = None if cleaned.trusted is None else cleaned.trusted[sel, k]
     return plot_fusion_arrays(
         raw.time[sel],
