@@ -143,12 +143,35 @@ def test_mismatch_names_command_ranges_and_inputs() -> None:
         ({"tau_cons": 0.0}, "clean.tau_cons: must be positive, got 0.0"),
         ({"q_bias": -1.0}, "clean.q_bias: must be >= 0, got -1.0"),
         ({"p0_bias": 0.0}, "clean.p0_bias: must be positive, got 0.0"),
+        # configs whose filter divides by zero (gyro3's gyro-row innovation, the RTS prior's
+        # inverse): the loop engine raised ZeroDivisionError, the vector one returned NaN
+        (
+            {"method": "gyro3", "r_gyro": 0.0},
+            "clean.r_gyro: must be positive for method 'gyro3' (the gyro is a measurement "
+            "there), got 0.0",
+        ),
+        (
+            {"method": "rts", "q_bias": 0.0},
+            "clean: method 'rts' needs a positive definite process noise (q_bias > 0, and "
+            "q_theta or r_gyro > 0), got q_bias=0.0, q_theta=1e-06, r_gyro=2.5e-05",
+        ),
+        (
+            {"q_theta": 0.0, "r_gyro": 0.0},
+            "clean: method 'rts' needs a positive definite process noise (q_bias > 0, and "
+            "q_theta or r_gyro > 0), got q_bias=1e-07, q_theta=0.0, r_gyro=0.0",
+        ),
     ],
 )
 def test_clean_config_ranges(kwargs: dict, message: str) -> None:
     with pytest.raises(ConfigError) as e:
         CleanConfig(**kwargs)
     assert str(e.value) == message
+
+
+def test_degenerate_noise_is_fine_where_nothing_divides_by_it() -> None:
+    CleanConfig(method="paper", q_bias=0.0, r_gyro=0.0, q_theta=0.0)
+    CleanConfig(method="gyro", q_bias=0.0, r_gyro=0.0)
+    CleanConfig(method="rts", q_theta=0.0)
 
 
 def test_clean_config_ranges_from_a_preset_table() -> None:

@@ -77,6 +77,20 @@ class CleanConfig(PresetConfig, table="clean"):
         for name in ("p0_omega", "p0_bias"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"clean.{name}: must be positive, got {getattr(self, name)}")
+        # the divisions the filters make must stay defined: gyro3's gyro row has the
+        # innovation variance S = h P h' + r_gyro; the RTS smoother inverts the prior
+        # P- = A P A' + Q, positive definite when Q = diag(q_theta Ts + Ts^2 r_gyro, q_bias Ts) is
+        if self.method == "gyro3" and not self.r_gyro > 0:
+            raise ConfigError(
+                f"clean.r_gyro: must be positive for method 'gyro3' (the gyro is a measurement "
+                f"there), got {self.r_gyro}"
+            )
+        if self.method == "rts" and not (self.q_bias > 0 and self.q_theta + self.r_gyro > 0):
+            raise ConfigError(
+                "clean: method 'rts' needs a positive definite process noise (q_bias > 0, and "
+                f"q_theta or r_gyro > 0), got q_bias={self.q_bias}, q_theta={self.q_theta}, "
+                f"r_gyro={self.r_gyro}"
+            )
         if self.cons_window < 1:
             raise ConfigError(f"clean.cons_window: must be >= 1, got {self.cons_window}")
 
