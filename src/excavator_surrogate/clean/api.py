@@ -14,6 +14,7 @@ from ..config import to_dict
 from ..data.dataset import SPLITS, load_dataset, write_dataset
 from ..data.episode import Episode
 from ..data.jumps import jump_mask_of
+from ..data.plausible import velocity_scale
 from ..errors import ConfigError, DataError
 from .config import CleanConfig
 from .kalman import backward_difference, fuse
@@ -34,17 +35,31 @@ def _unwrapped_theta(ep: Episode, config: CleanConfig) -> np.ndarray:
 
 
 def clean_episodes(
-    episodes: Sequence[Episode], *, config: CleanConfig | None = None
+    episodes: Sequence[Episode],
+    *,
+    config: CleanConfig | None = None,
+    sources: Sequence[str | Path] | None = None,
 ) -> list[Episode]:
     """Clean many episodes, vectorised over episodes of similar length.
 
     Episodes are grouped by sample rate and joint count, sorted by length, and batched
     (padded to the longest in the batch); results are identical to cleaning one by one.
 
+    Args:
+        episodes: episodes with measured ``theta`` and gyro ``omega``.
+        config: filter parameters (default :class:`CleanConfig`).
+        sources: the file each episode was read from, named in errors (default: its name).
+
     Returns:
         The cleaned episodes in input order (see :func:`clean_episode`).
+
+    Raises:
+        DataError: an episode whose gyro disagrees with its angle by a unit (deg/s in a
+            rad/s column) or a sign: the filter would fuse them into nonsense.
     """
     cfg = config or CleanConfig()
+    for i, ep in enumerate(episodes):
+        _check_gyro_scale(ep, _unwrapped_theta(ep, cfg), ep.name if sources is None else sources[i])
     out: list[Episode | None] = [None] * len(episodes)
     groups: dict[tuple[float, int], list[int]] = {}
     for i, ep in enumerate(episodes):
@@ -80,6 +95,49 @@ def clean_episodes(
                 )
             start = stop
     return [ep for ep in out if ep is not None]
+
+
+UNTRUSTED_WARN = 0.2
+"""``exsur clean`` warns when it distrusts more than this share of a joint's angle samples."""
+GYRO_CHECK_S = 0.25
+"""The gyro's scale is checked on displacements over this interval [s] (less noise than a
+sample's difference of the raw angle)."""
+
+
+def _check_gyro_scale(ep: Episode, theta: np.ndarray, where: str | Path) -> None:
+    """Refuse a gyro off by a unit or a sign against its angle
+    (:func:`~..data.plausible.velocity_scale` on displacements over :data:`GYRO_CHECK_S`)::
+
+        d_k = (theta[k s] - theta[(k-1) s]) / (s Ts),   m_k = sum of omega over the same s samples / s
+    """
+    s = max(1, round(GYRO_CHECK_S / ep.dt))
+    if ep.n_step <= s:
+        return
+    # integrated gyro G_t = Ts * sum_{i<=t} omega_i (omega_i: the mean rate over (t_{i-1}, t_i])
+    g = np.cumsum(ep.omega, axis=0) * ep.dt
+    for k, joint in enumerate(ep.spec.joints):
+        found = velocity_scale(
+            np.diff(g[::s, k]) / (s * ep.dt),
+            np.diff(theta[::s, k]) / (s * ep.dt),
+            linear=joint.linear,
+        )
+        if found is None:
+            continue
+        kind, ratio = found
+        unit = "m/s" if joint.linear else "rad/s"
+        problem = (
+            "has the opposite sign of the angle's rate of change"
+            if kind == "sign"
+            else f"is {ratio:.3g}x the {'stroke' if joint.linear else 'angle'}'s rate of change"
+            + (f" (looks like {kind})" if kind != "length" else " (a length unit off)")
+        )
+        raise DataError(
+            where,
+            f"joint '{joint.name}': the gyro {problem}; cleaning would fuse them into nonsense",
+            column=f"omega_{joint.name}",
+            fix=f"the episode's omega must be in {unit} with the angle's sign: re-import the log "
+            "with the velocity's unit and scale set in the mapping",
+        )
 
 
 def _warn_if_no_gyro(ep: Episode, theta: np.ndarray, config: CleanConfig) -> None:
@@ -277,8 +335,19 @@ def clean_dataset(src: str | Path, out: str | Path, *, config: CleanConfig | Non
     ds = load_dataset(src)
     items = [(ep, split) for split in SPLITS for ep in ds.split(split)]
     _log.info(f"clean: {len(items)} episodes, {ds.n_samples()} samples, method {cfg.method}")
-    cleaned = clean_episodes([ep for ep, _ in items], config=cfg)
+    files = [f or ep.name for split in SPLITS for ep, f in zip(ds.split(split), ds.paths(split))]
+    cleaned = clean_episodes([ep for ep, _ in items], config=cfg, sources=files)
     summary = pooled_cleaning_metrics((ep, c) for (ep, _), c in zip(items, cleaned))
+    doubted = {
+        j: m["untrusted_frac"] for j, m in summary.items() if m["untrusted_frac"] > UNTRUSTED_WARN
+    }
+    if doubted:
+        _log.warning(
+            "clean: the filter distrusted "
+            + ", ".join(f"{j}'s angle in {f:.0%}" for j, f in doubted.items())
+            + " of the samples: the angle and the gyro disagree there (a gyro fault or drift, "
+            "a wrong unit or scale?); see --plot's figures before training on it"
+        )
     path = write_dataset(
         out,
         [(c, split) for c, (_, split) in zip(cleaned, items)],

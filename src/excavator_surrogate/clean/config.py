@@ -23,7 +23,7 @@ class CleanConfig(PresetConfig, table="clean"):
     """Parameters of the cleaning filters (all joints share them).  Units: rad, s."""
 
     method: Method = "rts"
-    """Filter: ``paper`` (Algorithm 1), ``gyro`` (gyro input + bias), ``gyro3`` (gyro measurement + bias), ``rts`` (gyro + RTS smoother)."""
+    """Filter: ``paper`` (Algorithm 1, open parts read as in docs/cleaning.md), ``gyro`` (gyro input + bias), ``gyro3`` (gyro measurement + bias), ``rts`` (gyro + RTS smoother)."""
     tau_jump: float = 0.15
     """Jump threshold tau_jump [rad] on delta_t (raw: must exceed the largest motion per sample)."""
     jump_ref: Literal["raw", "prior"] = "prior"

@@ -33,7 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--method",
         choices=METHODS,
         default=None,
-        help="paper = Algorithm 1; gyro = gyro input + bias; gyro3 = gyro measurement + bias; "
+        help="paper = Algorithm 1 (its open parts read as in docs/cleaning.md); gyro = gyro input + bias; gyro3 = gyro measurement + bias; "
         "rts = gyro + RTS smoother (default: preset, else rts)",
     )
     p.add_argument(

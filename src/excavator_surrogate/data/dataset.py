@@ -46,6 +46,15 @@ class Dataset:
         """Episodes of one split (possibly empty)."""
         return self.episodes.get(name, [])
 
+    def paths(self, name: str) -> list[Path | None]:
+        """The file each episode of split ``name`` was read from, in :meth:`split`'s order
+        (None for an episode not loaded from a manifest)."""
+        eps = self.split(name)
+        if self.root is None or not self.manifest.get("episodes"):
+            return [None] * len(eps)
+        files = [self.root / e["file"] for e in self.manifest["episodes"] if e["split"] == name]
+        return list(files) if len(files) == len(eps) else [None] * len(eps)
+
     @property
     def train(self) -> list[Episode]:
         """Training episodes."""

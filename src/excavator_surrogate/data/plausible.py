@@ -110,3 +110,46 @@ def check_plausible(
                 row=row,
                 fix=_FIX,
             )
+
+
+def velocity_scale(
+    omega_m: np.ndarray, omega_d: np.ndarray, *, linear: bool
+) -> tuple[str, float] | None:
+    """A measured velocity that disagrees with the position's rate of change by a unit.
+
+    Args:
+        omega_m: (n,) measured velocity (a gyro, a stroke-rate sensor).
+        omega_d: (n,) the position's rate of change over the same intervals, in the
+            position's unit per second.
+        linear: a linear joint (its units differ by powers of 10, not by 180/π).
+
+    Returns:
+        None when they agree, or the joint hardly moves; else ``(kind, ratio)``, ``ratio`` the
+        least-squares factor ``omega_m ≈ ratio * omega_d`` and ``kind`` one of ``"sign"``
+        (opposite sign), ``"deg/s"`` (``ratio`` near 180/π), ``"rad/s"`` (near π/180) or
+        ``"length"`` (a linear joint's velocity off by 10, 100 or 1000)::
+
+            corr  = <m, d> / (|m| |d|),   ratio = <m, d> / <d, d>
+    """
+    nd = float(np.dot(omega_d, omega_d))
+    nm = float(np.dot(omega_m, omega_m))
+    if omega_d.shape[0] < 10 or nd / omega_d.shape[0] < 1e-4 or nm == 0:
+        return None  # the joint hardly moves: nothing to compare
+    corr = float(np.dot(omega_m, omega_d)) / np.sqrt(nd * nm)
+    ratio = float(np.dot(omega_m, omega_d)) / nd
+    if corr < -0.8:
+        return "sign", ratio
+    if corr <= 0.8:
+        return None
+    if linear:
+        if not 0.5 < ratio < 2.0 and any(
+            0.5 < ratio / 10.0**k < 2.0 for k in (-3, -2, -1, 1, 2, 3)
+        ):
+            return "length", ratio
+        return None
+    deg = np.pi / 180.0
+    if 0.5 / deg < ratio < 2.0 / deg:
+        return "deg/s", ratio
+    if 0.5 * deg < ratio < 2.0 * deg:
+        return "rad/s", ratio
+    return None

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from ..data.plausible import velocity_scale
 from ..errors import DataError
 from .mapping import (
-    DEG,
     TIME_UNIT_S,
     Channel,
     CommandMap,
@@ -367,44 +367,30 @@ def check_velocity_unit(
     path: Path, omega_m: np.ndarray, omega_d: np.ndarray, j: JointMap, label: str, where: str
 ) -> None:
     """Measured velocity vs the angle's rate of change: catches deg/s vs rad/s (m/s vs cm/s
-    or mm/s for a linear joint) and sign errors."""
-    nd = float(np.dot(omega_d, omega_d))
-    nm = float(np.dot(omega_m, omega_m))
-    if omega_d.shape[0] < 10 or nd / omega_d.shape[0] < 1e-4 or nm == 0:
-        return  # the joint hardly moves: nothing to compare
-    corr = float(np.dot(omega_m, omega_d)) / math.sqrt(nd * nm)
-    ratio = float(np.dot(omega_m, omega_d)) / nd
-    if corr < -0.8:
+    or mm/s for a linear joint) and sign errors (:func:`~..data.plausible.velocity_scale`)."""
+    found = velocity_scale(omega_m, omega_d, linear=j.linear)
+    if found is None:
+        return
+    kind, ratio = found
+    if kind == "sign":
         raise DataError(
             path,
             "measured velocity has the opposite sign of the angle's rate of change",
             column=label,
             fix=f"set scale = -1 in the velocity of joint '{j.name}' in {where}",
         )
-    if j.linear:  # no degrees here: a length unit off by 10, 100 or 1000
-        if corr > 0.8 and not 0.5 < ratio < 2.0:
-            off = [10.0**k for k in (-3, -2, -1, 1, 2, 3) if 0.5 < ratio / 10.0**k < 2.0]
-            if off:
-                raise DataError(
-                    path,
-                    f"measured velocity is {ratio:.3g}x the position's rate of change: its "
-                    "length unit looks wrong",
-                    column=label,
-                    fix=f"set the velocity unit (m/s, cm/s or mm/s) of joint '{j.name}' in "
-                    f"{where} to the position's unit per second",
-                )
-        return
-    if corr > 0.8 and 0.5 / DEG < ratio < 2.0 / DEG:
+    if kind == "length":
         raise DataError(
             path,
-            f"measured velocity is {ratio:.3g}x the angle's rate of change: looks like deg/s",
+            f"measured velocity is {ratio:.3g}x the position's rate of change: its "
+            "length unit looks wrong",
             column=label,
-            fix=f"set unit = \"deg/s\" in the velocity of joint '{j.name}' in {where}",
+            fix=f"set the velocity unit (m/s, cm/s or mm/s) of joint '{j.name}' in "
+            f"{where} to the position's unit per second",
         )
-    if corr > 0.8 and 0.5 * DEG < ratio < 2.0 * DEG:
-        raise DataError(
-            path,
-            f"measured velocity is {ratio:.3g}x the angle's rate of change: looks like rad/s",
-            column=label,
-            fix=f"set unit = \"rad/s\" in the velocity of joint '{j.name}' in {where}",
-        )
+    raise DataError(
+        path,
+        f"measured velocity is {ratio:.3g}x the angle's rate of change: looks like {kind}",
+        column=label,
+        fix=f"set unit = \"{kind}\" in the velocity of joint '{j.name}' in {where}",
+    )
