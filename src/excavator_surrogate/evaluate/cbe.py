@@ -129,6 +129,36 @@ def evaluate_models(
     return metrics, runs
 
 
+def baselines(
+    sur: Surrogate, dataset: Dataset, *, arx: bool = True, structured: bool = True
+) -> dict[str, Surrogate]:
+    """The baselines ``sur`` is scored against, fitted on ``dataset``'s training split (none
+    without one): ``"ARX"`` and :data:`STRUCTURED`.
+
+    Both run in the checkpoint's envelope (``sur.spec``: the end stops and speed bounds
+    training filled in from its data), as the model they are compared with does; the
+    dataset's own spec may declare none, and an ARX without stops drifted thousands of
+    degrees under a held command.
+    """
+    models: dict[str, Surrogate] = {}
+    if arx and dataset.train:
+        models["ARX"] = fit_arx(
+            dataset.train,
+            window=sur.window,
+            spec=sur.spec,
+            # the surrogate's features, fitted in NumPy; not its map joints: the baseline
+            # is ARX on every joint, not ARX beside the recipe's static map
+            norm=sur.norm.with_own(None).to("cpu"),
+            val=dataset.val,
+            end_stops=sur.end_stops,
+        )
+    if structured and dataset.train:
+        models[STRUCTURED] = fit_structured(dataset.train, window=sur.window, spec=sur.spec)
+    if (arx or structured) and not dataset.train:
+        _log.info("no training split loaded: skipping the baselines")
+    return models
+
+
 def evaluate_checkpoint(
     ckpt: str | Path,
     dataset: Dataset | str | Path,
@@ -206,23 +236,9 @@ def evaluate_checkpoint(
     check_compatible(sur.spec, dataset.spec, ckpt=ckpt, data_name=where)
     for label, path in (compare or {}).items():
         check_compatible(models[label].spec, dataset.spec, ckpt=path, data_name=where)
-    if arx and dataset.train:
-        models["ARX"] = fit_arx(
-            dataset.train,
-            window=sur.window,
-            spec=dataset.spec,
-            # the surrogate's features, fitted in NumPy; not its map joints: the baseline
-            # is ARX on every joint, not ARX beside the recipe's static map
-            norm=sur.norm.with_own(None).to("cpu"),
-            val=dataset.val,
-            end_stops=sur.end_stops,
-        ).to(dev)
-    if structured and dataset.train:
-        models[STRUCTURED] = fit_structured(dataset.train, window=sur.window, spec=dataset.spec).to(
-            dev
-        )
-    if (arx or structured) and not dataset.train:
-        _log.info("no training split loaded: skipping the baselines")
+    models.update(
+        {k: m.to(dev) for k, m in baselines(sur, dataset, arx=arx, structured=structured).items()}
+    )
     metrics, runs = evaluate_models(
         models, episodes, reference=reference, max_steps=max_steps or None
     )
