@@ -147,6 +147,27 @@ def test_bias_correction_adds_the_measured_velocity_error() -> None:
         SurrogatePredictor(sur, n_batch=K, bias_gain=2.0)
 
 
+def test_the_bias_correction_stays_inside_the_end_stops() -> None:
+    """The bias is a velocity the rollout did not see: added as a ramp after the envelope,
+    it had carried a predicted arm 20 degrees past its stop."""
+    from excavator_surrogate.surrogate.angles import envelope
+
+    sur = tiny_surrogate(end_stops=True)
+    lo, hi, _ = envelope(sur.spec)
+    p = SurrogatePredictor(sur, n_batch=K, bias_gain=1.0)
+    plain = SurrogatePredictor(sur, n_batch=K)
+    start = np.where(np.isfinite(hi), hi - 0.01, 0.0)
+    for q in (p, plain):
+        q.reset(start)
+    p.bias[:] = 2.0  # [rad/s]: 0.1 rad a sample at 20 Hz
+    u = np.random.default_rng(4).uniform(-1000, 1000, (K, N, 4))
+    got, ref = p.predict(u), plain.predict(u)
+    assert np.isfinite(hi).sum() >= 3 and (got <= hi).all() and (got >= lo).all()
+    ramp = np.arange(1, N + 1)[:, None] * sur.spec.dt
+    np.testing.assert_allclose(got, np.clip(ref + ramp * 2.0, lo, hi), atol=1e-9)
+    assert (got[..., np.isfinite(hi)] == hi[np.isfinite(hi)]).any()  # some reached a stop
+
+
 def _assert_split_close(got: np.ndarray, ref: np.ndarray, theta_now: np.ndarray) -> None:
     """``got`` equals ``ref`` (n_batch, n_step, n_joint) up to float32 roundings of each step's
     angle change from ``theta_now`` (n_joint,), summed over the steps, times a margin of 4

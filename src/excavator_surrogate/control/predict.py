@@ -87,7 +87,8 @@ class SurrogatePredictor:
         bias_gain: weight ``a`` of the velocity-bias estimate (offset-free MPC): after every
             measured step, ``b ← (1 - a) b + a (θ_measured - θ_predicted) / T_s`` from the
             synced engine's own one-step prediction, and ``predict`` adds ``b · T_s · (n + 1)``
-            to sample ``n`` of every candidate; 0 (default) switches it off.
+            to sample ``n`` of every candidate, clipped to the surrogate's end stops; 0
+            (default) switches it off.
         workers: processes the candidates are split over (1: this process only; ``k > 1``:
             this one and ``k - 1`` spawned :class:`~.workers.RolloutWorker`; ``close()``
             ends them).  Each process runs one torch thread.
@@ -219,7 +220,12 @@ class SurrogatePredictor:
         if not self.bias_gain:
             return theta
         ramp = np.arange(1, theta.shape[1] + 1)[:, None] * self.spec.dt  # (n_step, 1) [s]
-        return theta + ramp * self.bias
+        theta = theta + ramp * self.bias
+        stops = self.sync._limits
+        if stops is None:
+            return theta
+        # still inside the end stops the rollout ran in (the bias is a velocity it did not see)
+        return np.clip(theta, stops[0].numpy(), stops[1].numpy())
 
     def predict(self, u: np.ndarray) -> np.ndarray:
         """See :meth:`Predictor.predict`; ``u`` must have ``n_batch`` rows."""
