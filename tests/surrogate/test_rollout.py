@@ -117,3 +117,40 @@ def test_the_true_reference_of_a_log_without_ground_truth_says_what_to_do(episod
         DataError, match=f"episode '{ep.name}': has no ground truth .*--reference measured"
     ):
         reference_theta(ep, "true")
+
+
+def test_a_nan_command_or_angle_is_refused_not_propagated(spec, episodes):
+    """One NaN command turned every joint's free run NaN from that step on, and the coverage
+    flags did not see it; each entry point now names the entry."""
+    from excavator_surrogate.control.predict import SurrogatePredictor
+    from excavator_surrogate.errors import ConfigError
+    from excavator_surrogate.surrogate.numpy_loop import rollout_numpy
+
+    sur = make_surrogate(spec, episodes, mode="stateful", window=6)
+    theta = np.stack([e.theta[:60] for e in episodes[:2]])
+    u = np.stack([e.u[:60] for e in episodes[:2]])
+    j = spec.n_joint - 1
+    name = spec.names[j]
+    bad_u = u.copy()
+    bad_u[1, 40, j] = np.nan
+    with pytest.raises(ConfigError, match=rf"^rollout: u\[1, 40, {j}\] \({name}\) is nan: a free"):
+        rollout(sur, theta, bad_u)
+    with pytest.raises(ConfigError, match=rf"^rollout_numpy: u\[1, 40, {j}\] \({name}\) is nan"):
+        rollout_numpy(sur, theta, bad_u, warmup=sur.window)
+    bad_theta = theta.copy()
+    bad_theta[0, 3, j] = np.inf
+    with pytest.raises(ConfigError, match=rf"^rollout: theta\[0, 3, {j}\] \({name}\) is inf"):
+        rollout(sur, bad_theta, u)
+    loop = ClosedLoop(sur)
+    loop.reset(theta[:, : sur.window], u[:, : sur.window - 1])
+    with pytest.raises(ConfigError, match=rf"^ClosedLoop.step: u\[0, {j}\] \({name}\) is nan"):
+        loop.step(np.where(np.arange(spec.n_u) == j, np.nan, u[:, 0]))
+    p = SurrogatePredictor(sur, n_batch=2)
+    p.reset(theta[0, 0])
+    nan_at_j = np.where(np.arange(spec.n_joint) == j, np.nan, 0.0)
+    with pytest.raises(ConfigError, match=rf"^SurrogatePredictor.observe: theta\[{j}\]"):
+        p.observe(u[0, 0], nan_at_j)
+    cand = np.zeros((2, 5, spec.n_joint))
+    cand[1, 4, j] = np.nan
+    with pytest.raises(ConfigError, match=rf"^SurrogatePredictor.predict: u\[1, 4, {j}\]"):
+        p.predict(cand)

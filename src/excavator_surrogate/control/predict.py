@@ -36,6 +36,7 @@ from ..spec import MachineSpec
 from ..surrogate.coverage import CoverageRecord, ood_flags
 from ..surrogate.ensemble import member_head
 from ..surrogate.model import Surrogate
+from ..surrogate.rollout import require_finite
 from ..surrogate.uncertainty import stored_coverage
 from .workers import RolloutWorker, rollout
 
@@ -156,27 +157,33 @@ class SurrogatePredictor:
 
     def reset(self, theta0: np.ndarray) -> None:
         """At rest at ``theta0`` (n_joint,): the engine's at-rest warm-up."""
-        self.sync.reset(np.asarray(theta0, dtype=np.float64)[None])
+        theta0 = np.asarray(theta0, dtype=np.float64)
+        require_finite(theta0, self.spec, what="theta", where="SurrogatePredictor.reset")
+        self.sync.reset(theta0[None])
         self.bias[:] = 0.0
 
     def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
         """Mid-motion: the synced engine warmed up on the machine's recorded ``theta_hist``
         (n_hist, n_joint) [rad] and ``u_hist`` (n_hist - 1, n_u)
         (:meth:`~excavator_surrogate.env.engine.SurrogateEngine.reset_history`)."""
-        th = np.asarray(theta_hist, dtype=np.float64)[None]
-        self.sync.reset_history(th, self._full(u_hist)[None])
+        th = np.asarray(theta_hist, dtype=np.float64)
+        require_finite(th, self.spec, what="theta", where="SurrogatePredictor.reset_history")
+        self.sync.reset_history(th[None], self._full(u_hist)[None])
         self.bias[:] = 0.0
 
     def _full(self, u: Any) -> np.ndarray:
         """Commands (..., n_u) from (..., n_joint) (the held inputs filled in) or (..., n_u)."""
         u = np.asarray(u, dtype=np.float64)
-        return u if u.shape[-1:] == (self.spec.n_u,) else self.layout.full(u)
+        u = u if u.shape[-1:] == (self.spec.n_u,) else self.layout.full(u)
+        require_finite(u, self.spec, what="u", where="SurrogatePredictor")
+        return u
 
     def observe(self, u: np.ndarray, theta: np.ndarray) -> None:
         """Consume the applied ``u`` from the current (measured) angle, then take the measured
         ``theta`` as the new current angle."""
-        pred, _ = self.sync.step(self._full(u)[None])
         theta = np.asarray(theta, dtype=np.float64)
+        require_finite(theta, self.spec, what="theta", where="SurrogatePredictor.observe")
+        pred, _ = self.sync.step(self._full(u)[None])
         if self.bias_gain:
             err = (theta - pred[0].cpu().numpy()) / self.spec.dt
             self.bias += self.bias_gain * (err - self.bias)
@@ -190,6 +197,7 @@ class SurrogatePredictor:
             raise ConfigError(
                 f"SurrogatePredictor: u must have shape ({self.n_batch}, n_step, {self.spec.n_joint}), got {u.shape}"
             )
+        require_finite(u, self.spec, what="u", where="SurrogatePredictor.predict")
         return u if not self.layout.fixed else self.layout.full(u).astype(np.float32)
 
     @torch.inference_mode()

@@ -20,6 +20,7 @@ from ..surrogate.angles import wrap_periodic
 from ..surrogate.command_state import play_np
 from ..surrogate.features_np import scale_commands_np
 from ..surrogate.own_angles import N_OWN_ROWS
+from ..surrogate.rollout import require_finite
 from .fused import rest_command
 
 
@@ -99,6 +100,7 @@ class OnnxStepper:
     def reset(self, theta0: np.ndarray) -> np.ndarray:
         """Start every row at rest at ``theta0`` (n_batch, n_joint) [rad]; returns θ (float32)."""
         theta0 = np.atleast_2d(np.asarray(theta0, dtype=np.float32))
+        require_finite(theta0, self.spec, what="theta", where="OnnxStepper.reset")
         n = theta0.shape[0]
         self.theta = theta0.copy()
         u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
@@ -149,6 +151,8 @@ class OnnxStepper:
             raise ValueError(
                 f"u_hist must be (n_batch, n_hist-1={n_hist - 1}, {n_u}), got {u.shape}"
             )
+        require_finite(th, self.spec, what="theta", where="OnnxStepper.reset_history")
+        require_finite(u, self.spec, what="u", where="OnnxStepper.reset_history")
         # w[0] = 0 (at rest on theta[0]);  w[k] = wrap(theta[k] - theta[k-1]) / T_s
         d = wrap_periodic(th[:, 1:] - th[:, :-1], self.spec.periodic)
         w = np.concatenate([np.zeros_like(th[:, :1]), d / np.float32(self.spec.dt)], axis=1)
@@ -218,6 +222,7 @@ class OnnxStepper:
         """Apply commands ``u`` (n_batch, n_u) (joints', then exogenous inputs'); returns
         ``(theta[k+1], omega[k+1])`` float32."""
         u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape[0], self.spec.n_u)
+        require_finite(u, self.spec, what="u", where="OnnxStepper.step")
         if self.mode == "stateful":
             feed = self._stateful_feed(self.theta, u, self.z, self.w)
             outs = dict(zip(self._outputs, self.session.run(None, feed)))

@@ -38,7 +38,7 @@ from ..data.episode import Episode
 from .angles import integrate_np
 from .features_np import angle_columns_np
 from .model import Surrogate, SurrogateNet
-from .rollout import ClosedLoop, EpisodeRollout, batch_episodes, episode_rollouts
+from .rollout import ClosedLoop, EpisodeRollout, batch_episodes, episode_rollouts, require_finite
 from .stacked import StackedNet
 
 
@@ -143,6 +143,7 @@ def rollout_numpy(
         raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
     if n_batch % n_cand:
         raise ValueError(f"{n_batch} rows do not split into {n_cand} candidates' copies")
+    require_finite(u[:, : n_step - 1], sur.spec, what="u", where="rollout_numpy")
     loop = ClosedLoop(sur)
     loop.reset(theta[:, :warmup], u[:, : warmup - 1])
     u_run = loop._t(u[:, warmup - 1 : n_step - 1])  # u[k] of the steps k = warmup-1 .. n_step-2

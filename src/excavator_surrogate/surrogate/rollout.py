@@ -27,6 +27,7 @@ import torch
 
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
+from ..spec import MachineSpec
 from .angles import integrate, omega_target
 from .blocks import split
 from .ensemble import member_head
@@ -175,6 +176,8 @@ class ClosedLoop:
         """
         theta_hist = self._t(theta_hist)
         u_hist = self._t(u_hist)
+        require_finite(theta_hist, self.sur.spec, what="theta", where="ClosedLoop.reset")
+        require_finite(u_hist, self.sur.spec, what="u", where="ClosedLoop.reset")
         n_batch, n_hist, _ = theta_hist.shape
         if n_hist < 1 or u_hist.shape != (n_batch, n_hist - 1, self.sur.spec.n_u):
             raise ValueError(
@@ -209,6 +212,7 @@ class ClosedLoop:
         if self.theta is None:
             raise RuntimeError("call reset() before step()")
         u = self._t(u)
+        require_finite(u, self.sur.spec, what="u", where="ClosedLoop.step")
         self.z = self.norm.play_update(self.z, u)
         theta_in, omega_in = network_inputs(self.norm, self.theta, self.z, self.omega)
         row = self.norm.encode(theta_in, u, self.z, omega_in)
@@ -254,6 +258,34 @@ class ClosedLoop:
         return torch.where((self.follow >= 0)[:, None] & self.norm.own.own_mask, mine, omega)
 
 
+def require_finite(
+    a: np.ndarray | torch.Tensor, spec: MachineSpec, *, what: str, where: str
+) -> None:
+    """Refuse a NaN or infinite command or angle fed to a free run: one NaN command turns every
+    joint's prediction NaN from that step on, and the coverage flags do not see it.
+
+    Args:
+        a: ``(..., n_u)`` commands [command units] (``what="u"``) or ``(..., n_joint)`` angles
+            [rad] (``what="theta"``).
+        spec: names the column.
+        what: ``"u"`` or ``"theta"``.
+        where: the call, for the message.
+
+    Raises:
+        ConfigError: one line naming the first non-finite entry's index and column.
+    """
+    ok = torch.isfinite(a).all() if isinstance(a, torch.Tensor) else np.isfinite(a).all()
+    if ok:
+        return
+    arr = a.detach().cpu().numpy() if isinstance(a, torch.Tensor) else np.asarray(a)
+    at = [int(i) for i in np.argwhere(~np.isfinite(arr))[0]]
+    names = spec.u_names if what == "u" else spec.names
+    raise ConfigError(
+        f"{where}: {what}{at} ({names[at[-1]]}) is {arr[tuple(at)]}: a free run needs finite "
+        "values; fill or cut the gap in the log (exsur import --nan)"
+    )
+
+
 @torch.no_grad()
 def rollout(
     sur: Surrogate,
@@ -287,6 +319,8 @@ def rollout(
     n_joint = sur.spec.n_joint
     if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
         raise ValueError(f"need >= warmup={warmup} samples, got theta {theta.shape}, u {u.shape}")
+    require_finite(theta[:, :warmup], sur.spec, what="theta", where="rollout")
+    require_finite(u[:, : n_step - 1], sur.spec, what="u", where="rollout")
     loop = ClosedLoop(sur if mode == "windowed" else split(sur), mode=mode)
     loop.reset(theta[:, :warmup], u[:, : warmup - 1])
     u_t = loop._t(u)
