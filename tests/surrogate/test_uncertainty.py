@@ -115,6 +115,51 @@ def test_shared_design_spreads_the_members_along_one_run(spec, episodes):
     assert np.isfinite(om_m[:, :, 5:]).all() and np.abs(th_m[0] - th_m[1]).max() > 0
 
 
+def test_shared_member_angles_stay_inside_the_end_stops(spec, episodes):
+    """Members driven into the stops the merged run rests on: their velocity deviations kept
+    integrating, hundreds of degrees past a stop, and the bands grew without bound.  Checked
+    against a plain per-member, per-sample loop."""
+    kw = dict(mode="stateful", window=5, play=PLAY, end_stops=True, drive=20.0)
+    ens = merge(
+        [
+            make_surrogate(spec, episodes[:2], seed=0, hidden=10, **kw),
+            make_surrogate(spec, episodes[1:], seed=1, hidden=6, **kw),
+        ]
+    )
+    theta, u = _batch(episodes, 60)
+    th_c, om_c, th_m, om_m = member_runs(ens, theta, u, design="shared")
+    lo, hi = ens.limits_np()[:2]
+    stopped = np.isfinite(hi)
+    last = th_c[:, -1, stopped]
+    at_stop = np.isclose(last, lo[stopped], atol=1e-6) | np.isclose(last, hi[stopped], atol=1e-6)
+    assert at_stop.any()  # the run rests on a stop
+    assert (th_m <= np.maximum(hi, th_c) + 1e-12).all() and (
+        th_m >= np.minimum(lo, th_c) - 1e-12
+    ).all()
+    # the plain loop: member by member, sample by sample
+    dt = ens.spec.dt
+    for m in range(th_m.shape[0]):
+        for i in range(th_m.shape[1]):
+            ref = th_c[i, 0].copy()
+            for k in range(th_m.shape[2] - 1):
+                if np.isnan(om_c[i, k + 1]).all():
+                    ref = th_c[i, k + 1].copy()
+                else:
+                    d = np.nan_to_num(om_m[m, i, k + 1] - om_c[i, k + 1]) * dt
+                    ref = ref + (th_c[i, k + 1] - th_c[i, k]) + d
+                    ref = np.clip(
+                        ref, np.minimum(lo, th_c[i, k + 1]), np.maximum(hi, th_c[i, k + 1])
+                    )
+                np.testing.assert_allclose(th_m[m, i, k + 1], ref, atol=1e-12)
+    # away from the stops the deviation is the plain integral (the design's definition)
+    free = ~stopped
+    dev = np.cumsum(np.nan_to_num(om_m - om_c[None]) * dt, axis=2)
+    np.testing.assert_allclose(th_m[..., free], (th_c[None] + dev)[..., free], atol=1e-9)
+    # the spread stays within the joint's range (it had grown without bound)
+    span = (hi - lo)[stopped]
+    assert (np.std(th_m, 0, ddof=1)[..., stopped] <= span).all()
+
+
 def test_fit_scale_recovers_a_known_scale(rng):
     n = 40_000
     c = np.array([0.5, 2.0, 7.0])  # errors are c_j x spread x N(0, 1)

@@ -275,9 +275,50 @@ def member_runs(
         th_m = th[n_batch:].reshape(m, n_batch, n_step, n_joint)
         om_m = om[n_batch:].reshape(m, n_batch, n_step, n_joint)
     else:  # each member's velocity along the shared run, its deviation integrated
-        dev = np.nan_to_num(om_m - om_c[None]) * sur.spec.dt
-        th_m = th_c[None] + np.cumsum(dev, axis=2)
+        th_m = shared_member_angles(th_c, om_c, om_m, dt=sur.spec.dt, limits=sur.limits_np())
     return th_c, om_c, th_m, om_m
+
+
+def shared_member_angles(
+    theta: np.ndarray,
+    omega: np.ndarray,
+    omega_m: np.ndarray,
+    *,
+    dt: float,
+    limits: tuple[np.ndarray, ...] | None,
+) -> np.ndarray:
+    """The members' angles of the ``shared`` design: each member's velocity deviation from
+    the merged run, integrated along it and stopped where the merged run's end stops are::
+
+        theta_m[k+1] = clip(theta_m[k] + (theta[k+1] - theta[k]) + T_s (omega_m[k+1] - omega[k+1]), lo, hi)
+
+    (the recorded angle during the warm-up; the stops widened to ``theta[k+1]`` where the merged
+    run is beyond one).
+
+    Args:
+        theta, omega: (n_batch, n_step, n_joint) the merged run [rad], [rad/s] (``omega`` NaN
+            during the warm-up).
+        omega_m: (M, n_batch, n_step, n_joint) the members' velocities along it [rad/s].
+        dt: sample period T_s [s].
+        limits: ``(lo, hi[, omega_max])`` of :meth:`.model.Surrogate.limits_np`, or None.
+
+    Returns:
+        ``theta_m``: (M, n_batch, n_step, n_joint) [rad].  Without the stops a member pushing
+        into a stop the merged run rests on kept integrating, hundreds of degrees past it.
+    """
+    dev = np.nan_to_num(omega_m - omega[None]) * dt  # (M, n_batch, n_step, n_joint)
+    if limits is None:
+        return theta[None] + np.cumsum(dev, axis=2)
+    th_m = np.empty_like(dev)
+    th_m[:, :, 0] = theta[None, :, 0]
+    for k in range(dev.shape[2] - 1):
+        nxt = th_m[:, :, k] + (theta[:, k + 1] - theta[:, k]) + dev[:, :, k + 1]
+        # the stops, widened to the merged run's own angle (a start beyond a stop stays there)
+        lo = np.minimum(limits[0], theta[:, k + 1])
+        hi = np.maximum(limits[1], theta[:, k + 1])
+        recorded = np.isnan(omega[:, k + 1])  # the warm-up: the recorded angle
+        th_m[:, :, k + 1] = np.where(recorded, theta[:, k + 1], np.clip(nxt, lo, hi))
+    return th_m
 
 
 def _std(a: np.ndarray) -> np.ndarray:
