@@ -287,3 +287,15 @@ def test_a_time_trace_named_in_the_mapping(dsp, short_cols):
     ref = convert_log(plain, parse_mapping(data, path=dsp / "m.toml")).episodes[0]
     assert res.episodes[0].n_step == ref.n_step
     np.testing.assert_allclose(res.episodes[0].theta, ref.theta, atol=1e-9)
+
+
+def test_the_x_axis_is_in_seconds_whatever_the_time_unit(dsp, short_cols):
+    """The plain CSV logs' mapping (``[time] column = "t_ms"``, ``unit = "ms"``) reads the
+    exports of the same rig: the x axis answers to ``t_ms`` and stays in seconds (it was
+    read in ms: 100 Hz taken for 100 kHz)."""
+    log = write_dspace(dsp / "x.dspace.csv", dspace_traces(short_cols))
+    res = convert_log(log, parse_mapping(tomllib.loads(arm3_plant.MAPPING_TOML)))
+    assert res.entry["series"]["table"]["rate_hz"] == pytest.approx(100.0, rel=1e-3)
+    ref = convert_log(log, parse_mapping(tomllib.loads(dspace_mapping_toml()))).episodes[0]
+    np.testing.assert_allclose(res.episodes[0].time, ref.time, atol=1e-9)
+    np.testing.assert_allclose(res.episodes[0].theta, ref.theta, atol=1e-9)

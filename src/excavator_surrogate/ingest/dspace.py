@@ -10,9 +10,10 @@ The layout, as ControlDesk 7 writes it (``,`` or ``;`` between cells)::
     trace_values,0,1.5,0,...               the first sample; later rows leave the label empty
     ,0.01,1.6,0,...
 
-Trace 0 is the x axis (time; ``[time] column`` defaults to it, and it answers to
+Trace 0 is the x axis (time in s; ``[time] column`` defaults to it, and it answers to
 ``"time"`` when it has no name).  A ``[time] column`` that names no other trace is the x
-axis too, so one mapping reads a rig's plain CSV logs (time column ``t``) and its exports.  Most ``trace_names`` are the generic port name of the
+axis too, read in seconds whatever ``[time] unit`` says, so one mapping reads a rig's plain
+CSV logs (time column ``t_ms``, unit ``ms``) and its exports.  Most ``trace_names`` are the generic port name of the
 recorded block (``In1``, ``Out1``) or empty, so such a trace is named by the last segment
 of its ``path``; a specific trace name is used as it is.  A mapping may also give the full
 name (``<path>/<trace name>``, or the ``path`` of a generically named trace).  A name that
@@ -293,11 +294,14 @@ def read_dspace(path: Path, mapping: Mapping) -> RawLog:
     if table.num_rows == 0:
         raise DataError(path, "the export has no samples", fix="remove the file or record data")
     tlabel = str(tm.column) if tm.column is not None else t_trace.short
+    tm = dataclasses.replace(tm, column=tlabel)
+    if t_trace.index == 0:  # the x axis is in seconds; [time] unit is the plain logs' column's
+        tm = dataclasses.replace(tm, unit="s", format=None)
     decimal = mapping.csv.decimal
     time_s, origin = parse_time(
         path,
         table.column(names[t_trace.index]),
-        dataclasses.replace(tm, column=tlabel),
+        tm,
         decimal=decimal,
         thousands=mapping.csv.thousands,
     )
