@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -136,7 +137,8 @@ def test_mdf_channel_units_against_the_mapping(cli, tmp_path, short_cols):
 
 
 def test_mdf_two_channel_groups(tmp_path, short_cols):
-    """Channels on two rasters: resampled onto the longer group's master over the common span."""
+    """Channels in two channel groups: each group a series on its own master, the episode on
+    the span both cover."""
     log = write_mdf(tmp_path / "two.mf4", short_cols, split_bucket=True)
     res = convert_log(log, _mapping(tmp_path))
     t = short_cols["t_ms"] * 1e-3
@@ -146,7 +148,8 @@ def test_mdf_two_channel_groups(tmp_path, short_cols):
     assert ep.n_step == ref.n_step
     np.testing.assert_allclose(ep.theta, ref.theta, atol=1e-5)
     np.testing.assert_allclose(ep.u, ref.u, atol=1e-2)
-    assert res.entry["series"]["table"]["duration_s"] == pytest.approx(
+    assert res.entry["series"]["channel group 0"]["duration_s"] == pytest.approx(t[-1], abs=1e-3)
+    assert res.entry["series"]["channel group 1"]["duration_s"] == pytest.approx(
         t[keep][-1] - t[keep][0], abs=1e-3
     )
 
@@ -174,6 +177,15 @@ def test_mdf_errors(cli, tmp_path, short_cols):
     err = _fail(cli, tmp_path, tmp_path / "twice.mf4")
     assert "column 'boom_deg': channel name is ambiguous: 2 channel groups hold it" in err
     assert "groups group 0, group 1; rename it" in err
+    # two channel groups that share no time span (the reader had raised an IndexError)
+    mdf = asammdf.MDF(version="4.10")
+    t = short_cols["t_ms"] * 1e-3
+    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS[1:] if c != "arm_deg"]))
+    mdf.append([asammdf.Signal(short_cols["arm_deg"], t + 20.0, name="arm_deg")])
+    mdf.save(tmp_path / "apart.mf4", overwrite=True)
+    mdf.close()
+    err = _fail(cli, tmp_path, tmp_path / "apart.mf4")
+    assert "the channel groups share no gap-free time span" in err
     # a truncated file
     good = write_mdf(tmp_path / "good.mf4", short_cols).read_bytes()
     (tmp_path / "cut.mf4").write_bytes(good[: len(good) // 2])
@@ -211,8 +223,9 @@ def test_mdf_ambiguous_names_with_sources(cli, tmp_path, short_cols):
     np.testing.assert_allclose(ep.theta, _csv_reference(tmp_path, short_cols).theta, atol=1e-5)
 
 
-def test_mdf_rasters_resampled_onto_the_longest_master(tmp_path, short_cols):
-    """A 10 Hz group on the 100 Hz master: floats linear, integers hold the previous sample."""
+def test_mdf_rasters_each_on_its_own_master(tmp_path, short_cols):
+    """A 10 Hz group beside the 100 Hz one keeps its own times and samples (floats and
+    integers); the import resamples each channel from them."""
     from excavator_surrogate.ingest.readers import read_log
 
     t = short_cols["t_ms"] * 1e-3
@@ -229,14 +242,13 @@ def test_mdf_rasters_resampled_onto_the_longest_master(tmp_path, short_cols):
         '[[inputs]]\nname = "engine_rpm"\ncolumn = "rpm"\nunit = "physical"\nrange = [800.0, 2200.0]\n'
     )
     raw = read_log(tmp_path / "rasters.mf4", _mapping(tmp_path, text))
-    s = raw.series["table"]
-    keep = (t >= t_slow[0]) & (t <= t_slow[-1])
-    t_master = t[keep]
-    np.testing.assert_allclose(s.time, t_master - t_master[0])
-    np.testing.assert_array_equal(s.values["boom_deg"], short_cols["boom_deg"][keep])
-    held = gear[np.searchsorted(t_slow, t_master, side="right") - 1]
-    np.testing.assert_array_equal(s.values["gear"], held)
-    np.testing.assert_allclose(s.values["rpm"], np.interp(t_master, t_slow, rpm))
+    fast, slow = raw.series["channel group 0"], raw.series["channel group 1"]
+    np.testing.assert_allclose(fast.time, t - t[0])
+    np.testing.assert_array_equal(fast.values["boom_deg"], short_cols["boom_deg"])
+    np.testing.assert_allclose(slow.time, t_slow - t[0])
+    np.testing.assert_array_equal(slow.values["gear"], gear)
+    np.testing.assert_array_equal(slow.values["rpm"], rpm)
+    assert {c.key: g for c, g in raw.placement.items()}["rpm"] == "channel group 1"
     # and through the import: the inputs are u columns 3 and 4
     ep = convert_log(tmp_path / "rasters.mf4", _mapping(tmp_path, text)).episodes[0]
     assert ep.spec.u_names == (*arm3_plant.JOINTS, "gear", "engine_rpm")
@@ -300,8 +312,8 @@ def test_mdf_channel_errors(cli, tmp_path, short_cols):
 
 
 def test_mdf_invalid_samples_become_missing(cli, tmp_path, short_cols):
-    """Samples flagged invalid are NaN at their rows (the log keeps its rows), in the master's
-    group and resampled from another; the import names the first one and the fix."""
+    """Samples flagged invalid are NaN at their rows (the log keeps its rows); the import
+    names the first one and the fix."""
     from excavator_surrogate.ingest.readers import read_log
 
     t = short_cols["t_ms"] * 1e-3
@@ -310,29 +322,107 @@ def test_mdf_invalid_samples_become_missing(cli, tmp_path, short_cols):
     arm = asammdf.Signal(short_cols["arm_deg"], t, name="arm_deg", invalidation_bits=bad)
     log = _one_group(tmp_path / "inv.mf4", short_cols, arm)
     raw = read_log(log, _mapping(tmp_path))
-    values = raw.series["table"].values
-    assert raw.series["table"].time.size == t.size
+    values = raw.series["channel group 0"].values
+    assert raw.series["channel group 0"].time.size == t.size
     np.testing.assert_array_equal(np.flatnonzero(np.isnan(values["arm_deg"])), np.arange(100, 110))
     np.testing.assert_array_equal(values["boom_deg"], short_cols["boom_deg"])
     err = _fail(cli, tmp_path, log)
     assert "inv.mf4, column 'arm_deg', row 100: missing or non-finite value" in err
     assert "--nan fill" in err
-    # the flagged channel in a slower group, resampled onto the master
+
+
+def test_mdf_invalid_samples_of_a_slower_group_stay_on_its_rows(cli, tmp_path, short_cols):
+    """Invalid samples in a 50 Hz group beside the 100 Hz one are counted and filled on their
+    own group's rows (5 samples pass --max-fill 5) and never reach a value: they had been
+    interpolated onto the other group's master (10 rows missing at the master's row 100, and
+    the garbage of the invalid samples half in their valid neighbours)."""
+    from excavator_surrogate.ingest.readers import read_log
+
+    t = short_cols["t_ms"] * 1e-3
+    slow = np.arange(0, t.size, 2)
+    arm = short_cols["arm_deg"][slow].copy()
+    bad = np.zeros(slow.size, dtype=bool)
+    bad[50:55] = True
+    filled = arm.copy()  # the invalid samples filled as --nan fill does: linearly
+    filled[bad] = np.interp(t[slow][bad], t[slow][~bad], arm[~bad])
+    arm[bad] = -500.0  # what an invalid sample holds is garbage
+
+    def write(name: str, arm: np.ndarray, **flags: np.ndarray) -> Path:
+        mdf = asammdf.MDF(version="4.10")
+        names = [c for c in arm3_plant.LOG_COLUMNS[1:] if c != "arm_deg"]
+        mdf.append(_signals(short_cols, names))
+        mdf.append([asammdf.Signal(arm, t[slow], name="arm_deg", **flags)])
+        log = Path(mdf.save(tmp_path / name, overwrite=True))
+        mdf.close()
+        return log
+
+    log = write("slow.mf4", arm, invalidation_bits=bad)
+    mapping = _mapping(tmp_path)
+    err = _fail(cli, tmp_path, log)
+    assert "slow.mf4, column 'arm_deg', row 50: missing or non-finite value" in err
+    res = convert_log(log, mapping, options=replace(mapping.options, nan="fill", max_fill=5))
+    assert res.entry["filled"] == {"arm_deg": {"values": 5, "runs": 1}}
+    ref = convert_log(write("filled.mf4", filled), mapping).episodes[0]
+    np.testing.assert_allclose(res.episodes[0].theta, ref.theta, atol=1e-12)
+    s = read_log(log, mapping).series["channel group 1"]
+    np.testing.assert_array_equal(np.flatnonzero(np.isnan(s.values["arm_deg"])), np.arange(50, 55))
+    np.testing.assert_array_equal(s.values["arm_deg"][~bad], arm[~bad])
+
+
+def test_mdf_gap_in_a_smaller_group_splits(tmp_path, short_cols):
+    """A logger pause in one channel group (the bucket's, 4-6 s) cuts the episodes there, as
+    the CSV of the same samples does: it had been bridged by interpolation onto the other
+    group's master, one episode with a straight line across the pause."""
+    t = short_cols["t_ms"] * 1e-3
+    keep = (t < 4.0) | (t >= 6.0)
     mdf = asammdf.MDF(version="4.10")
-    mdf.append(_signals(short_cols, [c for c in arm3_plant.LOG_COLUMNS[1:] if c != "arm_deg"]))
-    slow = np.arange(0, t.size, 10)
-    mdf.append(
-        [
-            asammdf.Signal(
-                short_cols["arm_deg"][slow], t[slow], name="arm_deg", invalidation_bits=bad[slow]
-            )
-        ]
-    )
-    mdf.save(tmp_path / "slow.mf4", overwrite=True)
+    bucket = [n for n in arm3_plant.LOG_COLUMNS if n.startswith("bucket")]
+    mdf.append(_signals(short_cols, [n for n in arm3_plant.LOG_COLUMNS[1:] if n not in bucket]))
+    mdf.append(_signals(short_cols, bucket, keep))
+    log = Path(mdf.save(tmp_path / "gap.mf4", overwrite=True))
     mdf.close()
-    arm_deg = read_log(tmp_path / "slow.mf4", _mapping(tmp_path)).series["table"].values["arm_deg"]
-    gone = np.flatnonzero(np.isnan(arm_deg))
-    assert gone.size and 100 - 10 < gone[0] <= 100 and gone[-1] < 120
+    res = convert_log(log, _mapping(tmp_path))
+    ref = convert_log(
+        arm3_plant.write_csv(tmp_path / "gap.csv", {k: v[keep] for k, v in short_cols.items()}),
+        parse_mapping(tomllib.loads(arm3_plant.MAPPING_TOML)),
+    )
+    assert [e.name for e in res.episodes] == ["gap_s0", "gap_s1"]
+    assert [e.name for e in ref.episodes] == ["gap_s0", "gap_s1"]
+    assert any(
+        n.startswith("channel group 1: gap of 2 s after row 400") for n in res.entry["notes"]
+    )
+    for ep, r in zip(res.episodes, ref.episodes):
+        assert ep.n_step == r.n_step
+        np.testing.assert_allclose(ep.time, r.time, atol=1e-9)
+        np.testing.assert_allclose(ep.theta, r.theta, atol=1e-5)  # CSV: 6 digits
+        np.testing.assert_allclose(ep.u, r.u, atol=1e-2)
+
+
+def test_mdf_periodic_angle_in_a_slower_group(tmp_path):
+    """A swing at 50 Hz that wraps at +-180 deg, beside a 100 Hz command: imported whole, as
+    its CSV is (it had been interpolated linearly through the wrap onto the command's master,
+    a 360 deg turn in 10 ms that the import refused as impossible)."""
+    ta, tb = np.arange(0, 20, 0.02), np.arange(0, 20, 0.01)
+    swing = (150 + 5.0 * ta + 180) % 360 - 180  # 5 deg/s, wraps at t = 6 s
+    mdf = asammdf.MDF(version="4.10")
+    mdf.append([asammdf.Signal(swing, ta, name="swing_deg", unit="deg")])
+    mdf.append([asammdf.Signal(np.full(tb.shape, 30.0), tb, name="u", unit="%")])
+    log = Path(mdf.save(tmp_path / "wrap.mf4", overwrite=True))
+    mdf.close()
+    text = (
+        '[machine]\nname = "m"\nrate_hz = 20.0\n[time]\ncolumn = "t"\nunit = "s"\n'
+        '[[joints]]\nname = "swing"\nperiodic = true\n'
+        'angle = { column = "swing_deg", unit = "deg" }\ncommand = { column = "u", unit = "%" }\n'
+    )
+    res = convert_log(log, _mapping(tmp_path, text))
+    (tmp_path / "wrap.csv").write_text(
+        "t,swing_deg,u\n" + "".join(f"{x:.10g},{a:.10g},30\n" for x, a in zip(ta, swing))
+    )
+    ref = convert_log(tmp_path / "wrap.csv", _mapping(tmp_path, text)).episodes[0]
+    (ep,) = res.episodes
+    assert res.entry["outliers"] == {} and ep.n_step == ref.n_step
+    np.testing.assert_allclose(ep.theta, ref.theta, atol=1e-9)
+    np.testing.assert_allclose(np.diff(ep.theta[:, 0]), np.deg2rad(5.0) / 20, atol=1e-6)
 
 
 def test_an_unreadable_dat_file_is_not_taken_for_mdf(cli, tmp_path, short_cols):

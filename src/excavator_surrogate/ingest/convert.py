@@ -197,7 +197,7 @@ def _fill_missing(
     """Every mapped channel's values with the NaN policy applied (fills counted in ``entry``)."""
     vals: dict[Channel, np.ndarray] = {}
     for ch in mapping.channels():
-        s = raw.series[ch.series]
+        s = raw.series_of(ch)
         x, n_fill, n_runs = apply_nan_policy(
             path, s.time, s.values[ch.key], ch.label, options=options
         )
@@ -225,14 +225,14 @@ def _to_units(
 
     def command(src: JointMap | InputMap) -> None:
         chans = mapping.command_channels(src)
-        if len({ch.series for ch in chans}) == 1:
+        if len({raw.series_name(ch) for ch in chans}) == 1:
             u.append(command_of(path, src, chans, vals, options=options, where=where, entry=entry))
             u_time.append(None)
             return
-        # up and down on two topics: each checked on its own messages, then both held on
-        # the union of their times, where up - down is the command the valve saw
+        # up and down on two topics (channel groups): each checked on its own messages,
+        # then both held on the union of their times, where up - down is the valve's command
         c = src.command
-        times = [raw.series[ch.series].time for ch in chans]
+        times = [raw.series_of(ch).time for ch in chans]
         for k, ch in enumerate(chans):
             x = vals[ch] * c.scale + c.offset
             check_one_way(path, src, ch, x, down=k == 1, full=True, options=options, where=where)
@@ -246,13 +246,13 @@ def _to_units(
         whose log unit is not the mapped one: raw counts, volts)."""
         if options.log_units == "ignore" or mapped is None or scale != 1.0:
             return
-        theirs = raw.series[ch.series].units.get(ch.key, "")
+        theirs = raw.series_of(ch).units.get(ch.key, "")
         check_log_unit(path, theirs, mapped, label=ch.label, what=what, where=where)
 
     for j in mapping.joints:
         ach = mapping.angle_channel(j)
         log_unit(ach, j.angle.unit, j.angle.scale, f"the angle of joint '{j.name}'")
-        t = raw.series[ach.series].time
+        t = raw.series_of(ach).time
         th = vals[ach] * j.angle.scale + j.angle.offset
         check_angle_unit(path, t, th, j, ach.label, where)
         th = th * to_si(j.angle.unit)  # rad, or m for a linear joint
@@ -359,7 +359,8 @@ def _cut_episodes(
                 "t_end_s": 0.0,
                 "status": "dropped",
                 "n_step": 0,
-                "reason": "the topics share no gap-free time span",
+                "reason": f"the {'channel groups' if raw.kind == 'mdf' else 'topics'} share no "
+                "gap-free time span",
             }
         )
     # estimate the output before resampling (time, u, theta, omega, the grids: 2 copies)
@@ -437,7 +438,7 @@ def _resample_segment(
     edges = a + dt * np.arange(1, n + 2)
     rows = {name: span_rows(s.time, a, b) for name, s in raw.series.items()}
     for i, j in enumerate(mapping.joints):
-        sname = mapping.angle_channel(j).series
+        sname = raw.series_name(mapping.angle_channel(j))
         sl = rows[sname]
         t = raw.series[sname].time[sl]
         theta_grid[:, i] = resample_smooth(
@@ -454,8 +455,9 @@ def _resample_segment(
         vch = mapping.velocity_channel(j)
         if om is not None and vch is not None:
             # resample the integrated velocity, so its difference is the interval mean
-            vs = rows[vch.series]
-            tv = raw.series[vch.series].time[vs]
+            vname = raw.series_name(vch)
+            vs = rows[vname]
+            tv = raw.series[vname].time[vs]
             phi = cumulative_trapezoid(tv, om[vs])
             phi_grid[i] = (
                 resample_smooth(
@@ -464,8 +466,8 @@ def _resample_segment(
                     t0=a,
                     n_out=n + 1,
                     rate_hz=rate,
-                    factor=factors[vch.series],
-                    sos=sos[vch.series],
+                    factor=factors[vname],
+                    sos=sos[vname],
                     t_end=b,
                 ),
                 vch.label,
@@ -476,7 +478,7 @@ def _resample_segment(
             continue
         tu = sig.u_time[i]
         if tu is None:  # on its channel's series
-            tu = raw.series[mapping.command_channels(src)[0].series].time
+            tu = raw.series_of(mapping.command_channels(src)[0]).time
         cs = span_rows(tu, a, b)
         u[:, i] = interval_mean(tu[cs], sig.u[i][cs], edges)
     lo = np.array([c.u_min for c in spec.u_specs])

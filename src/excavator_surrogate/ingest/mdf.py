@@ -9,13 +9,13 @@ Channel names are the names in the file's channel database: the channel name, or
 several channel groups hold is refused with the names that tell them apart.  Values are
 physical (the file's conversions applied); samples flagged invalid become missing (NaN).
 
-Time: every channel group has its own master channel (time in s).  When the mapped
-channels all live in one group, its master is the time base and nothing is resampled.
-When they live in several groups (different rasters), they are resampled with asammdf
-(``Signal.interp``: linear for floats, previous sample for integers) onto the master of
-the group with the most samples, over the span that every group covers; the import then
-filters and resamples that one table to the target rate like a CSV log.  ``[time]`` is not
-used (the masters are in seconds).
+Time: every channel group has its own master channel (time in s).  The log is one
+:class:`~.sources.Series` per channel group that holds mapped channels (``channel group
+2``), on its own master, as a bag's topics are: the import checks each group's times, fills
+and counts its missing values on its own rows, cuts at its gaps and resamples each channel
+from its own samples (:attr:`~.sources.RawLog.placement` says which group holds which
+channel).  Times count from the earliest group's first sample.  ``[time]`` is not used
+(the masters are in seconds).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from xml.etree import ElementTree
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from .mapping import TABLE, Mapping
+from .mapping import Mapping
 from .sources import RawLog, Reader, Series, missing_channel
 
 SUFFIXES = (".mf4", ".mdf", ".dat")
@@ -183,17 +183,18 @@ def read_mdf(path: Path, mapping: Mapping) -> RawLog:
     Raises:
         ConfigError: asammdf is not installed.
         DataError: unreadable/truncated file, missing or ambiguous channel, non-numeric
-            values, channel groups that share no time span.
+            values, a channel without samples.
     """
-    keys = [c.key for c in mapping.channels()]
+    chans = mapping.channels()
     with open_mdf(path) as mdf:
-        where = {k: _locate(path, mdf.channels_db, k, mapping) for k in keys}
+        where = {c.key: _locate(path, mdf.channels_db, c.key, mapping) for c in chans}
         sigs = {k: read_signal(path, mdf, g, i, name=k) for k, (g, i) in where.items()}
         start = mdf.header.start_time
         meta = header_metadata(mdf.header)
         columns = sorted(k for k in mdf.channels_db if k != "time")
-    raw = _one_table(path, sigs, where, start, columns)
+    raw = _by_group(path, sigs, where, start, columns)
     raw.meta = meta
+    raw.placement = {c: _group_name(where[c.key][0]) for c in chans}
     return raw
 
 
@@ -240,50 +241,37 @@ def _properties(node: Any, prefix: str) -> dict[str, str]:
     return out
 
 
-def _one_table(
+def _group_name(group: int) -> str:
+    """The series name of channel group ``group``."""
+    return f"channel group {group}"
+
+
+def _by_group(
     path: Path,
     sigs: dict[str, Any],
     where: dict[str, tuple[int, int]],
     start: Any,
     columns: list[str],
 ) -> RawLog:
-    """The mapped signals on one time base (the longest group's master; see the module doc)."""
+    """The mapped signals, one series per channel group on its own master (see the module
+    doc); samples flagged invalid are NaN."""
     for k, s in sigs.items():
         if len(s.timestamps) == 0:
             raise DataError(
                 path, "the channel has no samples", column=k, fix="map a recorded channel"
             )
-    groups: dict[int, np.ndarray] = {}
+    t0 = min(float(s.timestamps[0]) for s in sigs.values())
+    series: dict[str, Series] = {}
     for k, s in sigs.items():
-        groups.setdefault(where[k][0], np.asarray(s.timestamps, dtype=np.float64))
-    master = max(groups, key=lambda g: (groups[g].shape[0], -g))
-    t0 = max(float(t[0]) for t in groups.values())
-    t1 = min(float(t[-1]) for t in groups.values())
-    t = groups[master]
-    keep = (t >= t0) & (t <= t1)
-    t = t[keep]
-    values: dict[str, np.ndarray] = {}
-    for k, s in sigs.items():
-        if where[k][0] == master:
-            values[k] = _numeric(path, s, k)[keep]
-        else:
-            values[k] = _numeric(path, s.interp(t), k)
-    origin = start + timedelta(seconds=float(t[0]))
-    return RawLog(
-        path=path,
-        kind="mdf",
-        series={
-            TABLE: Series(
-                TABLE,
-                t - t[0],
-                values,
-                f"master of channel group {master}",
-                units={k: str(s.unit).strip() for k, s in sigs.items() if s.unit},
-            )
-        },
-        origin=origin.isoformat(),
-        columns=columns,
-    )
+        name = _group_name(where[k][0])
+        if name not in series:
+            t = np.asarray(s.timestamps, dtype=np.float64) - t0
+            series[name] = Series(name, t, {}, f"master of {name}")
+        series[name].values[k] = _numeric(path, s, k)
+        if s.unit:
+            series[name].units[k] = str(s.unit).strip()
+    origin = start + timedelta(seconds=t0)
+    return RawLog(path=path, kind="mdf", series=series, origin=origin.isoformat(), columns=columns)
 
 
 READER = Reader("mdf", "ASAM MDF (.mf4, .mdf, MDF 3 .dat)", SUFFIXES, is_mdf, read_mdf)

@@ -191,8 +191,8 @@ def screen_angles(
     for j, js in zip(mapping.joints, joints):
         ch = mapping.angle_channel(j)
         th = _angle(vals[ch], j)
-        spikes = find_spikes(th, dt_in[ch.series])
-        t_in = raw.series[ch.series].time
+        spikes = find_spikes(th, dt_in[raw.series_name(ch)])
+        t_in = raw.series_of(ch).time
         impossible, bursts = find_impossible(
             _angle(vals[ch], j, unwrap=False), t_in, periodic=j.periodic
         )
@@ -247,17 +247,19 @@ def screen_angles(
             counts["out_of_limits_dropped"] = int(out.sum())
         vch = mapping.velocity_channel(j)
         if vch is not None and j.velocity is not None:
-            vbad = _impossible_velocity(path, vals[vch], j, vch, dt_in[vch.series], policy, fix)
+            vname = raw.series_name(vch)
+            vbad = _impossible_velocity(path, vals[vch], j, vch, dt_in[vname], policy, fix)
             if vbad.any():
                 counts["impossible_velocity_dropped"] = int(vbad.sum())
-                prev = drop.get(vch.series)
-                drop[vch.series] = vbad if prev is None else prev | vbad
+                prev = drop.get(vname)
+                drop[vname] = vbad if prev is None else prev | vbad
         if counts:
             entry["outliers"][j.name] = counts
         bad = spikes | impossible | out
         if bad.any():
-            prev = drop.get(ch.series)
-            drop[ch.series] = bad if prev is None else prev | bad
+            home = raw.series_name(ch)
+            prev = drop.get(home)
+            drop[home] = bad if prev is None else prev | bad
     for name, bad in drop.items():
         keep = ~bad
         s = raw.series[name]
@@ -273,7 +275,7 @@ def screen_angles(
             name, s.time[keep], {k: v[keep] for k, v in s.values.items()}, s.time_label
         )
         for ch in list(vals):
-            if ch.series == name:
+            if raw.series_name(ch) == name:
                 vals[ch] = vals[ch][keep]
         entry["notes"].append(
             f'{name}: removed {int(bad.sum())} outlier row(s) (outliers = "{policy}")'

@@ -3,8 +3,8 @@ every log reader returns or registers, and the error for a mapped channel a log 
 
 Every reader returns a :class:`RawLog`: one or more :class:`Series` (a time base plus the
 raw values of the channels that live on it).  A CSV/Parquet file has one series
-(``"table"``); a bag has one series per topic.  Values are raw (no unit conversion);
-missing cells are NaN.  Rows are counted from 0, header not counted.
+(``"table"``); a bag has one series per topic, an MDF file one per channel group.  Values
+are raw (no unit conversion); missing cells are NaN.  Rows are counted from 0, header not counted.
 
 :data:`excavator_surrogate.ingest.readers.READERS` lists every log format (the tables, CSV
 and Parquet, in :mod:`.tables`, ROS bags in :mod:`.ros`, dSPACE ControlDesk CSV in :mod:`.dspace`, ASAM MDF 4 and 3 in :mod:`.mdf`).
@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import DataError
-from .mapping import Mapping
+from .mapping import Channel, Mapping
 
 CSV_SUFFIXES = (".csv", ".csv.gz")
 PARQUET_SUFFIXES = (".parquet", ".pq")
@@ -35,7 +35,7 @@ class Series:
     """One time base of a log and the raw channels sampled on it."""
 
     name: str
-    """``"table"`` or the ROS topic."""
+    """``"table"``, the ROS topic or the MDF channel group (``channel group 2``)."""
     time: np.ndarray
     """(n,) sample times [s] since the log's origin (unchecked: may be unsorted)."""
     values: dict[str, np.ndarray]
@@ -53,7 +53,7 @@ class RawLog:
 
     path: Path
     kind: str
-    """``csv``, ``parquet``, ``rosbag2``, ``rosbag1`` or ``mcap``."""
+    """``csv``, ``parquet``, ``dspace``, ``mdf``, ``rosbag2``, ``rosbag1`` or ``mcap``."""
     series: dict[str, Series]
     origin: str
     """The absolute time of t = 0 as found in the log (number in its unit, or ISO string)."""
@@ -63,6 +63,18 @@ class RawLog:
     """The log's metadata, key -> text (``Section/Key``): MDF4 header properties, dSPACE
     ``descriptions`` rows, rosbag2 ``custom_data``, MCAP metadata, Parquet key-value
     metadata; empty for CSV.  Read by per-run inputs (``from_metadata``)."""
+    placement: dict[Channel, str] = field(default_factory=dict)
+    """Mapped channel -> the series that holds it, where the mapping cannot say (an MDF
+    log's channel groups: the mapping names channels, not groups); a channel not in it is on
+    its :attr:`~.mapping.Channel.series`."""
+
+    def series_name(self, ch: Channel) -> str:
+        """Name of the series that holds the mapped channel ``ch``."""
+        return self.placement.get(ch, ch.series)
+
+    def series_of(self, ch: Channel) -> Series:
+        """The series that holds the mapped channel ``ch``."""
+        return self.series[self.series_name(ch)]
 
     @property
     def n_rows(self) -> int:
