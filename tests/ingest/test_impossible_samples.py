@@ -172,3 +172,18 @@ def test_impossible_measured_velocity_is_found(cli, work, short_cols) -> None:
     assert_nothing_written(out)
     rc, text, err = cli("import", log, "--mapping", m, "--dry-run", "--outliers", "drop")
     assert rc == 0 and "outliers boom: impossible velocity dropped 5" in text, err
+
+
+def test_a_jittered_time_stamp_is_not_a_jump() -> None:
+    """Two samples stamped 0.2 ms apart (a logger stamping on arrival) move by their normal
+    step: 21 rad/s over that Δt, but no burst; half the log was flagged as one (audit 1, D1).
+    A real burst in the same log is still found."""
+    t = np.arange(3000) * 0.01
+    theta = 0.5 * np.sin(t)  # at most 0.5 rad/s
+    t[1000] = t[999] + 0.0002
+    t[1800] = t[1799] + 0.0002  # two such stamps 8 s apart: the rows between are no burst
+    assert not find_impossible(theta, t, periodic=False)[0].any()
+    theta[2500:2504] = np.deg2rad(90.0)
+    mask, bursts = find_impossible(theta, t, periodic=False)
+    assert np.flatnonzero(mask).tolist() == list(range(2500, 2504))
+    assert bursts[0].reason == "jump"

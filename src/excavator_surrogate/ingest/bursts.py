@@ -8,10 +8,12 @@ the joint limits find longer ones only when the mapping declares limits, and mos
   for a joint with end stops (``MAX_TURNS_PERIODIC`` for a periodic one; both are the data
   contract's, :mod:`excavator_surrogate.data.plausible`);
 - bursts: a jump implying a speed no joint reaches (above :data:`JUMP_SPEED` rad/s and
-  :data:`JUMP_FACTOR` times the log's own 99th-percentile speed), paired with a jump back
-  to where the joint could plausibly be by then.  The samples between are the burst,
-  whatever its length.  A jump without a jump back (a burst at the start or the end of the
-  log) marks the shorter side, when that is at most half the log.
+  :data:`JUMP_FACTOR` times the log's own 99th-percentile speed; a step is taken as at
+  least the log's median time step, so two samples stamped 0.2 ms apart by a jittery
+  logger do not make one), paired with a jump back to where the joint could plausibly be
+  by then.  The samples between are the burst, whatever its length.  A jump without a jump
+  back (a burst at the start or the end of the log) marks the shorter side, when that is at
+  most half the log.
 
 Legitimate motion, end stops (the joint stops, it does not jump) and a periodic joint's wrap
 at ±180° (unwrapped before the rate test) never exceed those speeds.
@@ -29,7 +31,8 @@ from ..data.plausible import MAX_TURNS, MAX_TURNS_PERIODIC
 JUMP_SPEED = 10.0
 """A jump is impossible only above this speed [rad/s] ..."""
 JUMP_FACTOR = 20.0
-"""... and above this multiple of the log's own 99th-percentile speed |Δθ|/Δt."""
+"""... and above this multiple of the log's own 99th-percentile speed |Δθ|/Δt (Δt at least
+the median step)."""
 
 
 @dataclass(frozen=True)
@@ -86,7 +89,8 @@ def _jump_bursts(x: np.ndarray, t: np.ndarray) -> list[tuple[int, int, float, fl
     """``(start, stop, speed, scale)`` of each burst of ``x`` [rad] bounded by impossible jumps."""
     n = x.shape[0]
     dt = np.diff(t)
-    speed = np.abs(np.diff(x)) / dt
+    # a step shorter than the typical one (a jittered time stamp) does not make a speed
+    speed = np.abs(np.diff(x)) / np.maximum(dt, np.median(dt))
     scale = float(np.quantile(speed, 0.99))
     thr = max(JUMP_SPEED, JUMP_FACTOR * scale)
     jumps = (np.flatnonzero(speed > thr) + 1).tolist()  # row s jumped from row s - 1
