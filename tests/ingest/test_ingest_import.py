@@ -134,6 +134,33 @@ def test_nan_fill_reports(cli, work, short_cols):
     }
 
 
+def test_nan_fill_takes_a_periodic_angle_the_short_way_through_its_wrap(tmp_path):
+    """A swing's samples missing where it crosses +-180 deg are filled on its unwrapped angle
+    (179.96, 179.98, 180.0 deg), not straight across the wrap (89.96, -0.02, -90 deg: a
+    turn backwards in 30 ms that the burst screen then refused; audit 1, D2)."""
+    t = np.arange(1000) * 0.01
+    a = (170.0 + 2.0 * t + 180.0) % 360.0 - 180.0  # 2 deg/s, wraps at t = 5 s
+    a[498:501] = np.nan
+    log = tmp_path / "sw.csv"
+    np.savetxt(
+        log,
+        np.column_stack([t, a, np.full_like(t, 10.0)]),
+        delimiter=",",
+        fmt="%.6f",
+        header="t,a,u",
+        comments="",
+    )
+    text = (
+        '[machine]\nname = "m"\n[time]\ncolumn = "t"\nunit = "s"\n[import]\nnan = "fill"\n'
+        'min_steps = 10\n[[joints]]\nname = "swing"\nperiodic = true\n'
+        'angle = { column = "a", unit = "deg" }\ncommand = { column = "u", unit = "%" }\n'
+    )
+    res = convert_log(log, parse_mapping(tomllib.loads(text)))
+    assert res.entry["filled"] == {"a": {"values": 3, "runs": 1}} and not res.entry["outliers"]
+    (ep,) = res.episodes
+    np.testing.assert_allclose(np.rad2deg(ep.theta[:, 0]), 170.0 + 2.0 * ep.time, atol=1e-3)
+
+
 def test_datetime_time_column(work, short_cols):
     t0 = np.datetime64("2024-05-01T12:00:00", "us")
     stamps = [str(t0 + np.timedelta64(round(x * 1e3), "us")) + "Z" for x in short_cols["t_ms"]]

@@ -114,9 +114,23 @@ def check_upsampling(
 
 
 def apply_nan_policy(
-    path: Path, t: np.ndarray, x: np.ndarray, label: str, *, options: ImportOptions
+    path: Path,
+    t: np.ndarray,
+    x: np.ndarray,
+    label: str,
+    *,
+    options: ImportOptions,
+    period: float | None = None,
 ) -> tuple[np.ndarray, int, int]:
-    """Apply the NaN policy; returns ``(values, n_filled, n_runs)``."""
+    """Apply the NaN policy to one channel; returns ``(values, n_filled, n_runs)``.
+
+    Args:
+        t: (n,) sample times [s].
+        x: (n,) raw values (NaN/inf where missing).
+        period: a periodic joint's turn in the channel's raw unit (360 for deg): a gap is
+            filled on the unwrapped angle, the short way through the ±180° wrap, each value
+            on the branch of the sample before the gap.
+    """
     bad = ~np.isfinite(x)
     if not bad.any():
         return x, 0, 0
@@ -149,7 +163,12 @@ def apply_nan_policy(
         )
     good = ~bad
     x = x.copy()
-    x[bad] = np.interp(t[bad], t[good], x[good])
+    if period is None:
+        x[bad] = np.interp(t[bad], t[good], x[good])
+    else:
+        xu = np.unwrap(x[good], period=period)
+        before = np.maximum(np.searchsorted(np.flatnonzero(good), np.flatnonzero(bad)) - 1, 0)
+        x[bad] = np.interp(t[bad], t[good], xu) - (xu - x[good])[before]
     return x, int(bad.sum()), int(starts.shape[0])
 
 

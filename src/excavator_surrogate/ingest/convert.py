@@ -194,12 +194,18 @@ def _time_bases(
 def _fill_missing(
     path: Path, raw: RawLog, mapping: Mapping, *, options: ImportOptions, entry: dict[str, Any]
 ) -> dict[Channel, np.ndarray]:
-    """Every mapped channel's values with the NaN policy applied (fills counted in ``entry``)."""
+    """Every mapped channel's values with the NaN policy applied (fills counted in ``entry``;
+    a periodic joint's angle filled through its wrap)."""
+    turns = {
+        mapping.angle_channel(j): 2 * math.pi / (to_si(j.angle.unit) * abs(j.angle.scale))
+        for j in mapping.joints
+        if j.periodic and j.angle.scale
+    }
     vals: dict[Channel, np.ndarray] = {}
     for ch in mapping.channels():
         s = raw.series_of(ch)
         x, n_fill, n_runs = apply_nan_policy(
-            path, s.time, s.values[ch.key], ch.label, options=options
+            path, s.time, s.values[ch.key], ch.label, options=options, period=turns.get(ch)
         )
         if n_fill:
             entry["filled"][ch.label] = {"values": n_fill, "runs": n_runs}
