@@ -136,6 +136,19 @@ def test_mdf_channel_units_against_the_mapping(cli, tmp_path, short_cols):
     assert rc == 0, err
 
 
+def test_mdf_channel_units_survive_dropped_outliers(cli, tmp_path, short_cols):
+    """Rows dropped as outliers keep the log's unit labels: a channel the log says is in
+    rad, mapped as deg, is the same one-line error with one spike and ``--outliers drop``
+    (the rebuilt table had lost its units, and the angles were stored 57.3x too small;
+    audit 1, D3)."""
+    _mapping(tmp_path)
+    cols = {k: v.copy() for k, v in short_cols.items()}
+    cols["arm_deg"][300] = 36000.0
+    log = write_mdf(tmp_path / "spike.mf4", cols, units={"arm_deg": "rad"})
+    err = import_fails(cli, log, tmp_path / "mdf.toml", tmp_path / "X", "--outliers", "drop")
+    assert "column 'arm_deg': the log gives this channel the unit 'rad', the mapping 'deg'" in err
+
+
 def test_mdf_two_channel_groups(tmp_path, short_cols):
     """Channels in two channel groups: each group a series on its own master, the episode on
     the span both cover."""

@@ -17,6 +17,7 @@ Counts go to the import report (``outliers`` per joint).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ from ..errors import DataError
 from ..spec import JointSpec
 from .bursts import MAX_TURNS, MAX_TURNS_PERIODIC, Burst, find_impossible
 from .mapping import Channel, JointMap, Mapping
-from .sources import RawLog, Series
+from .sources import RawLog
 from .units import to_si
 
 SPIKE_HALF_WINDOW = 3
@@ -271,8 +272,8 @@ def screen_angles(
                 column=s.time_label,
                 fix=f"check the angles' unit/scale/offset and the joint limits in {mapping.where}",
             )
-        raw.series[name] = Series(
-            name, s.time[keep], {k: v[keep] for k, v in s.values.items()}, s.time_label
+        raw.series[name] = dataclasses.replace(  # keeps the log's own units
+            s, time=s.time[keep], values={k: v[keep] for k, v in s.values.items()}
         )
         for ch in list(vals):
             if raw.series_name(ch) == name:
