@@ -7,12 +7,14 @@ import os
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from excavator_surrogate.data import load_dataset, read_episode, write_episode
+from excavator_surrogate.ingest import convert_log, parse_mapping
 from excavator_surrogate.ingest.outliers import SPIKE_HALF_WINDOW, SPIKE_MAD, find_spikes
 from tests.helpers.ingest import assert_nothing_written, set_cell, write_lines
 
@@ -86,6 +88,28 @@ def test_b1_drop_and_clip_policies_are_reported(cli, work, short_cols) -> None:
         boom_max, _, bucket_max = np.rad2deg(theta.max(axis=0))
         assert boom_max < 60.0  # the 36000-degree spike is gone, not smeared
         assert bucket_max < 150.0  # 170 degrees never reach the dataset (clip: 140 + ringing)
+
+
+def test_b1_clip_keeps_a_path_through_the_margin_whole(tmp_path) -> None:
+    """A boom rising at 3 deg/s through its limit 100 deg to 110 deg: ``clip`` clips its
+    whole excursion beyond the limit, the samples within the 5 % margin too, so the path
+    meets the limit without a step (only the samples beyond 105 deg were clipped to 100, a
+    5-degree drop and -62 deg/s in a rising path; audit 1, D4)."""
+    t = np.arange(1000) * 0.01
+    log = tmp_path / "c.csv"
+    rows = np.column_stack([t, np.minimum(90.0 + 3.0 * t, 110.0), np.full_like(t, 10.0)])
+    np.savetxt(log, rows, delimiter=",", fmt="%.6f", header="t,a,u", comments="")
+    text = (
+        '[machine]\nname = "m"\n[time]\ncolumn = "t"\nunit = "s"\n[import]\n'
+        'outliers = "clip"\nmin_steps = 10\n[[joints]]\nname = "boom"\nlimits = [0.0, 100.0]\n'
+        'angle = { column = "a", unit = "deg" }\ncommand = { column = "u", unit = "%" }\n'
+    )
+    res = convert_log(log, parse_mapping(tomllib.loads(text)))
+    (ep,) = res.episodes
+    theta, omega = np.rad2deg(ep.theta[:, 0]), np.rad2deg(ep.omega[:, 0])
+    assert omega.min() > -1.0 and omega.max() < 3.5  # it rises at 3 deg/s, then stays
+    assert theta.max() == pytest.approx(100.0, abs=0.05)
+    assert res.entry["outliers"] == {"boom": {"clipped": 666}}  # every sample above 100
 
 
 def test_b1_validate_rejects_a_poisoned_dataset(cli, work, short_cols) -> None:

@@ -10,7 +10,8 @@ sample over hundreds of output samples).  ``[import] outliers`` decides:
 - ``drop``: their rows are removed (short holes are bridged by the resampler, holes longer
   than ``max_gap`` split the episode);
 - ``clip``: spike and impossible rows are removed, out-of-limit angles are clipped to the
-  limits.
+  limits, with the rest of their excursion beyond the limit (the samples within the margin
+  too), so the clipped path has no step.
 
 Counts go to the import report (``outliers`` per joint).
 """
@@ -240,6 +241,11 @@ def screen_angles(
         if impossible.any():
             counts["impossible_dropped"] = int(impossible.sum())
         if out.any() and policy == "clip":
+            # the whole excursion beyond the limit that holds an outlier, so that a path
+            # through the margin meets the limit where it crosses it, without a step
+            beyond = (th < lo) | (th > hi)
+            run = np.cumsum(beyond & ~np.concatenate([[False], beyond[:-1]]))
+            out = beyond & np.isin(run, run[out]) & ~(spikes | impossible)
             counts["clipped"] = int(out.sum())
             clipped = np.clip(th, lo, hi) / to_si(j.angle.unit)
             vals[ch] = np.where(out, (clipped - j.angle.offset) / j.angle.scale, vals[ch])
