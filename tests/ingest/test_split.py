@@ -3,6 +3,8 @@ tests do not reach."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from excavator_surrogate.errors import ConfigError
@@ -44,3 +46,18 @@ def test_a_listed_file_that_was_not_imported_is_a_warning() -> None:
         "split file lists 'gone.csv' (test) but no such source was imported",
         "split 'test' is empty",
     ]
+
+
+def test_glob_patterns_match_the_path_however_it_is_spelled() -> None:
+    """``./logs/r0.csv`` (and an absolute path) match the source ``logs/r0.csv``: the key had
+    lost its ``./``, so the file the user named as test data went to train, silently (audit
+    1, D8). A pattern that matches no imported file is a warning."""
+    files = ["logs/r0.csv", "logs/r1.csv", "logs/r2.csv"]
+    opts = SplitOptions(
+        by="glob",
+        test=("./logs/r0.csv", "logs/r9*.csv"),
+        val=(os.path.abspath("logs/r1.csv"),),
+    )
+    out, warnings = assign_splits(files, [10, 10, 10], opts)
+    assert out == {"logs/r0.csv": "test", "logs/r1.csv": "val", "logs/r2.csv": "train"}
+    assert warnings == ["split pattern 'logs/r9*.csv' (test) matches no imported file"]

@@ -8,6 +8,7 @@ training and test.
 from __future__ import annotations
 
 import fnmatch
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -91,7 +92,13 @@ def _by_pattern(keys: list[str], o: SplitOptions) -> tuple[dict[str, str], list[
         name = Path(key).name
         if exact:
             return key == pat or name == pat or Path(key) == Path(pat)
-        return fnmatch.fnmatch(key, pat) or fnmatch.fnmatch(name, pat)
+        # the path as the user spells it (./logs/r0.csv, logs/../logs/r0.csv, absolute)
+        norm, absolute = os.path.normpath, os.path.abspath
+        return (
+            fnmatch.fnmatch(norm(key), norm(pat))
+            or fnmatch.fnmatch(absolute(key), absolute(pat))
+            or fnmatch.fnmatch(name, pat)
+        )
 
     out: dict[str, str] = {}
     warnings: list[str] = []
@@ -112,11 +119,14 @@ def _by_pattern(keys: list[str], o: SplitOptions) -> tuple[dict[str, str], list[
             )
         else:
             out[key] = "train"
-    if exact:
-        for s in SPLITS:
-            for p in pats[s]:
-                if not any(hit(k, p) for k in keys):
-                    warnings.append(f"split file lists '{p}' ({s}) but no such source was imported")
+    for s in SPLITS:
+        for p in pats[s]:
+            if not any(hit(k, p) for k in keys):
+                warnings.append(
+                    f"split file lists '{p}' ({s}) but no such source was imported"
+                    if exact
+                    else f"split pattern '{p}' ({s}) matches no imported file"
+                )
     for s in SPLITS:
         if s not in out.values():
             warnings.append(f"split '{s}' is empty")
