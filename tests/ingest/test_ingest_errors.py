@@ -154,6 +154,25 @@ def test_negative_one_way_channel(cli, work, short_cols):
     assert "column 'arm_down_pct', row 9: one-way command channel is negative (-5)" in err
 
 
+def test_clip_commands_counts_negative_one_way_channels(cli, work, short_cols):
+    """``--clip-commands`` clamps a negative one-way channel at 0 and counts its rows (it
+    clamped them and reported nothing clipped; audit 1, D10)."""
+
+    def negative(lines):
+        for r in range(600, 610):
+            lines = _set(lines, r, "arm_down_pct", "-3")
+        return lines
+
+    log = write_lines(work / "a.csv", short_cols, negative)
+    rc, out, err = cli(
+        "import", log, "--mapping", work / "arm3.toml", "--out", work / "ds", "--clip-commands"
+    )
+    assert rc == 0, err
+    rep = json.loads((work / "ds" / "import_report.json").read_text())
+    assert rep["files"][0]["clipped"] == {"arm": 10}
+    assert "clipped: arm 10" in out
+
+
 def test_too_short_everything_dropped(cli, work, short_cols):
     log = write_lines(work / "a.csv", short_cols)
     err = _fail(cli, work, log, "--min-steps", "500")

@@ -344,28 +344,30 @@ def command_of(
     """(n_row,) command of joint or input ``j`` in its range, from its ``chans`` in ``vals``
     (all on the same rows).
 
-    A two-channel command is ``up - down``; out-of-range values are an error, or clipped
-    (and counted in ``entry["clipped"]``) with ``options.clip_commands``.
+    A two-channel command is ``up - down``; out-of-range values (and negative one-way
+    channels) are an error, or clipped (their rows counted in ``entry["clipped"]``) with
+    ``options.clip_commands``.
     """
     c = j.command
     what = f"joint '{j.name}' command" if isinstance(j, JointMap) else f"input '{j.name}'"
     span = c.range[1] - c.range[0]
     tol = 1e-9 * span
     raw = [vals[ch] * c.scale + c.offset for ch in chans]
+    clamped = np.zeros(raw[0].shape, dtype=bool)  # a one-way channel clamped at 0 (clip only)
     if c.two_channel:
         for k, (ch, x) in enumerate(zip(chans, raw)):
             check_one_way(path, j, ch, x, down=k == 1, full=False, options=options, where=where)
-        x = (
-            np.maximum(raw[0], 0.0) - np.maximum(raw[1], 0.0)
-            if options.clip_commands
-            else raw[0] - raw[1]
-        )
+        if options.clip_commands:
+            clamped = (raw[0] < -tol) | (raw[1] < -tol)
+            x = np.maximum(raw[0], 0.0) - np.maximum(raw[1], 0.0)
+        else:
+            x = raw[0] - raw[1]
         label = f"{chans[0].label} - {chans[1].label}"
     else:
         x = raw[0]
         label = chans[0].label
     u = _to_command(x, c)
-    out = (u < c.range[0] - tol) | (u > c.range[1] + tol)
+    out = clamped | (u < c.range[0] - tol) | (u > c.range[1] + tol)
     if out.any():
         row = int(np.flatnonzero(out)[0])
         if not options.clip_commands:
