@@ -154,6 +154,20 @@ def test_negative_one_way_channel(cli, work, short_cols):
     assert "column 'arm_down_pct', row 9: one-way command channel is negative (-5)" in err
 
 
+def test_input_out_of_range_is_named_in_its_own_unit(cli, work, short_cols):
+    """An ``[[inputs]]`` channel in % (stored as raw 0..100) is reported in % (it said
+    'raw'; audit 1, D11)."""
+    cols = dict(short_cols) | {"rpm": np.full(short_cols["t_ms"].shape, 50.0)}
+    cols["rpm"][800] = 120.0
+    log = write_lines(work / "a.csv", cols, columns=(*arm3_plant.LOG_COLUMNS, "rpm"))
+    (work / "inp.toml").write_text(
+        (work / "arm3.toml").read_text()
+        + '\n[[inputs]]\nname = "rpm"\ncolumn = "rpm"\nunit = "%"\nrange = [800, 2200]\n'
+    )
+    err = _fail(cli, work, log, mapping="inp.toml")
+    assert "column 'rpm', row 800: command 2480 (log value 120 %) is outside [800, 2200]" in err
+
+
 def test_clip_commands_counts_negative_one_way_channels(cli, work, short_cols):
     """``--clip-commands`` clamps a negative one-way channel at 0 and counts its rows (it
     clamped them and reported nothing clipped; audit 1, D10)."""

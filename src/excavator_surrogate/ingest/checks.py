@@ -371,9 +371,10 @@ def command_of(
     if out.any():
         row = int(np.flatnonzero(out)[0])
         if not options.clip_commands:
+            unit = j.unit if isinstance(j, InputMap) else c.unit  # an input's % is stored as raw
             raise DataError(
                 path,
-                f"command {u[row]:.6g} (log value {x[row]:.6g} {c.unit}) is outside "
+                f"command {u[row]:.6g} (log value {x[row]:.6g} {unit}) is outside "
                 f"[{c.range[0]:g}, {c.range[1]:g}] after scaling",
                 column=label,
                 row=row,
