@@ -171,6 +171,33 @@ def test_masked_reset_leaves_other_envs_untouched(
             np.testing.assert_allclose(ob[1], single.step(a[1])[0], atol=1e-5)
 
 
+def test_masked_reset_seeds_only_the_envs_it_resets(stateful_ckpt: Path) -> None:
+    """A seed given with a ``reset_mask`` seeds the masked envs only, as in ``SyncVectorEnv``:
+    the others keep their generators, so their next poses and targets are those of their
+    first seeds (the vector env had re-seeded every env)."""
+    vec = SurrogateVectorEnv(
+        stateful_ckpt,
+        N_ENVS,
+        task=TASKS["random-target"](),
+        max_episode_steps=LIMIT,
+        autoreset_mode=AutoresetMode.DISABLED,
+    )
+    ref = _sync(stateful_ckpt, AutoresetMode.DISABLED)
+    calls = [
+        {"seed": 0},
+        {"seed": 100, "options": {"reset_mask": np.array([True, False, False])}},
+        {"options": {"reset_mask": np.array([False, True, True])}},
+        {"seed": [7, 8, 9], "options": {"reset_mask": np.array([False, False, True])}},
+        {},
+    ]
+    for kw in calls:
+        mask = kw.get("options", {}).get("reset_mask", np.ones(N_ENVS, dtype=bool))
+        o1, i1 = vec.reset(**kw)
+        o2, i2 = ref.reset(**{k: (dict(v) if k == "options" else v) for k, v in kw.items()})
+        np.testing.assert_allclose(o1[mask], o2[mask], atol=1e-6)
+        np.testing.assert_array_equal(i1["target"][mask], i2["target"][mask])
+
+
 def test_vector_safety_and_guard(stateful_ckpt: Path, make_surrogate) -> None:
     vec = SurrogateVectorEnv(stateful_ckpt, N_ENVS)
     vec.reset(seed=0)

@@ -179,7 +179,10 @@ class SurrogateVectorEnv(VectorEnv):
 
     # ---- helpers ------------------------------------------------------------------------------
 
-    def _seed(self, seed: int | list[int | None] | None) -> None:
+    def _seed(self, seed: int | list[int | None] | None, mask: np.ndarray) -> None:
+        """Seed the generators of the envs in ``mask`` (n_envs,) bool, as ``SyncVectorEnv``
+        seeds only the envs it resets: env ``i`` gets ``seed + i`` (an int) or ``seed[i]``
+        (a list; None keeps its generator); the others keep theirs."""
         n = self.num_envs
         if seed is None:
             if not self._rngs:
@@ -192,8 +195,8 @@ class SurrogateVectorEnv(VectorEnv):
             self._np_random, self._np_random_seed = seeding.np_random(seed)
         rngs = self._rngs or [None] * n
         self._rngs = [
-            seeding.np_random(s)[0] if s is not None else (r or seeding.np_random()[0])
-            for s, r in zip(seeds, rngs)
+            seeding.np_random(s)[0] if s is not None and m else (r or seeding.np_random()[0])
+            for s, r, m in zip(seeds, rngs, mask)
         ]
 
     def _theta0(self, mask: np.ndarray, options: dict[str, Any]) -> np.ndarray:
@@ -317,7 +320,8 @@ class SurrogateVectorEnv(VectorEnv):
         """Reset all envs, or those in ``options["reset_mask"]`` (n_envs,) bool.
 
         Args:
-            seed: int (env ``i`` gets ``seed + i``), a list of per-env seeds, or None.
+            seed: int (env ``i`` gets ``seed + i``), a list of per-env seeds, or None; only
+                the envs in ``reset_mask`` are seeded (the others keep their generators).
             options: ``theta0`` ((n_joint,) or (n_envs, n_joint) [rad], at rest), or
                 ``history`` (``{"theta": (n_hist, n_joint) or (n_envs, n_hist, n_joint) [rad],
                 "u": (n_hist - 1, n_u) or (n_envs, n_hist - 1, n_u)}``, a recorded warm-up:
@@ -326,7 +330,6 @@ class SurrogateVectorEnv(VectorEnv):
         Returns:
             Observations (n_envs, 2·n_joint) float32 and ``info`` (``theta``: (n_envs, n_joint)).
         """
-        self._seed(seed)
         options = dict(options or {})
         mask = options.pop("reset_mask", None)
         if mask is None:
@@ -338,6 +341,7 @@ class SurrogateVectorEnv(VectorEnv):
                     f"{self.env_id}: options['reset_mask'] must be a bool array of shape "
                     f"({self.num_envs},) with at least one True"
                 )
+        self._seed(seed, mask)
         info = self._reset_envs(mask, options)
         info["theta"] = self.engine.theta.cpu().numpy().copy()
         return self._obs.copy(), self._with_masks(info, mask)
