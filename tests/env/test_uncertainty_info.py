@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
+from gymnasium.wrappers.vector import DictInfoToList
 
-from excavator_surrogate.env import ExcavatorSurrogateEnv, SurrogateVectorEnv
+from excavator_surrogate.env import SURROGATE_ID, ExcavatorSurrogateEnv, SurrogateVectorEnv
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.env.uncertainty import INFO_KEYS
 from excavator_surrogate.spec import EXCAVATOR
@@ -201,11 +204,39 @@ def test_single_network_says_it_has_no_uncertainty(make_surrogate) -> None:
     u = np.full((3, 4), 900.0, dtype=np.float32)  # beyond the record's +-600 box
     _, _, _, _, info = venv.step(u)
     assert info["ood_checked"].all() and info["ood"].all() and info["ood_any"].all()
-    assert not info["uncertainty"].any() and info["theta_band"] is None
+    assert not info["uncertainty"].any()
+    for k in ("theta_band", "omega_band"):  # what SyncVectorEnv batches from the single env's
+        assert info[k].shape == (3,) and all(b is None for b in info[k]), k
     off = SurrogateVectorEnv(sur, 3, max_episode_steps=None, uncertainty=False)
     off.reset(seed=0)
     _, _, _, _, info = off.step(u)
     assert not info["ood_checked"].any() and "not tracked" in off.uncertainty_note
+
+
+@pytest.mark.parametrize("uncertainty", [None, False])
+def test_vector_info_of_a_single_network_lists_like_sync_vector_env(
+    stateful_ckpt: Path, uncertainty: bool | None
+) -> None:
+    """Every uncertainty entry of the vector env's info is an array over the envs, as
+    gymnasium's ``DictInfoToList`` asserts: a single network's bands are None per env, as a
+    ``SyncVectorEnv`` of the single env lists them (they were one bare None: an
+    AssertionError on the first step)."""
+    kw = dict(num_envs=2, ckpt=str(stateful_ckpt), uncertainty=uncertainty)
+    envs = [
+        DictInfoToList(gym.make_vec(SURROGATE_ID, vectorization_mode=vm, **kw))
+        for vm in ("vector_entry_point", "sync")
+    ]
+    for env in envs:
+        env.reset(seed=0)
+    for _ in range(2):
+        a = np.full((2, 4), 300.0, dtype=np.float32)
+        (*_, got), (*_, ref) = (env.step(a) for env in envs)
+        assert len(got) == len(ref) == 2
+        for one, one_ref in zip(got, ref):
+            assert one["theta_band"] is None and one["omega_band"] is None
+            np.testing.assert_equal(
+                {k: one[k] for k in INFO_KEYS}, {k: one_ref[k] for k in INFO_KEYS}
+            )
 
 
 def test_angle_band_follows_the_horizon_bins_like_the_plain_loop(ens) -> None:

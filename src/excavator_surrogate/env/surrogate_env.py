@@ -230,7 +230,7 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
 
     def _dyn_info(self) -> dict[str, Any]:
         info = step_info(self.engine.unc, 1, self.machine.n_joint)
-        return {k: None if v is None else v[0] for k, v in info.items()}
+        return {k: v[0] for k, v in info.items()}
 
     def _dyn_step(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         theta, omega = self.engine.step(u[None])

@@ -55,33 +55,34 @@ def wanted(sur: Surrogate, uncertainty: bool | None) -> bool:
     return member_head(sur) is not None or stored_coverage(sur) is not None
 
 
-def step_info(
-    unc: StepUncertainty | None, n_envs: int, n_joint: int
-) -> dict[str, np.ndarray | None]:
-    """The uncertainty entries of a step's ``info`` for ``n_envs`` rows (NumPy copies):
+def step_info(unc: StepUncertainty | None, n_envs: int, n_joint: int) -> dict[str, np.ndarray]:
+    """The uncertainty entries of a step's ``info`` for ``n_envs`` rows (NumPy copies, each
+    with first axis ``n_envs``, as gymnasium's vector ``info`` wants them):
 
     - ``uncertainty`` (n_envs,) bool: the bands are the ensemble members' spread (False: a
       single network or tracking off; the bands are then None, never zeros);
     - ``band_calibrated`` (n_envs,) bool: the bands are the calibrated 90 % half-widths (False:
       the raw member std);
     - ``theta_band`` (n_envs, n_joint) [rad], ``omega_band`` (n_envs, n_joint) [rad/s], or
-      None without members;
+      without members (n_envs,) object arrays of None (what ``SyncVectorEnv`` batches from
+      the single env's None);
     - ``ood`` (n_envs, n_joint) bool: the step's sample (theta, omega, u) left what training
       covered; ``ood_any`` (n_envs,) bool: any joint;
     - ``ood_checked`` (n_envs,) bool: a coverage record was checked (False: ``ood`` is all
       False because nothing could be checked).
     """
+    none = lambda: np.full(n_envs, None, dtype=object)  # noqa: E731
     if unc is None:
         no = np.zeros(n_envs, dtype=bool)
         flags = np.zeros((n_envs, n_joint), dtype=bool)
-        return dict(zip(INFO_KEYS, (no, no.copy(), None, None, flags, no.copy(), no.copy())))
+        return dict(zip(INFO_KEYS, (no, no.copy(), none(), none(), flags, no.copy(), no.copy())))
     th, om = unc.bands() if unc.n_member else (None, None)
     ood = unc.ood.cpu().numpy().copy()
     return {
         "uncertainty": np.full(n_envs, unc.has_spread),
         "band_calibrated": np.full(n_envs, unc.calibrated),
-        "theta_band": None if th is None else th.cpu().numpy(),
-        "omega_band": None if om is None else om.cpu().numpy(),
+        "theta_band": none() if th is None else th.cpu().numpy(),
+        "omega_band": none() if om is None else om.cpu().numpy(),
         "ood": ood,
         "ood_any": ood.any(-1),
         "ood_checked": np.full(n_envs, unc.checked),

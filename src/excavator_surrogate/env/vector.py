@@ -22,8 +22,9 @@ Observations (n_envs, 2·n_joint) float32 and actions (n_envs, n_joint) follow t
 entries, each with gymnasium's ``_key`` mask: the keys of the single environments' step
 ``info`` (whose ``guard`` is the name, ``safety.GUARD_NAMES[code]``), including the
 surrogate's uncertainty (:func:`~.uncertainty.step_info`: ``theta_band`` / ``omega_band``
-(n_envs, n_joint), ``ood`` (n_envs, n_joint) bool, ``uncertainty``, ``band_calibrated``,
-``ood_any``, ``ood_checked`` (n_envs,) bool).  On a step that autoresets an env (either
+(n_envs, n_joint), or (n_envs,) object arrays of None for a single network, ``ood``
+(n_envs, n_joint) bool, ``uncertainty``, ``band_calibrated``, ``ood_any``, ``ood_checked``
+(n_envs,) bool).  On a step that autoresets an env (either
 mode) that env holds a single env's reset info, as in ``SyncVectorEnv``: ``theta`` and the
 task's reset entries; every step entry's mask (``_u``, ``_guard``, ``_limit_violation``, ...)
 is False for it (SAME_STEP: the step's own are in ``final_info``).
