@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pickle
+import re
 import warnings
 from pathlib import Path
 
@@ -154,6 +155,9 @@ def test_nan_and_out_of_range_actions(kind: str, stateful_ckpt: Path) -> None:
         strict.step(np.array([5000.0, 0, 0, 0]))
     with pytest.raises(ActionError, match="shape"):
         strict.step(np.zeros(3))
+    for bad in (np.zeros((2, 2)), np.zeros((1, 4))):  # the right size is not the right shape
+        with pytest.raises(ActionError, match=re.escape(f"shape {bad.shape}, expected (4,)")):
+            env.step(bad)
     with pytest.raises(ActionError, match="action_mode"):
         _env(kind, stateful_ckpt, action_mode="wrap")
 

@@ -221,6 +221,21 @@ def test_vector_safety_and_guard(stateful_ckpt: Path, make_surrogate) -> None:
     assert np.isfinite(obs).all() and not trunc.any() and (rew == 0).all()
 
 
+def test_wrong_shaped_actions_raise_like_sync_vector_env(stateful_ckpt: Path) -> None:
+    """An action batch of the right size but the wrong shape (transposed, flat) is refused,
+    as ``SyncVectorEnv`` of the single envs refuses it; it had been reshaped, handing env 0
+    half of env 1's commands."""
+    a = np.random.default_rng(0).uniform(-1000, 1000, (N_ENVS, 4))
+    vec = SurrogateVectorEnv(stateful_ckpt, N_ENVS)
+    for env in (vec, _sync(stateful_ckpt, AutoresetMode.NEXT_STEP)):
+        env.reset(seed=0)
+        for bad in (a.T, a.reshape(4, N_ENVS), a.reshape(-1), a[None]):
+            with pytest.raises(ActionError, match="shape"):
+                env.step(bad)
+    with pytest.raises(ActionError, match=rf"shape \(4, {N_ENVS}\), expected \({N_ENVS}, 4\)"):
+        vec.step(a.T)
+
+
 def test_make_vec_entry_point(stateful_ckpt: Path) -> None:
     envs = gym.make_vec(
         E.SURROGATE_ID, num_envs=5, vectorization_mode="vector_entry_point", ckpt=str(stateful_ckpt)

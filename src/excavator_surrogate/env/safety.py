@@ -116,14 +116,11 @@ class ActionChecker:
             u = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as e:
             raise ActionError(f"{self.env_name}: action is not numeric ({e})") from e
-        if u.shape != shape:
-            if u.size == int(np.prod(shape)):
-                u = u.reshape(shape)
-            else:
-                raise ActionError(
-                    f"{self.env_name}: action has shape {u.shape}, expected {shape} "
-                    f"(one command per column {list(self.names)})"
-                )
+        if u.shape != shape:  # never reshaped: a transposed batch would swap envs' commands
+            raise ActionError(
+                f"{self.env_name}: action has shape {u.shape}, expected {shape} "
+                f"(one command per column {list(self.names)})"
+            )
         finite = np.isfinite(u)
         if not finite.all():
             idx = np.argwhere(~finite)[0]
