@@ -249,6 +249,28 @@ def test_make_vec_entry_point(stateful_ckpt: Path) -> None:
     assert envs.observation_space.contains(obs)
 
 
+def test_one_task_object_serves_each_env_its_own_episodes(stateful_ckpt: Path) -> None:
+    """``gym.make_vec(..., task=one_object)`` (sync, and the batched env given the same
+    object) rewards each env against its own target, as a ``SyncVectorEnv`` with a task per
+    env does: each env copies the task (the sync envs had shared one, so every env was
+    rewarded against the last reset env's target)."""
+    one = TASKS["random-target"]()
+    kw = dict(num_envs=N_ENVS, ckpt=str(stateful_ckpt), max_episode_steps=LIMIT, task=one)
+    envs = [
+        gym.make_vec(E.SURROGATE_ID, vectorization_mode=vm, **kw)
+        for vm in ("sync", "vector_entry_point")
+    ]
+    ref = _sync(stateful_ckpt, AutoresetMode.NEXT_STEP)
+    for env in (*envs, ref):
+        env.reset(seed=5)
+    rng = np.random.default_rng(0)
+    for _ in range(LIMIT + 2):
+        a = rng.uniform(-1000, 1000, (N_ENVS, 4)).astype(np.float32)
+        _, rew, *_ = ref.step(a)
+        for env in envs:
+            np.testing.assert_allclose(env.step(a)[1], rew, atol=1e-5)
+
+
 _FORKED = """
 import sys
 import gymnasium as gym

@@ -10,6 +10,7 @@ Subclasses provide the dynamics through two methods acting on one machine:
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any, ClassVar
 
@@ -94,7 +95,8 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
 
     Args (keyword-only, shared by both environments):
         spec: the machine.
-        task: optional reward/termination hook (:class:`~.tasks.Task`); None -> reward 0.
+        task: optional reward/termination hook (:class:`~.tasks.Task`), copied (``self.task``);
+            None -> reward 0.
         action_mode: ``"clip"`` or ``"reject"`` out-of-range commands.
         guard: divergence-guard thresholds.
         wrap_theta: wrap periodic joints' θ to ``[-π, π)`` in the observation.
@@ -134,7 +136,10 @@ class ExcavatorEnv(gym.Env[np.ndarray, np.ndarray]):
         self._viewer: Viewer | None = None
         self.machine = spec
         """The machine (joints, command ranges, rate); ``self.spec`` is gymnasium's EnvSpec."""
-        self.task = task
+        self.task = copy.deepcopy(task)
+        """The env's own copy of ``task`` (a task keeps its episodes' state, e.g.
+        :class:`~.tasks.ReachTask`'s targets: the envs ``gym.make_vec`` builds from one
+        ``task=`` argument never share it)."""
         self.action_mode = action_mode
         self.wrap_theta = bool(wrap_theta)
         self.reset_margin = float(reset_margin)

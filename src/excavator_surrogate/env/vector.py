@@ -32,6 +32,7 @@ is False for it (SAME_STEP: the step's own are in ``final_info``).
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -84,7 +85,8 @@ class SurrogateVectorEnv(VectorEnv):
         mode: ``stateful`` / ``windowed``; default: the checkpoint's training mode.
         impl: stateful kernel, ``auto`` (cell ops below 256 envs, folded ``nn.LSTM`` above),
             ``cell`` or ``module``.
-        task: batched reward/termination hook; None -> reward 0, no termination.
+        task: batched reward/termination hook, copied (``self.task``); None -> reward 0, no
+            termination.
         action_mode: ``clip`` or ``reject`` out-of-range commands.
         guard: divergence-guard thresholds (truncate on NaN, limits, speed).
         wrap_theta: wrap periodic joints' θ to ``[-π, π)`` in observations.
@@ -158,7 +160,8 @@ class SurrogateVectorEnv(VectorEnv):
         self._obs_hi = self.single_observation_space.high
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self.task = task
+        self.task = copy.deepcopy(task)
+        """The env's own copy of ``task`` (it keeps the episodes' state, e.g. targets)."""
         self.reset_margin = float(reset_margin)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self._check_action = ActionChecker(
