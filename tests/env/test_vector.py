@@ -98,6 +98,66 @@ def test_matches_sync_vector_env_of_single_envs(
     assert n_done >= 2 * N_ENVS  # autoresets were exercised
 
 
+class CountdownTask:
+    """Ends each env's episode 1 to 4 steps after its reset (drawn from the env's generator),
+    so the envs end and autoreset at different steps; ``left`` is a reset (-1 outside the
+    mask) and a step entry, ``budget`` a reset entry only."""
+
+    def __init__(self) -> None:
+        self.left = np.zeros(0, dtype=np.int64)
+
+    def reset(self, theta, *, mask, rng, options=None) -> dict[str, np.ndarray]:
+        if len(self.left) != len(mask):
+            self.left = np.zeros(len(mask), dtype=np.int64)
+        self.left[mask] = rng.integers(1, 5, int(mask.sum()))
+        return {"left": np.where(mask, self.left, -1), "budget": self.left.copy()}
+
+    def evaluate(self, theta, omega, u) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        self.left -= 1
+        return -self.left.astype(float), self.left <= 0, {"left": self.left.copy()}
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_autoreset_info_of_envs_ending_apart_matches_sync_vector_env(
+    stateful_ckpt: Path, mode: AutoresetMode
+) -> None:
+    """On a step that autoresets some envs, the task's reset entries are masked True for those
+    envs only, and an entry of both the step and the reset holds each env's own, as in a
+    ``SyncVectorEnv`` of single envs (``_budget`` had been True for every env)."""
+    vec = SurrogateVectorEnv(
+        stateful_ckpt, N_ENVS, task=CountdownTask(), max_episode_steps=LIMIT, autoreset_mode=mode
+    )
+
+    def make() -> gym.Env:
+        return gym.wrappers.TimeLimit(
+            ExcavatorSurrogateEnv(stateful_ckpt, task=CountdownTask()), LIMIT
+        )
+
+    ref = SyncVectorEnv([make for _ in range(N_ENVS)], autoreset_mode=mode)
+    none = np.zeros(N_ENVS, dtype=bool)
+
+    def same(got: dict, want: dict) -> None:
+        for k in ("left", "budget"):
+            m = want.get(f"_{k}", none)
+            np.testing.assert_array_equal(got.get(f"_{k}", none), m, err_msg=k)
+            if m.any():
+                np.testing.assert_array_equal(got[k][m], want[k][m], err_msg=k)
+
+    same(vec.reset(seed=2)[1], ref.reset(seed=2)[1])
+    rng = np.random.default_rng(0)
+    n_some = 0
+    for _ in range(12):
+        a = rng.uniform(-300, 300, (N_ENVS, 4)).astype(np.float32)
+        *_, term, trunc, info = vec.step(a)
+        *_, term2, trunc2, info2 = ref.step(a)
+        np.testing.assert_array_equal(term | trunc, term2 | trunc2)
+        same(info, info2)
+        if "final_info" in info2:
+            same(info["final_info"], info2["final_info"])
+        n_some += int(0 < info2.get("_budget", none).sum() < N_ENVS)
+    assert n_some >= 2  # steps that reset some envs, not all
+
+
 def test_module_and_cell_kernels_agree(stateful_ckpt: Path) -> None:
     rng = np.random.default_rng(1)
     envs = [SurrogateVectorEnv(stateful_ckpt, 4, impl=impl) for impl in ("cell", "module")]

@@ -306,11 +306,14 @@ class SurrogateVectorEnv(VectorEnv):
         self._write_obs(theta, omega, mask)
         info: dict[str, Any] = {}
         if self.task is not None:
-            # one call per env with that env's generator: identical draws to single envs
+            # one call per env with that env's generator: identical draws to single envs;
+            # row i of each entry from env i's call (a call's other rows are not its own)
             for i in np.flatnonzero(mask):
                 one = np.zeros(self.num_envs, dtype=bool)
                 one[i] = True
-                info.update(self.task.reset(theta, mask=one, rng=self._rngs[i], options=options))
+                extra = self.task.reset(theta, mask=one, rng=self._rngs[i], options=options)
+                for k, v in extra.items():
+                    info.setdefault(k, np.array(v))[i] = v[i]
         return info
 
     # ---- gymnasium API ------------------------------------------------------------------------
@@ -430,11 +433,17 @@ class SurrogateVectorEnv(VectorEnv):
     def _reset_in_step(self, mask: np.ndarray, info: dict[str, Any]) -> None:
         """Reset the envs ``mask`` (n_envs,) within a step (autoreset): in ``info`` they then
         hold a single env's reset info, as in ``SyncVectorEnv``: the angles and the task's
-        reset entries; every step entry's mask (``_u``, ``_guard``, ...) is False for them."""
+        reset entries, whose masks (``_target``, ...) are True for them only; every step
+        entry's mask (``_u``, ``_guard``, ...) is False for them (an entry both the step and
+        the reset give holds the reset's rows there)."""
         extra = self._reset_envs(mask, {})
         info["theta"][mask] = self.engine.theta.cpu().numpy()[mask]
         for k in list(info):
             if not k.startswith(("_", "final_")) and k != "theta":
                 info[f"_{k}"] = info[f"_{k}"] & ~mask
         for k, v in extra.items():
-            info[k], info[f"_{k}"] = v, self._ones
+            if k in info:  # a step entry too
+                rows = mask.reshape(-1, *[1] * (np.ndim(v) - 1))
+                info[k], info[f"_{k}"] = np.where(rows, v, info[k]), info[f"_{k}"] | mask
+            else:
+                info[k], info[f"_{k}"] = v, mask.copy()
