@@ -331,6 +331,19 @@ def test_one_task_object_serves_each_env_its_own_episodes(stateful_ckpt: Path) -
             np.testing.assert_allclose(env.step(a)[1], rew, atol=1e-5)
 
 
+def test_make_vec_entry_point_refuses_a_render_mode(stateful_ckpt: Path) -> None:
+    """The batched env does not render, so ``render_mode="rgb_array"`` is refused in one
+    line naming the mode that renders (it was dropped: ``render()`` then raised
+    NotImplementedError); None is accepted."""
+    kw = dict(num_envs=2, vectorization_mode="vector_entry_point", ckpt=str(stateful_ckpt))
+    for mode in ("rgb_array", "human"):
+        with pytest.raises(ConfigError, match="vectorization_mode='sync'") as err:
+            gym.make_vec(E.SURROGATE_ID, render_mode=mode, **kw)
+        assert "\n" not in str(err.value) and repr(mode) in str(err.value)
+    envs = gym.make_vec(E.SURROGATE_ID, render_mode=None, **kw)
+    assert envs.metadata["render_modes"] == [] and envs.render_mode is None
+
+
 _FORKED = """
 import sys
 import gymnasium as gym

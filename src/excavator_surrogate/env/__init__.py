@@ -50,11 +50,22 @@ _LAZY = {
 }
 
 
-def _make_vector(ckpt: Any, num_envs: int = 1, **kwargs: Any) -> Any:
-    """``vector_entry_point`` of ``ExcavatorSurrogate-v0``: a :class:`SurrogateVectorEnv`."""
+def _make_vector(
+    ckpt: Any, num_envs: int = 1, *, render_mode: str | None = None, **kwargs: Any
+) -> Any:
+    """``vector_entry_point`` of ``ExcavatorSurrogate-v0``: a :class:`SurrogateVectorEnv`.
+
+    It does not render: a ``render_mode`` other than None raises a one-line
+    :class:`~excavator_surrogate.errors.ConfigError` (``vectorization_mode="sync"`` renders).
+    """
+    from ..errors import ConfigError
     from .vector import SurrogateVectorEnv
 
-    kwargs.pop("render_mode", None)
+    if render_mode is not None:
+        raise ConfigError(
+            f"{SURROGATE_ID}: vectorization_mode='vector_entry_point' does not render "
+            f"(render_mode={render_mode!r}); use vectorization_mode='sync' for frames"
+        )
     kwargs.setdefault("max_episode_steps", MAX_EPISODE_STEPS)
     return SurrogateVectorEnv(ckpt, num_envs, **kwargs)
 
