@@ -143,6 +143,37 @@ def test_engine_bands_and_flags_equal_the_plain_loop(
     assert 0.05 < ref.mean() < 0.95  # the record cuts through the run: the test can fail
 
 
+def test_members_driven_into_the_stops_stay_inside_them(make_surrogate) -> None:
+    """Members pushing into a stop the central run rests on: their deviations had kept
+    integrating (a 90 % band of +-932 degrees on a boom of 92), MPPI's risk with them.  The
+    engine's member angles stay inside the stops and equal the plain loop's."""
+    sur = merge(
+        [make_surrogate(seed=s, hidden=16, mode="stateful", drive=20.0, **KW) for s in range(3)]
+    )
+    rng = np.random.default_rng(2)
+    n, n_step, w = 3, 120, sur.window
+    theta0, u = _drive(rng, n, n_step)
+    eng = SurrogateEngine(sur, n_envs=n, mode="stateful", uncertainty=True)
+    eng.reset(theta0)
+    lo, hi = sur.limits_np()[:2]
+    th_band = []
+    for k in range(n_step):
+        th, _ = eng.step(u[:, k])
+        members = th.numpy()[None] + eng.unc.dev.numpy()
+        assert (members >= np.minimum(lo, th.numpy()) - 1e-12).all()
+        assert (members <= np.maximum(hi, th.numpy()) + 1e-12).all()
+        th_band.append(eng.unc.bands()[0].numpy().copy())
+    (th_c, _, th_m, _), _ = _plain(sur, theta0, u)
+    stopped = np.isfinite(hi)
+    at_stop = np.isclose(th_c[:, -1, stopped], lo[stopped]) | np.isclose(
+        th_c[:, -1, stopped], hi[stopped]
+    )
+    assert at_stop.mean() > 0.5  # the test can fail: the runs rest on their stops
+    ref = np.std(th_m, axis=0, ddof=1)[:, w : w + n_step]
+    np.testing.assert_allclose(np.stack(th_band, 1), ref, atol=1e-4, rtol=0)
+    assert (ref[..., stopped] <= (hi - lo)[stopped]).all()
+
+
 def test_calibrated_band_and_masked_resets(ens) -> None:
     """A calibrated checkpoint reports k_90 max(std, floor); a masked reset zeroes the angle
     band of the reset envs only; the vector env's keys are the single env's, batched."""

@@ -444,5 +444,5 @@ class SurrogateEngine:
             if self.omega_in:
                 self.w.copy_(omega)
             if unc is not None:
-                unc.advance(om_m, omega)
+                unc.advance(om_m, omega, theta=theta, limits=self._limits)
         return theta, omega

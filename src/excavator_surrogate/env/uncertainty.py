@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from ..spec import MachineSpec
+from ..surrogate.angles import Limits
 from ..surrogate.coverage import CoverageRecord, channel_names, seen_cells
 from ..surrogate.ensemble import MemberHead, member_head
 from ..surrogate.model import Surrogate
@@ -257,13 +258,30 @@ class StepUncertainty:
             return om + base + self.map_dev * base
         return om + base
 
-    def advance(self, omega_members: torch.Tensor | None, omega: torch.Tensor) -> None:
+    def advance(
+        self,
+        omega_members: torch.Tensor | None,
+        omega: torch.Tensor,
+        *,
+        theta: torch.Tensor | None = None,
+        limits: Limits | None = None,
+    ) -> None:
         """After a step: members' ``omega_members`` (M, n_envs, n_joint) [rad/s] (None
-        without members) and the integrated central ``omega[k+1]`` (n_envs, n_joint) float64."""
+        without members) and the integrated central ``omega[k+1]`` (n_envs, n_joint) float64;
+        with ``theta[k+1]`` (n_envs, n_joint) float64 and the engine's ``limits``, each member's
+        angle ``theta + dev_m`` stays inside the end stops, as
+        :func:`~excavator_surrogate.surrogate.uncertainty.shared_member_angles` keeps it::
+
+            dev_m <- clip(theta + dev_m + T_s (omega_m - omega), lo, hi) - theta
+        """
         if omega_members is not None:
             om_m = omega_members.double()
             self.omega_members = om_m
             self.dev.add_(torch.nan_to_num(om_m - omega), alpha=self.dt)
+            if theta is not None and limits is not None:
+                # the stops, widened to the central angle where it is beyond one
+                lo, hi = torch.minimum(limits[0], theta), torch.maximum(limits[1], theta)
+                self.dev.copy_(torch.clamp(theta + self.dev, lo, hi) - theta)
         self.omega.copy_(omega)
         self.steps.add_(1)
 
