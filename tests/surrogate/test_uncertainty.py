@@ -227,6 +227,36 @@ def test_ood_grid_flags_a_pose_and_command_never_seen_together():
     assert flags.tolist() == [False, False, True, True]
 
 
+def test_a_periodic_pose_is_flagged_alike_on_every_turn():
+    """The network reads the swing as sin/cos: the same pose one turn on is the same input.
+    The record's box had been fitted and checked on the raw angle, so -2.983 rad was flagged
+    and +3.300 (the same pose) was not; a swing logged across +-pi got a box of the whole
+    circle.  The torch twin (the engine's and the ONNX graph's flags) agrees."""
+    import torch
+
+    from excavator_surrogate.data import Episode
+    from excavator_surrogate.env.uncertainty import OodFlags
+
+    spec = synthetic_spec(2)
+    rng = np.random.default_rng(0)
+    n = 400
+    t = np.arange(n) * spec.dt
+    swing = np.pi + 0.15 * np.sin(0.5 * t)  # across +pi, logged wrapped
+    theta = np.stack([(swing + np.pi) % (2 * np.pi) - np.pi, 0.3 * np.sin(0.3 * t)], axis=1)
+    u = rng.uniform(-500, 500, (n, 2))
+    ep = Episode(spec=spec, time=t, u=u, theta=theta, omega=np.zeros_like(theta), name="e")
+    rec = fit_coverage([ep], spec)
+    lo, hi = rec.lo[spec.n_u], rec.hi[spec.n_u]
+    assert hi - lo < 0.5  # one narrow box round pi, not [-pi, pi)
+    poses = np.array([[3.05, 0.0], [3.05 - 2 * np.pi, 0.0], [3.05 + 4 * np.pi, 0.0], [2.0, 0.0]])
+    cmd = np.zeros((4, 2))
+    flags = ood_flags(rec, spec, poses, np.zeros_like(poses), cmd)[:, 0]
+    assert flags.tolist() == [False, False, False, True]  # a seen pose on three turns; 2.0 unseen
+    box = OodFlags(rec, spec, dtype=torch.float64)
+    got = box(torch.as_tensor(poses), torch.as_tensor(cmd), torch.zeros(4, 2, dtype=torch.float64))
+    assert got.numpy().tolist() == ood_flags(rec, spec, poses, np.zeros_like(poses), cmd).tolist()
+
+
 def test_coverage_record_round_trips(spec, episodes):
     rec = fit_coverage(episodes, spec, n_bin=6)
     back = CoverageRecord.from_dict(rec.to_dict())

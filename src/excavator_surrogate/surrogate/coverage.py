@@ -28,7 +28,7 @@ import numpy as np
 from ..data.episode import Episode
 from ..errors import CheckpointError, DataError
 from ..spec import MachineSpec
-from .angles import omega_target
+from .angles import omega_target, wrap_angle
 
 QUANTILES = (0.005, 0.995)
 """The quantiles that bound each channel's box."""
@@ -123,6 +123,10 @@ def fit_coverage(
         raise DataError(None, "no training episodes to record coverage from", fix="check the split")
     rows = [_stack(ep.theta, omega_target(ep.theta, spec), ep.u)[1:] for ep in episodes]
     x = np.concatenate(rows)  # (n_sample, n_channel); row 0 of each episode has no velocity
+    per = spec.n_u + np.flatnonzero(spec.periodic)  # periodic angles: one turn round their mean
+    if per.size:
+        c = np.arctan2(np.sin(x[:, per]).mean(0), np.cos(x[:, per]).mean(0))
+        x[:, per] = c + wrap_angle(x[:, per] - c)
     q_lo, q_hi = np.quantile(x, QUANTILES, axis=0)
     span = q_hi - q_lo
     lo, hi = q_lo - margin * span, q_hi + margin * span
@@ -182,6 +186,7 @@ def ood_flags(
             f"coverage record channels {list(rec.channels)} do not match the machine; calibrate again"
         )
     n_joint, n_u = spec.n_joint, spec.n_u
+    theta = on_box_turn(rec, spec, np.asarray(theta, dtype=np.float64))
     x = _stack(theta, omega, u)
     finite = np.isfinite(x)
     out = finite & ((x < rec.lo) | (x > rec.hi))  # (..., n_step, n_channel)
@@ -194,6 +199,31 @@ def ood_flags(
     )
     seen = seen_cells(rec.grid)[np.arange(n_joint), cell[..., 0], cell[..., 1]]
     return flag | (inside & ~seen)
+
+
+def box_centres(rec: CoverageRecord, spec: MachineSpec) -> np.ndarray:
+    """(n_joint,) the middle of each joint's angle box [rad] (the turn a periodic joint's
+    angle is checked on)."""
+    it = spec.n_u + np.arange(spec.n_joint)
+    return 0.5 * (rec.lo[it] + rec.hi[it])
+
+
+def on_box_turn(rec: CoverageRecord, spec: MachineSpec, theta: np.ndarray) -> np.ndarray:
+    """``theta`` (..., n_joint) [rad] with each periodic joint's angle outside its box moved by
+    whole turns to within half a turn of the box's middle ``m_j``: the network reads it as
+    sin/cos, so the same pose on another turn is the same input (it had been flagged on one
+    turn and not on the other).  An angle inside its box stays (a box of an unwrapped
+    record may span more than a turn)::
+
+        theta_j <- m_j + wrap(theta_j - m_j)    where theta_j is outside [lo_j, hi_j]
+    """
+    per = np.asarray(spec.periodic, dtype=bool)
+    if not per.any():
+        return theta
+    it = spec.n_u + np.arange(spec.n_joint)
+    m = box_centres(rec, spec)
+    out = per & ((theta < rec.lo[it]) | (theta > rec.hi[it]))
+    return np.where(out, m + wrap_angle(theta - m), theta)
 
 
 def seen_cells(grid: np.ndarray) -> np.ndarray:
