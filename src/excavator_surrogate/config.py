@@ -111,6 +111,13 @@ def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -
     return merged
 
 
+RECORD_TABLES = ("data", "logs", "recipe", "kinds", "exogenous")
+"""Entries exsur writes into an output's ``config.toml`` besides the preset tables: where the
+data came from, and what a run chose and why (``[recipe]``, ``[kinds]``, ``[exogenous]``).
+A record read back as a preset skips them; a writer of another entry must add it here, or
+its record would not load back (``training.records.write_config`` checks)."""
+
+
 INF_OK = frozenset({"tau_jump", "tau_cons", "max_untrusted_s"})
 """Config fields where ``inf`` means "off" (a threshold never reached); NaN is never accepted."""
 

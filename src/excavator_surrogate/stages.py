@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from . import config as _config
-from .config import PresetConfig, describe_config, stage_config
+from .config import RECORD_TABLES, PresetConfig, describe_config, stage_config
 from .errors import ConfigError
 
 _log = logging.getLogger(__name__)
@@ -77,8 +77,6 @@ def stage_classes() -> dict[str, type]:
 
 PRESET_KEYS = ("name", "extends")
 """Top-level keys of a preset besides its tables."""
-RECORD_TABLES = ("data", "logs", "recipe")
-"""Entries exsur writes into a run's ``config.toml`` record (read back as a preset: ignored)."""
 
 
 def _sub_config(tp: Any) -> type | None:

@@ -22,3 +22,14 @@ def test_update_notes_replaces_only_the_tables_the_run_wrote(tmp_path):
     assert not update_notes(tmp_path / "missing.toml", {"exogenous": new})
     assert not (tmp_path / "missing.toml").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["config.toml"]  # no temporary left
+
+
+def test_a_note_outside_the_record_tables_is_refused_before_it_is_written(tmp_path):
+    """A record holding a table the preset loader does not know would not load back as
+    ``--preset`` (``[kinds]`` and ``[exogenous]`` did not): every note is one of
+    ``config.RECORD_TABLES``."""
+    import pytest
+
+    with pytest.raises(ValueError, match=r"\[choice\] is not one of config.RECORD_TABLES"):
+        write_config(tmp_path, tiny_train_config(), notes={"choice": {"why": "x"}})
+    assert not (tmp_path / "config.toml").exists()

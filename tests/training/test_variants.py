@@ -429,3 +429,16 @@ def test_a_run_that_ignores_its_inputs_resumes_from_its_stored_checkpoint(tmp_pa
     best = train(cfg, ds, out=out, resume=out / "last.pt", show_progress=False)
     assert [h["epoch"] for h in read_checkpoint(out / "last.pt")["history"]] == [0, 1, 2, 3]
     assert _gear_effect(best) == 0.0 and load_checkpoint(best).spec.u_names == ("boom", "gear")
+
+
+def test_the_record_of_the_input_and_kind_choices_loads_back_as_its_preset(tmp_path):
+    """A run that chose its inputs and its kinds records ``[exogenous]`` and ``[kinds]`` in
+    ``config.toml``; the record loads back as ``--preset`` to the config it ran with (it was
+    refused: "unknown table [kinds]")."""
+    from excavator_surrogate.stages import build_configs, load_preset
+
+    cfg = _cfg(exogenous="choose", prior_choice=True, members=2, member_workers=1, epochs=2)
+    train(cfg, _dataset(informative=True), out=tmp_path / "m", show_progress=False)
+    record = tmp_path / "m" / "config.toml"
+    assert {"exogenous", "kinds"} <= set(tomllib.loads(record.read_text()))
+    assert build_configs(load_preset(record), sections=["train"])["train"] == cfg

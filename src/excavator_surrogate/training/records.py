@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..config import dumps_toml, to_dict
+from ..config import RECORD_TABLES, dumps_toml, to_dict
 from ..io_utils import write_text
 from ..surrogate.checkpoint import read_checkpoint, write_checkpoint_dict
 from .config import TrainConfig
@@ -79,7 +79,12 @@ def epoch_row(
 
 def write_config(out: Path, cfg: TrainConfig, *, notes: Mapping[str, Any] | None = None) -> None:
     """``OUT/config.toml``: the ``[train]`` table that produced the run, then ``notes``' tables
-    (e.g. ``[recipe]``: why the data-driven recipe chose what it did)."""
+    (e.g. ``[recipe]``: why the data-driven recipe chose what it did), each one of
+    :data:`~excavator_surrogate.config.RECORD_TABLES`, so that the record loads back as a
+    preset."""
+    stray = sorted(set(notes or {}) - set(RECORD_TABLES))
+    if stray:  # a programming error: the record would not load back as --preset
+        raise ValueError(f"write_config: [{stray[0]}] is not one of config.RECORD_TABLES")
     write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg), **(notes or {})}))
 
 
