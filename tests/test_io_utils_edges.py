@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import shutil
 import sys
@@ -134,3 +135,18 @@ def test_a_log_line_with_a_traceback() -> None:
     first, *rest = text.splitlines()
     assert first == "[seed1] error: failed a"
     assert rest[0].startswith("Traceback") and rest[-1] == "ValueError: boom"
+
+
+def test_write_json_writes_an_undefined_number_as_null(tmp_path: Path) -> None:
+    """``NaN`` / ``Infinity`` are not JSON (``exsur run``'s ``metrics.json`` held ``NaN`` for a
+    pace the cost model does not cover, and other readers refused the file): every writer of
+    JSON writes them as ``null``."""
+    nan = float("nan")
+    obj = {"pace": nan, "x": [1.0, -math.inf], "a": np.array([np.nan, 2.0]), "s": np.float32(nan)}
+    write_json(tmp_path / "m.json", obj)
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"{name} is not JSON")
+
+    got = json.loads((tmp_path / "m.json").read_text(), parse_constant=refuse)
+    assert got == {"pace": None, "x": [1.0, None], "a": [None, 2.0], "s": None}

@@ -11,6 +11,7 @@ import contextlib
 import fnmatch
 import json
 import logging
+import math
 import os
 import shutil
 import sys
@@ -220,8 +221,23 @@ def write_text(path: str | Path, text: str) -> None:
 
 
 def write_json(path: str | Path, obj: Any) -> None:
-    """Atomically write pretty JSON (NaN is written as null-safe strings are not needed: use finite values)."""
-    write_text(path, json.dumps(obj, indent=2, sort_keys=False, default=_json_default) + "\n")
+    """Atomically write pretty, strict JSON: a NaN or infinite number (an undefined metric)
+    is written as ``null`` (``NaN`` is not JSON: other readers refuse the file)."""
+    text = json.dumps(_finite(obj), indent=2, default=_json_default, allow_nan=False)
+    write_text(path, text + "\n")
+
+
+def _finite(o: Any) -> Any:
+    """``o`` with every non-finite float as None, NumPy arrays and scalars as lists and numbers."""
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_finite(v) for v in o]
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if hasattr(o, "tolist") and hasattr(o, "dtype"):  # numpy arrays and scalars
+        return _finite(o.tolist())
+    return o
 
 
 def recorded_path(path: str | Path, root: str | Path) -> str:
@@ -236,15 +252,6 @@ def recorded_path(path: str | Path, root: str | Path) -> str:
 
 
 def _json_default(o: Any) -> Any:
-    try:
-        import numpy as np
-
-        if isinstance(o, np.generic):
-            return o.item()
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-    except ImportError:  # pragma: no cover
-        pass
     if isinstance(o, Path):
         return str(o)
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")

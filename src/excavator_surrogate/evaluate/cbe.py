@@ -298,7 +298,7 @@ def evaluate_checkpoint(
     out = Path(out)
     # all files or none; an earlier evaluation's episode figures go with it
     with atomic_files(out, kind="evaluation", replaces=("cbe_*.png", "horizon.png")) as tmp:
-        write_json(tmp / "metrics.json", _json_safe(result))
+        write_json(tmp / "metrics.json", result)
         write_text(
             tmp / "table.md",
             report_markdown(
@@ -393,16 +393,6 @@ def linkage_metrics(runs: Sequence[EpisodeRollout], spec: MachineSpec) -> dict[s
             for key in ("rmse", "mae", "r2")
         }
     return out
-
-
-def _json_safe(o: Any) -> Any:
-    if isinstance(o, dict):
-        return {k: _json_safe(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_json_safe(v) for v in o]
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    return o
 
 
 def _splits_with_episodes(dataset: Dataset) -> list[str]:
