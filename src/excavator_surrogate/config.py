@@ -118,6 +118,13 @@ A record read back as a preset skips them; a writer of another entry must add it
 its record would not load back (``training.records.write_config`` checks)."""
 
 
+CAP_OPTIONS = (
+    "--max-seconds of exsur train, --max-train-seconds of exsur run, --trial-seconds of exsur sweep"
+)
+"""The options that set the wall-time cap (``max_train_seconds``), by command: a message
+about a cut names them all, as training does not know which command runs it."""
+
+
 INF_OK = frozenset({"tau_jump", "tau_cons", "max_untrusted_s"})
 """Config fields where ``inf`` means "off" (a threshold never reached); NaN is never accepted."""
 

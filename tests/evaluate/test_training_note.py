@@ -173,3 +173,27 @@ def test_the_kind_and_input_choices_are_named():
     assert "used by boom only (the parts of the model that drive the other joints" in text_part
     assert "used by the model" not in text_part
     assert "Two kinds" not in text and "Exogenous" not in training_markdown({"epochs_planned": 3})
+
+
+def test_a_cut_names_the_cap_option_of_each_command():
+    """The advice after a cut named ``--max-seconds``, which ``exsur run`` (its option is
+    ``--max-train-seconds``) and ``exsur sweep`` (``--trial-seconds``) refuse: the log line,
+    the report and the model card name each command's option."""
+    from excavator_surrogate.evaluate.card import _warnings
+    from excavator_surrogate.training.records import budget_cut_message
+
+    cut = {"epochs_planned": 200, "epochs_done": 6, "stopped": "budget", "budget_cut": True}
+    card = {
+        "training": {"budget_cut": True},
+        "network": {"end_stops": True},
+        "validation": None,
+        "coverage": None,
+    }
+    for text in (
+        budget_cut_message(1.0, 6, 200),
+        training_markdown(cut),
+        _warnings(card)[0],
+    ):
+        assert "6 of 200" in text or "cut training short" in text
+        for option in ("--max-seconds", "--max-train-seconds of exsur run", "--trial-seconds"):
+            assert option in text, text

@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from ..config import CAP_OPTIONS
 from ..spec import JointSpec, MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.ensemble import n_member
@@ -226,7 +227,7 @@ def _warnings(card: Mapping[str, Any]) -> list[str]:
     if tr["budget_cut"]:
         out.append(
             "the wall-time cap cut training short: this model depends on the computer's speed "
-            "and load; retrain with a larger --max-seconds for the planned model"
+            f"and load; retrain with a larger cap ({CAP_OPTIONS}) for the planned model"
         )
     val = card["validation"]
     if val is not None and tr["trained_on_validation"]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from ..config import CAP_OPTIONS
 from ..spec import MachineSpec
 from .report import format_value, row_label
 
@@ -375,5 +376,5 @@ def _budget_markdown(training: Mapping[str, Any]) -> str:
     return (
         f"\n**Warning: the wall-time cap cut training short** ({len(cut)} of {len(members)} "
         f"network(s): {which} planned epochs). This model depends on the computer's speed and "
-        "load; rerun with a larger `--max-seconds` for the planned, reproducible model.\n"
+        f"load; rerun with a larger cap ({CAP_OPTIONS}) for the planned, reproducible model.\n"
     )

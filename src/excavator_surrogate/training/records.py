@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..config import RECORD_TABLES, dumps_toml, to_dict
+from ..config import CAP_OPTIONS, RECORD_TABLES, dumps_toml, to_dict
 from ..io_utils import write_text
 from ..surrogate.checkpoint import read_checkpoint, write_checkpoint_dict
 from .config import TrainConfig
@@ -170,7 +170,7 @@ def budget_cut_message(budget: float, done: int, planned: int) -> str:
     return (
         f"the wall-time cap of {budget:g} s stopped training after {done} of "
         f"{planned} planned epochs: this model depends on this computer's speed and load; "
-        "raise --max-seconds (or train.max_train_seconds) to train the planned model"
+        f"raise the cap ({CAP_OPTIONS}) to train the planned model"
     )
 
 
