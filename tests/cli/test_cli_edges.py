@@ -72,7 +72,23 @@ def test_max_seconds_parses_a_number_and_refuses_a_word(data_dir: Path, capsys) 
     with pytest.raises(SystemExit) as e:
         main(["train", str(data_dir / "ds3"), "--dry-run", "--max-seconds", "soon"])
     assert e.value.code == 2
-    assert "argument --max-seconds: invalid float: 'soon'" in _last(capsys.readouterr().err)
+    assert "argument --max-seconds: invalid value: 'soon' (seconds, or none for no budget)" in (
+        _last(capsys.readouterr().err)
+    )
+
+
+def test_max_seconds_none_means_no_budget_as_the_help_says(data_dir: Path, capsys) -> None:
+    """``--max-seconds none`` (offered by the help) was refused as an invalid float, and the
+    error for ``0`` said to leave the option out, which keeps the preset's budget."""
+    from excavator_surrogate.cli.knobs import positive_seconds
+
+    for text in ("none", "None", "NONE"):
+        assert positive_seconds("--max-seconds")(text) == 0.0  # the config's "no cap"
+    argv = ["train", data_dir / "ds3", "--preset", data_dir / "tiny.toml", "--dry-run"]
+    assert main([str(a) for a in [*argv, "--max-seconds", "none"]]) == 0
+    assert "no wall-time cap" in capsys.readouterr().out
+    with pytest.raises(ConfigError, match=r"> 0 \[s\], or none for no time budget"):
+        positive_seconds("--max-seconds")("0")
 
 
 # ---- validate -------------------------------------------------------------------------------

@@ -73,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=positive_seconds("--max-train-seconds"),
         default=None,
         metavar="S",
-        help="wall-time budget per trained model [s], > 0 (default: the preset's)",
+        help="wall-time budget per trained model [s], > 0 (default: the preset's; none: no budget)",
     )
     p.add_argument("--epochs", type=int, default=None, metavar="N", help="maximum epochs per model")
     p.add_argument(

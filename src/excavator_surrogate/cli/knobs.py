@@ -35,21 +35,25 @@ def add_set_option(p: argparse.ArgumentParser, sections: Sequence[str]) -> None:
 
 def positive_seconds(option: str) -> Callable[[str], float]:
     """argparse ``type`` of the wall-time budget ``option`` (e.g. ``--max-seconds``): a finite
-    number > 0 [s], else a one-line :class:`ConfigError`.
+    number > 0 [s], or ``none`` (any case) for no budget (the config field's ``0``), else a
+    one-line :class:`ConfigError`.
 
     0 and negatives are refused: the config field's ``0 = unlimited`` is not what
-    ``--max-seconds 0`` reads as (leave the option out for no budget).
+    ``--max-seconds 0`` reads as (leaving the option out keeps the preset's budget).
     """
 
     def parse(text: str) -> float:
+        if text.strip().lower() == "none":
+            return 0.0
         try:
             value = float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid float: {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"invalid value: {text!r} (seconds, or none for no budget)"
+            ) from None
         if not (math.isfinite(value) and value > 0):
             raise ConfigError(
-                f"{option} {text}: give a finite number > 0 [s] (leave the option out for no "
-                "time budget)"
+                f"{option} {text}: give a finite number > 0 [s], or none for no time budget"
             )
         return value
 
