@@ -17,6 +17,7 @@ from excavator_surrogate.training.batches import make_data, sequence_cap
 from excavator_surrogate.training.config import TrainConfig
 from excavator_surrogate.training.estimate import (
     SpeedRatio,
+    WorkEstimate,
     describe_work,
     estimate_work,
     val_epoch_s,
@@ -272,3 +273,31 @@ def test_the_estimates_epoch_cap_is_the_one_the_training_applies():
     est = estimate_work(cfg, ds, cpus=1)
     assert est is not None and drawn == est.n_seq == sequence_cap(250, seq_len=40, burn_in=10)
     assert est.n_seq == 250 // 31 < estimate_work(replace(cfg, epoch_samples=0), ds).n_seq
+
+
+def test_a_cap_shorter_than_the_plan_is_a_warning_with_the_epoch_it_cuts_at():
+    """A cap below the planned time was printed as "a computer up to 0.05x slower than the
+    reference trains every network whole": the dry run now says the cap will cut training
+    even on the reference machine, and after about which epoch."""
+    est = WorkEstimate(
+        n_seq=10,
+        epochs=10,
+        teacher_epochs=0,
+        members=1,
+        map_correcting=0,
+        probes=0,
+        workers=1,
+        train_s=1.0,
+        val_s=1.0,
+        teacher_train_s=1.0,
+        validated=5,
+        cap_s=7.5,
+    )
+    # epochs end at 1, 2, 3, 4, 5 s, then 7, 9 s (validated): the one ending at 9 s is the last
+    assert est.headroom < 1 and est.epochs_in_cap == 7
+    line = describe_work(est)[-1]
+    assert line.startswith("warning: each training is capped at 7.5 s of wall time, less than")
+    assert "cut training after about 7 of 10 epochs even on the reference machine" in line
+    assert "slower than the reference" not in line
+    whole = replace(est, cap_s=est.training_s)  # exactly the plan: every epoch runs
+    assert whole.epochs_in_cap == 10 and "slower than the reference" in describe_work(whole)[-1]

@@ -25,6 +25,7 @@ until :meth:`WorkEstimate.with_speed` scales the reference network's times by th
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -196,6 +197,20 @@ class WorkEstimate:
         every network's planned epochs within the cap (``inf`` without a cap)."""
         return self.cap_s / self.training_s if self.cap_s > 0 else math.inf
 
+    @property
+    def epochs_in_cap(self) -> int:
+        """The epochs a network trains on the reference machine before the cap stops it (the
+        first epoch that ends past the cap is the last; the teacher-forced epochs come first,
+        the validated ones last): :attr:`epochs` where the cap leaves room for them all."""
+        if self.headroom >= 1:
+            return self.epochs
+        costs = (
+            (self.teacher_train_s if e < self.teacher_epochs else self.train_s)
+            + (self.val_s if e >= self.epochs - self.validated else 0.0)
+            for e in range(self.epochs)
+        )
+        return min(self.epochs, 1 + sum(t <= self.cap_s for t in itertools.accumulate(costs)))
+
 
 def estimate_work(
     cfg: TrainConfig, dataset: Dataset, *, cpus: int | None = None
@@ -317,7 +332,14 @@ def describe_work(est: WorkEstimate | None) -> list[str]:
             f"{est.speed.seconds:.0f}-s "
             "probe on throwaway networks; the ratio moves with the CPU's kernels and its load)"
         )
-    if est.cap_s > 0:
+    if est.headroom < 1:  # the cap is shorter than the plan: it will not be followed
+        lines.append(
+            f"warning: each training is capped at {est.cap_s:g} s of wall time, less than "
+            f"its plan: the cap will cut training after about {est.epochs_in_cap} of "
+            f"{est.epochs} epochs even on the reference machine, and the model will depend on "
+            "the computer's speed and load; raise the cap or lower the epochs"
+        )
+    elif est.cap_s > 0:
         lines.append(
             f"each training capped at {est.cap_s:.0f} s of wall time: a computer up to "
             f"{est.headroom:.2f}x slower than the reference trains every network whole; a "
