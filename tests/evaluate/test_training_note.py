@@ -197,3 +197,20 @@ def test_a_cut_names_the_cap_option_of_each_command():
         assert "6 of 200" in text or "cut training short" in text
         for option in ("--max-seconds", "--max-train-seconds of exsur run", "--trial-seconds"):
             assert option in text, text
+
+
+def test_a_compared_checkpoint_the_cap_cut_is_recorded_and_shown(tmp_path):
+    """``exsur run`` compares its surrogate with a GRU trained under the same cap; a cut GRU
+    was compared without a word (``compare.GRU`` held omega and theta only)."""
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    full = train(tiny_train_config(epochs=1), ds, out=tmp_path / "full", show_progress=False)
+    gru = tiny_train_config(epochs=50, max_train_seconds=1e-3, cell="gru")
+    cut = train(gru, ds, out=tmp_path / "gru", show_progress=False)
+    out = tmp_path / "ev"
+    evaluate_checkpoint(full, ds, out=out, compare={"GRU": cut}, arx=False, figure=False)
+    saved = json.loads((out / "metrics.json").read_text())
+    assert saved["compare"]["GRU"]["training"]["budget_cut"] is True
+    assert saved["compare"]["GRU"]["training"]["epochs_done"] == 1
+    table = (out / "table.md").read_text()
+    assert "the wall-time cap cut the training of GRU short** (1 of 50 planned epochs)" in table
+    assert "planned 1 epochs ran" in table  # the surrogate's own was not cut

@@ -183,3 +183,23 @@ def test_a_sweep_whose_every_trial_fails_says_why_and_exits_2(tmp_path: Path, ca
         )
         assert "device 'cuda' is not available" in capsys.readouterr().err
         assert not (tmp_path / "c").exists()
+
+
+def test_a_trial_the_cap_cut_is_marked_in_the_report(tmp_path: Path) -> None:
+    """A trial the wall-time cap stopped at 1 of its planned epochs ranked as ``epochs 1``,
+    ``state: complete``, like one that ran its plan: ``sweep.json`` now records
+    ``budget_cut`` and ``sweep.md`` marks it."""
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "sweep.toml").write_text(PRESET.replace("pruner_startup = 2", "pruner_startup = 9"))
+    preset = load_preset(tmp_path / "sweep.toml")
+    scfg = SweepConfig.from_preset(preset, epochs=20, max_train_seconds=1e-3)
+    res = run_sweep(
+        data, out=tmp_path / "s", trials=1, sweep=scfg, base=TrainConfig.mode_bases(preset)
+    )
+    assert res.n_complete == 1
+    (row,) = json.loads((tmp_path / "s" / "sweep.json").read_text())["trials"]
+    assert row["budget_cut"] is True and row["epochs_run"] == 1
+    md = (tmp_path / "s" / "sweep.md").read_text()
+    assert "| 1 (cut) |" in md and "cut trial(s) 0 short" in md

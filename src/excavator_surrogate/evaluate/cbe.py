@@ -12,7 +12,8 @@
     {"omega": {"<joint>": {"rmse", "mae", "r2"}}, "theta": {...},
      "run": {checkpoint, dataset, split, reference, mode, model, n_episode, n_step_scored, warmup,
              episodes: [{name, n_step, theta_rmse: {joint}, theta_share: {joint}}], ...},
-     "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines
+     "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines; a
+                                    # --compare checkpoint's with its "training" record too
      "linkage": {"<joint>": {"rmse", "mae", "r2"}},  # linear joints with a linkage: angles [rad]
      "uncertainty": {...},   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
      "horizon": {...}}       # angle RMSE n s after measured starts (evaluate/horizon.py)
@@ -46,7 +47,7 @@ from .horizon import HORIZONS_S, check_horizons, horizon_errors, horizon_markdow
 from .metrics import cbe_metrics, episode_errors, regression_metrics
 from .pace import pace_markdown, training_pace
 from .report import episodes_markdown, linear_units, report_markdown
-from .training_report import training_markdown
+from .training_report import compared_budget_markdown, training_markdown
 from .uncertainty import figure_bands, uncertainty_markdown, uncertainty_metrics, uncertainty_runs
 
 _log = logging.getLogger(__name__)
@@ -282,7 +283,9 @@ def evaluate_checkpoint(
     )
     result["uncertainty"] = uncertainty_metrics(sur, unc_runs)
     if len(models) > 1:
-        result["compare"] = {k: v for k, v in metrics.items() if k != primary}
+        result["compare"] = {k: dict(v) for k, v in metrics.items() if k != primary}
+        for label in compare or {}:  # a compared checkpoint's training: did the cap cut it?
+            result["compare"][label]["training"] = (models[label].metrics or {}).get("training")
     if horizons:
         result["horizon"] = horizon_errors(
             models,
@@ -306,6 +309,7 @@ def evaluate_checkpoint(
             )
             + episodes_markdown(run_info["episodes"], spec=sur.spec, figures=names)
             + training_markdown(result["training"], spec=sur.spec)
+            + compared_budget_markdown(result.get("compare") or {})
             + pace_markdown(result["pace"], result["training"])
             + "\n"
             + uncertainty_markdown(

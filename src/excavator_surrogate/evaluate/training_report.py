@@ -352,10 +352,36 @@ def computer_markdown(env: Mapping[str, Any]) -> str:
     )
 
 
+def _cut_members(training: Mapping[str, Any]) -> tuple[list[Any], list[Any]]:
+    """The networks of a ``training`` record, and those the wall-time cap cut short."""
+    members = list(training.get("members") or [training])
+    return members, [m for m in members if m.get("budget_cut")]
+
+
+def _epochs_done(cut: list[Any]) -> str:
+    """``"6 of 200"`` per cut network."""
+    return ", ".join(f"{m.get('epochs_done', '?')} of {m.get('epochs_planned', '?')}" for m in cut)
+
+
+def compared_budget_markdown(compare: Mapping[str, Any]) -> str:
+    """A warning per compared model (``metrics.json`` ``compare``, each with the
+    ``training`` record of its checkpoint) that the wall-time cap cut short: the comparison
+    with it depends on the computer's speed and load.  Empty when none was cut."""
+    text = ""
+    for label, m in compare.items():
+        cut = _cut_members(m.get("training") or {})[1]
+        if cut:
+            text += (
+                f"\n**Warning: the wall-time cap cut the training of {label} short** "
+                f"({_epochs_done(cut)} planned epochs): the comparison with it depends on the "
+                f"computer's speed and load; rerun with a larger cap ({CAP_OPTIONS}).\n"
+            )
+    return text
+
+
 def _budget_markdown(training: Mapping[str, Any]) -> str:
     """How training ended against its plan (see :func:`training_markdown`)."""
-    members = list(training.get("members") or [training])
-    cut = [m for m in members if m.get("budget_cut")]
+    members, cut = _cut_members(training)
     planned = training.get("epochs_planned") or max(
         (int(m.get("epochs_planned", 0)) for m in members), default=0
     )
@@ -372,9 +398,8 @@ def _budget_markdown(training: Mapping[str, Any]) -> str:
                 "`EXSUR_NUMERICS=portable` gives the same bits on any x86-64 CPU with AVX2).\n"
             )
         )
-    which = ", ".join(f"{m.get('epochs_done', '?')} of {m.get('epochs_planned', '?')}" for m in cut)
     return (
         f"\n**Warning: the wall-time cap cut training short** ({len(cut)} of {len(members)} "
-        f"network(s): {which} planned epochs). This model depends on the computer's speed and "
+        f"network(s): {_epochs_done(cut)} planned epochs). This model depends on the computer's speed and "
         f"load; rerun with a larger cap ({CAP_OPTIONS}) for the planned, reproducible model.\n"
     )

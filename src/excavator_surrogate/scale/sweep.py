@@ -289,6 +289,7 @@ class _Objective:
         trial.set_user_attr("checkpoint", str(best.resolve()))
         trial.set_user_attr("best_epoch", metrics.get("epoch"))
         trial.set_user_attr("epochs_run", len(history))
+        trial.set_user_attr("budget_cut", bool((metrics.get("training") or {}).get("budget_cut")))
         trial.set_user_attr("seconds", round(time.monotonic() - t0, 2))
         if state["pruned_at"] is not None:
             raise optuna.TrialPruned(f"pruned after epoch {state['pruned_at']}")

@@ -53,6 +53,7 @@ def _rows(study: optuna.Study) -> list[dict[str, Any]]:
                 "params": dict(t.params),
                 "curve": [[int(k), float(v)] for k, v in inter.items()],
                 "epochs_run": t.user_attrs.get("epochs_run", len(inter)),
+                "budget_cut": t.user_attrs.get("budget_cut"),  # None: not recorded
                 "seconds": t.user_attrs.get("seconds"),
                 "checkpoint": t.user_attrs.get("checkpoint"),
                 "host": t.user_attrs.get("host"),
@@ -83,7 +84,7 @@ def _markdown(rows: list[dict[str, Any]], *, study: str, counts: dict[str, int],
             str(rank),
             str(r["trial"]),
             f"{r['value']:.4g}",
-            str(r["epochs_run"]),
+            f"{r['epochs_run']}{' (cut)' if r['budget_cut'] else ''}",
             "" if r["seconds"] is None else f"{r['seconds']:.1f}",
         ]
         for k in keys:
@@ -92,6 +93,14 @@ def _markdown(rows: list[dict[str, Any]], *, study: str, counts: dict[str, int],
         lines.append("| " + " | ".join(cells) + " |")
     if not done:
         lines.append("| – | no completed trial yet | | | |")
+    cut = [str(r["trial"]) for r in done if r["budget_cut"]]
+    if cut:
+        lines += [
+            "",
+            f"**Warning: the wall-time cap (--trial-seconds) cut trial(s) {', '.join(cut)} "
+            "short** (epochs marked cut): their val_error depends on the computer's speed and "
+            "load, and they rank against trials that ran their planned epochs.",
+        ]
     return "\n".join(lines) + "\n"
 
 
