@@ -145,3 +145,61 @@ def test_a_hand_written_stray_knob_is_still_refused(tmp_path: Path) -> None:
     path.write_text('[train]\nmode = "windowed"\nseq_len = 150\n')
     with pytest.raises(ConfigError, match='seq_len is read only by mode = "stateful"'):
         build_configs(load_preset(path), sections=["train"])
+
+
+def _tiny_model(tmp_path: Path) -> tuple[Path, Path]:
+    """A tiny dataset on disk and a one-epoch model trained on it: ``(data, model folder)``."""
+    from excavator_surrogate.data import load_dataset
+    from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
+    from excavator_surrogate.training import train
+    from tests.helpers.training import tiny_train_config
+
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=2, n_val=1, n_test=1, n_step=120
+    )
+    model = tmp_path / "model"
+    train(tiny_train_config(epochs=1), load_dataset(data), out=model, show_progress=False)
+    return data, model
+
+
+def test_an_evaluation_records_its_config_beside_a_trainings(tmp_path: Path, cli: CLI) -> None:
+    """``exsur evaluate`` wrote no ``config.toml``: its ``[evaluate]`` options (``--no-arx``,
+    ``--max-steps`` ...) and its inputs (the checkpoint, the dataset, ``--compare``) were lost.
+    Its record loads back as ``--preset``; written into a model folder, it keeps the
+    training's ``[train]``."""
+    from excavator_surrogate.evaluate.cbe import EvaluateConfig
+
+    data, model = _tiny_model(tmp_path)
+    best, ev = model / "best.pt", tmp_path / "ev"
+    quick = ["--no-structured", "--set", "evaluate.figure=false", "-q"]
+    rc, _, err = cli(
+        "evaluate",
+        best,
+        data,
+        "--out",
+        ev,
+        "--no-arx",
+        "--max-steps",
+        "80",
+        "--compare",
+        f"G={best}",
+        "--set",
+        "evaluate.horizons=[0.5]",
+        *quick,
+    )
+    assert rc == 0, err
+    want = EvaluateConfig(arx=False, structured=False, max_steps=80, figure=False, horizons=(0.5,))
+    assert _assert_round_trip(ev / "config.toml") == {"evaluate": want}
+    assert tomllib.loads((ev / "config.toml").read_text())["command"] == {
+        "name": "evaluate",
+        "checkpoint": str(best.resolve()),
+        "dataset": str(data.resolve()),
+        "compare": {"G": str(best.resolve())},
+        "device": "cpu",
+    }
+    trained = tomllib.loads((model / "config.toml").read_text())["train"]
+    rc, _, err = cli("evaluate", best, data, "--out", model, *quick)
+    assert rc == 0, err
+    got = _assert_round_trip(model / "config.toml")
+    assert set(got) == {"train", "evaluate"} and to_dict(got["train"]) == trained
+    assert tomllib.loads((model / "config.toml").read_text())["command"]["checkpoint"] == "best.pt"

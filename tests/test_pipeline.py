@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from excavator_surrogate.cli import main
+from excavator_surrogate.stages import build_configs, load_preset
 
 TINY_TRAIN = """
 [train]
@@ -137,6 +138,11 @@ steps_test = 300
         assert (out / model / "learning_curve.png").is_file()
         assert f"]({model}/learning_curve.png)" in report
     assert tomllib.loads((out / "config.toml").read_text())["train"]["members"] == 2
+    # the evaluation against the cleaned data records its own config, which loads back
+    record = out / "eval_cleaned" / "config.toml"
+    ev = build_configs(load_preset(record), sections=["evaluate"])["evaluate"]
+    assert ev.reference == "measured" and not ev.arx and not ev.structured
+    assert tomllib.loads(record.read_text())["command"]["checkpoint"] == "model/best.pt"
 
 
 def test_run_failure_leaves_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

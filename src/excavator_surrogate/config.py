@@ -111,9 +111,11 @@ def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -
     return merged
 
 
-RECORD_TABLES = ("data", "logs", "recipe", "kinds", "exogenous")
+RECORD_TABLES = ("data", "logs", "recipe", "kinds", "exogenous", "command")
 """Entries exsur writes into an output's ``config.toml`` besides the preset tables: where the
-data came from, and what a run chose and why (``[recipe]``, ``[kinds]``, ``[exogenous]``).
+data came from, what a run chose and why (``[recipe]``, ``[kinds]``, ``[exogenous]``), and
+the command's own arguments that no preset table holds (``[command]``: its name, input
+paths and options, e.g. ``exsur evaluate``'s checkpoint and ``--compare`` entries).
 A record read back as a preset skips them; a writer of another entry must add it here, or
 its record would not load back (``training.records.write_config`` checks)."""
 
@@ -263,6 +265,17 @@ def dumps_toml(tables: Mapping[str, Any]) -> str:
         TypeError: a value TOML cannot hold (``None``, a ``Path``: convert with :func:`to_dict`).
     """
     return tomli_w.dumps(dict(tables))
+
+
+def record_text(path: str | Path, tables: Mapping[str, Any]) -> str:
+    """The ``config.toml`` record of a command that writes INTO folder ``path``'s
+    ``config.toml`` (``exsur evaluate``): ``tables`` replace the file's own, and the tables
+    of another command that wrote the folder (a training's ``[train]``) are kept."""
+    try:
+        old = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        old = {}  # none yet, or not a record: the new one alone
+    return dumps_toml({**old, **tables})
 
 
 def parse_sets(items: Sequence[str], *, sections: Sequence[str] | None = None) -> dict[str, Any]:

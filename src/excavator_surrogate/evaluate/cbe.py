@@ -21,6 +21,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -32,7 +33,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from ..config import PresetConfig
+from ..config import PresetConfig, record_text, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
@@ -211,6 +212,8 @@ def evaluate_checkpoint(
     Returns:
         The ``metrics.json`` content.
     """
+    given = locals()  # every [evaluate] field is an argument: the record holds them all
+    cfg = EvaluateConfig(**{f.name: given[f.name] for f in dataclasses.fields(EvaluateConfig)})
     if reference not in ("measured", "true"):
         raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
     t0 = time.monotonic()
@@ -302,6 +305,19 @@ def evaluate_checkpoint(
     # all files or none; an earlier evaluation's episode figures go with it
     with atomic_files(out, kind="evaluation", replaces=("cbe_*.png", "horizon.png")) as tmp:
         write_json(tmp / "metrics.json", result)
+        command = {
+            "name": "evaluate",
+            "checkpoint": run_info["checkpoint"],
+            "dataset": run_info["dataset"],
+            **(
+                {"compare": {k: recorded_path(p, root) for k, p in compare.items()}}
+                if compare
+                else {}
+            ),
+            "device": str(device),
+        }
+        record = {"evaluate": to_dict(cfg), "command": to_dict(command)}
+        write_text(tmp / "config.toml", record_text(out / "config.toml", record))
         write_text(
             tmp / "table.md",
             report_markdown(
