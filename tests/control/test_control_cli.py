@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -24,6 +25,7 @@ def test_control_writes_the_report_folder(
     assert main(argv) == 0
     assert {p.name for p in out.iterdir()} == {
         ".exsur.json",  # the output-folder marker (docs/design.md)
+        "config.toml",
         "report.md",
         "metrics.json",
         "tracking.png",
@@ -31,6 +33,8 @@ def test_control_writes_the_report_folder(
         "trajectories.npz",
     }
     assert list(scratch.glob("SB3-*")) == []  # SB3's default logger made one per PPO run
+    rl = tomllib.loads((out / "config.toml").read_text())["command"]["rl"]
+    assert (rl["total_steps"], rl["n_envs"], rl["plant"]) == (64, 2, "hydraulic")
     m = json.loads((out / "metrics.json").read_text())
     assert set(m["mppi"]["runs"]) == {"mppi_surrogate", "mppi_oracle", "pi"}
     assert m["mppi"]["runs"]["mppi_surrogate"]["n_control_steps"] > 10
@@ -107,3 +111,27 @@ def test_report_says_what_the_surrogate_reads_of_the_measured_state() -> None:
     assert "starts from the measured velocity" in ok and "train with" not in ok
     for info in ({"name": "lstm", "velocity_input": True, "residual": False}, {}):
         assert "train with `velocity_input = true`" in _surrogate_line(info)
+
+
+def test_control_records_its_options_in_config_toml(tiny_ckpt: Path, tmp_path: Path) -> None:
+    """``--time-scale``, ``--mppi-seeds`` and the oracle / RL switches were recorded nowhere:
+    the reference could not be run again.  ``config.toml``'s ``[command]`` holds every option
+    (MPPI's and PPO's configs as tables), and the file loads as a preset."""
+    from excavator_surrogate.stages import load_preset
+
+    out = tmp_path / "ctl"
+    argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "4", "--horizon", "3"]
+    argv += ["--time-scale", "0.1", "--cpus", "1", "--no-oracle", "--no-rl", "--seed", "3"]
+    assert main(argv) == 0
+    command = tomllib.loads((out / "config.toml").read_text())["command"]
+    assert command["checkpoint"] == str(tiny_ckpt.resolve())
+    assert {k: command[k] for k in ("name", "time_scale", "mppi_seeds", "oracle", "cpus")} == {
+        "name": "control",
+        "time_scale": 0.1,
+        "mppi_seeds": 1,
+        "oracle": False,
+        "cpus": 1,
+    }
+    assert command["mppi"]["n_sample"] == 4 and command["mppi"]["seed"] == 3
+    assert "rl" not in command  # --no-rl: no PPO ran
+    assert load_preset(out / "config.toml")["command"] == command

@@ -19,7 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "planning through the surrogate, the same MPPI through the plant model itself (oracle) "
         "and a PI baseline; train PPO (Stable-Baselines3) on the surrogate and on the plant for "
         "the same env-step budget and evaluate both on the plant. Writes report.md, "
-        "tracking.png, learning_curve.png, trajectories.npz and metrics.json to --out.",
+        "tracking.png, learning_curve.png, trajectories.npz, metrics.json and config.toml (every "
+        "option) to --out.",
     )
     p.add_argument("ckpt", type=Path, help="surrogate checkpoint .pt")
     p.add_argument("--out", type=Path, required=True, help="report folder (replaced atomically)")

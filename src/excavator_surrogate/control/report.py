@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import dumps_toml, to_dict
 from ..io_utils import atomic_dir, write_json, write_text
 from ..surrogate.model import Surrogate
 from .mppi import MPPIConfig
@@ -364,8 +365,8 @@ def run_control(
         worst = [r["rmse_ratio_max"] for r in seeds if "rmse_ratio_max" in r]
         if worst:
             metrics["mppi"]["rmse_ratio_max_over_seeds"] = max(worst)
+    rcfg = replace(rl or RLConfig(), plant=plant)
     if do_rl:
-        rcfg = replace(rl or RLConfig(), plant=plant)
         metrics["rl"] = rl_metrics(compare_rl(sur, rcfg, log=log))
     metrics["wall_s"] = time.perf_counter() - t0
     metrics["goals"] = goals(metrics)
@@ -382,4 +383,17 @@ def run_control(
             plot_curve(tmp / "learning_curve.png", metrics["rl"])
         write_json(tmp / "metrics.json", metrics)
         write_text(tmp / "report.md", report_md(metrics, names))
+        command = {
+            "name": "control",
+            "checkpoint": str(Path(ckpt).resolve()) if ckpt else None,
+            "plant": plant,
+            "time_scale": time_scale,
+            "bias_gain": bias_gain,
+            "cpus": cpus,
+            "mppi_seeds": n_seeds,
+            "oracle": oracle,
+            "mppi": mcfg,
+            **({"rl": rcfg} if do_rl else {}),
+        }
+        write_text(tmp / "config.toml", dumps_toml({"command": to_dict(command)}))
     return metrics
