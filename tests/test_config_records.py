@@ -73,11 +73,19 @@ def test_every_recorded_config_loads_back_as_its_preset(tmp_path: Path, cli: CLI
     for section, cfg in got.items():
         assert cfg == want.configs[section], section
     assert resolve_run(preset=str(run / "config.toml")).configs == want.configs
+    assert set(_assert_round_trip(sweep / "config.toml")) == {"train", "sweep"}
     trials = sorted(sweep.glob("trials/*/config.toml"))
     assert trials
     for record in trials:
         _assert_round_trip(record)
-    for folder in [model, run, run / "model", run / "model_gru", *(t.parent for t in trials)]:
+    for folder in [
+        model,
+        run,
+        run / "model",
+        run / "model_gru",
+        sweep,
+        *(t.parent for t in trials),
+    ]:
         ok("config", "show", folder / "config.toml")
 
     # the command itself takes its own record back, and records the same again

@@ -203,3 +203,32 @@ def test_a_trial_the_cap_cut_is_marked_in_the_report(tmp_path: Path) -> None:
     assert row["budget_cut"] is True and row["epochs_run"] == 1
     md = (tmp_path / "s" / "sweep.md").read_text()
     assert "| 1 (cut) |" in md and "cut trial(s) 0 short" in md
+
+
+def test_a_sweep_records_the_config_that_repeats_it(tmp_path: Path) -> None:
+    """A sweep's folder held no ``config.toml`` (only its trials'): the search space, the
+    sampler seed, the pruner and the base ``[train]`` were lost.  Its record loads back to
+    the same ``[sweep]`` and the same bases (this ``[train]`` sets both modes' knobs)."""
+    import tomllib
+
+    from excavator_surrogate.stages import load_preset as load_checked
+
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "sweep.toml").write_text(PRESET)
+    preset = load_preset(tmp_path / "sweep.toml")
+    scfg, base = SweepConfig.from_preset(preset, epochs=1), TrainConfig.mode_bases(preset)
+    run_sweep(data, out=tmp_path / "s", trials=1, sweep=scfg, base=base, timeout=600.0)
+    record = tmp_path / "s" / "config.toml"
+    back = load_checked(record)
+    assert SweepConfig.from_preset(back) == scfg and scfg.seed == 7
+    assert TrainConfig.mode_bases(back) == base
+    assert tomllib.loads(record.read_text())["command"] == {
+        "name": "sweep",
+        "dataset": str(data.resolve()),
+        "trials": 1,
+        "study": "exsur",
+        "storage": f"sqlite:///{(tmp_path / 's' / 'study.db').resolve()}",
+        "timeout": 600.0,
+    }

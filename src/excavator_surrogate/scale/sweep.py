@@ -36,10 +36,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..config import PresetConfig, to_dict
+from ..config import PresetConfig, dumps_toml, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
-from ..io_utils import mark_output
+from ..io_utils import mark_output, recorded_path, write_text
 from ..outdir import first_missing
 
 _log = logging.getLogger(__name__)
@@ -240,6 +240,28 @@ def trial_config(
     return cfg
 
 
+def base_table(base: TrainConfig | Mapping[str, TrainConfig]) -> dict[str, Any]:
+    """The ``[train]`` table a sweep records: the base of one mode, with the other modes'
+    knobs where they differ from their defaults (a sweep's base may set both modes' knobs:
+    :meth:`~excavator_surrogate.training.TrainConfig.mode_bases` reads the table back to the
+    same bases).  The mode is the one that needs fewest such knobs: a base that sets one
+    mode's knobs only is a plain ``[train]`` table of that mode."""
+    from ..training.config import MODE_FIELDS
+
+    if not isinstance(base, Mapping):
+        return to_dict(base)
+
+    def others(mode: str) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for other in (m for m in base if m != mode):
+            own, default = to_dict(base[other]), to_dict(type(base[other])(mode=other))
+            out.update({n: own[n] for n in MODE_FIELDS[other] if own[n] != default[n]})
+        return out
+
+    mode = min(base, key=lambda m: len(others(m)))
+    return {**to_dict(base[mode]), **others(mode)}
+
+
 class _Objective:
     """Train one trial; report per-epoch validation error; prune through ``train``'s hook."""
 
@@ -350,6 +372,16 @@ def run_sweep(
         if new is not None:
             shutil.rmtree(new, ignore_errors=True)
         raise
+    command = {
+        "name": "sweep",
+        "dataset": recorded_path(dataset.root, out) if dataset.root is not None else None,
+        "trials": trials,
+        "study": study_name,
+        "storage": safe_url(storage),
+        "timeout": timeout,
+    }
+    record = {"train": base_table(base), "sweep": to_dict(scfg), "command": command}
+    write_text(out / "config.toml", dumps_toml(to_dict(record)))  # before the first trial
     _log.info(f"sweep: study '{study_name}' at {safe_url(storage)}; running {trials} trial(s)")
     study.optimize(
         _Objective(dataset, base, scfg, out),
