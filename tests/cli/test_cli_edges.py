@@ -238,6 +238,31 @@ def test_calibrate_an_ensemble_on_training_runs_without_a_val_split(cli, small) 
     assert "bands calibrated on" in out and "2 training runs (no val split)" in out
 
 
+def test_calibrate_records_the_dataset_and_options_it_calibrated_on(
+    cli, small, tmp_path: Path
+) -> None:
+    """The bands and the coverage record did not say which dataset they came from, nor
+    ``--max-steps`` (which changes the bands): ``metrics["calibrated_on"]`` records both; a
+    calibration without that record (training's own) leaves none behind."""
+    import shutil
+
+    from excavator_surrogate.surrogate.bands import calibrate_checkpoint
+    from excavator_surrogate.surrogate.checkpoint import read_checkpoint
+
+    ckpt = Path(shutil.copy(small["ens"], tmp_path / "ens.pt"))
+    rc, _, err = cli("calibrate", ckpt, small["whole"], "--max-steps", "40", "--train-runs", "1")
+    assert rc == 0, err
+    assert read_checkpoint(ckpt)["metrics"]["calibrated_on"] == {
+        "dataset": str(Path(small["whole"]).resolve()),
+        "design": "shared",
+        "max_steps": 40,
+        "train_runs": 1,
+    }
+    ds = load_dataset(small["whole"])
+    calibrate_checkpoint(ckpt, ds.val, ds.train, max_steps=40)
+    assert "calibrated_on" not in read_checkpoint(ckpt)["metrics"]
+
+
 # ---- info -----------------------------------------------------------------------------------
 
 

@@ -71,6 +71,12 @@ def run(args: argparse.Namespace) -> int:
         design=args.design,
         max_steps=args.max_steps or None,
         train_runs=args.train_runs,
+        calibrated_on={
+            "dataset": str(args.dataset.resolve()),
+            "design": args.design,
+            "max_steps": args.max_steps,
+            "train_runs": args.train_runs,
+        },
     )
     what = f"coverage of {cov.n_sample} training samples"
     if cal is None:

@@ -14,7 +14,7 @@
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -468,9 +468,14 @@ def calibrate_checkpoint(
     design: Design = "shared",
     max_steps: int | None = None,
     train_runs: int = TRAIN_RUNS,
+    calibrated_on: Mapping[str, Any] | None = None,
 ) -> tuple[Calibration | None, CoverageRecord]:
     """Add the calibration and the coverage record to the checkpoint at ``path`` (in its
     ``metrics``; everything else in the file is kept), rewritten atomically.
+
+    ``calibrated_on``: what they were computed from, stored as ``metrics["calibrated_on"]``
+    (``exsur calibrate``: the dataset and its options); None (training's own calibration,
+    on the data its config records) removes an earlier one.
 
     Raises:
         CheckpointError: unreadable checkpoint.  DataError: no training episodes.
@@ -485,6 +490,10 @@ def calibrate_checkpoint(
         metrics.pop("uncertainty", None)
     else:
         metrics["uncertainty"] = cal.to_dict()
+    if calibrated_on is None:
+        metrics.pop("calibrated_on", None)
+    else:
+        metrics["calibrated_on"] = dict(calibrated_on)
     ckpt["metrics"] = metrics
     write_checkpoint_dict(path, ckpt)  # same dict, same bytes
     return cal, cov
