@@ -130,9 +130,10 @@ def test_resume_continues_epochs_and_budget_stops(tmp_path):
 
 def test_resuming_into_another_folder_keeps_the_resumed_runs_best(tmp_path):
     ds = tiny_dataset(2, n_train=2, n_step=120)
-    train(tiny_train_config(epochs=2), ds, out=tmp_path / "a", show_progress=False)
+    # no epoch after the first beats it; a resume continues the run's settings, more epochs
+    train(tiny_train_config(epochs=2, min_delta=0.99), ds, out=tmp_path / "a", show_progress=False)
     best_a = read_checkpoint(tmp_path / "a" / "best.pt")
-    never = tiny_train_config(epochs=4, min_delta=0.99)  # no later epoch beats the resumed best
+    never = tiny_train_config(epochs=4, min_delta=0.99)
     train(never, ds, out=tmp_path / "b", resume=tmp_path / "a" / "last.pt", show_progress=False)
     best_b = read_checkpoint(tmp_path / "b" / "best.pt")
     assert best_b["metrics"]["val_error"] == best_a["metrics"]["val_error"]
@@ -193,3 +194,28 @@ def test_a_knob_the_mode_does_not_read_is_an_error():
     bases = TrainConfig.mode_bases({"train": {"seq_len": 60, "horizon": 3}})
     assert (bases["windowed"].horizon, bases["windowed"].seq_len) == (3, 150)
     assert (bases["stateful"].horizon, bases["stateful"].seq_len) == (1, 60)
+
+
+def test_a_resume_with_another_seed_is_refused_and_a_resume_is_recorded(tmp_path):
+    """``--resume last.pt`` with a forgotten ``--seed 5`` continued silently as seed 0, and
+    the record described a run that never happened.  Another seed (or learning rate ...) is
+    refused in one line naming last.pt's values; the cap, the epochs and the thread count may
+    change, and the record says which checkpoint the run continued, and loads back."""
+    import tomllib
+
+    from excavator_surrogate.stages import build_configs, load_preset
+
+    ds = tiny_dataset(2, n_train=2, n_step=120)
+    train(tiny_train_config(epochs=2, seed=5), ds, out=tmp_path / "a", show_progress=False)
+    last = tmp_path / "a" / "last.pt"
+    other = tiny_train_config(epochs=3, lr=0.01)  # seed 0: forgotten
+    with pytest.raises(ConfigError) as e:
+        train(other, ds, out=tmp_path / "x", resume=last, show_progress=False)
+    line = str(e.value)
+    assert line.startswith(f"--resume {last}: it was trained with ") and "\n" not in line
+    assert "lr = 0.001 (here 0.01)" in line and "seed = 5 (here 0)" in line
+    more = tiny_train_config(epochs=3, seed=5, max_train_seconds=600.0, num_threads=2)
+    train(more, ds, out=tmp_path / "b", resume=last, show_progress=False)
+    record = tmp_path / "b" / "config.toml"
+    assert tomllib.loads(record.read_text())["resume"] == {"from": str(last.resolve()), "epoch": 2}
+    assert build_configs(load_preset(record), sections=["train"])["train"] == more

@@ -177,7 +177,12 @@ def train_network(
         if not par.broadcast(keep):
             best_val, bad = math.inf, 0
 
-    if main:
+    if main:  # a resumed run records what it continued: the checkpoint and the first epoch
+        if resume is not None:
+            notes = {
+                **(notes or {}),
+                "resume": {"from": str(Path(resume).resolve()), "epoch": st.epoch},
+            }
         write_config(out, cfg, notes=notes)
     tb = tb_writer(out, cfg.tensorboard) if main else None
     t_start = time.monotonic() - st.elapsed_s

@@ -12,7 +12,7 @@ import torch
 
 from ..config import to_dict
 from ..data.episode import Episode
-from ..errors import CheckpointError
+from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
@@ -187,6 +187,7 @@ def start(
         raise CheckpointError(
             f"{resume}: joints {list(old.spec.names)} differ from the dataset's {list(spec.names)}"
         )
+    check_same_run(cfg, ck.get("train_config") or {}, resume)
     return Start(
         net=old.net,
         norm=old.norm,
@@ -195,6 +196,31 @@ def start(
         train_state=ck.get("train_state") or None,
         history=list(ck.get("history") or []),
     )
+
+
+RESUME_MAY_CHANGE = ("max_train_seconds", "epochs", "num_threads", "member_workers", "tensorboard")
+"""``[train]`` fields a resume may change: the wall-time cap, the planned epochs, the thread
+and CPU counts, and the TensorBoard logs.  Any other change (a seed, a learning rate) would
+continue another run than the one the checkpoint is part of."""
+
+
+def check_same_run(cfg: TrainConfig, stored: dict[str, Any], resume: str | Path) -> None:
+    """Refuse to resume checkpoint ``resume`` (its ``train_config``: ``stored``) with a
+    config that differs in a field outside :data:`RESUME_MAY_CHANGE` (fields only one of the
+    two records are not compared: the other mode's knobs, where ``mode`` differs anyway, and
+    those of another version).
+
+    Raises:
+        ConfigError: one line naming each differing field and its value in ``resume``.
+    """
+    new = to_dict(cfg)  # a knob of one mode only, or of another version: not compared
+    diff = [k for k in stored if k in new and k not in RESUME_MAY_CHANGE and stored[k] != new[k]]
+    if diff:
+        was = ", ".join(f"{k} = {stored[k]!r} (here {new[k]!r})" for k in diff)
+        raise ConfigError(
+            f"--resume {resume}: it was trained with {was}; resume with its settings (only "
+            f"{', '.join(RESUME_MAY_CHANGE)} may change), or train a new run without --resume"
+        )
 
 
 def carry_best(resume: str | Path, best_path: Path, best_val: float) -> bool:
