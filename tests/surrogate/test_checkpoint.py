@@ -65,3 +65,24 @@ def test_truncated_and_incompatible_checkpoints(tmp_path, spec, episodes):
     torch.save(ck, tmp_path / "pickle.pt")
     with pytest.raises(CheckpointError, match="not a readable"):
         load_checkpoint(tmp_path / "pickle.pt")
+
+
+def test_equal_content_gives_equal_bytes(tmp_path, spec, episodes):
+    """Pickle writes a string it has seen as a reference to the first: a config default
+    shared by two entries, and the same string read back from TOML or ``last.pt`` (two
+    objects), gave ``best.pt`` files of equal content but other bytes (a replayed or resumed
+    run failed a sha256 check).  The tensors are written unchanged."""
+    from excavator_surrogate.surrogate.checkpoint import read_checkpoint, write_checkpoint_dict
+
+    sur = make_surrogate(spec, episodes, mode="stateful", window=5)
+    shared = checkpoint_dict(sur)
+    word = "spanned"
+    shared["train_config"].update(prior_drive=word, note=word)  # one object, twice
+    apart = checkpoint_dict(sur)
+    apart["train_config"].update(prior_drive="".join(["span", "ned"]), note="span" + "ned")
+    a = write_checkpoint_dict(tmp_path / "a.pt", shared)
+    b = write_checkpoint_dict(tmp_path / "b.pt", apart)
+    assert a.read_bytes() == b.read_bytes()
+    back = read_checkpoint(a)["state_dict"]
+    for k, v in sur.net.state_dict().items():
+        assert torch.equal(back[k], v), k

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -98,12 +99,28 @@ def write_checkpoint_dict(path: str | Path, ckpt: dict[str, Any]) -> Path:
 
     ``torch.save`` to a *file name* records that name inside the zip archive, and the atomic
     write's temporary name holds a pid and a random suffix; saved through an open file the
-    archive's folder is always ``archive``, so the same dict gives the same bytes.
+    archive's folder is always ``archive``, so the same dict gives the same bytes.  Its plain
+    data is written as :func:`canonical` makes it, so equal content gives equal bytes too.
     """
     path = Path(path)
     with _write_errors(path), atomic_path(path) as tmp, open(tmp, "wb") as f:
-        torch.save(ckpt, f)
+        torch.save(canonical(ckpt), f)
     return path
+
+
+def canonical(obj: Any) -> Any:
+    """``obj`` with every string interned and every dict, list and tuple a new one: the pickle
+    then depends on the content only.  Pickle writes an object it has seen as a reference to
+    the first, so a string shared by two entries (a config's default) and the same string
+    read twice from TOML or a checkpoint gave other bytes for the same content.  Everything
+    else (tensors, numbers) is the same object."""
+    if type(obj) is str:
+        return sys.intern(obj)
+    if type(obj) is dict:
+        return {canonical(k): canonical(v) for k, v in obj.items()}
+    if type(obj) in (list, tuple):
+        return type(obj)(canonical(v) for v in obj)
+    return obj
 
 
 @contextlib.contextmanager
