@@ -23,8 +23,9 @@ process group (``gloo`` on CPU, ``nccl`` on CUDA) and returns a :class:`DistCont
 - **Control.** Non-finite steps are skipped on every rank together: the one NaN rule of
   :func:`~excavator_surrogate.training.parallel.clip_and_step` (any rank's loss, or the
   all-reduced gradient norm, not finite; one small all-reduce per step for the loss flag).
-  With a wall-time budget the stop flag (and the cosine learning rate, which depends on wall
-  time) come from rank 0 each step, so ranks never diverge.
+  With a wall-time budget the stop flag comes from rank 0 each step, so ranks never diverge;
+  the cosine learning rate depends on the planned epochs only, never on the clock, so every
+  rank computes the same one without communication.
 - **Rank 0 only:** validation free-run, checkpoints, ``log.csv``, TensorBoard, progress
   lines.  The validation result is broadcast, so every rank runs the same ReduceLROnPlateau /
   early-stopping / best-epoch bookkeeping.  ``--resume`` loads the same checkpoint on every
