@@ -58,8 +58,9 @@ def clean_episodes(
             rad/s column) or a sign: the filter would fuse them into nonsense.
     """
     cfg = config or CleanConfig()
+    thetas = [_unwrapped_theta(ep, cfg) for ep in episodes]
     for i, ep in enumerate(episodes):
-        _check_gyro_scale(ep, _unwrapped_theta(ep, cfg), ep.name if sources is None else sources[i])
+        _check_gyro_scale(ep, thetas[i], ep.name if sources is None else sources[i])
     out: list[Episode | None] = [None] * len(episodes)
     groups: dict[tuple[float, int], list[int]] = {}
     for i, ep in enumerate(episodes):
@@ -78,7 +79,7 @@ def clean_episodes(
             omega = np.zeros((len(batch), longest, n_joint))
             for b, i in enumerate(batch):
                 n = nv[b]
-                theta[b, :n] = _unwrapped_theta(episodes[i], cfg)
+                theta[b, :n] = thetas[i]
                 _warn_if_no_gyro(episodes[i], theta[b, :n], cfg)
                 omega[b, :n] = episodes[i].omega
                 theta[b, n:] = theta[b, n - 1]
