@@ -48,18 +48,18 @@ def fake_kill(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_sweep_keeps_what_live_or_foreign_processes_own(tmp_path: Path, fake_kill: None) -> None:
     out = tmp_path / "ds"
-    dead_file = tmp_path / f".ds.{DEAD}-a1.tmp"  # atomic_path's temporary file
-    dead_link = tmp_path / f".ds.{DEAD}-a2.tmp"
-    dead_dir = tmp_path / f".ds.{DEAD}-a3.tmp"
-    foreign = tmp_path / f".ds.{FOREIGN}-b.tmp"
-    alive = tmp_path / f".ds.{ALIVE}-c.tmp"
+    dead_file = tmp_path / f".ds.{DEAD}-a1bcdefg.tmp"  # atomic_path's temporary file
+    dead_link = tmp_path / f".ds.{DEAD}-a2bcdefg.tmp"
+    dead_dir = tmp_path / f".ds.{DEAD}-a3bcdefg.tmp"
+    foreign = tmp_path / f".ds.{FOREIGN}-bbcdefgh.tmp"
+    alive = tmp_path / f".ds.{ALIVE}-cbcdefgh.tmp"
     no_pid_old = tmp_path / ".ds.old-x"  # not written by exsur: kept
     unrelated = tmp_path / ".ds.notes"  # neither .tmp nor .old-: kept
     (tmp_path / "elsewhere").mkdir()
     dead_file.write_text("half")
     dead_link.symlink_to(tmp_path / "elsewhere")  # removed as a link, its target kept
     for p in (dead_dir, foreign, alive, no_pid_old, unrelated):
-        p.mkdir()
+        mark_output(p, "dataset")
     assert sorted(sweep_stale(out)) == sorted([dead_file, dead_link, dead_dir])
     assert (tmp_path / "elsewhere").is_dir()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
@@ -67,12 +67,38 @@ def test_sweep_keeps_what_live_or_foreign_processes_own(tmp_path: Path, fake_kil
     )
 
 
+def test_sweep_removes_only_exsurs_own_temporaries(tmp_path: Path) -> None:
+    """Hidden ``.NAME.*.tmp`` files and folders of the user's beside an output stay: only
+    exsur's exact ``.NAME.<pid>-XXXXXXXX.tmp`` shape of a dead process goes, and a folder only
+    when it holds exsur's marker or is empty."""
+    backup = tmp_path / ".ds.backup.tmp"  # the user's, no pid
+    backup.mkdir()
+    (backup / "notes.txt").write_text("my notes")
+    draft = tmp_path / ".ds.draft.tmp"
+    draft.write_text("draft")
+    theirs = tmp_path / f".ds.{DEAD}-x.tmp"  # a pid, but not mkstemp's name
+    theirs.write_text("theirs")
+    unmarked = tmp_path / f".ds.{DEAD}-abcdefgh.tmp"  # exsur's shape, not exsur's content
+    unmarked.mkdir()
+    (unmarked / "notes.txt").write_text("mine")
+    old_file = tmp_path / f".ds.old-{FOREIGN}"  # exsur's replaced folders are never files
+    old_file.write_text("mine")
+    empty = tmp_path / f".ds.{DEAD}-emptyfld.tmp"  # killed before its marker
+    empty.mkdir()
+    marked = mark_output(tmp_path / f".ds.{DEAD}-marked00.tmp", "dataset")
+    (marked / "episodes").mkdir()
+    nested = mark_output(tmp_path / f"..ds.{DEAD}-marked00.tmp.{DEAD}-nested00.tmp", "dataset")
+    old = mark_output(tmp_path / f".ds.old-{DEAD}", "dataset")
+    assert sorted(sweep_stale(tmp_path / "ds")) == sorted([empty, marked, nested, old])
+    assert (backup / "notes.txt").read_text() == "my notes" and draft.read_text() == "draft"
+    assert theirs.is_file() and (unmarked / "notes.txt").is_file() and old_file.is_file()
+
+
 def test_sweep_of_a_missing_folder_or_an_undeletable_entry(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     assert sweep_stale(tmp_path / "missing" / "ds") == []
-    stuck = tmp_path / f".ds.{DEAD}-a.tmp"
-    stuck.mkdir()
+    stuck = mark_output(tmp_path / f".ds.{DEAD}-abcdefgh.tmp", "dataset")
 
     def refuse(path: object, *args: object, **kw: object) -> None:
         raise PermissionError(errno.EACCES, "Permission denied", str(path))

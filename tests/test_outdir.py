@@ -165,22 +165,22 @@ def _dead_pid() -> int:
 
 def test_stale_temp_folders_of_killed_runs_are_removed(tmp_path: Path) -> None:
     out = tmp_path / "ds"
-    dead = tmp_path / f".ds.{_dead_pid()}-abc123.tmp"
-    legacy = tmp_path / ".ds.k2j4h5g6.tmp"  # exsur < 0.2 named them without a pid
-    alive = tmp_path / f".ds.{os.getpid()}-xyz.tmp"
-    old = tmp_path / f".ds.old-{_dead_pid()}"
-    nested = tmp_path / f".{dead.name}.{_dead_pid()}-q1.tmp"  # write_dataset inside import's temp
-    other = tmp_path / ".other.123-abc.tmp"
-    for p in (dead, legacy, alive, old, nested, other):
+    dead = mark_output(tmp_path / f".ds.{_dead_pid()}-abc123de.tmp", "dataset")
+    legacy = tmp_path / ".ds.k2j4h5g6.tmp"  # no pid (exsur < 0.2, or the user's): kept
+    alive = tmp_path / f".ds.{os.getpid()}-xyz45678.tmp"
+    old = mark_output(tmp_path / f".ds.old-{_dead_pid()}", "dataset")
+    nested = tmp_path / f".{dead.name}.{_dead_pid()}-q1234567.tmp"  # write_dataset in import's
+    other = tmp_path / ".other.123-abcdefgh.tmp"
+    for p in (legacy, alive, nested, other):
         p.mkdir()
     (dead / "episodes").mkdir()
     removed = sweep_stale(out)
-    assert sorted(removed) == sorted([dead, legacy, old, nested])
-    assert alive.exists() and other.exists()
+    assert sorted(removed) == sorted([dead, old, nested])
+    assert alive.exists() and other.exists() and legacy.exists()
     with atomic_dir(out) as tmp:  # a new run sweeps too, and leaves only its result
         (tmp / "manifest.json").write_text("{}")
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
-        [".other.123-abc.tmp", alive.name, "ds"]
+        [".other.123-abcdefgh.tmp", alive.name, legacy.name, "ds"]
     )
 
 

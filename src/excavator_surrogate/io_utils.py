@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -46,42 +47,41 @@ def _temp_prefix(name: str) -> str:
     return f".{name}.{os.getpid()}-"
 
 
+TEMP_RANDOM = "[a-z0-9_]{8}"
+"""The random part of :mod:`tempfile`'s names (``mkstemp``, ``mkdtemp``)."""
+
+
 def sweep_stale(path: str | Path) -> list[Path]:
     """Remove temporary siblings of ``path`` left by killed exsur processes; returns them.
 
-    They are ``.<name>.<pid>-XXXX.tmp`` (files or folders of :func:`atomic_path` and
-    :func:`atomic_dir`, also nested: ``..<name>.<pid>-XXXX.tmp.<pid>-YYYY.tmp``) and
-    ``.<name>.old-<pid>`` (a replaced folder not yet deleted) whose process is gone, and
-    ``.<name>.XXXX.tmp`` of older exsur versions (no pid).
+    Only exsur's exact shapes whose process is gone: ``.<name>.<pid>-XXXXXXXX.tmp`` (a file of
+    :func:`atomic_path`, or a folder of :func:`atomic_dir` / :func:`atomic_files`, also nested:
+    ``..<name>.<pid>-X.tmp.<pid>-Y.tmp``) and ``.<name>.old-<pid>`` (a replaced folder not yet
+    deleted).  A folder goes only if it holds exsur's marker (the writers put it there first)
+    or is empty: a file or folder of the user's that merely looks like one is kept.
     """
+    from .outdir import read_marker
+
     path = Path(path)
-    head = f"{path.name.lstrip('.')}."
+    base = re.escape(path.name.lstrip("."))
+    nested = rf"(?:\.\d+-{TEMP_RANDOM}\.tmp)*"
+    shape = re.compile(rf"\.+{base}(?:\.(\d+)-{TEMP_RANDOM}\.tmp{nested}|\.old-(\d+))")
     removed: list[Path] = []
     try:
         entries = list(path.parent.iterdir()) if path.name else []
     except OSError:
         return removed
     for e in entries:
-        n = e.name
-        # ``..NAME.<pid>-X.tmp.<pid>-Y.tmp``: the temp folder of a temp folder (nested writers)
-        if not (n.startswith(".") and n.lstrip(".").startswith(head)):
-            continue
-        rest = n.lstrip(".")[len(head) :]
-        if rest.startswith("old-"):
-            pid_s = rest[4:]
-        elif rest.endswith(".tmp"):
-            pid_s = rest.split("-", 1)[0] if "-" in rest else ""
-        else:
-            continue
-        if pid_s.isdigit() and _pid_alive(int(pid_s)):
-            continue
-        if not pid_s.isdigit() and rest.startswith("old-"):
+        m = shape.fullmatch(e.name)
+        if m is None or _pid_alive(int(m[1] or m[2])):
             continue
         try:
-            if e.is_dir() and not e.is_symlink():
+            if e.is_symlink() or (m[1] and not e.is_dir()):
+                e.unlink()
+            elif read_marker(e) is not None:
                 shutil.rmtree(e)
             else:
-                e.unlink()
+                e.rmdir()  # only when empty (killed before its marker): else the user's
             removed.append(e)
         except OSError:
             pass
@@ -166,13 +166,16 @@ def atomic_files(path: str | Path, *, kind: str, replaces: Sequence[str] = ()) -
     A failure in the block (a full disk while writing a figure) leaves ``path`` untouched.
     The renames need no space, so once they start they complete.
     """
+    from .outdir import MARKER
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path)
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
     try:
+        mark_output(tmp, kind)  # exsur's by content, should a kill leave it (sweep_stale)
         yield tmp
-        written = sorted(tmp.iterdir())
+        written = sorted(f for f in tmp.iterdir() if f.name != MARKER)
         for f in written:  # before the first rename: all or nothing
             if f.is_dir():
                 raise IsADirectoryError(f"atomic_files: {f.name} is a folder; use atomic_dir")

@@ -310,7 +310,8 @@ def _probe(out: Path, flag: str) -> None:
 
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        fd, name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+        prefix = f".{out.name}.{os.getpid()}-"  # a killed probe's is swept (io_utils.sweep_stale)
+        fd, name = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=out.parent)
         os.close(fd)
         os.unlink(name)
     except OSError as e:

@@ -16,6 +16,7 @@ import pytest
 from excavator_surrogate.data import load_dataset, read_episode, write_episode
 from excavator_surrogate.ingest import convert_log, parse_mapping
 from excavator_surrogate.ingest.outliers import SPIKE_HALF_WINDOW, SPIKE_MAD, find_spikes
+from excavator_surrogate.io_utils import mark_output
 from tests.helpers.ingest import assert_nothing_written, set_cell, write_lines
 
 
@@ -231,17 +232,19 @@ def test_w4_killed_import_leftovers_are_removed_next_time(cli, work, short_cols)
     )
     stale = [
         work / f".ds.{pid}-k2j4h5g6.tmp",
-        work / f"..ds.{pid}-k2j4h5g6.tmp.{pid}-a1b2.tmp",  # what kill -9 left: nested temps
-        work / ".ds.legacy12.tmp",
+        work / f"..ds.{pid}-k2j4h5g6.tmp.{pid}-a1b2c3d4.tmp",  # what kill -9 left: nested temps
     ]
-    live = work / f".ds.{os.getpid()}-running.tmp"
-    for p in (*stale, live):
+    live = work / f".ds.{os.getpid()}-running0.tmp"
+    kept = work / ".ds.legacy12.tmp"  # no pid: not known to be exsur's
+    for p in (*stale, live, kept):
         (p / "episodes").mkdir(parents=True)
+    for p in stale:
+        mark_output(p, "dataset")  # exsur's writers mark a temporary folder first
     rc, _, err = cli(
         "import", log, "--mapping", work / "arm3.toml", "--out", work / "ds", "--quiet"
     )
     assert rc == 0, err
-    assert not any(p.exists() for p in stale) and live.exists()
+    assert not any(p.exists() for p in stale) and live.exists() and kept.exists()
 
 
 def test_b1_drop_everything_is_an_error(cli, work, short_cols) -> None:
