@@ -59,11 +59,43 @@ def test_an_unreadable_folder_is_not_known_to_be_exsurs(tmp_path: Path, monkeypa
 
 def test_temporary_names_of_killed_writers_are_exsurs(tmp_path: Path) -> None:
     ds = _dataset(tmp_path / "ds")
-    (ds / ".manifest.json.tmp").write_text("")
-    (ds / ".best.pt.old-123").write_text("")
+    (ds / ".manifest.json.123-abcdefgh.tmp").write_text("")
     assert foreign_entry(ds) is None
     (ds / "notes.txt").write_text("")
     assert foreign_entry(ds) == "notes.txt"
+
+
+@pytest.mark.parametrize(
+    "entry",
+    [
+        ".my-backup.tmp/precious.txt",  # a folder, no pid
+        ".notes.lock",  # exsur's locks are siblings of the folder, never inside
+        ".draft.tmp",
+        ".best.pt.old-123",
+        ".x.123-abcdefgh.tmp/precious.txt",  # exsur's temporaries inside are files
+        "episodes/.notes.tmp",
+    ],
+)
+def test_hidden_names_of_the_users_are_not_exsurs(tmp_path: Path, entry: str) -> None:
+    """Only exsur's exact temporary file shape is exempt from the rule: a user's
+    ``.my-backup.tmp/`` folder or ``.notes.lock`` makes the folder the user's."""
+    ds = _dataset(tmp_path / "ds")
+    (ds / entry).parent.mkdir(parents=True, exist_ok=True)
+    (ds / entry).write_text("precious")
+    assert foreign_entry(ds).startswith(entry.split("/precious.txt")[0])
+    with pytest.raises(ConfigError, match="which exsur did not write"):
+        check_out_dir(ds)
+
+
+def test_a_killed_write_into_episodes_is_exsurs(tmp_path: Path) -> None:
+    """``exsur plot`` killed while it wrote a PNG next to an episode left its temporary
+    file in ``episodes/``: a rerun into the dataset accepts it."""
+    ds = _dataset(tmp_path / "ds")
+    (ds / "episodes" / ".test_000.png.24026-6qkpier_.tmp").write_bytes(b"half")
+    (ds / "figures").mkdir()
+    (ds / "figures" / ".a.png.24026-abcdefgh.tmp").write_bytes(b"half")
+    assert foreign_entry(ds) is None
+    assert check_out_dir(ds) == ds
 
 
 def test_a_linked_out_folder_needs_overwrite(tmp_path: Path) -> None:

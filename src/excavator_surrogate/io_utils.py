@@ -47,10 +47,6 @@ def _temp_prefix(name: str) -> str:
     return f".{name}.{os.getpid()}-"
 
 
-TEMP_RANDOM = "[a-z0-9_]{8}"
-"""The random part of :mod:`tempfile`'s names (``mkstemp``, ``mkdtemp``)."""
-
-
 def sweep_stale(path: str | Path) -> list[Path]:
     """Remove temporary siblings of ``path`` left by killed exsur processes; returns them.
 
@@ -60,7 +56,7 @@ def sweep_stale(path: str | Path) -> list[Path]:
     deleted).  A folder goes only if it holds exsur's marker (the writers put it there first)
     or is empty: a file or folder of the user's that merely looks like one is kept.
     """
-    from .outdir import read_marker
+    from .outdir import TEMP_RANDOM, read_marker
 
     path = Path(path)
     base = re.escape(path.name.lstrip("."))

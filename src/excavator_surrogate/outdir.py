@@ -31,6 +31,7 @@ import fcntl
 import fnmatch
 import json
 import os
+import re
 from collections.abc import Iterable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
@@ -84,8 +85,12 @@ DIRS = {"episodes": ("*.parquet", "*.png"), "figures": ("*.png",), "tb": ("event
 """Sub-folders with a fixed content pattern (`exsur plot` puts PNGs next to episodes); other
 sub-folders must follow the rule themselves."""
 
-TEMP = (".*.tmp", ".*.old-*", ".*.tmp.npz", ".*.lock")
-"""Temporary names of exsur's atomic writes and locks (left behind only by a killed process)."""
+TEMP_RANDOM = "[a-z0-9_]{8}"
+"""The random part of :mod:`tempfile`'s names (``mkstemp``, ``mkdtemp``)."""
+
+TEMP = re.compile(rf"\..+\.\d+-{TEMP_RANDOM}\.tmp")
+"""The temporary file of exsur's atomic writes, ``.NAME.<pid>-XXXXXXXX.tmp``: inside an output
+folder only while a command writes it, or after a killed one (the next write sweeps it)."""
 
 _ALLOWED: contextvars.ContextVar[frozenset[Path]] = contextvars.ContextVar(
     "exsur_replace_allowed", default=frozenset()
@@ -94,6 +99,11 @@ _ALLOWED: contextvars.ContextVar[frozenset[Path]] = contextvars.ContextVar(
 
 def _match(name: str, patterns: Iterable[str]) -> bool:
     return any(fnmatch.fnmatchcase(name, p) for p in patterns)
+
+
+def _is_temp(e: Path) -> bool:
+    """``e`` is a temporary file of exsur's (:data:`TEMP`); never a folder or a link."""
+    return TEMP.fullmatch(e.name) is not None and e.is_file() and not e.is_symlink()
 
 
 def marker(kind: str) -> dict[str, Any]:
@@ -130,7 +140,7 @@ def foreign_entry(path: Path, *, top: bool = True) -> str | None:
         return MARKER
     for e in entries:
         name = e.name
-        if _match(name, TEMP):
+        if _is_temp(e):
             continue
         if e.is_symlink():
             return name
@@ -138,7 +148,12 @@ def foreign_entry(path: Path, *, top: bool = True) -> str | None:
             if name in DIRS:
                 try:
                     bad = next(
-                        (c.name for c in e.iterdir() if not _match(c.name, DIRS[name])), None
+                        (
+                            c.name
+                            for c in e.iterdir()
+                            if not _match(c.name, DIRS[name]) and not _is_temp(c)
+                        ),
+                        None,
                     )
                 except OSError as err:  # an unreadable episodes/ is not known to be exsur's
                     return f"{name} ({err.strerror})"
@@ -159,7 +174,7 @@ def refusal(path: Path, flag: str) -> str:
     bad = foreign_entry(path)
     hint = "choose a new or empty folder, or pass --overwrite to replace it"
     if bad == MARKER:
-        first = min((e.name for e in path.iterdir() if not _match(e.name, TEMP)), default="")
+        first = min((e.name for e in path.iterdir() if not _is_temp(e)), default="")
         return (
             f"{path}: {flag} holds '{first}', which exsur did not write (no exsur marker "
             f"{MARKER}; an older exsur's output has none either); {hint}"
