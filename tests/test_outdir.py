@@ -276,3 +276,63 @@ def test_file_outputs_by_content(tmp_path: Path) -> None:
     torch.save({"format": "other"}, tmp_path / "b.pt")
     (tmp_path / "c.pt").write_bytes(b"not a checkpoint")
     assert [is_exsur_file(tmp_path / n) for n in ("a.pt", "b.pt", "c.pt")] == [True, False, False]
+
+
+def test_an_output_of_another_kind_is_refused(tmp_path: Path) -> None:
+    """A mistyped --out naming another kind of exsur output (a trained model, a dataset) is
+    neither replaced nor written into without --overwrite, by the CLI's check or by
+    atomic_dir; a model and its evaluation may share a folder."""
+    model = mark_output(tmp_path / "model", "model")
+    (model / "best.pt").write_text("")
+    ds = _dataset(tmp_path / "ds")
+    for out, kind in ((model, "dataset"), (model, "compare"), (ds, "model"), (ds, "run")):
+        with pytest.raises(ConfigError) as e:
+            check_out_dir(out, kind=kind)
+        found = read_marker(out)["kind"]
+        assert str(e.value) == (
+            f"{out}: --out is an exsur {found} output (.exsur.json), and this command writes "
+            f"a {kind} output; give another --out, or pass --overwrite"
+        )
+        assert check_out_dir(out, kind=kind, overwrite=True) == out
+    assert check_out_dir(model, kind="evaluation") == model
+    assert check_out_dir(ds, kind="dataset") == ds
+    with pytest.raises(ConfigError, match="exsur model output"), atomic_dir(model, kind="dataset"):
+        pass
+    assert sorted(p.name for p in model.iterdir()) == [MARKER, "best.pt"]
+    with replace_allowed(model), atomic_dir(model, kind="dataset"):
+        pass
+    assert read_marker(model)["kind"] == "dataset"
+
+
+def test_an_out_inside_an_input_dataset_is_refused(tmp_path: Path) -> None:
+    """A command does not write into the exsur output it reads (train DS --out DS/model), not
+    even with --overwrite; a new dataset inside a folder of logs stays fine."""
+    ds = _dataset(tmp_path / "ds")
+    for out in (ds / "model", ds / "episodes" / "ev"):
+        with pytest.raises(ConfigError) as e:
+            check_out_dir(out, inputs=[ds], overwrite=True)
+        assert str(e.value) == (
+            f"{out}: --out lies inside {ds}, an exsur output this command reads; "
+            "give a --out outside it"
+        )
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "a.csv").write_text("t\n0\n")
+    assert check_out_dir(logs / "ds", inputs=[logs / "a.csv", logs]) == logs / "ds"
+
+
+def test_an_output_inside_another_is_not_part_of_it(tmp_path: Path) -> None:
+    """A model trained into a dataset folder is not part of the dataset: replacing the
+    dataset would delete it.  A run holds its data and models, a model its members."""
+    ds = _dataset(tmp_path / "ds")
+    mark_output(ds / "model", "model")
+    (ds / "model" / "best.pt").write_text("")
+    assert foreign_entry(ds) == "model"
+    with pytest.raises(ConfigError, match=r"holds 'model', another exsur output \(a model\)"):
+        check_out_dir(ds, kind="dataset")
+    run = _run(tmp_path / "run")
+    mark_output(run / "model" / "member_0", "model")
+    mark_output(run / "eval_cleaned", "evaluation")
+    assert foreign_entry(run) is None
+    mark_output(run / "data" / "model", "model")
+    assert foreign_entry(run) == "data/model"

@@ -125,7 +125,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
         ConfigError: ``path`` is the current folder, a file, or a folder exsur did not write.
     """
     path = Path(path)
-    _check_replaceable(path)
+    _check_replaceable(path, kind)
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path)
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
@@ -136,7 +136,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
         if path.exists():
             if not overwrite:
                 raise FileExistsError(f"{path} exists")
-            _check_replaceable(path)
+            _check_replaceable(path, kind)
             old = path.with_name(f".{path.name}.old-{os.getpid()}")
             os.replace(path, old)
             os.replace(tmp, path)
@@ -202,15 +202,17 @@ def mark_output(path: str | Path, kind: str) -> Path:
     return path
 
 
-def _check_replaceable(path: Path) -> None:
+def _check_replaceable(path: Path, kind: str) -> None:
     from .errors import ConfigError
-    from .outdir import check_not_cwd, may_replace, refusal
+    from .outdir import check_not_cwd, kind_refusal, may_replace, other_kind, refusal
 
     check_not_cwd(path, "output folder")
     if path.exists() and not path.is_dir():
         raise ConfigError(f"{path}: output folder exists and is a file; give a folder")
-    if not may_replace(path):
-        raise ConfigError(refusal(path, "output folder"))
+    if not may_replace(path, kind):
+        found = other_kind(path, kind)
+        flag = "output folder"
+        raise ConfigError(kind_refusal(path, found, kind, flag) if found else refusal(path, flag))
 
 
 def write_text(path: str | Path, text: str) -> None:

@@ -7,10 +7,11 @@ Every command that writes ``--out`` checks it first with :func:`check_out_dir` (
 - an existing folder is replaced (``simulate``, ``clean``, ``run``, ``import``, ``control``) or
   written into (``train``, ``evaluate``, ``compare``, ``sweep``) only when exsur wrote it: it
   holds the marker :data:`MARKER` (written before the first file of every output folder) and
-  nothing but names exsur writes (:func:`is_exsur_output`); anything else, including a folder
-  of an older exsur without the marker, needs an explicit ``--overwrite``;
+  nothing but names exsur writes (:func:`is_exsur_output`), and it is an output of a kind the
+  command may use (:data:`ACCEPTS`); anything else, including a folder of an older exsur
+  without the marker, needs an explicit ``--overwrite``;
 - an input of the command (a log, the mapping, a dataset) never lies inside the output folder,
-  not even with ``--overwrite``;
+  nor the output folder inside an input that is an exsur output, not even with ``--overwrite``;
 - the current folder, or one of its parents, is never an output folder;
 - a file output (``export``, ``merge``) is never an existing folder nor one of the inputs, has
   the command's suffix, and replaces only a file exsur wrote (checked by content);
@@ -51,6 +52,25 @@ PNG_SOFTWARE = f"exsur {__version__}"
 
 KINDS = ("dataset", "model", "evaluation", "compare", "run", "control", "sweep", "output")
 """What an output folder is (the marker's ``kind``)."""
+
+ACCEPTS = {
+    "dataset": ("dataset",),
+    "run": ("run",),
+    "control": ("control",),
+    "model": ("model", "evaluation", "output"),
+    "evaluation": ("evaluation", "model", "output"),
+    "compare": ("compare", "output"),
+    "sweep": ("sweep", "output"),
+}
+"""The kinds of an existing output that a command writing a ``kind`` output may replace
+(dataset, run, control: only their own) or write into (a model and its evaluation share a
+folder, no file name of one is the other's) without ``--overwrite``; a kind not listed (the
+API's ``output``) takes any."""
+
+NESTED = {"dataset": (), "control": (), "run": ("dataset", "model", "evaluation")}
+"""The kinds of exsur output that a replaced kind of output holds inside it (a run: its data,
+models and the evaluation against cleaned data); another output found inside one is not
+part of it."""
 
 FILES = (
     "manifest.json",
@@ -124,11 +144,12 @@ def read_marker(path: str | Path) -> dict[str, Any] | None:
     return d if ok else None
 
 
-def foreign_entry(path: Path, *, top: bool = True) -> str | None:
+def foreign_entry(path: Path, *, top: bool = True, within: str = "") -> str | None:
     """The first entry of folder ``path`` that exsur would not have written (None: all are exsur's).
 
     At the top level the folder must hold a valid :data:`MARKER` (an empty folder passes);
-    without one the answer is ``MARKER`` itself.
+    without one the answer is ``MARKER`` itself.  An exsur output inside it must be of a kind
+    that the output around it holds (:data:`NESTED`; ``within``: that kind, in the recursion).
     """
     try:
         entries = sorted(e for e in path.iterdir() if e.name != MARKER)
@@ -136,8 +157,10 @@ def foreign_entry(path: Path, *, top: bool = True) -> str | None:
         return f"{path.name} ({e.strerror})"
     if not entries:
         return None
-    if top and read_marker(path) is None:
+    mark = read_marker(path)
+    if top and mark is None:
         return MARKER
+    within = (mark or {}).get("kind", within)
     for e in entries:
         name = e.name
         if _is_temp(e):
@@ -160,7 +183,10 @@ def foreign_entry(path: Path, *, top: bool = True) -> str | None:
                 if bad is not None:
                     return f"{name}/{bad}"
                 continue
-            sub = foreign_entry(e, top=False)
+            inner = read_marker(e)
+            if inner is not None and inner["kind"] not in NESTED.get(within, KINDS):
+                return name  # another output, not part of this one
+            sub = foreign_entry(e, top=False, within=within)
             if sub is not None:
                 return f"{name}/{sub}"
             continue
@@ -179,6 +205,9 @@ def refusal(path: Path, flag: str) -> str:
             f"{path}: {flag} holds '{first}', which exsur did not write (no exsur marker "
             f"{MARKER}; an older exsur's output has none either); {hint}"
         )
+    inner = read_marker(path / bad) if bad else None
+    if inner is not None:
+        return f"{path}: {flag} holds '{bad}', another exsur output (a {inner['kind']}); {hint}"
     return f"{path}: {flag} holds '{bad}', which exsur did not write; {hint}"
 
 
@@ -186,6 +215,22 @@ def is_exsur_output(path: str | Path) -> bool:
     """True if ``path`` is an empty folder or an output folder that exsur wrote."""
     p = Path(path)
     return p.is_dir() and not p.is_symlink() and foreign_entry(p) is None
+
+
+def other_kind(path: Path, kind: str | None) -> str | None:
+    """The kind of exsur output ``path`` is, if a ``kind`` output may not replace or write
+    into it (:data:`ACCEPTS`); None: it may (or ``path`` is no marked output)."""
+    found = (read_marker(path) or {}).get("kind")
+    ok = found is None or kind is None or found in ACCEPTS.get(kind, KINDS)
+    return None if ok else found
+
+
+def kind_refusal(path: Path, found: str, kind: str, flag: str) -> str:
+    """The one-line error for an exsur output of another kind (:func:`other_kind`)."""
+    return (
+        f"{path}: {flag} is an exsur {found} output ({MARKER}), and this command writes a "
+        f"{kind} output; give another {flag}, or pass --overwrite"
+    )
 
 
 @contextlib.contextmanager
@@ -199,9 +244,12 @@ def replace_allowed(path: str | Path) -> Iterator[None]:
         _ALLOWED.reset(token)
 
 
-def may_replace(path: Path) -> bool:
-    """True if ``path`` is absent, empty, exsur's own, or allowed by :func:`replace_allowed`."""
-    return not path.exists() or is_exsur_output(path) or path.resolve() in _ALLOWED.get()
+def may_replace(path: Path, kind: str | None = None) -> bool:
+    """True if ``path`` is absent, empty, exsur's own output that a ``kind`` output may replace,
+    or allowed by :func:`replace_allowed`."""
+    if not path.exists() or path.resolve() in _ALLOWED.get():
+        return True
+    return is_exsur_output(path) and other_kind(path, kind) is None
 
 
 def check_not_cwd(path: Path, flag: str = "--out") -> None:
@@ -235,6 +283,11 @@ def _inputs_inside(out: Path, inputs: Iterable[str | Path], flag: str) -> None:
                 f"{s}: this input lies inside {flag} {out}, which exsur writes; "
                 "move it out or write elsewhere"
             )
+        if rs in ro.parents and read_marker(rs) is not None:
+            raise ConfigError(
+                f"{out}: {flag} lies inside {s}, an exsur output this command reads; "
+                f"give a {flag} outside it"
+            )
 
 
 def check_out_dir(
@@ -244,15 +297,19 @@ def check_out_dir(
     inputs: Iterable[str | Path] = (),
     flag: str = "--out",
     lock: bool = False,
+    kind: str | None = None,
 ) -> Path:
     """Check an output folder against the output-folder rule (see the module docstring).
 
     Args:
         out: the folder a command will replace or write into.
         overwrite: the user passed ``--overwrite``: a folder exsur did not write may be used.
-        inputs: files and folders the command reads; none may lie inside ``out``.
+        inputs: files and folders the command reads; none may lie inside ``out``, nor ``out``
+            inside one that is an exsur output (a dataset).
         flag: option name used in messages.
         lock: also take the folder's writer lock (:func:`lock_out`) before the checks.
+        kind: the kind of output the command writes (:data:`KINDS`): an exsur output of a
+            kind it may not replace or write into (:data:`ACCEPTS`) needs ``overwrite``.
 
     Returns:
         ``out`` as a Path.
@@ -273,6 +330,8 @@ def check_out_dir(
             raise ConfigError(
                 f"{out}: {flag} is a symbolic link; give a real folder, or pass --overwrite"
             )
+        if not overwrite and (found := other_kind(out, kind)) is not None:
+            raise ConfigError(kind_refusal(out, found, str(kind), flag))
         if not overwrite and foreign_entry(out) is not None:
             raise ConfigError(refusal(out, flag))
     return out  # _writable checked that an existing ``out`` accepts new entries
@@ -485,10 +544,11 @@ def out_dir(
     overwrite: bool = False,
     inputs: Iterable[str | Path] = (),
     flag: str = "--out",
+    kind: str | None = None,
 ) -> Iterator[Path]:
     """:func:`check_out_dir` with the writer lock, then a block in which ``overwrite`` lets exsur
     replace ``out`` (the lock is released by :func:`release_locks`)."""
-    p = check_out_dir(out, overwrite=overwrite, inputs=inputs, flag=flag, lock=True)
+    p = check_out_dir(out, overwrite=overwrite, inputs=inputs, flag=flag, lock=True, kind=kind)
     if overwrite:
         with replace_allowed(p):
             yield p

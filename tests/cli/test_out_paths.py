@@ -236,3 +236,27 @@ def test_control_reruns_into_its_own_folder(tmp_path: Path, capsys) -> None:
     (out / "notes.txt").write_text("mine")
     assert "holds 'notes.txt', which exsur did not write" in fails(capsys, *argv)
     assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_an_out_of_another_kind_or_inside_the_input_is_refused(
+    tmp_path: Path, data_dir: Path, model3: Path, capsys
+) -> None:
+    """``simulate --out MODEL``, ``train DS --out OTHER_DS``, ``compare --out MODEL`` and
+    ``train DS --out DS/model`` are refused before any work, in one line, with nothing
+    touched."""
+    model = tmp_path / "mymodel"
+    shutil.copytree(model3, model)
+    before = sorted(p.name for p in model.iterdir())
+    err = fails(capsys, "simulate", "--preset", "tiny", "--out", model)
+    assert "is an exsur model output" in err and "writes a dataset output" in err
+    err = fails(capsys, "compare", model / "best.pt", "--commands", "steps", "--out", model)
+    assert "is an exsur model output" in err and "writes a compare output" in err
+    assert sorted(p.name for p in model.iterdir()) == before
+    ds = tmp_path / "ds"
+    shutil.copytree(data_dir / "ds3", ds)
+    tiny = data_dir / "tiny.toml"
+    err = fails(capsys, "train", data_dir / "ds4", "--preset", tiny, "--out", ds)
+    assert "is an exsur dataset output" in err
+    err = fails(capsys, "train", ds, "--preset", tiny, "--out", ds / "model")
+    assert f"--out lies inside {ds}, an exsur output this command reads" in err
+    assert not (ds / "model").exists() and is_exsur_output(ds)

@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = _config(args)
     inputs = [args.dataset, *preset_files(args.preset)]
-    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs, kind="dataset"):
         out = clean_dataset(args.dataset, args.out, config=cfg)
     manifest = read_manifest(out)
     summary = manifest.get("cleaning", {})

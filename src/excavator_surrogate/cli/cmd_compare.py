@@ -58,7 +58,10 @@ def run(args: argparse.Namespace) -> int:
                 f"--theta0 must be comma-separated numbers in rad, got '{args.theta0}'"
             ) from e
     out = check_out_dir(
-        args.out or args.ckpt.parent / "compare", overwrite=args.overwrite, lock=True
+        args.out or args.ckpt.parent / "compare",
+        overwrite=args.overwrite,
+        lock=True,
+        kind="compare",
     )
     res = compare(
         args.ckpt, args.commands, theta0=theta0, out=out, plant=args.plant, device=args.device

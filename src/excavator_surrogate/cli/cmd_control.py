@@ -126,7 +126,9 @@ def run(args: argparse.Namespace) -> int:
     from ..surrogate.checkpoint import load_checkpoint
     from ..surrogate.ensemble import member_head
 
-    out_dir = check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.ckpt], lock=True)
+    out_dir = check_out_dir(
+        args.out, overwrite=args.overwrite, inputs=[args.ckpt], lock=True, kind="control"
+    )
     torch.set_num_threads(1)
     if args.samples < 2:  # MPPI weighs at least two candidates
         raise ConfigError(f"--samples must be >= 2 (MPPI candidates), got {args.samples}")

@@ -76,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
         paper=False if args.no_paper else None,
         max_steps=args.max_steps,
     )
-    check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
+    check_out_dir(
+        args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True, kind="evaluation"
+    )
     cfg = configs(args, ("evaluate",), {"evaluate": named})["evaluate"]
     splits = (cfg.split, "train", "val") if cfg.arx or cfg.structured else (cfg.split,)
     dataset = load_dataset(args.dataset, splits=tuple(dict.fromkeys(splits)))

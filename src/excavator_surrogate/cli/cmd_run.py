@@ -104,7 +104,7 @@ def checked_run(args: argparse.Namespace) -> int:
     for key in ("data", "mapping", "logs"):  # the dataset, or the logs and their mapping
         value = getattr(args, key, None)
         inputs += [] if value is None else value if isinstance(value, list) else [value]
-    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs):
+    with out_dir(args.out, overwrite=args.overwrite, inputs=inputs, kind="run"):
         return run(args)
 
 

@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
     cfg: SimulateConfig = configs(args, ("simulate",), named)["simulate"]
     check_sets_read(parse_sets(args.sets, sections=("simulate",)), {"simulate": cfg})
     check_dataset_size(cfg, out=args.out)
-    with out_dir(args.out, overwrite=args.overwrite, inputs=preset_files(args.preset)):
+    with out_dir(
+        args.out, overwrite=args.overwrite, inputs=preset_files(args.preset), kind="dataset"
+    ):
         path = simulate_dataset(
             cfg, out=args.out, extra={"preset": str(preset.get("name", args.preset))}
         )

@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
         from ..devices import resolve_device
 
         resolve_device(args.device)
-    check_out_dir(args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
+    check_out_dir(
+        args.out, overwrite=args.overwrite, inputs=[args.dataset], lock=True, kind="sweep"
+    )
     read_manifest(args.dataset)  # a missing dataset is an error before --out is created
     named = {
         "train": {"device": args.device},

@@ -97,7 +97,7 @@ def checked_run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     existed = out.is_dir()
     new = not existed or not any(out.iterdir())  # all that ends up in it is this command's
-    check_out_dir(out, overwrite=args.overwrite, inputs=[args.dataset], lock=True)
+    check_out_dir(out, overwrite=args.overwrite, inputs=[args.dataset], lock=True, kind="model")
     try:
         if args.resume is not None:
             resumed = load_checkpoint(args.resume)

@@ -71,7 +71,8 @@ def import_logs(
     if outp is not None:
         # the output-folder rule: no input (a log, the mapping) inside ``out``
         mapping_file = [mapping.path] if mapping.path is not None else []
-        check_out_dir(outp, overwrite=overwrite, inputs=[*paths, *mapping_file, *map(Path, inputs)])
+        read = [*paths, *mapping_file, *map(Path, inputs)]
+        check_out_dir(outp, overwrite=overwrite, inputs=read, kind="dataset")
     spec = mapping.spec(options.rate_hz)
     results, failed = _convert_all(paths, mapping, options=options, spec=spec, quiet=quiet)
     _unique_names(results)
