@@ -336,3 +336,70 @@ def test_an_output_inside_another_is_not_part_of_it(tmp_path: Path) -> None:
     assert foreign_entry(run) is None
     mark_output(run / "data" / "model", "model")
     assert foreign_entry(run) == "data/model"
+
+
+def test_an_output_written_whole_records_what_exsur_wrote(tmp_path: Path) -> None:
+    """Files a user adds to a dataset under names exsur writes (a colleague's model, notes in
+    report.md, a field log among the episodes) are the user's: the marker lists what exsur
+    wrote, so replacing the folder needs --overwrite."""
+    with atomic_dir(tmp_path / "ds", kind="dataset") as tmp:
+        (tmp / "episodes").mkdir()
+        (tmp / "episodes" / "test_000.parquet").write_bytes(b"x")
+        (tmp / "manifest.json").write_text("{}")
+    ds = tmp_path / "ds"
+    assert read_marker(ds)["files"] == ["episodes", "episodes/test_000.parquet", "manifest.json"]
+    assert foreign_entry(ds) is None
+    for added in ("colleague_model.pt", "report.md", "episodes/my_field_log.parquet"):
+        (ds / added).write_text("mine")
+        assert foreign_entry(ds) == added
+        with pytest.raises(ConfigError, match=f"holds '{added}', which exsur did not write"):
+            check_out_dir(ds, kind="dataset")
+        with pytest.raises(ConfigError, match="which exsur did not write"):
+            with atomic_dir(ds, kind="dataset") as tmp:
+                pass
+        assert (ds / added).read_text() == "mine"
+        (ds / added).unlink()
+
+
+def test_exsurs_later_writes_into_a_recorded_output_are_recorded(tmp_path: Path) -> None:
+    """A PNG that ``exsur plot`` writes beside an episode of a run's dataset (in the
+    dataset's own record), a figure written into the run: recorded, so the run is still
+    exsur's.  A file copied in beside them is not, nor a new file in an output inside the run
+    that keeps no record of its own (its model folder)."""
+    from excavator_surrogate.io_utils import write_text
+
+    with atomic_dir(tmp_path / "run", kind="run") as tmp:
+        with atomic_dir(tmp / "data", kind="dataset") as d:
+            (d / "episodes").mkdir()
+            (d / "episodes" / "a.parquet").write_bytes(b"x")
+        mark_output(tmp / "model", "model")
+        (tmp / "model" / "best.pt").write_text("")
+        (tmp / "table.md").write_text("")
+    run = tmp_path / "run"
+    write_text(run / "data" / "episodes" / "a.png", "figure")
+    write_text(run / "figures" / "b.png", "figure")
+    write_text(run / "model" / "best.pt", "re-trained")  # a name the run recorded
+    assert "episodes/a.png" in read_marker(run / "data")["files"]
+    assert {"figures", "figures/b.png"} <= set(read_marker(run)["files"])
+    assert foreign_entry(run) is None
+    for theirs in ("model/colleague.pt", "data/notes.txt", "figures/c.png"):
+        (run / theirs).write_text("theirs")
+        assert foreign_entry(run) == theirs
+        (run / theirs).unlink()
+    write_text(run / "model" / "last.pt", "new")  # the model folder keeps no record
+    assert foreign_entry(run) == "model/last.pt"
+    (run / "model" / "last.pt").unlink()
+    with atomic_dir(run / "data2", kind="dataset") as d:  # another output built inside
+        write_text(d / "manifest.json", "{}")
+        assert "files" not in read_marker(d)  # recorded when complete, not file by file
+    assert not any("data2" in n for n in read_marker(run)["files"])
+    assert foreign_entry(run) == "data2"
+
+
+def test_a_marker_without_a_record_keeps_the_name_rule(tmp_path: Path) -> None:
+    """An output of exsur before the record (and a folder commands write into) is judged by
+    the names exsur writes, as before."""
+    ds = _dataset(tmp_path / "ds")
+    assert "files" not in read_marker(ds)
+    (ds / "report.md").write_text("")
+    assert foreign_entry(ds) is None and check_out_dir(ds, kind="dataset") == ds

@@ -108,6 +108,27 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise
+    note_written(path)
+
+
+def note_written(path: str | Path) -> None:
+    """Add file ``path`` to the record of the output folder it is in (the nearest marked
+    folder above it), if that folder keeps one (a dataset, a run, a control report:
+    :func:`atomic_dir`), so the folder still holds only what exsur wrote.  A temporary folder
+    being built keeps no record yet: it records everything when complete."""
+    from .outdir import MARKER, read_marker
+
+    p = Path(os.path.abspath(path))
+    folder = next((f for f in p.parents if (f / MARKER).is_file()), None)
+    if folder is None or p.name == MARKER:
+        return
+    m = read_marker(folder)
+    if m is None or not isinstance(m.get("files"), list):
+        return
+    rel = p.relative_to(folder).parts
+    parts = {"/".join(rel[: i + 1]) for i in range(len(rel))}
+    if not parts <= set(m["files"]):
+        write_json(folder / MARKER, {**m, "files": sorted(parts | set(m["files"]))})
 
 
 @contextlib.contextmanager
@@ -132,6 +153,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
     try:
         mark_output(tmp, kind)
         yield tmp
+        record_output(tmp)
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp creates 0700 folders
         if path.exists():
             if not overwrite:
@@ -179,6 +201,8 @@ def atomic_files(path: str | Path, *, kind: str, replaces: Sequence[str] = ()) -
         for f in written:
             os.chmod(f, 0o666 & ~_umask())
             os.replace(f, path / f.name)
+        for f in written:  # into a folder that keeps a record (evaluate --overwrite into it)
+            note_written(path / f.name)
         names = {f.name for f in written}
         for old in path.iterdir():
             if old.name not in names and old.is_file():
@@ -200,6 +224,22 @@ def mark_output(path: str | Path, kind: str) -> Path:
     if read_marker(path) is None:
         write_json(path / MARKER, marker(kind))
     return path
+
+
+def record_output(path: str | Path) -> None:
+    """Record in the marker of the complete output folder ``path`` every file and folder in it
+    (``files``, relative, with ``/``): the exact list of what exsur wrote there, which
+    :func:`~excavator_surrogate.outdir.foreign_entry` holds the folder to from then on."""
+    from .outdir import MARKER, read_marker
+
+    path = Path(path)
+    names = []
+    for root, dirs, files in os.walk(path):
+        rel = Path(root).relative_to(path)
+        names += [(rel / n).as_posix() for n in (*dirs, *files)]
+    m = read_marker(path)
+    if m is not None:
+        write_json(path / MARKER, {**m, "files": sorted(n for n in names if n != MARKER)})
 
 
 def _check_replaceable(path: Path, kind: str) -> None:

@@ -145,11 +145,15 @@ def read_marker(path: str | Path) -> dict[str, Any] | None:
 
 
 def foreign_entry(path: Path, *, top: bool = True, within: str = "") -> str | None:
-    """The first entry of folder ``path`` that exsur would not have written (None: all are exsur's).
+    """The first entry of folder ``path`` that exsur did not write (None: all are exsur's).
 
     At the top level the folder must hold a valid :data:`MARKER` (an empty folder passes);
-    without one the answer is ``MARKER`` itself.  An exsur output inside it must be of a kind
-    that the output around it holds (:data:`NESTED`; ``within``: that kind, in the recursion).
+    without one the answer is ``MARKER`` itself.  A marker that records what exsur wrote
+    (``files``: an output written whole, :func:`~excavator_surrogate.io_utils.atomic_dir`)
+    is exact: every entry must be recorded.  A marker without a record (a folder commands
+    write into, or an output of exsur before session 114) falls back to the names exsur
+    writes (:data:`FILES`, :data:`DIRS`), and an exsur output inside it must be of a kind
+    the output around it holds (:data:`NESTED`; ``within``: that kind, in the recursion).
     """
     try:
         entries = sorted(e for e in path.iterdir() if e.name != MARKER)
@@ -160,6 +164,8 @@ def foreign_entry(path: Path, *, top: bool = True, within: str = "") -> str | No
     mark = read_marker(path)
     if top and mark is None:
         return MARKER
+    if mark is not None and isinstance(mark.get("files"), list):
+        return _unrecorded(path, set(mark["files"]))
     within = (mark or {}).get("kind", within)
     for e in entries:
         name = e.name
@@ -192,6 +198,28 @@ def foreign_entry(path: Path, *, top: bool = True, within: str = "") -> str | No
             continue
         if not _match(name, FILES):
             return name
+    return None
+
+
+def _unrecorded(folder: Path, record: set[str], rel: str = "") -> str | None:
+    """The first entry below ``folder`` (at ``rel`` in the output whose marker holds
+    ``record``) that the record does not list; an output inside with a record of its own
+    (a run's dataset) answers for its entries."""
+    try:
+        entries = sorted(folder.iterdir())
+    except OSError as e:
+        return f"{rel.rstrip('/') or folder.name} ({e.strerror})"
+    for e in entries:
+        name = rel + e.name
+        if name == MARKER or _is_temp(e):
+            continue
+        if name not in record or e.is_symlink():
+            return name
+        if e.is_dir():
+            own = isinstance((read_marker(e) or {}).get("files"), list)
+            sub = foreign_entry(e, top=False) if own else _unrecorded(e, record, name + "/")
+            if sub is not None:
+                return f"{name}/{sub}" if own else sub
     return None
 
 

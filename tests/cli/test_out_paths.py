@@ -260,3 +260,26 @@ def test_an_out_of_another_kind_or_inside_the_input_is_refused(
     err = fails(capsys, "train", ds, "--preset", tiny, "--out", ds / "model")
     assert f"--out lies inside {ds}, an exsur output this command reads" in err
     assert not (ds / "model").exists() and is_exsur_output(ds)
+
+
+def test_files_a_user_adds_to_an_exsur_output_are_kept(
+    tmp_path: Path, data_dir: Path, model3: Path, capsys
+) -> None:
+    """A colleague's checkpoint, notes in report.md and a field log among the episodes of a
+    dataset exsur wrote: the next simulate into it is refused (it replaced them silently)."""
+    ds = tmp_path / "ds"
+    shutil.copytree(data_dir / "ds3", ds)
+    ep = sorted((ds / "episodes").glob("*.parquet"))[0]
+    added = {
+        ds / "colleague_model.pt": model3 / "best.pt",
+        ds / "report.md": None,
+        ds / "episodes" / "my_field_log.parquet": ep,
+    }
+    for path, src in added.items():
+        shutil.copy(src, path) if src else path.write_text("my notes")
+        err = fails(capsys, "simulate", "--preset", "tiny", "--out", ds)
+        assert f"holds '{path.relative_to(ds).as_posix()}', which exsur did not write" in err
+        assert path.is_file()
+        path.unlink()
+    assert main(["plot", str(ep)]) == 0  # exsur's own figure beside the episode is recorded
+    assert is_exsur_output(ds) and ep.with_suffix(".png").is_file()
