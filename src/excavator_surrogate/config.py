@@ -88,7 +88,7 @@ def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -
             raise ConfigError(
                 f"unknown preset '{name_or_path}': choose one of {', '.join(preset_names())} or a .toml path"
             )
-        text = res.read_text()
+        text = res.read_text(encoding="utf-8")
         where = f"preset '{name_or_path}'"
     try:
         data = tomllib.loads(text)

@@ -254,7 +254,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
                 ReportContext(
                     name=name,
                     spec_names=raw_ds.spec.names,
-                    table_md=(tmp / "table.md").read_text(),
+                    table_md=(tmp / "table.md").read_text(encoding="utf-8"),
                     paper_table=run_cfg.paper_table,
                     learning_curves=curves,
                     data=describe_dataset(train_ds, path=_in_run(train_ds.root, tmp)),

@@ -283,3 +283,26 @@ def test_files_a_user_adds_to_an_exsur_output_are_kept(
         path.unlink()
     assert main(["plot", str(ep)]) == 0  # exsur's own figure beside the episode is recorded
     assert is_exsur_output(ds) and ep.with_suffix(".png").is_file()
+
+
+def test_a_locale_that_is_not_utf8_writes_and_prints(
+    tmp_path: Path, data_dir: Path, model3: Path
+) -> None:
+    """Under an ASCII locale (``LC_ALL=C`` without Python's UTF-8 mode) ``exsur evaluate``
+    wrote its table with the locale's codec and failed on R² with a traceback: its files are
+    UTF-8 now, and what it prints is escaped where the terminal cannot show it."""
+    import os
+
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0"}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+    for quiet in ([], ["-q"]):
+        out = tmp_path / f"ev{len(quiet)}"
+        argv = ["evaluate", model3 / "best.pt", data_dir / "ds3", "--out", out, "--no-arx"]
+        proc = subprocess.run(
+            [sys.executable, "-m", "excavator_surrogate", *map(str, argv + quiet)],
+            capture_output=True,
+            env=env,
+        )
+        assert proc.returncode == 0, proc.stderr.decode()
+        assert "R²" in (out / "table.md").read_text(encoding="utf-8")
+        assert (b"R\\xb2" in proc.stdout) != bool(quiet)

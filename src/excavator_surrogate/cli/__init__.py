@@ -15,9 +15,11 @@ library's ``logging`` lines are shown on stderr as ``[exsur] ...`` while a comma
 from __future__ import annotations
 
 import argparse
+import codecs
 import contextlib
 import errno
 import importlib
+import io
 import logging
 import math
 import os
@@ -125,12 +127,22 @@ def _muted_stdout(mute: bool) -> Iterator[None]:
     if not mute:
         yield
         return
-    with open(os.devnull, "w") as null, contextlib.redirect_stdout(null):
+    with open(os.devnull, "w", encoding="utf-8") as null, contextlib.redirect_stdout(null):
         yield
+
+
+def _escaped_stdout() -> None:
+    """Where the locale cannot encode what exsur prints (θ, ω, R² of a table: ASCII or Latin-1
+    without Python's UTF-8 mode), print it escaped (``\\u03b8``) instead of failing after the
+    work is done; the files themselves are UTF-8 whatever the locale."""
+    out = sys.stdout
+    if isinstance(out, io.TextIOWrapper) and codecs.lookup(out.encoding).name != "utf-8":
+        out.reconfigure(errors="backslashreplace")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``exsur`` console script; returns the exit code."""
+    _escaped_stdout()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

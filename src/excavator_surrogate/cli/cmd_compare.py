@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     res = compare(
         args.ckpt, args.commands, theta0=theta0, out=out, plant=args.plant, device=args.device
     )
-    print((out / "table.md").read_text(), end="")
+    print((out / "table.md").read_text(encoding="utf-8"), end="")
     log = logging.getLogger(__name__)
     log.info(f"wrote {out}/metrics.json, table.md, compare.png, trajectories.npz")
     if res.metrics["run"]["diverged_at"] is not None:

@@ -63,7 +63,7 @@ def _refuse_mapping(name: str) -> None:
     if not path.is_file():
         return
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return  # load_preset reports it
     if "joints" in data or "machine" in data:

@@ -181,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
             n_seeds=args.mppi_seeds,
             log=log,
         )
-    print((args.out / "report.md").read_text(), end="")
+    print((args.out / "report.md").read_text(encoding="utf-8"), end="")
     return 0
 
 

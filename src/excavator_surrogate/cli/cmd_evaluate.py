@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         device=args.device,
         **dataclasses.asdict(cfg),
     )
-    print((Path(args.out) / "table.md").read_text())
+    print((Path(args.out) / "table.md").read_text(encoding="utf-8"))
     log(
         f"wrote {args.out}/metrics.json, table.md, cbe.png"
         + (", horizon.png" if cfg.horizons and cfg.figure else "")

@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         base=base,
     )
     if res.table is not None:
-        print(res.table.read_text())
+        print(res.table.read_text(encoding="utf-8"))
     if res.best_checkpoint is not None:
         print(res.best_checkpoint)
     if res.n_complete == 0:

@@ -44,7 +44,7 @@ def load_mapping(path: str | Path) -> Mapping:
     if not path.is_file():
         raise ConfigError(f"{path}: mapping file not found (write one as in docs/import.md)")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise ConfigError(f"{path}: invalid TOML ({e})") from e
     return parse_mapping(data, path=path)

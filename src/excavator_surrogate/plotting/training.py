@@ -44,7 +44,7 @@ class Curve:
 def _free_from(config: Path) -> int | None:
     """The first free-run epoch a network's ``config.toml`` plans after teacher-forced ones."""
     try:
-        train = tomllib.loads(config.read_text()).get("train", {})
+        train = tomllib.loads(config.read_text(encoding="utf-8")).get("train", {})
     except (OSError, tomllib.TOMLDecodeError):
         return None
     teacher = train.get("teacher_epochs", 0)

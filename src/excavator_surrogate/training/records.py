@@ -97,7 +97,7 @@ def update_notes(path: str | Path, notes: Mapping[str, Any]) -> bool:
     path = Path(path)
     if not path.is_file():
         return False
-    tables = tomllib.loads(path.read_text())
+    tables = tomllib.loads(path.read_text(encoding="utf-8"))
     if not any(k in tables for k in notes):
         return False
     tables.update({k: v for k, v in notes.items() if k in tables})
