@@ -8,6 +8,7 @@ import argparse
 import dataclasses
 import errno
 import logging
+import os
 from pathlib import Path
 
 import numpy as np
@@ -340,3 +341,42 @@ def test_every_subcommands_help_reads_as_written() -> None:
     for name, sub in subs.choices.items():
         text = sub.format_help()
         assert "%%" not in text and "%(" not in text, name
+
+
+# ---- names that are not UTF-8 -------------------------------------------------------------
+
+
+def test_a_name_that_is_not_utf8_is_one_line(tmp_path: Path, capsys) -> None:
+    """A path holding bytes that are not UTF-8 (a Latin-1 file name) crashed simulate, train
+    and import with a UnicodeEncodeError traceback (pyarrow and TensorBoard write UTF-8
+    names): one line naming it, before any work, and nothing is written."""
+    bad = str(tmp_path / os.fsdecode(b"bad\xffname"))
+    for argv in (["simulate", "--preset", "tiny", "--out", bad], ["validate", bad]):
+        assert main(argv) == 2
+        assert _last(capsys.readouterr().err) == (
+            f"exsur: error: {tmp_path}/bad\\xffname: the name is not valid UTF-8 (e.g. a "
+            "Latin-1 file name); rename it"
+        )
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_name_in_a_listed_folder_that_is_not_utf8_is_one_line(cli, monkeypatch) -> None:
+    """A name the command finds itself (a log in a folder it imports) fails where a library
+    encodes it: the same one line, not a traceback; other encoding errors are not hidden."""
+
+    def encode(name: str):
+        def run(args: argparse.Namespace) -> int:
+            name.encode("utf-8")  # as pyarrow's encode_file_path does
+            return 0
+
+        return run
+
+    monkeypatch.setattr(cmd_validate, "run", encode(os.fsdecode(b"logs/run\xe9.csv")))
+    rc, _, err = cli("validate", "x")
+    assert rc == 2 and err == (
+        "exsur: error: logs/run\\xe9.csv: the name is not valid UTF-8 (e.g. a Latin-1 file "
+        "name); rename it\n"
+    )
+    monkeypatch.setattr(cmd_validate, "run", lambda args: "θ".encode("ascii"))
+    with pytest.raises(UnicodeEncodeError):
+        main(["validate", "x"])

@@ -140,11 +140,33 @@ def _escaped_stdout() -> None:
         out.reconfigure(errors="backslashreplace")
 
 
+def _not_utf8(text: str) -> str | None:
+    """``text`` with its bytes that are not UTF-8 shown as ``\\xff`` (None: it is UTF-8).
+
+    Python keeps such bytes of a file name as lone surrogates, which no library that writes
+    UTF-8 (pyarrow, TensorBoard) can encode."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        try:
+            return os.fsencode(text).decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:  # not a file name's byte: show the code point
+            return text.encode("utf-8", "backslashreplace").decode()
+    return None
+
+
+def _utf8_error(name: str) -> str:
+    return f"{name}: the name is not valid UTF-8 (e.g. a Latin-1 file name); rename it"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``exsur`` console script; returns the exit code."""
     _escaped_stdout()
     parser = build_parser()
     try:
+        for arg in sys.argv[1:] if argv is None else argv:
+            if (shown := _not_utf8(str(arg))) is not None:
+                raise ConfigError(_utf8_error(shown))
         args = parser.parse_args(argv)
         numerics.apply()  # EXSUR_NUMERICS=portable: no oneDNN in this process either
         if not getattr(args, "func", None):
@@ -166,6 +188,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         full = e.errno in (errno.ENOSPC, errno.EDQUOT)
         fix = "free disk space and rerun" if full else "check the path and its permissions"
         print(f"exsur: error: {where}{e.strerror or e} ({fix})", file=sys.stderr)
+        return 2
+    except UnicodeEncodeError as e:  # a name in a folder the command lists (import LOGS)
+        shown = _not_utf8(e.object) if isinstance(e.object, str) else None
+        if shown is None:
+            raise
+        print(f"exsur: error: {_utf8_error(shown)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("exsur: interrupted", file=sys.stderr)
