@@ -24,7 +24,9 @@ import logging
 import math
 import os
 import pkgutil
+import signal
 import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -140,6 +142,28 @@ def _escaped_stdout() -> None:
         out.reconfigure(errors="backslashreplace")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, ``timeout``, ``docker stop``, a batch scheduler), raised in the main
+    thread so that every cleanup a Ctrl-C runs runs too (temporary files, locks)."""
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    raise Terminated
+
+
+@contextlib.contextmanager
+def _sigterm_cleans_up() -> Iterator[None]:
+    """While a command runs, SIGTERM raises :class:`Terminated` (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:  # main() may run several times in one process (tests, scripts)
+        signal.signal(signal.SIGTERM, before)
+
+
 def _not_utf8(text: str) -> str | None:
     """``text`` with its bytes that are not UTF-8 shown as ``\\xff`` (None: it is UTF-8).
 
@@ -176,7 +200,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # something (``exsur config show``, a ``--dry-run``) still prints it
         shows = getattr(args, "shows", False) or getattr(args, "dry_run", False)
         mute = getattr(args, "quiet", False) and not shows
-        with _logging(log_level(args)), _muted_stdout(mute), use_cpus(args):
+        with _sigterm_cleans_up(), _logging(log_level(args)), _muted_stdout(mute), use_cpus(args):
             return int(args.func(args) or 0)
     except ExsurError as e:
         print(f"exsur: error: {e}", file=sys.stderr)
@@ -195,6 +219,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"exsur: error: {_utf8_error(shown)}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("exsur: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("exsur: interrupted", file=sys.stderr)
         return 130
