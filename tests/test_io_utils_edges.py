@@ -176,3 +176,20 @@ def test_write_json_writes_an_undefined_number_as_null(tmp_path: Path) -> None:
 
     got = json.loads((tmp_path / "m.json").read_text(), parse_constant=refuse)
     assert got == {"pace": None, "x": [1.0, None], "a": [None, 2.0], "s": None}
+
+
+def test_a_replaced_file_keeps_its_permissions(tmp_path: Path) -> None:
+    """atomic_path gave every replaced file the umask's mode: a private (0600) checkpoint
+    became world readable, a read-only one writable.  A new file still gets the umask's."""
+    from excavator_surrogate.io_utils import write_text
+
+    for mode in (0o600, 0o444):
+        path = tmp_path / f"m{mode:o}.pt"
+        path.write_text("old")
+        path.chmod(mode)
+        write_text(path, "new")
+        assert path.read_text() == "new" and path.stat().st_mode & 0o777 == mode
+    write_text(tmp_path / "new.txt", "x")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "new.txt").stat().st_mode & 0o777 == 0o666 & ~mask

@@ -380,3 +380,52 @@ def test_a_name_in_a_listed_folder_that_is_not_utf8_is_one_line(cli, monkeypatch
     monkeypatch.setattr(cmd_validate, "run", lambda args: "θ".encode("ascii"))
     with pytest.raises(UnicodeEncodeError):
         main(["validate", "x"])
+
+
+def test_calibrate_rewrites_the_linked_file_keeps_its_mode_and_waits_for_a_writer(
+    cli, small, tmp_path: Path, monkeypatch
+) -> None:
+    """calibrate replaced a linked checkpoint with a copy, made a private (0600) one world
+    readable, rewrote a read-only one and ignored a running train's writer lock."""
+    import shutil
+    import subprocess
+    import sys
+
+    from excavator_surrogate.surrogate.checkpoint import read_checkpoint
+
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    target = Path(shutil.copy(small["one"], shared / "best.pt"))
+    target.chmod(0o600)
+    link = tmp_path / "mylink.pt"
+    link.symlink_to(target)
+    argv = (small["whole"], "--max-steps", "40")
+    rc, _, err = cli("calibrate", link, *argv)
+    assert rc == 0, err
+    assert link.is_symlink() and "coverage" in read_checkpoint(target)["metrics"]
+    assert target.stat().st_mode & 0o777 == 0o600
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: Path(p) != target and real(p, m))
+    rc, _, err = cli("calibrate", target, *argv)
+    assert rc == 2 and _last(err) == (
+        f"exsur: error: {target}: not writable (calibrate rewrites the checkpoint in place); "
+        "copy it or fix its permissions"
+    )
+    monkeypatch.undo()
+    hold = (  # what 'exsur train --out shared' holds while it runs
+        "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
+        "print('locked', flush=True); sys.stdin.read()"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", hold, str(shared)], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == b"locked"
+        rc, _, err = cli("calibrate", link, *argv)
+    finally:
+        proc.stdin.close()
+        proc.wait()
+    assert rc == 2 and _last(err) == (
+        f"exsur: error: {shared}: another exsur process (pid {proc.pid}) is writing this "
+        "folder; wait for it to finish or give another folder"
+    )

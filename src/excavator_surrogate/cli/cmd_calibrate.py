@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 TRAIN_RUNS = 32
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     """Calibrate and print one summary line."""
     from ..data.dataset import load_dataset
     from ..errors import ConfigError, DataError
+    from ..outdir import lock_out
     from ..surrogate.bands import calibrate_checkpoint
     from ..surrogate.checkpoint import check_compatible, load_checkpoint
 
@@ -58,6 +60,13 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--max-steps must be >= 0, got {args.max_steps}")
     if args.train_runs < 0:
         raise ConfigError(f"--train-runs must be >= 0, got {args.train_runs}")
+    path = args.ckpt.resolve()  # a link's target is calibrated; the link stays a link
+    if path.is_file() and not os.access(path, os.W_OK):
+        raise ConfigError(
+            f"{args.ckpt}: not writable (calibrate rewrites the checkpoint in place); copy it "
+            "or fix its permissions"
+        )
+    lock_out(path.parent, "folder")  # one writer: not while 'exsur train' writes it
     sur = load_checkpoint(args.ckpt)
     ds = load_dataset(args.dataset)
     check_compatible(sur.spec, ds.spec, ckpt=args.ckpt, data_name=args.dataset)
@@ -65,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         raise DataError(args.dataset, "has no training episodes", fix="give the training dataset")
     val = ds.val or ([] if args.train_runs else ds.train)
     cal, cov = calibrate_checkpoint(
-        args.ckpt,
+        path,
         val,
         ds.train,
         design=args.design,
