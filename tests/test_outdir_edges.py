@@ -215,3 +215,31 @@ def test_folders_made_for_a_lock_go_when_nothing_was_written(tmp_path: Path) -> 
     lock_out(kept / "ds")
     release_locks()
     assert kept.is_dir()
+
+
+def test_a_dangling_link_is_refused_up_front(tmp_path: Path) -> None:
+    """A symbolic link to a missing folder passed every check (it does not exist), and the
+    command failed only at its final rename, after its work, naming a temporary."""
+    link = tmp_path / "dangling"
+    link.symlink_to(tmp_path / "nonexistent_target")
+    with pytest.raises(ConfigError) as e:
+        check_out_dir(link, kind="dataset")
+    assert str(e.value) == (
+        f"{link}: --out is a symbolic link to a missing folder; give another --out"
+    )
+    with pytest.raises(ConfigError) as e:
+        check_out_dir(link / "ds", overwrite=True)
+    assert str(e.value) == (
+        f"{link / 'ds'}: {link} is a symbolic link to a missing folder; give another --out"
+    )
+    with pytest.raises(ConfigError) as e:
+        check_out_file(link / "m.onnx", example="model.onnx")
+    assert str(e.value) == (
+        f"{link / 'm.onnx'}: {link} is a symbolic link to a missing folder; give another --out"
+    )
+    onnx = tmp_path / "m.onnx"
+    onnx.symlink_to(tmp_path / "gone.onnx")
+    with pytest.raises(ConfigError, match="m.onnx: --out is a symbolic link to a missing"):
+        check_out_file(onnx, example="model.onnx", overwrite=True)
+    onnx.unlink()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling"]

@@ -292,8 +292,13 @@ def check_not_cwd(path: Path, flag: str = "--out") -> None:
 def _writable(path: Path, flag: str) -> None:
     """The nearest existing folder of ``path`` accepts new entries."""
     p = path
-    while not p.exists() and p.parent != p:
+    while not p.exists() and not p.is_symlink() and p.parent != p:
         p = p.parent
+    if p.is_symlink() and not p.exists():  # os.replace and mkdir fail on it, late
+        where = flag if p == path else str(p)
+        raise ConfigError(
+            f"{path}: {where} is a symbolic link to a missing folder; give another {flag}"
+        )
     if p.exists() and not p.is_dir():
         raise ConfigError(f"{path}: {p} is a file, not a folder; give another {flag}")
     if not os.access(p, os.W_OK | os.X_OK):
@@ -392,7 +397,7 @@ def check_out_file(
     for s in inputs:
         if Path(s).resolve() == ro:
             raise ConfigError(f"{s}: {flag} is one of the inputs; write to another file")
-    _writable(out.parent, flag)
+    _writable(out.parent if out.exists() else out, flag)
     _probe(out, flag)
     if out.exists() or out.is_symlink():
         if not overwrite and not is_exsur_file(out):
@@ -454,7 +459,7 @@ def first_missing(path: str | Path) -> Path | None:
     """The outermost folder of ``path`` (absolute) that does not exist yet: the one a
     ``mkdir(parents=True)`` of ``path`` would create first (None: ``path`` exists)."""
     new, p = None, Path(os.path.abspath(path))
-    while not p.exists() and p.parent != p:
+    while not p.exists() and not p.is_symlink() and p.parent != p:
         new, p = p, p.parent
     return new
 
