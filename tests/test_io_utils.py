@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from excavator_surrogate.io_utils import atomic_files, mark_output, recorded_path
-from excavator_surrogate.outdir import MARKER, read_marker
+from excavator_surrogate.outdir import MARKER, PNG_SOFTWARE, read_marker
 
 
 def test_inside_the_folder_is_relative_and_resolves_after_a_move(tmp_path: Path) -> None:
@@ -56,15 +56,25 @@ def test_atomic_files_writes_all_or_nothing_into_a_folder(tmp_path: Path) -> Non
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+def _png(path: Path, software: str = PNG_SOFTWARE) -> None:
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text("Software", software)
+    Image.new("RGB", (2, 2)).save(path, pnginfo=info)
+
+
 def test_atomic_files_removes_an_earlier_calls_files_of_a_varying_set(tmp_path: Path) -> None:
     ev = tmp_path / "ev"
     with atomic_files(ev, kind="evaluation", replaces=("cbe_*.png",)) as t:
-        for name in ("cbe.png", "cbe_a.png", "cbe_b.png", "table.md"):
-            (t / name).write_text(name)
+        for name in ("cbe.png", "cbe_a.png", "cbe_b.png"):
+            _png(t / name)
+        (t / "table.md").write_text("table.md")
     (ev / "notes.txt").write_text("mine")
     with atomic_files(ev, kind="evaluation", replaces=("cbe_*.png",)) as t:
-        for name in ("cbe.png", "cbe_c.png", "table.md"):
-            (t / name).write_text(name + "2")
+        for name in ("cbe.png", "cbe_c.png"):
+            _png(t / name, f"{PNG_SOFTWARE} 2")
+        (t / "table.md").write_text("table.md2")
     # cbe_a and cbe_b were the earlier evaluation's; what matches no pattern stays
     assert sorted(p.name for p in ev.iterdir()) == [
         MARKER,
@@ -73,7 +83,19 @@ def test_atomic_files_removes_an_earlier_calls_files_of_a_varying_set(tmp_path: 
         "notes.txt",
         "table.md",
     ]
-    assert (ev / "cbe_c.png").read_text() == "cbe_c.png2"
+    assert (ev / "table.md").read_text() == "table.md2"
     with pytest.raises(RuntimeError), atomic_files(ev, kind="evaluation", replaces=("*",)) as t:
         raise RuntimeError("a failed call removes nothing")
     assert len(list(ev.iterdir())) == 5
+
+
+def test_atomic_files_removes_only_figures_exsur_drew(tmp_path: Path) -> None:
+    """``evaluate --overwrite`` into a user's folder deleted the user's ``cbe_mine.png`` (a
+    name the evaluation's figures have) although it had not drawn it."""
+    u = tmp_path / "u"
+    u.mkdir()
+    _png(u / "cbe_mine.png", "matplotlib")
+    (u / "horizon.png").write_text("my figure")
+    with atomic_files(u, kind="evaluation", replaces=("cbe_*.png", "horizon.png")) as t:
+        _png(t / "cbe.png")
+    assert sorted(p.name for p in u.iterdir()) == [MARKER, "cbe.png", "cbe_mine.png", "horizon.png"]

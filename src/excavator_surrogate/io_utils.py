@@ -182,12 +182,13 @@ def atomic_files(path: str | Path, *, kind: str, replaces: Sequence[str] = ()) -
     ``replaces``: shell patterns of names the command writes a varying set of (an
     evaluation's ``cbe_<episode>.png``): a file of ``path`` matching one that this call did
     not write is an earlier call's and no longer describes the folder, so it is removed
-    after the renames.
+    after the renames, if exsur wrote it (by content,
+    :func:`~excavator_surrogate.outdir.is_exsur_file`: a user's ``cbe_mine.png`` stays).
 
     A failure in the block (a full disk while writing a figure) leaves ``path`` untouched.
     The renames need no space, so once they start they complete.
     """
-    from .outdir import MARKER
+    from .outdir import MARKER, is_exsur_file
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -209,7 +210,7 @@ def atomic_files(path: str | Path, *, kind: str, replaces: Sequence[str] = ()) -
         names = {f.name for f in written}
         for old in path.iterdir():
             if old.name not in names and old.is_file():
-                if any(fnmatch.fnmatchcase(old.name, p) for p in replaces):
+                if any(fnmatch.fnmatchcase(old.name, p) for p in replaces) and is_exsur_file(old):
                     old.unlink(missing_ok=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

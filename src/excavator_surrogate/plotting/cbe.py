@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io_utils import atomic_path
+from .png import save_png
 
 
 def plot_cbe(
@@ -139,9 +139,7 @@ def plot_cbe(
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+    path = save_png(fig, Path(path), dpi=110)  # tagged: an evaluation replaces only its own
     plt.close(fig)
     return path
 
