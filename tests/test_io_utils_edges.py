@@ -193,3 +193,20 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path: Path) -> None:
     mask = os.umask(0)
     os.umask(mask)
     assert (tmp_path / "new.txt").stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_replacing_a_linked_folder_leaves_no_link_behind(tmp_path: Path) -> None:
+    """``simulate --out link --overwrite`` left a hidden ``.link.old-PID`` symlink to the
+    user's folder (rmtree refuses a link, and the error was swallowed)."""
+    from excavator_surrogate.outdir import replace_allowed
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "keep.txt").write_text("keep")
+    link = tmp_path / "link"
+    link.symlink_to(elsewhere, target_is_directory=True)
+    with replace_allowed(link), atomic_dir(link, kind="dataset") as tmp:
+        (tmp / "manifest.json").write_text("{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "link"]
+    assert not link.is_symlink() and (link / "manifest.json").is_file()
+    assert (elsewhere / "keep.txt").read_text() == "keep"

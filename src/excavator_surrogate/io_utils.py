@@ -165,7 +165,10 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
             old = path.with_name(f".{path.name}.old-{os.getpid()}")
             os.replace(path, old)
             os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
+            if old.is_symlink():  # a linked --out: the link goes, its target stays
+                old.unlink()
+            else:
+                shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
     except BaseException:
