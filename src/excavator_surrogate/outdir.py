@@ -398,6 +398,9 @@ def check_out_file(
         if Path(s).resolve() == ro:
             raise ConfigError(f"{s}: {flag} is one of the inputs; write to another file")
     _writable(out.parent if out.exists() else out, flag)
+    made = first_missing(out.parent)
+    if made is not None:  # the write will make it: gone again if the command fails
+        _MADE[Path(os.path.abspath(out))] = made
     _probe(out, flag)
     if out.exists() or out.is_symlink():
         if not overwrite and not is_exsur_file(out):
@@ -411,14 +414,17 @@ def check_out_file(
 
 
 def _probe(out: Path, flag: str) -> None:
-    """Create and remove a temporary file next to ``out``: a folder that only pretends to be
-    writable (``/proc``, a read-only mount seen by root) fails here in one line."""
+    """Create and remove a temporary file in the nearest existing folder of ``out`` (making
+    none): a folder that only pretends to be writable (``/proc``, a read-only mount seen by
+    root) fails here in one line."""
     import tempfile
 
+    folder = out.parent
+    while not folder.exists() and folder.parent != folder:
+        folder = folder.parent
     try:
-        out.parent.mkdir(parents=True, exist_ok=True)
         prefix = f".{out.name}.{os.getpid()}-"  # a killed probe's is swept (io_utils.sweep_stale)
-        fd, name = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=out.parent)
+        fd, name = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=folder)
         os.close(fd)
         os.unlink(name)
     except OSError as e:
@@ -474,7 +480,8 @@ def lock_file(out: str | Path) -> Path:
 _HELD: dict[Path, int] = {}
 
 _MADE: dict[Path, Path] = {}
-"""Lock file -> the outermost folder :func:`lock_out` created to hold it: removed again at
+"""Lock file -> the outermost folder :func:`lock_out` created to hold it, or file output ->
+the outermost folder its write will create (:func:`check_out_file`): removed again at
 release when it is still empty (a command that failed before writing leaves no folders)."""
 
 
@@ -550,13 +557,16 @@ def _read_owner(fd: int) -> str:
 
 
 def release_locks() -> None:
-    """Release every writer lock this process holds (the CLI calls it when a command ends)."""
+    """Release every writer lock this process holds (the CLI calls it when a command ends),
+    and remove the folders made for the locks and file outputs that are still empty."""
     for path, fd in list(_HELD.items()):
         with contextlib.suppress(OSError):
             path.unlink()  # while still locked: a waiting opener re-checks the inode
         os.close(fd)
         del _HELD[path]
         _remove_made(path.parent, _MADE.pop(path, None))
+    for out in list(_MADE):  # the folders of file outputs
+        _remove_made(out.parent, _MADE.pop(out))
 
 
 def _remove_made(folder: Path, made: Path | None) -> None:

@@ -306,3 +306,22 @@ def test_a_locale_that_is_not_utf8_writes_and_prints(
         assert proc.returncode == 0, proc.stderr.decode()
         assert "R²" in (out / "table.md").read_text(encoding="utf-8")
         assert (b"R\\xb2" in proc.stdout) != bool(quiet)
+
+
+def test_a_failed_file_output_leaves_no_folder(tmp_path: Path, model3: Path, capsys) -> None:
+    """merge, export and plot created --out's missing parent folders in their first check
+    and left them when they then failed on their input; a written file keeps them."""
+    notckpt = tmp_path / "notckpt.pt"
+    notckpt.write_text("not a checkpoint")
+    bad = tmp_path / "bad.parquet"
+    bad.write_text("not parquet")
+    fails(capsys, "merge", model3 / "best.pt", "--out", tmp_path / "new1" / "deep" / "e.pt")
+    fails(capsys, "export", notckpt, "--out", tmp_path / "new2" / "deep" / "m.onnx")
+    fails(capsys, "plot", bad, "--out", tmp_path / "new3" / "deep" / "p.png")
+    fails(capsys, "merge", notckpt, model3 / "best.pt", "--out", tmp_path / "new5" / "e.pt")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.parquet", "notckpt.pt"]
+    other = _other_model(model3 / "best.pt", tmp_path / "b.pt")
+    out = tmp_path / "new6" / "deep" / "e.pt"
+    assert main(["merge", str(model3 / "best.pt"), str(other), "--out", str(out)]) == 0
+    assert out.is_file()
+    capsys.readouterr()
