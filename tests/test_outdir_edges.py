@@ -243,3 +243,28 @@ def test_a_dangling_link_is_refused_up_front(tmp_path: Path) -> None:
         check_out_file(onnx, example="model.onnx", overwrite=True)
     onnx.unlink()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling"]
+
+
+def test_a_lock_that_cannot_be_created_beside_a_writable_out_is_named(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """A writable --out in a read-only parent (a mount point, a granted folder in a
+    root-owned one) was refused with 'cannot write --out there': the lock beside it is what
+    cannot be written, and the message says so."""
+    out = tmp_path / "ro" / "w"
+    out.mkdir(parents=True)
+    real = os.open
+
+    def read_only(path, flags, mode=0o777):
+        if Path(path) == lock_file(out):
+            raise OSError(errno.EROFS, "Read-only file system", str(path))
+        return real(path, flags, mode)
+
+    monkeypatch.setattr(os, "open", read_only)
+    with pytest.raises(ConfigError) as e:
+        lock_out(out)
+    assert str(e.value) == (
+        f"{out}: cannot create its writer lock {tmp_path / 'ro' / '.w.lock'} (Read-only file "
+        f"system): exsur locks --out beside it, so {tmp_path / 'ro'} must be writable too; "
+        "give another --out"
+    )

@@ -505,6 +505,12 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
             path.parent.mkdir(parents=True, exist_ok=True)
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
         except OSError as e:
+            if Path(out).is_dir():  # a writable folder in a parent exsur may not write
+                raise ConfigError(
+                    f"{out}: cannot create its writer lock {path} ({e.strerror}): exsur locks "
+                    f"{flag} beside it, so {path.parent} must be writable too; give another "
+                    f"{flag}"
+                ) from e
             raise ConfigError(
                 f"{out}: cannot write {flag} there ({e.strerror}); give another {flag}"
             ) from e
