@@ -258,3 +258,15 @@ def test_b1_drop_everything_is_an_error(cli, work, short_cols) -> None:
     err = _fail(cli, "import", log, "--mapping", m, "--out", work / "X")
     assert 'rows are outliers (outliers = "drop"): nothing is left' in err
     assert_nothing_written(work / "X")
+
+
+def test_an_out_under_a_file_is_named_as_the_other_commands_name_it(cli, work, short_cols) -> None:
+    """``import --out afile/sub`` took the writer lock before the output-folder checks and
+    said '(File exists)'; it names ``afile`` as a file, as simulate does."""
+    log = write_lines(work / "a.csv", short_cols)
+    (work / "afile").write_text("f")
+    out = work / "afile" / "sub"
+    rc, _, err = cli("import", log, "--mapping", work / "arm3.toml", "--out", out)
+    assert rc == 2 and err.strip().splitlines()[-1] == (
+        f"exsur: error: {out}: {work / 'afile'} is a file, not a folder; give another --out"
+    )

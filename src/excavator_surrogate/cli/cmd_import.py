@@ -195,10 +195,12 @@ def run(args: argparse.Namespace) -> int:
     """Import the logs; print the Markdown summary; return 0."""
     if args.out is None and not args.dry_run:
         raise ConfigError("--out DIR is required (or --dry-run to only validate)")
-    if not args.dry_run:
-        from ..outdir import lock_out
+    read = [args.mapping, *([args.split_file] if args.split_file is not None else [])]
+    if not args.dry_run:  # the rule's one-line errors first, then one writer for the import
+        from ..outdir import check_out_dir
 
-        lock_out(args.out)  # one writer per folder, for the whole import
+        inputs = [*args.sources, *read]
+        check_out_dir(args.out, overwrite=args.overwrite, inputs=inputs, lock=True, kind="dataset")
     mapping = load_mapping(args.mapping)
     options = options_with(
         mapping.options,
@@ -225,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
         split=split,
         quiet=args.quiet,
         overwrite=args.overwrite,
-        inputs=[args.mapping, *([args.split_file] if args.split_file is not None else [])],
+        inputs=read,
     )
     print(render_markdown(report), end="")
     return 0
