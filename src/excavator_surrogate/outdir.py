@@ -7,9 +7,10 @@ Every command that writes ``--out`` checks it first with :func:`check_out_dir` (
 - an existing folder is replaced (``simulate``, ``clean``, ``run``, ``import``, ``control``) or
   written into (``train``, ``evaluate``, ``compare``, ``sweep``) only when exsur wrote it: it
   holds the marker :data:`MARKER` (written before the first file of every output folder) and
-  nothing but names exsur writes (:func:`is_exsur_output`), and it is an output of a kind the
-  command may use (:data:`ACCEPTS`); anything else, including a folder of an older exsur
-  without the marker, needs an explicit ``--overwrite``;
+  nothing but what exsur wrote (:func:`is_exsur_output`: the files the marker records, for an
+  output written whole; else names exsur writes), and it is an output of a kind the command
+  may use (:data:`ACCEPTS`); anything else, including a folder of an older exsur without the
+  marker, needs an explicit ``--overwrite``;
 - an input of the command (a log, the mapping, a dataset) never lies inside the output folder,
   nor the output folder inside an input that is an exsur output, not even with ``--overwrite``;
 - the current folder, or one of its parents, is never an output folder;
