@@ -198,10 +198,18 @@ def start(
     )
 
 
-RESUME_MAY_CHANGE = ("max_train_seconds", "epochs", "num_threads", "member_workers", "tensorboard")
+RESUME_MAY_CHANGE = (
+    "max_train_seconds",
+    "epochs",
+    "num_threads",
+    "member_workers",
+    "tensorboard",
+    "device",
+)
 """``[train]`` fields a resume may change: the wall-time cap, the planned epochs, the thread
-and CPU counts, and the TensorBoard logs.  Any other change (a seed, a learning rate) would
-continue another run than the one the checkpoint is part of."""
+and CPU counts, the TensorBoard logs and the device (a run moved to another computer goes on
+as that computer trains).  Any other change (a seed, a learning rate) would continue another
+run than the one the checkpoint is part of."""
 
 
 def check_same_run(cfg: TrainConfig, stored: dict[str, Any], resume: str | Path) -> None:
