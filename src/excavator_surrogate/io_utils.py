@@ -18,7 +18,7 @@ import shutil
 import stat
 import sys
 import tempfile
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -271,20 +271,21 @@ def write_text(path: str | Path, text: str) -> None:
 def write_json(path: str | Path, obj: Any) -> None:
     """Atomically write pretty, strict JSON: a NaN or infinite number (an undefined metric)
     is written as ``null`` (``NaN`` is not JSON: other readers refuse the file)."""
-    text = json.dumps(_finite(obj), indent=2, default=_json_default, allow_nan=False)
+    text = json.dumps(json_ready(obj), indent=2, default=_json_default, allow_nan=False)
     write_text(path, text + "\n")
 
 
-def _finite(o: Any) -> Any:
-    """``o`` with every non-finite float as None, NumPy arrays and scalars as lists and numbers."""
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
+def json_ready(o: Any) -> Any:
+    """``o`` with every non-finite float as None (strict JSON has no NaN), mappings as dicts,
+    tuples as lists, NumPy arrays and scalars as lists and numbers."""
+    if isinstance(o, Mapping):
+        return {k: json_ready(v) for k, v in o.items()}
     if isinstance(o, list | tuple):
-        return [_finite(v) for v in o]
+        return [json_ready(v) for v in o]
     if isinstance(o, float):
         return o if math.isfinite(o) else None
     if hasattr(o, "tolist") and hasattr(o, "dtype"):  # numpy arrays and scalars
-        return _finite(o.tolist())
+        return json_ready(o.tolist())
     return o
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import CAP_OPTIONS
+from ..io_utils import json_ready
 from ..spec import JointSpec, MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.ensemble import n_member
@@ -136,23 +137,13 @@ def describe_surrogate(sur: Surrogate, *, folder: str | Path | None = None) -> d
 def public(card: Mapping[str, Any]) -> dict[str, Any]:
     """``card`` for JSON: without the raw training record :func:`card_markdown` reads, and
     with a non-finite number (a score of a diverged run) as None."""
-    return {k: _finite(v) for k, v in card.items() if not k.startswith("_")}
+    return {k: json_ready(v) for k, v in card.items() if not k.startswith("_")}
 
 
 def full_json(card: Mapping[str, Any]) -> str:
     """``card`` as JSON with everything :func:`card_markdown` reads (the raw training record
     too), non-finite numbers as null: what an export embeds to print the same card later."""
-    return json.dumps(_finite(dict(card)), allow_nan=False)
-
-
-def _finite(v: Any) -> Any:
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, Mapping):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, list | tuple):
-        return [_finite(x) for x in v]
-    return v
+    return json.dumps(json_ready(dict(card)), allow_nan=False)
 
 
 def _joint(j: JointSpec) -> dict[str, Any]:
