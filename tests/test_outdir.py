@@ -24,6 +24,7 @@ from excavator_surrogate.outdir import (
     release_locks,
     replace_allowed,
 )
+from tests.helpers.locks import lock_held_elsewhere
 
 
 def _dataset(root: Path) -> Path:
@@ -217,15 +218,7 @@ def test_check_out_file_rules(tmp_path: Path) -> None:
 
 def test_the_writer_lock(tmp_path: Path, monkeypatch) -> None:
     out = tmp_path / "M"
-    hold = (
-        "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
-        "print('locked', flush=True); sys.stdin.read()"
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", hold, str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == b"locked"
+    with lock_held_elsewhere(out) as proc:
         assert lock_file(out) == tmp_path / ".M.lock"
         with pytest.raises(ConfigError, match=rf"another exsur process \(pid {proc.pid}\)"):
             check_out_dir(out, lock=True)
@@ -237,9 +230,7 @@ def test_the_writer_lock(tmp_path: Path, monkeypatch) -> None:
         lock_out(out)
         monkeypatch.delenv("RANK")
         monkeypatch.delenv("WORLD_SIZE")
-    finally:
-        proc.stdin.close()
-        proc.wait()  # ends by itself once its stdin closes: the lock goes with it
+    # the holder has ended (its stdin closed): the lock went with it
     try:
         lock_out(out)
         lock_out(out)  # re-entrant in one process

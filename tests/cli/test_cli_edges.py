@@ -15,6 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from tests.helpers.locks import lock_held_elsewhere
 
 from excavator_surrogate.cli import cmd_validate, main
 from excavator_surrogate.data import load_dataset, write_dataset, write_episode
@@ -388,8 +389,6 @@ def test_calibrate_rewrites_the_linked_file_keeps_its_mode_and_waits_for_a_write
     """calibrate replaced a linked checkpoint with a copy, made a private (0600) one world
     readable, rewrote a read-only one and ignored a running train's writer lock."""
     import shutil
-    import subprocess
-    import sys
 
     from excavator_surrogate.surrogate.checkpoint import read_checkpoint
 
@@ -412,19 +411,8 @@ def test_calibrate_rewrites_the_linked_file_keeps_its_mode_and_waits_for_a_write
         "copy it or fix its permissions"
     )
     monkeypatch.undo()
-    hold = (  # what 'exsur train --out shared' holds while it runs
-        "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
-        "print('locked', flush=True); sys.stdin.read()"
-    )
-    proc = subprocess.Popen(
-        [sys.executable, "-c", hold, str(shared)], stdin=subprocess.PIPE, stdout=subprocess.PIPE
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == b"locked"
+    with lock_held_elsewhere(shared) as proc:  # what 'exsur train --out shared' holds
         rc, _, err = cli("calibrate", link, *argv)
-    finally:
-        proc.stdin.close()
-        proc.wait()
     assert rc == 2 and _last(err) == (
         f"exsur: error: {shared}: another exsur process (pid {proc.pid}) is writing this "
         "folder; wait for it to finish or give another folder"
