@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from excavator_surrogate.cli import main
+from excavator_surrogate.config import load_preset
 from excavator_surrogate.data.episode import Episode, write_episode
 from excavator_surrogate.env import ExcavatorMujocoEnv
 from excavator_surrogate.env.compare import compare, load_commands, run_commands
@@ -150,6 +152,18 @@ def test_cli_compare(
     assert code == 0
     assert "Angle trajectory" in capsys.readouterr().out
     assert json.loads((out / "metrics.json").read_text())["run"]["theta0"] == [0.0, 0.1, 1.5, 0.5]
+    # the record of what repeats the replay (it had written none)
+    record = tomllib.loads((out / "config.toml").read_text())["command"]
+    assert record == {
+        "name": "compare",
+        "checkpoint": str(stateful_ckpt),
+        "source": "prbs:seed=2,seconds=1",
+        "theta0": [0.0, 0.1, 1.5, 0.5],
+        "plant": "ideal",
+        "mode": record["mode"],
+        "device": "cpu",
+    }
+    assert load_preset(out / "config.toml") is not None  # a record loads back as a preset
     assert main(["compare", str(stateful_ckpt), "--commands", "nope:x"]) == 2
     assert "named excitation" in capsys.readouterr().err
     # a --theta0 of the wrong length: named as the option, before any excitation is made

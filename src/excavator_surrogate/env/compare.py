@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import dumps_toml
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, write_json, write_text
 from ..spec import MachineSpec
@@ -324,6 +325,7 @@ def compare(
     mj_env = ExcavatorMujocoEnv(plant=plant, spec=spec, guard=no_guard, action_mode="reject")  # type: ignore[arg-type]
     if theta0 is not None:  # before a named excitation is generated from it
         theta0 = check_theta0(spec, np.asarray(theta0).tolist(), where="compare --theta0")
+    source = commands.name if isinstance(commands, Commands) else str(commands)
     if not isinstance(commands, Commands):
         commands = load_commands(commands, spec, theta0=theta0, omega_max=mj_env.plant.omega_max)
     start = theta0 if theta0 is not None else commands.theta0
@@ -342,6 +344,9 @@ def compare(
     metrics["run"] = {
         "checkpoint": str(ckpt) if not isinstance(ckpt, Surrogate) else sur.name,
         "commands": commands.name,
+        "source": source,
+        "plant": plant,
+        "device": str(device),
         "reference": f"ExcavatorMujoco-v0 (plant={plant})",
         "mode": sur_env.engine.mode,
         "n_step": int(u.shape[0]),
@@ -366,7 +371,9 @@ def compare(
 
 
 def write_outputs(result: CompareResult, out: str | Path) -> Path:
-    """Write ``metrics.json``, ``table.md``, ``compare.png`` and ``trajectories.npz`` to ``out``."""
+    """Write ``metrics.json``, ``table.md``, ``compare.png``, ``trajectories.npz`` and the
+    ``config.toml`` record (``[command]``: the checkpoint, the commands' source, the start,
+    the plant, the mode and the device that repeat the replay) to ``out``."""
     from ..evaluate.report import markdown_table
     from ..plotting.cbe import plot_cbe
 
@@ -374,6 +381,9 @@ def write_outputs(result: CompareResult, out: str | Path) -> Path:
     with atomic_files(out, kind="compare") as tmp:  # all files or none
         run = result.metrics["run"]
         write_json(tmp / "metrics.json", result.metrics)
+        keys = ("checkpoint", "source", "theta0", "plant", "mode", "device")
+        command = {"name": "compare", **{k: run[k] for k in keys if run.get(k) is not None}}
+        write_text(tmp / "config.toml", dumps_toml({"command": command}))
         lines = [
             "# Equivalence check: ExcavatorSurrogate-v0 vs ExcavatorMujoco-v0",
             "",
