@@ -18,12 +18,10 @@ from excavator_surrogate.outdir import (
     foreign_entry,
     is_exsur_file,
     is_exsur_output,
-    lock_file,
-    lock_out,
     read_marker,
-    release_locks,
     replace_allowed,
 )
+from excavator_surrogate.outlock import lock_file, lock_out, release_locks
 from tests.helpers.locks import lock_held_elsewhere
 
 

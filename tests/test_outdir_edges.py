@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from excavator_surrogate import outdir
+from excavator_surrogate import outlock
 from excavator_surrogate.errors import ConfigError
 from excavator_surrogate.io_utils import mark_output
 from excavator_surrogate.outdir import (
@@ -19,10 +19,8 @@ from excavator_surrogate.outdir import (
     check_out_file,
     foreign_entry,
     is_exsur_file,
-    lock_file,
-    lock_out,
-    release_locks,
 )
+from excavator_surrogate.outlock import lock_file, lock_out, release_locks
 
 
 def _unlistable(monkeypatch: pytest.MonkeyPatch, *folders: Path) -> None:
@@ -135,7 +133,7 @@ def test_a_file_system_without_locks_writes_unlocked(tmp_path: Path, monkeypatch
 
     monkeypatch.setattr(fcntl, "flock", no_locks)
     lock_out(tmp_path / "M")  # no error: the command runs as it did before locks
-    assert lock_file(tmp_path / "M") not in outdir._HELD
+    assert lock_file(tmp_path / "M") not in outlock._HELD
     assert not lock_file(tmp_path / "M").exists()  # and no lock file is left behind
     lock_out(tmp_path / "new" / "M")
     assert not (tmp_path / "new").exists()  # nor the folder made to hold it
@@ -159,7 +157,7 @@ def test_a_lock_file_replaced_under_the_opener_is_retried_then_named(
     finally:
         release_locks()
     assert str(e.value) == f"{tmp_path / 'M'}: could not lock {lock}; retry"
-    assert lock not in outdir._HELD
+    assert lock not in outlock._HELD
 
 
 def test_a_held_lock_without_a_readable_owner_is_named_without_pid(
@@ -186,7 +184,7 @@ def test_a_world_size_that_is_not_a_number_is_no_torchrun_job(tmp_path: Path, mo
     monkeypatch.setenv("RANK", "1")
     try:
         lock_out(tmp_path / "M")  # rank 0 of no job: takes the lock itself
-        assert lock_file(tmp_path / "M") in outdir._HELD
+        assert lock_file(tmp_path / "M") in outlock._HELD
     finally:
         release_locks()
 

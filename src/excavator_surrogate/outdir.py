@@ -16,7 +16,7 @@ Every command that writes ``--out`` checks it first with :func:`check_out_dir` (
 - the current folder, or one of its parents, is never an output folder;
 - a file output (``export``, ``merge``) is never an existing folder nor one of the inputs, has
   the command's suffix, and replaces only a file exsur wrote (checked by content);
-- one writer per folder: the CLI holds an OS lock (:func:`lock_out`) on ``.<name>.lock`` next
+- one writer per folder: the CLI holds an OS lock (:func:`~.outlock.lock_out`) on ``.<name>.lock`` next
   to the folder for the whole command; the OS releases it when the process dies.
 
 :func:`~excavator_surrogate.io_utils.atomic_dir` applies the same rule when it replaces a
@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import errno
-import fcntl
 import fnmatch
 import json
 import os
@@ -40,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import ConfigError
+from .outlock import lock_out, note_folders_made
 from .version import __version__
 
 MARKER = ".exsur.json"
@@ -341,7 +340,7 @@ def check_out_dir(
         inputs: files and folders the command reads; none may lie inside ``out``, nor ``out``
             inside one that is an exsur output (a dataset).
         flag: option name used in messages.
-        lock: also take the folder's writer lock (:func:`lock_out`) before the checks.
+        lock: also take the folder's writer lock (:func:`~.outlock.lock_out`) before the checks.
         kind: the kind of output the command writes (:data:`KINDS`): an exsur output of a
             kind it may not replace or write into (:data:`ACCEPTS`) needs ``overwrite``.
 
@@ -399,9 +398,7 @@ def check_out_file(
         if Path(s).resolve() == ro:
             raise ConfigError(f"{s}: {flag} is one of the inputs; write to another file")
     _writable(out.parent if out.exists() else out, flag)
-    made = first_missing(out.parent)
-    if made is not None:  # the write will make it: gone again if the command fails
-        _MADE[Path(os.path.abspath(out))] = made
+    note_folders_made(out)  # the folders its write will make: gone again if the command fails
     _probe(out, flag)
     if out.exists() or out.is_symlink():
         if not overwrite and not is_exsur_file(out):
@@ -462,131 +459,6 @@ def is_exsur_file(path: str | Path) -> bool:
     return False
 
 
-def first_missing(path: str | Path) -> Path | None:
-    """The outermost folder of ``path`` (absolute) that does not exist yet: the one a
-    ``mkdir(parents=True)`` of ``path`` would create first (None: ``path`` exists)."""
-    new, p = None, Path(os.path.abspath(path))
-    while not p.exists() and not p.is_symlink() and p.parent != p:
-        new, p = p, p.parent
-    return new
-
-
-def lock_file(out: str | Path) -> Path:
-    """The writer lock of output folder ``out``: ``.<name>.lock`` next to it (a sibling, so a
-    command that replaces the whole folder holds it across the swap)."""
-    p = Path(os.path.abspath(out))
-    return p.parent / f".{p.name}.lock"
-
-
-_HELD: dict[Path, int] = {}
-
-_MADE: dict[Path, Path] = {}
-"""Lock file -> the outermost folder :func:`lock_out` created to hold it, or file output ->
-the outermost folder its write will create (:func:`check_out_file`): removed again at
-release when it is still empty (a command that failed before writing leaves no folders)."""
-
-
-def lock_out(out: str | Path, flag: str = "--out") -> None:
-    """Take the exclusive writer lock of output folder ``out`` (an OS ``flock``, held until
-    :func:`release_locks` or the end of the process; a killed run leaves no stale lock).
-
-    Re-entrant within a process.  Processes that an exsur command spawns to write parts of the
-    folder (ensemble members, sweep trials) do not lock: the command holds the lock for them;
-    so do the ranks > 0 of a torchrun job (``RANK``): rank 0 holds it for the job.
-
-    Raises:
-        ConfigError: another process holds the lock, or the path cannot be created.
-    """
-    path = lock_file(out)
-    if path in _HELD or _torchrun_rank() > 0:
-        return
-    made = first_missing(path.parent)
-    for _ in range(5):  # the file may be unlinked by its releasing owner between open and lock
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o666)
-        except OSError as e:
-            if Path(out).is_dir():  # a writable folder in a parent exsur may not write
-                raise ConfigError(
-                    f"{out}: cannot create its writer lock {path} ({e.strerror}): exsur locks "
-                    f"{flag} beside it, so {path.parent} must be writable too; give another "
-                    f"{flag}"
-                ) from e
-            raise ConfigError(
-                f"{out}: cannot write {flag} there ({e.strerror}); give another {flag}"
-            ) from e
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as e:
-            owner = _read_owner(fd)
-            os.close(fd)
-            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN):
-                raise ConfigError(
-                    f"{out}: another exsur process{owner} is writing this {flag}; wait for it "
-                    f"to finish or give another {flag}"
-                ) from None
-            # a file system without locks: write unlocked, as before, and leave no lock file
-            with contextlib.suppress(OSError):
-                path.unlink()
-            _remove_made(path.parent, made)
-            return
-        try:
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except OSError:
-            same = False
-        if same:
-            os.ftruncate(fd, 0)
-            os.write(fd, f"{os.getpid()}\n".encode())
-            _HELD[path] = fd
-            if made is not None:
-                _MADE[path] = made
-            return
-        os.close(fd)
-    raise ConfigError(f"{out}: could not lock {path}; retry")
-
-
-def _torchrun_rank() -> int:
-    """``RANK`` of a torchrun job with ``WORLD_SIZE`` > 1 (0 outside one)."""
-    try:
-        if int(os.environ.get("WORLD_SIZE", "1")) > 1:
-            return int(os.environ.get("RANK", "0"))
-    except ValueError:
-        pass
-    return 0
-
-
-def _read_owner(fd: int) -> str:
-    try:
-        pid = os.pread(fd, 32, 0).decode().strip()
-    except OSError:
-        return ""
-    return f" (pid {pid})" if pid.isdigit() else ""
-
-
-def release_locks() -> None:
-    """Release every writer lock this process holds (the CLI calls it when a command ends),
-    and remove the folders made for the locks and file outputs that are still empty."""
-    for path, fd in list(_HELD.items()):
-        with contextlib.suppress(OSError):
-            path.unlink()  # while still locked: a waiting opener re-checks the inode
-        os.close(fd)
-        del _HELD[path]
-        _remove_made(path.parent, _MADE.pop(path, None))
-    for out in list(_MADE):  # the folders of file outputs
-        _remove_made(out.parent, _MADE.pop(out))
-
-
-def _remove_made(folder: Path, made: Path | None) -> None:
-    """Remove ``folder`` and its parents up to ``made`` (the outermost one a lock created)
-    while they are empty: ``rmdir`` only, so what a command wrote there stays."""
-    while made is not None and (folder == made or made in folder.parents):
-        try:
-            folder.rmdir()
-        except OSError:
-            return
-        folder = folder.parent
-
-
 @contextlib.contextmanager
 def out_dir(
     out: str | Path,
@@ -597,7 +469,7 @@ def out_dir(
     kind: str | None = None,
 ) -> Iterator[Path]:
     """:func:`check_out_dir` with the writer lock, then a block in which ``overwrite`` lets exsur
-    replace ``out`` (the lock is released by :func:`release_locks`)."""
+    replace ``out`` (the lock is released by :func:`~.outlock.release_locks`)."""
     p = check_out_dir(out, overwrite=overwrite, inputs=inputs, flag=flag, lock=True, kind=kind)
     if overwrite:
         with replace_allowed(p):

@@ -36,7 +36,7 @@ HELD = (
     " main; from excavator_surrogate.io_utils import atomic_dir, atomic_path\n"
     "def run(args):\n"
     "    out = Path(args.paths[0])\n"
-    "    from excavator_surrogate.outdir import lock_out; lock_out(out)\n"
+    "    from excavator_surrogate.outlock import lock_out; lock_out(out)\n"
     "    with atomic_dir(out, kind='dataset') as tmp, atomic_path(tmp / 'manifest.json'):\n"
     "        print('ready', flush=True); time.sleep(60)\n"
     "    return 0\n"

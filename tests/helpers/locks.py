@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 _HOLD = (
-    "import sys; from excavator_surrogate.outdir import lock_out; lock_out(sys.argv[1]); "
+    "import sys; from excavator_surrogate.outlock import lock_out; lock_out(sys.argv[1]); "
     "print('locked', flush=True); sys.stdin.read()"
 )
 

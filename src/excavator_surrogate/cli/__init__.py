@@ -226,9 +226,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("exsur: interrupted", file=sys.stderr)
         return 130
     finally:
-        from ..outdir import release_locks
+        from ..outlock import release_locks
 
-        release_locks()  # the command's --out writer lock (outdir.lock_out)
+        release_locks()  # the command's --out writer lock (outlock.lock_out)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     """Calibrate and print one summary line."""
     from ..data.dataset import load_dataset
     from ..errors import ConfigError, DataError
-    from ..outdir import lock_out
+    from ..outlock import lock_out
     from ..surrogate.bands import calibrate_checkpoint
     from ..surrogate.checkpoint import check_compatible, load_checkpoint
 

@@ -40,7 +40,7 @@ from ..config import PresetConfig, dumps_toml, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
 from ..io_utils import mark_output, recorded_path, write_text
-from ..outdir import first_missing
+from ..outlock import first_missing
 
 _log = logging.getLogger(__name__)
 
