@@ -18,8 +18,10 @@ from excavator_surrogate.clean import (
     pooled_cleaning_metrics,
 )
 from excavator_surrogate.clean.api import _relative_source
-from excavator_surrogate.data import load_dataset, read_manifest
+from excavator_surrogate.clean.synthetic import smooth_random_motion
+from excavator_surrogate.data import Episode, load_dataset, read_manifest
 from excavator_surrogate.errors import ConfigError, DataError
+from excavator_surrogate.spec import JointSpec, MachineSpec
 
 
 def test_clean_episode_contract(noisy_episode) -> None:
@@ -141,3 +143,54 @@ def test_cleaned_from_is_relative_for_siblings(tmp_path) -> None:
     run = tmp_path / "run"
     assert _relative_source(run / "data", run / "data_clean") == "../data"
     assert _relative_source(tmp_path / "x" / "data", run / "clean") == str(tmp_path / "x" / "data")
+
+
+def _precise_stroke_episode() -> tuple[Episode, np.ndarray]:
+    """A 20 Hz, 60 s episode of one stroke [m] (0.3 mm noise, a clean gyro) with 5 mm sensor
+    offsets held for 0.5 s every 5 s; also returns the true stroke (n_step,)."""
+    spec = MachineSpec((JointSpec("boom", kind="linear", unit="mm"),), rate_hz=20.0)
+    rng = np.random.default_rng(7)
+    theta, omega = smooth_random_motion(1200, 1, dt=spec.dt, rng=rng, omega_max=0.2)
+    theta = 0.1 * theta  # strokes of +-0.12 m at up to 20 mm/s
+    omega = 0.1 * omega
+    z = theta + rng.normal(0.0, 3e-4, theta.shape)
+    for start in range(40, 1200, 100):
+        z[start : start + 10] += 5e-3
+    ep = Episode(
+        spec=spec, time=np.arange(1200) * spec.dt, u=np.zeros((1200, 1)), theta=z, omega=omega
+    )
+    return ep, theta[:, 0]
+
+
+def test_linear_joints_filter_in_linear_m_per_rad() -> None:
+    """A precise stroke sensor's 5 mm offsets pass the angle-sized thresholds read in m
+    (tau_cons = 30 mm) and are half followed; with 50 mm of stroke counted as 1 rad (0.3 mm
+    noise, as a 6 mrad angle sensor's), they are caught and bridged by the gyro."""
+    ep, truth = _precise_stroke_episode()
+    offset = np.zeros(1200, dtype=bool)
+    for start in range(40, 1200, 100):
+        offset[start : start + 10] = True
+
+    as_m = clean_episode(ep, config=CleanConfig())
+    scaled = clean_episode(ep, config=CleanConfig(linear_m_per_rad=0.05))
+    err_m = np.abs(as_m.theta[:, 0] - truth)[offset]
+    err_scaled = np.abs(scaled.theta[:, 0] - truth)[offset]
+    assert as_m.trusted[offset, 0].all()  # the offsets are believed...
+    assert err_m.mean() > 1e-3  # ...and followed
+    assert not scaled.trusted[offset, 0].any()
+    assert scaled.trusted[~offset, 0].mean() > 0.95
+    assert err_scaled.mean() < 3e-4
+    # the cleaned stroke stays in m, and its omega is its backward difference
+    np.testing.assert_allclose(np.diff(scaled.theta[:, 0]) / ep.dt, scaled.omega[1:, 0])
+
+
+def test_linear_m_per_rad_leaves_revolute_joints_alone(noisy_episode) -> None:
+    a = clean_episode(noisy_episode, config=CleanConfig())
+    b = clean_episode(noisy_episode, config=CleanConfig(linear_m_per_rad=0.01))
+    np.testing.assert_array_equal(a.theta, b.theta)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.inf, math.nan])
+def test_bad_linear_m_per_rad_is_refused(bad: float) -> None:
+    with pytest.raises(ConfigError, match="linear_m_per_rad"):
+        CleanConfig(linear_m_per_rad=bad)

@@ -77,25 +77,35 @@ def clean_episodes(
             nv = np.array([episodes[i].n_step for i in batch])
             theta = np.zeros((len(batch), longest, n_joint))
             omega = np.zeros((len(batch), longest, n_joint))
+            # a linear joint is filtered in units of linear_m_per_rad, so the thresholds
+            # written in rad apply to it as that many m per rad: x_filter = x / scale
+            scale = np.ones((len(batch), 1, n_joint))
             for b, i in enumerate(batch):
                 n = nv[b]
+                scale[b, 0] = _filter_scale(episodes[i], cfg)
                 theta[b, :n] = thetas[i]
                 _warn_if_no_gyro(episodes[i], theta[b, :n], cfg)
                 omega[b, :n] = episodes[i].omega
                 theta[b, n:] = theta[b, n - 1]
-            res = fuse(theta, omega, dt=dt, config=cfg, n_valid=nv)
+            res = fuse(theta / scale, omega / scale, dt=dt, config=cfg, n_valid=nv)
             for b, i in enumerate(batch):
                 n = nv[b]
                 out[i] = _finish(
                     episodes[i],
                     theta_raw=theta[b, :n],
-                    theta_hat=res.theta[b, :n],
+                    theta_hat=res.theta[b, :n] * scale[b],
                     trusted=res.trusted[b, :n],
-                    bias=None if res.bias is None else res.bias[b, :n],
+                    bias=None if res.bias is None else res.bias[b, :n] * scale[b],
                     config=cfg,
                 )
             start = stop
     return [ep for ep in out if ep is not None]
+
+
+def _filter_scale(ep: Episode, config: CleanConfig) -> np.ndarray:
+    """Per joint, the size of the filter's unit: ``linear_m_per_rad`` [m] for a linear joint,
+    1 for a revolute one [rad].  Shape ``(n_joint,)``."""
+    return np.array([config.linear_m_per_rad if j.linear else 1.0 for j in ep.spec.joints])
 
 
 UNTRUSTED_WARN = 0.2

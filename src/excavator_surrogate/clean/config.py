@@ -54,6 +54,8 @@ class CleanConfig(PresetConfig, table="clean"):
     """Lock-out guard: re-anchor the angle at the measurement after this long untrusted [s]; 0 disables."""
     unwrap_periodic: bool = True
     """Unwrap periodic joints' angles before filtering (episodes only)."""
+    linear_m_per_rad: float = 1.0
+    """Linear joints (episodes only): this many m of stroke count as 1 rad in every field above (variances by its square)."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -90,6 +92,10 @@ class CleanConfig(PresetConfig, table="clean"):
                 "clean: method 'rts' needs a positive definite process noise (q_bias > 0, and "
                 f"q_theta or r_gyro > 0), got q_bias={self.q_bias}, q_theta={self.q_theta}, "
                 f"r_gyro={self.r_gyro}"
+            )
+        if not (math.isfinite(self.linear_m_per_rad) and self.linear_m_per_rad > 0):
+            raise ConfigError(
+                f"clean.linear_m_per_rad: must be positive and finite, got {self.linear_m_per_rad}"
             )
         if self.cons_window < 1:
             raise ConfigError(f"clean.cons_window: must be >= 1, got {self.cons_window}")
