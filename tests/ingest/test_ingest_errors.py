@@ -369,3 +369,20 @@ def test_a_failed_import_leaves_no_folders(cli, tmp_path) -> None:
     rc, _, err = cli("import", log, "--mapping", tmp_path / "m.toml", "--out", tmp_path / "a" / "b")
     assert rc == 2, err
     assert not (tmp_path / "a").exists()
+
+
+def test_physical_command_out_of_range_names_its_unit(cli, work, short_cols):
+    """A joint command in a physical unit (here the valve's pilot pressure in bar) is
+    reported in that unit, as the mapping names it (it said 'physical')."""
+    log = write_lines(
+        work / "a.csv",
+        short_cols,
+        lambda ls: _set(_set(ls, 555, "boom_up_pct", "130"), 555, "boom_down_pct", "0"),
+    )
+    old = 'unit = "%", range = [-1000.0, 1000.0] }'
+    text = (work / "arm3.toml").read_text()
+    assert old in text
+    new = 'unit = "physical", physical_unit = "bar", range = [-100.0, 100.0] }'
+    (work / "bar.toml").write_text(text.replace(old, new))
+    err = _fail(cli, work, log, mapping="bar.toml")
+    assert "row 555: command 130 (log value 130 bar) is outside [-100, 100]" in err

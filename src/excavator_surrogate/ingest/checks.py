@@ -315,7 +315,7 @@ def check_one_way(
         checks.append(
             (
                 x > top + 1e-9 * (x_hi - x_lo),
-                f"{{:.6g}} {c.unit} is beyond full command ({top:g})",
+                f"{{:.6g}} {_log_unit(j)} is beyond full command ({top:g})",
                 f"check unit/scale/range of {what} in {where}, or use --clip-commands",
             )
         )
@@ -329,6 +329,15 @@ def check_one_way(
                 row=row,
                 fix=fix,
             )
+
+
+def _log_unit(j: JointMap | InputMap) -> str:
+    """The unit a command's log values are in, as the mapping names it (``%``, ``raw`` or
+    the physical unit, e.g. ``bar``)."""
+    if isinstance(j, InputMap):
+        return j.unit  # an input's % is stored as raw
+    c = j.command
+    return c.physical_unit if c.unit == "physical" else str(c.unit)
 
 
 def command_of(
@@ -371,10 +380,9 @@ def command_of(
     if out.any():
         row = int(np.flatnonzero(out)[0])
         if not options.clip_commands:
-            unit = j.unit if isinstance(j, InputMap) else c.unit  # an input's % is stored as raw
             raise DataError(
                 path,
-                f"command {u[row]:.6g} (log value {x[row]:.6g} {unit}) is outside "
+                f"command {u[row]:.6g} (log value {x[row]:.6g} {_log_unit(j)}) is outside "
                 f"[{c.range[0]:g}, {c.range[1]:g}] after scaling",
                 column=label,
                 row=row,
