@@ -21,8 +21,6 @@ from excavator_surrogate.outdir import (
     read_marker,
     replace_allowed,
 )
-from excavator_surrogate.outlock import lock_file, lock_out, release_locks
-from tests.helpers.locks import lock_held_elsewhere
 
 
 def _dataset(root: Path) -> Path:
@@ -212,30 +210,6 @@ def test_check_out_file_rules(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="one of the inputs"):
         check_out_file(a, inputs=[a], example="e.pt")
     assert check_out_file(tmp_path / "b.pt", inputs=[a], example="e.pt") == tmp_path / "b.pt"
-
-
-def test_the_writer_lock(tmp_path: Path, monkeypatch) -> None:
-    out = tmp_path / "M"
-    with lock_held_elsewhere(out) as proc:
-        assert lock_file(out) == tmp_path / ".M.lock"
-        with pytest.raises(ConfigError, match=rf"another exsur process \(pid {proc.pid}\)"):
-            check_out_dir(out, lock=True)
-        check_out_dir(out)  # the check alone does not lock
-        monkeypatch.setenv("RANK", "1")
-        with pytest.raises(ConfigError, match="another exsur process"):
-            lock_out(out)  # RANK alone is not a torchrun job
-        monkeypatch.setenv("WORLD_SIZE", "2")  # a torchrun rank > 0: rank 0 holds the lock
-        lock_out(out)
-        monkeypatch.delenv("RANK")
-        monkeypatch.delenv("WORLD_SIZE")
-    # the holder has ended (its stdin closed): the lock went with it
-    try:
-        lock_out(out)
-        lock_out(out)  # re-entrant in one process
-        assert lock_file(out).read_text().strip() == str(os.getpid())
-    finally:
-        release_locks()
-    assert not lock_file(out).exists() and not out.exists()
 
 
 def test_file_outputs_by_content(tmp_path: Path) -> None:
