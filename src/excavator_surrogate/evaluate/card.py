@@ -228,8 +228,14 @@ def _warnings(card: Mapping[str, Any]) -> list[str]:
             "evaluate"
         )
     if val and "theta_r2" in val:
+        rmse = val.get("theta_rmse") or {}
         low = [
-            f"{n} {r:.3f}" for n, r in val["theta_r2"].items() if r is not None and not r >= LOW_R2
+            f"{n} {r:.3f}"
+            for n, r in val["theta_r2"].items()
+            # NaN with a finite RMSE: a joint still in every validation run (no R²)
+            if r is not None
+            and not r >= LOW_R2
+            and not (math.isnan(r) and math.isfinite(rmse.get(n) or math.inf))
         ]
         if low:
             out.append(

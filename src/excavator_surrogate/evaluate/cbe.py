@@ -39,11 +39,11 @@ from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, recorded_path, write_json, write_text
 from ..spec import MachineSpec
-from ..surrogate.angles import unwrap_periodic
 from ..surrogate.baselines import fit_arx, fit_structured
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
 from ..surrogate.model import Surrogate
 from ..surrogate.rollout import EpisodeRollout, rollout_episodes
+from ..surrogate.scores import branch_reference
 from .horizon import HORIZONS_S, check_horizons, horizon_errors, horizon_markdown
 from .metrics import cbe_metrics, episode_errors, regression_metrics
 from .pace import pace_markdown, training_pace
@@ -361,7 +361,7 @@ def evaluate_checkpoint(
                     tmp / name,
                     time=r.time,
                     omega_ref=r.omega_ref * f,
-                    theta_ref=unwrap_periodic(r.theta_ref, sur.spec) * f,
+                    theta_ref=branch_reference(r, sur.spec) * f,
                     predictions=preds,
                     names=sur.spec.names,
                     warmup=r.warmup,

@@ -2,73 +2,29 @@
 
 Samples of every episode's warm-up (the first ``W`` recorded samples that start the rollout)
 are excluded; the remaining samples of all episodes are pooled.  Angles of periodic joints are
-compared unwrapped (the rollout integrates continuously).  ``R^2 = 1 - SS_res / SS_tot`` about
-the reference's mean; it is ``None`` in JSON when the reference is constant (up to rounding,
-:data:`CONSTANT`): a joint that never moves has no variance to explain.
+compared unwrapped, on the branch the free run starts from, each episode on the turn nearest
+the others' (:mod:`..surrogate.scores`, which training's validation shares).  ``R^2 = 1 -
+SS_res / SS_tot`` about the pooled reference's mean; it is ``None`` in JSON when the reference
+is constant in every episode (up to rounding, :data:`CONSTANT`): a joint that never moves has
+no variance to explain.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from ..spec import MachineSpec
-from ..surrogate.angles import unwrap_periodic
-
-
-class RunLike(Protocol):
-    """What :func:`cbe_metrics` needs from a rollout (see :class:`~..surrogate.rollout.EpisodeRollout`)."""
-
-    theta_hat: np.ndarray
-    omega_hat: np.ndarray
-    theta_ref: np.ndarray
-    omega_ref: np.ndarray
-    warmup: int
-
-
-CONSTANT = 1e-9
-"""A reference column whose range (max - min) is at most this times ``max(1, max |ref|)`` is
-constant: its R^2 is undefined (NaN, ``None`` in JSON), not ``1 - SS_res / rounding noise``."""
+from ..surrogate.scores import CONSTANT as CONSTANT  # re-exported: the CBE report's rule
+from ..surrogate.scores import RunLike, run_angles, scored_angles
+from ..surrogate.scores import regression_metrics as regression_metrics
 
 
 def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
-
-
-def regression_metrics(pred: np.ndarray, ref: np.ndarray) -> dict[str, np.ndarray]:
-    """Per-column RMSE, MAE and R^2.
-
-    Args:
-        pred: (n_sample, n_joint) predictions.
-        ref: (n_sample, n_joint) reference.
-
-    Returns:
-        ``{"rmse", "mae", "r2"}``, each (n_joint,); ``r2`` is NaN where ``ref`` is constant (up
-        to rounding: its range is at most :data:`CONSTANT` times its magnitude) and
-        every metric is NaN/inf if ``pred`` is not finite.
-    """
-    pred = np.asarray(pred, dtype=np.float64)
-    ref = np.asarray(ref, dtype=np.float64)
-    if pred.shape != ref.shape or pred.ndim != 2:
-        raise ValueError(f"pred {pred.shape} and ref {ref.shape} must be equal (n_sample, n_joint)")
-    err = pred - ref
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        ss_res = np.sum(err**2, axis=0)
-        ss_tot = np.sum((ref - ref.mean(axis=0)) ** 2, axis=0)
-        # constant up to rounding (range <= CONSTANT x magnitude): SS_tot is rounding noise
-        # and 1 - SS_res / SS_tot a meaningless -1e11, so R^2 is undefined (NaN)
-        scale = np.maximum(1.0, np.max(np.abs(ref), axis=0, initial=0.0))
-        moves = np.ptp(ref, axis=0) > CONSTANT * scale if len(ref) else np.zeros(ref.shape[1], bool)
-        ok = moves & (ss_tot > 0)
-        r2 = np.where(ok, 1.0 - ss_res / np.where(ok, ss_tot, 1.0), np.nan)
-        return {
-            "rmse": np.sqrt(np.mean(err**2, axis=0)),
-            "mae": np.mean(np.abs(err), axis=0),
-            "r2": r2,
-        }
 
 
 def cbe_metrics(runs: Sequence[RunLike], spec: MachineSpec) -> dict[str, Any]:
@@ -80,19 +36,12 @@ def cbe_metrics(runs: Sequence[RunLike], spec: MachineSpec) -> dict[str, Any]:
     """
     if not runs:
         raise ValueError("no rollouts to score")
-    om_hat, om_ref, th_hat, th_ref = [], [], [], []
-    for r in runs:
-        w = r.warmup
-        om_hat.append(r.omega_hat[w:])
-        om_ref.append(r.omega_ref[w:])
-        th_hat.append(r.theta_hat[w:])
-        th_ref.append(unwrap_periodic(r.theta_ref, spec)[w:])
+    om_hat = np.concatenate([r.omega_hat[r.warmup :] for r in runs])
+    om_ref = np.concatenate([r.omega_ref[r.warmup :] for r in runs])
+    th_hat, th_ref, still = scored_angles(runs, spec)
     out: dict[str, Any] = {}
-    for key, pred, ref in (
-        ("omega", np.concatenate(om_hat), np.concatenate(om_ref)),
-        ("theta", np.concatenate(th_hat), np.concatenate(th_ref)),
-    ):
-        m = regression_metrics(pred, ref)
+    for key, pred, ref in (("omega", om_hat, om_ref), ("theta", th_hat, th_ref)):
+        m = regression_metrics(pred, ref, still=still)
         out[key] = {
             name: {k: _finite(m[k][j]) for k in ("rmse", "mae", "r2")}
             for j, name in enumerate(spec.names)
@@ -139,8 +88,8 @@ def episode_errors(runs: Sequence[RunLike], spec: MachineSpec) -> list[dict[str,
     """
     sse, count = [], []
     for r in runs:
-        w = r.warmup
-        err = r.theta_hat[w:] - unwrap_periodic(r.theta_ref, spec)[w:]
+        pred, ref = run_angles(r, spec)
+        err = pred - ref
         with np.errstate(invalid="ignore", over="ignore"):
             sse.append(np.sum(np.asarray(err, dtype=np.float64) ** 2, axis=0))
         count.append(len(err))

@@ -2,7 +2,7 @@
 
 Model selection (training, baselines, sweeps) ranks candidates by it: the model is rolled out
 in closed loop on the validation episodes; ``val_error`` = mean over joints of
-RMSE(theta) / std(theta_ref) after the warm-up.  :func:`free_run_errors` scores several
+RMSE(theta) / std(theta_ref) after the warm-up (:func:`score_runs`).  :func:`free_run_errors` scores several
 candidates of one architecture in one batched free run (:mod:`.stacked`), stepped in NumPy
 (:mod:`.numpy_loop`).
 """
@@ -16,10 +16,10 @@ from typing import Any
 import numpy as np
 
 from ..data.episode import Episode
-from .angles import unwrap_periodic
 from .model import Surrogate
 from .numpy_loop import numpy_capable, rollout_episodes_numpy
 from .rollout import EpisodeRollout, rollout_episodes
+from .scores import regression_metrics, scored_angles
 from .stacked import stack, stackable
 
 
@@ -75,27 +75,31 @@ def _free_runs(
 
 
 def score_runs(runs: list[EpisodeRollout], sur: Surrogate) -> dict[str, Any]:
-    """The scores of :func:`free_run_error` from the free runs ``runs`` of ``sur``."""
-    spec = sur.spec
-    th_err, th_ref, om_err = [], [], []
-    for r in runs:
-        w = r.warmup
-        ref = unwrap_periodic(r.theta_ref, spec)[w:]
-        th_err.append(r.theta_hat[w:] - ref)
-        th_ref.append(ref)
-        om_err.append(r.omega_hat[w:] - r.omega_ref[w:])
-    e = np.concatenate(th_err)
-    ref = np.concatenate(th_ref)
-    eo = np.concatenate(om_err)
-    rmse = np.sqrt(np.mean(e**2, axis=0))
-    std = np.maximum(ref.std(axis=0), 1e-6)
-    r2 = 1.0 - np.sum(e**2, axis=0) / np.maximum(np.sum((ref - ref.mean(0)) ** 2, axis=0), 1e-12)
-    val = float(np.mean(rmse / std))
+    """The scores of :func:`free_run_error` from the free runs ``runs`` of ``sur``: the angles
+    as the CBE report scores them (:func:`~.scores.scored_angles`), except that each run's
+    periodic joint stays on its own turn::
+
+        val_error = mean over moving joints j of RMSE_j / max(std_j(theta_ref), 1e-6)
+
+    Turning the runs to one another (as the report's R^2 does) would re-weight a swing's
+    error in ``val_error`` and move its R^2, which decides whether a swing follows its map
+    (:mod:`~..training.map_joints`), so change the models selected on data whose validation
+    runs lie on different turns.  A joint constant in every validation run has no scale to
+    normalise by and no R^2 (NaN): it is left out of ``val_error`` (its RMSE is recorded),
+    unless no joint moves, when ``val_error`` is the mean RMSE.
+    """
+    pred, ref, still = scored_angles(runs, sur.spec, align_turns=False)
+    eo = np.concatenate([r.omega_hat[r.warmup :] - r.omega_ref[r.warmup :] for r in runs])
+    m = regression_metrics(pred, ref, still=still)
+    rmse = m["rmse"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scaled = rmse / np.maximum(ref.std(axis=0), 1e-6)
+    val = float(np.mean(scaled[~still] if (~still).any() else rmse))
     if not math.isfinite(val):
         val = math.inf
     return {
         "val_error": val,
         "theta_rmse": [float(v) for v in rmse],
-        "theta_r2": [float(v) for v in r2],
+        "theta_r2": [float(v) for v in m["r2"]],
         "omega_rmse": [float(v) for v in np.sqrt(np.mean(eo**2, axis=0))],
     }

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -18,6 +17,7 @@ from ..io_utils import mark_output
 from ..surrogate.checkpoint import load_checkpoint, save_checkpoint
 from ..surrogate.ensemble import merge
 from ..surrogate.model import Surrogate
+from ..surrogate.scores import worst_r2
 from ..surrogate.validation import free_run_error
 from .batches import split_episodes
 from .config import TrainConfig
@@ -160,7 +160,7 @@ def merge_members(
                 "seed": cfgs[i].seed,
                 "epoch": mm.get("epoch"),
                 "val_error": mm.get("val_error"),
-                "val_theta_r2_min": min((mm.get("val") or {}).get("theta_r2") or [math.nan]),
+                "val_theta_r2_min": worst_r2((mm.get("val") or {}).get("theta_r2") or []),
             }
         )
         if column is not None:
@@ -171,7 +171,7 @@ def merge_members(
             "seed": "",
             "epoch": "",
             "val_error": val["val_error"],
-            "val_theta_r2_min": min(val["theta_r2"]),
+            "val_theta_r2_min": worst_r2(val["theta_r2"]),
         }
     )
     if column is not None:
@@ -192,7 +192,7 @@ def merge_members(
     member_vals = ", ".join(f"{r['val_error']:.4g}" for r in rows[:-1])
     _log.info(
         f"seed ensemble: members' val_error {member_vals}; merged {val['val_error']:.4g} "
-        f"(min theta R2 {min(val['theta_r2']):.3f}) -> {best} ({train_s:.0f} s)"
+        f"(min theta R2 {worst_r2(val['theta_r2']):.3f}) -> {best} ({train_s:.0f} s)"
     )
     return best
 

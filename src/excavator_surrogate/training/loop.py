@@ -29,6 +29,7 @@ from ..io_utils import mark_output, progress
 from ..surrogate.checkpoint import read_checkpoint, save_checkpoint, surrogate_from_dict
 from ..surrogate.features import Normalization
 from ..surrogate.model import Surrogate
+from ..surrogate.scores import worst_r2
 from ..surrogate.validation import free_run_errors
 from .batches import make_data, split_episodes
 from .config import TrainConfig
@@ -307,7 +308,7 @@ def train_network(
             if validated:
                 tb_epoch(tb, epoch, loss=loss, val=val, lr=lr, names=spec.names)
             scores = (
-                f"val_error {val['val_error']:.4g}, min theta R2 {min(val['theta_r2']):.3f}"
+                f"val_error {val['val_error']:.4g}, min theta R2 {worst_r2(val['theta_r2']):.3f}"
                 if validated
                 else "not validated"
             )

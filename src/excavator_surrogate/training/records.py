@@ -14,6 +14,7 @@ from typing import Any
 from ..config import CAP_OPTIONS, RECORD_TABLES, dumps_toml, to_dict
 from ..io_utils import write_text
 from ..surrogate.checkpoint import read_checkpoint, write_checkpoint_dict
+from ..surrogate.scores import worst_r2
 from .config import TrainConfig
 from .selection import Choice
 
@@ -65,7 +66,7 @@ def epoch_row(
         "train_loss": loss,
         "n_sample": n_sample,
         "val_error": val["val_error"],
-        "val_theta_r2_min": min(val["theta_r2"]),
+        "val_theta_r2_min": worst_r2(val["theta_r2"]),
         "best": int(improved),
     }
     if with_ema:
@@ -139,7 +140,8 @@ def tb_epoch(
     tb.add_scalar("val/error", min(val["val_error"], 1e6), epoch)
     tb.add_scalar("lr", lr, epoch)
     for name, r2 in zip(names, val["theta_r2"]):
-        tb.add_scalar(f"val_theta_r2/{name}", max(r2, -10.0), epoch)
+        if not math.isnan(r2):  # NaN: a joint still in every validation run
+            tb.add_scalar(f"val_theta_r2/{name}", max(r2, -10.0), epoch)
     tb.flush()
 
 
