@@ -214,3 +214,18 @@ def test_a_compared_checkpoint_the_cap_cut_is_recorded_and_shown(tmp_path):
     table = (out / "table.md").read_text()
     assert "the wall-time cap cut the training of GRU short** (1 of 50 planned epochs)" in table
     assert "planned 1 epochs ran" in table  # the surrogate's own was not cut
+
+
+def test_an_early_stop_says_how_many_epochs_ran() -> None:
+    """A single network early stopping after 4 of 20 epochs was reported as 'the planned 20
+    epochs ran' (the per-member count was printed for ensembles only)."""
+    one = {"epochs_planned": 20, "epochs_done": 4, "stopped": "early-stop", "budget_cut": False}
+    text = training_markdown(one)
+    assert "4 of the planned 20 epochs ran (early stop)" in text
+    assert "Training: the planned" not in text
+    two = {"epochs_planned": 20, "members": [dict(one), {**one, "epochs_done": 20}]}
+    assert "or fewer where early stopping ended a network (epochs done per member: 4, 20)" in (
+        training_markdown(two)
+    )
+    full = {**one, "epochs_done": 20, "stopped": "planned"}
+    assert "Training: the planned 20 epochs ran;" in training_markdown(full)

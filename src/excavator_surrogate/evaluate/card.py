@@ -410,7 +410,8 @@ def card_markdown(card: Mapping[str, Any], *, header: Sequence[str] | None = Non
     )
     if record:
         text = training_markdown(record, spec=spec).strip("\n")
-        lines.append(text.replace("Training: the", "The", 1))
+        text = text.replace("Training: ", "", 1)
+        lines.append(text[:1].upper() + text[1:])
         if tr.get("pace"):
             lines += ["", pace_markdown(tr["pace"], record).strip("\n")]
     if card["members"] and card["network"].get("composite"):

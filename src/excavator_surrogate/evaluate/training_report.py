@@ -386,10 +386,18 @@ def _budget_markdown(training: Mapping[str, Any]) -> str:
         (int(m.get("epochs_planned", 0)) for m in members), default=0
     )
     if not cut:
-        done = ", ".join(str(m.get("epochs_done", "?")) for m in members)
+        done = [m.get("epochs_done", "?") for m in members]
+        if all(d == planned for d in done):
+            ran = f"the planned {planned} epochs ran"
+        elif len(members) == 1:
+            ran = f"{done[0]} of the planned {planned} epochs ran (early stop)"
+        else:
+            ran = (
+                f"the planned {planned} epochs ran, or fewer where early stopping ended a network "
+                f"(epochs done per member: {', '.join(map(str, done))})"
+            )
         return (
-            f"\nTraining: the planned {planned} epochs ran"
-            + (f" (epochs done per member: {done}; fewer: early stop)" if len(members) > 1 else "")
+            f"\nTraining: {ran}"
             + "; the same data and seed give the same model on any load"
             + (
                 " and on any x86-64 CPU with AVX2 (portable numerics).\n"
