@@ -117,6 +117,15 @@ def test_a_calibrated_ensemble_lists_its_members_and_bands(tmp_path, dataset_dir
     text = card_markdown(card)
     assert "An ensemble of 2 LSTM networks of 8 units each, merged into one 2 × 16 LSTM" in text
     assert "| 1 | 1 |" in text and "Calibrated uncertainty bands at 50%, 90%" in text
+    # where the calibration's free runs came from: training runs are in-sample, not
+    # "validation steps" (all 570 of a tiny run's steps had been called validation steps)
+    unc = card["uncertainty"]
+    n_val, n_tr = unc["n_run"], unc["n_train_run"]
+    assert n_val == len(ds.val) and n_tr > 0
+    assert (
+        f"(from {unc['n_step']:,} free-run steps of {n_val} validation and {n_tr} training runs)"
+        in text
+    )
     assert "Coverage record of" in text
 
 

@@ -198,10 +198,29 @@ def _float(x: Any) -> float | None:
 
 
 def _uncertainty(rec: Any) -> dict[str, Any] | None:
-    """The calibrated bands' levels and how many validation steps calibrated them."""
+    """The calibrated bands' levels, and the free-run steps and runs (validation, training)
+    that calibrated them."""
     if not isinstance(rec, Mapping) or not rec.get("levels"):
         return None
-    return {"levels": list(rec["levels"]), "n_step": rec.get("n_step")}
+    return {
+        "levels": list(rec["levels"]),
+        "n_step": rec.get("n_step"),
+        "n_run": int(rec.get("n_run") or 0),
+        "n_train_run": int(rec.get("n_train_run") or 0),
+    }
+
+
+def _calibrated_from(unc: Mapping[str, Any]) -> str:
+    """``" (from 570 free-run steps of 1 validation and 2 training runs)"``; empty when the
+    record has no step count."""
+    if not unc.get("n_step"):
+        return ""
+    counts = {"validation": unc.get("n_run") or 0, "training": unc.get("n_train_run") or 0}
+    runs = " and ".join(f"{n} {kind}" for kind, n in counts.items() if n)
+    plural = "s" if sum(counts.values()) > 1 else ""
+    return f" (from {unc['n_step']:,} free-run steps" + (
+        f" of {runs} run{plural})" if runs else ")"
+    )
 
 
 def _coverage(rec: Any) -> dict[str, Any] | None:
@@ -448,7 +467,8 @@ def card_markdown(card: Mapping[str, Any], *, header: Sequence[str] | None = Non
     lines.append(
         "Calibrated uncertainty bands at "
         + ", ".join(f"{lvl:.0%}" for lvl in unc["levels"])
-        + (f" (from {unc['n_step']:,} validation steps)." if unc.get("n_step") else ".")
+        + _calibrated_from(unc)
+        + "."
         if unc
         else "No calibrated uncertainty bands (a single network, or not calibrated)."
     )
