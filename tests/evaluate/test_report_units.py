@@ -93,3 +93,28 @@ def test_run_report_prints_linear_joints_in_their_unit() -> None:
     before = render_run_report(_run_metrics(None), ctx)  # a revolute machine: as before
     assert "raw angle RMSE [rad]" in before and "| boom | 0.0020 |" in before
     assert "worst-joint angle R²" in before and "Table III" in before
+
+
+def test_the_run_reports_other_tables_name_their_units_and_undefined_r2() -> None:
+    """Table III and the cleaning effect printed RMSE and MAE without a unit; the ensemble
+    table printed a worst R² of -inf for a joint whose R² is undefined."""
+    from excavator_surrogate.evaluate.run_report import ReportContext, render_run_report
+
+    ctx = ReportContext(name="x", spec_names=STROKES.names, table_md="", paper_table="III-compound")
+    m = _run_metrics(None)
+    still = _metrics(STROKES.names)
+    still["omega"]["bucket"]["r2"] = None
+    m["ensemble_members"] = {"ensemble": still}
+    m["cleaning_effect"] = {"trained on cleaned": _metrics(STROKES.names)}
+    m["cleaning_effect"]["trained on raw"] = _metrics(STROKES.names)
+    text = render_run_report(m, ctx)
+    assert "| ω [rad/s] | swing | 0.0125 / " in text and "| θ [rad] | bucket | 0.0125 / " in text
+    assert "| θ RMSE cleaned [rad] | θ RMSE raw [rad] |" in text
+    assert "| ensemble | 0.9500 | 0.9500 | 0.9500 | 0.9500 | 0.9500 | 0.9500 (bucket: —) |" in text
+    assert "-inf" not in text
+    units = {
+        j.name: {"theta": "m" if j.linear else "rad", "display": j.unit} for j in STROKES.joints
+    }
+    m["run"]["units"] = units
+    text = render_run_report(m, ctx)
+    assert "| boom [mm] | 0.9500 | 0.9500 | 12.5000 | 12.5000 |" in text

@@ -55,12 +55,21 @@ def undefined_r2(metrics: Mapping[str, Any], key: str = "theta") -> list[str]:
     return [j for j, v in metrics[key].items() if v.get("r2") is None]
 
 
+def worst_defined_r2(
+    metrics: Mapping[str, Any], key: str = "theta"
+) -> tuple[float | None, list[str]]:
+    """``(worst, undefined)``: the smallest defined R^2 of ``metrics[key]`` (None when none is
+    defined) and the joints whose R^2 is undefined (:func:`undefined_r2`)."""
+    bad = undefined_r2(metrics, key)
+    vals = [v["r2"] for j, v in metrics[key].items() if j not in bad]
+    return (min(vals) if vals else None), bad
+
+
 def worst_r2_text(metrics: Mapping[str, Any], key: str = "theta") -> str:
     """The worst defined R^2 of ``metrics[key]`` to 4 decimals, with the joints whose R^2 is
     undefined named (``"undefined"`` when none is defined): the run's headline."""
-    bad = undefined_r2(metrics, key)
-    vals = [v["r2"] for j, v in metrics[key].items() if j not in bad]
-    text = f"{min(vals):.4f}" if vals else "undefined"
+    worst, bad = worst_defined_r2(metrics, key)
+    text = f"{worst:.4f}" if worst is not None else "undefined"
     if bad:
         text += f" (undefined for {', '.join(bad)}: constant reference or non-finite prediction)"
     return text

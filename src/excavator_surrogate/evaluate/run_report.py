@@ -16,7 +16,7 @@ from typing import Any
 from ..spec import LINEAR_UNITS
 from .data_card import notes_lines, reach_lines, splits_lines
 from .horizon import horizon_markdown
-from .metrics import min_r2, worst_r2_text
+from .metrics import worst_defined_r2, worst_r2_text
 from .report import PAPER_TABLE_III, against_others
 from .uncertainty import UNCERTAINTY_HEADING, uncertainty_markdown
 
@@ -124,7 +124,7 @@ def _paper_table_iii(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str
             "| Type | Joint | RMSE (ours / paper) | MAE (ours / paper) | R² (ours / paper) |",
             "|---|---|---|---|---|",
         ]
-        for typ, label in (("omega", "ω"), ("theta", "θ")):
+        for typ, label in (("omega", "ω [rad/s]"), ("theta", "θ [rad]")):
             for j in ctx.spec_names:
                 m = metrics[typ][j]
                 p = ref[typ][j]
@@ -188,17 +188,23 @@ def _cleaning_effect(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str
     lines: list[str] = []
     if "cleaning_effect" in metrics:
         ce = metrics["cleaning_effect"]
+        mixed = bool(metrics.get("run", {}).get("units"))  # linear joints: units per row
+        unit = "" if mixed else " [rad]"
         lines += [
             "## Effect of cleaning: the same LSTM trained on cleaned vs raw data (scored against the truth)",
             "",
-            "| Joint | θ R² cleaned | θ R² raw | θ RMSE cleaned | θ RMSE raw | ω R² cleaned | ω R² raw |",
+            f"| Joint | θ R² cleaned | θ R² raw | θ RMSE cleaned{unit} | θ RMSE raw{unit} "
+            "| ω R² cleaned | ω R² raw |",
             "|---|---|---|---|---|---|---|",
         ]
         c, r = ce["trained on cleaned"], ce["trained on raw"]
         for j in ctx.spec_names:
+            f, u = _unit(metrics, j)
             lines.append(
-                f"| {j} | {_fmt(c['theta'][j]['r2'])} | {_fmt(r['theta'][j]['r2'])} | {_fmt(c['theta'][j]['rmse'])} "
-                f"| {_fmt(r['theta'][j]['rmse'])} | {_fmt(c['omega'][j]['r2'])} | {_fmt(r['omega'][j]['r2'])} |"
+                f"| {j}{f' [{u}]' if mixed else ''} | {_fmt(c['theta'][j]['r2'])} "
+                f"| {_fmt(r['theta'][j]['r2'])} | {_fmt(c['theta'][j]['rmse'], f)} "
+                f"| {_fmt(r['theta'][j]['rmse'], f)} | {_fmt(c['omega'][j]['r2'])} "
+                f"| {_fmt(r['omega'][j]['r2'])} |"
             )
         lines.append("")
     return lines
@@ -223,10 +229,17 @@ def _ensemble_members(metrics: Mapping[str, Any], ctx: ReportContext) -> list[st
             lines.append(
                 f"| {label} | "
                 + " | ".join(_fmt(m["theta"][j]["r2"]) for j in ctx.spec_names)
-                + f" | {_fmt(min_r2(m, 'theta'))} | {_fmt(min_r2(m, 'omega'))} |"
+                + f" | {_worst_cell(m, 'theta')} | {_worst_cell(m, 'omega')} |"
             )
         lines.append("")
     return lines
+
+
+def _worst_cell(m: Mapping[str, Any], key: str) -> str:
+    """The worst defined R² of ``m[key]`` for a table cell, the joints without one named
+    (``"0.9310 (bucket: —)"``), as the headline's :func:`.metrics.worst_r2_text` does."""
+    worst, bad = worst_defined_r2(m, key)
+    return (_fmt(worst) if worst is not None else "—") + (f" ({', '.join(bad)}: —)" if bad else "")
 
 
 def _uncertainty(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
