@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -150,3 +151,26 @@ def test_evaluate_writes_each_episodes_scores_into_its_figure(tmp_path, monkeypa
         assert omega_r2 == [part["omega"][n]["r2"] for n in ds.spec.names]
         assert theta_r2 == [part["theta"][n]["r2"] for n in ds.spec.names]
     assert (tmp_path / "ev" / "cbe.png").stat().st_size > 0
+
+
+def test_models_of_other_windows_are_scored_on_the_same_samples():
+    """A compared model with a longer window was scored from its own warm-up on, on fewer
+    samples than the model beside it; every model is now scored after the longest one."""
+    from excavator_surrogate.evaluate.cbe import evaluate_models
+    from excavator_surrogate.surrogate.rollout import rollout_episodes
+    from tests.helpers.surrogates import tiny_surrogate
+    from tests.helpers.training import tiny_dataset
+
+    ds = tiny_dataset(3, n_train=1, n_step=120)
+    short = tiny_surrogate(ds.spec, ds.train, window=4, seed=1)
+    long = tiny_surrogate(ds.spec, ds.train, window=12, seed=2)
+    metrics, runs = evaluate_models({"short": short, "long": long}, ds.test)
+    assert {r.warmup for rs in runs.values() for r in rs} == {12}
+    own = rollout_episodes(short, ds.test)  # scored from its own warm-up of 4
+    assert own[0].warmup == 4
+    want = cbe_metrics([dataclasses.replace(r, warmup=12) for r in own], ds.spec)
+    for j in ds.spec.names:
+        assert metrics["short"]["theta"][j]["rmse"] == pytest.approx(want["theta"][j]["rmse"])
+        assert metrics["short"]["theta"][j]["rmse"] != pytest.approx(
+            cbe_metrics(own, ds.spec)["theta"][j]["rmse"]
+        )

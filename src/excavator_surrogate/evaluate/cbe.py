@@ -127,6 +127,13 @@ def evaluate_models(
             )
         sur.eval()
         runs[label] = rollout_episodes(sur, episodes, reference=reference, max_steps=max_steps)
+    # every model is scored on the same samples: each episode from the longest warm-up (a
+    # model with a shorter window would otherwise be scored on more, and easier, samples)
+    for i in range(len(episodes)):
+        w = max(r[i].warmup for r in runs.values())
+        for r in runs.values():
+            r[i] = dataclasses.replace(r[i], warmup=w)
+    for label, sur in models.items():
         metrics[label] = cbe_metrics(runs[label], sur.spec)
     return metrics, runs
 
@@ -257,7 +264,7 @@ def evaluate_checkpoint(
         "mode": sur.mode,
         "n_episode": len(main_runs),
         "n_step_scored": int(sum(len(r.time) - r.warmup for r in main_runs)),
-        "warmup": sur.window,
+        "warmup": max(m.window for m in models.values()),  # every model scored after it
         "dt": sur.spec.dt,
         "episodes": [
             {"name": r.name, "n_step": len(r.time), **err}

@@ -4,9 +4,9 @@ Shared by training's validation (:mod:`.validation`, which selects models on it)
 CBE report (:mod:`..evaluate.metrics`), so the two score the same thing:
 
 - The warm-up (the first ``W`` recorded samples that start the run) is excluded.
-- A periodic joint's reference is unwrapped on the branch the free run starts from (its
-  last warm-up sample), so a swing stored in ``[-pi, pi)`` is scored as it moves, even when
-  it crosses ``+-pi`` in the warm-up.
+- A periodic joint's reference is unwrapped on the turn of the free run where scoring
+  begins, so a swing stored in ``[-pi, pi)`` is scored as it moves, even when it crosses
+  ``+-pi`` in the warm-up.
 - Pooled over episodes, each episode of a periodic joint is taken on the ``2 pi`` branch
   nearest the pooled reference's circular mean: ``theta`` and ``theta + 2 pi`` are one pose,
   so R^2 does not depend on which turn a log's angle was written in.
@@ -28,6 +28,10 @@ from .angles import unwrap_periodic
 CONSTANT = 1e-9
 """A reference column whose range (max - min) is at most this times ``max(1, max |ref|)`` is
 constant: its R^2 is undefined (NaN, ``None`` in JSON), not ``1 - SS_res / rounding noise``."""
+
+
+TURN = 2 * math.pi
+"""One turn of a periodic joint [rad]."""
 
 
 class RunLike(Protocol):
@@ -90,15 +94,20 @@ def regression_metrics(
 
 def branch_reference(run: RunLike, spec: MachineSpec) -> np.ndarray:
     """``(n_step, n_joint)`` reference angle [rad] of one free run, each periodic joint
-    unwrapped on the branch the free run starts from (its last warm-up sample ``a = max(W -
-    1, 0)``)::
+    unwrapped and put on the turn of the free run where scoring begins (sample ``W``)::
 
-        ref = unwrap(theta_ref) - (unwrap(theta_ref)[a] - theta_ref[a])
+        ref = unwrap(theta_ref) + 2 pi round((theta_hat[W] - unwrap(theta_ref)[W]) / 2 pi)
+
+    The free run starts from the stored (possibly wrapped) warm-up, so a swing that crosses
+    ``+-pi`` in the warm-up is compared on the free run's turn, not a turn away.
     """
     ref = unwrap_periodic(run.theta_ref, spec)
-    if len(ref):
-        a = min(max(run.warmup - 1, 0), len(ref) - 1)
-        ref -= ref[a] - np.asarray(run.theta_ref[a], dtype=np.float64)
+    w = run.warmup
+    if w < len(ref):
+        with np.errstate(invalid="ignore"):
+            turns = np.round((np.asarray(run.theta_hat[w], dtype=np.float64) - ref[w]) / TURN)
+        periodic = np.asarray(spec.periodic, dtype=bool) & np.isfinite(turns)
+        ref += TURN * np.where(periodic, turns, 0.0)
     return ref
 
 
@@ -143,9 +152,9 @@ def scored_angles(
         # c = arg( mean_k exp(i theta_ref[k]) )
         c = math.atan2(np.mean(np.sin(pooled)), np.mean(np.cos(pooled)))
         for pred, ref in pairs:
-            k = round((float(np.mean(ref[:, j])) - c) / (2 * math.pi))
-            pred[:, j] -= 2 * math.pi * k
-            ref[:, j] -= 2 * math.pi * k
+            k = round((float(np.mean(ref[:, j])) - c) / TURN)
+            pred[:, j] -= TURN * k
+            ref[:, j] -= TURN * k
     if not pairs:
         empty = np.zeros((0, spec.n_joint))
         return empty, empty, ~moves
