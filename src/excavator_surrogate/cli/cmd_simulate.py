@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..config import parse_sets
+from ..config import parse_sets, preset_names
 from ..errors import ConfigError
 from ..outdir import out_dir, preset_files
 from ..stages import check_dataset_size, check_sets_read, load_preset
@@ -19,18 +19,20 @@ def register(subparsers: Any) -> None:
     """Add the ``simulate`` subcommand."""
     p = subparsers.add_parser(
         "simulate",
-        help="generate a dataset with the MuJoCo excavator (Stage I)",
+        help="generate a dataset with the built-in MuJoCo excavator (ideal or hydraulic)",
         description=(
-            "Simulate excitation episodes on the ideal MuJoCo excavator (50 ms delay, 20 Hz) "
-            "and write a dataset folder (manifest.json, config.toml, episodes/*.parquet)."
+            "Simulate episodes on the built-in MuJoCo excavator, as the preset says: the ideal "
+            "plant (50 ms delay, 20 Hz; Stage I) or the hydraulic stand-in (dead zones, "
+            "hysteresis, soil and payload, sensor faults, exogenous inputs; Stage II), and "
+            "write a dataset folder (manifest.json, config.toml, episodes/*.parquet)."
         ),
     )
     p.add_argument(
         "--preset",
         default=DEFAULT_PRESET,
         metavar="NAME|FILE.toml",
-        help=f"shipped preset name (tiny, quick, paper-stage1) or a TOML file with a [simulate] "
-        f"table (default: {DEFAULT_PRESET})",
+        help=f"shipped preset name ({', '.join(preset_names())}) or a TOML file with a "
+        f"[simulate] table (default: {DEFAULT_PRESET})",
     )
     add_out(p, "output dataset folder", replaced=True)
     p.add_argument(
