@@ -139,30 +139,29 @@ def scored_angles(
         episode.
     """
     pairs = [run_angles(r, spec) for r in runs]
-    pairs = [(p, q) for p, q in pairs if len(q)] or pairs[:1]
+    if not pairs:
+        empty = np.zeros((0, spec.n_joint))
+        return empty, empty, np.ones(spec.n_joint, dtype=bool)
     moves = np.zeros(spec.n_joint, dtype=bool)
     for _, ref in pairs:
         moves |= moving(ref)
+    pred_all = np.concatenate([p for p, _ in pairs])
+    ref_all = np.concatenate([q for _, q in pairs])
     for j, periodic in enumerate(spec.periodic):
-        if not (periodic and align_turns and pairs):
-            continue
-        pooled = np.concatenate([ref[:, j] for _, ref in pairs])
-        if not (len(pooled) and np.isfinite(pooled).all()):
+        if not (periodic and align_turns and len(ref_all) and np.isfinite(ref_all[:, j]).all()):
             continue
         # c = arg( mean_k exp(i theta_ref[k]) )
-        c = math.atan2(np.mean(np.sin(pooled)), np.mean(np.cos(pooled)))
-        for pred, ref in pairs:
-            k = round((float(np.mean(ref[:, j])) - c) / TURN)
-            pred[:, j] -= TURN * k
-            ref[:, j] -= TURN * k
-    if not pairs:
-        empty = np.zeros((0, spec.n_joint))
-        return empty, empty, ~moves
-    return (
-        np.concatenate([p for p, _ in pairs]),
-        np.concatenate([q for _, q in pairs]),
-        ~moves,
-    )
+        c = math.atan2(np.mean(np.sin(ref_all[:, j])), np.mean(np.cos(ref_all[:, j])))
+        start = 0
+        for _, ref in pairs:
+            # k_e = round((m_e - c) / 2 pi);  theta <- theta - 2 pi k_e  (both, episode e)
+            stop = start + len(ref)
+            if stop > start:
+                k = round((float(np.mean(ref[:, j])) - c) / TURN)
+                pred_all[start:stop, j] -= TURN * k
+                ref_all[start:stop, j] -= TURN * k
+            start = stop
+    return pred_all, ref_all, ~moves
 
 
 def worst_r2(r2: Sequence[float]) -> float:
