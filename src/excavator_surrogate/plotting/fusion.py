@@ -1,4 +1,7 @@
-"""Kalman fusion figure (paper Fig. 3): raw angle, gyro-integrated angle, fused angle (+ truth)."""
+"""Kalman fusion figure (paper Fig. 3): raw angle, gyro-integrated angle, fused angle (+ truth).
+
+A linear joint's figure shows its stroke the same way, in the joint's printed unit (mm ...).
+"""
 
 from __future__ import annotations
 
@@ -24,6 +27,8 @@ def plot_fusion_arrays(
     trusted: np.ndarray | None = None,
     joint_name: str = "joint",
     title: str | None = None,
+    unit: str = "rad",
+    factor: float = 1.0,
 ) -> Path:
     """Write the fusion figure for one joint as PNG.
 
@@ -38,6 +43,10 @@ def plot_fusion_arrays(
         trusted: optional (n_step,) bool flags c_t; untrusted raw samples are marked.
         joint_name: used in the title and axis label.
         title: figure title (default names the joint).
+        unit: the unit drawn: ``rad`` (an angle), or a linear joint's ``m``, ``cm`` or ``mm``
+            (the arrays are then its stroke [m] and stroke rate [m/s]).
+        factor: drawn value = stored value x ``factor`` (``JointSpec.display_factor``:
+            1000 for a stroke drawn in mm).
 
     The gyro-integrated angle is ``theta_intg_t = theta_hat_0 + dt * sum_{j=1..t} omega_j``
     (anchored at the first fused sample, then pure integration: it shows the gyro drift).
@@ -58,30 +67,35 @@ def plot_fusion_arrays(
     for name, arr in arrays.items():
         if np.shape(arr) != (n,):
             raise DataError(None, f"fusion plot: {name} has shape {np.shape(arr)}, expected ({n},)")
-    theta_fused = np.asarray(theta_fused, dtype=float)
+    theta_raw, theta_fused = np.asarray(theta_raw, dtype=float), np.asarray(theta_fused, float)
     theta_intg = theta_fused[0] + integrate_gyro(np.asarray(omega_raw, dtype=float), dt)
+    what, rate = ("angle", "gyro") if unit == "rad" else ("stroke", "rate")
 
     fig, ax = plt.subplots(figsize=(9, 4.2))
-    ax.plot(time, theta_raw, color="tab:blue", lw=0.9, label=r"raw angle $\theta_t$")
+    ax.plot(time, factor * theta_raw, color="tab:blue", lw=0.9, label=rf"raw {what} $\theta_t$")
     ax.plot(
-        time, theta_intg, color="tab:orange", lw=1.0, label=r"integrated gyro $\theta^{intg}_t$"
+        time,
+        factor * theta_intg,
+        color="tab:orange",
+        lw=1.0,
+        label=rf"integrated {rate} $\theta^{{intg}}_t$",
     )
-    ax.plot(time, theta_fused, color="tab:red", lw=1.3, label=r"fused $\hat\theta_t$")
+    ax.plot(time, factor * theta_fused, color="tab:red", lw=1.3, label=r"fused $\hat\theta_t$")
     if theta_true is not None:
-        ax.plot(time, theta_true, color="k", lw=0.9, ls="--", label="truth")
+        ax.plot(time, factor * np.asarray(theta_true), color="k", lw=0.9, ls="--", label="truth")
     if trusted is not None:
         bad = ~np.asarray(trusted, dtype=bool)
         if bad.any():
             ax.plot(
                 time[bad],
-                np.asarray(theta_raw)[bad],
+                factor * theta_raw[bad],
                 "x",
                 color="tab:purple",
                 ms=4,
                 label=r"untrusted ($c_t=0$)",
             )
     ax.set_xlabel("time [s]")
-    ax.set_ylabel(f"{joint_name} angle [rad]")
+    ax.set_ylabel(f"{joint_name} {what} [{unit}]")
     ax.set_title(title or f"Kalman fusion, {joint_name} joint")
     ax.grid(alpha=0.3)
     ax.legend(loc="best", fontsize=8)
@@ -101,7 +115,8 @@ def plot_fusion(
     path: str | Path,
     t_range: tuple[float, float] | None = None,
 ) -> Path:
-    """Fusion figure for one joint of an episode and its cleaned version.
+    """Fusion figure for one joint of an episode and its cleaned version (a linear joint's
+    stroke drawn in its printed unit: ``JointSpec.display_unit``, ``display_factor``).
 
     Args:
         raw: measured episode (its ``theta``/``omega``; ``theta_true`` drawn if present).
@@ -143,6 +158,7 @@ def plot_fusion(
             )
     truth = None if theta_true is None else theta_true[sel]
     trusted = None if cleaned.trusted is None else cleaned.trusted[sel, k]
+    j = raw.spec.joints[k]
     return plot_fusion_arrays(
         raw.time[sel],
         theta_raw[sel],
@@ -153,4 +169,6 @@ def plot_fusion(
         theta_true=truth,
         trusted=trusted,
         joint_name=names[k],
+        unit=j.display_unit,
+        factor=j.display_factor,
     )
