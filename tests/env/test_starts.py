@@ -3,6 +3,7 @@ against the free run of ``exsur evaluate``, and the one-line errors."""
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import numpy as np
@@ -18,8 +19,9 @@ from excavator_surrogate.env import (
     export_onnx,
 )
 from excavator_surrogate.env.engine import SurrogateEngine
+from excavator_surrogate.env.starts import check_history, check_theta0
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.spec import EXCAVATOR, JointSpec, MachineSpec
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint
 from excavator_surrogate.surrogate.ensemble import merge
 from excavator_surrogate.surrogate.rollout import ClosedLoop, rollout
@@ -358,3 +360,49 @@ def test_a_last_angle_a_hair_past_a_stop_starts_there_with_one_warning(stateful_
     far.theta[:, 1] = stop + 0.5  # beyond what a start pose may: no moment to draw
     with pytest.raises(ConfigError, match="ending inside the joint limits"):
         ExcavatorSurrogateEnv(stateful_ckpt, recorded_starts=[far])
+
+
+STROKE = MachineSpec(
+    (
+        JointSpec("swing", periodic=True),
+        JointSpec("boom", kind="linear", unit="mm", theta_min=0.2507, theta_max=2.0317),
+        JointSpec("arm", theta_min=0.5, theta_max=2.7),
+    )
+)
+
+
+def test_a_stroke_is_named_in_its_unit_at_reset() -> None:
+    """A stroke outside its limits, past its stop, and jumping: in mm (was '3 rad ... by
+    55.5 deg', '40 rad/s')."""
+    with pytest.raises(ConfigError) as err:
+        check_theta0(STROKE, [0.0, 3.0, 1.0], where="r")
+    assert str(err.value) == (
+        "r: theta0[1] (boom) = 3 m (3000 mm) is outside the joint limits [250.7, 2031.7] mm "
+        "by 968.3 mm, more than 2% of the range: give a start pose inside them"
+    )
+    with pytest.warns(UserWarning, match=r"= 2.05 m \(2050 mm\) is 18.3 mm beyond its end stop "):
+        check_theta0(STROKE, [0.0, 2.05, 1.0], where="r")
+    theta = np.tile([0.0, 1.0, 1.0], (4, 1))
+    theta[3, 1] = 2.0
+    with pytest.raises(ConfigError, match=r"\(20000 mm/s, beyond the guard's omega_max 10 m/s = "):
+        check_history(STROKE, {"theta": theta, "u": np.zeros((3, 3))}, where="r", omega_max=10.0)
+    theta[3] = [0.0, 2.05, 2.71]  # both past a stop: the angle in deg, the stroke in mm
+    with pytest.warns(UserWarning, match=r"ends up to 0.573 deg, 18.3 mm \(boom\) beyond an end"):
+        check_history(STROKE, {"theta": theta, "u": np.zeros((3, 3))}, where="r")
+    with pytest.raises(ConfigError, match=r"finite values \(angles in rad, strokes in m\)"):
+        check_theta0(STROKE, [0.0, np.nan, 1.0], where="r")
+
+
+def test_an_angle_is_named_as_before_at_reset() -> None:
+    with pytest.raises(ConfigError) as err:
+        check_theta0(EXCAVATOR, [0.0, 3.0, 1.5, 0.5], where="r")
+    boom = EXCAVATOR.joints[1]
+    assert str(err.value) == (
+        f"r: theta0[1] (boom) = 3 rad is outside the joint limits [{boom.theta_min}, "
+        f"{boom.theta_max}] by {math.degrees(3.0 - boom.theta_max):.3g} deg, more than 2% of "
+        "the range: give a start pose inside them"
+    )
+    with pytest.warns(UserWarning, match=r"= 0.86 rad is 0.573 deg beyond its end stop 0.85 rad"):
+        check_theta0(EXCAVATOR, [0.0, boom.theta_max + 0.01, 1.5, 0.5], where="r")
+    with pytest.raises(ConfigError, match=r"finite angles in rad for joints"):
+        check_theta0(EXCAVATOR, [0.0, np.nan, 1.5, 0.5], where="r")

@@ -24,11 +24,11 @@ from excavator_surrogate.env import (
 )
 from excavator_surrogate.env.engine import SurrogateEngine
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.spec import EXCAVATOR
+from excavator_surrogate.spec import EXCAVATOR, JointSpec, MachineSpec
 from excavator_surrogate.surrogate.angles import joint_limits
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
 from excavator_surrogate.surrogate.rollout import ClosedLoop
-from tests.helpers.surrogates import VARIANTS, variant_surrogate
+from tests.helpers.surrogates import VARIANTS, tiny_surrogate, variant_surrogate
 
 N_ENVS = 3
 LIMIT = 7  # short episodes so autoresets happen within the test
@@ -411,9 +411,22 @@ def test_poses_a_hair_beyond_the_stops_start_there_with_one_warning(stateful_ckp
         warnings.simplefilter("always")
         obs, _ = env.reset(options={"theta0": theta0})
     said = [str(w.message) for w in got if "beyond the end stops" in str(w.message)]
-    assert len(said) == 1 and "2 env(s) (first: env 0)" in said[0]
+    assert len(said) == 1 and "2 env(s) (first: env 0) lay up to 1.15 deg beyond" in said[0]
     want = theta0.copy()
     want[0, 1], want[2, 1], want[2, 3] = 0.85, -0.75, 2.5
     np.testing.assert_allclose(obs[:, :4], want, atol=1e-6)
     with pytest.raises(ConfigError, match="outside the joint limits"):
         env.reset(options={"theta0": theta0 + np.array([0.0, 0.1, 0.0, 0.0])})
+
+
+def test_a_stroke_a_hair_beyond_its_stop_is_named_in_its_unit() -> None:
+    """The warning gave a stroke's 18.3 mm as '1.05 deg'."""
+    spec = MachineSpec(
+        (
+            JointSpec("swing", periodic=True),
+            JointSpec("boom", kind="linear", unit="mm", theta_min=0.2507, theta_max=2.0317),
+        )
+    )
+    env = SurrogateVectorEnv(tiny_surrogate(spec), 2, max_episode_steps=None)
+    with pytest.warns(UserWarning, match=r"lay up to 18.3 mm \(boom\) beyond the end stops"):
+        env.reset(options={"theta0": np.array([0.0, 2.05])})

@@ -1,7 +1,8 @@
 """Where an episode starts: a pose at rest, or a recorded history.
 
 :func:`check_theta0` validates a start pose at rest (``options["theta0"]``), for both
-environments.
+environments.  Angles are in rad and a linear joint's stroke in m, as stored; the messages
+give a stroke, its distance beyond a stop and its jumps in the joint's printed unit (mm ...).
 
 ``reset(options={"history": {"theta": theta, "u": u}})`` warms the surrogate up on the
 machine's own samples: ``theta`` (n_hist, n_joint) [rad] are ``theta[0..n_hist-1]`` and
@@ -33,13 +34,49 @@ import numpy as np
 
 from ..data.episode import Episode
 from ..errors import ConfigError
-from ..spec import MachineSpec
+from ..spec import JointSpec, MachineSpec
 from ..surrogate.angles import joint_limits, wrap_periodic
 
 THETA0_SLACK = 0.02
 """A given start pose may lie this fraction of a joint's range beyond its end stop: it starts
 at the stop, and a warning says so (a pose read off a log at a stop, plus sensor noise, or
 a model whose stops are its training data's range).  Farther out is an error."""
+
+
+def _sig(x: float) -> str:
+    """``x`` to 4 significant digits, without an exponent below 1e6 (``40000``, ``968.3``)."""
+    return f"{float(f'{x:.4g}'):.6g}"
+
+
+def shown(j: JointSpec, x: float) -> str:
+    """A start value of joint ``j`` as the env takes it, ``0.5 rad`` or ``2 m``; a stroke
+    printed in cm or mm names that too (``2 m (2000 mm)``)."""
+    if not j.linear:
+        return f"{x:.4g} rad"
+    if j.display_factor == 1.0:
+        return f"{x:.4g} m"
+    return f"{x:.4g} m ({_sig(x * j.display_factor)} {j.display_unit})"
+
+
+def distance(j: JointSpec, d: float) -> str:
+    """How far ``d`` [rad or m] a value of joint ``j`` lies beyond a stop: in deg for an angle,
+    in the joint's printed unit for a stroke (``968.3 mm``)."""
+    if not j.linear:
+        return f"{math.degrees(d):.3g} deg"
+    return f"{_sig(d * j.display_factor)} {j.display_unit}"
+
+
+def overshoot(spec: MachineSpec, beyond: np.ndarray) -> str:
+    """The largest of ``beyond`` (..., n_joint) [rad or m], how far start values were put back
+    at their stops: the angles' largest in deg (``1.05 deg``), each stroke's in its unit with
+    its name (``18.3 mm (boom)``), joined by commas; joints not moved are left out."""
+    worst = np.abs(beyond).reshape(-1, spec.n_joint).max(axis=0)
+    angles = [w for j, w in zip(spec.joints, worst) if not j.linear and w > 0]
+    parts = [f"{math.degrees(max(angles)):.3g} deg"] if angles else []
+    parts += [
+        f"{distance(j, w)} ({j.name})" for j, w in zip(spec.joints, worst) if j.linear and w > 0
+    ]
+    return ", ".join(parts)
 
 
 def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = True) -> np.ndarray:
@@ -57,8 +94,9 @@ def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = Tru
     except (TypeError, ValueError):  # text, ragged lists, None entries
         th = np.full(0, np.nan)
     if th.shape != (spec.n_joint,) or not np.isfinite(th).all():
+        what = "angles in rad" if not spec.any_linear else "values (angles in rad, strokes in m)"
         raise ConfigError(
-            f"{where}: theta0 must be {spec.n_joint} finite angles in rad for joints "
+            f"{where}: theta0 must be {spec.n_joint} finite {what} for joints "
             f"{list(spec.names)}, got {theta0!r:.200}"
         )
     th = th.copy()
@@ -71,19 +109,29 @@ def check_theta0(spec: MachineSpec, theta0: Any, *, where: str, warn: bool = Tru
             continue
         if beyond > slack + 1e-9:
             raise ConfigError(
-                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is outside the joint limits "
-                f"[{j.theta_min}, {j.theta_max}] by {math.degrees(beyond):.3g} deg, more than "
+                f"{where}: theta0[{k}] ({j.name}) = {shown(j, th[k])} is outside the joint "
+                f"limits {_limits(j)} by {distance(j, beyond)}, more than "
                 f"{THETA0_SLACK:.0%} of the range: give a start pose inside them"
             )
         stop = lo if th[k] < lo else hi
         if warn:
             gym.logger.warn(
-                f"{where}: theta0[{k}] ({j.name}) = {th[k]:.4g} rad is "
-                f"{math.degrees(beyond):.3g} deg beyond its end stop {stop:.4g} rad: it starts "
-                "at the stop"
+                f"{where}: theta0[{k}] ({j.name}) = {shown(j, th[k])} is "
+                f"{distance(j, beyond)} beyond its end stop {shown(j, stop)}: it starts at the "
+                "stop"
             )
         th[k] = stop
     return th
+
+
+def _limits(j: JointSpec) -> str:
+    """Joint ``j``'s limits as the messages print them: ``[lo, hi]`` in rad for an angle (as
+    stored), in the printed unit for a stroke (``[250.7, 2031.7] mm``)."""
+    if not j.linear:
+        return f"[{j.theta_min}, {j.theta_max}]"
+    f = j.display_factor
+    lo, hi = (None if v is None else f"{v * f:.6g}" for v in (j.theta_min, j.theta_max))
+    return f"[{lo}, {hi}] {j.display_unit}"
 
 
 def _array(value: Any, *, what: str, where: str) -> np.ndarray:
@@ -173,22 +221,30 @@ def check_history(
         if fast.size:
             at = tuple(int(i) for i in fast[0])
             env = f" env {at[0]}" if len(at) == 3 else ""
+            j = spec.joints[at[-1]]
+            # the guard's bound is one number in stored units: rad/s, or m/s for a stroke
+            fast_at, bound = f"{speed[at]:.3g} rad/s", f"{omega_max:g}"
+            if j.linear:
+                f = j.display_factor
+                fast_at = f"{_sig(speed[at] * f)} {j.rate_unit}"
+                bound = f"{omega_max:g} m/s"
+                if f != 1.0:
+                    bound += f" = {_sig(omega_max * f)} {j.rate_unit}"
             raise ConfigError(
-                f"{where}{env}: history['theta'] of {spec.names[at[-1]]} jumps between samples "
-                f"{at[-2]} and {at[-2] + 1} ({speed[at]:.3g} rad/s, beyond the guard's "
-                f"omega_max {omega_max:g}): a jump in the log; clean it (exsur clean) or start "
-                "from a stretch without one"
+                f"{where}{env}: history['theta'] of {j.name} jumps between samples "
+                f"{at[-2]} and {at[-2] + 1} ({fast_at}, beyond the guard's omega_max {bound}): a "
+                "jump in the log; clean it (exsur clean) or start from a stretch without one"
             )
     theta = np.array(theta, dtype=np.float64)  # a writable copy (broadcasts are read-only)
     u = np.array(u, dtype=np.float64)
     rows = theta.reshape(-1, *theta.shape[-2:])
-    clipped, worst = [], 0.0
+    clipped, moved = [], np.zeros((len(rows), n_joint))
     for i, th in enumerate(rows):
         who = f"{where} env {i}" if batched else where
         last = check_theta0(spec, th[-1], where=f"{who} history['theta'][-1]", warn=False)
         if not np.array_equal(last, th[-1]):
             clipped.append(i)
-            worst = max(worst, math.degrees(float(np.abs(last - th[-1]).max())))
+            moved[i] = last - th[-1]
         th[-1] = last
     if warn and clipped:  # one warning for all of them
         if n_envs is not None:  # one history for all: each env's is clipped alike
@@ -197,7 +253,8 @@ def check_history(
         else:
             whose = "the history ends"
         gym.logger.warn(
-            f"{where}: {whose} up to {worst:.3g} deg beyond an end stop: it starts at the stop"
+            f"{where}: {whose} up to {overshoot(spec, moved)} beyond an end stop: it starts at "
+            "the stop"
         )
     if n_envs is not None and not batched:
         theta = np.broadcast_to(theta, (n_envs, *theta.shape))

@@ -68,6 +68,7 @@ from .starts import (
     check_history,
     check_theta0,
     last_velocity,
+    overshoot,
     warn_short_history,
 )
 from .surrogate_env import load_surrogate, recorded_starts_of
@@ -213,7 +214,9 @@ class SurrogateVectorEnv(VectorEnv):
             if g.shape != (self.num_envs, spec.n_joint):
                 raise ConfigError(
                     f"{self.env_id}: options['theta0'] must be ({spec.n_joint},) or "
-                    f"({self.num_envs}, {spec.n_joint}) angles in rad, got shape {g.shape}"
+                    f"({self.num_envs}, {spec.n_joint}) "
+                    f"{'angles in rad' if not spec.any_linear else 'values (strokes in m)'}, "
+                    f"got shape {g.shape}"
                 )
         clipped = []
         for i in np.flatnonzero(mask):
@@ -225,10 +228,10 @@ class SurrogateVectorEnv(VectorEnv):
             else:
                 theta0[i] = start_pose(spec, self.task, self._rngs[i], margin=self.reset_margin)
         if clipped:  # one warning for all of them
-            worst = np.degrees(np.abs(theta0[clipped] - g[clipped]).max())
+            worst = overshoot(spec, theta0[clipped] - g[clipped])
             logger.warn(
                 f"{self.env_id}.reset: the theta0 of {len(clipped)} env(s) (first: env "
-                f"{clipped[0]}) lay up to {worst:.3g} deg beyond the end stops: they start at "
+                f"{clipped[0]}) lay up to {worst} beyond the end stops: they start at "
                 "the stops"
             )
         return theta0
