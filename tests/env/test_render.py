@@ -14,8 +14,11 @@ import numpy as np
 import pytest
 
 import excavator_surrogate.env as E
-from excavator_surrogate.env.render import RenderError, gl_backend, side_by_side
+from excavator_surrogate.env.render import PoseScene, RenderError, gl_backend, side_by_side
 from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.spec import EXCAVATOR, JointSpec, Linkage, MachineSpec
+from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from tests.helpers.surrogates import tiny_surrogate
 
 POSE_A = np.array([0.3, 0.2, 1.5, 1.0])
 POSE_B = np.array([-1.2, -0.4, 2.2, 0.0])
@@ -139,3 +142,69 @@ def test_headless_linux_defaults_to_egl(monkeypatch: pytest.MonkeyPatch) -> None
     assert os.environ["MUJOCO_GL"] == "egl"
     monkeypatch.setenv("MUJOCO_GL", "osmesa")  # the user's choice is kept
     assert gl_backend() == "osmesa"
+
+
+LINKAGES = {  # examples/stroke_make_logs.py's made-up cylinders [m, rad]
+    "boom": Linkage(a=1.25, b=3.4, phi=1.15, l0=2.05),
+    "arm": Linkage(a=0.9, b=3.2, phi=-0.25, l0=2.25),
+    "bucket": Linkage(a=0.75, b=2.6, phi=0.62, l0=1.75),
+}
+
+
+def _stroke_spec(*, linkage: bool = True) -> MachineSpec:
+    """The excavator with boom, arm and bucket sensed as strokes in mm."""
+    joints = [EXCAVATOR.joints[0]]
+    for j in EXCAVATOR.joints[1:]:
+        lk = LINKAGES[j.name]
+        lo, hi = sorted(float(s) for s in lk.stroke(np.array([j.theta_min, j.theta_max])))
+        joints.append(
+            JointSpec(
+                j.name,
+                kind="linear",
+                unit="mm",
+                theta_min=lo,
+                theta_max=hi,
+                linkage=lk if linkage else None,
+            )
+        )
+    return MachineSpec(tuple(joints), rate_hz=EXCAVATOR.rate_hz)
+
+
+def _strokes(pose: np.ndarray) -> np.ndarray:
+    """A pose [rad] of the excavator as the stroke machine's values (swing [rad], strokes [m])."""
+    out = np.array(pose, dtype=np.float64)
+    for k, name in enumerate(("boom", "arm", "bucket"), start=1):
+        out[k] = LINKAGES[name].stroke(pose[k])
+    return out
+
+
+def test_a_stroke_is_posed_at_its_linkages_angle() -> None:
+    """Strokes [m] were written into qpos as angles [rad]: the boom's 1.9 m as 1.9 rad."""
+    scene = PoseScene(_stroke_spec(), where="t")
+    data = scene.pose(_strokes(POSE_A))
+    np.testing.assert_allclose(data.qpos[scene._qadr], POSE_A, atol=1e-12)
+    revolute = PoseScene(EXCAVATOR, where="t")  # an angle goes in as it is
+    np.testing.assert_array_equal(revolute.pose(POSE_B).qpos[revolute._qadr], POSE_B)
+
+
+def test_a_stroke_without_a_linkage_is_refused_when_made(tmp_path: Path) -> None:
+    ckpt = save_checkpoint(tmp_path / "s.pt", tiny_surrogate(_stroke_spec(linkage=False)))
+    with pytest.raises(ConfigError) as err:
+        gym.make(E.SURROGATE_ID, ckpt=str(ckpt), render_mode="rgb_array")
+    assert "cannot render joint 'boom': a stroke without a linkage" in str(err.value)
+    assert "\n" not in str(err.value)
+    env = gym.make(E.SURROGATE_ID, ckpt=str(ckpt))  # without rendering it runs
+    env.reset(seed=0)
+    env.close()
+
+
+def test_a_stroke_machine_draws_the_revolute_picture(gl: None, stateful_ckpt: Path) -> None:
+    rev = _make("surrogate", stateful_ckpt, render_mode="rgb_array", render_size=(160, 120))
+    sur = E.ExcavatorSurrogateEnv(
+        tiny_surrogate(_stroke_spec()), render_mode="rgb_array", render_size=(160, 120)
+    )
+    rev.reset(options={"theta0": POSE_A})
+    sur.reset(options={"theta0": _strokes(POSE_A)})
+    assert _mean_diff(rev.render(), sur.render()) < 1.0
+    rev.close()
+    sur.close()

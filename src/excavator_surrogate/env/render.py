@@ -175,12 +175,16 @@ class Viewer:
 class PoseScene:
     """The built-in excavator's MJCF posed at given joint angles (what the surrogate draws).
 
+    A linear joint (a cylinder stroke) is drawn at the joint angle its linkage gives
+    (:meth:`~excavator_surrogate.spec.Linkage.angle`); without a linkage its pose is
+    unknown, and the machine is refused.
+
     Args:
         spec: the machine; each joint must exist in the MJCF under its name.
         where: the environment, for messages.
 
     Raises:
-        ConfigError: a joint of ``spec`` is not in the MJCF.
+        ConfigError: a joint of ``spec`` is not in the MJCF, or is a stroke without a linkage.
     """
 
     def __init__(self, spec: MachineSpec, *, where: str) -> None:
@@ -190,19 +194,34 @@ class PoseScene:
         self.model = mujoco.MjModel.from_xml_path(str(xml))
         self.data = mujoco.MjData(self.model)
         adr = []
-        for name in spec.names:
+        for joint in spec.joints:
+            name = joint.name
             j = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, name)
             if j < 0:
                 raise ConfigError(
                     f"{where}: cannot render joint '{name}': the built-in excavator MJCF ({xml.name}) "
                     f"has no joint of that name; render a machine with joints of the excavator"
                 )
+            if joint.linear and joint.linkage is None:
+                raise ConfigError(
+                    f"{where}: cannot render joint '{name}': a stroke without a linkage (the "
+                    "MJCF poses joint angles); give the joint's linkage in the import mapping "
+                    "(docs/import.md, Linear joints), or leave render_mode unset"
+                )
             adr.append(int(self.model.jnt_qposadr[j]))
         self._qadr = np.array(adr, dtype=int)
+        self._linkages = [(k, j.linkage) for k, j in enumerate(spec.joints) if j.linkage]
+        """(index, linkage) of each linear joint (all have one), whose stroke is drawn at its
+        angle."""
 
     def pose(self, theta: np.ndarray) -> mujoco.MjData:
-        """``data`` with the joints at ``theta`` (n_joint,) [rad] and positions, lights and cameras updated (``mj_forward``)."""
-        self.data.qpos[self._qadr] = np.asarray(theta, dtype=np.float64)
+        """``data`` with the joints at ``theta`` (n_joint,) [rad; a stroke in m, drawn at its
+        linkage's angle] and positions, lights and cameras updated (``mj_forward``)."""
+        q = np.array(theta, dtype=np.float64)
+        for k, linkage in self._linkages:
+            # θ_k = arccos((a² + b² − (l0 + s_k)²) / (2ab)) − phi
+            q[k] = linkage.angle(q[k])
+        self.data.qpos[self._qadr] = q
         mujoco.mj_forward(self.model, self.data)
         return self.data
 

@@ -138,7 +138,9 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
     ## Rendering
     ``render_mode="rgb_array"``: the predicted pose drawn on the built-in excavator's MJCF
     (the same picture ``ExcavatorMujoco-v0`` draws at that pose); ``"human"``: MuJoCo's
-    viewer (needs a display).  See :mod:`.render`.
+    viewer (needs a display).  A stroke is drawn at the angle its joint's linkage gives; a
+    machine with a joint the MJCF lacks, or a stroke without a linkage, is refused when the
+    env is made.  See :mod:`.render`.
 
     ## Arguments
     | Parameter      | Type                    | Default   | Description                                             |
@@ -197,7 +199,9 @@ class ExcavatorSurrogateEnv(ExcavatorEnv):
             render_mode=render_mode,
             render_size=render_size,
         )
-        self._pose: PoseScene | None = None
+        # a machine the MJCF cannot pose (a joint it lacks, a stroke without a linkage) is
+        # refused here, in one line, not at the first frame
+        self._pose = PoseScene(self.machine, where=self.env_id) if render_mode else None
         on = wanted(sur, uncertainty)
         self.engine = SurrogateEngine(
             sur, n_envs=1, device=device, mode=mode, impl=impl, uncertainty=on
