@@ -66,6 +66,7 @@ def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert m["run"]["out"] == str(out.resolve())
     report = (out / "report.md").read_text()
     assert "- checkpoint: model/best.pt" in report and "- dataset: data" in report
+    assert report.rstrip().endswith("load_checkpoint`), `data/`.")  # the folders it wrote
     assert ".tmp" not in json.dumps(m) and ".tmp" not in report
     # the data the model trained on: its splits, and the command to see each joint
     assert "## Data" in report and "| train | 2 |" in report and "| test | 1 |" in report
@@ -88,6 +89,12 @@ def test_run_stage1_report(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     out.rename(moved)
     assert (moved / m["run"]["checkpoint"]).is_file()
     assert (moved / m["run"]["dataset"] / "manifest.json").is_file()
+    # a run on a dataset of the user's writes no data/, and its report lists none
+    again = tmp_path / "again"
+    argv = ["run", "--preset", str(_preset(tmp_path, "tiny")), "--data", str(moved / "data")]
+    assert main([*argv, "--out", str(again), "-q"]) == 0
+    assert not (again / "data").exists()
+    assert (again / "report.md").read_text().rstrip().endswith("load_checkpoint`).")
 
 
 def test_run_stage2_cleaning_section(tmp_path: Path) -> None:
@@ -126,6 +133,7 @@ steps_test = 300
     assert m["run"]["reference"] == "true"
     report = (out / "report.md").read_text()
     assert "Table III (noload)" in report and "Effect of cleaning" in report
+    assert report.rstrip().endswith("`data/`, `data_clean/`.")
     assert (out / "fusion_bucket.png").exists() and (out / "model_raw" / "best.pt").exists()
     # --members 2: every trained model is a two-seed ensemble, scored next to its members
     assert set(m["ensemble_members"]) == {"ensemble", "member 0", "member 1"}

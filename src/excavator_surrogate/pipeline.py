@@ -10,7 +10,8 @@ The report folder (written atomically: built in a temporary sibling, renamed whe
       cbe.png            # Figure-2-style closed-loop comparison
       fusion_<joint>.png # Figure-3-style Kalman fusion (Stage II presets)
       config.toml        # the resolved preset that produced the folder
-      data/              # the simulated dataset (measured; with *_true columns for Stage II)
+      data/              # the simulated or imported dataset (measured; with *_true columns
+                         # for Stage II); not with --data, whose dataset stays where it is
       data_clean/        # the cleaned dataset (Stage II)
       model/best.pt      # the surrogate checkpoint (+ log.csv, tb/)
       model_gru/, model_raw/   # baselines: GRU, and the LSTM trained on uncleaned data
@@ -259,6 +260,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
                     learning_curves=curves,
                     data=describe_dataset(train_ds, path=_in_run(train_ds.root, tmp)),
                     horizon_figure=(tmp / "horizon.png").is_file(),
+                    datasets=tuple(d for d in ("data", "data_clean") if (tmp / d).is_dir()),
                 ),
             ),
         )

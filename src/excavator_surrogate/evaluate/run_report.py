@@ -39,6 +39,9 @@ class ReportContext:
     """The trained-on dataset's card (:func:`.data_card.describe_dataset`); None: no section."""
     horizon_figure: bool = False
     """Whether the run folder holds ``horizon.png`` (the prediction-horizon figure)."""
+    datasets: tuple[str, ...] = ()
+    """The dataset folders the run wrote (``data``, ``data_clean``), relative to the run
+    folder; none when it trained on the user's ``--data`` without cleaning."""
 
 
 def _fmt(v: Any, f: float = 1.0) -> str:
@@ -298,14 +301,13 @@ def _data(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
 
 
 def _files(metrics: Mapping[str, Any], ctx: ReportContext) -> list[str]:
-    """What the folder holds."""
-    lines: list[str] = []
-    lines += [
+    """What the folder holds (a dataset folder only when the run wrote it)."""
+    folders = "".join(f", `{d}/`" for d in ctx.datasets)
+    return [
         "Files: `metrics.json`, `table.md`, `config.toml`, `model/best.pt` (load with "
-        "`excavator_surrogate.surrogate.load_checkpoint`), `data/`.",
+        f"`excavator_surrogate.surrogate.load_checkpoint`){folders}.",
         "",
     ]
-    return lines
 
 
 Section = Callable[[Mapping[str, Any], ReportContext], list[str]]
