@@ -7,7 +7,7 @@ import pytest
 
 from excavator_surrogate.control.mppi import MPPI, MPPIConfig
 from excavator_surrogate.control.reference import dig_reference, horizon_window
-from excavator_surrogate.errors import ConfigError
+from excavator_surrogate.errors import ConfigError, ExsurError
 from excavator_surrogate.spec import EXCAVATOR
 
 GAIN = 1e-3
@@ -80,6 +80,61 @@ def test_config_errors() -> None:
         MPPIConfig(n_horizon=4, replan=5)
     with pytest.raises(ConfigError, match="joint_weights"):
         MPPI(Integrator(), MPPIConfig(joint_weights=(1.0, 2.0)))
+
+
+@pytest.mark.parametrize("smooth", [float("nan"), float("inf"), -5.0])
+def test_smooth_must_be_finite_and_non_negative(smooth: float) -> None:
+    """NaN made every command NaN; a negative weight rewarded jerky commands."""
+    with pytest.raises(ConfigError, match="mppi.smooth"):
+        MPPIConfig(smooth=smooth)
+
+
+def test_joint_weights_must_be_finite() -> None:
+    """A NaN weight made every command NaN."""
+    with pytest.raises(ConfigError, match=r"mppi.joint_weights.*finite"):
+        MPPI(Integrator(), MPPIConfig(joint_weights=(float("nan"), 1.0, 1.0, 1.0)))
+
+
+def test_a_gap_in_the_reference_is_refused_by_row_and_joint() -> None:
+    """One NaN sample 0.45 s ahead made every command NaN, then kept the plan NaN for good
+    (the next plan's error blamed a gap in a log); now the step is refused and the plan is
+    kept, so the next step with a clean reference plans as usual."""
+    mppi = MPPI(Integrator(), MPPIConfig(n_sample=16, n_horizon=10))
+    theta0 = np.array([0.0, 0.1, 1.2, 0.8])
+    mppi.reset(theta0)
+    ref = np.repeat(theta0[None], 12, axis=0)
+    ref[9, 1] = np.nan
+    with pytest.raises(ConfigError, match=r"row 9 \(machine sample 10\), joint 1 \(boom\) is nan"):
+        mppi.act(0, ref)
+    with pytest.raises(ConfigError, match=r"row 9, joint 1 \(boom\)"):
+        mppi.plan(ref[:10])
+    assert np.all(mppi.mean == 0)
+    u = mppi.act(0, np.repeat(theta0[None], 12, axis=0))
+    assert np.all(np.isfinite(u))
+
+
+@pytest.mark.parametrize("shape", [(10, 3), (5, 4), (10,)])
+def test_a_reference_of_the_wrong_shape_is_one_line(shape: tuple[int, ...]) -> None:
+    """A bare numpy broadcasting ValueError before."""
+    mppi = MPPI(Integrator(), MPPIConfig(n_sample=16, n_horizon=10))
+    mppi.reset(np.zeros(4))
+    with pytest.raises(ConfigError, match=r"n_horizon = 10, n_joint = 4"):
+        mppi.act(0, np.zeros(shape))
+
+
+class NaNModel(Integrator):
+    """A model whose every prediction is NaN."""
+
+    def predict(self, u: np.ndarray) -> np.ndarray:
+        return np.full(u.shape, np.nan)
+
+
+def test_no_finite_candidate_raises_and_keeps_the_plan() -> None:
+    mppi = MPPI(NaNModel(), MPPIConfig(n_sample=8, n_horizon=5))
+    mppi.reset(np.zeros(4))
+    with pytest.raises(ExsurError, match="no candidate has a finite cost"):
+        mppi.act(0, np.zeros((5, 4)))
+    assert np.all(mppi.mean == 0) and np.all(mppi.u_prev == 0)
 
 
 def test_dig_reference() -> None:

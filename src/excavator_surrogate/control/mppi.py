@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, ExsurError
 from ..spec import MachineSpec
 from .predict import Predictor
 
@@ -59,7 +59,7 @@ class MPPIConfig:
     temperature: float = 0.1
     """λ relative to the batch's cost spread ``mean(S) - min(S)`` (smaller: greedier)."""
     smooth: float = 0.01
-    """Weight of the squared command change per sample (in half ranges)."""
+    """Weight of the squared command change per sample (in half ranges); finite, >= 0."""
     joint_weights: tuple[float, ...] = ()
     """Per-joint weights ``w_j`` of the squared angle error; empty = 1 for every joint."""
     seed: int = 0
@@ -79,10 +79,15 @@ class MPPIConfig:
             raise ConfigError(
                 f"mppi: need sigma > 0, 0 <= beta < 1, temperature > 0, got {self.sigma}, {self.beta}, {self.temperature}"
             )
-        if not (self.risk >= 0 and math.isfinite(self.risk)) or not self.ood_penalty >= 0:
+        if not (self.risk >= 0 and math.isfinite(self.risk)) or not (
+            self.ood_penalty >= 0 and math.isfinite(self.ood_penalty)
+        ):
             raise ConfigError(
-                f"mppi: need risk >= 0 and ood_penalty >= 0, got {self.risk}, {self.ood_penalty}"
+                "mppi: need finite risk >= 0 and ood_penalty >= 0, got "
+                f"{self.risk}, {self.ood_penalty}"
             )
+        if not (self.smooth >= 0 and math.isfinite(self.smooth)):  # < 0 rewards jerky commands
+            raise ConfigError(f"mppi.smooth: need a finite weight >= 0, got {self.smooth}")
 
 
 @dataclass
@@ -125,9 +130,9 @@ class MPPI:
         self.u_max = np.array([j.u_max for j in spec.joints])
         self.periodic = np.asarray(spec.periodic, dtype=bool)
         w = np.ones(n) if not cfg.joint_weights else np.asarray(cfg.joint_weights, dtype=float)
-        if w.shape != (n,) or np.any(w < 0):
+        if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0):
             raise ConfigError(
-                f"mppi.joint_weights: need {n} non-negative weights, got {w.tolist()}"
+                f"mppi.joint_weights: need {n} finite non-negative weights, got {w.tolist()}"
             )
         self.w = w
         self.rng = np.random.default_rng(cfg.seed)
@@ -195,11 +200,42 @@ class MPPI:
             s = s + self.cfg.ood_penalty * ood.mean(axis=1)
         return s
 
+    def check_reference(self, theta_ref: np.ndarray, *, exact: bool, k: int | None = None) -> None:
+        """Refuse a reference ``theta_ref`` [rad] that cannot score the candidates: not
+        (n_horizon, n_joint) (``exact``) or (>= n_horizon, n_joint), or a non-finite value among
+        its first n_horizon rows (named by row and joint; with ``k``, also by machine sample)."""
+        n, nj = self.cfg.n_horizon, self.spec.n_joint
+        rows = "" if exact else ">= "
+        if (
+            theta_ref.ndim != 2
+            or theta_ref.shape[1] != nj
+            or not (theta_ref.shape[0] == n if exact else theta_ref.shape[0] >= n)
+        ):
+            raise ConfigError(
+                f"mppi: theta_ref must be ({rows}n_horizon = {n}, n_joint = {nj}) [rad], got "
+                f"shape {theta_ref.shape}"
+            )
+        bad = np.argwhere(~np.isfinite(theta_ref[:n]))
+        if len(bad):
+            r, j = (int(x) for x in bad[0])
+            at = "" if k is None else f" (machine sample {k + 1 + r})"
+            raise ConfigError(
+                f"mppi: theta_ref row {r}{at}, joint {j} ({self.spec.names[j]}) is "
+                f"{theta_ref[r, j]}: the reference must be finite over the horizon; fill or cut "
+                "its gap"
+            )
+
     def plan(self, theta_ref: np.ndarray) -> np.ndarray:
         """One control step: returns the next ``replan`` commands (replan, n_joint) [command
-        units] for the reference ``theta_ref`` (n_horizon, n_joint) of samples k+1..k+N."""
+        units] for the reference ``theta_ref`` (n_horizon, n_joint) of samples k+1..k+N.
+
+        Raises :class:`ConfigError` for a reference of another shape or with a non-finite
+        value, :class:`ExsurError` if no candidate's predicted cost is finite (the plan is
+        then left as it was)."""
         t0 = time.perf_counter()
         cfg = self.cfg
+        theta_ref = np.asarray(theta_ref, dtype=np.float64)
+        self.check_reference(theta_ref, exact=True)
         lo = (self.u_min - self.u_center) / self.u_scale
         hi = (self.u_max - self.u_center) / self.u_scale
         v = np.clip(self.mean[None] + self.noise(), lo, hi)  # (K, N, J) half ranges
@@ -213,6 +249,12 @@ class MPPI:
             s = self.cost(theta, theta_ref, v)
         s = np.where(np.isfinite(s), s, np.inf)
         s_min = float(s.min())
+        if not math.isfinite(s_min):  # every weight would be NaN, and so the plan from here on
+            raise ExsurError(
+                f"mppi: no candidate has a finite cost: the predictor's angles are not finite "
+                f"for any of the {cfg.n_sample} candidates; check the measured angles and "
+                "commands it was given"
+            )
         spread = float(np.mean(s[np.isfinite(s)]) - s_min)
         lam = cfg.temperature * max(spread, 1e-12)
         wts = np.exp(-(s - s_min) / lam)
@@ -235,5 +277,7 @@ class MPPI:
         n_joint) reference of samples k+1..k+N (padded by the caller past the end)."""
         r = k % self.cfg.replan
         if r == 0:
-            self._plan = self.plan(np.asarray(theta_ref, dtype=np.float64)[: self.cfg.n_horizon])
+            theta_ref = np.asarray(theta_ref, dtype=np.float64)
+            self.check_reference(theta_ref, exact=False, k=k)
+            self._plan = self.plan(theta_ref[: self.cfg.n_horizon])
         return self._plan[r]
