@@ -182,3 +182,24 @@ def test_mppi_takes_over_mid_motion() -> None:
         theta = theta + EXCAVATOR.dt * GAIN * u
         mppi.observe(u, theta)
     assert np.abs(theta - target).max() < 0.05
+
+
+@pytest.mark.parametrize(("lo", "rest"), [(-1000.0, 0.0), (-200.0, 0.0), (100.0, 100.0)])
+def test_the_plan_after_reset_is_the_rest_command(lo: float, rest: float) -> None:
+    """The plan started at the range's centre: on [-200, 1000] every joint was commanded
+    about 300 (25 % of full scale) while asked to hold still; it starts at rest (0 clipped
+    into the range), also after ``reset_history``, and holds still with small commands."""
+    from dataclasses import replace
+
+    spec = replace(EXCAVATOR, joints=tuple(replace(j, u_min=lo) for j in EXCAVATOR.joints))
+    model = Integrator()
+    model.spec = spec
+    mppi = MPPI(model, MPPIConfig(seed=0))
+    theta0 = np.array([0.0, 0.1, 1.2, 0.8])
+    mppi.reset_history(np.stack([theta0, theta0]), np.array([[900.0, 900.0, 900.0, 900.0]]))
+    np.testing.assert_allclose(mppi.mean * mppi.u_scale + mppi.u_center, rest, atol=1e-9)
+    mppi.reset(theta0)
+    np.testing.assert_allclose(mppi.mean * mppi.u_scale + mppi.u_center, rest, atol=1e-9)
+    np.testing.assert_allclose(mppi.u_prev * mppi.u_scale + mppi.u_center, rest, atol=1e-9)
+    u = mppi.act(0, np.repeat(theta0[None], 20, axis=0))
+    assert np.abs(u - rest).max() < 100  # was 192-346 on [-200, 1000]

@@ -136,29 +136,35 @@ class MPPI:
             )
         self.w = w
         self.rng = np.random.default_rng(cfg.seed)
-        self.mean = np.zeros((cfg.n_horizon, n))
+        # ṽ_rest = (clip(0, u_min, u_max) - u_center) / u_scale: the rest command [half ranges]
+        self.v_rest = (np.clip(0.0, self.u_min, self.u_max) - self.u_center) / self.u_scale
+        """Rest command (n_joint,) in half ranges around u_center (0 on symmetric ranges)."""
+        self.mean = np.repeat(self.v_rest[None], cfg.n_horizon, axis=0)
         """Current plan (n_horizon, n_joint) in half ranges around u_center."""
-        self.u_prev = np.zeros(n)
+        self.u_prev = self.v_rest.copy()
         self._plan = np.zeros((cfg.replan, n))
         self.stats = PlanStats()
 
     def reset(self, theta0: np.ndarray) -> None:
-        """Start at rest at ``theta0`` (n_joint,) [rad]: empty plan, fresh noise generator."""
+        """Start at rest at ``theta0`` (n_joint,) [rad]: the plan holds the rest command (0
+        clipped into each joint's range), fresh noise generator."""
         self.predictor.reset(theta0)
         self._start(np.zeros_like(self.u_prev))
 
     def reset_history(self, theta_hist: np.ndarray, u_hist: np.ndarray) -> None:
         """Take over mid-motion after the recorded ``theta_hist`` (n_hist, n_joint) [rad] and
-        commands ``u_hist`` (n_hist - 1, n_u): the predictor warms up on them, the plan is
-        empty, and the smoothness cost starts from the last recorded command."""
+        commands ``u_hist`` (n_hist - 1, n_u): the predictor warms up on them, the plan holds
+        the rest command, and the smoothness cost starts from the last recorded command."""
         self.predictor.reset_history(theta_hist, u_hist)
         self._start(np.asarray(u_hist, dtype=np.float64)[-1, : self.u_prev.shape[-1]])
 
     def _start(self, u_last: np.ndarray) -> None:
-        """Empty plan, fresh noise generator, no statistics; the smoothness cost starts from
-        the command ``u_last`` (n_joint,) [command units], clipped into the range."""
+        """A plan at the rest command (not the range's centre: on an asymmetric range such as
+        [-200, 1000] that is 400 while asked to hold still), fresh noise generator, no
+        statistics; the smoothness cost starts from the command ``u_last`` (n_joint,)
+        [command units], clipped into the range."""
         self.rng = np.random.default_rng(self.cfg.seed)
-        self.mean[:] = 0.0
+        self.mean[:] = self.v_rest
         self.u_prev = (np.clip(u_last, self.u_min, self.u_max) - self.u_center) / self.u_scale
         self.stats = PlanStats()
 
