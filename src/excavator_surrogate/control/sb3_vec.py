@@ -30,14 +30,53 @@ def unit_to_command(a: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndar
     return low + 0.5 * (a + 1.0) * (high - low)
 
 
+def info_rows(info: dict[str, Any], n_envs: int) -> list[dict[str, Any]]:
+    """Per-env dicts (``n_envs`` of them) from a Gymnasium vector ``info``: env ``i`` gets
+    ``info[k][i]`` for every key ``k`` whose mask ``info["_" + k]`` is set for it (every env
+    without a mask), nested dicts likewise; mask keys (``_k``) are dropped, as in
+    ``gymnasium.wrappers.vector.DictInfoToList``.  Array rows are copies (the env may reuse
+    its arrays)."""
+    rows: list[dict[str, Any]] = [{} for _ in range(n_envs)]
+    for key, value in info.items():
+        if key.startswith("_"):
+            continue
+        mask = info.get(f"_{key}")
+        which = range(n_envs) if mask is None else np.flatnonzero(mask)
+        if isinstance(value, dict):
+            sub = info_rows(value, n_envs)
+            for i in which:
+                rows[i][key] = sub[i]
+        else:
+            values = np.array(value, copy=True)
+            for i in which:
+                rows[i][key] = values[i]
+    return rows
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two option values are equal (dicts key by key, arrays element by element)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    try:
+        return bool(np.array_equal(a, b))
+    except (TypeError, ValueError):  # ragged sequences: not provably equal
+        return False
+
+
 class GymnasiumVecEnv(VecEnv):
     """SB3 ``VecEnv`` over a Gymnasium ``VectorEnv`` with ``autoreset_mode=SAME_STEP``.
 
     Args:
         env: the vector environment (``metadata["autoreset_mode"]`` must be ``SAME_STEP``).
 
-    ``infos[i]`` carries SB3's ``terminal_observation`` and ``TimeLimit.truncated`` for the
-    envs that ended in the step (taken from gymnasium's ``final_obs``).
+    As SB3's ``DummyVecEnv``: ``infos[i]`` is env ``i``'s step info (Gymnasium's dict info
+    split by its ``_key`` masks, :func:`info_rows`; for an env that ended in the step, its
+    final step's ``final_info``) with ``TimeLimit.truncated``, and for an env that ended
+    ``terminal_observation`` (Gymnasium's ``final_obs``) and ``is_success`` (terminated,
+    unless the env gives its own); ``reset_infos[i]`` is env ``i``'s last reset info.
+    ``set_options`` reaches the next :meth:`reset` (one dict for all envs: a Gymnasium vector
+    env takes one).  The vector env is one object: ``get_attr``, ``set_attr`` and
+    ``env_method`` act on it once and repeat the result for each index.
     """
 
     def __init__(self, env: VectorEnv) -> None:
@@ -61,11 +100,27 @@ class GymnasiumVecEnv(VecEnv):
         return unit_to_command(a, self.low, self.high)
 
     def reset(self) -> np.ndarray:
-        """Reset all envs (with the seeds of :meth:`seed`, if any); returns (n_envs, n_obs)."""
-        seeds = self._seeds
+        """Reset all envs with the seeds of :meth:`seed` and the options of
+        :meth:`set_options`, if any (both used once); returns (n_envs, n_obs).
+
+        Raises:
+            ConfigError: ``set_options`` gave different options per env (a Gymnasium vector
+                env takes one dict for all; per-env values go inside it, e.g.
+                ``SurrogateVectorEnv``'s ``theta0`` of shape (n_envs, n_joint)).
+        """
+        seeds, options = self._seeds, self._options
         seed: Any = None if all(s is None for s in seeds) else list(seeds)
-        obs, _ = self.env.reset(seed=seed)
+        differ = [i for i, o in enumerate(options) if not _same(o, options[0])]
+        if differ:
+            raise ConfigError(
+                f"GymnasiumVecEnv.reset: set_options gave env {differ[0]} other options than "
+                "env 0; a Gymnasium vector env takes one options dict for all envs: pass one "
+                "dict (per-env values inside it, e.g. theta0 of shape (n_envs, n_joint))"
+            )
+        obs, info = self.env.reset(seed=seed, options=options[0] or None)
         self._reset_seeds()
+        self._reset_options()
+        self.reset_infos = info_rows(info, self.num_envs)
         return np.asarray(obs, dtype=np.float32)
 
     def step_async(self, actions: np.ndarray) -> None:
@@ -75,14 +130,20 @@ class GymnasiumVecEnv(VecEnv):
     def step_wait(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         """Step every env; finished envs are already reset (their final obs in ``infos``)."""
         obs, reward, terminated, truncated, info = self.env.step(self._actions.astype(np.float32))
-        done = np.asarray(terminated) | np.asarray(truncated)
-        infos: list[dict[str, Any]] = [{} for _ in range(self.num_envs)]
+        terminated, truncated = np.asarray(terminated), np.asarray(truncated)
+        done = terminated | truncated
+        final_obs, final_info = info.get("final_obs"), info.get("final_info", {})
+        step = {k: v for k, v in info.items() if k.lstrip("_") not in ("final_obs", "final_info")}
+        infos = info_rows(step, self.num_envs)
         if done.any():
-            final = info.get("final_obs")
+            finals = info_rows(final_info, self.num_envs)
             for i in np.flatnonzero(done):
-                infos[i]["terminal_observation"] = np.asarray(final[i], dtype=np.float32)
-                infos[i]["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
-                infos[i]["is_success"] = bool(terminated[i])
+                self.reset_infos[i] = infos[i]  # the autoreset's info; the step's is final_info
+                infos[i] = finals[i]
+                infos[i]["terminal_observation"] = np.asarray(final_obs[i], dtype=np.float32)
+                infos[i].setdefault("is_success", bool(terminated[i]))
+        for i, row in enumerate(infos):
+            row["TimeLimit.truncated"] = bool(truncated[i] and not terminated[i])
         return (
             np.asarray(obs, dtype=np.float32),
             np.asarray(reward, dtype=np.float32),
@@ -108,14 +169,16 @@ class GymnasiumVecEnv(VecEnv):
         return [getattr(self.env, attr_name) for _ in self._indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: Any = None) -> None:
-        """Set an attribute of the vector env."""
+        """Set an attribute of the vector env (once, whatever ``indices``)."""
         setattr(self.env, attr_name, value)
 
     def env_method(
         self, method_name: str, *method_args: Any, indices: Any = None, **method_kwargs: Any
     ) -> list[Any]:
-        """Call a method of the vector env once."""
-        return [getattr(self.env, method_name)(*method_args, **method_kwargs)]
+        """Call a method of the vector env once; its result once per index (SB3 reads one
+        result per index, e.g. HER's ``compute_reward`` with ``indices=[0]``)."""
+        result = getattr(self.env, method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._indices(indices)]
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: Any = None) -> list[bool]:
         """Never wrapped (the vector env is used as is)."""
