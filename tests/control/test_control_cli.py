@@ -95,6 +95,24 @@ def test_control_bad_option_is_one_line(
     assert not (tmp_path / "o").exists()
 
 
+def test_control_reports_the_env_steps_ppo_trained(tiny_ckpt: Path, tmp_path: Path) -> None:
+    """PPO trains whole updates (2 envs x 32 steps): of --rl-steps 100 it trains 64, which the
+    report said was 100; the learning curve has one point per update at most (there were
+    up to 2 x n_curve)."""
+    out = tmp_path / "ctl"
+    argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "4", "--horizon", "3"]
+    argv += ["--time-scale", "0.1", "--cpus", "1", "--no-oracle", "--rl-steps", "100"]
+    argv += ["--rl-envs", "2", "--rl-eval", "2", "--rl-episode-steps", "8"]
+    assert main(argv) == 0
+    rl = json.loads((out / "metrics.json").read_text())["rl"]
+    assert rl["config"]["total_steps"] == 100  # the request, as given
+    assert rl["surrogate"]["train_steps"] == rl["plant"]["train_steps"] == 64
+    assert [p["steps"] for p in rl["curve"]] == [p["steps"] for p in rl["curve_plant_trained"]]
+    assert [p["steps"] for p in rl["curve"]] == [64]
+    report = (out / "report.md").read_text()
+    assert "2 envs, 64 env-steps each (the budget 100 rounded down to whole PPO updates" in report
+
+
 @pytest.mark.parametrize("n", [0])
 def test_rl_config_rejects_too_small_budgets(n: int) -> None:
     from excavator_surrogate.control.rl import RLConfig

@@ -261,10 +261,17 @@ def report_md(metrics: dict[str, Any], names: tuple[str, ...]) -> str:
     rl = metrics.get("rl")
     if rl:
         c = rl["config"]
+        steps = rl["surrogate"]["train_steps"]
+        rounded = (
+            ""
+            if steps == c["total_steps"]
+            else f" (the budget {c['total_steps']} rounded down to whole PPO updates of "
+            f"{c['n_envs']} × {c['n_steps']})"
+        )
         lines += [
             "## RL (Stable-Baselines3 PPO, ReachTask)",
             "",
-            f"{c['n_envs']} envs, {c['total_steps']} env-steps each, success = target reached "
+            f"{c['n_envs']} envs, {steps} env-steps each{rounded}, success = target reached "
             f"within {c['tol']} rad and held below {c['omega_tol']} rad/s (reward +"
             f"{c['success_bonus']:g}); swing start "
             + (

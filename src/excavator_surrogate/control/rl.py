@@ -37,7 +37,8 @@ class RLConfig:
     n_envs: int = 128
     """Parallel environments of each training run (the same for surrogate and plant)."""
     total_steps: int = 1_000_000
-    """Env-step budget of each training run."""
+    """Env-step budget of each training run; PPO trains whole updates, so it takes
+    :attr:`train_steps` (this rounded down to a multiple of ``n_envs * n_steps``)."""
     n_steps: int = 32
     """PPO rollout length per env (one update every ``n_envs * n_steps`` env-steps)."""
     batch_size: int = 1024
@@ -66,7 +67,8 @@ class RLConfig:
     n_eval: int = 16
     """Evaluation episodes (fixed seeds; the same start poses on every environment)."""
     n_curve: int = 8
-    """Learning-curve points (evaluations during training)."""
+    """Learning-curve points: evaluations during training, evenly spread over the PPO updates
+    (at most one per update, so ``min(n_curve, updates)`` of them)."""
     plant: str | None = None
     """``ExcavatorMujoco-v0`` plant: ``ideal`` or ``hydraulic``; None: the one the surrogate
     was trained on (``hydraulic`` if its checkpoint does not record it; another plant than
@@ -87,6 +89,25 @@ class RLConfig:
                     f"rl: {name}{f' ({flag})' if flag else ''} must be >= 1, got "
                     f"{getattr(self, name)}"
                 )
+
+    @property
+    def train_steps(self) -> int:
+        """Env-steps each training run takes: ``total_steps`` rounded down to whole PPO updates
+        of ``n_envs * n_steps`` env-steps."""
+        per_update = self.n_envs * self.n_steps
+        return self.total_steps // per_update * per_update
+
+    def curve_updates(self) -> list[int]:
+        """The PPO updates (1-based) after whose rollout the learning curve is evaluated:
+        ``round(i · n_update / n_curve)`` for i = 1..n_curve, rounded half up, each once (none
+        is 0); the last is the last update."""
+        n_update = self.train_steps // (self.n_envs * self.n_steps)
+        # u_i = ⌊(2 i n_update + n_curve) / (2 n_curve)⌋ = round(i · n_update / n_curve), halves up
+        at = {
+            (2 * i * n_update + self.n_curve) // (2 * self.n_curve)
+            for i in range(1, self.n_curve + 1)
+        }
+        return sorted(at - {0})
 
 
 def _task(spec: MachineSpec, cfg: RLConfig) -> Any:
@@ -191,8 +212,10 @@ def train(
     venv: Any, cfg: RLConfig, *, evals: dict[str, Any] | None = None, log: Any = None
 ) -> dict[str, Any]:
     """Train PPO on the Gymnasium vector env ``venv`` (SAME_STEP autoreset) for
-    ``cfg.total_steps`` env-steps; ``evals`` maps names to evaluation vector envs for the
-    learning curve.  Returns ``{"model", "train_s", "curve"}`` (curve: one dict per point)."""
+    ``cfg.train_steps`` env-steps (``total_steps`` rounded down to whole updates); ``evals``
+    maps names to evaluation vector envs for the learning curve, evaluated after the rollouts
+    of :meth:`RLConfig.curve_updates`.  Returns ``{"model", "train_s", "train_steps",
+    "curve"}`` (curve: one dict per point)."""
     require_sb3()
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
@@ -203,8 +226,7 @@ def train(
     vec = GymnasiumVecEnv(venv)
     low, high = vec.low, vec.high
     per_update = cfg.n_envs * cfg.n_steps
-    n_update = max(1, cfg.total_steps // per_update)
-    every = max(1, n_update // max(cfg.n_curve, 1))
+    at = set(cfg.curve_updates())
     curve: list[dict[str, Any]] = []
     eval_s = [0.0]
 
@@ -235,7 +257,7 @@ def train(
 
         def _on_rollout_end(self) -> None:
             self.n += 1
-            if evals and self.n % every == 0:
+            if evals and self.n in at:
                 run_evals(self.model, int(self.num_timesteps))
 
     model = PPO(
@@ -255,16 +277,25 @@ def train(
     model.set_logger(Logger(folder=None, output_formats=[]))
     vec.seed(cfg.seed)
     t0 = time.perf_counter()
-    model.learn(total_timesteps=n_update * per_update, callback=Curve())
+    model.learn(total_timesteps=cfg.train_steps, callback=Curve())
     train_s = time.perf_counter() - t0 - eval_s[0]
-    return {"model": model, "train_s": train_s, "curve": curve, "low": low, "high": high}
+    return {
+        "model": model,
+        "train_s": train_s,
+        "train_steps": int(model.num_timesteps),
+        "curve": curve,
+        "low": low,
+        "high": high,
+    }
 
 
 def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) -> dict[str, Any]:
     """Train on the surrogate and on the plant (same env-step budget), evaluate both on the
     plant.  Returns ``{"surrogate": {...}, "plant": {...}, "curve": [...],
-    "curve_plant_trained": [...], "config": cfg}`` with, per policy, ``train_s``, ``plant`` (return/success/length on the plant) and
-    ``surrogate`` (on the surrogate, for the surrogate-trained policy)."""
+    "curve_plant_trained": [...], "config": cfg}`` with, per policy, ``train_s``,
+    ``train_steps`` (the env-steps trained, :attr:`RLConfig.train_steps`), ``plant``
+    (return/success/length on the plant) and ``surrogate`` (on the surrogate, for the
+    surrogate-trained policy)."""
     import torch
     from gymnasium.vector import AutoresetMode
 
@@ -281,7 +312,7 @@ def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) 
     ev_sur = surrogate_vector_env(sur, cfg, cfg.n_eval, off)
     out: dict[str, Any] = {"config": cfg}
     try:
-        say(f"PPO on the surrogate: {cfg.n_envs} envs, {cfg.total_steps} env-steps")
+        say(f"PPO on the surrogate: {cfg.n_envs} envs, {cfg.train_steps} env-steps")
         res = train(
             surrogate_vector_env(sur, cfg, cfg.n_envs, same),
             cfg,
@@ -291,11 +322,12 @@ def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) 
         pol = _policy(res["model"], res["low"], res["high"])
         out["surrogate"] = {
             "train_s": res["train_s"],
+            "train_steps": res["train_steps"],
             "plant": evaluate(pol, ev_plant, seed=20_000 + cfg.seed),
             "surrogate": evaluate(pol, ev_sur, seed=20_000 + cfg.seed),
         }
         out["curve"] = res["curve"]
-        say(f"PPO on the plant ({cfg.plant}): {cfg.n_envs} envs, {cfg.total_steps} env-steps")
+        say(f"PPO on the plant ({cfg.plant}): {cfg.n_envs} envs, {cfg.train_steps} env-steps")
         res = train(
             plant_vector_env(spec, cfg, cfg.n_envs, same), cfg, evals={"plant": ev_plant}, log=say
         )
@@ -303,6 +335,7 @@ def compare_rl(sur: Surrogate, cfg: RLConfig | None = None, *, log: Any = None) 
         pol = _policy(res["model"], res["low"], res["high"])
         out["plant"] = {
             "train_s": res["train_s"],
+            "train_steps": res["train_steps"],
             "plant": evaluate(pol, ev_plant, seed=20_000 + cfg.seed),
         }
     finally:
