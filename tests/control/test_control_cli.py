@@ -83,6 +83,13 @@ def test_control_bad_checkpoint_is_one_line(tmp_path: Path, capsys) -> None:
         (["--samples", "1"], "--samples must be >= 2"),  # it blamed --cpus
         (["--rl-eval", "0"], "--rl-eval"),  # IndexError after MPPI had run
         (["--rl-episode-steps", "-3"], "--rl-episode-steps"),  # gymnasium's ValueError
+        # these named the configs' fields (bias_gain, time_scale, n_horizon, n_steps)
+        (["--bias-gain", "2"], "--bias-gain must be in [0, 1]"),
+        (["--time-scale", "0"], "--time-scale must be > 0"),
+        (["--replan", "5", "--horizon", "3"], "--replan must be in [1, --horizon = 3]"),
+        (["--horizon", "0"], "--horizon must be >= 1"),
+        (["--rl-steps", "1000"], "--rl-steps must be >= --rl-envs x 32 = 4096"),
+        (["--rl-envs", "0"], "--rl-envs must be >= 1"),
     ],
 )
 def test_control_bad_option_is_one_line(
@@ -111,6 +118,33 @@ def test_control_reports_the_env_steps_ppo_trained(tiny_ckpt: Path, tmp_path: Pa
     assert [p["steps"] for p in rl["curve"]] == [64]
     report = (out / "report.md").read_text()
     assert "2 envs, 64 env-steps each (the budget 100 rounded down to whole PPO updates" in report
+
+
+def test_control_refuses_a_time_scale_that_cannot_fit(
+    tiny_ckpt: Path, tmp_path: Path, capsys, monkeypatch
+) -> None:
+    """1e9 ended in numpy's 298-GiB _ArrayMemoryError traceback (and 1e6 in the kernel's OOM
+    killer at 21.7 GB, no message: not run here)."""
+    from excavator_surrogate.surrogate import sizes
+
+    monkeypatch.setattr(sizes, "available_memory", lambda: 8 * 2**30)
+    rc = main(["control", str(tiny_ckpt), "--out", str(tmp_path / "o"), "--time-scale", "1e9"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--time-scale 1e+09: a 520000000021-sample" in err[0]
+    assert "lower --time-scale" in err[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_default_cpus_never_exceed_samples(tiny_ckpt: Path, tmp_path: Path, monkeypatch) -> None:
+    """On a 4-CPU computer --samples 2 was refused: '--cpus must be in [1, --samples = 2],
+    got 4' (a --cpus never given)."""
+    monkeypatch.setenv("EXSUR_CPUS", "4")
+    out = tmp_path / "ctl"
+    argv = ["control", str(tiny_ckpt), "--out", str(out), "--samples", "2", "--horizon", "3"]
+    argv += ["--time-scale", "0.1", "--no-oracle", "--no-rl"]
+    assert main(argv) == 0
+    assert json.loads((out / "metrics.json").read_text())["cpus"] == 2
 
 
 @pytest.mark.parametrize("n", [0])

@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 
 from excavator_surrogate.control.mppi import MPPI, MPPIConfig
-from excavator_surrogate.control.reference import dig_reference, horizon_window
+from excavator_surrogate.control.reference import (
+    dig_reference,
+    horizon_window,
+    reference_samples,
+)
 from excavator_surrogate.errors import ConfigError, ExsurError
 from excavator_surrogate.spec import EXCAVATOR
 
@@ -162,6 +166,8 @@ def test_dig_reference() -> None:
     np.testing.assert_array_equal(win, np.repeat(theta[-1:], 5, axis=0))
     with pytest.raises(ConfigError, match="time_scale"):
         dig_reference(EXCAVATOR, time_scale=0.0)
+    assert reference_samples(EXCAVATOR, time_scale=2.0) == len(slow)
+    assert reference_samples(EXCAVATOR) == len(theta)
 
 
 def test_mppi_takes_over_mid_motion() -> None:
@@ -203,3 +209,12 @@ def test_the_plan_after_reset_is_the_rest_command(lo: float, rest: float) -> Non
     np.testing.assert_allclose(mppi.u_prev * mppi.u_scale + mppi.u_center, rest, atol=1e-9)
     u = mppi.act(0, np.repeat(theta0[None], 20, axis=0))
     assert np.abs(u - rest).max() < 100  # was 192-346 on [-200, 1000]
+
+
+def test_a_huge_time_scale_is_refused_before_allocating(monkeypatch) -> None:
+    """time_scale 1e9 ended in numpy's _ArrayMemoryError (298 GiB for one array)."""
+    from excavator_surrogate.surrogate import sizes
+
+    monkeypatch.setattr(sizes, "available_memory", lambda: 8 * 2**30)
+    with pytest.raises(ConfigError, match="makes 520000000021 samples.*lower time_scale"):
+        dig_reference(EXCAVATOR, time_scale=1e9)

@@ -63,7 +63,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=float,
         default=1.0,
         metavar="S",
-        help="stretch the digging reference (1.0)",
+        help="stretch the digging reference (1.0: the 27-s cycle; > 0, refused where the "
+        "runs would not fit in memory)",
     )
     p.add_argument(
         "--cpus",
@@ -71,7 +72,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         metavar="N",
         help="CPUs of each MPPI planner: surrogate candidates split over N processes, the "
-        "oracle's mujoco.rollout on N threads (default: all usable, at most 4)",
+        "oracle's mujoco.rollout on N threads (default: all usable, at most 4 and at most "
+        "--samples)",
     )
     p.add_argument(
         "--mppi-seeds",
@@ -132,9 +134,11 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)
     if args.samples < 2:  # MPPI weighs at least two candidates
         raise ConfigError(f"--samples must be >= 2 (MPPI candidates), got {args.samples}")
-    cpus = min(usable_cpus(), 4) if args.cpus is None else args.cpus
+    # the default never exceeds --samples (it was refused on 4 CPUs with --samples 3)
+    cpus = min(usable_cpus(), 4, args.samples) if args.cpus is None else args.cpus
     if not 1 <= cpus <= args.samples:
         raise ConfigError(f"--cpus must be in [1, --samples = {args.samples}], got {cpus}")
+    _check_flags(args)
     if not args.risk >= 0:
         raise ConfigError(f"--risk must be >= 0, got {args.risk}")
     if args.seed >= 2**32:  # PPO seeds torch, which takes no seed past 2**64; keep 32 bits
@@ -143,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--mppi-seeds must be >= 1, got {args.mppi_seeds}")
     sur = load_checkpoint(args.ckpt)
     _check_mppi_memory(args, sur)
+    _check_reference_memory(args, sur)
     if args.risk > 0 and member_head(sur) is None:
         raise ConfigError(
             f"--risk {args.risk:g} needs the spread of a merged seed ensemble; {args.ckpt} is "
@@ -197,4 +202,51 @@ def _check_mppi_memory(args: argparse.Namespace, sur: Any) -> None:
         n_bytes,
         what=f"--samples {args.samples} x --horizon {args.horizon} MPPI rollouts",
         fix="lower --samples or --horizon",
+    )
+
+
+def _check_flags(args: argparse.Namespace) -> None:
+    """Refuse the MPPI, reference and PPO flags out of range in one line naming the flag (the
+    configs' own checks name their fields, e.g. ``rl: need ... n_steps``)."""
+    from ..control.rl import RLConfig
+    from ..errors import ConfigError
+
+    if args.horizon < 1:
+        raise ConfigError(f"--horizon must be >= 1 (MPPI samples), got {args.horizon}")
+    if not 1 <= args.replan <= args.horizon:
+        raise ConfigError(
+            f"--replan must be in [1, --horizon = {args.horizon}] (samples applied per plan), "
+            f"got {args.replan}"
+        )
+    if not 0 <= args.bias_gain <= 1:
+        raise ConfigError(f"--bias-gain must be in [0, 1] (0: off), got {args.bias_gain:g}")
+    if not args.time_scale > 0:
+        raise ConfigError(f"--time-scale must be > 0 (1: the 27-s cycle), got {args.time_scale:g}")
+    if args.rl_envs < 1:
+        raise ConfigError(f"--rl-envs must be >= 1, got {args.rl_envs}")
+    n_steps = RLConfig.n_steps  # PPO's rollout per env and update: not a flag
+    if args.rl_steps < args.rl_envs * n_steps:
+        raise ConfigError(
+            f"--rl-steps must be >= --rl-envs x {n_steps} = {args.rl_envs * n_steps} (one PPO "
+            f"update), got {args.rl_steps}"
+        )
+
+
+def _check_reference_memory(args: argparse.Namespace, sur: Any) -> None:
+    """Refuse a --time-scale whose reference and tracking runs cannot fit in memory (one
+    line, before any run: 1e9 ended in numpy's 298-GiB _ArrayMemoryError traceback, 1e6 in
+    the kernel's OOM killer at 21.7 GB)."""
+    from ..control.reference import REFERENCE_BYTES_PER_SAMPLE, reference_samples
+    from ..surrogate.sizes import check_fits
+
+    n_step = reference_samples(sur.spec, time_scale=args.time_scale)
+    n_run = 3 + 2 * (args.mppi_seeds - 1)  # MPPI surrogate and oracle, PI; 2 per extra seed
+    # per sample: the reference, the running run's angles and commands as lists of small
+    # arrays (~400 B), 64 B of angles and commands kept per run
+    n_bytes = n_step * (REFERENCE_BYTES_PER_SAMPLE + 400 + 64 * n_run)
+    check_fits(
+        n_bytes,
+        what=f"--time-scale {args.time_scale:g}: a {n_step}-sample digging reference, tracked "
+        f"{n_run} times,",
+        fix="lower --time-scale (1: the 27-s cycle)",
     )

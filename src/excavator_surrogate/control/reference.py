@@ -7,10 +7,13 @@ joint order works) and radians for the periodic swing; segments between them are
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..errors import ConfigError
 from ..spec import MachineSpec
+from ..surrogate.sizes import check_fits
 
 DIG_CYCLE: tuple[tuple[str, float, tuple[float, ...]], ...] = (
     ("start", 0.0, (0.0, 0.55, 0.35, 0.35)),
@@ -42,6 +45,19 @@ def pose(spec: MachineSpec, values: tuple[float, ...]) -> np.ndarray:
     return out
 
 
+REFERENCE_BYTES_PER_SAMPLE = 128
+"""Peak memory of :func:`dig_reference` per sample [bytes]: the segments and their
+concatenation, (n_step, 4) float64 each, the time axis and the blends' temporaries."""
+
+
+def reference_samples(spec: MachineSpec, *, time_scale: float = 1.0, hold_s: float = 0.5) -> int:
+    """Length (n_step) of :func:`dig_reference`'s reference at the machine's rate, computed
+    without making it (``time_scale`` > 0 and ``hold_s`` >= 0 finite, checked by the caller)."""
+    n_hold = round(hold_s / spec.dt)
+    moves = sum(max(1, round(dur * time_scale / spec.dt)) for _, dur, _ in DIG_CYCLE[1:])
+    return 2 * n_hold + 1 + moves
+
+
 def dig_reference(
     spec: MachineSpec, *, time_scale: float = 1.0, hold_s: float = 0.5
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[str, float]]]:
@@ -61,10 +77,18 @@ def dig_reference(
             f"dig_reference: the digging cycle is written for {len(DIG_CYCLE[0][2])} joints "
             f"(swing, boom, arm, bucket), the machine has {spec.n_joint}"
         )
-    if not time_scale > 0 or hold_s < 0:
+    if not (time_scale > 0 and math.isfinite(time_scale)) or not (
+        hold_s >= 0 and math.isfinite(hold_s)
+    ):
         raise ConfigError(
-            f"dig_reference: need time_scale > 0 and hold_s >= 0, got {time_scale}, {hold_s}"
+            f"dig_reference: need finite time_scale > 0 and hold_s >= 0, got {time_scale}, {hold_s}"
         )
+    n_step = reference_samples(spec, time_scale=time_scale, hold_s=hold_s)
+    check_fits(  # time_scale = 1e9: a 298-GiB array, numpy's _ArrayMemoryError
+        n_step * REFERENCE_BYTES_PER_SAMPLE,
+        what=f"dig_reference: time_scale {time_scale:g} makes {n_step} samples, which",
+        fix="lower time_scale",
+    )
     dt = spec.dt
     poses = [pose(spec, p) for _, _, p in DIG_CYCLE]
     n_hold = round(hold_s / dt)
