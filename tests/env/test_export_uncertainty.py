@@ -156,6 +156,58 @@ def test_ood_output_equals_the_python_flags(make_surrogate, tmp_path: Path, expo
     assert 0.05 < share < 0.95  # both outcomes are exercised
 
 
+@pytest.mark.parametrize(
+    ("exporter", "kw"),
+    [
+        ("torchscript", dict(play=(0.05, 0.2))),
+        ("dynamo", dict(omega_in=True, residual=True)),
+    ],
+    ids=["omega_prev-input", "velocity-feature"],
+)
+def test_ood_after_a_history_and_a_measurement(
+    make_surrogate, tmp_path: Path, exporter, kw
+) -> None:
+    """From a recorded history, and after a measured angle, the sample the next step predicts
+    from moves at the measured ``wrap(theta[k] - theta[k-1]) / T_s`` (what the env's
+    observation shows): the graph fed it as ``w`` / ``omega_prev``, the engine and
+    ``ood_flags`` flag the same joints (the engine had checked 0 rad/s there)."""
+    sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful", **kw) for s in range(2)])
+    rec = _record(sur.spec, np.random.default_rng(1))
+    sur.metrics["coverage"] = rec.to_dict()
+    spec, dt = sur.spec, sur.spec.dt
+    stepper = OnnxStepper(
+        export_onnx(sur, tmp_path / "e.onnx", exporter=exporter, uncertainty=True)
+    )
+    n = 6
+    engine = SurrogateEngine(sur, n_envs=n, uncertainty=True)
+    rng = np.random.default_rng(5)
+    pose = rng.uniform(-0.3, 0.3, (n, 1, 4)) + np.array([0.0, 0.6, 1.8, 0.8])
+    th_hist = np.repeat(pose, 8, axis=1)
+    th_hist[:, -1] += rng.uniform(-0.06, 0.06, (n, 4))  # the last sample moves, up to 1.2 rad/s
+    u_hist = rng.uniform(-1000, 1000, (n, 7, 4))
+    stepper.reset_history(th_hist, u_hist)
+    engine.reset_history(th_hist, u_hist)
+    th32 = th_hist.astype(np.float32).astype(np.float64)  # what the graph saw
+    theta_k, omega_k = th32[:, -1], (th32[:, -1] - th32[:, -2]) / dt
+    moved = 0
+    for _ in range(2):
+        u = rng.uniform(-1000, 1000, (n, 4))
+        u32 = u.astype(np.float32).astype(np.float64)
+        stepper.step(u)
+        engine.step(u)
+        want = ood_flags(rec, spec, theta_k, omega_k, u32)
+        np.testing.assert_array_equal(stepper.ood, want)
+        np.testing.assert_array_equal(engine.unc.ood.numpy(), want)
+        moved += int((want != ood_flags(rec, spec, theta_k, 0 * omega_k, u32)).sum())
+        # a measured sample: engine.observe; the graph's recipe feeds theta and w measured
+        meas = engine.theta.numpy() + rng.uniform(-0.06, 0.06, (n, 4))
+        w_meas = (meas - engine.theta_prev.numpy()) / dt
+        engine.observe(meas)
+        stepper.theta, stepper.w = meas.astype(np.float32), w_meas.astype(np.float32)
+        theta_k, omega_k = meas.astype(np.float32), w_meas.astype(np.float32)
+    assert moved > 0  # the measured velocity decided flags
+
+
 def test_no_coverage_record_no_ood_output(make_surrogate, tmp_path: Path) -> None:
     sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful") for s in range(2)])
     path = export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript", uncertainty=True)

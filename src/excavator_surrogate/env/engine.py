@@ -63,8 +63,9 @@ class SurrogateEngine:
     :meth:`dense_state`) or a ring buffer of normalised features (windowed); ``z`` (n_envs,
     Q, n_joint) play states of the commands (Q = 0 unless the surrogate has play features);
     with a velocity feature (``norm.omega_in``), ``w`` (n_envs, n_joint) float64 [rad/s], the
-    velocity feature of the current sample, and ``theta_prev``, the angle the last step
-    started from (:meth:`observe` turns a measured angle into the measured velocity).
+    velocity feature of the current sample; ``theta_prev`` (n_envs, n_joint) float64 [rad],
+    the angle the last step started from (:meth:`observe` turns a measured angle into the
+    measured velocity, the velocity feature's and the OOD flags' ω[k]).
     """
 
     def __init__(
@@ -160,8 +161,8 @@ class SurrogateEngine:
         self.theta.index_copy_(0, idx, th)
         m = idx.numel()
         w0 = None
+        self.theta_prev.index_copy_(0, idx, th)
         if self.omega_in:
-            self.theta_prev.index_copy_(0, idx, th)
             self.w.index_fill_(0, idx, 0.0)  # at rest
             w0 = th.new_zeros(m, th.shape[1]).float()
         u0 = torch.as_tensor(self.u_rest, device=self.device).expand(m, -1).float()
@@ -223,8 +224,9 @@ class SurrogateEngine:
         reaches with ``reset(theta_hist, u_hist)`` (the free run of ``exsur evaluate`` with
         ``warmup = n_hist``; a stateful engine runs that warm-up through its own kernels):
         stepping the recorded commands from here continues that free run.  A windowed model uses the last ``W - 1`` samples; a shorter history is padded
-        with its first sample.  The angle starts at ``theta[n_hist-1]``, the velocity feature
-        at the last backward difference.
+        with its first sample.  The angle starts at ``theta[n_hist-1]``; the velocity feature
+        and the OOD flags' ω[k] (:attr:`unc`) at the last backward difference, the velocity
+        the observation shows.
 
         Returns:
             The current angles ``theta`` (n_envs, n_joint) float64 [rad] (a live tensor).
@@ -249,14 +251,16 @@ class SurrogateEngine:
     def _reset_history(self, th_hist: np.ndarray, u_hist: np.ndarray, idx_np: np.ndarray) -> None:
         dev = self.device
         idx = torch.as_tensor(idx_np, device=dev)
-        if self.unc is not None:
-            self.unc.reset(idx)
         th64 = torch.as_tensor(th_hist, device=dev)
         self.theta.index_copy_(0, idx, th64[:, -1])
         self.theta_prev.index_copy_(0, idx, th64[:, -2])
+        # w = wrap(theta[n_hist-1] - theta[n_hist-2]) / T_s, in float64 as observe() does
+        w_meas = self.norm.velocity(th64[:, -1], th64[:, -2], self.dt)
         if self.omega_in:
-            # w = wrap(theta[n_hist-1] - theta[n_hist-2]) / T_s, in float64 as observe() does
-            self.w.index_copy_(0, idx, self.norm.velocity(th64[:, -1], th64[:, -2], self.dt))
+            self.w.index_copy_(0, idx, w_meas)
+        if self.unc is not None:  # the OOD box checks the sample's measured velocity too
+            self.unc.reset(idx)
+            self.unc.omega.index_copy_(0, idx, w_meas)
         if self.mode == "stateful":
             z, h, c = self._warm_stateful(th64.float(), torch.as_tensor(u_hist, device=dev).float())
             env_dim = h.dim() - 2  # (n_layer, [M,] m, width)
@@ -314,12 +318,16 @@ class SurrogateEngine:
     def observe(self, theta: np.ndarray | torch.Tensor) -> None:
         """Overwrite the current angles with measured ones ``theta`` (n_envs, n_joint) [rad]:
         the next :meth:`step` then consumes the measurement (teacher forcing), which keeps the
-        recurrent state synced to a real machine's measured history.  With a velocity
-        feature, it becomes the measured ``wrap(theta - theta_prev) / T_s``, from the angle
-        the last step started from (the reset angle if none)."""
+        recurrent state synced to a real machine's measured history.  The velocity feature
+        (with one) and the OOD flags' ω[k] (:attr:`unc`) become the measured
+        ``wrap(theta - theta_prev) / T_s``, from the angle the last step started from (the
+        reset angle if none)."""
         self.theta.copy_(torch.as_tensor(np.asarray(theta, dtype=np.float64), device=self.device))
+        w_meas = self.norm.velocity(self.theta, self.theta_prev, self.dt)
         if self.omega_in:
-            self.w.copy_(self.norm.velocity(self.theta, self.theta_prev, self.dt))
+            self.w.copy_(w_meas)
+        if self.unc is not None:
+            self.unc.omega.copy_(w_meas)
         # joints on a map in parallel: the network reads the measurement too
         self.z = own_start(self.norm, self.z, self.theta, self.w if self.omega_in else None)
 
@@ -396,8 +404,7 @@ class SurrogateEngine:
             u_t = torch.as_tensor(u, device=self.device).float()
             theta = self.theta
             w_t = self.w.float() if self.omega_in else None
-            if self.omega_in:
-                self.theta_prev.copy_(theta)
+            self.theta_prev.copy_(theta)
             self.z, p_t = self._play_step(self.z, u_t)
             unc, om_m = self.unc, None
             if unc is not None:

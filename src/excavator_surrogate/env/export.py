@@ -47,7 +47,9 @@ checkpoint has a coverage record, the out-of-distribution flag is in the graph t
 :func:`~excavator_surrogate.surrogate.coverage.ood_flags` (command, angle and velocity boxes,
 the (angle, command) occupancy grid) on the sample the step predicts from: ``theta``, ``u``
 and ω[k], which is the input ``w`` with a velocity feature, else one more input, last,
-``omega_prev`` (n_batch, n_joint) [rad/s]: the previous step's ``omega`` (zeros at rest).
+``omega_prev`` (n_batch, n_joint) [rad/s]: the previous step's ``omega`` (zeros at rest), or,
+as ``w``, the measured ``wrap(θ[k] - θ[k-1]) / T_s`` after a recorded history or a measured
+sample (the engine's flags, :meth:`~.engine.SurrogateEngine.observe`).
 
 Windowed export (``mode="windowed"``, any cell including ARX): inputs ``theta`` and ``u``
 of shape (n_batch, W, n_joint) and (n_batch, W, n_u) hold the last ``W`` samples (and ``z``,
