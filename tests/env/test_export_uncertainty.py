@@ -72,6 +72,53 @@ def test_members_output_matches_the_engine(make_surrogate, tmp_path: Path, expor
     assert spread.max(axis=0).min() > 10 * tol
 
 
+def _recipe_limits(stepper: OnnxStepper) -> tuple[np.ndarray, np.ndarray] | None:
+    """The end stops of docs/env.md's band recipe, from the file's metadata alone (None: the
+    graph has none)."""
+    meta = stepper.session.get_modelmeta().custom_metadata_map
+    if meta["exsur_end_stops"] != "1":
+        return None
+    joints = json.loads(meta["exsur_spec"])["joints"]
+    bound = lambda j, k, inf: inf if j["periodic"] or j[k] is None else j[k]  # noqa: E731
+    lo = np.array([bound(j, "theta_min", -np.inf) for j in joints])
+    hi = np.array([bound(j, "theta_max", np.inf) for j in joints])
+    return lo, hi
+
+
+def test_band_recipe_keeps_the_members_inside_the_stops(make_surrogate, tmp_path: Path) -> None:
+    """docs/env.md's angle-band recipe on the graph's outputs (``omega_members``, ``omega``,
+    ``theta_next``, the stops of ``exsur_spec``) gives the engine's ``theta_band``, also with
+    joints resting on their end stops (where the sum without the clip grows past 1 rad)."""
+    sur = merge([make_surrogate(seed=s, end_stops=True, drive=20.0 + 10 * s) for s in range(3)])
+    stepper = OnnxStepper(
+        export_onnx(sur, tmp_path / "d.onnx", exporter="torchscript", uncertainty=True)
+    )
+    lim = _recipe_limits(stepper)
+    assert lim is not None
+    lo, hi = lim
+    engine = SurrogateEngine(sur, n_envs=2, uncertainty=True)
+    theta0 = np.array([[0.0, 0.0, 1.5, 0.5], [0.3, 0.2, 1.2, 0.1]])
+    stepper.reset(theta0)
+    engine.reset(theta0)
+    dev = np.zeros((3, 2, 4))
+    free = np.zeros_like(dev)  # the same sum without the clip
+    u = np.zeros((2, 4))
+    for _ in range(120):
+        th, om = stepper.step(u)
+        engine.step(u)
+        th, om = th.astype(np.float64), om.astype(np.float64)
+        # dev_m <- dev_m + T_s (omega_m - omega)
+        dev += sur.spec.dt * (stepper.omega_members - om)
+        free += sur.spec.dt * (stepper.omega_members - om)
+        # dev_m <- clip(theta' + dev_m, min(lo, theta'), max(hi, theta')) - theta'
+        dev = np.clip(th + dev, np.minimum(lo, th), np.maximum(hi, th)) - th
+        band = engine.unc.bands()[0].numpy()  # uncalibrated: the raw member std
+        np.testing.assert_allclose(dev.std(0, ddof=1), band, atol=1e-4, rtol=0)
+    at_stop = (np.abs(th - lo) < 1e-6) | (np.abs(th - hi) < 1e-6)
+    assert at_stop[:, 1:].all()  # the driven joints rest on their stops; the swing turns
+    assert band[at_stop].max() < 1e-4 and free.std(0, ddof=1)[at_stop].min() > 1.0
+
+
 def test_uncertainty_export_refuses_what_has_none(make_surrogate, tmp_path: Path, capsys) -> None:
     single = make_surrogate(seed=0, hidden=8, mode="stateful")
     with pytest.raises(ConfigError, match="no ensemble members"):

@@ -35,11 +35,22 @@ a machine.
 
 With ``uncertainty=True`` (``exsur export --uncertainty``; a merged seed ensemble, stateful
 export) the graph has one more output, last: ``omega_members`` (M, n_batch, n_joint) float32,
-each member's ω̂[k+1] (rad/s) from the same network call (their std over M, ddof 1, is the
-velocity spread; member m's angle is θ plus its integrated deviation from ``omega``, as in
-the environments, :mod:`.uncertainty`; on a joint on a map in parallel, member m's is the
-map's speed times ``1 + own_gain_dev[m]``,
-:func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`).  The band calibration and the
+each member's ω̂[k+1] (rad/s) from the same network call, before the speed bound and the end
+stops (their mean is ``omega`` only where neither acted; their std over M, ddof 1, is the
+velocity spread; on a joint on a map in parallel, member m's is the map's speed times
+``1 + own_gain_dev[m]``, :func:`~excavator_surrogate.surrogate.parallel.own_gain_dev`).
+Member m's angle is ``theta_next + dev_m``, its deviation ``dev_m`` (n_batch, n_joint) [rad]
+a state the runtime keeps, zero at a reset, moved after every step as the environments move
+it (:meth:`.uncertainty.StepUncertainty.advance`; θ' = ``theta_next``, ω = ``omega``, both
+after the speed bound and the stops)::
+
+    dev_m <- dev_m + T_s (omega_members[m] - ω)
+    dev_m <- clip(θ' + dev_m, min(lo, θ'), max(hi, θ')) - θ'      (only with exsur_end_stops = 1)
+
+with ``lo``, ``hi`` each joint's ``theta_min``, ``theta_max`` in ``exsur_spec`` (-inf, +inf
+on a periodic joint or an open limit); the raw angle spread is the members' std of ``dev_m``
+(ddof 1).  Without the clip a joint resting on its stop gets a spread that grows without
+bound (3.6 rad after 200 steps where the env reports 0).  The band calibration and the
 training coverage record travel as JSON metadata ``exsur_uncertainty`` and
 ``exsur_coverage`` (the checkpoint's ``metrics`` records, ``{}`` if it has none).  When the
 checkpoint has a coverage record, the out-of-distribution flag is in the graph too: output
@@ -67,7 +78,9 @@ spec), ``exsur_mode``, ``exsur_window``, ``exsur_dt``, ``exsur_n_layer``, ``exsu
 ``exsur_lags`` (JSON list of per-joint command delays [samples], empty without delayed commands),
 ``exsur_own`` (JSON list of per-joint booleans, the joints on a static map in parallel, empty
 without; with them ``z`` has the two own rows),
-``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_members`` (M with the
+``exsur_omega_in`` (``1`` with a velocity feature), ``exsur_end_stops`` (``1``: the graph
+stops θ at the end stops of ``exsur_spec`` and bounds ω at its ``omega_max``; ``0``: it
+integrates freely), ``exsur_members`` (M with the
 ``omega_members`` output, else ``0``), ``exsur_ood`` (``1`` with the ``ood`` output),
 ``exsur_units`` (JSON, per joint: ``theta``/``omega`` in rad or, for a linear joint, m, and
 the ``display`` unit its mapping gave with the ``factor`` into it, :func:`units_metadata`),
@@ -441,6 +454,7 @@ def _add_metadata(
         "exsur_lags": json.dumps(list(sur.norm.lags)),
         "exsur_own": json.dumps([] if sur.norm.own is None else list(sur.norm.own.own)),
         "exsur_omega_in": str(int(sur.norm.omega_in)),
+        "exsur_end_stops": str(int(sur.limits_np() is not None)),
         "exsur_members": str(int(n_member)),
         "exsur_ood": str(int(ood)),
         "exsur_uncertainty": json.dumps((sur.metrics or {}).get("uncertainty") or {}),
