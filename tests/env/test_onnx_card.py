@@ -99,6 +99,26 @@ def test_linear_joints_are_named_in_their_own_unit(tmp_path: Path) -> None:
     assert "| boom | linear | 100.0 … 1600.0 mm |" in text  # the card's display unit
 
 
+@pytest.mark.parametrize("exporter", ["torchscript", "dynamo"])
+def test_the_state_width_is_shown_as_its_size(exporter: str, tmp_path: Path) -> None:
+    """``h_out`` / ``c_out`` are (n_layer, n_batch, hidden) with either exporter (torchscript
+    had left the width symbolic, which the card printed as ``n_batch``)."""
+    sur = _described()
+    cfg = sur.model_cfg
+    path = export_onnx(sur, tmp_path / "m.onnx", exporter=exporter)
+    shapes = {v["name"]: v["shape"] for v in onnx_card(path)["graph"]["outputs"]}
+    want = [cfg.n_layer, "n_batch", cfg.hidden]
+    assert shapes["h_out"] == want and shapes["c_out"] == want
+    text = onnx_card_markdown(onnx_card(path))
+    assert f"| `h_out` | float32 | ({cfg.n_layer}, n_batch, {cfg.hidden}) |" in text
+    # a file of another writer: a symbolic axis other than the batch keeps its own name
+    model = onnx.load(str(path))
+    model.graph.output[2].type.tensor_type.shape.dim[2].dim_param = "width"
+    onnx.save(model, str(tmp_path / "other.onnx"))
+    shapes = {v["name"]: v["shape"] for v in onnx_card(tmp_path / "other.onnx")["graph"]["outputs"]}
+    assert shapes["h_out"] == [cfg.n_layer, "n_batch", "width"]
+
+
 def test_an_export_without_a_card_still_describes_its_graph(tmp_path: Path) -> None:
     path = export_onnx(_described(), tmp_path / "model.onnx")
     model = onnx.load(str(path))

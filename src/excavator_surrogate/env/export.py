@@ -99,7 +99,7 @@ import logging
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torch import nn
@@ -465,9 +465,24 @@ def _add_metadata(
     for k, v in meta.items():
         p = model.metadata_props.add()
         p.key, p.value = k, v
+    _state_dims(model.graph)
     model.producer_name = "exsur"
     onnx.save(model, str(path))
     return next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
+
+
+def _state_dims(graph: Any) -> None:
+    """Declare each state output ``X_out`` (``h_out``, ``c_out``, ``z_out``) with the fixed
+    sizes of its input ``X``: the torchscript exporter leaves the state width symbolic
+    (``Concath_out_dim_2``) where the dynamo exporter writes ``hidden``."""
+    given = {v.name: v.type.tensor_type.shape.dim for v in graph.input}
+    for out in graph.output:
+        dims = given.get(out.name.removesuffix("_out")) if out.name.endswith("_out") else None
+        if dims is None or len(dims) != len(out.type.tensor_type.shape.dim):
+            continue
+        for d_in, d_out in zip(dims, out.type.tensor_type.shape.dim):
+            if d_in.HasField("dim_value") and not d_out.HasField("dim_value"):
+                d_out.dim_value = d_in.dim_value  # clears the symbolic dim_param
 
 
 def units_metadata(spec: MachineSpec) -> dict[str, dict[str, str]]:

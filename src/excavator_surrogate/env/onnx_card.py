@@ -74,9 +74,14 @@ def onnx_card(path: str | Path) -> dict[str, Any]:
     }
 
 
+BATCH_SYMBOL = "batch"
+"""The exporter's name of the dynamic batch axis (``n_batch`` on the card)."""
+
+
 def _value(v: Any) -> dict[str, Any]:
     """A graph input or output: name, element type (NumPy's name for it, as onnx maps it) and
-    shape (``n_batch``: the dynamic axis)."""
+    shape (``n_batch``: the batch axis; any other symbolic axis by its own name, ``?``
+    unnamed)."""
     from onnx.helper import tensor_dtype_to_np_dtype
 
     t = v.type.tensor_type
@@ -85,7 +90,8 @@ def _value(v: Any) -> dict[str, Any]:
         if d.HasField("dim_value"):
             dims.append(int(d.dim_value))
         else:
-            dims.append("n_batch" if d.dim_param else "?")
+            sym = d.dim_param
+            dims.append("n_batch" if sym == BATCH_SYMBOL else sym or "?")
     kind = tensor_dtype_to_np_dtype(t.elem_type).name
     return {"name": v.name, "type": kind, "shape": dims}
 
