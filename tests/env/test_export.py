@@ -341,3 +341,33 @@ def test_auto_exports_an_opset_below_18_with_torchscript(
     assert "max |torch - onnxruntime|" in capsys.readouterr().out  # stepped against torch
     opsets = {o.domain: o.version for o in onnx.load(str(out)).opset_import}
     assert opsets.get("", opsets.get("ai.onnx")) == 17
+
+
+@pytest.mark.parametrize(
+    ("blocked", "exporter", "missing"),
+    [
+        (("onnx", "onnxruntime", "onnxscript"), "auto", "onnx, onnxruntime"),
+        (("onnx", "onnxruntime", "onnxscript"), "dynamo", "onnx, onnxruntime, onnxscript"),
+        (("onnxscript",), "dynamo", "onnxscript"),
+    ],
+)
+def test_cli_export_without_the_extra_names_it(
+    stateful_ckpt: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    blocked,
+    exporter,
+    missing,
+) -> None:
+    """Without the export extra each exporter's line sent the user to the other one and
+    never named the package; now one line names the extra (nothing written)."""
+    for name in blocked:  # import fails, importlib.util.find_spec gives None
+        monkeypatch.setitem(sys.modules, name, None)
+    out = tmp_path / "m.onnx"
+    line = fails(capsys, "export", stateful_ckpt, "--out", out, "--exporter", exporter)
+    assert line == (
+        f"exsur: error: exsur export needs the export extra (missing: {missing}): "
+        "pip install 'excavator-surrogate[export]'"
+    )
+    assert list(tmp_path.iterdir()) == []

@@ -94,6 +94,7 @@ environments (``W - 1`` at-rest samples) and matches torch within 1e-5.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
 import logging
 import warnings
@@ -131,6 +132,8 @@ TORCHSCRIPT_OPSETS = (11, 23)
 fails on end stops' ``where`` at 7 and 8, and some graphs of 9 and 10 onnxruntime refuses).
 The dynamo exporter builds opset 18 and converts down: a stateful graph of 15 to 17 is one
 onnxruntime refuses (InvalidGraph), below that the converter fails (and writes 18)."""
+EXTRA = "pip install 'excavator-surrogate[export]'"
+"""What installs the packages an export needs (onnx, onnxruntime, onnxscript)."""
 QUIET_LOGGERS = ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "onnx_ir")
 """Loggers muted to errors during a dynamo export: their warnings (an opset the version
 converter cannot reach, with its traceback) are exsur's one-line error instead."""
@@ -172,10 +175,12 @@ def export_onnx(
         The written path.
 
     Raises:
-        ConfigError: ``uncertainty`` for a single network or a windowed export; an opset
-            the exporter cannot write for this graph, or a graph onnxruntime cannot load
-            (the message says which exporter and opset to use instead).
+        ConfigError: the export extra is not installed (onnx, onnxruntime; onnxscript for
+            ``exporter="dynamo"``); ``uncertainty`` for a single network or a windowed export;
+            an opset the exporter cannot write for this graph, or a graph onnxruntime cannot
+            load (the message says which exporter and opset to use instead).
     """
+    _require_extra(exporter)
     sur = load_surrogate(ckpt, device="cpu")
     sur.to("cpu", torch.float32).eval()
     mode = mode or sur.mode
@@ -275,6 +280,25 @@ def export_onnx(
     return out
 
 
+def _require_extra(exporter: str) -> None:
+    """Refuse in one line naming the extra when a package the export needs is missing: onnx
+    (the metadata), onnxruntime (the load check, ``exsur export``'s verification) and, for
+    the dynamo exporter, onnxscript (``auto`` falls back to torchscript without it)."""
+    names = ["onnx", "onnxruntime"] + (["onnxscript"] if exporter == "dynamo" else [])
+    missing = []
+    for name in names:
+        try:
+            found = importlib.util.find_spec(name) is not None
+        except (ImportError, ValueError):  # a broken install, or a blocked import
+            found = False
+        if not found:
+            missing.append(name)
+    if missing:
+        raise ConfigError(
+            f"exsur export needs the export extra (missing: {', '.join(missing)}): {EXTRA}"
+        )
+
+
 def _opset_advice(opset: int, used: str) -> str:
     """What to do when exporter ``used`` could not write a loadable graph of ``opset``."""
     lo, hi = TORCHSCRIPT_OPSETS
@@ -315,8 +339,8 @@ def _export(
         except Exception as e:
             if exporter == "dynamo":
                 raise ConfigError(
-                    f"dynamo ONNX export failed ({error_summary(e, 160)}); "
-                    "try exporter='torchscript'"
+                    f"{out}: the dynamo ONNX exporter failed ({error_summary(e, 160)}); "
+                    "try --exporter torchscript"
                 ) from e
     try:
         _export_torchscript(module, args, tmp, inputs, outputs, axes, opset)
