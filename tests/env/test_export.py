@@ -371,3 +371,30 @@ def test_cli_export_without_the_extra_names_it(
         "pip install 'excavator-surrogate[export]'"
     )
     assert list(tmp_path.iterdir()) == []
+
+
+def test_onnx_stepper_refuses_wrong_shapes_in_one_line(stateful_ckpt: Path, tmp_path: Path) -> None:
+    """A wrong shape was reshaped (a transposed ``u`` scrambled across rows) or failed with
+    NumPy's or onnxruntime's error; now one ConfigError names the shape and the columns."""
+    stepper = OnnxStepper(export_onnx(stateful_ckpt, tmp_path / "m.onnx", exporter="torchscript"))
+    with pytest.raises(ConfigError, match=r"call reset\(theta0\) or reset_history"):
+        stepper.step(np.zeros(4))
+    cols = r"u \(swing, boom, arm, bucket\)"
+    stepper.reset(np.tile([0.0, 0.2, 1.5, 0.5], (4, 1)))
+    for bad in ((4, 5), (3, 4), (4,), (4, 4, 1), (16,)):
+        with pytest.raises(ConfigError, match=rf"must have shape \(4, 4\).*{cols}\), got") as e:
+            stepper.step(np.zeros(bad))
+        assert "\n" not in str(e.value)
+    stepper.reset(np.zeros((2, 4)))
+    with pytest.raises(ConfigError, match=r"\(2, 4\)"):  # (n_u, n_batch): refused
+        stepper.step(np.zeros((4, 2)))
+    for bad in ((2, 3), (2, 1, 4), ()):
+        with pytest.raises(ConfigError, match=r"theta0 must have shape \(n_batch, 4\)"):
+            stepper.reset(np.zeros(bad))
+    with pytest.raises(ConfigError, match=r"u_hist must have shape \(1, 5, 4\).*" + cols):
+        stepper.reset_history(np.zeros((1, 6, 4)), np.zeros((1, 5, 3)))
+    with pytest.raises(ConfigError, match="theta_hist must have shape"):
+        stepper.reset_history(np.zeros((1, 1, 4)), np.zeros((1, 0, 4)))
+    stepper.reset(np.zeros(4))  # one row: 1-d angles and commands
+    theta, _ = stepper.step(np.zeros(4))
+    assert theta.shape == (1, 4)

@@ -255,6 +255,26 @@ def test_ood_after_a_history_and_a_measurement(
     assert moved > 0  # the measured velocity decided flags
 
 
+def test_onnx_stepper_reset_clears_the_last_step_outputs(make_surrogate, tmp_path: Path) -> None:
+    """After a reset the last episode's ``ood`` (3, 4) and ``omega_members`` (2, 3, 4) had
+    stayed; now both are None until the next step, which gives the new batch's."""
+    sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful") for s in range(2)])
+    sur.metrics["coverage"] = _record(sur.spec, np.random.default_rng(1)).to_dict()
+    stepper = OnnxStepper(
+        export_onnx(sur, tmp_path / "e.onnx", exporter="torchscript", uncertainty=True)
+    )
+    pose = np.array([0.0, 0.6, 1.8, 0.8])
+    stepper.reset(np.zeros((3, 4)) + pose)
+    stepper.step(np.full((3, 4), 1000.0))
+    assert stepper.ood is not None and stepper.ood.any()
+    stepper.reset(pose[None])
+    assert stepper.ood is None and stepper.omega_members is None
+    stepper.step(np.zeros((1, 4)))
+    assert stepper.ood.shape == (1, 4) and stepper.omega_members.shape == (2, 1, 4)
+    stepper.reset_history(np.zeros((2, 3, 4)) + pose, np.zeros((2, 2, 4)))
+    assert stepper.ood is None and stepper.omega_members is None
+
+
 def test_no_coverage_record_no_ood_output(make_surrogate, tmp_path: Path) -> None:
     sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful") for s in range(2)])
     path = export_onnx(sur, tmp_path / "ens.onnx", exporter="torchscript", uncertainty=True)

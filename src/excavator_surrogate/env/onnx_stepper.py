@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CheckpointError
+from ..errors import CheckpointError, ConfigError
 from ..spec import MachineSpec
 from ..surrogate.angles import wrap_periodic
 from ..surrogate.command_state import play_np
@@ -77,12 +77,13 @@ class OnnxStepper:
         self.n_member = int(meta.get("exsur_members", "0"))
         """M of the ``omega_members`` output (0: none)."""
         self.omega_members: np.ndarray | None = None
-        """(M, n_batch, n_joint) each member's omega of the last step [rad/s] (with M > 0)."""
+        """(M, n_batch, n_joint) each member's omega of the last step [rad/s] (with M > 0;
+        None before the first step after a reset)."""
         self._outputs = [o.name for o in self.session.get_outputs()]
         self._omega_prev = "omega_prev" in {i.name for i in self.session.get_inputs()}
         self.ood: np.ndarray | None = None
         """(n_batch, n_joint) bool: the last step's sample left the training coverage (graphs
-        with the ``ood`` output; None otherwise)."""
+        with the ``ood`` output, from the first step after a reset; None otherwise)."""
         n_joint = self.spec.n_joint
         self.w = np.zeros((0, n_joint), dtype=np.float32)
         """Velocity feature (n_batch, n_joint) of the current sample [rad/s]."""
@@ -97,11 +98,30 @@ class OnnxStepper:
         self._theta_win = np.zeros((0, self.window, n_joint), np.float32)
         self._u_win = np.zeros((0, self.window, self.spec.n_u), np.float32)
 
+    def _columns(self, what: str) -> str:
+        """``what`` and its column names, for a shape error: ``theta (swing, boom, ...)``."""
+        names = self.spec.names if what.startswith("theta") else self.spec.u_names
+        return f"{what} ({', '.join(names)})"
+
     def reset(self, theta0: np.ndarray) -> np.ndarray:
-        """Start every row at rest at ``theta0`` (n_batch, n_joint) [rad]; returns θ (float32)."""
-        theta0 = np.atleast_2d(np.asarray(theta0, dtype=np.float32))
+        """Start every row at rest at ``theta0`` (n_batch, n_joint) [rad] (one row: also
+        (n_joint,)); returns θ (float32).  The last step's :attr:`omega_members` and
+        :attr:`ood` are cleared (None).
+
+        Raises:
+            ConfigError: another shape, or a non-finite angle (one line naming the joints).
+        """
+        theta0 = np.asarray(theta0, dtype=np.float32)
+        n_joint = self.spec.n_joint
+        if theta0.ndim not in (1, 2) or theta0.shape[-1] != n_joint:
+            raise ConfigError(
+                f"OnnxStepper.reset: theta0 must have shape (n_batch, {n_joint}), got "
+                f"{theta0.shape}: one row per batch entry of {self._columns('theta')}"
+            )
+        theta0 = np.atleast_2d(theta0)
         require_finite(theta0, self.spec, what="theta", where="OnnxStepper.reset")
         n = theta0.shape[0]
+        self.omega_members = self.ood = None
         self.theta = theta0.copy()
         u0 = np.broadcast_to(self.u_rest, (n, self.spec.n_u)).astype(np.float32)
         z_rest = self._play_update(np.zeros((n, *self.z.shape[1:]), np.float32), u0)
@@ -138,18 +158,27 @@ class OnnxStepper:
         ``theta[0]``; the network reads the recorded angles on every joint.  A windowed graph
         reads the last ``W - 1`` samples, a shorter history padded with its first.
 
+        The last step's :attr:`omega_members` and :attr:`ood` are cleared (None).
+
         Returns:
             θ ``theta[n_hist-1]`` (n_batch, n_joint) float32.
+
+        Raises:
+            ConfigError: another shape, or a non-finite value (one line naming the columns).
         """
         th = np.asarray(theta_hist, dtype=np.float32)
         u = np.asarray(u_hist, dtype=np.float32)
         n_joint, n_u = self.spec.n_joint, self.spec.n_u
         if th.ndim != 3 or th.shape[1] < 2 or th.shape[2] != n_joint:
-            raise ValueError(f"theta_hist must be (n_batch, n_hist>=2, {n_joint}), got {th.shape}")
+            raise ConfigError(
+                f"OnnxStepper.reset_history: theta_hist must have shape (n_batch, n_hist>=2, "
+                f"{n_joint}), got {th.shape}: {self._columns('theta')}"
+            )
         n, n_hist = th.shape[:2]
         if u.shape != (n, n_hist - 1, n_u):
-            raise ValueError(
-                f"u_hist must be (n_batch, n_hist-1={n_hist - 1}, {n_u}), got {u.shape}"
+            raise ConfigError(
+                f"OnnxStepper.reset_history: u_hist must have shape ({n}, {n_hist - 1}, {n_u}) "
+                f"(n_batch, n_hist - 1, n_u), got {u.shape}: {self._columns('u')}"
             )
         require_finite(th, self.spec, what="theta", where="OnnxStepper.reset_history")
         require_finite(u, self.spec, what="u", where="OnnxStepper.reset_history")
@@ -171,6 +200,7 @@ class OnnxStepper:
         if self.own is not None:
             z[:, c], z[:, c + 1] = th[:, -1], w[:, -1]
         self.z, self.theta, self.w = z, th[:, -1].copy(), w[:, -1].copy()
+        self.omega_members = self.ood = None
         if self.mode == "stateful":
             self.h = np.zeros((self.n_layer, n, self.hidden), dtype=np.float32)
             self.c = np.zeros_like(self.h)
@@ -219,9 +249,25 @@ class OnnxStepper:
         return np.concatenate(parts, axis=1).astype(np.float32)
 
     def step(self, u: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Apply commands ``u`` (n_batch, n_u) (joints', then exogenous inputs'); returns
-        ``(theta[k+1], omega[k+1])`` float32."""
-        u = np.asarray(u, dtype=np.float32).reshape(self.theta.shape[0], self.spec.n_u)
+        """Apply commands ``u`` (n_batch, n_u) (joints', then exogenous inputs'; one row: also
+        (n_u,)); returns ``(theta[k+1], omega[k+1])`` float32.
+
+        Raises:
+            ConfigError: before any reset, another shape of ``u`` (a transposed array
+                included) or a non-finite command (one line naming the columns).
+        """
+        u = np.asarray(u, dtype=np.float32)
+        n, n_u = self.theta.shape[0], self.spec.n_u
+        if n == 0:
+            raise ConfigError(
+                "OnnxStepper.step: no batch yet; call reset(theta0) or reset_history(...) first"
+            )
+        if u.shape != (n, n_u) and not (n == 1 and u.shape == (n_u,)):
+            raise ConfigError(
+                f"OnnxStepper.step: u must have shape ({n}, {n_u}) (n_batch rows of the reset, "
+                f"{self._columns('u')}), got {u.shape}"
+            )
+        u = u.reshape(n, n_u)
         require_finite(u, self.spec, what="u", where="OnnxStepper.step")
         if self.mode == "stateful":
             feed = self._stateful_feed(self.theta, u, self.z, self.w)
