@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import onnx
 import pytest
 
@@ -16,6 +17,8 @@ from excavator_surrogate.errors import CheckpointError
 from excavator_surrogate.evaluate.card import card_markdown, model_card, public
 from excavator_surrogate.spec import JointSpec, MachineSpec
 from excavator_surrogate.surrogate.checkpoint import save_checkpoint
+from excavator_surrogate.surrogate.coverage import CoverageRecord, channel_names
+from excavator_surrogate.surrogate.ensemble import merge
 from tests.helpers.surrogates import tiny_surrogate
 
 
@@ -73,7 +76,8 @@ def test_an_export_carries_its_checkpoint_card_and_describes_its_graph(
     # below the header, the same card `exsur info best.pt` prints
     ckpt_text = card_markdown(model_card(ckpt))
     body = ckpt_text[ckpt_text.index("## Machine") :]
-    assert text.endswith(body)
+    last = "This graph outputs no bands or flags (no `omega_members` or `ood`): a single network"
+    assert text.startswith(body, text.index("## Machine")) and text.split("\n")[-2].startswith(last)
     assert "**Warning: the wall-time cap cut training short**" in text
     assert "Seed 4" in text
     assert card["card"]["training"]["pace"] is None  # no training log beside the checkpoint
@@ -82,6 +86,44 @@ def test_an_export_carries_its_checkpoint_card_and_describes_its_graph(
         again = onnx_card(export_onnx(ckpt, tmp_path / "again.onnx"))
         assert again["card"]["training"]["pace"]["epochs"] == 1
         assert "Time on this computer: 1 network(s), 1 epochs in all" in onnx_card_markdown(again)
+
+
+def test_the_card_of_an_export_states_the_graph_mode_and_outputs(tmp_path: Path) -> None:
+    """The card said a windowed graph of a stateful checkpoint "Runs stateful", and that an
+    export without the uncertainty outputs flags OOD steps; it now states the graph's mode
+    and what of the checkpoint's bands and flags the graph outputs."""
+    ens = merge([tiny_surrogate(seed=s, hidden=8) for s in range(2)])
+    n_j = ens.spec.n_joint
+    lo = np.concatenate([np.full(n_j, -1000.0), [-7.0, -1.0, 0.0, -1.0], np.full(n_j, -1.0)])
+    hi = -lo + np.concatenate([np.zeros(n_j), [0.0, 0.0, 3.0, 0.0], np.zeros(n_j)])
+    grid = np.ones((n_j, 10, 10), dtype=np.int64)
+    rec = CoverageRecord(channel_names(ens.spec), lo, hi, grid, n_sample=500)
+    ens.metrics["coverage"] = rec.to_dict()  # beside the ensemble's own record
+    ckpt = save_checkpoint(tmp_path / "ens.pt", ens)
+
+    def text(name: str, **kw) -> str:
+        return onnx_card_markdown(onnx_card(export_onnx(ckpt, tmp_path / name, **kw)))
+
+    windowed = text("w.onnx", mode="windowed", exporter="torchscript")
+    assert (
+        "- Runs windowed: a fresh state per window" in windowed and "Runs stateful" not in windowed
+    )
+    assert "free runs flag the steps outside the training data" in windowed  # the checkpoint
+    no = "This graph outputs no bands or flags (no `omega_members` or `ood`): export again with "
+    assert windowed.endswith(no + "`--uncertainty` (stateful) for them.\n")
+    plain = text("p.onnx", exporter="torchscript")
+    assert "- Runs stateful: the state is carried" in plain and plain.endswith("for them.\n")
+    both = text("u.onnx", exporter="torchscript", uncertainty=True)
+    assert both.endswith(
+        "This graph outputs both: `omega_members` (2 members; their spread is the "
+        "uncertainty) and `ood` (the flags).\n"
+    )
+    del ens.metrics["coverage"]
+    bare = save_checkpoint(tmp_path / "bare.pt", ens)
+    card = onnx_card(
+        export_onnx(bare, tmp_path / "b.onnx", exporter="torchscript", uncertainty=True)
+    )
+    assert onnx_card_markdown(card).endswith("but no `ood`: it flags nothing.\n")
 
 
 def test_linear_joints_are_named_in_their_own_unit(tmp_path: Path) -> None:

@@ -102,7 +102,11 @@ def onnx_card_json(card: dict[str, Any]) -> dict[str, Any]:
 
 
 def onnx_card_markdown(card: dict[str, Any]) -> str:
-    """The card of :func:`onnx_card` as Markdown (what ``exsur info model.onnx`` prints)."""
+    """The card of :func:`onnx_card` as Markdown (what ``exsur info model.onnx`` prints).
+
+    The checkpoint's card is told about the graph: it runs in the graph's mode (a stateful
+    checkpoint exported windowed takes a window a call), and a last line says which of the
+    card's bands and flags the graph carries as outputs."""
     f, meta = card["file"], card["metadata"]
     mode = meta.get("exsur_mode", "?")
     step = (
@@ -147,4 +151,24 @@ def onnx_card_markdown(card: dict[str, Any]) -> str:
         return (
             "\n".join([*head, "", "No checkpoint card in this file (exported before it)."]) + "\n"
         )
-    return card_markdown(card["card"], header=head)
+    ckpt = card["card"]
+    graph_card = {**ckpt, "network": {**ckpt["network"], "mode": mode}}
+    return card_markdown(graph_card, header=head) + _graph_uncertainty(meta, ckpt) + "\n"
+
+
+def _graph_uncertainty(meta: dict[str, Any], ckpt: dict[str, Any]) -> str:
+    """One line: what of the checkpoint's uncertainty this graph outputs (``exsur_members``,
+    ``exsur_ood``); the card above describes the checkpoint, which may have more."""
+    n_member = int(meta.get("exsur_members") or 0)
+    ood = str(meta.get("exsur_ood", "0")) == "1"
+    spread = f"`omega_members` ({n_member} members; their spread is the uncertainty)"
+    if n_member and ood:
+        return f"This graph outputs both: {spread} and `ood` (the flags)."
+    if n_member:
+        return f"This graph outputs {spread} but no `ood`: it flags nothing."
+    how = (
+        "export again with `--uncertainty` (stateful) for them"
+        if int(ckpt["network"].get("n_member") or 1) > 1
+        else "a single network cannot export them (`--uncertainty` needs an ensemble)"
+    )
+    return f"This graph outputs no bands or flags (no `omega_members` or `ood`): {how}."
