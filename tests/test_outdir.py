@@ -241,6 +241,28 @@ def test_file_outputs_by_content(tmp_path: Path) -> None:
     assert [is_exsur_file(tmp_path / n) for n in ("a.pt", "b.pt", "c.pt")] == [True, False, False]
 
 
+def test_file_outputs_by_content_whatever_the_suffix_case(tmp_path: Path) -> None:
+    """``--out M1.ONNX`` was written (the suffix check ignores case) and then called "not
+    written by exsur" (the content check compared the suffix case-sensitively)."""
+    from onnx import TensorProto, helper, save
+
+    graph = helper.make_graph(
+        [helper.make_node("Identity", ["x"], ["y"])],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1])],
+    )
+    model = helper.make_model(graph)
+    helper.set_model_props(model, {"exsur_spec": "{}"})
+    ours = tmp_path / "M1.ONNX"
+    save(model, ours)
+    assert is_exsur_file(ours)
+    assert check_out_file(ours, example="m.onnx") == ours
+    torch = pytest.importorskip("torch")
+    torch.save({"format": "exsur-surrogate"}, tmp_path / "A.Pt")
+    assert is_exsur_file(tmp_path / "A.Pt")
+
+
 def test_an_output_of_another_kind_is_refused(tmp_path: Path) -> None:
     """A mistyped --out naming another kind of exsur output (a trained model, a dataset) is
     neither replaced nor written into without --overwrite, by the CLI's check or by

@@ -438,18 +438,19 @@ def is_exsur_file(path: str | Path) -> bool:
     p = Path(path)
     if p.is_symlink() or not p.is_file():
         return False
+    suffix = p.suffix.lower()  # as check_out_file accepts it: MODEL.ONNX is a model
     try:
-        if p.suffix == ".pt":
+        if suffix == ".pt":
             import torch
 
             obj = torch.load(p, map_location="cpu", weights_only=True)
             return isinstance(obj, dict) and str(obj.get("format", "")).startswith("exsur-")
-        if p.suffix == ".onnx":
+        if suffix == ".onnx":
             import onnx
 
             model = onnx.load(str(p), load_external_data=False)
             return any(m.key == "exsur_spec" for m in model.metadata_props)
-        if p.suffix == ".png":
+        if suffix == ".png":
             from PIL import Image
 
             with Image.open(p) as im:
