@@ -12,7 +12,13 @@ import pytest
 
 from excavator_surrogate.cli import main
 from excavator_surrogate.errors import ConfigError
-from excavator_surrogate.scale.sweep import SweepConfig, open_study, run_sweep, trial_config
+from excavator_surrogate.scale.sweep import (
+    SweepConfig,
+    open_study,
+    run_sweep,
+    safe_url,
+    trial_config,
+)
 from excavator_surrogate.surrogate.synthetic import synthetic_spec, write_synthetic_dataset
 from excavator_surrogate.training import TrainConfig
 
@@ -55,6 +61,32 @@ def test_a_database_without_its_driver_is_one_line_without_the_password() -> Non
     msg = str(e.value)
     assert msg.startswith("storage 'postgresql://me:***@127.0.0.1:1/db': database driver missing")
     assert "pip install psycopg2-binary" in msg and "secret" not in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize(
+    ("url", "shown"),
+    [
+        ("postgresql://me:secret@db:5432/x", "postgresql://me:***@db:5432/x"),
+        # an empty user: the pattern needed one, and showed the password
+        ("postgresql://:secret@127.0.0.1:1/db", "postgresql://:***@127.0.0.1:1/db"),
+        # a password query parameter: shown as it was
+        (
+            "postgresql://me@127.0.0.1:1/db?password=secret",
+            "postgresql://me@127.0.0.1:1/db?password=***",
+        ),
+        # an '@' in the query: the pattern masked up to it, and lost the host
+        (
+            "postgresql://me:secret@host/db?sslmode=require&application_name=a@b",
+            "postgresql://me:***@host/db?application_name=a%40b&sslmode=require",
+        ),
+        ("sqlite:////tmp/a b/study.db", "sqlite:////tmp/a b/study.db"),  # nothing to hide
+        ("nosuchdb://x", "nosuchdb://x"),
+        # not a URL SQLAlchemy parses: masked by pattern
+        ("my-db://me:secret@db/x?password=secret&a=1", "my-db://me:***@db/x?password=***&a=1"),
+    ],
+)
+def test_storage_passwords_are_masked_in_every_url_form(url: str, shown: str) -> None:
+    assert safe_url(url) == shown
 
 
 def test_a_storage_that_cannot_be_opened_is_one_line(tmp_path: Path) -> None:

@@ -130,8 +130,23 @@ def _optuna() -> Any:
 
 
 def safe_url(url: str) -> str:
-    """``url`` with any password replaced by ``***`` (for logs and reports)."""
-    return re.sub(r"(://[^:/@]+):.*@", r"\1:***@", url)
+    """``url`` with its password replaced by ``***`` (for logs and reports): the one of
+    ``user:pw@host`` (also with an empty user) and a ``password`` query parameter.
+
+    SQLAlchemy parses the URL; a URL it cannot parse is masked by pattern.  A URL without
+    a password is returned unchanged."""
+    try:
+        from sqlalchemy.engine import make_url
+
+        parsed = make_url(url)
+    except Exception:  # not SQLAlchemy's (or no SQLAlchemy): the same two places by pattern
+        shown = re.sub(r"(://[^:/@?#]*):[^@/?#]*@", r"\1:***@", url)
+        return re.sub(r"([?&]password=)[^&#]*", r"\1***", shown, flags=re.IGNORECASE)
+    secret = [k for k in parsed.query if k.lower() == "password"]
+    if parsed.password is None and not secret:
+        return url
+    shown = parsed.difference_update_query(secret).render_as_string(hide_password=True)
+    return shown + ("&" if "?" in shown else "?") + "password=***" if secret else shown
 
 
 def default_storage(out: str | Path) -> str:
