@@ -232,3 +232,45 @@ def test_a_sweep_records_the_config_that_repeats_it(tmp_path: Path) -> None:
         "storage": f"sqlite:///{(tmp_path / 's' / 'study.db').resolve()}",
         "timeout": 600.0,
     }
+
+
+def test_quiet_silences_optunas_info_lines_too(tmp_path: Path) -> None:
+    """Under ``-q`` (the package logger at WARNING) Optuna still logged ``A new study
+    created`` and ``Trial 0 finished`` at INFO; its lines now follow exsur's level, and its
+    own level is restored afterwards."""
+    import logging
+
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "sweep.toml").write_text(PRESET)
+    preset = load_preset(tmp_path / "sweep.toml")
+    seen: list[logging.LogRecord] = []
+    handler = logging.Handler()
+    handler.emit = seen.append  # type: ignore[method-assign]
+    optuna_logger, pkg = logging.getLogger("optuna"), logging.getLogger("excavator_surrogate")
+    before, level = optuna.logging.get_verbosity(), pkg.level
+    optuna_logger.addHandler(handler)
+    pkg.setLevel(logging.WARNING)
+    try:
+        run_sweep(
+            data,
+            out=tmp_path / "s",
+            trials=1,
+            sweep=SweepConfig.from_preset(preset, epochs=1),
+            base=TrainConfig.mode_bases(preset),
+        )
+        assert optuna.logging.get_verbosity() == before
+        assert [r.getMessage() for r in seen if r.levelno < logging.WARNING] == []
+        pkg.setLevel(logging.INFO)  # without -q they are shown
+        run_sweep(
+            data,
+            out=tmp_path / "s",
+            trials=1,
+            sweep=SweepConfig.from_preset(preset, epochs=1),
+            base=TrainConfig.mode_bases(preset),
+        )
+        assert any("Trial 1 finished" in r.getMessage() for r in seen)
+    finally:
+        optuna_logger.removeHandler(handler)
+        pkg.setLevel(level)

@@ -24,6 +24,7 @@ fix a value), on top of the preset's ``[train]`` table for everything not search
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import re
@@ -31,7 +32,7 @@ import shutil
 import socket
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -39,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 from ..config import PresetConfig, dumps_toml, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
-from ..io_utils import mark_output, recorded_path, write_text
+from ..io_utils import LOGGER_NAME, mark_output, recorded_path, write_text
 from ..outlock import first_missing
 
 _log = logging.getLogger(__name__)
@@ -127,6 +128,20 @@ def _optuna() -> Any:
             "exsur sweep needs optuna: pip install 'excavator-surrogate[sweep]'"
         ) from e
     return optuna
+
+
+@contextlib.contextmanager
+def _optuna_logging() -> Iterator[None]:
+    """Optuna's own log lines (``A new study created``, ``Trial 0 finished``) shown from
+    exsur's level up (``-q``: WARNING), Optuna's level restored afterwards."""
+    optuna = _optuna()
+    before = optuna.logging.get_verbosity()
+    level = logging.getLogger(LOGGER_NAME).getEffectiveLevel()
+    optuna.logging.set_verbosity(max(before, level))
+    try:
+        yield
+    finally:
+        optuna.logging.set_verbosity(before)
 
 
 def safe_url(url: str) -> str:
@@ -340,6 +355,7 @@ def _fmt_params(p: Mapping[str, Any]) -> str:
     return ", ".join(f"{k}={one(v)}" for k, v in p.items())
 
 
+@_optuna_logging()  # -q: no INFO lines of Optuna either
 def run_sweep(
     data: str | Path | Dataset,
     *,
