@@ -274,3 +274,22 @@ def test_quiet_silences_optunas_info_lines_too(tmp_path: Path) -> None:
     finally:
         optuna_logger.removeHandler(handler)
         pkg.setLevel(level)
+
+
+def test_a_resumed_seeded_sweep_goes_on_searching(tmp_path: Path) -> None:
+    """The sampler started from the same seed on every run, so a seeded sweep run again in
+    its folder trained its first configuration again (same params, same val_error).  It
+    now seeds with ``seed`` plus the trials already in the study."""
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "sweep.toml").write_text(PRESET)
+    preset = load_preset(tmp_path / "sweep.toml")
+    kw = dict(sweep=SweepConfig.from_preset(preset, epochs=1), base=TrainConfig.mode_bases(preset))
+    first = run_sweep(data, out=tmp_path / "a", trials=1, **kw)
+    run_sweep(data, out=tmp_path / "a", trials=1, **kw)  # the same command again
+    rows = json.loads((tmp_path / "a" / "sweep.json").read_text())["trials"]
+    assert [r["trial"] for r in rows] == [0, 1]
+    assert rows[0]["params"] != rows[1]["params"]
+    again = run_sweep(data, out=tmp_path / "b", trials=1, **kw)  # a fresh sweep: reproducible
+    assert again.best_params == first.best_params

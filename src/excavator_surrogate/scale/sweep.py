@@ -87,7 +87,9 @@ class SweepConfig(PresetConfig, table="sweep"):
     sampler_startup: int = 10
     """Random trials before TPE starts modelling the space."""
     seed: int | None = None
-    """Sampler seed (set it for a reproducible single-worker sweep; leave unset for many workers)."""
+    """Sampler seed (set it for a reproducible single-worker sweep; leave unset for many
+    workers).  A worker joining a study of N trials seeds with ``seed + N``: a resumed sweep
+    goes on searching instead of repeating its first trials."""
     top: int = 5
     """Trials shown in the table and the plot."""
 
@@ -178,7 +180,8 @@ def open_study(
     """Create or join (``load_if_exists``) the study at ``storage``.
 
     Non-SQLite databases get Optuna heartbeats, so trials of a crashed worker are marked
-    failed after ``grace_period`` instead of staying RUNNING forever.
+    failed after ``grace_period`` instead of staying RUNNING forever.  A seeded sampler
+    starts from ``seed`` plus the trials already in the study (:func:`_sampler`).
     """
     optuna = _optuna()
     try:
@@ -188,18 +191,20 @@ def open_study(
             with warnings.catch_warnings():  # heartbeats are "experimental" since optuna 2.9
                 warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
                 store = optuna.storages.RDBStorage(storage, heartbeat_interval=60, grace_period=180)
-        return optuna.create_study(
+        study = optuna.create_study(
             storage=store,
             study_name=study_name,
             direction="minimize",
             load_if_exists=True,
-            sampler=optuna.samplers.TPESampler(
-                seed=scfg.seed, n_startup_trials=scfg.sampler_startup
-            ),
+            sampler=_sampler(scfg, n_done=0),
             pruner=optuna.pruners.MedianPruner(
                 n_startup_trials=scfg.pruner_startup, n_warmup_steps=scfg.pruner_warmup
             ),
         )
+        n_done = len(study.get_trials(deepcopy=False))
+        if n_done and scfg.seed is not None:  # a joined study: go on from where it is
+            study.sampler = _sampler(scfg, n_done=n_done)
+        return study
     except ImportError as e:
         scheme = storage.split(":", 1)[0]
         raise ConfigError(
@@ -213,6 +218,13 @@ def open_study(
                 f"storage '{safe_url(storage)}': cannot open the study ({first})"
             ) from e
         raise
+
+
+def _sampler(scfg: SweepConfig, *, n_done: int) -> optuna.samplers.BaseSampler:
+    """TPE seeded with ``seed + n_done`` (``n_done``: trials already in the study), so a
+    worker that joins or resumes a seeded study does not draw its first trials again."""
+    seed = None if scfg.seed is None else scfg.seed + n_done
+    return _optuna().samplers.TPESampler(seed=seed, n_startup_trials=scfg.sampler_startup)
 
 
 def suggest(trial: optuna.Trial, scfg: SweepConfig) -> dict[str, Any]:
