@@ -293,3 +293,34 @@ def test_a_resumed_seeded_sweep_goes_on_searching(tmp_path: Path) -> None:
     assert rows[0]["params"] != rows[1]["params"]
     again = run_sweep(data, out=tmp_path / "b", trials=1, **kw)  # a fresh sweep: reproducible
     assert again.best_params == first.best_params
+
+
+def test_trials_rank_on_the_error_of_the_checkpoint_they_ship(tmp_path: Path) -> None:
+    """With ``average_last`` a trial's ``best.pt`` holds the selected epoch averaged with the
+    last one, scored again; the trial was ranked on the selected epoch's error
+    (``best_val_error``), so the table's val_error was not the copied ``best.pt``'s."""
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "sweep.toml").write_text(
+        PRESET.replace("tensorboard = false", "tensorboard = false\naverage_last = true")
+        .replace('mode = ["windowed", "stateful"]', 'mode = ["windowed"]')
+        .replace("pruner_startup = 2", "pruner_startup = 9")
+    )
+    preset = load_preset(tmp_path / "sweep.toml")
+    res = run_sweep(
+        data,
+        out=tmp_path / "s",
+        trials=2,
+        sweep=SweepConfig.from_preset(preset),
+        base=TrainConfig.mode_bases(preset),
+    )
+    assert res.n_complete == 2
+    for row in json.loads((tmp_path / "s" / "sweep.json").read_text())["trials"]:
+        metrics = load_checkpoint(row["checkpoint"]).metrics
+        assert "averaged_with_last" in metrics
+        assert metrics["val_error"] != metrics["best_val_error"]  # the average scores apart
+        assert row["value"] == pytest.approx(metrics["val_error"], rel=1e-12)
+    assert load_checkpoint(tmp_path / "s" / "best.pt").metrics["val_error"] == pytest.approx(
+        res.best_value, rel=1e-12
+    )

@@ -4,8 +4,9 @@ Each trial samples a :class:`~excavator_surrogate.training.TrainConfig` from the
 space of a :class:`SweepConfig` (window ``W``, hidden size, layers, horizon ``H``,
 ``lambda_bias``, learning rate, training mode), trains it into ``DIR/trials/trial_NNNN/`` and
 reports the validation free-run error after every epoch; the median pruner stops trials that
-are worse than the median of earlier trials at the same epoch.  The objective is the trial's
-best validation free-run error (lower is better).
+are worse than the median of earlier trials at the same epoch.  The objective is the
+validation free-run error of the trial's ``best.pt`` (lower is better): the weights that ship,
+averaged with the last epoch's under ``average_last``.
 
 The study lives in an Optuna storage: SQLite ``DIR/study.db`` by default; a database URL
 (``postgresql://user:pw@host/db``) lets workers on many machines join the same study
@@ -349,7 +350,9 @@ class _Objective:
         metrics = read_checkpoint(best).get("metrics") or {}
         last = tdir / "last.pt"
         history = (read_checkpoint(last) if last.is_file() else {}).get("history") or []
-        value = float(metrics.get("best_val_error", metrics.get("val_error", math.inf)))
+        # the error of the weights best.pt holds (average_last: the average's, not the
+        # selected epoch's; select_smooth: the epoch's own, not the smoothed score)
+        value = float(metrics.get("val_error", math.inf))
         trial.set_user_attr("checkpoint", str(best.resolve()))
         trial.set_user_attr("best_epoch", metrics.get("epoch"))
         trial.set_user_attr("epochs_run", len(history))
