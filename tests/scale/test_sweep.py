@@ -324,3 +324,44 @@ def test_trials_rank_on_the_error_of_the_checkpoint_they_ship(tmp_path: Path) ->
     assert load_checkpoint(tmp_path / "s" / "best.pt").metrics["val_error"] == pytest.approx(
         res.best_value, rel=1e-12
     )
+
+
+def test_a_second_study_in_the_folder_of_another_is_refused(tmp_path: Path, capsys) -> None:
+    """Trial numbers restart at 0 in every study: a second study (``--study other``, or the
+    same name in another database) in a sweep's ``--out`` trained into the first study's
+    ``trials/trial_NNNN`` and replaced its checkpoints, ``best.pt`` and ``config.toml``.
+    It is now one line before anything is written, unless ``--overwrite``."""
+    import shutil
+
+    from excavator_surrogate.scale.sweep import default_storage
+
+    data = write_synthetic_dataset(
+        tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
+    )
+    (tmp_path / "sweep.toml").write_text(PRESET.replace("epochs = 3", "epochs = 1"))
+    out = tmp_path / "s"
+    argv = ["sweep", str(data), "--out", str(out), "--trials", "1"]
+    argv += ["--preset", str(tmp_path / "sweep.toml"), "-q"]
+    assert main(argv) == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    other_db = f"sqlite:///{tmp_path / 'other.db'}"
+    for extra, held in (
+        (["--study", "other"], "study 'exsur'; study 'other' would write"),
+        (["--storage", other_db], f"study 'exsur' at {default_storage(out)}; study 'exsur' at"),
+    ):
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert (
+            err == (f"exsur: error: {out}: --out holds the sweep of {held}" + err.split(held, 1)[1])
+            and "\n" not in err
+        )
+        assert "give it another --out" in err and "--overwrite" in err
+        assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert not (tmp_path / "other.db").exists()
+    # the same study goes on in its folder, also when the folder moved
+    from excavator_surrogate.scale.sweep import check_owner
+
+    moved = tmp_path / "moved"
+    shutil.copytree(out, moved)
+    check_owner(moved, study_name="exsur", storage=default_storage(moved), overwrite=False)
+    check_owner(out, study_name="other", storage=default_storage(out), overwrite=True)

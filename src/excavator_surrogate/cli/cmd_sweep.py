@@ -29,7 +29,12 @@ def register(subparsers: Any) -> None:
         help="Optuna storage URL (default sqlite:///OUT/study.db; postgresql://user:pw@host/db "
         "lets many machines share the study)",
     )
-    p.add_argument("--study", default="exsur", help="study name to create or join (default exsur)")
+    p.add_argument(
+        "--study",
+        default="exsur",
+        help="study name to create or join (default exsur); --out holds one study: another "
+        "study needs another --out",
+    )
     p.add_argument(
         "--timeout", type=float, default=None, help="stop starting new trials after S seconds"
     )
@@ -89,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
         timeout=args.timeout,
         sweep=scfg,
         base=base,
+        overwrite=args.overwrite,
     )
     if res.table is not None:
         print(res.table.read_text(encoding="utf-8"))

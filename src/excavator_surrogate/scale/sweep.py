@@ -10,7 +10,8 @@ averaged with the last epoch's under ``average_last``.
 
 The study lives in an Optuna storage: SQLite ``DIR/study.db`` by default; a database URL
 (``postgresql://user:pw@host/db``) lets workers on many machines join the same study
-(``load_if_exists``), each running ``--trials`` trials.  When a worker finishes it writes, from
+(``load_if_exists``), each running ``--trials`` trials.  ``DIR`` holds one study: another one
+there is refused (:func:`check_owner`).  When a worker finishes it writes, from
 every trial in the study so far:
 
 - ``DIR/sweep.md``: a Markdown table of the best trials and their parameters;
@@ -26,12 +27,14 @@ fix a value), on top of the preset's ``[train]`` table for everything not search
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import math
 import re
 import shutil
 import socket
 import time
+import tomllib
 import warnings
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, replace
@@ -170,6 +173,52 @@ def safe_url(url: str) -> str:
 def default_storage(out: str | Path) -> str:
     """SQLite URL of ``out/study.db``."""
     return f"sqlite:///{(Path(out) / 'study.db').resolve()}"
+
+
+def sweep_owner(out: str | Path) -> tuple[str, str] | None:
+    """``(study, storage)`` of the sweep ``out`` holds, from its ``config.toml`` ``[command]``
+    (or, from a sweep that wrote none, its ``sweep.json``); the storage with its password
+    hidden.  None: no sweep there yet (or a record that cannot be read)."""
+    for name, parse in (("config.toml", tomllib.loads), ("sweep.json", json.loads)):
+        try:
+            rec = parse((Path(out) / name).read_text(encoding="utf-8"))
+            rec = rec["command"] if name == "config.toml" else rec
+            return str(rec["study"]), str(rec["storage"])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    return None
+
+
+def check_owner(out: str | Path, *, study_name: str, storage: str, overwrite: bool) -> None:
+    """Refuse, unless ``overwrite``, to run study ``study_name`` at ``storage`` in an ``out``
+    that holds another study's sweep (another name, or the same name in another database):
+    trial numbers restart at 0 in every study, so its trials would land in the other's
+    ``trials/trial_NNNN`` folders and replace their checkpoints, and its ``best.pt`` and
+    report would replace the other's.  ``out``'s own SQLite database counts as the same
+    wherever the folder was moved.
+
+    Raises:
+        ConfigError: one line naming the folder, both studies and what to do.
+    """
+    held = None if overwrite else sweep_owner(out)
+    if held is None:
+        return
+    name, where = held
+    shown = safe_url(storage)
+    same_db = where == shown or (
+        storage == default_storage(out)
+        and where.startswith("sqlite:")
+        and where.endswith("/study.db")
+    )
+    if name == study_name and same_db:
+        return
+    other = f"study '{name}'" + ("" if same_db else f" at {where}")
+    this = f"study '{study_name}'" + ("" if same_db else f" at {shown}")
+    raise ConfigError(
+        f"{out}: --out holds the sweep of {other}; {this} would write its trials into that "
+        "study's trial folders and replace its best.pt: give it another --out (one --storage "
+        "may hold both studies), or pass --overwrite to write into this one"
+    )
 
 
 def open_study(
@@ -381,8 +430,12 @@ def run_sweep(
     timeout: float | None = None,
     sweep: SweepConfig | None = None,
     base: TrainConfig | Mapping[str, TrainConfig] | None = None,
+    overwrite: bool = False,
 ) -> SweepResult:
     """Run ``trials`` trials of the study (joining it if it exists), then write the report.
+
+    ``out`` holds one study's sweep: another study (or the same name in another database)
+    is refused there (:func:`check_owner`) unless ``overwrite``.
 
     Args:
         data: dataset folder (or loaded :class:`Dataset`) with ``train`` and ``val`` splits.
@@ -394,6 +447,8 @@ def run_sweep(
         sweep: search space and per-trial budget.
         base: training options that are not searched (device, batch sizes, seed ...), or one
             such config per mode (:meth:`~excavator_surrogate.training.TrainConfig.mode_bases`).
+        overwrite: write into ``out`` even if it holds another study's sweep (``--overwrite``:
+            this study's trials then replace that one's trial folders of the same numbers).
 
     Returns:
         The study summary.
@@ -408,9 +463,10 @@ def run_sweep(
     scfg = sweep or SweepConfig()
     base = base or TrainConfig()
     out = Path(out)
+    storage = storage or default_storage(out)
+    check_owner(out, study_name=study_name, storage=storage, overwrite=overwrite)
     new = first_missing(out)
     mark_output(out, "sweep")
-    storage = storage or default_storage(out)
     try:
         dataset = data if isinstance(data, Dataset) else load_dataset(data, splits=("train", "val"))
         study = open_study(storage=storage, study_name=study_name, scfg=scfg)
