@@ -179,3 +179,51 @@ def test_a_best_trial_of_another_machine_is_named_not_copied(tmp_path: Path, cap
     assert res.best_checkpoint is None and not (tmp_path / "out" / "best.pt").exists()
     assert f"best trial 0 ran on node7; its checkpoint {gone} is not reachable" in caplog.text
     assert "copy it by hand" in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("train", "message"),
+    [
+        (
+            {"members": 2},
+            "[train] members = 2: a sweep trial trains one network; give --set train.members=1",
+        ),
+        (
+            {"members": 3, "prior_choice": True},
+            "[train] members = 3, prior_choice = true: a sweep trial trains one network; "
+            "give --set train.members=1 --set train.prior_choice=false",
+        ),
+    ],
+)
+def test_a_base_every_trial_would_fail_on_is_one_line_before_any_trial(
+    data: Path, tmp_path: Path, capsys, train: dict, message: str
+) -> None:
+    """Each trial failed on its own with training's advice ("on_epoch works per member ...
+    merge them with 'exsur merge'"), then the sweep ended "no trial completed", its folder
+    left behind."""
+    out = tmp_path / "sw"
+    sets = [f"--set=train.{k}={str(v).lower()}" for k, v in train.items()]
+    assert main(["sweep", str(data), "--out", str(out), "--trials", "2", *sets]) == 2
+    assert capsys.readouterr().err.strip() == f"exsur: error: {message}"
+    assert not out.exists()
+
+
+def test_exogenous_choose_and_a_missing_device_of_the_base_are_refused() -> None:
+    import dataclasses
+
+    from excavator_surrogate.scale.sweep import check_base
+    from excavator_surrogate.spec import InputSpec
+
+    spec = synthetic_spec(2)
+    with_input = dataclasses.replace(spec, inputs=(InputSpec("rpm", 0.0, 2000.0, "rpm"),))
+    choose = TrainConfig(exogenous="choose")
+    check_base({"windowed": choose}, spec)  # no inputs: nothing to choose, nothing refused
+    with pytest.raises(ConfigError) as e:
+        check_base({"windowed": TrainConfig(), "stateful": choose}, with_input)
+    assert str(e.value) == (
+        '[train] exogenous = "choose": a sweep trial trains one network; give '
+        "--set train.exogenous=use"
+    )
+    if not __import__("torch").cuda.is_available():  # --set train.device=cuda ran the trials
+        with pytest.raises(ConfigError, match="device 'cuda' is not available"):
+            check_base(TrainConfig(device="cuda"), spec)

@@ -52,6 +52,7 @@ _log = logging.getLogger(__name__)
 if TYPE_CHECKING:  # optuna is an optional dependency (pip install 'excavator-surrogate[sweep]')
     import optuna
 
+    from ..spec import MachineSpec
     from ..training import TrainConfig
     from .sweep_report import SweepResult
 
@@ -354,6 +355,37 @@ def base_table(base: TrainConfig | Mapping[str, TrainConfig]) -> dict[str, Any]:
     return {**to_dict(base[mode]), **others(mode)}
 
 
+def check_base(base: TrainConfig | Mapping[str, TrainConfig], spec: MachineSpec) -> None:
+    """Refuse, before any trial, a base that would fail every trial: several trainings per
+    trial (``members > 1``, ``exogenous = "choose"`` with the machine's inputs,
+    ``prior_choice``: a trial trains one network, pruned epoch by epoch) or a device this
+    computer lacks.
+
+    Raises:
+        ConfigError: one line naming the settings and the ``--set`` that fixes them.
+    """
+    from ..devices import resolve_device
+
+    for cfg in base.values() if isinstance(base, Mapping) else (base,):
+        fixes = [
+            (key, now, fix)
+            for key, now, fix, bad in (
+                ("members", cfg.members, "1", cfg.members > 1),
+                ("exogenous", '"choose"', "use", cfg.exogenous == "choose" and spec.n_input),
+                ("prior_choice", "true", "false", cfg.prior_choice),
+            )
+            if bad
+        ]
+        if fixes:
+            raise ConfigError(
+                "[train] "
+                + ", ".join(f"{key} = {now}" for key, now, _ in fixes)
+                + ": a sweep trial trains one network; give "
+                + " ".join(f"--set train.{key}={fix}" for key, _, fix in fixes)
+            )
+        resolve_device(cfg.device)
+
+
 class _Objective:
     """Train one trial; report per-epoch validation error; prune through ``train``'s hook."""
 
@@ -469,6 +501,7 @@ def run_sweep(
     mark_output(out, "sweep")
     try:
         dataset = data if isinstance(data, Dataset) else load_dataset(data, splits=("train", "val"))
+        check_base(base, dataset.spec)  # one line before any trial, not one per trial
         study = open_study(storage=storage, study_name=study_name, scfg=scfg)
     except BaseException:  # no trial ran: leave no folder behind that only holds the marker
         if new is not None:
