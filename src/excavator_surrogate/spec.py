@@ -20,6 +20,12 @@ from .errors import ConfigError
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
+SOURCE_META = "data_source"
+"""Key of ``MachineSpec.meta`` under which a trained checkpoint records where its training
+data came from: the episodes' ``source`` (``mujoco-ideal``, ``mujoco-hydraulic``, ``import``
+...), several joined by ``+``.  Commands that run a checkpoint against a built-in plant read
+it (:mod:`excavator_surrogate.env.plants`)."""
+
 LINEAR_UNITS: dict[str, float] = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
 """Display units of a linear joint -> how many of them make one metre (the stored unit)."""
 

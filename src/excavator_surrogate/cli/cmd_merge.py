@@ -12,7 +12,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "merge",
         help="merge trained surrogates into one ensemble checkpoint (omega = the members' mean)",
         description="Merge K checkpoints of the same machine and architecture (LSTM/GRU, same "
-        "depth, window, mode, end stops and play features) into ONE checkpoint whose network "
+        "depth, window, mode, end stops and play features; trained on the same or other data of "
+        "the machine, the widest of their end stops and speed bounds kept) into ONE checkpoint "
+        "whose network "
         "averages the members' angular velocities every step. The merged network is a plain, "
         "wider LSTM/GRU with block-diagonal weights, so it runs everywhere a single checkpoint "
         "does (evaluate, env, export). 'exsur train --members K' trains and merges in one go.",

@@ -12,8 +12,11 @@ input layer stacks the members' rows, and the output layer averages the members'
 :func:`merge` builds that network, so a merged checkpoint runs everywhere a single one does
 (``ClosedLoop``, the vector env, the fused engine, ONNX export) with no ensemble code path to
 keep equal.  Members may differ in normalisation (each member's input and output affine maps
-are folded into its block) and in width; they must share the machine spec, cell, depth,
-window, rollout mode, end stops, play features and velocity feature.
+are folded into its block), in width and in the training data: they must share the machine
+(joints, rate, periodic flags, kinds, command ranges, inputs: ``MachineSpec.mismatch``),
+cell, depth, window, rollout mode, end stops, play features and velocity feature.  The end
+stops and speed bounds each member took from its data may differ; the merged model keeps
+the widest (:func:`merged_spec`).
 
 :func:`~.reference.rollout_reference` with a list of members is the plain loop (members
 stepped one by one, omega averaged in NumPy) that the merged network is tested against.
@@ -28,12 +31,14 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import torch
 
 from ..errors import ConfigError
+from ..spec import SOURCE_META, MachineSpec
 from .model import CELL_GATES, ModelConfig, Surrogate, SurrogateNet
 from .prior import PRIOR_MAP
 
@@ -61,8 +66,10 @@ def check_members(
                 "diverged; re-train it (lower train.lr) or leave it out"
             )
     for i, s in enumerate(surs[1:], start=1):
+        # the machine, not the envelope its training data gave it (merged_spec widens that)
+        diff = ref.spec.mismatch(s.spec)
         checks = [
-            (s.spec.to_dict() == ref.spec.to_dict(), "machine spec (joints, rate, limits)"),
+            (diff is None, f"machine ({diff})"),
             (s.model_cfg.cell == ref.model_cfg.cell, "cell"),
             (s.model_cfg.n_layer == ref.model_cfg.n_layer, "number of layers"),
             (s.model_cfg.window == ref.model_cfg.window, "window W"),
@@ -91,6 +98,33 @@ def check_members(
                     f"{who(i)} has the same weights as {who(k)}: the "
                     "same model twice is no ensemble; give each member once"
                 )
+
+
+def merged_spec(specs: Sequence[MachineSpec]) -> MachineSpec:
+    """The machine of merged members (one machine: :meth:`MachineSpec.mismatch`): the first
+    member's, with each joint's envelope the widest of the members' (the lowest
+    ``theta_min``, the highest ``theta_max`` and ``omega_max``; None, no bound, where a member
+    has none) and the data sources of all (:data:`~excavator_surrogate.spec.SOURCE_META`).
+    Members trained on other data of the machine derive other bounds from it
+    (:func:`~.envelope.fill_envelope`); the merged model's are those of all their data."""
+
+    def widest(values: list[float | None], pick: Any) -> float | None:
+        return None if any(v is None for v in values) else float(pick(values))
+
+    joints = [
+        replace(
+            js[0],
+            theta_min=widest([j.theta_min for j in js], min),
+            theta_max=widest([j.theta_max for j in js], max),
+            omega_max=widest([j.omega_max for j in js], max),
+        )
+        for js in zip(*(s.joints for s in specs))
+    ]
+    meta = dict(specs[0].meta)
+    sources = {p for s in specs for p in str(s.meta.get(SOURCE_META) or "").split("+") if p}
+    if sources:
+        meta[SOURCE_META] = "+".join(sorted(sources))
+    return replace(specs[0], joints=tuple(joints), meta=meta)
 
 
 def _same_prior(a: Surrogate, b: Surrogate, *, same_gains: bool = True) -> bool:
@@ -295,7 +329,7 @@ def merge(
         info = {**info, "joint_weights": weights.tolist()}
     return Surrogate(
         net=net,
-        spec=ref.spec,
+        spec=merged_spec([s.spec for s in surs]),
         norm=norm0,
         model_cfg=mcfg,
         mode=ref.mode,

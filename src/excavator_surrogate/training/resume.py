@@ -14,7 +14,7 @@ from ..config import to_dict
 from ..data.episode import Episode
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
-from ..spec import MachineSpec
+from ..spec import SOURCE_META, MachineSpec
 from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
 from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
@@ -23,12 +23,6 @@ from ..surrogate.prior import PRIOR_MAP
 from ..surrogate.structured import fit_prior, max_map_delay
 from .config import TrainConfig
 from .ignored import narrowed
-
-SOURCE_META = "data_source"
-"""Key of ``MachineSpec.meta`` under which a trained checkpoint records where its training
-data came from: the episodes' ``source`` (``mujoco-ideal``, ``mujoco-hydraulic``, ``import``
-...), several joined by ``+``.  Commands that run a checkpoint against a built-in plant read
-it (:mod:`excavator_surrogate.env.plants`)."""
 
 
 def with_source(spec: MachineSpec, episodes: list[Episode]) -> MachineSpec:
