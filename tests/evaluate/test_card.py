@@ -201,3 +201,26 @@ def test_a_linear_joints_card_holds_its_whole_linkage():
     link = Linkage(a=1.2, b=0.4, phi=0.1, l0=0.9)
     j = JointSpec("boom", kind="linear", unit="mm", theta_min=0.0, theta_max=0.5, linkage=link)
     assert _joint(j)["linkage"] == {"a": 1.2, "b": 0.4, "phi": 0.1, "l0": 0.9}
+
+
+def test_a_merged_checkpoint_says_the_merge_scored_nothing(tmp_path, dataset_dir):
+    """``exsur merge`` stores no validation scores; the card said the model was "trained
+    without a validation split", which its members were not."""
+    ds = load_dataset(dataset_dir)
+    paths = []
+    for s in (0, 1):
+        sur = make_surrogate(ds.spec, ds.train, mode="stateful", window=5, hidden=8, seed=s)
+        sur.metrics = {"val_error": 0.5, "epoch": 3}
+        paths.append(str(save_checkpoint(tmp_path / f"m{s}.pt", sur)))
+    assert main(["merge", *paths, "--out", str(tmp_path / "ens.pt"), "-q"]) == 0
+    warnings = model_card(tmp_path / "ens.pt")["warnings"]
+    assert (
+        "no validation scores stored (merged by exsur merge, which scores nothing; "
+        "exsur evaluate CKPT DATASET scores the merged model)"
+    ) in warnings
+    assert not any("trained without a validation split" in w for w in warnings)
+    # a single network without validation scores keeps its reason
+    assert (
+        "no validation scores stored (trained without a validation split)"
+        in (model_card(paths[0])["warnings"])
+    )

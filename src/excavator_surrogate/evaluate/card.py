@@ -129,7 +129,7 @@ def describe_surrogate(sur: Surrogate, *, folder: str | Path | None = None) -> d
         "uncertainty": _uncertainty(metrics.get("uncertainty")),
         "coverage": _coverage(metrics.get("coverage")),
     }
-    card["warnings"] = _warnings(card)
+    card["warnings"] = _warnings(card, merged=bool(ens.get("sources")))
     card["_training_record"] = dict(training)
     return card
 
@@ -230,8 +230,9 @@ def _coverage(rec: Any) -> dict[str, Any] | None:
     return {"n_sample": int(rec["n_sample"]), "channels": list(rec.get("channels") or [])}
 
 
-def _warnings(card: Mapping[str, Any]) -> list[str]:
-    """What a user should know before relying on the model, one line each."""
+def _warnings(card: Mapping[str, Any], *, merged: bool = False) -> list[str]:
+    """What a user should know before relying on the model, one line each (``merged``: an
+    ``exsur merge`` of checkpoints, which scores nothing)."""
     out = []
     tr, net = card["training"], card["network"]
     if tr["budget_cut"]:
@@ -261,7 +262,12 @@ def _warnings(card: Mapping[str, Any]) -> list[str]:
                 f"validation angle R² below {LOW_R2}: {', '.join(low)}; its free run drifts "
                 "there (more or more varied training data on those joints)"
             )
-    if val is None:
+    if val is None and merged:
+        out.append(
+            "no validation scores stored (merged by exsur merge, which scores nothing; "
+            "exsur evaluate CKPT DATASET scores the merged model)"
+        )
+    elif val is None:
         out.append("no validation scores stored (trained without a validation split)")
     if not net["end_stops"]:
         out.append("end stops off: free-run angles are not kept inside the joint limits")
