@@ -111,12 +111,14 @@ def load_preset(name_or_path: str | Path, *, check: PresetCheck | None = None) -
     return merged
 
 
-RECORD_TABLES = ("data", "logs", "recipe", "kinds", "exogenous", "command", "resume")
+RECORD_TABLES = ("data", "logs", "recipe", "kinds", "exogenous", "command", "resume", "parallel")
 """Entries exsur writes into an output's ``config.toml`` besides the preset tables: where the
 data came from, what a run chose and why (``[recipe]``, ``[kinds]``, ``[exogenous]``), and
 the command's own arguments that no preset table holds (``[command]``: its name, input
-paths and options, e.g. ``exsur evaluate``'s checkpoint and ``--compare`` entries), and the
-checkpoint a resumed training continued (``[resume]``: ``from``, ``epoch``).
+paths and options, e.g. ``exsur evaluate``'s checkpoint and ``--compare`` entries), the
+checkpoint a resumed training continued (``[resume]``: ``from``, ``epoch``), and the
+processes of a data-parallel training (``[parallel]``: ``world_size``, the per-process batch
+and the global one).
 A record read back as a preset skips them; a writer of another entry must add it here, or
 its record would not load back (``training.records.write_config`` checks)."""
 

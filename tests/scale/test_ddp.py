@@ -115,12 +115,39 @@ def test_ddp_two_processes_match_single_process(tmp_path: Path) -> None:
             float((w_ddp - w_ref).abs().max()),
         )
         assert (tmp_path / f"ddp_{mode}" / "best.pt").is_file()
+        _check_record(
+            tmp_path / f"ddp_{mode}", TrainConfig(**CFGS[mode]), TrainConfig(**_single(mode))
+        )
     # resumed DDP run == uninterrupted DDP run
     h_res = read_checkpoint(tmp_path / "resume" / "last.pt")["history"]
     assert [h["epoch"] for h in h_res] == [0, 1, 2]
     w_res = _weights(tmp_path / "resume" / "last.pt")
     assert torch.allclose(w_res, _weights(tmp_path / "ddp_windowed" / "last.pt"), atol=1e-6)
     assert all(math.isfinite(h["train_loss"]) for h in h_res)
+
+
+def _check_record(out: Path, cfg: TrainConfig, single: TrainConfig) -> None:
+    """A DDP run records its processes and global batch (``config.toml`` ``[parallel]``,
+    ``best.pt``'s training record): its ``config.toml`` alone, per-process batch and all, did
+    not say how to train the model again.  One process with the same per-process batch is
+    refused; with the global batch (``single``) it trains the model (checked above)."""
+    from excavator_surrogate.stages import load_preset
+    from excavator_surrogate.training.records import check_parallel_replay
+
+    batch = "batch_size" if cfg.mode == "windowed" else "seq_batch"
+    rec = {
+        "world_size": WORLD,
+        "batch": batch,
+        "per_rank": getattr(cfg, batch),
+        "global_batch": getattr(single, batch),
+    }
+    record = load_preset(out / "config.toml")
+    assert record["parallel"] == rec
+    assert read_checkpoint(out / "best.pt")["metrics"]["training"]["parallel"] == rec
+    with pytest.raises(ConfigError, match=f"launch it on {WORLD} processes"):
+        check_parallel_replay(record, cfg, world_size=1, where="config.toml")
+    check_parallel_replay(record, single, world_size=1, where="config.toml")
+    check_parallel_replay(record, cfg, world_size=WORLD, where="config.toml")
 
 
 def test_shard_batch_weights_sum_to_world() -> None:

@@ -117,11 +117,13 @@ def run(args: argparse.Namespace) -> int:
     from ..data.dataset import load_dataset
     from ..evaluate.pace import pace_markdown, training_pace
     from ..io_utils import log
-    from ..scale.ddp import distributed_env, init_distributed, shutdown
+    from ..scale.ddp import distributed_env, env_world_size, init_distributed, shutdown
+    from ..stages import load_preset
     from ..surrogate.checkpoint import read_checkpoint
     from ..training import train
     from ..training.auto import auto_config, recipe_table
     from ..training.estimate import describe_work, estimate_work
+    from ..training.records import check_parallel_replay
 
     named = dict(
         mode=args.mode,
@@ -136,6 +138,10 @@ def run(args: argparse.Namespace) -> int:
     why: list[str] = []
     if args.preset:
         cfg = configs(args, ("train",), {"train": named})["train"]
+        # a data-parallel run's record: the same global batch, or another model
+        check_parallel_replay(
+            load_preset(args.preset), cfg, world_size=env_world_size(), where=args.preset
+        )
     else:
         over = overrides(args, ("train",), {"train": named}).get("train", {})
         cfg, why = auto_config(dataset, overrides=over)

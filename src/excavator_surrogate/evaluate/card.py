@@ -118,6 +118,7 @@ def describe_surrogate(sur: Surrogate, *, folder: str | Path | None = None) -> d
             "trained_on_validation": bool(tc.get("train_on_val", False)),
             "lr": tc.get("lr"),
             "numerics": training.get("numerics"),
+            "parallel": training.get("parallel"),  # processes and global batch of a DDP run
             "environment": dict(training.get("environment") or {}),
             "pace": training_pace(folder) if folder is not None and training else None,
         },

@@ -35,6 +35,7 @@ def training_markdown(
         return ""
     return (
         _budget_markdown(training)
+        + _parallel_markdown(training.get("parallel"))
         + environment_markdown(training.get("environment"))
         + _inputs_markdown(training.get("exogenous"), kinds="kinds" in training)
         + _kinds_markdown(training.get("kinds"))
@@ -377,6 +378,19 @@ def compared_budget_markdown(compare: Mapping[str, Any]) -> str:
                 f"computer's speed and load; rerun with a larger cap ({CAP_OPTIONS}).\n"
             )
     return text
+
+
+def _parallel_markdown(rec: Any) -> str:
+    """A data-parallel run's processes and global batch (``training.parallel``; empty for
+    a run in one process): its ``config.toml`` trains the model again only with both."""
+    if not isinstance(rec, Mapping) or int(rec.get("world_size", 1)) < 2:
+        return ""
+    n, batch, glob = int(rec["world_size"]), rec["batch"], int(rec["global_batch"])
+    return (
+        f"\nData parallel: {n} processes × {batch} {rec['per_rank']} = global batch {glob}; "
+        f"its config.toml trains this model again on {n} processes (or with {batch} {glob} "
+        "in one, up to rounding).\n"
+    )
 
 
 def _budget_markdown(training: Mapping[str, Any]) -> str:

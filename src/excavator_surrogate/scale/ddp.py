@@ -63,12 +63,18 @@ _log = logging.getLogger(__name__)
 _ENV = ("RANK", "WORLD_SIZE", "MASTER_ADDR", "MASTER_PORT")
 
 
+def env_world_size() -> int:
+    """The number of processes torchrun-style variables describe (``WORLD_SIZE``; 1 without
+    them or with a value that is not a positive integer)."""
+    try:
+        return max(1, int(os.environ.get("WORLD_SIZE", "1")))
+    except ValueError:
+        return 1
+
+
 def distributed_env() -> bool:
     """True if torchrun-style variables describe a job with more than one process."""
-    try:
-        return int(os.environ.get("WORLD_SIZE", "1")) > 1
-    except ValueError:
-        return False
+    return env_world_size() > 1
 
 
 def free_port(host: str = "127.0.0.1") -> int:

@@ -44,6 +44,7 @@ from .records import (
     budget_cut_message,
     budget_note,
     epoch_row,
+    parallel_record,
     record_training,
     tb_epoch,
     tb_writer,
@@ -184,6 +185,8 @@ def train_network(
                 **(notes or {}),
                 "resume": {"from": str(Path(resume).resolve()), "epoch": st.epoch},
             }
+        if par.world_size > 1:  # [train] holds the per-process batch: the global one too
+            notes = {**(notes or {}), "parallel": parallel_record(cfg, par.world_size)}
         write_config(out, cfg, notes=notes)
     tb = tb_writer(out, cfg.tensorboard) if main else None
     t_start = time.monotonic() - st.elapsed_s
@@ -355,6 +358,7 @@ def train_network(
                 budget=budget,
                 numerics=numerics_mode,
                 environment=numerics.environment(),
+                world_size=par.world_size,
             ),
         )
     if main and like is not None:  # the checkpoints take the machine's whole command vector

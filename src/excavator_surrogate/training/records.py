@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import CAP_OPTIONS, RECORD_TABLES, dumps_toml, to_dict
+from ..errors import ConfigError
 from ..io_utils import write_text
 from ..surrogate.checkpoint import read_checkpoint, write_checkpoint_dict
 from ..surrogate.scores import worst_r2
@@ -87,6 +88,50 @@ def write_config(out: Path, cfg: TrainConfig, *, notes: Mapping[str, Any] | None
     if stray:  # a programming error: the record would not load back as --preset
         raise ValueError(f"write_config: [{stray[0]}] is not one of config.RECORD_TABLES")
     write_text(out / "config.toml", dumps_toml({"train": to_dict(cfg), **(notes or {})}))
+
+
+def parallel_record(cfg: TrainConfig, world_size: int) -> dict[str, Any]:
+    """How a data-parallel run batched (``config.toml`` ``[parallel]``, ``best.pt``
+    ``metrics.training.parallel``): ``world_size`` processes, each with ``per_rank`` of the
+    mode's ``batch`` knob (``batch_size`` or ``seq_batch``), ``global_batch`` in all.  The
+    global batch sets the optimisation: a rerun needs it, not only the ``[train]`` table."""
+    batch = "batch_size" if cfg.mode == "windowed" else "seq_batch"
+    per = int(getattr(cfg, batch))
+    return {
+        "world_size": int(world_size),
+        "batch": batch,
+        "per_rank": per,
+        "global_batch": per * int(world_size),
+    }
+
+
+def check_parallel_replay(
+    record: Mapping[str, Any], cfg: TrainConfig, *, world_size: int, where: str
+) -> None:
+    """Refuse to train ``cfg`` from ``record`` (a run's ``config.toml`` read as a preset) on
+    ``world_size`` processes when the record's ``[parallel]`` run had another number with
+    the same per-process batch: the global batch, and so the model, would differ.  A
+    changed batch (``--set train.seq_batch=8``) or mode is the user's own choice.
+
+    Raises:
+        ConfigError: one line naming the record, both global batches and the two ways to
+            train the recorded model.
+    """
+    rec = record.get("parallel")
+    if not isinstance(rec, Mapping) or int(rec.get("world_size", 1)) == world_size:
+        return
+    n, batch = int(rec["world_size"]), str(rec["batch"])
+    now = parallel_record(cfg, world_size)
+    if now["batch"] != batch or now["per_rank"] != int(rec["per_rank"]):
+        return
+    glob = int(rec["global_batch"])
+    alone = f", or give --set train.{batch}={glob // world_size}" if glob % world_size == 0 else ""
+    here = f"{world_size} process{'es' if world_size > 1 else ''}"
+    raise ConfigError(
+        f"{where}: records a data-parallel run of {n} processes x {batch} {now['per_rank']} = "
+        f"global batch {glob}; {here} would train with global batch {now['global_batch']}, "
+        f"another model: launch it on {n} processes (torchrun --nproc_per_node={n}){alone}"
+    )
 
 
 def update_notes(path: str | Path, notes: Mapping[str, Any]) -> bool:
@@ -184,13 +229,15 @@ def training_summary(
     budget: float,
     numerics: str = "native",
     environment: Mapping[str, Any] | None = None,
+    world_size: int = 1,
 ) -> dict[str, Any]:
     """What the run did against its plan (stored in ``best.pt`` metrics as ``training``).
 
     ``stopped``: ``planned`` (all epochs), ``early-stop`` (patience), ``budget`` (the wall-time
     cap cut it: ``budget_cut`` is True) or ``requested`` (a callback). ``numerics``: the
     kernels it trained with (:mod:`excavator_surrogate.numerics`); ``environment``: the
-    computer and libraries (:func:`excavator_surrogate.numerics.environment`), if given.
+    computer and libraries (:func:`excavator_surrogate.numerics.environment`), if given;
+    ``world_size`` > 1: a data-parallel run, recorded as ``parallel`` (:func:`parallel_record`).
     """
     return {
         **({"environment": dict(environment)} if environment is not None else {}),
@@ -200,6 +247,7 @@ def training_summary(
         "budget_cut": stopped == "budget",
         "max_train_seconds": float(budget) if math.isfinite(budget) else 0.0,
         "numerics": numerics,
+        **({"parallel": parallel_record(cfg, world_size)} if world_size > 1 else {}),
     }
 
 
