@@ -333,7 +333,7 @@ def test_a_second_study_in_the_folder_of_another_is_refused(tmp_path: Path, caps
     It is now one line before anything is written, unless ``--overwrite``."""
     import shutil
 
-    from excavator_surrogate.scale.sweep import default_storage
+    from excavator_surrogate.scale.sweep_checks import default_storage
 
     data = write_synthetic_dataset(
         tmp_path / "data", synthetic_spec(2), n_train=1, n_val=1, n_test=0, n_step=120
@@ -359,7 +359,7 @@ def test_a_second_study_in_the_folder_of_another_is_refused(tmp_path: Path, caps
         assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert not (tmp_path / "other.db").exists()
     # the same study goes on in its folder, also when the folder moved
-    from excavator_surrogate.scale.sweep import check_owner
+    from excavator_surrogate.scale.sweep_checks import check_owner
 
     moved = tmp_path / "moved"
     shutil.copytree(out, moved)

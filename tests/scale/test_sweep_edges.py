@@ -211,7 +211,7 @@ def test_a_base_every_trial_would_fail_on_is_one_line_before_any_trial(
 def test_exogenous_choose_and_a_missing_device_of_the_base_are_refused() -> None:
     import dataclasses
 
-    from excavator_surrogate.scale.sweep import check_base
+    from excavator_surrogate.scale.sweep_checks import check_base
     from excavator_surrogate.spec import InputSpec
 
     spec = synthetic_spec(2)
