@@ -46,6 +46,18 @@ CASES = {
         "not valid JSON",
         "re-write the episode",
     ),
+    "metadata a JSON string": (
+        lambda t: t.replace_schema_metadata({b"exsur": b'"just a string"'}),
+        "",
+        "the 'exsur' metadata is a JSON string, not an object",
+        "re-write the episode",
+    ),
+    "metadata a JSON array": (
+        lambda t: t.replace_schema_metadata({b"exsur": b"[1, 2]"}),
+        "",
+        "the 'exsur' metadata is a JSON array, not an object",
+        "re-write the episode",
+    ),
     "schema_version": (
         lambda t: _with_meta(t, schema_version=99),
         "",

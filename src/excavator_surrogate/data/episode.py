@@ -198,6 +198,17 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+_JSON_KINDS: dict[type, str] = {
+    str: "string",
+    list: "array",
+    int: "number",
+    float: "number",
+    bool: "boolean",
+    type(None): "null",
+}
+"""The JSON name of each type ``json.loads`` returns besides an object."""
+
+
 def _first_null(col: pa.ChunkedArray) -> int:
     """Row of the first null of ``col`` (an Arrow null, not a float NaN)."""
     return int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
@@ -248,6 +259,13 @@ def read_metadata(path: str | Path) -> dict[str, Any]:
         raise DataError(
             path, "the 'exsur' metadata is not valid JSON", fix="re-write the episode with exsur"
         ) from e
+    if not isinstance(meta, dict):
+        kind = _JSON_KINDS.get(type(meta), "value")
+        raise DataError(
+            path,
+            f"the 'exsur' metadata is a JSON {kind}, not an object",
+            fix="re-write the episode with exsur",
+        )
     return meta
 
 
