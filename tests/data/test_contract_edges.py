@@ -5,6 +5,7 @@ column or row, and the fix."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -169,9 +170,27 @@ def test_trusted_flags_stored_as_integers_are_read(tmp_path: Path) -> None:
 def test_joints_of_another_machine(tmp_path: Path) -> None:
     path = write_episode(tmp_path / "ep.parquet", make_episode())
     other = MachineSpec(joints=excavator_spec().joints[:3], rate_hz=20.0)
-    with pytest.raises(DataError, match=r"ep\.parquet: joints .* do not match the expected") as e:
+    with pytest.raises(
+        DataError, match=r"ep\.parquet: the episode is of another machine \(joi"
+    ) as e:
         read_episode(path, spec=other)
-    assert "use a dataset recorded for the same machine" in str(e.value)
+    assert "use data recorded for the same machine" in str(e.value)
+
+
+def test_commands_of_another_scale_are_another_machine(tmp_path: Path) -> None:
+    """Same joint names, commands in [-1, 1]: not the expected machine (only the names were
+    compared, and the episode was read)."""
+    path = write_episode(tmp_path / "ep.parquet", make_episode())
+    joints = tuple(replace(j, u_min=-1.0, u_max=1.0) for j in excavator_spec().joints)
+    unit_range = MachineSpec(joints=joints, rate_hz=20.0)
+    with pytest.raises(DataError) as e:
+        read_episode(path, spec=unit_range)
+    assert str(e.value).startswith(
+        f"{path}: the episode is of another machine (joint 'swing' command range [-1, 1] vs "
+        "[-1000, 1000], expected vs episode)"
+    )
+    with pytest.raises(DataError, match=r"rate 10 Hz vs 20 Hz, expected vs episode"):
+        read_episode(path, spec=excavator_spec(10.0))
 
 
 def test_corrupt_data_pages_behind_a_valid_footer(tmp_path: Path) -> None:
@@ -226,8 +245,16 @@ def test_write_dataset_refusals_leave_nothing(tmp_path: Path) -> None:
     with pytest.raises(DataError, match=r"unknown split 'dev' for episode b \(use one of"):
         write_dataset(out, [(make_episode(name="a"), "train"), (make_episode(name="b"), "dev")])
     ten_hz = make_episode(excavator_spec(10.0), name="b")
-    with pytest.raises(DataError, match="episode b has a different joint spec or rate"):
+    with pytest.raises(DataError, match=r"episode b is of another machine than episode a \(rate"):
         write_dataset(out, [(make_episode(name="a"), "train"), (ten_hz, "val")])
+    a = make_episode(name="a")
+    unit_range = replace(a.spec, joints=tuple(replace(j, u_min=-1.0) for j in a.spec.joints))
+    with pytest.raises(
+        DataError,
+        match=r"episode b is of another machine than episode a \(joint 'swing' command range "
+        r"\[-1000, 1000\] vs \[-1, 1000\]\) \(write one dataset per machine, rate and command",
+    ):
+        write_dataset(out, [(a, "train"), (make_episode(unit_range, name="b"), "val")])
     with pytest.raises(DataError, match="duplicate episode name 'a' .give episodes unique names"):
         write_dataset(out, [(make_episode(name="a"), "train"), (make_episode(name="a"), "val")])
     assert list(tmp_path.iterdir()) == []

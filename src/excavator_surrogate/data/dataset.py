@@ -87,7 +87,8 @@ def write_dataset(
 
     Args:
         out: target folder; replaced only once the new dataset is complete.
-        items: ``(episode, split)`` pairs; all episodes must share one spec.
+        items: ``(episode, split)`` pairs; all episodes must be of one machine
+            (:meth:`MachineSpec.mismatch`) and have unique names.
         config: plain-data config recorded as ``config.toml`` and in the manifest.
         extra: extra manifest entries (e.g. preset name).
     """
@@ -108,11 +109,13 @@ def write_dataset(
                     f"unknown split '{split}' for episode {ep.name}",
                     fix=f"use one of {SPLITS}",
                 )
-            if ep.spec.names != spec.names or ep.spec.rate_hz != spec.rate_hz:
+            diff = spec.mismatch(ep.spec)
+            if diff is not None:
                 raise DataError(
                     out,
-                    f"episode {ep.name} has a different joint spec or rate",
-                    fix="write one dataset per machine and rate",
+                    f"episode {ep.name} is of another machine than episode {items[0][0].name} "
+                    f"({diff})",
+                    fix="write one dataset per machine, rate and command scale",
                 )
             if ep.name in names:
                 raise DataError(
@@ -255,6 +258,12 @@ def load_dataset(
 ) -> Dataset:
     """Load and validate every episode of the requested splits.
 
+    Besides each file's contract (:func:`read_episode`), every episode must be of the
+    manifest's machine (:meth:`MachineSpec.mismatch`: joints, periodic flags, kinds, command
+    ranges, rate, exogenous inputs; without a manifest spec, the first episode's), have its
+    entry's rate and ``n_step``, and carry a name no other loaded episode has.  These compare
+    specs and names, not samples (only two files of one name are compared sample by sample).
+
     Raises:
         DataError: for the first file that breaks the contract.
     """
@@ -267,19 +276,21 @@ def load_dataset(
             root / MANIFEST, f"'spec' is malformed ({e})", fix="regenerate the dataset"
         ) from e
     rates = _declared_rates(root / MANIFEST, manifest, spec)
+    spec_of = "the manifest's"
     ds_eps: dict[str, list[Episode]] = {s: [] for s in SPLITS}
     by_name: dict[str, tuple[int, Episode]] = {}
     for i, e in enumerate(manifest["episodes"]):
         if e["split"] not in splits:
             continue
         path = root / e["file"]
-        ep = read_episode(path, min_steps=min_steps, spec=spec)
-        if spec is None:
-            spec = ep.spec
+        ep = read_episode(path, min_steps=min_steps)
+        if spec is None:  # an old manifest without a spec: the first episode's machine
+            spec, spec_of = ep.spec, f"the first episode's ({e['file']})"
         if not rates:  # an old manifest without spec or rate_hz: the first episode's rate
             rates = [("the first episode's rate", ep.spec.rate_hz)]
         _check_entry(path, i, e, ep, rates)
-        _check_not_a_copy(path, i, e, ep, by_name, manifest["episodes"])
+        _check_machine(path, i, ep, spec, spec_of)
+        _check_unique_name(path, i, e, ep, by_name, manifest["episodes"])
         ds_eps[e["split"]].append(ep)
     if spec is None:
         raise DataError(
@@ -346,7 +357,23 @@ def _check_entry(
         )
 
 
-def _check_not_a_copy(
+def _check_machine(path: Path, i: int, ep: Episode, spec: MachineSpec, spec_of: str) -> None:
+    """The episode read from ``path`` (manifest entry ``i``) is of the dataset's machine
+    ``spec`` (``spec_of`` says whose it is, for the message): a dataset is one machine, and
+    the model scales every episode's commands by the dataset's ranges and reads its inputs."""
+    diff = spec.mismatch(ep.spec)
+    if diff is None:
+        return
+    raise DataError(
+        path,
+        f"manifest entry {i}: the episode is of another machine than {spec_of} spec "
+        f"({diff}, dataset vs episode)",
+        fix="a dataset holds one machine: give the episode and the manifest one spec (re-import "
+        "with one mapping), or put the episode in a dataset of its own",
+    )
+
+
+def _check_unique_name(
     path: Path,
     i: int,
     entry: dict[str, Any],
@@ -354,13 +381,14 @@ def _check_not_a_copy(
     by_name: dict[str, tuple[int, Episode]],
     entries: list[dict[str, Any]],
 ) -> None:
-    """Two files of one dataset never hold the same episode (a copy under another name): the
-    dataset writer keeps episode names unique, so only files whose stored names agree are
-    compared, sample by sample."""
+    """No two files of one dataset hold episodes of one stored name (the dataset writer keeps
+    names unique; reports name episodes by it): a copy under another file name (the same
+    samples) is named as such, any other pair as a name clash."""
     prev = by_name.setdefault(ep.name, (i, ep))
     if prev[0] == i:
         return
     j, other = prev
+    first = entries[j]
     if not (
         other.n_step == ep.n_step
         and np.array_equal(other.time, ep.time)
@@ -368,8 +396,14 @@ def _check_not_a_copy(
         and np.array_equal(other.theta, ep.theta)
         and np.array_equal(other.omega, ep.omega)
     ):
-        return
-    first = entries[j]
+        raise DataError(
+            path,
+            f"manifest entry {i} ({entry['split']}): the episode is named '{ep.name}' (its "
+            f"metadata), as is entry {j} ({first['split']}, {first['file']}): reports would "
+            "show two episodes under one name",
+            fix="give each episode its own name (Episode.name) and write the dataset again "
+            "with write_dataset",
+        )
     where = (
         f"the {entry['split']} episode is also a {first['split']} episode"
         if first["split"] != entry["split"]

@@ -281,7 +281,8 @@ def read_episode(
     Args:
         path: the Parquet file.
         min_steps: reject episodes shorter than this (use the model window + 1).
-        spec: if given, the file's joint spec must have the same joint names.
+        spec: if given, the file's machine must be this one (:meth:`MachineSpec.mismatch`:
+            joints, periodic flags, kinds, command ranges, rate and exogenous inputs).
         validate: run :func:`validate_episode` (always on for user data).
 
     Raises:
@@ -309,11 +310,12 @@ def read_episode(
             f"metadata rate_hz {rate!r} disagrees with the spec's {file_spec.rate_hz}",
             fix="re-write the episode with exsur",
         )
-    if spec is not None and spec.names != file_spec.names:
+    diff = None if spec is None else spec.mismatch(file_spec)
+    if diff is not None:
         raise DataError(
             path,
-            f"joints {list(file_spec.names)} do not match the expected {list(spec.names)}",
-            fix="use a dataset recorded for the same machine",
+            f"the episode is of another machine ({diff}, expected vs episode)",
+            fix="use data recorded for the same machine, at the same rate and command scale",
         )
     names = pq.read_schema(path).names  # before reading: pyarrow fails on them with its schema
     dup = sorted({c for c in names if names.count(c) > 1})
