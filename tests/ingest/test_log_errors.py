@@ -215,12 +215,18 @@ def _six_fails(cli, tmp_path: Path, log: Path, mapping: Path) -> str:
 
 MAPPED_WRONG = {
     "a velocity of the opposite sign": (
+        # the log's sign is right: the mapping's scale = -1 is the mistake, so scale = 1 fixes it
         'velocity = { column = "swing_rate", unit = "deg/s" }',
         'velocity = { column = "swing_rate", unit = "deg/s", scale = -1.0 }',
         [
             "column 'swing_rate': measured velocity has the opposite sign",
-            "(set scale = -1 in the velocity of joint 'swing' in six.toml)",
+            "(set scale = 1 in the velocity of joint 'swing' in six.toml)",
         ],
+    ),
+    "a velocity of the opposite sign, scaled": (
+        'velocity = { column = "swing_rate", unit = "deg/s" }',
+        'velocity = { column = "swing_rate", unit = "deg/s", scale = -0.5 }',
+        ["(set scale = 0.5 in the velocity of joint 'swing' in six.toml)"],
     ),
     "a velocity in rad/s mapped as deg/s": (
         'velocity = { column = "boom_rate", unit = "rad/s" }',
@@ -252,6 +258,13 @@ def test_a_channel_mapped_wrong(cli, tmp_path, case):
     err = _six_fails(cli, tmp_path, log, mp)
     for text in expected:
         assert text in err
+
+
+def test_a_reversed_velocity_channel_is_fixed_by_scale_minus_one(cli, tmp_path):
+    """The log's velocity runs against its angle and the mapping has no scale: -1 fixes it."""
+    log, mp, _ = _six(tmp_path, boom_rate=lambda tr: -0.15 * np.cos(0.5 * tr["t"]))
+    err = _six_fails(cli, tmp_path, log, mp)
+    assert "(set scale = -1 in the velocity of joint 'boom' in six.toml)" in err
 
 
 def test_a_still_velocity_channel_is_not_compared(cli, tmp_path):

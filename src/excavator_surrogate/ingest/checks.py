@@ -403,11 +403,12 @@ def check_velocity_unit(
         return
     kind, ratio = found
     if kind == "sign":
+        scale = j.velocity.scale if j.velocity is not None else 1.0
         raise DataError(
             path,
             "measured velocity has the opposite sign of the angle's rate of change",
             column=label,
-            fix=f"set scale = -1 in the velocity of joint '{j.name}' in {where}",
+            fix=f"set scale = {-scale:g} in the velocity of joint '{j.name}' in {where}",
         )
     if kind == "length":
         raise DataError(
