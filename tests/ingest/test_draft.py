@@ -173,6 +173,37 @@ def test_units_velocities_swing_strokes_and_raw_commands() -> None:
     assert m.spec().joints[1].kind == "linear"
 
 
+def test_a_stroke_in_metres_is_drafted_in_m() -> None:
+    """A stroke named ``*_m``, or with no unit word and metre-sized values, is drafted in m
+    (it was drafted in mm: 1000x too short through the whole pipeline); a stroke of
+    mm-sized values with no unit word stays mm."""
+    draft = draft_mapping(
+        _summary(
+            _ch("time", 0.0, 10.0),
+            _ch("boom_stroke_m", 1.06, 1.83),
+            _ch("u_boom", -1000.0, 1000.0),
+            _ch("arm_stroke", 0.4, 1.6),
+            _ch("u_arm", -1000.0, 1000.0),
+            _ch("bucket_stroke", 105.0, 1661.0),
+            _ch("u_bucket", -1000.0, 1000.0),
+        )
+    )
+    text = draft.text
+    assert (
+        'position = { column = "boom_stroke_m", unit = "m" }  # guessed: \'m\' in the name' in text
+    )
+    assert (
+        'position = { column = "arm_stroke", unit = "m" }  # guessed: a stroke of 0.4 .. 1.6 '
+        "with no unit is metre-sized: check m"
+    ) in text
+    assert (
+        'position = { column = "bucket_stroke", unit = "mm" }  # guessed: a stroke of 105 .. '
+        "1661 with no unit: check mm, cm or m"
+    ) in text
+    m = parse_mapping(tomllib.loads(text))
+    assert [j.unit for j in m.spec().joints] == ["m", "m", "mm"]
+
+
 def test_what_it_cannot_decide_is_a_todo_and_inputs_are_offered_commented() -> None:
     draft = draft_mapping(
         _summary(

@@ -95,6 +95,9 @@ ANGLE_WORDS += ("winkel", "angulo", "posicion")
 """Words of an angle channel (``Boom_ang``, ``arm_deg``, ``bucket_pos``, ``Stiel_Winkel``)."""
 STROKE_WORDS = ("stroke", "len", "length", "extension")
 """Words of a stroke channel (``boom_stroke_mm``), a linear joint's position."""
+STROKE_M_BELOW = 10.0
+"""A stroke channel with no unit whose values stay within ± this is drafted in m (cylinder
+strokes run 0.1 to 3 m: 100 to 3000 in mm, 10 to 300 in cm); beyond it, in mm."""
 MEASURE_WORDS = ("p", "pressure", "press", "fb", "feedback", "meas", "measured", "actual")
 MEASURE_WORDS += ("temp", "temperature", "flow", "force", "load", "torque", "bar", "psi")
 MEASURE_WORDS += ("druck", "ist", "istwert", "temperatur", "kraft", "pression", "presion")
@@ -237,9 +240,13 @@ def _position_unit(ch: _Channel) -> tuple[str, str]:
     for w in ("deg", "rad", "mm", "cm"):
         if w in ch.words:
             return w, f"'{w}' in the name"
-    if ch.role == "stroke":
-        return "mm", "a stroke with no unit: check mm, cm or m"
     lo, hi = c.lo or 0.0, c.hi or 0.0
+    if ch.role == "stroke":
+        if "m" in ch.words:  # boom_stroke_m: a lone 'm' names a unit only beside a stroke
+            return "m", "'m' in the name"
+        if max(abs(lo), abs(hi)) < STROKE_M_BELOW:
+            return "m", f"a stroke of {lo:.4g} .. {hi:.4g} with no unit is metre-sized: check m"
+        return "mm", f"a stroke of {lo:.4g} .. {hi:.4g} with no unit: check mm, cm or m"
     if max(abs(lo), abs(hi)) > 2 * math.pi + 0.2:
         return "deg", f"the range {lo:.4g} .. {hi:.4g} is too wide for radians"
     return "rad", f"the range {lo:.4g} .. {hi:.4g} fits radians"
