@@ -136,6 +136,32 @@ def test_mdf_channel_units_against_the_mapping(cli, tmp_path, short_cols):
     assert rc == 0, err
 
 
+@pytest.mark.parametrize("limits", ["", "limits = [0.25, 2.03]\n"])
+def test_a_stroke_labelled_mm_mapped_as_m_names_both_units(cli, tmp_path, short_cols, limits):
+    """A log whose stroke channel says mm, mapped in m: the one line names both units and
+    the fix, with or without limits (the values, 1000x the metres, had been screened first:
+    'impossible' or 'outside the declared limits', 'set outliers = "drop" or "clip"')."""
+    boom = (
+        '[[joints]]\nname = "boom"\n'
+        + limits
+        + 'position = { column = "boom_deg", unit = "m" }\n'
+        + 'command = { up = "boom_up_pct", down = "boom_down_pct", unit = "%", '
+        + "range = [-1000.0, 1000.0] }\n"
+    )
+    start = MAPPING.index('[[joints]]\nname = "boom"')
+    end = MAPPING.index('[[joints]]\nname = "arm"')
+    _mapping(tmp_path, MAPPING[:start] + boom + "\n" + MAPPING[end:])
+    cols = {k: v.copy() for k, v in short_cols.items()}
+    cols["boom_deg"] = 1000.0 + 10.0 * cols["boom_deg"]  # a stroke in mm
+    log = write_mdf(tmp_path / "mm.mf4", cols, units={"boom_deg": "mm"})
+    err = _fail(cli, tmp_path, log)
+    assert (
+        "mm.mf4, column 'boom_deg': the log gives this channel the unit 'mm', the mapping 'm' "
+        "(set unit = \"mm\" in the position of joint 'boom' in mdf.toml; if the log's label "
+        'is wrong, set [import] log_units = "ignore")'
+    ) in err, err
+
+
 def test_mdf_channel_units_survive_dropped_outliers(cli, tmp_path, short_cols):
     """Rows dropped as outliers keep the log's unit labels: a channel the log says is in
     rad, mapped as deg, is the same one-line error with one spike and ``--outliers drop``

@@ -1,8 +1,9 @@
 """One log -> resampled episodes: validate, convert units, split at gaps, resample.
 
 :func:`convert_log` runs the steps in order, each a function below: time bases
-(:func:`_time_bases`), missing values (:func:`_fill_missing`), spikes and joint limits
-(:func:`~.outliers.screen_angles`), units (:func:`_to_units`), gap-free segments
+(:func:`_time_bases`), missing values (:func:`_fill_missing`), the log's own unit labels
+(:func:`_check_log_units`), spikes and joint limits (:func:`~.outliers.screen_angles`),
+units (:func:`_to_units`), gap-free segments
 (:func:`_common_segments`), resampling (:func:`_cut_episodes`) and, for ``velocity =
 "kalman"``, angle-only filtering (:func:`.velocity.kalman_velocities`).  The checks they
 run are in :mod:`.checks`; :func:`~.importer.import_logs` runs this over many logs.
@@ -110,6 +111,7 @@ def convert_log(
     entry = _new_entry(path, raw)
     dt_in = _time_bases(path, raw, mapping, rate_hz=spec.rate_hz, options=options, entry=entry)
     vals = _fill_missing(path, raw, mapping, options=options, entry=entry)
+    _check_log_units(path, raw, mapping, options=options, where=where)  # before any value
     # spikes and joint limits, on the input samples (before the anti-alias filter)
     screen_angles(
         path,
@@ -213,6 +215,30 @@ def _fill_missing(
     return vals
 
 
+def _check_log_units(
+    path: Path, raw: RawLog, mapping: Mapping, *, options: ImportOptions, where: str
+) -> None:
+    """The log's own unit of each joint's position and velocity channel (an MDF channel's,
+    a dSPACE trace's) is the mapping's: checked before the values are screened, so a log in
+    mm mapped as m is named as that, not as impossible values.  Not for a scaled channel,
+    whose log unit is not the mapped one (raw counts, volts), nor with ``log_units =
+    "ignore"``."""
+    if options.log_units == "ignore":
+        return
+    for j in mapping.joints:
+        position = "position" if j.linear else "angle"  # the mapping's word for it
+        chans = [(mapping.angle_channel(j), j.angle.unit, j.angle.scale, position)]
+        vch = mapping.velocity_channel(j)
+        if vch is not None and j.velocity is not None:
+            chans.append((vch, j.velocity.unit, j.velocity.scale, "velocity"))
+        for ch, mapped, scale, role in chans:
+            if mapped is None or scale != 1.0:
+                continue
+            theirs = raw.series_of(ch).units.get(ch.key, "")
+            what = f"the {role} of joint '{j.name}'"
+            check_log_unit(path, theirs, mapped, label=ch.label, what=what, where=where)
+
+
 def _to_units(
     path: Path,
     raw: RawLog,
@@ -247,17 +273,8 @@ def _to_units(
         u.append(command_of(path, src, chans, held, options=options, where=where, entry=entry))
         u_time.append(t)
 
-    def log_unit(ch: Channel, mapped: str | None, scale: float, what: str) -> None:
-        """The log's own unit of ``ch`` against the mapping's (not for a scaled channel,
-        whose log unit is not the mapped one: raw counts, volts)."""
-        if options.log_units == "ignore" or mapped is None or scale != 1.0:
-            return
-        theirs = raw.series_of(ch).units.get(ch.key, "")
-        check_log_unit(path, theirs, mapped, label=ch.label, what=what, where=where)
-
     for j in mapping.joints:
         ach = mapping.angle_channel(j)
-        log_unit(ach, j.angle.unit, j.angle.scale, f"the angle of joint '{j.name}'")
         t = raw.series_of(ach).time
         th = vals[ach] * j.angle.scale + j.angle.offset
         check_angle_unit(path, t, th, j, ach.label, where)
@@ -265,8 +282,6 @@ def _to_units(
         theta.append(np.unwrap(th) if j.periodic else th)
         vch = mapping.velocity_channel(j)
         if vch is not None and j.velocity is not None:
-            what = f"the velocity of joint '{j.name}'"
-            log_unit(vch, j.velocity.unit, j.velocity.scale, what)
             v = vals[vch] * j.velocity.scale + j.velocity.offset
             omega.append(v * to_si(j.velocity.unit))
             entry["velocity"][j.name] = "measured"
