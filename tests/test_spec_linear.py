@@ -88,6 +88,27 @@ def test_linkage_stroke_and_angle_are_inverse() -> None:
     assert link.stroke(t) == pytest.approx(expect, rel=1e-12)
 
 
+def test_linkage_reach_and_misfit() -> None:
+    """The triangle reaches lengths |a - b| .. a + b; strokes beyond them are named with the
+    likely unit slip of a, b and l0 only when those are out of all proportion."""
+    link = Linkage(a=1.25, b=3.4, phi=1.15, l0=2.05)
+    assert link.reach == pytest.approx((0.1, 2.6))
+    assert link.reachable([0.1, 1.0, 2.6, 2.61, 0.09]).tolist() == [True, True, True, False, False]
+    assert link.misfit(0.25, 2.03, "mm") is None
+    in_mm = Linkage(a=1.25e-3, b=3.4e-3, phi=1.15, l0=2.05e-3)  # 1.25 read as mm, meant m
+    assert in_mm.misfit(0.25, 2.03, "mm", what="the limits") == (
+        "the linkage reaches strokes 0.1 .. 2.6 mm only (its length |a - b| .. a + b, less "
+        "l0), not the limits 250 .. 2030 mm: its a, b and l0 look like m; give them in mm, "
+        "the position's unit"
+    )
+    in_m = Linkage(a=1250.0, b=3400.0, phi=1.15, l0=2050.0)  # 1250 read as m, meant mm
+    assert "its a, b and l0 look like mm; give them in m" in str(in_m.misfit(0.25, 2.03, "m"))
+    short = Linkage(a=1.25, b=3.4, phi=1.15, l0=3.0)  # in proportion: no unit to blame
+    assert str(short.misfit(0.25, 2.03, "cm")).endswith(
+        "not strokes 25 .. 203 cm: check a, b and l0 (in cm, the position's unit)"
+    )
+
+
 @pytest.mark.parametrize(
     "kw", [{"a": 0.0, "b": 1.0}, {"a": 1.0, "b": math.nan}, {"a": 1, "b": 1, "l0": -1}]
 )

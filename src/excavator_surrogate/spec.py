@@ -64,9 +64,53 @@ class Linkage:
         c = np.cos(np.asarray(theta, dtype=np.float64) + self.phi)
         return np.sqrt(self.a**2 + self.b**2 - 2.0 * self.a * self.b * c) - self.l0
 
+    @property
+    def reach(self) -> tuple[float, float]:
+        """The strokes [m] the triangle can give, ``(lowest, highest)``: its length runs from
+        ``|a - b|`` (``θ + phi = 0``) to ``a + b`` (``θ + phi = π``), less ``l0``."""
+        return abs(self.a - self.b) - self.l0, self.a + self.b - self.l0
+
+    def misfit(self, lo: float, hi: float, unit: str, *, what: str = "strokes") -> str | None:
+        """Why strokes ``lo`` .. ``hi`` [m] (``what``: a joint's limits, a log's samples) do
+        not all fit the triangle, as a phrase in ``unit`` (``m``, ``cm`` or ``mm``, the
+        position's) that names the likely unit slip of ``a``, ``b`` and ``l0``; None if they
+        all fit."""
+        if self.reachable([lo, hi]).all():
+            return None
+        f = LINEAR_UNITS[unit]
+        r0, r1 = self.reach
+        text = (
+            f"the linkage reaches strokes {r0 * f:.6g} .. {r1 * f:.6g} {unit} only (its length "
+            f"|a - b| .. a + b, less l0), not {what} {lo * f:.6g} .. {hi * f:.6g} {unit}"
+        )
+        # a slip when the lengths are out of all proportion to the strokes (a + b is at least
+        # the longest stroke, and a cylinder's triangle is not 300x it) and `other` fits
+        size = max(abs(lo), abs(hi), 1e-12)
+        for other, n in LINEAR_UNITS.items():
+            k = f / n  # a, b, l0 meant in `other` but read in `unit`: the true lengths are k x
+            meant = Linkage(self.a * k, self.b * k, self.phi, self.l0 * k)
+            in_proportion = [1.0 <= (x.a + x.b) / size <= 300.0 for x in (self, meant)]
+            if other != unit and in_proportion == [False, True] and meant.reachable([lo, hi]).all():
+                return (
+                    f"{text}: its a, b and l0 look like {other}; give them in {unit}, the "
+                    "position's unit"
+                )
+        return f"{text}: check a, b and l0 (in {unit}, the position's unit)"
+
+    def reachable(self, stroke: Any) -> Any:
+        """True where stroke(s) ``stroke`` [m] lie within :attr:`reach` (to 1e-9 of
+        ``a + b``); same shape as ``stroke``."""
+        import numpy as np
+
+        r0, r1 = self.reach
+        tol = 1e-9 * (self.a + self.b)
+        s = np.asarray(stroke, dtype=np.float64)
+        return (s >= r0 - tol) & (s <= r1 + tol)
+
     def angle(self, stroke: Any) -> Any:
         """Joint angle(s) [rad] of stroke(s) ``stroke`` [m]: the inverse of :meth:`stroke` on
-        ``θ + phi`` in [0, π] (lengths the triangle cannot reach give the nearest end)."""
+        ``θ + phi`` in [0, π] (lengths the triangle cannot reach, outside :attr:`reach`, give
+        the nearest end; :func:`~.evaluate.cbe.linkage_metrics` scores no angle for them)."""
         import numpy as np
 
         length = np.asarray(stroke, dtype=np.float64) + self.l0

@@ -171,6 +171,23 @@ def test_out_of_limits_prints_the_mapping_unit(tmp_path: Path) -> None:
             "",
             ["joint 'boom'", "either angle or position"],
         ),
+        (  # the geometry in m beside a position in mm: it reaches none of the limits
+            'position = { column = "boom_mm", unit = "mm" }\nlimits = [250.7, 2031.7]',
+            "linkage = { a = 1.25, b = 3.4, l0 = 2.05, phi = 65.89 }",
+            [
+                "m.toml: joint 'boom': the linkage reaches strokes 0.1 .. 2.6 mm only (its "
+                "length |a - b| .. a + b, less l0), not the limits 250.7 .. 2031.7 mm: its a, b "
+                "and l0 look like m; give them in mm, the position's unit"
+            ],
+        ),
+        (  # the right unit, but a triangle too short for the upper limit
+            'position = { column = "boom_mm", unit = "mm" }\nlimits = [250.7, 2031.7]',
+            "linkage = { a = 1250, b = 3400, l0 = 3000, phi = 65.89 }",
+            [
+                "reaches strokes -850 .. 1650 mm only",
+                "not the limits 250.7 .. 2031.7 mm: check a, b and l0 (in mm, the position's",
+            ],
+        ),
     ],
 )
 def test_mapping_refusals_are_one_line(boom: str, extra: str, msgs: list[str]) -> None:
@@ -188,6 +205,41 @@ def test_linkage_is_converted_to_si() -> None:
     assert link is not None
     assert (link.a, link.b, link.l0) == pytest.approx((1.2, 3.4, 2.0))
     assert link.phi == pytest.approx(np.pi / 3)
+
+
+@pytest.mark.parametrize(
+    ("linkage", "says"),
+    [
+        (  # lengths in m, read in mm: 0.05 .. 1.05 mm, no stroke of the log (85.7 .. 912 mm)
+            "linkage = { a = 0.5, b = 1.5, l0 = 0.95 }",
+            "joint 'boom', 1500 of 1500 samples: the linkage reaches strokes 0.05 .. 1.05 mm "
+            "only (its length |a - b| .. a + b, less l0), not the log's strokes 85.6998 .. "
+            "912.225 mm: its a, b and l0 look like m; give them in mm, the position's unit",
+        ),
+        (  # 100 .. 1100 mm: the log's shortest strokes are beyond it
+            "linkage = { a = 500, b = 1500, l0 = 900 }",
+            "the linkage reaches strokes 100 .. 1100 mm only (its length |a - b| .. a + b, less "
+            "l0), not the log's strokes 85.6998 .. 912.225 mm: check a, b and l0 (in mm, the",
+        ),
+    ],
+)
+def test_strokes_beyond_the_linkage_are_refused(tmp_path: Path, linkage: str, says: str) -> None:
+    """Without limits, the log's strokes are what the triangle must reach: one line naming
+    the file, the column, the first row beyond it and the likely unit slip (the import had
+    passed, and evaluate scored every stroke's clipped angle a perfect 0.0000)."""
+    m = parse_mapping(_mapping(extra=linkage), path="m.toml")
+    log = _log(tmp_path / "run.csv")
+    with pytest.raises(DataError) as e:
+        import_logs([log], m, out=tmp_path / "ds", quiet=True)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(f"{log}, column 'boom_mm', row "), msg
+    assert says in msg, msg
+    assert "(the linkage of joint 'boom' is in m.toml; docs/import.md, Linear joints)" in msg
+    assert not (tmp_path / "ds").exists()
+    # a triangle that reaches every stroke imports
+    fits = parse_mapping(_mapping(extra="linkage = { a = 500, b = 1500, l0 = 950 }"))
+    import_logs([log], fits, out=tmp_path / "ok", quiet=True)
+    assert load_dataset(tmp_path / "ok").spec.joints[0].linkage == fits.spec().joints[0].linkage
 
 
 def test_si_factors() -> None:

@@ -172,6 +172,13 @@ CASES: dict[str, tuple[dict[str, Any], list[str]]] = {
         {**LINEAR, "joints.0.linkage": {"a": -1200, "b": 3400}},
         ["joint 'boom': linkage a = -1200 and b = 3400 must be positive", "(lengths in mm)"],
     ),
+    "linkage beyond the limits": (  # 2200 .. 4600 mm: not the limits' 0 .. 100 mm
+        {**LINEAR, "joints.0.linkage": {"a": 1200, "b": 3400}},
+        [
+            "joint 'boom': the linkage reaches strokes 2200 .. 4600 mm only",
+            "not the limits 0 .. 100 mm: check a, b and l0 (in mm, the position's unit)",
+        ],
+    ),
     "linkage l0 negative": (
         {**LINEAR, "joints.0.linkage": {"a": 1200, "b": 3400, "l0": -5}},
         ["l0 = -5 >= 0 (lengths in mm)"],
@@ -203,7 +210,8 @@ def test_a_bad_mapping_is_one_line(edits: dict[str, Any], needles: list[str]) ->
 def test_the_edits_are_the_only_fault() -> None:
     """The unedited mapping and the linear one parse: each case fails for its own edit."""
     parse_mapping(_edited({}), path="m.toml")
-    m = parse_mapping(_edited({**LINEAR, "joints.0.linkage": {"a": 1200, "b": 3400}}))
+    link = {"a": 1200, "b": 3400, "l0": 2200}  # reaches strokes 0 .. 2400 mm: the limits
+    m = parse_mapping(_edited({**LINEAR, "joints.0.linkage": link}))
     assert m.joints[0].linear
 
 

@@ -15,6 +15,8 @@
      "compare": {"<model>": {"omega": ..., "theta": ...}},      # only with baselines; a
                                     # --compare checkpoint's with its "training" record too
      "linkage": {"<joint>": {"rmse", "mae", "r2"}},  # linear joints with a linkage: angles [rad]
+                                                    # (None, + unreachable, samples: strokes
+                                                    # the triangle cannot reach)
      "uncertainty": {...},   # bands' coverage/width, flagged share (evaluate/uncertainty.py)
      "horizon": {...}}       # angle RMSE n s after measured starts (evaluate/horizon.py)
 """
@@ -407,13 +409,24 @@ def _plot_units(spec: MachineSpec) -> list[tuple[str, str]] | None:
 def linkage_metrics(runs: Sequence[EpisodeRollout], spec: MachineSpec) -> dict[str, Any]:
     """RMSE, MAE and R² of the joint angles [rad] that the linear joints with a linkage give
     (the free-run and reference strokes turned into angles, warm-up excluded, episodes
-    pooled); empty when no joint has a linkage."""
+    pooled); empty when no joint has a linkage.
+
+    A joint with a stroke its triangle cannot reach (:meth:`~..spec.Linkage.reachable`:
+    a linkage in the wrong unit, or a free run beyond it) has no angle there: its scores are
+    None, with ``unreachable`` and ``samples`` counting them (a clipped angle would score a
+    linkage that fits no stroke 0.0000)."""
     out: dict[str, Any] = {}
     for k, j in enumerate(spec.joints):
         if j.linkage is None:
             continue
-        pred = np.concatenate([j.linkage.angle(r.theta_hat[r.warmup :, k]) for r in runs])
-        ref = np.concatenate([j.linkage.angle(r.theta_ref[r.warmup :, k]) for r in runs])
+        hat = np.concatenate([r.theta_hat[r.warmup :, k] for r in runs])  # strokes [m]
+        ref_s = np.concatenate([r.theta_ref[r.warmup :, k] for r in runs])
+        far = ~(j.linkage.reachable(hat) & j.linkage.reachable(ref_s))
+        if far.any():
+            none = dict.fromkeys(("rmse", "mae", "r2"))
+            out[j.name] = {**none, "unreachable": int(far.sum()), "samples": int(far.size)}
+            continue
+        pred, ref = j.linkage.angle(hat), j.linkage.angle(ref_s)
         m = regression_metrics(pred[:, None], ref[:, None])
         out[j.name] = {
             key: (float(m[key][0]) if math.isfinite(m[key][0]) else None)

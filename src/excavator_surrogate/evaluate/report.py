@@ -325,4 +325,13 @@ def linkage_markdown(linkage: Mapping[str, Mapping[str, Any]]) -> str:
         lines.append(
             f"| {joint.capitalize()} | {format_value(m['rmse'])} | {format_value(m['mae'])} | {format_value(m['r2'])} |"
         )
+    far = {joint: m for joint, m in linkage.items() if m.get("unreachable")}
+    if far:
+        lines.append("")
+    for joint, m in far.items():
+        lines.append(
+            f"{joint.capitalize()}: no angle: {m['unreachable']} of {m['samples']} strokes "
+            "(free run or reference) lie beyond what its linkage's triangle can reach; check "
+            "its a, b and l0 against the position's unit."
+        )
     return "\n".join(lines) + "\n"

@@ -255,6 +255,28 @@ def check_angle_unit(
     )
 
 
+def check_linkage_reach(
+    path: Path, stroke: np.ndarray, j: JointMap, label: str, where: str
+) -> None:
+    """A linear joint's strokes ``stroke`` [m] all lie within its linkage's reach (a
+    triangle given in m for a position in mm reaches none of them, and every angle it gave
+    would be the same clipped end)."""
+    if j.linkage is None or stroke.size == 0:
+        return
+    lo, hi = float(np.min(stroke)), float(np.max(stroke))
+    misfit = j.linkage.misfit(lo, hi, str(j.angle.unit), what="the log's strokes")
+    if misfit is None:
+        return
+    bad = ~j.linkage.reachable(stroke)
+    raise DataError(
+        path,
+        f"joint '{j.name}', {int(bad.sum())} of {stroke.size} samples: {misfit}",
+        column=label,
+        row=int(np.flatnonzero(bad)[0]),
+        fix=f"the linkage of joint '{j.name}' is in {where}; docs/import.md, Linear joints",
+    )
+
+
 def _to_command(x: np.ndarray, c: CommandMap) -> np.ndarray:
     """Signed channel value (after scale/offset) -> command in ``c.range``."""
     lo, hi = c.range

@@ -27,6 +27,7 @@ from ..spec import MachineSpec
 from .checks import (
     apply_nan_policy,
     check_angle_unit,
+    check_linkage_reach,
     check_log_unit,
     check_one_way,
     check_rate,
@@ -279,6 +280,7 @@ def _to_units(
         th = vals[ach] * j.angle.scale + j.angle.offset
         check_angle_unit(path, t, th, j, ach.label, where)
         th = th * to_si(j.angle.unit)  # rad, or m for a linear joint
+        check_linkage_reach(path, th, j, ach.label, where)
         theta.append(np.unwrap(th) if j.periodic else th)
         vch = mapping.velocity_channel(j)
         if vch is not None and j.velocity is not None:

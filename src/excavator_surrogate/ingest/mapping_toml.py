@@ -198,10 +198,10 @@ def _parse_joint(raw: Any, i: int, where: str) -> JointMap:
             f"{jw}: a linear joint (position in {angle.unit}) cannot be periodic; "
             "set periodic = false"
         )
-    linkage = parse_linkage(raw.get("linkage"), angle.unit, jw)
     _check_command(command, f"{jw}: command")
     if base.limits is not None and not base.limits[1] > base.limits[0]:
         raise ConfigError(f"{jw}: limits {list(base.limits)} must be [low, high] with high > low")
+    linkage = parse_linkage(raw.get("linkage"), angle.unit, jw, limits=base.limits)
     return dataclasses.replace(
         base, angle=angle, velocity=velocity, command=command, linkage=linkage
     )

@@ -53,9 +53,13 @@ def check_units(position: str | None, velocity: str | None, where: str) -> None:
         )
 
 
-def parse_linkage(raw: Any, unit: str | None, where: str) -> Linkage | None:
+def parse_linkage(
+    raw: Any, unit: str | None, where: str, *, limits: tuple[float, float] | None = None
+) -> Linkage | None:
     """``linkage = { a, b, l0 = 0, phi = 0 }`` of a linear joint -> :class:`Linkage` in SI
-    (``a``, ``b``, ``l0`` in the position's ``unit``; ``phi`` in deg)."""
+    (``a``, ``b``, ``l0`` in the position's ``unit``; ``phi`` in deg).  With the joint's
+    ``limits`` (in ``unit``), the triangle must reach every stroke between them
+    (:meth:`Linkage.misfit`: a linkage given in m for a position in mm reaches none)."""
     if raw is None:
         return None
     if not is_length(unit):
@@ -86,7 +90,7 @@ def parse_linkage(raw: Any, unit: str | None, where: str) -> Linkage | None:
         )
     f = to_si(unit)
     try:
-        return Linkage(
+        link = Linkage(
             a=vals["a"] * f,
             b=vals["b"] * f,
             l0=vals.get("l0", 0.0) * f,
@@ -94,3 +98,8 @@ def parse_linkage(raw: Any, unit: str | None, where: str) -> Linkage | None:
         )
     except ConfigError as e:  # pragma: no cover - the values are checked above
         raise ConfigError(f"{where}: {e}") from None
+    if limits is not None:
+        misfit = link.misfit(limits[0] * f, limits[1] * f, str(unit), what="the limits")
+        if misfit is not None:
+            raise ConfigError(f"{where}: {misfit}")
+    return link
