@@ -191,3 +191,25 @@ def test_bad_inputs_raise_config_error(plant: MujocoExcavator) -> None:
         MujocoExcavator(PlantConfig(rate_hz=30.0))
     with pytest.raises(ConfigError):
         MujocoExcavator(PlantConfig(delay_s=0.2))
+
+
+@pytest.mark.parametrize("hydraulic", [False, True])
+def test_step_refuses_non_finite_commands(hydraulic: bool) -> None:
+    """A NaN/Inf command is refused in one line naming the joint, before it reaches the
+    transform: the hydraulic plant then still moves (a NaN used to freeze it for good)."""
+    from excavator_surrogate.simulate.hydraulics import HydraulicTransform
+
+    plant = MujocoExcavator(command_transform=HydraulicTransform() if hydraulic else None)
+    theta0 = np.array([0.3, 0.2, 1.5, 1.0])
+    plant.reset(theta0=theta0)
+    for bad, name in ((np.array([np.nan, 800, 800, 800]), "swing"), ([0, 0, np.inf, 0], "arm")):
+        with pytest.raises(ConfigError, match=rf"non-finite commands: joint '{name}'") as e:
+            plant.step(bad)
+        assert "\n" not in str(e.value)
+    with pytest.raises(ConfigError, match=r"u must have shape \(4,\)"):
+        plant.step(np.zeros(3))
+    for _ in range(40):
+        theta, omega = plant.step(np.full(4, 500.0))
+    assert np.all(np.abs(omega) > 0.05) and np.all(np.abs(theta - theta0) > 0.1)
+    with pytest.raises(ConfigError, match=r"joint 'bucket' got nan"):
+        plant.simulate(np.array([[[0, 0, 0, np.nan]] * 3]), theta0=theta0[None])

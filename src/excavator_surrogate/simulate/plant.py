@@ -297,9 +297,18 @@ class MujocoExcavator:
         Returns:
             ``(theta, omega)``, each ``(n_joint,)``: the next sample, with omega the mean
             velocity over the period [rad/s].
+
+        Raises:
+            ConfigError: ``u`` of another shape, or NaN/Inf in it (naming the joint); the
+                plant and the transform's state are left untouched.
         """
         m, d = self.model, self.data
-        u = np.asarray(u, dtype=np.float64).reshape(1, 1, self.n_joint)
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (self.n_joint,):
+            raise ConfigError(f"u must have shape ({self.n_joint},), got {u.shape}")
+        # before the transform: a NaN would poison its state (e.g. the hysteresis) for good
+        self._check_finite(u)
+        u = u.reshape(1, 1, self.n_joint)
         demand = self.transform(u)[0]  # (substeps, n_joint)
         if self.force_hook is None and np.all(demand == demand[0]):
             d.ctrl[self._act] = demand[0]
@@ -347,9 +356,19 @@ class MujocoExcavator:
             raise ConfigError(
                 f"theta0 must have shape ({u.shape[0]}, {self.n_joint}), got {theta0.shape}"
             )
-        if not np.all(np.isfinite(u)):
-            raise ConfigError("u contains non-finite commands")
+        self._check_finite(u)
         return u, theta0
+
+    def _check_finite(self, u: np.ndarray) -> None:
+        """Refuse NaN/Inf in ``u: (..., n_joint)`` in one line naming the first bad joint."""
+        bad = ~np.isfinite(u)
+        if np.any(bad):
+            k = int(np.flatnonzero(bad.reshape(-1, self.n_joint).any(axis=0))[0])
+            value = u[..., k][bad[..., k]].ravel()[0]
+            raise ConfigError(
+                f"u contains non-finite commands: joint '{self.spec.names[k]}' got {value}; "
+                f"commands must be finite numbers in [-u_max, u_max]"
+            )
 
     def _ensure_pool(self) -> None:
         n = max(1, int(self.config.n_threads))
@@ -435,8 +454,7 @@ class MujocoExcavator:
             raise ConfigError(
                 f"u must have shape ({state.shape[0]}, n_step, {self.n_joint}), got {u.shape}"
             )
-        if not np.all(np.isfinite(u)):
-            raise ConfigError("u contains non-finite commands")
+        self._check_finite(u)
         return self._rollout(np.ascontiguousarray(state), u)
 
     def _rollout(self, state: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
