@@ -213,3 +213,21 @@ def test_step_refuses_non_finite_commands(hydraulic: bool) -> None:
     assert np.all(np.abs(omega) > 0.05) and np.all(np.abs(theta - theta0) > 0.1)
     with pytest.raises(ConfigError, match=r"joint 'bucket' got nan"):
         plant.simulate(np.array([[[0, 0, 0, np.nan]] * 3]), theta0=theta0[None])
+
+
+def test_delay_beyond_buffer_names_setting_and_joint(tmp_path) -> None:
+    """delay_s above the MJCF's ctrl history: one line naming the setting, its range and the
+    joint; for the packaged machine it does not tell the user to edit the installed file."""
+    with pytest.raises(ConfigError) as e:
+        MujocoExcavator(PlantConfig(delay_s=0.1))
+    msg = str(e.value)
+    assert "simulate.delay_s" in msg and "0 <= delay_s <= 0.05" in msg
+    assert "joint 'swing'" in msg and "hydraulics.delay_s" in msg and "simulate.xml" in msg
+    assert "excavator.xml" not in msg and "actuator 0" not in msg and "\n" not in msg
+    from excavator_surrogate.simulate.plant import default_xml
+
+    xml = tmp_path / "machine.xml"
+    xml.write_text(default_xml().read_text())
+    with pytest.raises(ConfigError, match=r"machine.xml: .*joint 'swing' \(25 samples"):
+        MujocoExcavator(PlantConfig(xml=str(xml), delay_s=0.1))
+    MujocoExcavator(PlantConfig(delay_s=0.05)).close()  # the largest allowed value

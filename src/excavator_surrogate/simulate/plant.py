@@ -166,12 +166,23 @@ class MujocoExcavator:
         m = self.model
         if delay_s < 0:
             raise ConfigError(f"delay_s must be >= 0, got {delay_s}")
-        for a in self._act:
+        # the longest delay every actuator's ctrl history ring buffer can hold [s]
+        cap = float(m.actuator_history[self._act, 0].min()) * m.opt.timestep
+        for name, a in zip(self.spec.names, self._act):
             nsample = int(m.actuator_history[a, 0])
             if delay_s > 0 and delay_s > nsample * m.opt.timestep + 1e-12:
+                what = "delay_s (simulate.delay_s, PlantConfig.delay_s)"
+                if not self.config.xml:
+                    raise ConfigError(
+                        f"{what} = {delay_s:g} s exceeds the packaged excavator's {cap:g} s "
+                        f"delay buffer (joint '{name}'); use 0 <= delay_s <= {cap:g}, add dead "
+                        f'time with plant = "hydraulic" and hydraulics.delay_s, or copy the '
+                        f"MJCF, raise its actuators' nsample and set simulate.xml to the copy"
+                    )
                 raise ConfigError(
-                    f"{xml}: delay_s={delay_s:g} s exceeds the ctrl history of actuator {a} "
-                    f"({nsample} samples x {m.opt.timestep:g} s); raise its nsample in the MJCF"
+                    f"{xml}: {what} = {delay_s:g} s exceeds the ctrl history of joint '{name}' "
+                    f"({nsample} samples x {m.opt.timestep:g} s); use 0 <= delay_s <= {cap:g}, "
+                    f"or raise that actuator's nsample in the MJCF"
                 )
             # Read the history just after (t - delay): robust to floating-point time rounding
             # with zero-order hold, so the delay is exactly delay_s rounded up to the timestep.
