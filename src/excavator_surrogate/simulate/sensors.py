@@ -49,7 +49,7 @@ class SensorConfig:
     jump_min: float = 0.05
     """Smallest jump (spike or offset) magnitude [rad]; magnitudes are log-uniform."""
     jump_max: float = 0.35
-    """Largest jump magnitude [rad]."""
+    """Largest magnitude of one jump [rad]; overlapping jumps add (up to 0.42 rad measured)."""
     offset_min_s: float = 0.1
     """Shortest offset duration [s] (at least one sample)."""
     offset_max_s: float = 1.5
@@ -133,8 +133,10 @@ def apply_sensors(
 
     Returns:
         ``(theta_meas, omega_meas, info)``; the arrays are (n_step, n_joint).  ``info`` has
-        ``jump_mask`` (n_step, n_joint) bool, True where a spike or offset corrupts the angle
-        (ground truth for detection); ``jump_runs`` (its compact form, see
+        ``jump_mask`` (n_step, n_joint) bool, True where a spike or offset falls (ground truth
+        for detection; events are drawn independently, so overlapping ones add: the sum can
+        leave [jump_min, jump_max] or, with opposite signs, nearly cancel on a masked
+        sample, and merged runs can outlast ``offset_max_s``); ``jump_runs`` (its compact form, see
         :func:`mask_to_runs`); ``gyro_bias`` (n_step, n_joint) [rad/s]; ``theta_noise``
         (n_step, n_joint) white + vibration angle noise [rad].  Jumps never start at row 0.
     """
@@ -185,6 +187,7 @@ def apply_sensors(
                     if kind == "spike"
                     else rng.integers(lo_len, hi_len + 1, size=n_ev)
                 )
+                # events are independent: overlapping ones add (docs/cleaning.md, Known gaps)
                 for a, n, v in zip(start, length, amp):
                     jumps[a : a + n, j] += v
                     mask[a : a + n, j] = True
