@@ -251,7 +251,10 @@ class MujocoExcavator:
 
     def _settle(self, data: mujoco.MjData, theta0: np.ndarray) -> None:
         """Reset ``data`` to rest at ``theta0`` with zero ctrl history and the servo setpoints
-        pre-loaded against gravity, so the machine starts in exact static equilibrium."""
+        pre-loaded against gravity, so the machine starts in exact static equilibrium.
+
+        Except at an end stop: a joint at its limit gets a preload beyond ``actrange``, which
+        MuJoCo clamps, so it settles by up to 0.45 mrad (docs/plant.md, Known limitations)."""
         m = self.model
         mujoco.mj_resetData(m, data)
         data.qpos[self._qadr] = theta0
