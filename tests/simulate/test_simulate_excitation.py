@@ -79,7 +79,9 @@ def test_generic_spec_without_four_joints() -> None:
 
 
 def test_fold_makes_no_short_pulses() -> None:
-    """A step that would run into a limit is reversed from its start, not after a few samples."""
+    """From this start pose, a step that would run into a limit is reversed from its start,
+    not after a few samples.  Not a guarantee for every pose: from random poses the fold can
+    leave reversals as short as one sample (docs/plant.md, Known limitations)."""
     for seed in range(5):
         u = ex.steps(seed, 1800, EXCAVATOR, theta0=THETA0, omega_max=OMEGA_MAX)
         for k in range(1, EXCAVATOR.n_joint):

@@ -96,8 +96,11 @@ def fold_limits(
     nominal angle would leave ``[min + margin, max - margin]`` within the next ``lookahead``
     seconds of the command sequence, and in any case before it leaves the band.  If the
     command value changed less than ``lookahead`` seconds before a flip, the flip is moved
-    back to that change, so folding never creates pulses shorter than ``lookahead``
-    (a step that would run into a limit is reversed from its start instead).
+    back to that change, so a step that would run into a limit is usually reversed from its
+    start.  The rewind reaches only the last change of the *raw* command, once per run: a
+    flip due shortly before the next raw change, or a second flip in one run, stays where it
+    falls, and the output can hold pulses as short as one sample (docs/plant.md, Known
+    limitations; left so that simulated datasets stay as they are).
 
     Args:
         u: (n_step, n_joint) commands.
