@@ -148,30 +148,40 @@ def test_uncertainty_export_refuses_what_has_none(make_surrogate, tmp_path: Path
     assert "no ensemble members" in capsys.readouterr().err
 
 
-def _record(spec, rng: np.random.Generator) -> CoverageRecord:
+def _record(spec, rng: np.random.Generator, *, turned: bool = False) -> CoverageRecord:
     """A coverage record whose boxes cut through what the test drives (flags fire and stay
-    off), with a grid holding empty cells."""
+    off), with a grid holding empty cells.  ``turned``: the swing (periodic) was fitted on
+    ``[c - pi, c + pi)`` round ``c`` = 3.2 rad (``turn_centre``), its box 5 % wider: a swing
+    near 0 checks on both turns (below 0.058 rad one turn up), else a record without
+    ``turn_centre`` whose swing box spans two turns (checked where it is)."""
     n_j = spec.n_joint
-    lo = np.concatenate([np.full(n_j, -600.0), [-7.0, 0.3, 1.2, 0.2], np.full(n_j, -0.5)])
-    hi = np.concatenate([np.full(n_j, 600.0), [7.0, 0.9, 2.4, 1.4], np.full(n_j, 0.5)])
+    swing = (-0.25, 6.65) if turned else (-7.0, 7.0)
+    lo = np.concatenate([np.full(n_j, -600.0), [swing[0], 0.3, 1.2, 0.2], np.full(n_j, -0.5)])
+    hi = np.concatenate([np.full(n_j, 600.0), [swing[1], 0.9, 2.4, 1.4], np.full(n_j, 0.5)])
     grid = (rng.uniform(size=(n_j, 10, 10)) > 0.6).astype(np.int64)
-    return CoverageRecord(channel_names(spec), lo, hi, grid, n_sample=1000)
+    centre = np.array([3.2] + [0.0] * (n_j - 1)) if turned else None
+    return CoverageRecord(channel_names(spec), lo, hi, grid, n_sample=1000, turn_centre=centre)
 
 
 @pytest.mark.parametrize(
-    ("exporter", "kw"),
+    ("exporter", "kw", "turned"),
     [
-        ("torchscript", dict(play=(0.05, 0.2))),
-        ("dynamo", dict(omega_in=True, residual=True)),
+        ("torchscript", dict(play=(0.05, 0.2)), False),
+        ("dynamo", dict(omega_in=True, residual=True), False),
+        ("torchscript", dict(play=(0.05, 0.2)), True),
+        ("dynamo", dict(omega_in=True, residual=True), True),
     ],
-    ids=["omega_prev-input", "velocity-feature"],
+    ids=["omega_prev-input", "velocity-feature", "turn-centre", "turn-centre-dynamo"],
 )
-def test_ood_output_equals_the_python_flags(make_surrogate, tmp_path: Path, exporter, kw) -> None:
+def test_ood_output_equals_the_python_flags(
+    make_surrogate, tmp_path: Path, exporter, kw, turned
+) -> None:
     """The graph's ``ood`` output is ``ood_flags`` of the sample each step predicts from
     (theta[k], omega[k], u[k]) and the engine's flag, step by step; without a velocity
-    feature omega[k] enters as ``omega_prev``."""
+    feature omega[k] enters as ``omega_prev``.  Also with a record that keeps the swing's fit
+    centre, where every swing angle turns round it (``coverage.on_box_turn``)."""
     sur = merge([make_surrogate(seed=s, hidden=8, mode="stateful", **kw) for s in range(2)])
-    rec = _record(sur.spec, np.random.default_rng(1))
+    rec = _record(sur.spec, np.random.default_rng(1), turned=turned)
     sur.metrics["coverage"] = rec.to_dict()
     path = export_onnx(sur, tmp_path / "ens.onnx", exporter=exporter, uncertainty=True)
     model = onnx.load(str(path))
@@ -186,10 +196,11 @@ def test_ood_output_equals_the_python_flags(make_surrogate, tmp_path: Path, expo
     theta0 = rng.uniform(-0.3, 0.3, (n, 4)) + np.array([0.0, 0.6, 1.8, 0.8])
     stepper.reset(theta0)
     engine.reset(theta0)
-    fired, n_flag = [], 0
+    fired, n_flag, n_turned = [], 0, 0
     for _ in range(30):
         u = rng.uniform(-1000, 1000, (n, 4))
         theta_k, omega_k = stepper.theta.astype(np.float64), stepper.w.astype(np.float64)
+        n_turned += int((theta_k[:, 0] < 3.2 - np.pi).sum())
         stepper.step(u)
         engine.step(u)
         u32 = u.astype(np.float32).astype(np.float64)  # what the graph saw
@@ -201,6 +212,7 @@ def test_ood_output_equals_the_python_flags(make_surrogate, tmp_path: Path, expo
         n_flag += int(want.sum())
     share = n_flag / np.size(fired)
     assert 0.05 < share < 0.95  # both outcomes are exercised
+    assert n_turned > 0 or not turned  # swing angles below c - pi: one turn up
 
 
 @pytest.mark.parametrize(

@@ -29,7 +29,7 @@ import torch
 
 from ..spec import MachineSpec
 from ..surrogate.angles import Limits
-from ..surrogate.coverage import CoverageRecord, box_centres, channel_names, seen_cells
+from ..surrogate.coverage import CoverageRecord, channel_names, seen_cells, turn_centres
 from ..surrogate.ensemble import MemberHead, member_head
 from ..surrogate.model import Surrogate
 from ..surrogate.uncertainty import NO_MEMBERS, map_note, stored_calibration, stored_coverage
@@ -137,22 +137,27 @@ class OodFlags(torch.nn.Module):
         self.register_buffer("seen", torch.as_tensor(seen_cells(rec.grid).reshape(-1)))
         cell0 = np.arange(n_joint) * rec.n_bin * rec.n_bin
         self.register_buffer("cell0", torch.as_tensor(cell0, dtype=torch.long))
-        # a periodic joint's angle is checked on its box's turn (coverage.on_box_turn)
+        # a periodic joint's angle is checked on the record's turn (coverage.on_box_turn):
+        # every angle round the fit centre, or (older record) one outside its box round its middle
         per = np.asarray(spec.periodic, dtype=bool)
         self.periodic = bool(per.any())
+        centre, self.every_turned = turn_centres(rec, spec)
         self.register_buffer("per", torch.as_tensor(per))
-        self.register_buffer("t_mid", t(box_centres(rec, spec)))
+        self.register_buffer("t_mid", t(centre))
 
     def forward(self, theta: torch.Tensor, u: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
         """See the class docstring."""
         n_joint, n_u, nb = self.n_joint, self.n_u, self.n_bin
         if self.periodic:
-            # theta_j <- m_j + wrap(theta_j - m_j) on the periodic joints outside their box
+            # theta_j <- c_j + wrap(theta_j - c_j) on the periodic joints (an older record:
+            # those outside their box, round its middle)
             th = theta.to(self.lo.dtype)
             d = th - self.t_mid
             turned = self.t_mid + d - 2 * math.pi * torch.floor((d + math.pi) / (2 * math.pi))
-            out = self.per & ((th < self.t_lo) | (th > self.t_hi))
-            theta = torch.where(out, turned, th)
+            move = self.per
+            if not self.every_turned:
+                move = move & ((th < self.t_lo) | (th > self.t_hi))
+            theta = torch.where(move, turned, th)
         x = torch.cat([u, theta, omega], dim=-1).to(self.lo.dtype)
         out = torch.isfinite(x) & ((x < self.lo) | (x > self.hi))
         flag = out[:, :n_joint] | out[:, n_u : n_u + n_joint] | out[:, n_u + n_joint :]
