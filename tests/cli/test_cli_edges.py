@@ -232,12 +232,27 @@ def test_calibrate_a_single_network_records_the_coverage_only(cli, small) -> Non
     assert "coverage of" in out and "training samples" in out
 
 
-def test_calibrate_an_ensemble_on_training_runs_without_a_val_split(cli, small) -> None:
+@pytest.mark.parametrize("train_runs", ["0", "32"])
+def test_calibrate_an_ensemble_on_training_runs_without_a_val_split(
+    cli, small, tmp_path: Path, train_runs: str
+) -> None:
+    """Without a validation split the bands are fitted on the training runs, and the record
+    says so: with ``--train-runs 0`` it had stored them as 2 validation runs (rule "val"),
+    which ``exsur info`` then reported as held out."""
+    import shutil
+
+    from excavator_surrogate.evaluate.card import _calibrated_from
+    from excavator_surrogate.surrogate.checkpoint import read_checkpoint
+
+    ckpt = Path(shutil.copy(small["ens"], tmp_path / "ens.pt"))
     rc, out, err = cli(
-        "calibrate", small["ens"], small["no_val"], "--train-runs", "0", "--max-steps", "40"
+        "calibrate", ckpt, small["no_val"], "--train-runs", train_runs, "--max-steps", "40"
     )
     assert rc == 0, err
-    assert "bands calibrated on" in out and "2 training runs (no val split)" in out
+    assert "bands calibrated on" in out and "2 training runs (no val split: in-sample)" in out
+    unc = read_checkpoint(ckpt)["metrics"]["uncertainty"]
+    assert (unc["rule"], unc["n_run"], unc["n_train_run"]) == ("train", 0, 2)
+    assert _calibrated_from(unc).endswith("of 2 training runs)")
 
 
 def test_calibrate_records_the_dataset_and_options_it_calibrated_on(

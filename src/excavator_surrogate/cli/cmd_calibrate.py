@@ -43,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=int,
         default=TRAIN_RUNS,
         help=f"training episodes free-run for the band scales, evenly spread over the split "
-        f"(default {TRAIN_RUNS}; 0: the validation runs alone)",
+        f"(default {TRAIN_RUNS}; 0: the validation runs alone, or every training run when "
+        "DATASET has no validation split)",
     )
     p.set_defaults(func=run)
 
@@ -72,14 +73,16 @@ def run(args: argparse.Namespace) -> int:
     check_compatible(sur.spec, ds.spec, ckpt=args.ckpt, data_name=args.dataset)
     if not ds.train:
         raise DataError(args.dataset, "has no training episodes", fix="give the training dataset")
-    val = ds.val or ([] if args.train_runs else ds.train)
+    # no validation split: the bands come from training runs alone (rule "train", in-sample),
+    # all of them with --train-runs 0 (there are no validation runs to use alone)
+    train_runs = args.train_runs if ds.val or args.train_runs else len(ds.train)
     cal, cov = calibrate_checkpoint(
         path,
-        val,
+        ds.val,
         ds.train,
         design=args.design,
         max_steps=args.max_steps or None,
-        train_runs=args.train_runs,
+        train_runs=train_runs,
         calibrated_on={
             "dataset": str(args.dataset.resolve()),
             "design": args.design,
@@ -93,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         k = ", ".join(f"{v:.3g}" for v in cal.theta[-1])
         src = f"{cal.n_run} validation and {cal.n_train_run} training runs"
-        if not ds.val and not args.train_runs:
-            src = f"{cal.n_run} training runs (no val split)"
+        if not ds.val:
+            src = f"{cal.n_train_run} training runs (no val split: in-sample)"
         print(
             f"{args.ckpt}: {what}; bands calibrated on {cal.n_step} steps of {src} "
             f"({args.design}, {cal.rule}; angle 90 % band = {k} x spread per joint)"
