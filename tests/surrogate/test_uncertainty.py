@@ -12,6 +12,8 @@ from excavator_surrogate.errors import CheckpointError, ConfigError
 from excavator_surrogate.surrogate import rollout, rollout_reference
 from excavator_surrogate.surrogate.angles import omega_target
 from excavator_surrogate.surrogate.bands import (
+    HORIZON_EDGES,
+    NO_SPREAD_FLOOR,
     PRIOR_RUNS,
     RULE,
     _evenly,
@@ -23,6 +25,7 @@ from excavator_surrogate.surrogate.bands import (
     fit_scale,
     monotone_bins,
     predict_episodes,
+    spread_floor,
 )
 from excavator_surrogate.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from excavator_surrogate.surrogate.coverage import (
@@ -392,6 +395,28 @@ def test_horizon_scale_keeps_coverage_flat_when_error_outgrows_the_spread(rng):
         m = b == i
         np.testing.assert_allclose(inside_bin[m].mean(0), 0.9, atol=0.03)
     assert (inside_one[b == 0].mean(0) > 0.99).all() and (inside_one[b == 5].mean(0) < 0.85).all()
+
+
+def test_horizon_bins_count_samples_whose_members_agree(rng):
+    """A joint whose members never disagree (spread 0; floored to :data:`NO_SPREAD_FLOOR`)
+    gets the quantile of its own error per horizon bin, as ``spread_floor`` says: the bins
+    had counted only samples with a finite ``|err| / spread`` (none: 0 / 0, x / 0), so every
+    bin was empty and one scale served every horizon.  A joint whose members disagree is
+    counted as before."""
+    n_run, n_h = 5, 400
+    h = np.tile(np.arange(n_h), n_run)
+    spread = np.stack([np.zeros(h.size), rng.uniform(0.5, 2.0, h.size)], axis=1)
+    err = (1.0 + h / 50.0)[:, None] * rng.normal(size=(h.size, 2))
+    floor = spread_floor(spread)
+    assert floor[0] == NO_SPREAD_FLOOR
+    k, counts = fit_horizon_scale(err, spread, h, (0.9,), floor)
+    per_bin = [n_run * n for n in (25, 25, 50, 100, 200)] + [0] * 4
+    assert counts[:, 0].tolist() == per_bin and counts[:, 1].tolist() == per_bin
+    # the members-agree joint: its error's own 90 % quantile per bin, growing with the horizon
+    b = np.searchsorted(HORIZON_EDGES, h, side="right") - 1
+    for i in range(5):
+        assert k[0, i, 0] == np.quantile(np.abs(err[b == i, 0]), 0.9, method="higher")
+    assert np.all(np.diff(k[0, :5, 0]) > 0) and np.isnan(k[0, 5:, 0]).all()
 
 
 def test_monotone_bins_fill_empty_bins_and_never_decrease():

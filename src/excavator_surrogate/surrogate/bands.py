@@ -87,9 +87,7 @@ def fit_scale(
         the samples it was fitted on (a split-conformal scale on normalised residuals; of
         the groups' mixture with ``share``).
     """
-    tiny = np.finfo(np.float64).tiny
-    with np.errstate(invalid="ignore", divide="ignore"):
-        r = np.abs(err) / np.maximum(spread, np.maximum(tiny, 0.0 if floor is None else floor))
+    r = _ratio(err, spread, floor)
     out = np.full((len(levels), err.shape[-1]), np.nan)
     for j in range(err.shape[-1]):
         ok = np.isfinite(r[:, j])
@@ -110,6 +108,16 @@ def fit_scale(
     return out
 
 
+def _ratio(err: np.ndarray, spread: np.ndarray, floor: np.ndarray | None) -> np.ndarray:
+    """(n_sample, n_joint) normalised residual (NaN where ``err`` or ``spread`` is)::
+
+    r = |err| / max(spread, floor, tiny)
+    """
+    tiny = np.finfo(np.float64).tiny
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.abs(err) / np.maximum(spread, np.maximum(tiny, 0.0 if floor is None else floor))
+
+
 def fit_horizon_scale(
     err: np.ndarray,
     spread: np.ndarray,
@@ -128,7 +136,9 @@ def fit_horizon_scale(
         horizon: (n_sample,) int, samples since the free run began.
         levels, floor, group, share: as in :func:`fit_scale` (the shares hold in every bin).
         edges: (n_bin,) first horizon of each bin (increasing, from 0).
-        min_bin: fewest finite samples a bin is fitted on (else NaN).
+        min_bin: fewest samples a bin is fitted on (else NaN): those with a finite
+            ``|err| / max(spread, floor)``, the ratio :func:`fit_scale` takes its quantile of
+            (a sample whose members agree exactly counts).
 
     Returns:
         ``(scales, counts)``: (n_level, n_bin, n_joint) scales, NaN where a bin has fewer
@@ -144,8 +154,7 @@ def fit_horizon_scale(
             continue
         g = None if group is None else np.asarray(group)[m]
         k = fit_scale(err[m], spread[m], levels, floor, g, share)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            counts[i] = np.isfinite(np.abs(err[m]) / spread[m]).sum(0)
+        counts[i] = np.isfinite(_ratio(err[m], spread[m], floor)).sum(0)
         out[:, i] = np.where(counts[i] >= min_bin, k, np.nan)
     return out, counts
 
