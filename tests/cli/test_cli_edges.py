@@ -255,6 +255,30 @@ def test_calibrate_an_ensemble_on_training_runs_without_a_val_split(
     assert _calibrated_from(unc).endswith("of 2 training runs)")
 
 
+def test_calibrate_replaces_a_malformed_calibration(cli, small, tmp_path: Path) -> None:
+    """A malformed stored calibration had stopped ``exsur calibrate`` with that record's own
+    advice ("malformed uncertainty calibration (sizes); calibrate again"): the free runs it
+    fits on read it for bands they do not need.  Now it is replaced by the one a clean
+    checkpoint gets."""
+    import shutil
+
+    import torch
+
+    from excavator_surrogate.surrogate.checkpoint import read_checkpoint
+
+    ckpt = Path(shutil.copy(small["ens"], tmp_path / "ens.pt"))
+    args = ("calibrate", ckpt, small["whole"], "--max-steps", "40", "--train-runs", "1")
+    assert cli(*args)[0] == 0
+    good = read_checkpoint(ckpt)["metrics"]["uncertainty"]
+    d = torch.load(ckpt, weights_only=True)
+    d["metrics"]["uncertainty"]["theta_horizon"] = good["theta_horizon"][:1]
+    torch.save(d, ckpt)
+    rc, out, err = cli(*args)
+    assert rc == 0, err
+    assert "bands calibrated on" in out
+    assert read_checkpoint(ckpt)["metrics"]["uncertainty"] == good
+
+
 def test_calibrate_records_the_dataset_and_options_it_calibrated_on(
     cli, small, tmp_path: Path
 ) -> None:

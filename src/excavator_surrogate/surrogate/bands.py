@@ -213,9 +213,11 @@ def predict_episodes(
     design: Design | None = None,
     calibration: Calibration | None = None,
     coverage: CoverageRecord | None = None,
+    read_calibration: bool = True,
 ) -> list[EpisodePrediction]:
     """:func:`predict_with_uncertainty` over episodes of different lengths in one batch
-    (shorter ones padded with their last command; causal, so padding changes nothing before)."""
+    (shorter ones padded with their last command; causal, so padding changes nothing before;
+    ``read_calibration`` False: the checkpoint's calibration is not read, no bands)."""
     if not episodes:
         return []
     warmup = sur.window
@@ -223,7 +225,14 @@ def predict_episodes(
         episodes, reference=reference, warmup=warmup, max_steps=max_steps
     )
     full = predict_with_uncertainty(
-        sur, th0, u, warmup=warmup, design=design, calibration=calibration, coverage=coverage
+        sur,
+        th0,
+        u,
+        warmup=warmup,
+        design=design,
+        calibration=calibration,
+        coverage=coverage,
+        read_calibration=read_calibration,
     )
     out = []
     for i, ep in enumerate(episodes):
@@ -362,8 +371,9 @@ def calibrate(
         return None, coverage
     per = np.array([j.periodic for j in sur.spec.joints])
     runs = [
+        # the stored calibration is the one being replaced: not read (it may be malformed)
         predict_episodes(
-            sur, eps, max_steps=max_steps, design=design, calibration=None, coverage=coverage
+            sur, eps, max_steps=max_steps, design=design, coverage=coverage, read_calibration=False
         )
         for eps in (val, picked)
     ]

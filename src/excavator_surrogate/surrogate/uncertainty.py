@@ -335,6 +335,7 @@ def predict_with_uncertainty(
     design: Design | None = None,
     calibration: Calibration | None = None,
     coverage: CoverageRecord | None = None,
+    read_calibration: bool = True,
 ) -> UncertainPrediction:
     """Free-run ``u`` with the central prediction, member spread, bands and OOD flags.
 
@@ -346,12 +347,16 @@ def predict_with_uncertainty(
         design: how the members run (default: the calibration's, else ``shared``).
         calibration: band scales (default: the checkpoint's, :func:`stored_calibration`).
         coverage: training coverage (default: the checkpoint's, :func:`stored_coverage`).
+        read_calibration: False: the checkpoint's calibration is not read (no bands unless
+            ``calibration`` is given): a new calibration's free runs, which a malformed old
+            record must not stop.
 
     Returns:
         :class:`UncertainPrediction`; a single network gives ``theta_spread is None`` and a note.
     """
     warmup = sur.window if warmup is None else int(warmup)
-    calibration = calibration if calibration is not None else stored_calibration(sur)
+    if calibration is None and read_calibration:
+        calibration = stored_calibration(sur)
     coverage = coverage if coverage is not None else stored_coverage(sur)
     design = design or (calibration.design if calibration is not None else "shared")  # type: ignore[assignment]
     notes: list[str] = []
