@@ -255,6 +255,27 @@ def test_calibrate_an_ensemble_on_training_runs_without_a_val_split(
     assert _calibrated_from(unc).endswith("of 2 training runs)")
 
 
+def test_calibrate_help_describes_the_rule_it_runs(capsys) -> None:
+    """The help said the scales came from the training runs, "raised where the validation
+    runs significantly need more"; the code takes one quantile of both, validation weighing
+    n_val / (n_val + PRIOR_RUNS) (bands.RULE), which can sit below what validation needs."""
+    from excavator_surrogate.cli import cmd_calibrate
+    from excavator_surrogate.surrogate import bands
+
+    assert (cmd_calibrate.PRIOR_RUNS, cmd_calibrate.TRAIN_RUNS) == (
+        bands.PRIOR_RUNS,
+        bands.TRAIN_RUNS,
+    )
+    from excavator_surrogate.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(["calibrate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert done.value.code == 0 and "raised where" not in text
+    assert f"weighing n_val / (n_val + {bands.PRIOR_RUNS:g})" in text
+    assert "level-quantile of |error| / spread" in text
+
+
 def test_calibrate_replaces_a_malformed_calibration(cli, small, tmp_path: Path) -> None:
     """A malformed stored calibration had stopped ``exsur calibrate`` with that record's own
     advice ("malformed uncertainty calibration (sizes); calibrate again"): the free runs it

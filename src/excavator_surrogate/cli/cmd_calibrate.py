@@ -8,6 +8,9 @@ from pathlib import Path
 
 TRAIN_RUNS = 32
 """Default of ``--train-runs`` (:data:`excavator_surrogate.surrogate.bands.TRAIN_RUNS`)."""
+PRIOR_RUNS = 6
+"""What the training runs weigh, in validation runs, as the help says
+(:data:`excavator_surrogate.surrogate.bands.PRIOR_RUNS`)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -18,10 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Add to CKPT (rewritten in place, atomically) what 'exsur train' adds at the "
         "end of training: the record of what DATASET's training split covered (command, angle "
         "and speed ranges, angle/command occupancy: the out-of-distribution flag) and, for a "
-        "merged seed ensemble, the 50 % and 90 % band scales fitted on free runs (per joint: "
-        "on up to --train-runs training runs, raised where the validation runs significantly "
-        "need more). Use it after 'exsur merge', or to re-calibrate on other data of the same "
-        "machine.",
+        "merged seed ensemble, the 50 % and 90 % band scales fitted on free runs (per joint, "
+        "the level-quantile of |error| / spread over the validation runs and up to "
+        f"--train-runs training runs together, the validation runs weighing n_val / (n_val + "
+        f"{PRIOR_RUNS}); "
+        "the angle's per horizon bin). Use it after 'exsur merge', or to re-calibrate on other "
+        "data of the same machine.",
     )
     p.add_argument("ckpt", type=Path, help="checkpoint (best.pt), rewritten in place")
     p.add_argument("dataset", type=Path, help="dataset folder (its train and val splits)")
