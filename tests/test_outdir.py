@@ -384,3 +384,28 @@ def test_a_marker_without_a_record_keeps_the_name_rule(tmp_path: Path) -> None:
     assert "files" not in read_marker(ds)
     (ds / "report.md").write_text("")
     assert foreign_entry(ds) is None and check_out_dir(ds, kind="dataset") == ds
+
+
+def test_the_api_check_follows_the_rule_unless_the_cli_checked_under_its_lock(
+    tmp_path: Path,
+) -> None:
+    from excavator_surrogate.outdir import check_api_out_dir
+    from excavator_surrogate.outlock import release_locks
+
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("my notes")
+    with pytest.raises(ConfigError, match="'notes.txt', which exsur did not write"):
+        check_api_out_dir(out, overwrite=False, kind="model")
+    assert check_api_out_dir(out, overwrite=True, kind="model") == out
+    with pytest.raises(ConfigError, match="out: a path is needed, got NoneType"):
+        check_api_out_dir(None, overwrite=False, kind="model")  # type: ignore[arg-type]
+    cli = tmp_path / "cli"
+    try:
+        check_out_dir(cli, lock=True, kind="model")  # the CLI, before it loads anything
+        (cli / "x").mkdir(parents=True)  # nothing of exsur's writes it under the lock
+        assert check_api_out_dir(cli, overwrite=False, kind="model") == cli  # not again
+    finally:
+        release_locks()
+    with pytest.raises(ConfigError, match="'x', which exsur did not write"):
+        check_api_out_dir(cli, overwrite=False, kind="model")  # the lock is gone: checked

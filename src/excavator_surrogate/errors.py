@@ -8,6 +8,7 @@ the Python API lets it propagate.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 
@@ -53,6 +54,18 @@ class ConfigError(ExsurError):
 
 class CheckpointError(ExsurError):
     """A checkpoint that is missing, corrupt, or from an incompatible version."""
+
+
+def need_path(x: object, what: str) -> Path:
+    """``x`` as a Path, if it is one (a ``str`` or ``os.PathLike``).
+
+    Raises:
+        ConfigError: one line naming the argument ``what`` (``out``, ``dataset``) and the
+            type it got instead (``None``, a number, a dict).
+    """
+    if isinstance(x, str | os.PathLike):
+        return Path(x)
+    raise ConfigError(f"{what}: a path is needed, got {type(x).__name__}")
 
 
 def error_summary(e: BaseException, n: int = 120) -> str:

@@ -37,8 +37,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from .errors import ConfigError
-from .outlock import lock_out, note_folders_made
+from .errors import ConfigError, need_path
+from .outlock import checked_under_lock, lock_out, note_checked, note_folders_made
 from .version import __version__
 
 MARKER = ".exsur.json"
@@ -358,6 +358,37 @@ def check_out_dir(
     _writable(out, flag)
     if lock:
         lock_out(out, flag)
+    _check_existing(out, overwrite=overwrite, flag=flag, kind=kind)
+    if lock:
+        note_checked(out)
+    return out  # _writable checked that an existing ``out`` accepts new entries
+
+
+def check_api_out_dir(
+    out: str | Path,
+    *,
+    overwrite: bool,
+    inputs: Iterable[str | Path] = (),
+    kind: str,
+) -> Path:
+    """:func:`check_out_dir` for a library entry point (:func:`~.training.api.train`,
+    :func:`~.evaluate.cbe.evaluate_checkpoint`) that writes into folder ``out``: the same rule,
+    before the first file, with ``overwrite`` the entry point's keyword.  Skipped when this
+    process already checked ``out`` as it took the folder's writer lock and still holds it
+    (the CLI checks before it loads anything, then calls the entry point).
+
+    Raises:
+        ConfigError: one line naming the folder, what is wrong and what to do.
+    """
+    out = need_path(out, "out")
+    if checked_under_lock(out):
+        return out
+    return check_out_dir(out, overwrite=overwrite, inputs=inputs, flag="output folder", kind=kind)
+
+
+def _check_existing(out: Path, *, overwrite: bool, flag: str, kind: str | None) -> None:
+    """The rule for an existing ``out``: a real folder, exsur's own output of a kind this
+    command may use, unless ``overwrite``."""
     if out.is_dir():
         if out.is_symlink() and not overwrite:
             raise ConfigError(
@@ -367,7 +398,6 @@ def check_out_dir(
             raise ConfigError(kind_refusal(out, found, str(kind), flag))
         if not overwrite and foreign_entry(out) is not None:
             raise ConfigError(refusal(out, flag))
-    return out  # _writable checked that an existing ``out`` accepts new entries
 
 
 def check_out_file(

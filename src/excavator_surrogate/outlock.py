@@ -37,6 +37,8 @@ def lock_file(out: str | Path) -> Path:
 
 _HELD: dict[Path, int] = {}
 
+_CHECKED: set[Path] = set()
+
 _MADE: dict[Path, Path] = {}
 """Lock file -> the outermost folder :func:`lock_out` created to hold it, or file output ->
 the outermost folder its write will create (:func:`note_folders_made`): removed again at
@@ -110,6 +112,21 @@ def lock_out(out: str | Path, flag: str = "--out") -> None:
     raise ConfigError(f"{out}: could not lock {path}; retry")
 
 
+def note_checked(out: str | Path) -> None:
+    """Record that the output-folder rule passed for ``out`` while this process holds its
+    writer lock (:func:`~.outdir.check_out_dir`); forgotten when the lock is released."""
+    path = lock_file(out)
+    if path in _HELD:
+        _CHECKED.add(path)
+
+
+def checked_under_lock(out: str | Path) -> bool:
+    """True if this process holds the writer lock of ``out`` and checked the folder as it took
+    it (:func:`note_checked`): nothing else of exsur writes it until the lock is released."""
+    path = lock_file(out)
+    return path in _HELD and path in _CHECKED
+
+
 def _torchrun_rank() -> int:
     """``RANK`` of a torchrun job with ``WORLD_SIZE`` > 1 (0 outside one)."""
     try:
@@ -136,6 +153,7 @@ def release_locks() -> None:
             path.unlink()  # while still locked: a waiting opener re-checks the inode
         os.close(fd)
         del _HELD[path]
+        _CHECKED.discard(path)
         _remove_made(path.parent, _MADE.pop(path, None))
     for out in list(_MADE):  # the folders of file outputs
         _remove_made(out.parent, _MADE.pop(out))

@@ -88,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         args.checkpoint,
         dataset,
         out=args.out,
+        overwrite=args.overwrite,
         compare=dict(args.compare),
         device=args.device,
         **dataclasses.asdict(cfg),

@@ -157,7 +157,15 @@ def run(args: argparse.Namespace) -> int:
         dist = init_distributed(device=cfg.device, require=args.ddp)
     try:
         notes = None if args.preset else {"recipe": recipe_table(why)}  # why the recipe chose so
-        best = train(cfg, dataset, out=args.out, resume=args.resume, dist=dist, notes=notes)
+        best = train(
+            cfg,
+            dataset,
+            out=args.out,
+            overwrite=args.overwrite,
+            resume=args.resume,
+            dist=dist,
+            notes=notes,
+        )
     finally:
         shutdown(dist)
     if dist is not None and not dist.is_main:

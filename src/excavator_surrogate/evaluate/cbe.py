@@ -40,6 +40,7 @@ from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError
 from ..io_utils import atomic_files, recorded_path, write_json, write_text
+from ..outdir import check_api_out_dir
 from ..spec import MachineSpec
 from ..surrogate.baselines import fit_arx, fit_structured
 from ..surrogate.checkpoint import check_compatible, load_checkpoint
@@ -175,6 +176,7 @@ def evaluate_checkpoint(
     dataset: Dataset | str | Path,
     *,
     out: str | Path,
+    overwrite: bool = False,
     split: str = "test",
     reference: Literal["measured", "true"] = "measured",
     compare: Mapping[str, str | Path] | None = None,
@@ -195,7 +197,10 @@ def evaluate_checkpoint(
     Args:
         ckpt: surrogate checkpoint (``best.pt``).
         dataset: a loaded :class:`Dataset` or its folder.
-        out: output folder (files written atomically; other files in it are left alone).
+        out: output folder (files written atomically; other files in it are left alone).  An
+            existing one must be empty or exsur's own output of a kind an evaluation may
+            join (docs/design.md, "The output-folder rule").
+        overwrite: write into an ``out`` that exsur did not write, as ``--overwrite`` does.
         split: split to evaluate.
         reference: ``measured`` or ``true``.
         compare: extra checkpoints, label -> path (e.g. ``{"gru": ".../best.pt"}``).
@@ -223,6 +228,8 @@ def evaluate_checkpoint(
     """
     given = locals()  # every [evaluate] field is an argument: the record holds them all
     cfg = EvaluateConfig(**{f.name: given[f.name] for f in dataclasses.fields(EvaluateConfig)})
+    inputs = [dataset.root if isinstance(dataset, Dataset) else dataset]
+    check_api_out_dir(out, overwrite=overwrite, inputs=[p for p in inputs if p], kind="evaluation")
     if reference not in ("measured", "true"):
         raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
     t0 = time.monotonic()

@@ -8,9 +8,10 @@ from pathlib import Path
 from typing import Any
 
 from .. import numerics
-from ..data.dataset import Dataset
+from ..data.dataset import Dataset, load_dataset
 from ..devices import torch_threads, usable_cpus
 from ..errors import ConfigError
+from ..outdir import check_api_out_dir
 from .batches import split_episodes
 from .calibration import calibrate_best
 from .config import TrainConfig
@@ -32,9 +33,10 @@ _log = logging.getLogger(__name__)
 
 def train(
     cfg: TrainConfig,
-    dataset: Dataset,
+    dataset: Dataset | str | Path,
     *,
     out: str | Path,
+    overwrite: bool = False,
     resume: str | Path | None = None,
     show_progress: bool | None = None,
     on_epoch: EpochCallback | None = None,
@@ -58,8 +60,12 @@ def train(
 
     Args:
         cfg: training options.
-        dataset: episodes with ``train`` and ``val`` splits (``val`` empty: validate on train, with a warning).
-        out: output folder (created).
+        dataset: episodes with ``train`` and ``val`` splits (``val`` empty: validate on train,
+            with a warning), loaded or its folder.
+        out: output folder (created).  An existing one must be empty or exsur's own output
+            of a kind a model may join (docs/design.md, "The output-folder rule").
+        overwrite: write into an ``out`` that exsur did not write, as ``--overwrite`` does
+            (what is there stays, and files of the same names are replaced).
         resume: checkpoint (``last.pt`` or ``best.pt``) to continue from; architecture must match.
         show_progress: progress bar (None: only on a terminal or with ``EXSUR_PROGRESS=1``).
         on_epoch: called after every epoch (once the checkpoints are written) with the epoch and
@@ -77,7 +83,13 @@ def train(
     Raises:
         DataError: no usable training episodes, or no joint moves in them.
         CheckpointError: bad ``resume`` file.
+        ConfigError: ``out`` breaks the output-folder rule, or bad options.
     """
+    if dist is None or dist.is_main:  # before anything is read: the CLI checked it already
+        root = dataset.root if isinstance(dataset, Dataset) else dataset
+        check_api_out_dir(out, overwrite=overwrite, inputs=[root] if root else [], kind="model")
+    if not isinstance(dataset, Dataset):
+        dataset = load_dataset(dataset, splits=("train", "val"))
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
     with torch_threads(cfg.num_threads):  # this process's free runs too: one thread by default
         check_excitation(dataset)  # a split where nothing moves: one line, before any epoch
