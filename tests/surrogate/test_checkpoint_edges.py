@@ -162,3 +162,41 @@ def test_altered_weights_say_what_to_do(tmp_path: Path, spec, episodes) -> None:
     torch.save(ck, path)
     with pytest.raises(CheckpointError, match="do not fit the stored architecture .*re-train"):
         load_checkpoint(path)
+
+
+def test_a_changed_weight_byte_fails_the_crc_check(tmp_path: Path, spec, episodes) -> None:
+    import zipfile
+
+    path = tmp_path / "best.pt"
+    save_checkpoint(path, make_surrogate(spec, episodes))
+    with zipfile.ZipFile(path) as z:  # a weight tensor's stored (uncompressed) bytes
+        info = next(i for i in z.infolist() if "/data/" in i.filename and i.file_size >= 4)
+    raw = bytearray(path.read_bytes())
+    start = (
+        info.header_offset
+        + 30
+        + int.from_bytes(raw[info.header_offset + 26 : info.header_offset + 28], "little")
+    )
+    start += int.from_bytes(raw[info.header_offset + 28 : info.header_offset + 30], "little")
+    raw[start : start + 4] = torch.tensor([1000.0]).numpy().tobytes()  # a finite, wrong weight
+    path.write_bytes(bytes(raw))
+    with pytest.raises(
+        CheckpointError, match=f"corrupt checkpoint \\(entry .*/data/.* CRC .*{FIX}"
+    ):
+        load_checkpoint(path)
+
+
+def test_the_device_is_checked_in_one_line(
+    tmp_path: Path, spec, episodes, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from excavator_surrogate import devices
+    from excavator_surrogate.errors import ConfigError
+
+    path = tmp_path / "best.pt"
+    save_checkpoint(path, make_surrogate(spec, episodes))
+    monkeypatch.setattr(devices, "cuda_usable", lambda: False)
+    with pytest.raises(ConfigError, match="unknown device 'bogus'"):
+        load_checkpoint(path, device="bogus")
+    with pytest.raises(ConfigError, match="device 'cuda' is not available"):
+        load_checkpoint(path, device="cuda")
+    assert load_checkpoint(path, device="auto").device == torch.device("cpu")

@@ -18,7 +18,9 @@ A checkpoint is one ``.pt`` file holding only tensors and plain Python types::
     }
 
 It is written atomically; a missing, corrupt or incompatible file raises
-:class:`~excavator_surrogate.errors.CheckpointError` with a one-line message.
+:class:`~excavator_surrogate.errors.CheckpointError` with a one-line message.  Corrupt
+includes a single changed byte: the CRC-32 of every entry of the zip file is checked before
+``torch.load``, which does not check them.
 """
 
 from __future__ import annotations
@@ -27,13 +29,14 @@ import contextlib
 import errno
 import os
 import sys
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from ..devices import one_thread_in_forked_children
+from ..devices import one_thread_in_forked_children, resolve_device
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import MachineSpec
@@ -174,6 +177,12 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
             f"{path}: {_NOT_CHECKPOINTS[path.suffix.lower()]}, not a checkpoint; give the .pt "
             "file 'exsur train' wrote (best.pt)"
         )
+    bad = _crc_failure(path)
+    if bad is not None:
+        raise CheckpointError(
+            f"{path}: corrupt checkpoint (entry {bad} fails its CRC check: the file changed "
+            "after it was written); re-train or copy the file again"
+        )
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # zip/pickle/unpickler errors come in many types
@@ -302,6 +311,19 @@ def check_compatible(
     )
 
 
+def _crc_failure(path: Path) -> str | None:
+    """The first entry of checkpoint ``path`` (a zip file, as :func:`torch.save` writes it)
+    whose bytes do not match the CRC-32 stored with them, or None.  ``torch.load`` does not
+    check them, so a changed weight byte (bit rot, a bad copy) would load as another model.
+    One sequential read of the file, in 1 MiB chunks.  A file that is no zip at all is left
+    to ``torch.load`` to refuse."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            return z.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError):
+        return None
+
+
 def _first_line(e: BaseException, n: int) -> str:
     """First line of ``str(e)``, shortened to at most ``n`` characters at a word boundary."""
     text = str(e).strip().splitlines()[0] if str(e).strip() else ""
@@ -312,12 +334,16 @@ def _first_line(e: BaseException, n: int) -> str:
 
 
 def load_checkpoint(path: str | Path, *, device: str | torch.device = "cpu") -> Surrogate:
-    """Load a surrogate from a checkpoint file (``weights_only=True``), in eval mode on ``device``.
+    """Load a surrogate from a checkpoint file (``weights_only=True``), in eval mode on ``device``
+    (``cpu``, ``cuda``, ``cuda:N``, ``auto``: a GPU if one is usable, else the CPU; see
+    :func:`~excavator_surrogate.devices.resolve_device`).
 
     Raises:
         CheckpointError: one line naming the file and what to do.
+        ConfigError: ``device`` is unknown or not available on this computer (one line).
     """
     one_thread_in_forked_children()  # a forked env worker must not hang on torch's threads
+    dev = resolve_device(device)  # before the file is read: one line, not torch's error
     ckpt = read_checkpoint(path)
     sur = surrogate_from_dict(ckpt, where=str(path))
-    return sur.to(device)
+    return sur.to(dev)
