@@ -154,3 +154,27 @@ def test_a_nan_command_or_angle_is_refused_not_propagated(spec, episodes):
     cand[1, 4, j] = np.nan
     with pytest.raises(ConfigError, match=rf"^SurrogatePredictor.predict: u\[1, 4, {j}\]"):
         p.predict(cand)
+
+
+def test_another_machines_data_is_refused_in_one_line(spec, episodes):
+    from excavator_surrogate.errors import DataError
+
+    sur = make_surrogate(spec, episodes, window=6)
+    theta = np.stack([e.theta[:30] for e in episodes])
+    u = np.stack([e.u[:30] for e in episodes])
+    n = spec.n_joint
+    with pytest.raises(
+        DataError,
+        match=rf"rollout: the model is of a machine with joints .*got theta \(\d+, 30, {n - 1}\)",
+    ):
+        rollout(sur, theta[..., :-1], u)  # one joint fewer: another machine
+    with pytest.raises(
+        DataError, match=r"rollout: the model is of a machine .*use data of the model's machine"
+    ):
+        rollout(sur, theta, u[..., :-1])
+    with pytest.raises(DataError, match=r"rollout: needs theta .*add the batch axis"):
+        rollout(sur, theta, u[0])
+    with pytest.raises(DataError, match="of one batch size"):
+        rollout(sur, theta, np.concatenate([u, u]))
+    with pytest.raises(DataError, match=r"ClosedLoop.reset: the model is of a machine"):
+        ClosedLoop(sur).reset(theta[:, :6, :-1], u[:, :5])

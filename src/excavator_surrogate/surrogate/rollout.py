@@ -176,6 +176,7 @@ class ClosedLoop:
         """
         theta_hist = self._t(theta_hist)
         u_hist = self._t(u_hist)
+        check_machine_shapes(theta_hist, u_hist, self.sur.spec, where="ClosedLoop.reset")
         require_finite(theta_hist, self.sur.spec, what="theta", where="ClosedLoop.reset")
         require_finite(u_hist, self.sur.spec, what="u", where="ClosedLoop.reset")
         n_batch, n_hist, _ = theta_hist.shape
@@ -287,6 +288,40 @@ def require_finite(
 
 
 @torch.no_grad()
+def check_machine_shapes(
+    theta: np.ndarray | torch.Tensor,
+    u: np.ndarray | torch.Tensor,
+    spec: MachineSpec,
+    *,
+    where: str,
+) -> None:
+    """Refuse angles and commands that are not batches of ``spec``'s machine: ``theta``
+    (n_batch, n_step, n_joint) and ``u`` (n_batch, n_step', n_u), one batch size, the
+    model's ``n_joint`` angles and ``n_u`` commands (joints', then exogenous inputs').
+
+    Raises:
+        DataError: one line naming the shapes, the model's joints and what to do.
+    """
+    joints = list(spec.names)
+    want = f"theta (n_batch, n_step, {spec.n_joint}) and u (n_batch, n_step, {spec.n_u})"
+    got = f"got theta {tuple(theta.shape)} and u {tuple(u.shape)}"
+    if theta.ndim != 3 or u.ndim != 3:
+        raise DataError(
+            where,
+            f"needs {want}, {got}",
+            fix="add the batch axis, e.g. theta[None] and u[None] for one episode",
+        )
+    if theta.shape[0] != u.shape[0]:
+        raise DataError(where, f"needs {want} of one batch size, {got}", fix="give one u per theta")
+    if theta.shape[2] != spec.n_joint or u.shape[2] != spec.n_u:
+        raise DataError(
+            where,
+            f"the model is of a machine with joints {joints} and commands "
+            f"{list(spec.u_names)} ({want}), {got}",
+            fix="use data of the model's machine, or a model trained on this machine",
+        )
+
+
 def rollout(
     sur: Surrogate,
     theta: np.ndarray,
@@ -315,6 +350,7 @@ def rollout(
     warmup = sur.window if warmup is None else int(warmup)
     theta = np.asarray(theta, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
+    check_machine_shapes(theta, u, sur.spec, where="rollout")
     n_batch, n_step, _ = u.shape
     n_joint = sur.spec.n_joint
     if warmup < 1 or theta.shape[1] < warmup or n_step < warmup:
