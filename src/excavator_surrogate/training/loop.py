@@ -124,7 +124,7 @@ def train_network(
 ) -> Path:
     """Train one network (see :func:`~excavator_surrogate.training.api.train`); returns ``best.pt``."""
     numerics_mode = numerics.check()  # portable: no oneDNN, pinned MKL and ATen kernels
-    out = mark_output(out, "model")  # before the first file: the folder is exsur's
+    out = Path(out)  # marked once the resume file passed: a refused call leaves no folder
     if par is None:
         try:
             par = SingleProcess(device=resolve_device(cfg.device))
@@ -148,7 +148,8 @@ def train_network(
 
     torch.manual_seed(cfg.seed)
     mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
-    st = start(cfg, mcfg, spec, train_eps, resume)
+    st = start(cfg, mcfg, spec, train_eps, resume, data_name=dataset.root or "the dataset")
+    mark_output(out, "model")  # before the first file: the folder is exsur's
     net, history = st.net, st.history
     for line in st.derived:
         say(line)

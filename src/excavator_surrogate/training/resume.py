@@ -15,7 +15,7 @@ from ..data.episode import Episode
 from ..errors import CheckpointError, ConfigError
 from ..io_utils import atomic_path
 from ..spec import SOURCE_META, MachineSpec
-from ..surrogate.checkpoint import read_checkpoint, surrogate_from_dict
+from ..surrogate.checkpoint import check_compatible, read_checkpoint, surrogate_from_dict
 from ..surrogate.envelope import fill_envelope
 from ..surrogate.features import Normalization
 from ..surrogate.model import ModelConfig, Surrogate, SurrogateNet
@@ -105,6 +105,8 @@ def start(
     spec: MachineSpec,
     train_eps: list[Episode],
     resume: str | Path | None,
+    *,
+    data_name: str | Path = "the training data",
 ) -> Start:
     """A fresh net (weights from the current torch seed, normalisation fitted on ``train_eps``)
     or the state of checkpoint ``resume``.  With ``[train] exogenous = "ignore"`` the training
@@ -112,7 +114,9 @@ def start(
     weights zero) resumes without them.
 
     Raises:
-        CheckpointError: ``resume`` has another architecture or other joints.
+        CheckpointError: ``resume`` is of another machine than ``spec`` (joints, rate,
+            command ranges, inputs: the line names ``data_name``, as ``exsur train`` does), or
+            has another architecture.
     """
     if resume is None:
         derived: list[str] = []
@@ -171,15 +175,13 @@ def start(
             "the static map in parallel with this network (chosen after training); resume "
             "from the run's last.pt, or a member's best.pt, instead"
         )
+    # another machine first: its architecture differs too, and the advice would be wrong
+    check_compatible(old.spec, spec, ckpt=resume, data_name=data_name)
     # a delayed speed prior widened the first layer by its delayed-command features
     if replace(old.model_cfg, n_feature=old.model_cfg.n_feature - old.norm.n_lag) != mcfg:
         raise CheckpointError(
             f"{resume}: architecture {old.model_cfg.to_dict()} differs from the config's {mcfg.to_dict()}; "
             "resume with the same window/hidden/layers/cell"
-        )
-    if old.spec.names != spec.names:
-        raise CheckpointError(
-            f"{resume}: joints {list(old.spec.names)} differ from the dataset's {list(spec.names)}"
         )
     check_same_run(cfg, ck.get("train_config") or {}, resume)
     return Start(
