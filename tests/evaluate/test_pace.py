@@ -121,3 +121,14 @@ def test_the_recipes_network_logs_the_reference_time_and_best_pt_does_not(tmp_pa
     assert training_pace(best.parent)["reference_train_s"] == pytest.approx(
         2 * est.train_s, abs=0.1
     )
+
+
+def test_a_sub_second_cap_is_printed_as_set(tmp_path: Path) -> None:
+    _log(tmp_path / "log.csv", _epochs(4, epoch_s=0.05, ref=1.0))
+    pace = training_pace(tmp_path)
+    assert pace is not None
+    text = pace_markdown(pace, {"max_train_seconds": 0.3})
+    assert f"ran {pace['longest_s']:.2g} s of its 0.3-s cap (" in text  # was "0 s of its 0-s cap"
+    assert "its 0.3-s cap cut it" in pace_markdown(
+        pace, {"max_train_seconds": 0.3, "budget_cut": True}
+    )

@@ -98,12 +98,12 @@ def pace_markdown(pace: Mapping[str, Any] | None, training: Mapping[str, Any] | 
             "(the time the plan is sized by)"
         )
     longest = float(pace.get("longest_s") or 0.0)
-    text += f". The longest network ran {longest:.0f} s"
+    text += f". The longest network ran {_seconds(longest)} s"
     if cap > 0 and cut:
-        text += f" and its {cap:.0f}-s cap cut it.\n"
+        text += f" and its {_seconds(cap)}-s cap cut it.\n"
     elif cap > 0 and longest > 0:
         text += (
-            f" of its {cap:.0f}-s cap ({100 * longest / cap:.0f} %): a run up to "
+            f" of its {_seconds(cap)}-s cap ({100 * longest / cap:.0f} %): a run up to "
             f"{cap / longest:.2f}x slower (a slower computer, or more load on this one) still "
             "trains every planned epoch.\n"
         )
@@ -118,3 +118,9 @@ def _num(v: Any) -> float:
         return float(v)
     except (TypeError, ValueError):
         return math.nan
+
+
+def _seconds(s: float) -> str:
+    """``s`` seconds as the summary prints them: whole seconds from 10 s on (``76``), two
+    significant digits below (``0.3``, ``2.5``): a sub-second cap is not "0 s"."""
+    return f"{s:.0f}" if s >= 10 else f"{s:.2g}"
