@@ -392,6 +392,22 @@ def origin_hint(
     return " (" + "; ".join(f"{', '.join(ks)}: from {s}" for s, ks in by_source.items()) + ")"
 
 
+def need_config(cfg: Any, cls: type[C]) -> C:
+    """``cfg``, if it is a ``cls`` (an entry point's config argument).
+
+    Raises:
+        ConfigError: one line naming the class needed, how to build one, and the type given
+            (a dict of options is not a config).
+    """
+    if isinstance(cfg, cls):
+        return cfg
+    name = cls.__name__
+    raise ConfigError(
+        f"cfg: a {name} is needed, got {type(cfg).__name__}; build one with "
+        f"{name}.from_preset('tiny', key=value, ...) or {name}(key=value, ...)"
+    )
+
+
 class PresetConfig:
     """Base of the stage configs: ``Config.from_preset(preset, **overrides)`` on every stage.
 

@@ -176,3 +176,11 @@ def test_two_episodes_of_one_name_are_refused(
     assert main(["validate", str(ds)]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [f"exsur: error: {msg}"]
     assert len(load_dataset(ds, splits=("train", "val")).val) == 1  # one of the pair loaded
+
+
+@pytest.mark.parametrize("root", [None, 5], ids=["none", "int"])
+def test_a_dataset_that_is_no_path_is_one_line(root: Any) -> None:
+    from excavator_surrogate.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"dataset: a path is needed, got {type(root).__name__}"):
+        load_dataset(root)

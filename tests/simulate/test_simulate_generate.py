@@ -104,3 +104,14 @@ def test_config_validation() -> None:
         SimulateConfig(n_train=0, n_val=0, n_test=0)
     with pytest.raises(ConfigError):
         from_dict(SimulateConfig, {"n_trian": 3})
+
+
+def test_wrong_argument_types_are_one_line_before_simulating(tmp_path: Path) -> None:
+    from excavator_surrogate.errors import ConfigError
+    from excavator_surrogate.simulate import SimulateConfig, simulate_dataset
+
+    with pytest.raises(ConfigError, match="cfg: a SimulateConfig is needed, got dict"):
+        simulate_dataset({"n_train": 1}, out=tmp_path / "s")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match="out: a path is needed, got NoneType"):
+        simulate_dataset(SimulateConfig.from_preset("tiny"), out=None)  # type: ignore[arg-type]
+    assert list(tmp_path.iterdir()) == []

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, need_path
 from ..io_utils import atomic_dir, write_json, write_text
 from ..spec import MachineSpec
 from .episode import SCHEMA_VERSION, Episode, read_episode, write_episode
@@ -266,8 +266,9 @@ def load_dataset(
 
     Raises:
         DataError: for the first file that breaks the contract.
+        ConfigError: ``root`` is not a path (None, a number).
     """
-    root = Path(root)
+    root = need_path(root, "dataset")
     manifest = read_manifest(root)
     try:
         spec = MachineSpec.from_dict(manifest["spec"]) if "spec" in manifest else None

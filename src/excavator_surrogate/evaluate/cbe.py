@@ -38,7 +38,7 @@ import torch
 from ..config import PresetConfig, record_text, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
-from ..errors import ConfigError, DataError
+from ..errors import ConfigError, DataError, need_path
 from ..io_utils import atomic_files, recorded_path, write_json, write_text
 from ..outdir import check_api_out_dir
 from ..spec import MachineSpec
@@ -228,8 +228,8 @@ def evaluate_checkpoint(
     """
     given = locals()  # every [evaluate] field is an argument: the record holds them all
     cfg = EvaluateConfig(**{f.name: given[f.name] for f in dataclasses.fields(EvaluateConfig)})
-    inputs = [dataset.root if isinstance(dataset, Dataset) else dataset]
-    check_api_out_dir(out, overwrite=overwrite, inputs=[p for p in inputs if p], kind="evaluation")
+    root = dataset.root if isinstance(dataset, Dataset) else need_path(dataset, "dataset")
+    check_api_out_dir(out, overwrite=overwrite, inputs=[root] if root else [], kind="evaluation")
     if reference not in ("measured", "true"):
         raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
     t0 = time.monotonic()
