@@ -368,12 +368,13 @@ def check_api_out_dir(
     out: str | Path,
     *,
     overwrite: bool,
-    inputs: Iterable[str | Path] = (),
     kind: str,
 ) -> Path:
     """:func:`check_out_dir` for a library entry point (:func:`~.training.api.train`,
     :func:`~.evaluate.cbe.evaluate_checkpoint`) that writes into folder ``out``: the same rule,
-    before the first file, with ``overwrite`` the entry point's keyword.  Skipped when this
+    before the first file, with ``overwrite`` the entry point's keyword.  Its inputs are not
+    checked against ``out`` here: ``exsur run`` evaluates into the folder that holds the run's
+    dataset, which a user's command may not.  Skipped when this
     process already checked ``out`` as it took the folder's writer lock and still holds it
     (the CLI checks before it loads anything, then calls the entry point).
 
@@ -383,7 +384,7 @@ def check_api_out_dir(
     out = need_path(out, "out")
     if checked_under_lock(out):
         return out
-    return check_out_dir(out, overwrite=overwrite, inputs=inputs, flag="output folder", kind=kind)
+    return check_out_dir(out, overwrite=overwrite, flag="output folder", kind=kind)
 
 
 def _check_existing(out: Path, *, overwrite: bool, flag: str, kind: str | None) -> None:

@@ -196,6 +196,7 @@ def run_pipeline(*, out: str | Path, **options: Unpack[RunOptions]) -> dict[str,
             best,
             train_ds,
             out=tmp,
+            overwrite=True,  # this run's own folder, being built: its evaluation is part of it
             root=tmp,
             compare=compare,
             **{**ev, "reference": run_cfg.reference},

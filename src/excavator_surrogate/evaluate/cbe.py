@@ -228,8 +228,7 @@ def evaluate_checkpoint(
     """
     given = locals()  # every [evaluate] field is an argument: the record holds them all
     cfg = EvaluateConfig(**{f.name: given[f.name] for f in dataclasses.fields(EvaluateConfig)})
-    root = dataset.root if isinstance(dataset, Dataset) else need_path(dataset, "dataset")
-    check_api_out_dir(out, overwrite=overwrite, inputs=[root] if root else [], kind="evaluation")
+    check_api_out_dir(out, overwrite=overwrite, kind="evaluation")
     if reference not in ("measured", "true"):
         raise ConfigError(f"reference must be 'measured' or 'true', got {reference!r}")
     t0 = time.monotonic()
@@ -237,6 +236,8 @@ def evaluate_checkpoint(
         torch.set_num_threads(num_threads)
     from ..devices import resolve_device
 
+    if not isinstance(dataset, Dataset):
+        need_path(dataset, "dataset")  # before the checkpoint is read
     dev = resolve_device(device)
     sur = load_checkpoint(ckpt, device=dev)
     if not isinstance(dataset, Dataset):

@@ -11,7 +11,7 @@ from .. import numerics
 from ..config import need_config
 from ..data.dataset import Dataset, load_dataset
 from ..devices import torch_threads, usable_cpus
-from ..errors import ConfigError, need_path
+from ..errors import ConfigError
 from ..outdir import check_api_out_dir
 from .batches import split_episodes
 from .calibration import calibrate_best
@@ -87,9 +87,8 @@ def train(
         ConfigError: ``out`` breaks the output-folder rule, or bad options.
     """
     need_config(cfg, TrainConfig)
-    root = dataset.root if isinstance(dataset, Dataset) else need_path(dataset, "dataset")
-    if dist is None or dist.is_main:  # before anything is read: the CLI checked it already
-        check_api_out_dir(out, overwrite=overwrite, inputs=[root] if root else [], kind="model")
+    if dist is None or dist.is_main:  # before anything is read (under the CLI: checked once)
+        check_api_out_dir(out, overwrite=overwrite, kind="model")
     if not isinstance(dataset, Dataset):
         dataset = load_dataset(dataset, splits=("train", "val"))
     numerics.check()  # EXSUR_NUMERICS=portable: also the merge, map choice and calibration here
