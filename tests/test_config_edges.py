@@ -218,3 +218,45 @@ def test_a_simulation_too_big_is_refused_and_a_long_one_announced(tmp_path, capl
         check_dataset_size(long, out=tmp_path / "d")
     assert "take ~1.11 h on 1 worker(s)" in caplog.text and "interrupt (Ctrl-C" in caplog.text
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize(
+    ("build", "line"),
+    [
+        (lambda: _train(epochs="3"), r"\[train\]\.epochs: expected an integer, got '3'"),
+        (lambda: _train(lr="fast"), r"\[train\]\.lr: expected a number, got 'fast'"),
+        (lambda: SimulateConfig(n_train="x"), r"\[simulate\]\.n_train: expected an integer"),
+        (lambda: _mppi(n_sample="8"), r"mppi\.n_sample: expected an integer, got '8'"),
+        (lambda: _evaluate(num_threads="2"), r"\[evaluate\]\.num_threads: expected an integer"),
+    ],
+    ids=["train-epochs", "train-lr", "simulate", "mppi", "evaluate"],
+)
+def test_a_config_built_directly_refuses_a_wrong_type_in_one_line(build, line: str) -> None:
+    with pytest.raises(ConfigError, match=line):
+        build()
+
+
+def test_numpy_scalars_and_value_checks_are_left_as_they_were() -> None:
+    import numpy as np
+
+    assert _train(epochs=np.int64(3)).epochs == 3
+    with pytest.raises(ConfigError, match=r"lr = nan must be in \(0, 1\]"):
+        _train(lr=math.nan)
+
+
+def _train(**kw: Any):
+    from excavator_surrogate.training.config import TrainConfig
+
+    return TrainConfig(**kw)
+
+
+def _mppi(**kw: Any):
+    from excavator_surrogate.control.mppi import MPPIConfig
+
+    return MPPIConfig(**kw)
+
+
+def _evaluate(**kw: Any):
+    from excavator_surrogate.evaluate.cbe import EvaluateConfig
+
+    return EvaluateConfig(**kw)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import itertools
 import math
 import re
@@ -390,6 +391,34 @@ def origin_hint(
     for k in named:
         by_source.setdefault(str(source(k)), []).append(f"{section}.{k}")
     return " (" + "; ".join(f"{', '.join(ks)}: from {s}" for s, ks in by_source.items()) + ")"
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def check_types(cfg: Any, where: str) -> None:
+    """Refuse a field of dataclass ``cfg`` whose value is not of its declared type, with the
+    line :meth:`PresetConfig.from_preset` gives for the same value (``[train].epochs:
+    expected an integer, got '3'``; ``where``: ``"[train]"``).  Call it first in a config's
+    ``__post_init__``: a config built directly then fails in one line, not in a comparison
+    of its own checks.  NumPy scalars count as the Python numbers they hold; a NaN or
+    infinite float and a ``Literal`` field are left to the config's own value checks.
+
+    Raises:
+        ConfigError: the first field of the wrong type.
+    """
+    hints = _hints(type(cfg))
+    for f in dataclasses.fields(cfg):
+        tp, v = hints[f.name], getattr(cfg, f.name)
+        if hasattr(v, "item") and hasattr(v, "dtype") and getattr(v, "ndim", 1) == 0:
+            v = v.item()  # a NumPy scalar (the recipe's arithmetic)
+        if typing.get_origin(tp) is typing.Literal or (
+            isinstance(v, float) and not math.isfinite(v)
+        ):
+            continue
+        _coerce(tp, v, f"{where}.{f.name}", allow_inf=True)
 
 
 def need_config(cfg: Any, cls: type[C]) -> C:

@@ -231,3 +231,9 @@ def test_delay_beyond_buffer_names_setting_and_joint(tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"machine.xml: .*joint 'swing' \(25 samples"):
         MujocoExcavator(PlantConfig(xml=str(xml), delay_s=0.1))
     MujocoExcavator(PlantConfig(delay_s=0.05)).close()  # the largest allowed value
+
+
+@pytest.mark.parametrize("rate", [float("nan"), -1.0, 0.0], ids=["nan", "negative", "zero"])
+def test_a_rate_that_is_no_positive_number_is_one_line(rate: float) -> None:
+    with pytest.raises(ConfigError, match="rate_hz must be a positive finite number"):
+        MujocoExcavator(PlantConfig(rate_hz=rate))  # NaN was a ValueError from round()

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..config import check_types
 from ..errors import ConfigError, ExsurError
 from ..spec import MachineSpec
 from .predict import Predictor
@@ -70,6 +71,7 @@ class MPPIConfig:
     """Cost per unit risk of a candidate flagged out of distribution on every step [rad², as the squared error]."""
 
     def __post_init__(self) -> None:
+        check_types(self, "mppi")  # a wrong type: one line, not a failed comparison below
         if self.n_sample < 2 or self.n_horizon < 1 or not 1 <= self.replan <= self.n_horizon:
             raise ConfigError(
                 "mppi: need n_sample >= 2, n_horizon >= 1 and 1 <= replan <= n_horizon, got "

@@ -35,7 +35,7 @@ from typing import Any, Literal
 import numpy as np
 import torch
 
-from ..config import PresetConfig, record_text, to_dict
+from ..config import PresetConfig, check_types, record_text, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..data.episode import Episode
 from ..errors import ConfigError, DataError, need_path
@@ -90,6 +90,7 @@ class EvaluateConfig(PresetConfig, table="evaluate"):
     """Seconds between two measured starts of the prediction-horizon scores."""
 
     def __post_init__(self) -> None:
+        check_types(self, "[evaluate]")  # a wrong type: one line, not a failed comparison below
         for name in ("max_steps", "max_figures", "num_threads"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"[evaluate] {name} must be >= 0, got {getattr(self, name)}")

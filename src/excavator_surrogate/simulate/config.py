@@ -114,6 +114,7 @@ class SimulateConfig(config_mod.PresetConfig, table="simulate"):
     of a day share its draw of ``hydraulics.day_slowdown``.  Empty: no days."""
 
     def __post_init__(self) -> None:
+        config_mod.check_types(self, "[simulate]")  # a wrong type: one line, before the checks
         self._check_rate()
         if not (math.isfinite(self.delay_s) and self.delay_s >= 0):
             raise ConfigError(

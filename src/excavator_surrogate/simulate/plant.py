@@ -107,7 +107,7 @@ class MujocoExcavator:
         force_hook: ForceHook | None = None,
     ) -> None:
         self.config = config = config or PlantConfig()
-        if abs(spec.rate_hz - config.rate_hz) > 1e-9:
+        if not abs(spec.rate_hz - config.rate_hz) <= 1e-9:  # NaN too: with_rate refuses it
             spec = spec.with_rate(config.rate_hz)
         self.spec = spec
         xml = Path(config.xml) if config.xml else default_xml()

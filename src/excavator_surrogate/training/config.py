@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, fields, replace
 from typing import Any, Literal
 
-from ..config import PresetConfig
+from ..config import PresetConfig, check_types
 from ..errors import ConfigError
 from ..spec import MachineSpec
 from ..surrogate.model import ModelConfig
@@ -288,6 +288,7 @@ class TrainConfig(PresetConfig, table="train"):
         return self.feedback == "teacher" or epoch < self.teacher_epochs
 
     def __post_init__(self) -> None:
+        check_types(self, "[train]")  # a wrong type: one line, not a failed comparison below
         checks = [
             (self.window >= 1, "window must be >= 1"),
             (
