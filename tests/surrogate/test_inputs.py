@@ -283,7 +283,10 @@ def test_train_with_inputs(rpm_dataset, tmp_path):
     from tests.helpers.training import tiny_train_config as tiny_stateful_config
 
     best = train(
-        tiny_stateful_config(epochs=2, play=(0.1,)), rpm_dataset, out=tmp_path, show_progress=False
+        tiny_stateful_config(epochs=2, play=(0.1,)),
+        rpm_dataset,
+        out=tmp_path / "m",
+        show_progress=False,
     )
     sur = load_checkpoint(best)
     spec = rpm_dataset.spec
