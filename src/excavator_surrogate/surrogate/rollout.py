@@ -287,7 +287,6 @@ def require_finite(
     )
 
 
-@torch.no_grad()
 def check_machine_shapes(
     theta: np.ndarray | torch.Tensor,
     u: np.ndarray | torch.Tensor,
@@ -322,6 +321,7 @@ def check_machine_shapes(
         )
 
 
+@torch.no_grad()
 def rollout(
     sur: Surrogate,
     theta: np.ndarray,
