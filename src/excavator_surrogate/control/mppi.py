@@ -240,10 +240,15 @@ class MPPI:
         Raises :class:`ConfigError` for a reference of another shape or with a non-finite
         value, :class:`ExsurError` if no candidate's predicted cost is finite (the plan is
         then left as it was)."""
-        t0 = time.perf_counter()
-        cfg = self.cfg
         theta_ref = np.asarray(theta_ref, dtype=np.float64)
         self.check_reference(theta_ref, exact=True)
+        return self._replan(theta_ref)
+
+    def _replan(self, theta_ref: np.ndarray) -> np.ndarray:
+        """:meth:`plan` for a reference ``theta_ref`` (n_horizon, n_joint) [rad] already
+        checked (:meth:`check_reference`)."""
+        t0 = time.perf_counter()
+        cfg = self.cfg
         lo = (self.u_min - self.u_center) / self.u_scale
         hi = (self.u_max - self.u_center) / self.u_scale
         v = np.clip(self.mean[None] + self.noise(), lo, hi)  # (K, N, J) half ranges
@@ -286,6 +291,6 @@ class MPPI:
         r = k % self.cfg.replan
         if r == 0:
             theta_ref = np.asarray(theta_ref, dtype=np.float64)
-            self.check_reference(theta_ref, exact=False, k=k)
-            self._plan = self.plan(theta_ref[: self.cfg.n_horizon])
+            self.check_reference(theta_ref, exact=False, k=k)  # covers the first n_horizon rows
+            self._plan = self._replan(theta_ref[: self.cfg.n_horizon])
         return self._plan[r]
