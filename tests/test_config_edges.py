@@ -228,8 +228,15 @@ def test_a_simulation_too_big_is_refused_and_a_long_one_announced(tmp_path, capl
         (lambda: SimulateConfig(n_train="x"), r"\[simulate\]\.n_train: expected an integer"),
         (lambda: _mppi(n_sample="8"), r"mppi\.n_sample: expected an integer, got '8'"),
         (lambda: _evaluate(num_threads="2"), r"\[evaluate\]\.num_threads: expected an integer"),
+        (lambda: _clean(tau_jump="0.1"), r"\[clean\]\.tau_jump: expected a number, got '0.1'"),
+        (lambda: _clean(cons_window=2.5), r"\[clean\]\.cons_window: expected an integer"),
+        (lambda: _sweep(epochs="3"), r"\[sweep\]\.epochs: expected an integer, got '3'"),
+        (lambda: _sweep(window=(1, "4")), r"\[sweep\]\.window: expected an integer, got '4'"),
     ],
-    ids=["train-epochs", "train-lr", "simulate", "mppi", "evaluate"],
+    ids=[
+        *("train-epochs", "train-lr", "simulate", "mppi", "evaluate"),
+        *("clean", "clean-int", "sweep", "sweep-range"),
+    ],
 )
 def test_a_config_built_directly_refuses_a_wrong_type_in_one_line(build, line: str) -> None:
     with pytest.raises(ConfigError, match=line):
@@ -254,6 +261,18 @@ def _mppi(**kw: Any):
     from excavator_surrogate.control.mppi import MPPIConfig
 
     return MPPIConfig(**kw)
+
+
+def _clean(**kw: Any):
+    from excavator_surrogate.clean.config import CleanConfig
+
+    return CleanConfig(**kw)
+
+
+def _sweep(**kw: Any):
+    from excavator_surrogate.scale.sweep import SweepConfig
+
+    return SweepConfig(**kw)
 
 
 def _evaluate(**kw: Any):

@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from ..config import PresetConfig
+from ..config import PresetConfig, check_types
 from ..errors import ConfigError
 
 Method = Literal["paper", "gyro", "gyro3", "rts"]
@@ -58,6 +58,7 @@ class CleanConfig(PresetConfig, table="clean"):
     """Linear joints (episodes only): this many m of stroke count as 1 rad in every field above (variances by its square)."""
 
     def __post_init__(self) -> None:
+        check_types(self, "[clean]")  # a wrong type: one line, not a failed comparison below
         if self.method not in METHODS:
             raise ConfigError(f"clean.method: must be one of {list(METHODS)}, got {self.method!r}")
         if self.jump_ref not in ("raw", "prior"):

@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..config import PresetConfig, dumps_toml, to_dict
+from ..config import PresetConfig, check_types, dumps_toml, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..errors import ConfigError, ExsurError
 from ..io_utils import LOGGER_NAME, mark_output, recorded_path, write_text
@@ -96,6 +96,7 @@ class SweepConfig(PresetConfig, table="sweep"):
     """Trials shown in the table and the plot."""
 
     def __post_init__(self) -> None:
+        check_types(self, "[sweep]")  # a wrong type: one line, not a failed comparison below
         for name, lo_min in (("window", 1), ("hidden", 1), ("layers", 1), ("horizon", 1)):
             lo, hi = getattr(self, name)
             if not (lo_min <= lo <= hi):
