@@ -149,7 +149,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
         ConfigError: ``path`` is the current folder, a file, or a folder exsur did not write.
     """
     path = Path(path)
-    _check_replaceable(path, kind)
+    check_replaceable(path, kind)
     path.parent.mkdir(parents=True, exist_ok=True)
     sweep_stale(path)
     tmp = Path(tempfile.mkdtemp(prefix=_temp_prefix(path.name), suffix=".tmp", dir=path.parent))
@@ -161,7 +161,7 @@ def atomic_dir(path: str | Path, *, overwrite: bool = True, kind: str = "output"
         if path.exists():
             if not overwrite:
                 raise FileExistsError(f"{path} exists")
-            _check_replaceable(path, kind)
+            check_replaceable(path, kind)
             old = path.with_name(f".{path.name}.old-{os.getpid()}")
             os.replace(path, old)
             os.replace(tmp, path)
@@ -249,7 +249,14 @@ def record_output(path: str | Path) -> None:
         write_json(path / MARKER, {**m, "files": sorted(n for n in names if n != MARKER)})
 
 
-def _check_replaceable(path: Path, kind: str) -> None:
+def check_replaceable(path: Path, kind: str) -> None:
+    """The check :func:`atomic_dir` makes of ``path`` before it writes a ``kind`` output: a
+    caller that computes for long before its write (a simulation) makes it first too.
+
+    Raises:
+        ConfigError: ``path`` is the current folder, a file, or a folder exsur did not write
+            (or of a kind a ``kind`` output may not replace).
+    """
     from .errors import ConfigError
     from .outdir import check_not_cwd, kind_refusal, may_replace, other_kind, refusal
 

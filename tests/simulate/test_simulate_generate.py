@@ -115,3 +115,23 @@ def test_wrong_argument_types_are_one_line_before_simulating(tmp_path: Path) -> 
     with pytest.raises(ConfigError, match="out: a path is needed, got NoneType"):
         simulate_dataset(SimulateConfig.from_preset("tiny"), out=None)  # type: ignore[arg-type]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_folder_exsur_did_not_write_is_refused_before_simulating(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The write's own output-folder rule, applied before the episodes are simulated: a
+    user's folder costs one line, not a whole simulation first."""
+    from excavator_surrogate.simulate import generate
+
+    def must_not_run(cfg: SimulateConfig) -> list:
+        raise AssertionError("simulated into a folder it was going to refuse")
+
+    monkeypatch.setattr(generate, "plan_episodes", must_not_run)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    with pytest.raises(ConfigError, match=r"mine: output folder holds 'notes.txt'"):
+        simulate_dataset(_tiny(), out=mine, workers=1)
+    assert [p.name for p in mine.iterdir()] == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]  # no temporary folder left

@@ -38,7 +38,7 @@ from .. import numerics
 from ..data import Episode, write_dataset
 from ..data.timesplit import split_in_time
 from ..errors import ConfigError, DataError, need_path
-from ..io_utils import init_worker_logging, progress, worker_log_config
+from ..io_utils import check_replaceable, init_worker_logging, progress, worker_log_config
 from ..orphans import die_with_parent, parent_args
 from ..spec import EXCAVATOR, MachineSpec
 from .config import INPUTS, SimulateConfig
@@ -355,12 +355,14 @@ def simulate_dataset(
         ``out`` as a Path.
 
     Raises:
-        ConfigError: ``cfg`` not a :class:`SimulateConfig`, ``out`` not a path, a bad
+        ConfigError: ``cfg`` not a :class:`SimulateConfig`, ``out`` not a path or a folder
+            exsur did not write (before anything is simulated), a bad
             option, or ``EXSUR_NUMERICS=portable`` that did not reach NumPy
             or OpenBLAS (NumPy was imported before the package).
     """
     config_mod.need_config(cfg, SimulateConfig)
     out = need_path(out, "out")  # before the simulation, not when the dataset is written
+    check_replaceable(out, "dataset")  # the write's own rule: a user's folder, refused up front
     workers = cfg.workers if workers is None else int(workers)
     if workers < 1:
         raise ConfigError(f"workers must be >= 1, got {workers}")
