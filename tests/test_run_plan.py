@@ -33,7 +33,7 @@ def test_the_demo_is_planned_without_simulating(tmp_path: Path, monkeypatch, cap
     assert "2 training(s) (2 plain member(s)), 2 at a time in 1 round(s); 30 epochs" in text
     assert "s a training on the reference machine" in text and "no time estimate" not in text
     assert "scaled by this config's network (hidden = 64, feedback = 'free'" in text
-    assert "each training capped at 400 s of wall time" in text
+    assert "each training capped at 600 s of wall time" in text
     rec = _record(text)
     assert rec["name"] == "quick-hydraulic" and rec["simulate"]["n_train"] == 100
     assert rec["train"]["epochs"] == 30 and "data" not in rec and "logs" not in rec
