@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import subprocess
 import sys
@@ -327,6 +328,38 @@ def test_cli_refused_opset_prints_one_line_and_no_library_traceback(
     assert err[0].startswith(f"exsur: error: {out}: the ONNX exporter cannot write opset 11")
     assert "--exporter torchscript" in err[0]
     assert run.stdout == "" and list(tmp_path.iterdir()) == []
+
+
+def test_an_opset_no_exporter_writes_is_refused_before_anything_is_traced(
+    stateful_ckpt: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Opset 3 or 999 was traced (3-16 s with dynamo) before the opset the file got was
+    checked; below onnxruntime's first opset or past onnx's last, nothing is traced now."""
+    export = importlib.import_module("excavator_surrogate.env.export")
+
+    def traced(*args, **kwargs):
+        raise AssertionError("traced")
+
+    monkeypatch.setattr(export, "_export", traced)
+    out = tmp_path / "m.onnx"
+    last = onnx.defs.onnx_opset_version()
+    cases = [
+        (6, "auto", "(onnxruntime runs opsets 7 and up); use --opset 18 or leave the option out"),
+        (last + 1, "dynamo", f"defines opsets up to {last}); use --opset 18"),
+        (3, "torchscript", "7 and up); use an opset from 11 to 23 or leave --opset out"),
+    ]
+    for opset, exporter, why in cases:
+        with pytest.raises(ConfigError) as err:
+            export_onnx(stateful_ckpt, out, opset=opset, exporter=exporter)
+        assert str(err.value).startswith(f"{out}: the ONNX exporter cannot write opset {opset} ")
+        assert why in str(err.value)
+    with pytest.raises(ConfigError, match=r"opset must be an integer \(default 18\), got '18'"):
+        export_onnx(stateful_ckpt, out, opset="18")  # type: ignore[arg-type]
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(AssertionError, match="traced"):  # the first and last opsets go on
+        export_onnx(stateful_ckpt, out, opset=7)
+    with pytest.raises(AssertionError, match="traced"):
+        export_onnx(stateful_ckpt, out, opset=last)
 
 
 def test_auto_exports_an_opset_below_18_with_torchscript(

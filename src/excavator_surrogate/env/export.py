@@ -132,6 +132,9 @@ TORCHSCRIPT_OPSETS = (11, 23)
 fails on end stops' ``where`` at 7 and 8, and some graphs of 9 and 10 onnxruntime refuses).
 The dynamo exporter builds opset 18 and converts down: a stateful graph of 15 to 17 is one
 onnxruntime refuses (InvalidGraph), below that the converter fails (and writes 18)."""
+ORT_MIN_OPSET = 7
+"""The first opset onnxruntime runs (every release runs opset 7 and up: its versioning
+document); an export is loaded by onnxruntime before it is kept."""
 EXTRA = "pip install 'excavator-surrogate[export]'"
 """What installs the packages an export needs (onnx, onnxruntime, onnxscript)."""
 QUIET_LOGGERS = ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript", "onnx_ir")
@@ -177,10 +180,12 @@ def export_onnx(
     Raises:
         ConfigError: the export extra is not installed (onnx, onnxruntime; onnxscript for
             ``exporter="dynamo"``); ``uncertainty`` for a single network or a windowed export;
-            an opset the exporter cannot write for this graph, or a graph onnxruntime cannot
-            load (the message says which exporter and opset to use instead).
+            an opset the exporter cannot write for this graph (below 7 or past the installed
+            onnx's last: before anything is traced), or a graph onnxruntime cannot load (the
+            message says which exporter and opset to use instead).
     """
     _require_extra(exporter)
+    _check_opset(opset, exporter, Path(out))
     sur = load_surrogate(ckpt, device="cpu")
     sur.to("cpu", torch.float32).eval()
     mode = mode or sur.mode
@@ -297,6 +302,29 @@ def _require_extra(exporter: str) -> None:
         raise ConfigError(
             f"exsur export needs the export extra (missing: {', '.join(missing)}): {EXTRA}"
         )
+
+
+def _check_opset(opset: int, exporter: str, out: Path) -> None:
+    """Refuse, before anything is traced, an opset no exporter can give a loadable graph of:
+    below :data:`ORT_MIN_OPSET` (onnxruntime, which checks every export, runs none) or past
+    the last opset the installed onnx defines.  An opset between them may still be refused
+    after the export, by the exporter or by onnxruntime (:func:`_check_loads`)."""
+    import onnx
+
+    if isinstance(opset, bool) or not isinstance(opset, int):
+        raise ConfigError(f"{out}: opset must be an integer (default {OPSET}), got {opset!r}")
+    last = onnx.defs.onnx_opset_version()
+    if ORT_MIN_OPSET <= opset <= last:
+        return
+    why = (
+        f"onnxruntime runs opsets {ORT_MIN_OPSET} and up"
+        if opset < ORT_MIN_OPSET
+        else f"the installed onnx {onnx.__version__} defines opsets up to {last}"
+    )
+    used = "torchscript" if exporter == "torchscript" else "dynamo"
+    raise ConfigError(
+        f"{out}: the ONNX exporter cannot write opset {opset} ({why}); {_opset_advice(opset, used)}"
+    )
 
 
 def _opset_advice(opset: int, used: str) -> str:
