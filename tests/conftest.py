@@ -21,11 +21,12 @@ except ImportError:  # pragma: no cover
 
 @pytest.fixture(autouse=True)
 def _short_speed_probe(monkeypatch) -> None:
-    """The dry runs' speed probe (``training/speed_probe.py``) in short bursts: the tests
-    check what it prints, not how well it times."""
+    """The dry runs' speed probe (``training/speed_probe.py``) in short bursts and short
+    validation free runs: the tests check what it prints, not how well it times."""
     from excavator_surrogate.training import speed_probe
 
     monkeypatch.setattr(speed_probe, "PROBE_SECONDS", 0.02)
+    monkeypatch.setattr(speed_probe, "PROBE_VAL_STEPS", 200)
 
 
 @pytest.fixture

@@ -57,6 +57,9 @@ PROBE_ROUNDS = 3
 PROBE_BATCHES = 4
 """Full batches of sub-sequences in the probe's epoch (of the config's or the reference's
 ``seq_batch``, whichever is larger): a half-empty batch costs nearly a full one's time."""
+PROBE_VAL_STEPS = 1000
+"""Samples of each of the two validation episodes both networks free-run every round: long
+enough that a free run's per-step cost, not its start, is what is timed."""
 PROBE_EPOCH = 10
 """The epoch the bursts train as, or the first past a longer teacher-forced warm-up
 (:attr:`ThrowawayNetwork.free_epoch`), so a ``feedback = "free"`` config is timed as it
@@ -105,7 +108,7 @@ def measure_speed(cfg: TrainConfig, *, n_joint: int = 4) -> SpeedRatio:
     )
     want = PROBE_BATCHES * max(c.seq_batch for c in both)
     train_eps = eps * max(1, -(-want // (2 * per_ep)))
-    val_eps = [synthetic_episode(spec, n_step=1000, seed=10 + k) for k in range(2)]
+    val_eps = [synthetic_episode(spec, n_step=PROBE_VAL_STEPS, seed=10 + k) for k in range(2)]
     bursts: list[Callable[[ThrowawayNetwork], float]] = [lambda p: p.train_burst(PROBE_SECONDS)]
     if teacher_forced_epochs(cfg) > 0:  # its teacher-forced epochs train at another speed
         bursts.append(lambda p: p.train_burst(PROBE_SECONDS / 2, epoch=0))  # few epochs: short
