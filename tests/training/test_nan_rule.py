@@ -4,6 +4,7 @@ in one process (SingleProcess) and under DDP (DistContext, 2 gloo processes)."""
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import pytest
@@ -136,6 +137,10 @@ def _ddp_worker(ctx: DistContext, out: str) -> None:
     ds = tiny_dataset(2, n_train=2, n_step=120)
     cfg = tiny_train_config(mode="windowed", epochs=1, batch_size=16, horizon=2)
     init = _weights(_initial_net(cfg, ds.spec.n_feature, ds.spec.n_joint))
+    if ctx.is_main:  # rank 1 runs ahead to the first collective: it must write nothing, or
+        # rank 0's check of the folder sees its files (its marker's temporary file: refused)
+        time.sleep(3.0)
+        assert not (Path(out) / "ddp_nan").exists()
     best = train(
         cfg, ds, out=Path(out) / "ddp_nan", show_progress=False, dist=ctx, loss=nan_grad_loss
     )

@@ -149,7 +149,9 @@ def train_network(
     torch.manual_seed(cfg.seed)
     mcfg = cfg.model_config(cfg.n_feature(spec), spec.n_joint)
     st = start(cfg, mcfg, spec, train_eps, resume, data_name=dataset.root or "the dataset")
-    mark_output(out, "model")  # before the first file: the folder is exsur's
+    if main:  # before the first file: the folder is exsur's (only rank 0 writes into it; a
+        # rank that marked it raced rank 0's check of the folder, which saw its temporary file)
+        mark_output(out, "model")
     net, history = st.net, st.history
     for line in st.derived:
         say(line)
