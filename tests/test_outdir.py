@@ -90,6 +90,19 @@ def test_exsur_names_without_a_marker_are_not_enough(tmp_path: Path) -> None:
         assert not is_exsur_output(d)
 
 
+def test_an_unmarked_folder_of_temporary_files_only_names_one(tmp_path: Path) -> None:
+    """An unmarked folder whose only entry is a temporary file of exsur's name (another
+    writer's, mid-write) was refused as holding ``''``; the refusal names that file."""
+    d = tmp_path / "out"
+    d.mkdir()
+    (d / ".exsur.json.123-abcd1234.tmp").write_text("{}")
+    with pytest.raises(ConfigError, match=r"out: output folder holds '\.exsur\.json\.123-abcd"):
+        check_out_dir(d, flag="output folder")
+    (d / "notes.txt").write_text("mine")  # a file of the user's comes first
+    with pytest.raises(ConfigError, match=r"holds 'notes\.txt'"):
+        check_out_dir(d, flag="output folder")
+
+
 def test_the_marker_is_written_first_and_kept(tmp_path: Path) -> None:
     with atomic_dir(tmp_path / "ds", kind="dataset") as tmp:
         assert read_marker(tmp)["kind"] == "dataset"  # before the first file

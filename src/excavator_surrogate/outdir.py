@@ -228,7 +228,8 @@ def refusal(path: Path, flag: str) -> str:
     bad = foreign_entry(path)
     hint = "choose a new or empty folder, or pass --overwrite to replace it"
     if bad == MARKER:
-        first = min((e.name for e in path.iterdir() if not _is_temp(e)), default="")
+        names = sorted(e.name for e in path.iterdir() if e.name != MARKER)
+        first = next((n for n in names if not _is_temp(path / n)), names[0] if names else "")
         return (
             f"{path}: {flag} holds '{first}', which exsur did not write (no exsur marker "
             f"{MARKER}; an older exsur's output has none either); {hint}"
