@@ -409,6 +409,9 @@ def run_shape(name: str, case: Case, args: argparse.Namespace, work: Path) -> di
             "median_rmse_without": [round(float(v), 3) for v in median],
             "median_rmse_with": [round(float(v), 3) for v in cond_median],
             "with_over_without": [round(float(a / b), 3) for a, b in zip(cond_median, median)],
+            # an ignored input trains the same networks: a cut (a slow host) is what differs
+            "budget_cut": [r["budget_cut"] for r in with_cond],
+            "train_s": [r["train_s"] for r in with_cond],
         }
         if cond_more is not None and more_median is not None:
             out["condition"]["more_median_rmse_with"] = [round(float(v), 3) for v in cond_more]
