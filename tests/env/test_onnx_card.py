@@ -1,8 +1,8 @@
 """exsur info model.onnx: an exported surrogate's graph, units and checkpoint card read back.
 
-The card does not depend on the exporter but for the graph's shapes: the first test and the
-state width's exporting with dynamo (the default) check those; the others export with
-torchscript (0.1-1 s against dynamo's 3-9 s on a slow computer).
+The card does not depend on the exporter except for the graph's shapes, which the first test
+and the state width's test check on dynamo's graphs (the default exporter); the others export
+with torchscript (0.1-1 s against dynamo's 3-9 s on a slow computer).
 """
 
 from __future__ import annotations
