@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import json
 import subprocess
 import sys
@@ -356,7 +355,7 @@ def test_an_opset_no_exporter_writes_is_refused_before_anything_is_traced(
 ) -> None:
     """Opset 3 or 999 was traced (3-16 s with dynamo) before the opset the file got was
     checked; below onnxruntime's first opset or past onnx's last, nothing is traced now."""
-    export = importlib.import_module("excavator_surrogate.env.export")
+    import excavator_surrogate.env.export as export
 
     def traced(*args, **kwargs):
         raise AssertionError("traced")
