@@ -134,22 +134,6 @@ def one_thread_in_forked_children() -> None:
         _FORK_HOOK = True
 
 
-def available_memory() -> int | None:
-    """Memory this process may still allocate [bytes]: ``MemAvailable`` of ``/proc/meminfo``
-    (Linux), else the free physical pages (``os.sysconf``); None when neither is known."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
 class OneThread:
     """Context manager: ``torch.set_num_threads(1)`` inside, previous count restored after."""
 

@@ -31,16 +31,9 @@ from .errors import ConfigError
 from .evaluate.data_card import describe_dataset
 from .evaluate.run_report import ReportContext, render_run_report
 from .io_utils import atomic_dir, write_json, write_text
-from .stages import RunConfig, build_configs, check_preset
+from .stages import DEFAULT_PRESET, RUN_SECTIONS, RunConfig, build_configs, check_preset
 
 _log = logging.getLogger(__name__)
-
-RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
-"""The preset tables ``exsur run`` reads."""
-
-DEFAULT_PRESET = "quick-hydraulic"
-"""Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job (``make demo``),
-on the hydraulic stand-in, where the LSTM beats ARX."""
 
 
 class RunOptions(TypedDict, total=False):

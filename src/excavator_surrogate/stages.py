@@ -56,6 +56,13 @@ class RunConfig(PresetConfig, table="run"):
 STAGE_NAMES = ("run", "simulate", "clean", "train", "evaluate", "sweep")
 """The preset tables, in pipeline order."""
 
+RUN_SECTIONS = ("run", "simulate", "clean", "train", "evaluate")
+"""The preset tables ``exsur run`` reads."""
+
+DEFAULT_PRESET = "quick-hydraulic"
+"""Preset of ``exsur run`` without ``--preset``: the README's 5-minute main job (``make demo``),
+on the hydraulic stand-in, where the LSTM beats ARX."""
+
 
 def stage_classes() -> dict[str, type]:
     """Config class of each preset table, in pipeline order (imported on demand)."""

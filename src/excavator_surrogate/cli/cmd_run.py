@@ -11,7 +11,7 @@ from .knobs import add_set_option, configs, overrides, positive_seconds
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``run`` subcommand."""
-    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS
+    from ..stages import DEFAULT_PRESET, RUN_SECTIONS
 
     p = sub.add_parser(
         "run",
@@ -135,7 +135,7 @@ def _request(args: argparse.Namespace) -> dict:
     """The keyword arguments of :func:`~excavator_surrogate.pipeline.run_pipeline` (and of
     :func:`~excavator_surrogate.pipeline.resolve_run`) that ``args`` ask for, after
     :func:`_check_request`."""
-    from ..pipeline import DEFAULT_PRESET, RUN_SECTIONS
+    from ..stages import DEFAULT_PRESET, RUN_SECTIONS
 
     preset = args.preset or ("real" if args.logs else DEFAULT_PRESET)
     _check_request(args, preset)
@@ -158,8 +158,7 @@ def _check_request(args: argparse.Namespace, preset: str) -> None:
     simulate that cannot fit in memory or on disk."""
     from ..config import parse_sets
     from ..errors import ConfigError
-    from ..pipeline import RUN_SECTIONS
-    from ..stages import check_dataset_size, check_sets_read
+    from ..stages import RUN_SECTIONS, check_dataset_size, check_sets_read
 
     sets = parse_sets(args.sets or [], sections=RUN_SECTIONS)
     cfgs = configs(args, RUN_SECTIONS, preset=preset)

@@ -12,8 +12,8 @@ import io
 from pathlib import Path
 from typing import IO
 
-from ..devices import available_memory
 from ..errors import DataError
+from ..memory import available_memory
 
 MEMORY_SHARE = 0.25
 """Default bound: this share of the available memory [bytes]."""

@@ -9,8 +9,8 @@ naming the knob.
 
 from __future__ import annotations
 
-from ..devices import available_memory
 from ..errors import ConfigError, ExsurError
+from ..memory import available_memory
 from .model import CELL_GATES, ModelConfig
 
 
