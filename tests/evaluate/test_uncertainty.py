@@ -78,6 +78,11 @@ def test_uncertainty_table_lists_every_joint_and_band():
         "| ω [rad/s] | a | 40 % | 0.2000 | 80 % | 0.5000 |",
     ]
     assert "any joint 2 %" in md
+    # a few steps of a long run are not "0 %" beside the figure's red marks
+    few = {**unc, "ood": {"a": 6 / 1770, "any": 6 / 1770}}
+    assert "a 0.3 %; any joint 0.3 %." in uncertainty_markdown(few, ["a"])
+    rare = {**unc, "ood": {"a": 0.0, "any": 1 / 5000}}
+    assert "a 0 %; any joint < 0.1 %." in uncertainty_markdown(rare, ["a"])
     # a stroke (stored in m) in its mapping's unit, as the CBE table prints it
     md = uncertainty_markdown(unc, ["a"], units={"a": (1000.0, "mm")})
     rows = [r for r in md.splitlines() if r.startswith("| θ") or r.startswith("| ω")]

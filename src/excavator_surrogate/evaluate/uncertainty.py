@@ -73,6 +73,14 @@ def _pct(v: float | None) -> str:
     return "—" if v is None else f"{100 * v:.0f} %"
 
 
+def _share(v: float) -> str:
+    """A share of steps as a percentage whose zero means none: a few flagged steps of a
+    long run read "0.3 %" or "< 0.1 %", not "0 %" beside the figure's red marks."""
+    if v <= 0 or v >= 0.01:
+        return _pct(v)
+    return "< 0.1 %" if v < 0.001 else f"{100 * v:.1f} %"
+
+
 SHORTFALL = 0.10
 """A band is called too narrow on a scored split where its coverage falls more than this
 below its level (a 90 % band covering under 80 %): beyond what one split's scatter of a
@@ -159,8 +167,8 @@ def uncertainty_markdown(
         lines += [
             "Steps flagged out of distribution (outside the training data's range, or an "
             "angle/command pair it never came near): "
-            + ", ".join(f"{n} {_pct(ood[n])}" for n in names)
-            + f"; any joint {_pct(ood['any'])}.",
+            + ", ".join(f"{n} {_share(ood[n])}" for n in names)
+            + f"; any joint {_share(ood['any'])}.",
             "",
         ]
     return "\n".join(lines) + "\n"

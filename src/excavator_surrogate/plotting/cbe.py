@@ -54,7 +54,9 @@ def plot_cbe(
     import matplotlib.pyplot as plt
 
     n_joint = len(names)
-    fig, axes = plt.subplots(2, n_joint, figsize=(3.2 * n_joint, 5.0), sharex=True, squeeze=False)
+    fig, axes = plt.subplots(
+        2, n_joint, figsize=(3.2 * n_joint, 5.3), sharex=True, squeeze=False, layout="constrained"
+    )
     styles = ["-", "--", ":", "-."]
     for j, name in enumerate(names):
         for row, (ref, unit, sym) in enumerate(
@@ -135,10 +137,18 @@ def plot_cbe(
             elif j == 0:
                 ax.set_ylabel(f"{sym} [{unit}]")
             ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7, loc="best")
+    # one legend for every panel, under them: inside the first panel it hid that joint's data
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(
+        handles,
+        labels,
+        loc="outside lower center",
+        ncol=min(len(labels), 2 * n_joint),
+        fontsize=8,
+        frameon=False,
+    )
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     path = save_png(fig, Path(path), dpi=110)  # tagged: an evaluation replaces only its own
     plt.close(fig)
     return path
