@@ -123,9 +123,9 @@ def plot_tracking(path: Path, track: dict[str, Any], names: tuple[str, ...]) -> 
     from matplotlib.figure import Figure
 
     ref, t = track["reference"], track["time"]
-    fig = Figure(figsize=(10, 2.2 * len(names)))
-    axes = fig.subplots(len(names), 1, sharex=True)
-    for j, ax in enumerate(np.atleast_1d(axes)):
+    fig = Figure(figsize=(10, 2.2 * len(names) + 0.3), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
+    for j, ax in enumerate(axes):
         ax.plot(t, ref[:, j], "k--", lw=1.5, label="reference")
         for name, r in track["runs"].items():
             ax.plot(t[: len(r.theta)], r.theta[:, j], lw=1.0, label=name)
@@ -134,9 +134,10 @@ def plot_tracking(path: Path, track: dict[str, Any], names: tuple[str, ...]) -> 
             ax.axvline(t0, color="0.85", lw=0.8, zorder=0)
             if j == 0:
                 ax.text(t0, ax.get_ylim()[1], phase, fontsize=7, va="top")
-    axes[0].legend(fontsize=7, ncol=4, loc="lower right")
+    # one legend above the panels: inside the first one it hid the swing's return
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper center", ncol=len(labels), fontsize=8)
     axes[-1].set_xlabel("time [s]")
-    fig.tight_layout()
     fig.savefig(path, dpi=100)
 
 
