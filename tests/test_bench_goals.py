@@ -24,6 +24,7 @@ SMALL: dict[str, list[str]] = {
     "ensemble.py": ["--seconds", "0.01"],
     "clean.py": ["--episodes", "2", "--steps", "400", "--slice", "200", "--long-steps", "400"],
     "env.py": ["--threads", "1", "--seconds", "0.01", "--repeats", "1", "--reset-repeats", "3"],
+    "cli.py": ["--repeats", "1"],
 }
 """Scripts cheap enough to run in the suite, with arguments that make them tiny."""
 

@@ -44,7 +44,7 @@ def test_no_command_prints_the_help_and_exits_2(cli) -> None:
 def test_the_help_of_every_command_loads_no_torch() -> None:
     """A fresh interpreter builds the whole parser (every command's) and prints ``exsur
     --help``, ``exsur run --help`` and ``exsur import --help`` without importing torch, SciPy
-    or MuJoCo (torch alone took 2-4 s of a 4.7-s ``--help``)."""
+    or MuJoCo (torch took 2-3 s of a 3-s ``--help``)."""
     code = (
         "import contextlib, io, sys\n"
         "from excavator_surrogate.cli import main\n"
