@@ -71,7 +71,7 @@ def plot_fusion_arrays(
     theta_intg = theta_fused[0] + integrate_gyro(np.asarray(omega_raw, dtype=float), dt)
     what, rate = ("angle", "gyro") if unit == "rad" else ("stroke", "rate")
 
-    fig, ax = plt.subplots(figsize=(9, 4.2))
+    fig, ax = plt.subplots(figsize=(9, 4.5), layout="constrained")
     ax.plot(time, factor * theta_raw, color="tab:blue", lw=0.9, label=rf"raw {what} $\theta_t$")
     ax.plot(
         time,
@@ -98,8 +98,8 @@ def plot_fusion_arrays(
     ax.set_ylabel(f"{joint_name} {what} [{unit}]")
     ax.set_title(title or f"Kalman fusion, {joint_name} joint")
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
+    # under the axes: a long log leaves no corner free, and inside it hid the data
+    fig.legend(loc="outside lower center", ncol=len(ax.get_legend_handles_labels()[1]), fontsize=8)
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=130)
